@@ -1,0 +1,20 @@
+"""The ``drafttwin`` command line.
+
+User errors (:class:`drafttwin.errors.DrafttwinError`) print one message and exit with code 2,
+handled by the command group in :mod:`drafttwin.cli.app`; usage errors exit with click's 2.
+"""
+
+from __future__ import annotations
+
+from drafttwin.cli.app import app
+
+# Importing the command modules registers their commands on ``app``.
+from drafttwin.cli import mechanics_cmds  # noqa: E402,F401  isort: skip
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+__all__ = ["app", "main"]

@@ -1,0 +1,51 @@
+"""User-facing errors.
+
+Every error a user can cause by bad input (a config, a data file, a model file, a CLI option)
+is a :class:`DrafttwinError`. The CLI prints its message, without a traceback, and exits with
+code 2. The message names where the problem is (file, component, row or column, field) and
+what to do about it.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class DrafttwinError(Exception):
+    """An error caused by user input; carries a complete, human-readable message."""
+
+    exit_code = 2
+
+    def __init__(
+        self,
+        problem: str,
+        *,
+        source: str | Path | None = None,
+        where: str | None = None,
+        fix: str | None = None,
+    ) -> None:
+        self.problem = problem
+        self.source = str(source) if source is not None else None
+        self.where = where
+        self.fix = fix
+        super().__init__(self.message)
+
+    @property
+    def message(self) -> str:
+        head = ": ".join(part for part in (self.source, self.where) if part)
+        text = f"{head}: {self.problem}" if head else self.problem
+        if self.fix:
+            text += f"\n  fix: {self.fix}"
+        return text
+
+
+class ConfigError(DrafttwinError):
+    """A drive-train or study configuration is invalid."""
+
+
+class DataError(DrafttwinError):
+    """A measurement file is missing, malformed or implausible."""
+
+
+class ModelFileError(DrafttwinError):
+    """A saved model file is not a drafttwin model or comes from an incompatible version."""

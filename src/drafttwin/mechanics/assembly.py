@@ -1,0 +1,348 @@
+"""Assembly: a validated :class:`TrainSpec` becomes the numeric tables of the integrator.
+
+:class:`DriveTrain` is the object users hold: built from a preset, a TOML file or a dict, it
+knows its nodes, the spanning tree from the motor (for speed ratios and torque flow), and
+compiles its components into the arrays :mod:`drafttwin.mechanics.kernel` integrates.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drafttwin.errors import ConfigError
+from drafttwin.mechanics import kernel as K
+from drafttwin.mechanics.components import BearingFriction, Belt, ChainDrive, GearMesh, Shaft
+from drafttwin.mechanics.config import TrainSpec, load_toml, preset_path, spec_from_dict
+
+Coupling = Belt | ChainDrive | GearMesh | Shaft
+
+
+@dataclass(frozen=True)
+class Signal:
+    """A time series on a uniform grid (linear interpolation, held constant outside it)."""
+
+    t0_s: float
+    dt_s: float
+    values: np.ndarray
+
+    @classmethod
+    def from_samples(cls, times_s: Any, values: Any, max_dt_s: float = 1e-3) -> Signal:
+        """Resample arbitrary increasing sample times onto a uniform grid."""
+        times = np.asarray(times_s, dtype=np.float64)
+        vals = np.asarray(values, dtype=np.float64)
+        step = min(float(np.min(np.diff(times))), max_dt_s)
+        n = int(math.ceil((times[-1] - times[0]) / step)) + 1
+        grid = times[0] + step * np.arange(n)
+        return cls(float(times[0]), step, np.interp(grid, times, vals))
+
+
+@dataclass(frozen=True)
+class Edge:
+    """A coupling oriented away from the motor: ``parent`` drives ``child``."""
+
+    kind: str
+    coupling: Coupling
+    parent: int
+    child: int
+    ratio: float  # child speed / parent speed (nominal, no creep)
+
+
+def coupling_ends(kind: str, c: Coupling) -> tuple[str, str]:
+    return (c.a, c.b) if kind == "shaft" else (c.driver, c.driven)
+
+
+def coupling_ratio(kind: str, c: Coupling) -> float:
+    """Nominal speed ratio driven/driver (rigid, no creep)."""
+    if kind == "belt":
+        return c.driver_diameter_mm / c.driven_diameter_mm
+    if kind in ("chain", "gear"):
+        return c.driver_teeth / c.driven_teeth
+    return 1.0
+
+
+def gear_base_radii_m(g: GearMesh) -> tuple[float, float]:
+    cos_a = math.cos(math.radians(g.pressure_angle_deg))
+    m = g.module_mm * 1e-3
+    return 0.5 * m * g.driver_teeth * cos_a, 0.5 * m * g.driven_teeth * cos_a
+
+
+def chain_pitch_radius_m(pitch_mm: float, teeth: int) -> float:
+    return pitch_mm * 1e-3 / (2.0 * math.sin(math.pi / teeth))
+
+
+def mesh_stiffness_fourier(g: GearMesh) -> tuple[np.ndarray, np.ndarray]:
+    """Cosine and sine coefficients (N/m) of the single/double-contact stiffness wave.
+
+    A rectangular wave: double contact (``k_d``) for the fraction ``contact_ratio - 1`` of each
+    mesh cycle, single contact (``k_s``) otherwise, mean ``mesh_stiffness_n_per_m``; truncated
+    to ``harmonics`` terms with Lanczos sigma factors to tame the Gibbs overshoot.
+    """
+    w = g.contact_ratio - 1.0
+    k_s = g.mesh_stiffness_n_per_m / ((1.0 - w) + w * g.stiffness_ratio)
+    jump = (g.stiffness_ratio - 1.0) * k_s
+    n = np.arange(1, g.harmonics + 1)
+    sigma = np.sinc(n / (g.harmonics + 1))
+    cos_c = sigma * jump * np.sin(2 * np.pi * n * w) / (np.pi * n)
+    sin_c = sigma * jump * (1.0 - np.cos(2 * np.pi * n * w)) / (np.pi * n)
+    return cos_c, sin_c
+
+
+@dataclass
+class Tables:
+    """Arrays for :func:`drafttwin.mechanics.kernel.integrate` (see its column layout)."""
+
+    inv_j: np.ndarray
+    motor_i: np.ndarray
+    motor_f: np.ndarray
+    belt_i: np.ndarray
+    belt_f: np.ndarray
+    chain_i: np.ndarray
+    chain_f: np.ndarray
+    gear_i: np.ndarray
+    gear_f: np.ndarray
+    spring_i: np.ndarray
+    spring_f: np.ndarray
+    drag_i: np.ndarray
+    drag_f: np.ndarray
+    torque_i: np.ndarray
+    torque_f: np.ndarray
+    sig_i: np.ndarray
+    sig_f: np.ndarray
+    sig_v: np.ndarray
+
+    def args(self) -> tuple[np.ndarray, ...]:
+        return tuple(getattr(self, f) for f in self.__dataclass_fields__)
+
+
+@dataclass(frozen=True)
+class DriveTrain:
+    """A drive train ready to analyse and simulate.
+
+    Build it with :meth:`preset`, :meth:`from_toml` or :meth:`from_dict`. Time-varying inputs
+    that do not belong in a config file (a VFD schedule, a drafting-force torque, rotor
+    resistance drift) are attached with the ``with_*`` methods, which return a new train.
+    """
+
+    spec: TrainSpec
+    source: str = "<dict>"
+    supply_hz: Signal | None = None
+    rotor_resistance: Signal | None = None
+    torques: tuple[tuple[str, Signal], ...] = field(default=())
+
+    # ---- construction -------------------------------------------------------------------
+    @classmethod
+    def preset(cls, name: str) -> DriveTrain:
+        path = preset_path(name)
+        return cls(load_toml(path), source=f"preset '{name}'")
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> DriveTrain:
+        return cls(load_toml(path), source=str(path))
+
+    @classmethod
+    def from_dict(cls, raw: dict[str, Any], source: str = "<dict>") -> DriveTrain:
+        return cls(spec_from_dict(raw, source), source=source)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The declaration as plain data (round-trips through :meth:`from_dict`)."""
+        return self.spec.model_dump(mode="json")
+
+    def with_spec_changes(self, **changes: Any) -> DriveTrain:
+        """A copy with top-level spec fields replaced (e.g. ``motor=new_motor``), re-validated."""
+        raw = self.to_dict()
+        for key, value in changes.items():
+            raw[key] = value.model_dump(mode="json") if hasattr(value, "model_dump") else value
+        return DriveTrain(spec_from_dict(raw, self.source), self.source, self.supply_hz,
+                          self.rotor_resistance, self.torques)  # fmt: skip
+
+    def with_supply_schedule(self, signal: Signal) -> DriveTrain:
+        """Supply (VFD set-point) frequency in Hz over time, replacing ``motor.supply_hz``."""
+        return DriveTrain(self.spec, self.source, signal, self.rotor_resistance, self.torques)
+
+    def with_rotor_resistance(self, signal: Signal) -> DriveTrain:
+        """Rotor-resistance factor over time (1 = nominal); slip at a given torque scales with it."""
+        return DriveTrain(self.spec, self.source, self.supply_hz, signal, self.torques)
+
+    def with_torque(self, node: str, signal: Signal) -> DriveTrain:
+        """Add an external torque (N m, positive drives the node) on ``node``."""
+        self.node_index(node)
+        return DriveTrain(self.spec, self.source, self.supply_hz, self.rotor_resistance,
+                          (*self.torques, (node, signal)))  # fmt: skip
+
+    # ---- topology -----------------------------------------------------------------------
+    @cached_property
+    def node_names(self) -> tuple[str, ...]:
+        return tuple(n.name for n in self.spec.inertia)
+
+    def node_index(self, name: str) -> int:
+        try:
+            return self.node_names.index(name)
+        except ValueError:
+            raise ConfigError(
+                f"unknown node '{name}'",
+                source=self.source,
+                fix=f"use one of: {', '.join(self.node_names)}",
+            ) from None
+
+    @cached_property
+    def inertias(self) -> np.ndarray:
+        return np.array([n.inertia_kgm2 for n in self.spec.inertia])
+
+    @cached_property
+    def roller_nodes(self) -> dict[str, int]:
+        """Roller name (front, second, ...) to node index."""
+        return {r.name: self.node_index(r.node) for r in self.spec.roller}
+
+    @cached_property
+    def edges(self) -> tuple[Edge, ...]:
+        """Couplings in breadth-first order from the motor, oriented parent -> child."""
+        adj: dict[int, list[tuple[str, Coupling, int, float]]] = {}
+        for kind, c in self.spec.couplings():
+            a, b = (self.node_index(x) for x in coupling_ends(kind, c))
+            r = coupling_ratio(kind, c)
+            adj.setdefault(a, []).append((kind, c, b, r))
+            adj.setdefault(b, []).append((kind, c, a, 1.0 / r))
+        root = self.node_index(self.spec.motor.node)
+        ratio = {root: 1.0}
+        order: list[Edge] = []
+        queue = deque([root])
+        while queue:
+            p = queue.popleft()
+            for kind, c, q, r in adj.get(p, []):
+                if q not in ratio:
+                    ratio[q] = ratio[p] * r
+                    order.append(Edge(kind, c, p, q, r))
+                    queue.append(q)
+                elif abs(ratio[q] - ratio[p] * r) > 1e-9 * ratio[q]:
+                    raise ConfigError(
+                        f"closes a loop with a speed ratio that contradicts the other path "
+                        f"to node '{self.node_names[q]}'",
+                        source=self.source,
+                        where=f"{kind} '{c.name}'",
+                        fix="a train may only close loops whose ratios agree; remove one path",
+                    )
+        return tuple(order)
+
+    @cached_property
+    def speed_ratios(self) -> np.ndarray:
+        """Nominal speed of every node relative to the motor (rigid couplings, no creep)."""
+        ratios = np.zeros(len(self.node_names))
+        ratios[self.node_index(self.spec.motor.node)] = 1.0
+        for e in self.edges:
+            ratios[e.child] = ratios[e.parent] * e.ratio
+        return ratios
+
+    # ---- numeric tables -----------------------------------------------------------------
+    def _effective_mass(self, a: int, b: int, ra: float, rb: float) -> float:
+        ja, jb = self.inertias[a], self.inertias[b]
+        return ja * jb / (ja * rb * rb + jb * ra * ra)
+
+    def tables(self) -> Tables:
+        """Compile the components (cached per train; trains are immutable)."""
+        return self._tables
+
+    @cached_property
+    def _tables(self) -> Tables:
+        signals: list[Signal] = []
+
+        def sig(s: Signal | None) -> int:
+            if s is None:
+                return -1
+            signals.append(s)
+            return len(signals) - 1
+
+        idx = self.node_index
+        mot = self.spec.motor
+        w_rated = mot.rated_rpm * math.pi / 30.0
+        w_sync_rated = 4.0 * math.pi * mot.rated_supply_hz / mot.poles
+        lam = mot.breakdown_torque_ratio
+        s_n = 1.0 - w_rated / w_sync_rated
+        slip_k = s_n * (lam + math.sqrt(lam * lam - 1.0)) * w_sync_rated
+        motor_i = np.array([[idx(mot.node), sig(self.supply_hz), sig(self.rotor_resistance)]])
+        motor_f = np.array([[lam * mot.rated_power_w / w_rated, slip_k, mot.poles / 2,
+                             mot.torque_lag_s, mot.torque_ripple, mot.supply_hz]])  # fmt: skip
+
+        belts = [(idx(b.driver), idx(b.driven), b) for b in self.spec.belt]
+        belt_i = np.array([[a, b_] for a, b_, _ in belts], dtype=np.int64).reshape(-1, 2)
+        belt_f = np.zeros((len(belts), 5))
+        for row, (a, b_, b) in enumerate(belts):
+            ra, rb = b.driver_diameter_mm * 5e-4, b.driven_diameter_mm * 5e-4
+            c = (
+                2
+                * b.damping_ratio
+                * math.sqrt(b.span_stiffness_n_per_m * self._effective_mass(a, b_, ra, rb))
+            )
+            belt_f[row] = (ra, rb, b.span_stiffness_n_per_m, c, 1.0 / b.axial_rigidity_n)
+
+        chains = [(idx(c.driver), idx(c.driven), c) for c in self.spec.chain]
+        chain_i = np.array([[a, b] for a, b, _ in chains], dtype=np.int64).reshape(-1, 2)
+        chain_f = np.zeros((len(chains), 8))
+        for row, (a, b, c) in enumerate(chains):
+            ra = chain_pitch_radius_m(c.pitch_mm, c.driver_teeth)
+            rb = chain_pitch_radius_m(c.pitch_mm, c.driven_teeth)
+            # both spans taut: stiffness 2k, so each span carries half the damping
+            damp = c.damping_ratio * math.sqrt(
+                2 * c.span_stiffness_n_per_m * self._effective_mass(a, b, ra, rb)
+            )
+            chain_f[row] = (c.driver_teeth, c.driven_teeth, c.pitch_mm * 1e-3, ra, rb,
+                            c.span_stiffness_n_per_m, damp, c.pretension_n)  # fmt: skip
+
+        gears = [(idx(g.driver), idx(g.driven), g) for g in self.spec.gear]
+        gear_i = np.array([[a, b, g.harmonics] for a, b, g in gears], dtype=np.int64).reshape(-1, 3)
+        gear_f = np.zeros((len(gears), K.GEAR_COLS))
+        for row, (a, b, g) in enumerate(gears):
+            rba, rbb = gear_base_radii_m(g)
+            damp = (
+                2
+                * g.damping_ratio
+                * math.sqrt(g.mesh_stiffness_n_per_m * self._effective_mass(a, b, rba, rbb))
+            )
+            gear_f[row, : K.G_COEF] = (
+                rba, rbb, g.driver_teeth, g.mesh_stiffness_n_per_m, damp, 0.5e-6 * g.backlash_um,
+                1e-6 * g.driver_eccentricity_um, math.radians(g.driver_eccentricity_phase_deg),
+                1e-6 * g.driven_eccentricity_um, math.radians(g.driven_eccentricity_phase_deg),
+                1e-6 * g.transmission_error_um,
+            )  # fmt: skip
+            cos_c, sin_c = mesh_stiffness_fourier(g)
+            gear_f[row, K.G_COEF : K.G_COEF + g.harmonics] = cos_c
+            gear_f[row, K.G_COEF + K.NH_MAX : K.G_COEF + K.NH_MAX + g.harmonics] = sin_c
+
+        shafts = [(idx(s.a), idx(s.b), s) for s in self.spec.shaft]
+        spring_i = np.array([[a, b] for a, b, _ in shafts], dtype=np.int64).reshape(-1, 2)
+        spring_f = np.zeros((len(shafts), 2))
+        for row, (a, b, s) in enumerate(shafts):
+            ja, jb = self.inertias[a], self.inertias[b]
+            c = 2 * s.damping_ratio * math.sqrt(s.stiffness_nm_per_rad * ja * jb / (ja + jb))
+            spring_f[row] = (s.stiffness_nm_per_rad, c)
+
+        drags = [(idx(r.node), (r.friction_coefficient * 2 * r.top_load_per_side_n * r.diameter_mm * 5e-4,
+                                r.friction_speed_eps_rad_s, 0.0, 0.0)) for r in self.spec.roller]  # fmt: skip
+        drags += [(idx(b.node), _bearing_row(b)) for b in self.spec.bearing]
+        drag_i = np.array([[n] for n, _ in drags], dtype=np.int64).reshape(-1, 1)
+        drag_f = np.array([row for _, row in drags], dtype=np.float64).reshape(-1, 4)
+
+        ext = [(idx(t.node), Signal.from_samples(t.times_s, t.torque_nm)) for t in self.spec.torque]
+        ext += [(idx(node), s) for node, s in self.torques]
+        torque_i = np.array([[n, sig(s)] for n, s in ext], dtype=np.int64).reshape(-1, 2)
+        torque_f = np.ones((len(ext), 1))
+
+        starts = np.cumsum([0] + [len(s.values) for s in signals])
+        sig_i = np.array(
+            [[starts[k], len(s.values)] for k, s in enumerate(signals)], dtype=np.int64
+        ).reshape(-1, 2)
+        sig_f = np.array([[s.t0_s, s.dt_s] for s in signals], dtype=np.float64).reshape(-1, 2)
+        sig_v = np.concatenate([s.values for s in signals]) if signals else np.zeros(1)
+        return Tables(1.0 / self.inertias, motor_i.astype(np.int64), motor_f, belt_i, belt_f,
+                      chain_i, chain_f, gear_i, gear_f, spring_i, spring_f, drag_i, drag_f,
+                      torque_i, torque_f, sig_i, sig_f, sig_v)  # fmt: skip
+
+
+def _bearing_row(b: BearingFriction) -> tuple[float, float, float, float]:
+    return (b.coulomb_torque_nm, b.speed_eps_rad_s, b.viscous_nms, 1.0)

@@ -1,0 +1,210 @@
+"""Drive-train components, one small declarative element per physical part.
+
+In the style of Modelica.Mechanics.Rotational: inertias are the nodes; couplings (belt, chain,
+gear mesh, shaft torsion) connect two nodes by name; sources and sinks (motor, roller friction
+load, bearing friction, external torque) act on one node. Every field carries its unit in its
+name. These classes only hold and check parameters; :mod:`drafttwin.mechanics.assembly` turns
+them into the numeric tables the integrator uses.
+
+Speed convention: every coupling keeps its driven node turning in the same sense as its driver,
+so all speeds in a running train are positive (bottom-roller speeds are magnitudes, as an
+encoder reports them).
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+DampingRatio = Annotated[float, Field(ge=0, le=2)]
+Teeth = Annotated[int, Field(ge=6, le=400)]
+
+
+class Component(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+
+
+class Inertia(Component):
+    """A rigid rotating body (a node of the train)."""
+
+    name: str = Field(min_length=1)
+    inertia_kgm2: Positive
+    note: str = ""
+
+
+class InductionMotor(Component):
+    """Induction motor with a Kloss torque-speed curve and a first-order torque lag.
+
+    ``T_kloss = 2 T_k / (s/s_k + s_k/s)`` with slip ``s = (w_sync - w)/w_sync``,
+    ``w_sync = 2 pi f / pole_pairs``, breakdown torque ``T_k = breakdown_torque_ratio * T_n``
+    and ``s_k = s_n (lambda + sqrt(lambda^2 - 1))``; ``torque_lag_s * dT/dt = T_kloss - T``.
+    ``supply_hz`` is the mains frequency or the VFD set-point.
+    """
+
+    node: str
+    rated_power_w: Positive
+    rated_rpm: Positive
+    poles: Annotated[int, Field(ge=2, le=24, multiple_of=2)]
+    rated_supply_hz: Positive = 50.0
+    supply_hz: Positive = 50.0
+    breakdown_torque_ratio: Annotated[float, Field(gt=1.0, le=6.0)] = 2.8
+    torque_lag_s: Annotated[float, Field(gt=0, le=1.0)] = 0.01
+    torque_ripple: Annotated[float, Field(ge=0, le=0.2)] = 0.0
+    """Relative torque ripple amplitude at twice the supply frequency."""
+
+    @model_validator(mode="after")
+    def _slip_positive(self) -> InductionMotor:
+        sync_rpm = 120.0 * self.rated_supply_hz / self.poles
+        if not self.rated_rpm < sync_rpm:
+            raise ValueError(
+                f"rated_rpm {self.rated_rpm} must be below the synchronous speed {sync_rpm:g} rpm "
+                f"of a {self.poles}-pole motor at {self.rated_supply_hz:g} Hz"
+            )
+        return self
+
+
+class Belt(Component):
+    """Flat/V belt: span spring between the pulley rims plus elastic creep.
+
+    Creep ``eps = F / axial_rigidity_n`` (strain difference between tight and slack strand),
+    so the driven rim runs ``(1 - eps)`` slower than the driver rim.
+    """
+
+    name: str
+    driver: str
+    driven: str
+    driver_diameter_mm: Positive
+    driven_diameter_mm: Positive
+    span_stiffness_n_per_m: Positive
+    axial_rigidity_n: Positive
+    damping_ratio: DampingRatio = 0.05
+
+
+class ChainDrive(Component):
+    """Roller chain on two sprockets: polygon (chordal) action, compliant spans, pretension.
+
+    Chain feed of a sprocket ``x(theta) = p n + R sin(phi)``, ``R = p / (2 sin(pi/z))``;
+    each span carries ``max(0, pretension +/- k (x_driver - x_driven) +/- c d/dt(...))``.
+    """
+
+    name: str
+    driver: str
+    driven: str
+    driver_teeth: Teeth
+    driven_teeth: Teeth
+    pitch_mm: Positive = 12.7
+    span_stiffness_n_per_m: Positive
+    pretension_n: NonNegative = 150.0
+    damping_ratio: DampingRatio = 0.05
+
+
+class GearMesh(Component):
+    """Spur gear pair: time-varying mesh stiffness, damping, backlash, eccentricity.
+
+    Mesh deflection along the line of action ``delta = r_b1 th1 - r_b2 th2 - e(th1, th2)``;
+    force ``F = k(phase) g(delta) + c d(delta)/dt`` in contact, 0 inside the backlash.
+    ``k`` alternates between single- and double-pair contact (fraction ``contact_ratio - 1``
+    of each mesh cycle in double contact, ``stiffness_ratio = k_double / k_single``), smoothed
+    to ``harmonics`` Fourier terms; its mean is ``mesh_stiffness_n_per_m``.
+    """
+
+    name: str
+    driver: str
+    driven: str
+    driver_teeth: Teeth
+    driven_teeth: Teeth
+    module_mm: Positive = 2.0
+    pressure_angle_deg: Annotated[float, Field(gt=10, lt=35)] = 20.0
+    mesh_stiffness_n_per_m: Positive = 3.0e8
+    contact_ratio: Annotated[float, Field(ge=1.0, le=2.0)] = 1.6
+    stiffness_ratio: Annotated[float, Field(ge=1.0, le=3.0)] = 1.7
+    harmonics: Annotated[int, Field(ge=0, le=12)] = 5
+    backlash_um: NonNegative = 0.0
+    """Total backlash 2b along the line of action; DIN 3967 context gives about 0.04 * module."""
+    damping_ratio: DampingRatio = 0.05
+    driver_eccentricity_um: NonNegative = 0.0
+    driven_eccentricity_um: NonNegative = 0.0
+    driver_eccentricity_phase_deg: float = 0.0
+    driven_eccentricity_phase_deg: float = 0.0
+    transmission_error_um: NonNegative = 0.0
+    """Amplitude of the tooth-mesh-frequency transmission error."""
+
+
+class Shaft(Component):
+    """Torsional spring-damper, e.g. the twist of a bottom roller between drive end and body."""
+
+    name: str
+    a: str
+    b: str
+    stiffness_nm_per_rad: Positive
+    damping_ratio: DampingRatio = 0.05
+
+
+class Roller(Component):
+    """A measured bottom roller and its friction load from the top-roller pressure.
+
+    Tangential force ``f = mu * 2 * F_N`` (paper eq. 1, both sides) at the roller radius,
+    regularised near zero speed as ``tanh(w / friction_speed_eps_rad_s)``.
+    """
+
+    name: Literal["front", "second", "third", "back"]
+    node: str
+    diameter_mm: Positive
+    top_load_per_side_n: NonNegative
+    friction_coefficient: Annotated[float, Field(ge=0, le=1)] = 0.1
+    friction_speed_eps_rad_s: Positive = 0.5
+
+
+class BearingFriction(Component):
+    """Bearing losses on a node: Coulomb torque (tanh-regularised) plus viscous drag."""
+
+    node: str
+    coulomb_torque_nm: NonNegative = 0.0
+    viscous_nms: NonNegative = 0.0
+    speed_eps_rad_s: Positive = 0.5
+
+
+class TorqueSeries(Component):
+    """External torque on a node from a time series (N m, positive drives the node)."""
+
+    name: str
+    node: str
+    times_s: list[float] = Field(min_length=2)
+    torque_nm: list[float] = Field(min_length=2)
+
+    @model_validator(mode="after")
+    def _same_length_increasing(self) -> TorqueSeries:
+        if len(self.times_s) != len(self.torque_nm):
+            raise ValueError(
+                f"times_s has {len(self.times_s)} values but torque_nm has {len(self.torque_nm)}"
+            )
+        if any(b <= a for a, b in zip(self.times_s, self.times_s[1:], strict=False)):
+            raise ValueError("times_s must be strictly increasing")
+        return self
+
+
+class Solver(Component):
+    """Integrator settings: fixed-step RK4, interval-mean output."""
+
+    dt_s: Annotated[float, Field(gt=0, le=1e-3)] = 2.0e-5
+    output_rate_hz: Annotated[float, Field(gt=0, le=100_000)] = 1000.0
+    settle_s: NonNegative = 1.0
+
+
+class TrainInfo(Component):
+    name: str = "drive-train"
+    description: str = ""
+
+
+COUPLING_KINDS = {"belt": Belt, "chain": ChainDrive, "gear": GearMesh, "shaft": Shaft}
+LIST_KINDS = {
+    "inertia": Inertia,
+    **COUPLING_KINDS,
+    "roller": Roller,
+    "bearing": BearingFriction,
+    "torque": TorqueSeries,
+}
+SINGLE_KINDS = {"train": TrainInfo, "motor": InductionMotor, "solver": Solver}

@@ -1,0 +1,222 @@
+"""Reading and validating a drive-train declaration (TOML) into a :class:`TrainSpec`.
+
+Every problem becomes one :class:`~drafttwin.errors.ConfigError` naming the file, the component
+and the field, and saying what to do.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+from pydantic import BaseModel, ConfigDict, ValidationError
+
+from drafttwin.errors import ConfigError
+from drafttwin.mechanics.components import (
+    COUPLING_KINDS,
+    LIST_KINDS,
+    SINGLE_KINDS,
+    BearingFriction,
+    Belt,
+    ChainDrive,
+    GearMesh,
+    InductionMotor,
+    Inertia,
+    Roller,
+    Shaft,
+    Solver,
+    TorqueSeries,
+    TrainInfo,
+)
+
+PRESETS = ("fa320a",)
+
+
+class TrainSpec(BaseModel):
+    """A whole validated drive train: nodes, couplings, sources and loads, solver settings."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    train: TrainInfo = TrainInfo()
+    motor: InductionMotor
+    inertia: list[Inertia]
+    belt: list[Belt] = []
+    chain: list[ChainDrive] = []
+    gear: list[GearMesh] = []
+    shaft: list[Shaft] = []
+    roller: list[Roller] = []
+    bearing: list[BearingFriction] = []
+    torque: list[TorqueSeries] = []
+    solver: Solver = Solver()
+
+    def couplings(self) -> list[tuple[str, Belt | ChainDrive | GearMesh | Shaft]]:
+        """All couplings with their kind, in declaration order per kind."""
+        return [(kind, c) for kind in COUPLING_KINDS for c in getattr(self, kind)]
+
+
+def _component_label(raw: dict[str, Any], loc: tuple[Any, ...]) -> tuple[str, str]:
+    """('gear 'A-B'' , 'field') from a pydantic error location into the raw document."""
+    kind = str(loc[0]) if loc else "document"
+    if kind in LIST_KINDS and len(loc) > 1 and isinstance(loc[1], int):
+        items = raw.get(kind) or []
+        item = items[loc[1]] if loc[1] < len(items) and isinstance(items[loc[1]], dict) else {}
+        label = item.get("name") or item.get("node") or f"#{loc[1] + 1}"
+        field = ".".join(str(p) for p in loc[2:])
+        return f"{kind} '{label}'", field
+    return f"[{kind}]", ".".join(str(p) for p in loc[1:])
+
+
+def _translate(exc: ValidationError, raw: dict[str, Any], source: str) -> ConfigError:
+    err = exc.errors()[0]
+    where, field = _component_label(raw, tuple(err["loc"]))
+    kind = err["type"]
+    got = err.get("input")
+    if kind == "missing":
+        problem = f"field '{field}' is missing"
+        fix = f"add '{field} = ...' to {where} (see docs/mechanics.md for fields and units)"
+    elif kind == "extra_forbidden":
+        problem = f"unknown field '{field}'"
+        fix = "remove it or correct its spelling (see docs/mechanics.md for the field list)"
+    else:
+        shown = f" (got {got!r})" if not isinstance(got, dict | list) else ""
+        problem = f"field '{field}': {err['msg']}{shown}" if field else f"{err['msg']}{shown}"
+        fix = "correct the value; units are in the field name"
+    more = len(exc.errors()) - 1
+    if more:
+        problem += f" (and {more} more problem{'s' if more > 1 else ''})"
+    return ConfigError(problem, source=source, where=where, fix=fix)
+
+
+def _check_graph(spec: TrainSpec, source: str) -> None:
+    names = [n.name for n in spec.inertia]
+    dupes = {n for n in names if names.count(n) > 1}
+    if dupes:
+        raise ConfigError(
+            f"inertia name(s) {sorted(dupes)} declared twice",
+            source=source,
+            where="[[inertia]]",
+            fix="give every inertia a unique name",
+        )
+    known = set(names)
+
+    def need(node: str, where: str, field: str) -> None:
+        if node not in known:
+            raise ConfigError(
+                f"field '{field}' names unknown node '{node}'",
+                source=source,
+                where=where,
+                fix=f"use one of the declared inertias: {', '.join(names)}",
+            )
+
+    need(spec.motor.node, "[motor]", "node")
+    parent = {n: n for n in names}
+
+    def find(n: str) -> str:
+        while parent[n] != n:
+            parent[n] = parent[parent[n]]
+            n = parent[n]
+        return n
+
+    for kind, c in spec.couplings():
+        a_field, b_field = ("a", "b") if kind == "shaft" else ("driver", "driven")
+        a, b = getattr(c, a_field), getattr(c, b_field)
+        need(a, f"{kind} '{c.name}'", a_field)
+        need(b, f"{kind} '{c.name}'", b_field)
+        if a == b:
+            raise ConfigError(
+                f"connects node '{a}' to itself",
+                source=source,
+                where=f"{kind} '{c.name}'",
+                fix="a coupling joins two different inertias",
+            )
+        parent[find(a)] = find(b)
+    for kind in ("roller", "bearing", "torque"):
+        for item in getattr(spec, kind):
+            need(item.node, f"{kind} '{getattr(item, 'name', item.node)}'", "node")
+    rollers = [r.name for r in spec.roller]
+    if len(set(rollers)) != len(rollers):
+        raise ConfigError(
+            "a roller name appears twice",
+            source=source,
+            where="[[roller]]",
+            fix="declare each of front, second, third, back once",
+        )
+    root = find(spec.motor.node)
+    loose = [n for n in names if find(n) != root]
+    if loose:
+        raise ConfigError(
+            f"node(s) {loose} are not connected to the motor node '{spec.motor.node}'",
+            source=source,
+            where="drive train",
+            fix="connect them with a belt, chain, gear or shaft, or remove them",
+        )
+
+
+def spec_from_dict(raw: dict[str, Any], source: str = "<config>") -> TrainSpec:
+    """Validate a parsed document (e.g. from TOML) into a :class:`TrainSpec`."""
+    known = set(LIST_KINDS) | set(SINGLE_KINDS)
+    for key in raw:
+        if key not in known:
+            raise ConfigError(
+                f"unknown component type '{key}'",
+                source=source,
+                where=f"[{key}]",
+                fix=f"use one of: {', '.join(sorted(known))}",
+            )
+    for key in LIST_KINDS:
+        if key in raw and not isinstance(raw[key], list):
+            raise ConfigError(
+                f"'{key}' must be an array of tables",
+                source=source,
+                where=f"[{key}]",
+                fix=f"write it as [[{key}]] (one block per component)",
+            )
+    try:
+        spec = TrainSpec.model_validate(raw)
+    except ValidationError as exc:
+        raise _translate(exc, raw, source) from None
+    _check_graph(spec, source)
+    return spec
+
+
+def load_toml(path: str | Path) -> TrainSpec:
+    """Read and validate a drive-train TOML file."""
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(
+            "file not found", source=path, fix="give the path of a drive-train TOML file"
+        )
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(
+            f"not valid TOML: {exc}", source=path, fix="check the syntax at that line"
+        ) from None
+    return spec_from_dict(raw, source=str(path))
+
+
+def preset_path(name: str) -> Path:
+    """Path of a built-in preset's TOML file."""
+    if name not in PRESETS:
+        raise ConfigError(
+            f"unknown preset '{name}'",
+            where="--preset",
+            fix=f"use one of: {', '.join(PRESETS)}, or give --config FILE",
+        )
+    return Path(str(resources.files("drafttwin.mechanics") / "presets" / f"{name}.toml"))
+
+
+__all__ = [
+    "PRESETS",
+    "TrainSpec",
+    "load_toml",
+    "preset_path",
+    "spec_from_dict",
+    "Belt",
+    "ChainDrive",
+    "GearMesh",
+    "Shaft",
+    "Roller",
+]

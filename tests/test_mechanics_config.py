@@ -1,0 +1,136 @@
+"""Bad drive-train configs are refused with one clear message; the CLI exits 2, no traceback."""
+
+import tomllib
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin.cli import app
+from drafttwin.errors import ConfigError
+from drafttwin.mechanics import DriveTrain
+from drafttwin.mechanics.config import preset_path
+
+PRESET_TEXT = preset_path("fa320a").read_text()
+
+
+def _write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "train.toml"
+    path.write_text(text)
+    return path
+
+
+def _refused(tmp_path: Path, text: str) -> str:
+    path = _write(tmp_path, text)
+    with pytest.raises(ConfigError) as info:
+        DriveTrain.from_toml(path)
+    msg = info.value.message
+    assert str(path) in msg  # names the file
+    assert "fix:" in msg  # says what to do
+    return msg
+
+
+def test_preset_file_loads(tmp_path):
+    train = DriveTrain.from_toml(_write(tmp_path, PRESET_TEXT))
+    assert train.to_dict() == DriveTrain.preset("fa320a").to_dict()
+
+
+def test_unknown_component_type(tmp_path):
+    msg = _refused(tmp_path, PRESET_TEXT + '\n[[flywheel]]\nname = "x"\n')
+    assert "unknown component type 'flywheel'" in msg
+
+
+def test_unknown_node(tmp_path):
+    text = PRESET_TEXT.replace('driven = "front_drive"', 'driven = "front_drve"', 1)
+    msg = _refused(tmp_path, text)
+    assert "gear 'A-B'" in msg and "'driven'" in msg and "front_drve" in msg
+
+
+def test_disconnected_graph(tmp_path):
+    msg = _refused(tmp_path, PRESET_TEXT + '\n[[inertia]]\nname = "loose"\ninertia_kgm2 = 0.01\n')
+    assert "loose" in msg and "not connected" in msg
+
+
+def test_non_positive_inertia(tmp_path):
+    text = PRESET_TEXT.replace("inertia_kgm2 = 0.0032", "inertia_kgm2 = 0.0", 1)
+    msg = _refused(tmp_path, text)
+    assert "inertia 'front_roller'" in msg and "inertia_kgm2" in msg and "greater than 0" in msg
+
+
+def test_non_positive_stiffness(tmp_path):
+    text = PRESET_TEXT.replace("stiffness_nm_per_rad = 1.2e4", "stiffness_nm_per_rad = -1.2e4", 1)
+    msg = _refused(tmp_path, text)
+    assert "shaft 'second_roller_twist'" in msg and "stiffness_nm_per_rad" in msg
+
+
+def test_missing_field(tmp_path):
+    text = PRESET_TEXT.replace("span_stiffness_n_per_m = 3.0e5", "", 1)
+    msg = _refused(tmp_path, text)
+    assert "belt 'main_belt'" in msg and "'span_stiffness_n_per_m' is missing" in msg
+
+
+def test_mistyped_field(tmp_path):
+    text = PRESET_TEXT.replace("driver_teeth = 24", 'driver_teeth = "twenty-four"', 1)
+    msg = _refused(tmp_path, text)
+    assert "gear 'A-B'" in msg and "driver_teeth" in msg and "twenty-four" in msg
+
+
+def test_misspelled_field(tmp_path):
+    text = PRESET_TEXT.replace("pitch_mm = 12.7", "pich_mm = 12.7", 1)
+    msg = _refused(tmp_path, text)
+    assert "chain 'rear_chain'" in msg and "unknown field 'pich_mm'" in msg
+
+
+def test_invalid_toml(tmp_path):
+    msg = _refused(tmp_path, PRESET_TEXT + "\n[[gear]\n")
+    assert "not valid TOML" in msg
+
+
+def test_every_refusal_exits_2_without_traceback(tmp_path):
+    runner = CliRunner()
+    bad = PRESET_TEXT.replace("inertia_kgm2 = 0.0032", "inertia_kgm2 = -1", 1)
+    path = _write(tmp_path, bad)
+    for args in (["kinematics", "--config", str(path)],
+                 ["simulate", "--config", str(path), "--duration", "0.1"],
+                 ["simulate", "--preset", "fa999"],
+                 ["kinematics", "--config", str(tmp_path / "missing.toml")]):  # fmt: skip
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, (args, result.output)
+        assert "Traceback" not in result.output
+
+
+def test_simulate_refuses_bad_output_suffix_and_writes_nothing(tmp_path):
+    out = tmp_path / "speeds.xlsx"
+    result = CliRunner().invoke(app, ["simulate", "--duration", "0.01", "--out", str(out)])
+    assert result.exit_code == 2
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_kinematics_json_fields():
+    import json
+
+    result = CliRunner().invoke(app, ["kinematics", "--preset", "fa320a", "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.output)
+    assert set(data["drafts"]) >= {"total", "break", "middle", "main"}
+    for r in ("front", "second", "third", "back"):
+        assert set(data["rollers"][r]) >= {"rpm", "diameter_mm", "surface_speed_m_min"}
+    assert data["delivery_speed_m_min"] == pytest.approx(256.61, rel=5e-3)
+
+
+def test_simulate_writes_csv_and_parquet(tmp_path):
+    import pandas as pd
+
+    for suffix in (".csv", ".parquet"):
+        out = tmp_path / f"sim{suffix}"
+        result = CliRunner().invoke(app, ["simulate", "--duration", "0.2", "--rate", "100",
+                                          "--out", str(out), "--quiet"])  # fmt: skip
+        assert result.exit_code == 0, result.output
+        frame = pd.read_csv(out) if suffix == ".csv" else pd.read_parquet(out)
+        assert list(frame.columns) == ["time", "front", "second", "third", "back", "motor"]
+        assert len(frame) == 20
+
+
+def test_preset_toml_is_data_not_code():
+    # the preset parses as plain TOML (configs are data, never executed)
+    assert tomllib.loads(PRESET_TEXT)["train"]["name"] == "fa320a"
