@@ -10,6 +10,8 @@ from drafttwin.cli.app import app
 
 # Importing the command modules registers their commands on ``app``.
 from drafttwin.cli import mechanics_cmds  # noqa: E402,F401  isort: skip
+from drafttwin.cli import data_cmds  # noqa: E402,F401  isort: skip
+from drafttwin.cli import plant_cmds  # noqa: E402,F401  isort: skip
 
 
 def main() -> None:

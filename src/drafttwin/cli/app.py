@@ -32,7 +32,11 @@ class _UserErrorsExit2(typer.core.TyperGroup):
         try:
             return super().invoke(ctx)
         except DrafttwinError as exc:
-            err_console.print(f"[bold red]error:[/] {exc.message}", highlight=False)
+            from rich.markup import escape
+
+            err_console.print(
+                f"[bold red]error:[/] {escape(exc.message)}", highlight=False, soft_wrap=True
+            )
             raise typer.Exit(exc.exit_code) from None
 
 

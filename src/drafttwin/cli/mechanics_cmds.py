@@ -116,5 +116,6 @@ def simulate(
         table.add_row(name, f"{mean:.3f}", f"{np.std(x) / mean * 100:.4f}",
                       f"{np.ptp(x) / mean * 100:.4f}")  # fmt: skip
     console.print(table)
-    console.print(f"wall time {res.wall_s:.2f} s, real-time factor {duration / res.wall_s:.1f}x"
-                  + (f"; wrote {out}" if out else ""))  # fmt: skip
+    compiled = f" (+{res.compile_s:.1f} s kernel compilation)" if res.compile_s > 0.5 else ""
+    console.print(f"wall time {res.wall_s:.2f} s{compiled}, real-time factor "
+                  f"{duration / res.wall_s:.1f}x" + (f"; wrote {out}" if out else ""))  # fmt: skip

@@ -1,0 +1,13 @@
+"""The plant emulator: plays the FA320A drawing frame and its measurement chain.
+
+from drafttwin.plant import Plant
+rec = Plant().run(duration_s=60, rate_hz=100, seed=1)   # PlantRecording
+rec.series            # measured MeasurementSeries (NaN = dropped sample)
+rec.true_rpm          # what a perfect encoder would have reported
+"""
+
+from drafttwin.plant.config import PlantConfig
+from drafttwin.plant.emulator import Plant, PlantRecording
+from drafttwin.plant.scenarios import SCENARIOS
+
+__all__ = ["SCENARIOS", "Plant", "PlantConfig", "PlantRecording"]

@@ -1,0 +1,164 @@
+"""What the real machine has and the nominal mechanistic model leaves out.
+
+* :func:`true_train`: the drive train with true parameters (seeded mismatch, backlash,
+  gear eccentricity with random phases).
+* :func:`ou_process`: a stationary Ornstein-Uhlenbeck process (exact discretisation), the
+  building block of the colored disturbances.
+* :func:`disturbances`: drafting-force torques, roller load modulation (run-out), rotor
+  resistance drift (warming) and supply-frequency jitter as signals on uniform grids.
+
+Each random effect draws from its own stream, sequentially in time, so a shorter run with the
+same seed is an exact prefix of a longer one.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.signal import lfilter
+
+from drafttwin.mechanics import DriveTrain, Signal, operating_point
+from drafttwin.plant.config import PlantConfig
+
+FORCE_GRID_S = 1e-3  # drafting force and roller load grid (lines up to ~30 Hz once-per-rev)
+SUPPLY_GRID_S = 1e-2
+THERMAL_GRID_S = 1.0
+
+
+def true_train(
+    nominal: DriveTrain, cfg: PlantConfig, rng: np.random.Generator
+) -> tuple[DriveTrain, dict[str, float]]:
+    """The plant's drive train and the relative deviations drawn for it."""
+    raw = nominal.to_dict()
+    mm = cfg.mismatch
+    draws: dict[str, float] = {}
+
+    def scale(item: dict[str, Any], key: str, half_range: float, label: str) -> None:
+        u = float(rng.uniform(-half_range, half_range))
+        draws[f"{label}.{key}"] = u
+        item[key] *= 1.0 + u
+
+    for r in raw["roller"]:
+        scale(r, "friction_coefficient", mm.friction_coefficient, f"roller.{r['name']}")
+    for b in raw["belt"]:
+        scale(b, "axial_rigidity_n", mm.belt_axial_rigidity, f"belt.{b['name']}")
+    for c in raw["chain"]:
+        scale(c, "span_stiffness_n_per_m", mm.chain_span_stiffness, f"chain.{c['name']}")
+    for g in raw["gear"]:
+        scale(g, "mesh_stiffness_n_per_m", mm.mesh_stiffness, f"gear.{g['name']}")
+        g["backlash_um"] = cfg.backlash_module_fraction * g["module_mm"] * 1000.0
+        for side in ("driver", "driven"):
+            g[f"{side}_eccentricity_um"] = 0.5 * cfg.eccentricity.gear_runout_um
+            g[f"{side}_eccentricity_phase_deg"] = float(rng.uniform(0.0, 360.0))
+    for s in raw["shaft"]:
+        scale(s, "stiffness_nm_per_rad", mm.roller_torsion, f"shaft.{s['name']}")
+    for b in raw["bearing"]:
+        u = float(rng.uniform(-mm.bearing_friction, mm.bearing_friction))
+        draws[f"bearing.{b['node']}"] = u
+        b["coulomb_torque_nm"] *= 1.0 + u
+        b["viscous_nms"] *= 1.0 + u
+    scale(raw["motor"], "breakdown_torque_ratio", mm.breakdown_torque_ratio, "motor")
+    raw["train"]["name"] = f"{raw['train']['name']} (plant)"
+    return DriveTrain.from_dict(raw, source="plant"), draws
+
+
+def ou_process(
+    rng: np.random.Generator, n: int, dt_s: float, tau_s: float, sigma: float
+) -> np.ndarray:
+    """``n`` samples of a stationary OU process with correlation time ``tau_s`` and std ``sigma``."""
+    a = math.exp(-dt_s / tau_s)
+    eps = rng.standard_normal(n + 1)
+    x0 = sigma * eps[0]
+    y, _ = lfilter([sigma * math.sqrt(1 - a * a)], [1.0, -a], eps[1:], zi=[a * x0])
+    return y
+
+
+@dataclass(frozen=True)
+class Disturbances:
+    """Time-varying plant inputs, as signals in recording time (s)."""
+
+    supply_hz: Signal  # actual VFD output frequency (set-point + jitter)
+    rotor_resistance: Signal  # factor, 1 = cold nominal
+    torques: dict[str, Signal]  # node -> external torque (N m)
+
+
+def _grid(t_start: float, t_end: float, step: float) -> np.ndarray:
+    return t_start + step * np.arange(int(math.ceil((t_end - t_start) / step)) + 2)
+
+
+def disturbances(
+    train: DriveTrain,
+    cfg: PlantConfig,
+    setpoint: Signal,
+    t_start_s: float,
+    t_end_s: float,
+    streams: dict[str, np.random.Generator],
+) -> Disturbances:
+    """Build every disturbance signal over ``[t_start_s, t_end_s]`` (s, recording time)."""
+    t_sup = _grid(t_start_s, t_end_s, SUPPLY_GRID_S)
+    set_hz = np.interp(
+        t_sup, setpoint.t0_s + setpoint.dt_s * np.arange(len(setpoint.values)), setpoint.values
+    )
+    jitter = ou_process(
+        streams["supply"], len(t_sup), SUPPLY_GRID_S, cfg.supply.correlation_s, cfg.supply.jitter_hz
+    )
+    supply = Signal(t_start_s, SUPPLY_GRID_S, set_hz + jitter * (set_hz > 0))
+
+    th = cfg.thermal
+    t_th = _grid(t_start_s, t_end_s, THERMAL_GRID_S)
+    warm = th.warmup_kelvin * (
+        1 - np.exp(-(t_th - t_start_s + th.elapsed_at_start_s) / th.time_constant_s)
+    )
+    rotor = Signal(t_start_s, THERMAL_GRID_S, 1.0 + th.resistance_per_kelvin * warm)
+
+    t_f = _grid(t_start_s, t_end_s, FORCE_GRID_S)
+    speed_scale = np.interp(t_f, t_sup, set_hz) / max(float(setpoint.values.max()), 1e-9)
+    torques = _drafting_torques(train, cfg, t_f, speed_scale, streams["drafting"])
+    for node, tq in _roller_load_modulation(
+        train, cfg, t_f, speed_scale, streams["runout"]
+    ).items():
+        torques[node] = torques.get(node, 0.0) + tq
+    signals = {node: Signal(t_start_s, FORCE_GRID_S, tq) for node, tq in torques.items()}
+    return Disturbances(supply, rotor, signals)
+
+
+def _drafting_torques(train, cfg, t, speed_scale, rng) -> dict[str, np.ndarray]:
+    """Zone forces (N) -> torques: they brake the delivering roller and drive the feeding one."""
+    df = cfg.drafting_force
+    n = len(t)
+    fast_rng, slow_rng = rng.spawn(2)  # one stream per process keeps shorter runs a prefix
+    fluct = math.sqrt(1 - df.slow_share) * ou_process(
+        fast_rng, n, FORCE_GRID_S, df.fast_correlation_s, 1.0
+    )
+    fluct += math.sqrt(df.slow_share) * ou_process(
+        slow_rng, n, FORCE_GRID_S, df.slow_correlation_s, 1.0
+    )
+    running = np.clip(speed_scale, 0.0, 1.0) > 0.05  # no sliver is drafted while stopped
+    rollers = {r.name: r for r in train.spec.roller}
+    out: dict[str, np.ndarray] = {}
+    for mean, fast, slow in (
+        (df.main_zone_mean_n, "front", "second"),
+        (df.break_zone_mean_n, "third", "back"),
+    ):
+        force = mean * (1.0 + df.cv * fluct) * running
+        for name, sign in ((fast, -1.0), (slow, 1.0)):
+            r = rollers[name]
+            out[r.node] = out.get(r.node, 0.0) + sign * force * r.diameter_mm * 5e-4
+    return out
+
+
+def _roller_load_modulation(train, cfg, t, speed_scale, rng) -> dict[str, np.ndarray]:
+    """Once-per-revolution modulation of each roller's friction load (bottom-roller run-out)."""
+    op = operating_point(train)
+    out: dict[str, np.ndarray] = {}
+    dt = t[1] - t[0]
+    for r in train.spec.roller:
+        node = train.node_index(r.node)
+        rev_hz = op.node_speed_rad_s[node] / (2 * math.pi) * speed_scale
+        phase = 2 * math.pi * np.cumsum(rev_hz) * dt + rng.uniform(0, 2 * math.pi)
+        load = r.friction_coefficient * 2 * r.top_load_per_side_n * r.diameter_mm * 5e-4
+        out[r.node] = -load * cfg.eccentricity.roller_load_modulation * np.sin(phase)
+    return out

@@ -1,0 +1,167 @@
+"""The plant emulator: the machine that produces "measured" roller speeds.
+
+The plant is the drive-train model with true parameters plus the effects the nominal
+mechanistic model leaves out (:mod:`drafttwin.plant.effects`), measured by encoders through
+a data path with defects (:mod:`drafttwin.plant.sensors`). The true speeds are kept beside
+the measured ones, so the noise floor of any prediction is known.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from drafttwin import ROLLERS, __version__
+from drafttwin._io import atomic_path
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.errors import DataError
+from drafttwin.mechanics import DriveTrain, simulate
+from drafttwin.plant.config import PlantConfig
+from drafttwin.plant.effects import disturbances, true_train
+from drafttwin.plant.scenarios import get_scenario, setpoint_on_grid
+from drafttwin.plant.sensors import encoder_rpm, inject_defects, quantisation_step_rpm
+
+STREAMS = ("mismatch", "supply", "drafting", "runout", "encoder", "missing", "outlier")
+SETTLE_S = 1.0
+
+
+@dataclass(frozen=True)
+class PlantRecording:
+    """One run of the plant: measured series, true speeds and the record of injected defects.
+
+    Attributes:
+        series: measured roller speeds (rpm, NaN where dropped) with the VFD set-point
+            (``setpoints["supply_hz"]``) and provenance in ``metadata``.
+        true_rpm: true interval-mean roller speeds (rpm), shape ``(n, 4)``.
+        true_motor_rpm: true interval-mean motor speed (rpm).
+        missing, outlier: where the data path dropped samples / put spikes, bool ``(n, 4)``.
+        info: seed, scenario, configuration, true parameters (JSON-able).
+    """
+
+    series: MeasurementSeries
+    true_rpm: np.ndarray
+    true_motor_rpm: np.ndarray
+    missing: np.ndarray
+    outlier: np.ndarray
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def truth_frame(self) -> pd.DataFrame:
+        cols: dict[str, np.ndarray] = {"time": self.series.time_s}
+        for j, r in enumerate(ROLLERS):
+            cols[f"true_{r}"] = self.true_rpm[:, j]
+        cols["true_motor"] = self.true_motor_rpm
+        for j, r in enumerate(ROLLERS):
+            cols[f"missing_{r}"] = self.missing[:, j]
+        for j, r in enumerate(ROLLERS):
+            cols[f"outlier_{r}"] = self.outlier[:, j]
+        return pd.DataFrame(cols)
+
+    def write(self, path: str | Path) -> list[Path]:
+        """Write the measured file, ``<stem>.truth<suffix>`` and the ``<stem>.json`` sidecar.
+
+        All three are written to temporary files first and renamed together at the end.
+        """
+        from drafttwin.data.io import write_measurements
+
+        path = Path(path)
+        suffix = path.suffix.lower()
+        if suffix not in (".csv", ".parquet"):
+            raise DataError(
+                f"cannot write '{path.suffix or '(no suffix)'}' files",
+                source=path,
+                where="--out",
+                fix="name the output *.csv or *.parquet",
+            )
+        truth = path.with_name(f"{path.stem}.truth{path.suffix}")
+        sidecar = path.with_suffix(".json")
+        info = {**self.info, "files": {"measured": path.name, "truth": truth.name}}
+        with contextlib.ExitStack() as stack:
+            tmp_sidecar = stack.enter_context(atomic_path(sidecar))
+            tmp_truth = stack.enter_context(atomic_path(truth))
+            measured = self.series
+            object.__setattr__(measured, "metadata", {"sidecar": sidecar.name})
+            write_measurements(measured, stack.enter_context(atomic_path(path)))
+            frame = self.truth_frame()
+            if suffix == ".parquet":
+                frame.to_parquet(tmp_truth, index=False)
+            else:
+                frame.to_csv(tmp_truth, index=False, float_format="%.17g")
+            tmp_sidecar.write_text(
+                json.dumps(info, indent=2, sort_keys=True) + "\n", encoding="utf-8"
+            )
+        return [path, truth, sidecar]
+
+
+class Plant:
+    """The FA320A plant (or any drive train's), seeded and reproducible.
+
+    Args:
+        train: the nominal drive train (default: the ``fa320a`` preset); the plant draws its
+            true parameters around it.
+        config: effect magnitudes and sensor settings (:class:`PlantConfig`).
+    """
+
+    def __init__(self, train: DriveTrain | None = None, config: PlantConfig | None = None) -> None:
+        self.train = train if train is not None else DriveTrain.preset("fa320a")
+        self.config = config if config is not None else PlantConfig()
+
+    def run(
+        self,
+        duration_s: float,
+        rate_hz: float = 100.0,
+        seed: int = 0,
+        scenario: str = "steady",
+        progress: Callable[[float], None] | None = None,
+    ) -> PlantRecording:
+        """Run the plant for ``duration_s`` seconds, sampled at ``rate_hz``."""
+        scen = get_scenario(scenario)
+        streams = {name: np.random.default_rng(s) for name, s in
+                   zip(STREAMS, np.random.SeedSequence(seed).spawn(len(STREAMS)), strict=True)}  # fmt: skip
+        plant_train, draws = true_train(self.train, self.config, streams["mismatch"])
+        nominal_hz = self.train.spec.motor.supply_hz
+        setpoint = scen.setpoint(duration_s, nominal_hz)
+        settle = 0.0 if scen.from_rest else SETTLE_S
+        dist = disturbances(plant_train, self.config, setpoint, -settle, duration_s, streams)
+        driven = plant_train.with_supply_schedule(dist.supply_hz).with_rotor_resistance(
+            dist.rotor_resistance
+        )
+        for node, sig in dist.torques.items():
+            driven = driven.with_torque(node, sig)
+        res = simulate(driven, duration_s, output_rate_hz=rate_hz, settle_s=settle,
+                       from_rest=scen.from_rest, progress=progress)  # fmt: skip
+        true_rpm = res.roller_rpm()
+        sensors = self.config.sensors
+        counted = encoder_rpm(true_rpm, 1.0 / rate_hz, sensors, streams["encoder"])
+        measured = inject_defects(counted, rate_hz, sensors, streams["missing"], streams["outlier"])
+        info = {
+            "generator": f"drafttwin {__version__} plant emulator",
+            "seed": seed,
+            "scenario": scenario,
+            "scenario_description": scen.description,
+            "duration_s": duration_s,
+            "rate_hz": rate_hz,
+            "plant_config": self.config.model_dump(mode="json"),
+            "true_train": plant_train.to_dict(),
+            "mismatch_draws": draws,
+            "quantisation_step_rpm": quantisation_step_rpm(sensors, rate_hz),
+            "injected": {
+                "missing_rows": int(measured.missing[:, 0].sum()),
+                "outliers": {r: int(measured.outlier[:, j].sum()) for j, r in enumerate(ROLLERS)},
+            },
+        }
+        series = MeasurementSeries(
+            time_s=res.time_s,
+            rpm=measured.rpm,
+            setpoints={"supply_hz": setpoint_on_grid(setpoint, res.time_s)},
+            metadata={"source": "drafttwin plant", "seed": seed, "scenario": scenario},
+        )
+        return PlantRecording(
+            series, true_rpm, res.motor_rpm, measured.missing, measured.outlier, info
+        )

@@ -1,0 +1,156 @@
+"""Plant emulator: reproducibility, the shipped data set, sensors, defects, scenarios."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin import ROLLERS
+from drafttwin.cli import app
+from drafttwin.data.io import read_measurements
+from drafttwin.data.preprocess import preprocess
+from drafttwin.datasets import DEFAULT, build, load_default
+from drafttwin.mechanics import DriveTrain, operating_point, simulate_on_grid
+from drafttwin.plant import Plant, PlantConfig
+from drafttwin.plant.config import Sensors
+from drafttwin.plant.sensors import encoder_rpm, quantisation_step_rpm
+
+
+@pytest.fixture(scope="module")
+def default():
+    return load_default()
+
+
+def test_same_seed_byte_identical_files(tmp_path):
+    runner = CliRunner()
+    outs = []
+    for k in range(2):
+        out = tmp_path / f"run{k}" / "data.csv"
+        result = runner.invoke(
+            app, ["generate", "--duration", "3", "--seed", "7", "--quiet", "--out", str(out)]
+        )
+        assert result.exit_code == 0, result.output
+        outs.append(out)
+    for a_name in ("data.csv", "data.truth.csv", "data.json"):
+        a = (outs[0].parent / a_name).read_bytes()
+        b = (outs[1].parent / a_name).read_bytes()
+        assert a == b, a_name
+    other = tmp_path / "other" / "data.csv"
+    runner.invoke(
+        app, ["generate", "--duration", "3", "--seed", "8", "--quiet", "--out", str(other)]
+    )
+    assert other.read_bytes() != outs[0].read_bytes()
+
+
+def test_generated_file_reads_back_with_sidecar(tmp_path):
+    out = tmp_path / "d.parquet"
+    result = CliRunner().invoke(
+        app, ["generate", "--duration", "2", "--seed", "1", "--quiet", "--out", str(out)]
+    )
+    assert result.exit_code == 0, result.output
+    series = read_measurements(out)
+    assert series.rollers == ROLLERS and len(series) == 200
+    assert series.sample_rate_hz == pytest.approx(100.0)
+    info = json.loads(out.with_suffix(".json").read_text())
+    assert info["seed"] == 1 and info["files"]["truth"] == "d.truth.parquet"
+    assert set(info["true_train"]) >= {"motor", "gear", "roller"}
+    truth = pd.read_parquet(tmp_path / "d.truth.parquet")
+    assert {"true_front", "missing_back", "outlier_third"} <= set(truth.columns)
+
+
+def test_shipped_default_data_set_is_what_the_code_generates(default):
+    """The first 5 s regenerated with the recorded seed equal the shipped file exactly."""
+    assert len(default) == int(DEFAULT["duration_s"] * DEFAULT["rate_hz"])
+    frame, _ = build(duration_s=5.0)
+    n = len(frame)
+    np.testing.assert_array_equal(frame[list(ROLLERS)].to_numpy(), default.rpm[:n])
+    np.testing.assert_array_equal(
+        frame[[f"true_{r}" for r in ROLLERS]].to_numpy(), default.metadata["true_rpm"][:n]
+    )
+
+
+def test_encoder_quantisation_and_noise_floor(default):
+    truth = default.metadata["true_rpm"]
+    ok = ~np.isnan(default.rpm) & ~default.metadata["outlier_mask"]
+    step = quantisation_step_rpm(Sensors(), 100.0)
+    assert step == pytest.approx(0.6)
+    for j in range(4):
+        err = (default.rpm[:, j] - truth[:, j])[ok[:, j]]
+        # pulse counting: error of a difference of two floors, at least step/sqrt(6)
+        assert np.sqrt(np.mean(err**2)) >= 0.9 * step / np.sqrt(6)
+        assert np.abs(err).max() < 10 * step
+
+
+def test_encoder_counts_whole_edges():
+    rng = np.random.default_rng(0)
+    true = np.full((1000, 1), 355.0) + rng.normal(0, 0.2, (1000, 1))
+    cfg = Sensors(clock_jitter_s=0.0)
+    rpm = encoder_rpm(true, 0.01, cfg, rng)
+    counts = rpm / 60.0 * 0.01 * cfg.pulses_per_rev * cfg.quadrature
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-9)
+    # the counter loses nothing: total counted revolutions match the true ones within one edge
+    assert abs(rpm.sum() - true.sum()) / 60.0 * 0.01 < 2.0 / (cfg.pulses_per_rev * cfg.quadrature)
+
+
+def test_injected_defects_are_found_and_repaired(default):
+    """Preprocessing fills every dropped sample and smooths the injected spikes."""
+    clean, report = preprocess(default)
+    assert not np.isnan(clean.rpm).any()
+    np.testing.assert_array_equal(report.missing, default.metadata["missing_mask"])
+    injected = default.metadata["outlier_mask"]
+    found = report.outliers
+    assert injected.sum() > 20
+    recall = (found & injected).sum() / injected.sum()
+    precision = (found & injected).sum() / max(found.sum(), 1)
+    assert recall >= 0.95 and precision >= 0.95
+    truth = default.metadata["true_rpm"]
+    rel = np.abs(clean.rpm - truth) / truth
+    assert rel.max() < 0.01  # no spike survives; repaired samples are near the truth
+
+
+def test_plant_differs_from_the_nominal_model_but_not_wildly(default):
+    nominal = DriveTrain.preset("fa320a")
+    mech = simulate_on_grid(nominal, default.time_s[:2000])
+    truth = default.metadata["true_rpm"][:2000]
+    rel = np.abs(mech.mean(axis=0) - truth.mean(axis=0)) / truth.mean(axis=0)
+    assert np.all(rel > 1e-5)  # true parameters and loads differ from the nominal ones
+    assert np.all(rel < 5e-3)  # but the machine is the same machine
+    assert np.all(truth.std(axis=0) > mech.std(axis=0))  # the plant has more going on
+
+
+def test_startup_scenario_reaches_operating_speed():
+    rec = Plant().run(12.0, 100.0, seed=3, scenario="startup")
+    front = rec.true_rpm[:, 0]
+    assert front[:50].max() < 5.0  # at rest before the ramp
+    target = operating_point(DriveTrain.preset("fa320a")).roller_rpm["front"]
+    assert front[-100:].mean() == pytest.approx(target, rel=5e-3)
+    assert np.all(np.diff(rec.series.setpoints["supply_hz"]) >= 0)
+
+
+def test_speed_change_scenario_lowers_speed_by_15_percent():
+    rec = Plant().run(8.0, 100.0, seed=4, scenario="speed-change")
+    before = rec.true_rpm[200:350, 0].mean()
+    after = rec.true_rpm[-100:, 0].mean()
+    assert after / before == pytest.approx(0.85, abs=3e-3)
+
+
+def test_drafting_force_brakes_front_and_drives_back():
+    quiet = PlantConfig(sensors=Sensors(missing_rate=0, burst_rate_per_min=0, outlier_rate=0))
+    cfg = quiet.model_copy(
+        update={
+            "drafting_force": quiet.drafting_force.model_copy(update={"main_zone_mean_n": 30.0})
+        }
+    )
+    base = Plant(config=quiet).run(2.0, 100.0, seed=5).true_rpm.mean(axis=0)
+    more = Plant(config=cfg).run(2.0, 100.0, seed=5).true_rpm.mean(axis=0)
+    # a larger main-zone force loads the whole train: every roller runs (slightly) slower
+    assert np.all(more < base)
+
+
+def test_unknown_scenario_refused_and_nothing_written(tmp_path):
+    out = tmp_path / "x.csv"
+    result = CliRunner().invoke(app, ["generate", "--scenario", "warp", "--out", str(out)])
+    assert result.exit_code == 2 and "unknown scenario" in result.output
+    assert list(tmp_path.iterdir()) == []

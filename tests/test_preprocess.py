@@ -1,0 +1,261 @@
+"""Preprocessing: interpolation (eq. 12), outlier smoothing, chronological split."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from drafttwin import ROLLERS
+from drafttwin.data import (
+    MeasurementSeries,
+    chronological_split,
+    find_outliers,
+    interpolate_missing,
+    preprocess,
+    smooth_outliers,
+)
+
+NAN = np.nan
+PROPS = settings(max_examples=80, deadline=None)
+
+
+# ------------------------------------------------------------------------- interpolation
+
+
+def test_eq12_linear_interpolation_values() -> None:
+    # x(t)=10, x(t+j)=40, j=3: x(t+i) = 10 + i*(40-10)/3 -> 20, 30
+    filled, mask = interpolate_missing(np.array([10.0, NAN, NAN, 40.0, 41.0]))
+    np.testing.assert_allclose(filled, [10.0, 20.0, 30.0, 40.0, 41.0], rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(mask, [False, True, True, False, False])
+
+
+def test_eq12_uneven_values() -> None:
+    # j=4 between 1800 and 1804: 1801, 1802, 1803
+    filled, _ = interpolate_missing(np.array([1800.0, NAN, NAN, NAN, 1804.0]))
+    np.testing.assert_allclose(filled, [1800.0, 1801.0, 1802.0, 1803.0, 1804.0], atol=1e-9)
+
+
+def test_edges_take_nearest_valid_value() -> None:
+    filled, mask = interpolate_missing(np.array([NAN, NAN, 5.0, NAN, 7.0, NAN]))
+    np.testing.assert_allclose(filled, [5.0, 5.0, 5.0, 6.0, 7.0, 7.0])
+    np.testing.assert_array_equal(mask, [True, True, False, True, False, True])
+
+
+def test_columns_are_independent() -> None:
+    x = np.array([[1.0, NAN], [NAN, 10.0], [3.0, 20.0]])
+    filled, mask = interpolate_missing(x)
+    np.testing.assert_allclose(filled, [[1.0, 10.0], [2.0, 10.0], [3.0, 20.0]])
+    assert mask.sum() == 2 and mask[1, 0] and mask[0, 1]
+
+
+def test_long_gaps_are_left_missing() -> None:
+    x = np.array([0.0, NAN, 2.0, NAN, NAN, NAN, 6.0, NAN, NAN])
+    filled, mask = interpolate_missing(x, max_gap=2)
+    np.testing.assert_allclose(filled[:3], [0.0, 1.0, 2.0])
+    assert np.isnan(filled[3:6]).all()  # gap of 3 > max_gap
+    np.testing.assert_allclose(filled[6:], [6.0, 6.0, 6.0])  # trailing gap of 2 <= max_gap
+    assert mask.sum() == 3
+
+
+def test_column_without_values_stays_missing() -> None:
+    filled, mask = interpolate_missing(np.array([[NAN, 1.0], [NAN, NAN]]))
+    assert np.isnan(filled[:, 0]).all() and not mask[:, 0].any()
+    assert filled[1, 1] == 1.0
+
+
+def test_negative_max_gap_is_rejected() -> None:
+    with pytest.raises(ValueError, match="max_gap"):
+        interpolate_missing(np.zeros(3), max_gap=-1)
+
+
+# ----------------------------------------------------------------------------- outliers
+
+
+def test_spike_replaced_by_mean_of_neighbours() -> None:
+    x = np.array([100.0, 100.0, 200.0, 120.0, 120.0])
+    out, mask = smooth_outliers(x)
+    np.testing.assert_array_equal(mask, [False, False, True, False, False])
+    assert out[2] == pytest.approx((100.0 + 120.0) / 2, rel=1e-15)
+    np.testing.assert_array_equal(out[[0, 1, 3, 4]], x[[0, 1, 3, 4]])
+
+
+def test_downward_spike() -> None:
+    out, mask = smooth_outliers(np.array([1815.0, 1816.0, 900.0, 1814.0, 1815.0]))
+    assert mask.tolist() == [False, False, True, False, False]
+    assert out[2] == pytest.approx(1815.0)
+
+
+def test_step_change_is_not_an_outlier_on_either_side() -> None:
+    x = np.array([100.0, 100.0, 100.0, 150.0, 150.0, 150.0])
+    out, mask = smooth_outliers(x)
+    assert not mask.any()
+    np.testing.assert_array_equal(out, x)
+
+
+def test_only_the_spike_is_flagged_not_its_neighbours() -> None:
+    # the paper's "either neighbour" wording would flag indices 1, 2 and 3
+    mask = find_outliers(np.array([100.0, 100.0, 150.0, 100.0, 100.0]))
+    assert np.flatnonzero(mask).tolist() == [2]
+
+
+def test_ramp_is_not_an_outlier() -> None:
+    x = np.array([0.0, 30.0, 60.0, 90.0, 120.0])  # start-up ramp: each step > 10 %
+    assert not find_outliers(x).any()
+
+
+def test_threshold_is_exclusive() -> None:
+    assert not find_outliers(np.array([100.0, 110.0, 100.0]), 0.10).any()  # exactly 10 %
+    assert find_outliers(np.array([100.0, 110.5, 100.0]), 0.10)[1]
+
+
+def test_edges_and_samples_next_to_gaps_are_not_flagged() -> None:
+    x = np.array([500.0, 100.0, 100.0, NAN, 300.0, 100.0, 100.0, 500.0])
+    assert not find_outliers(x).any()
+
+
+def test_alternating_spikes_are_interpolated_between_good_neighbours() -> None:
+    out, mask = smooth_outliers(np.array([100.0, 150.0, 50.0, 106.0]))
+    assert mask.tolist() == [False, True, True, False]
+    np.testing.assert_allclose(out, [100.0, 102.0, 104.0, 106.0])
+
+
+def test_spike_per_column_in_2d() -> None:
+    x = np.full((5, 4), 1000.0)
+    x[2, 3] = 2000.0
+    out, mask = smooth_outliers(x)
+    assert mask.sum() == 1 and mask[2, 3]
+    np.testing.assert_array_equal(out, np.full((5, 4), 1000.0))
+
+
+# ---------------------------------------------------------------------- preprocess / split
+
+
+def _series(rpm: np.ndarray, **kwargs: object) -> MeasurementSeries:
+    rollers = ROLLERS if rpm.shape[1] == 4 else tuple(f"r{j}" for j in range(rpm.shape[1]))
+    return MeasurementSeries(
+        time_s=np.arange(rpm.shape[0]) * 0.01,
+        rpm=rpm,
+        rollers=rollers,
+        **kwargs,  # type: ignore[arg-type]
+    )
+
+
+def test_preprocess_interpolates_then_smooths() -> None:
+    rpm = np.tile([1815.0, 1500.0, 450.0, 355.0], (8, 1))
+    rpm[2, 0] = NAN
+    rpm[5, 3] = 700.0
+    motor = np.array([1450.0, NAN, 1452.0, 1450.0, 1450.0, 1450.0, 1450.0, NAN])
+    supply = np.array([NAN, 50.0, 50.0, NAN, 49.0, 49.0, NAN, 49.0])
+    clean, report = preprocess(_series(rpm, motor_rpm=motor, setpoints={"supply_hz": supply}))
+    np.testing.assert_allclose(clean.rpm, np.tile([1815.0, 1500.0, 450.0, 355.0], (8, 1)))
+    assert report.n_missing == {"front": 1, "second": 0, "third": 0, "back": 0}
+    assert report.n_filled["front"] == 1 and report.n_outliers["back"] == 1
+    assert report.gaps()["front"] == {"count": 1, "longest": 1}
+    np.testing.assert_allclose(clean.motor_rpm[[1, 7]], [1451.0, 1450.0])
+    np.testing.assert_array_equal(clean.setpoints["supply_hz"], [50, 50, 50, 50, 49, 49, 49, 49])
+    assert clean.metadata["preprocess"]["outliers"]["back"] == 1
+    assert report.extra == {"motor": 2, "supply_hz": 3}
+    assert json.loads(json.dumps(report.to_dict()))["filled"]["front"] == 1
+
+
+def test_preprocess_without_smoothing() -> None:
+    rpm = np.full((5, 4), 1000.0)
+    rpm[2, 1] = 3000.0
+    clean, report = preprocess(_series(rpm), outlier_threshold=None)
+    assert clean.rpm[2, 1] == 3000.0 and report.threshold is None and not report.outliers.any()
+
+
+def test_chronological_split_70_30() -> None:
+    series = _series(np.arange(40.0).reshape(10, 4))
+    train, test = chronological_split(series)
+    assert (len(train), len(test)) == (7, 3)
+    np.testing.assert_array_equal(np.concatenate([train.rpm, test.rpm]), series.rpm)
+    assert train.time_s[-1] < test.time_s[0]
+
+
+# ----------------------------------------------------------------------------- properties
+
+values = st.floats(-1e9, 1e9, allow_nan=False, allow_infinity=False)
+with_missing = hnp.arrays(
+    np.float64,
+    st.tuples(st.integers(1, 60), st.integers(1, 4)),
+    elements=st.one_of(values, st.just(NAN)),
+)
+
+
+@PROPS
+@given(rpm=with_missing, threshold=st.sampled_from([0.0, 0.05, 0.10, 0.5]))
+def test_never_crashes_and_fills_every_column_with_data(rpm: np.ndarray, threshold: float) -> None:
+    clean, report = preprocess(_series(rpm), outlier_threshold=threshold)
+    assert clean.rpm.shape == rpm.shape
+    has_data = ~np.isnan(rpm).all(axis=0)
+    assert not np.isnan(clean.rpm[:, has_data]).any()
+    assert np.isnan(clean.rpm[:, ~has_data]).all()
+    np.testing.assert_array_equal(report.filled[:, has_data], np.isnan(rpm)[:, has_data])
+    kept = ~np.isnan(rpm) & ~report.outliers
+    np.testing.assert_array_equal(clean.rpm[kept], rpm[kept])
+
+
+@PROPS
+@given(rpm=with_missing, max_gap=st.integers(0, 5))
+def test_max_gap_fills_exactly_the_short_gaps(rpm: np.ndarray, max_gap: int) -> None:
+    filled, mask = interpolate_missing(rpm, max_gap=max_gap)
+    missing = np.isnan(rpm)
+    assert not (mask & ~missing).any()  # only missing samples are filled
+    np.testing.assert_array_equal(filled[~missing], rpm[~missing])
+    for j in range(rpm.shape[1]):
+        if missing[:, j].all():
+            continue
+        edges = np.diff(np.concatenate(([0], missing[:, j].astype(int), [0])))
+        for start, stop in zip(
+            np.flatnonzero(edges == 1), np.flatnonzero(edges == -1), strict=True
+        ):
+            assert mask[start:stop, j].all() == (stop - start <= max_gap)
+
+
+clean_rpm = hnp.arrays(
+    np.float64,
+    st.tuples(st.integers(1, 60), st.integers(1, 4)),
+    elements=st.floats(1000.0, 1050.0),  # any two values differ by < 5 %: no spikes
+)
+
+
+@PROPS
+@given(rpm=clean_rpm, sign=st.sampled_from([1.0, -1.0]))
+def test_clean_data_is_unchanged(rpm: np.ndarray, sign: float) -> None:
+    clean, report = preprocess(_series(sign * rpm))
+    np.testing.assert_array_equal(clean.rpm, sign * rpm)
+    assert not report.filled.any() and not report.outliers.any()
+
+
+@PROPS
+@given(rpm=with_missing)
+def test_smoothing_without_outliers_is_identity(rpm: np.ndarray) -> None:
+    filled, _ = interpolate_missing(rpm)
+    out, mask = smooth_outliers(filled)
+    np.testing.assert_array_equal(out[~mask], filled[~mask])
+    if not mask.any():
+        np.testing.assert_array_equal(out, filled)
+
+
+@PROPS
+@given(
+    base=st.floats(100.0, 5000.0),
+    spike=st.floats(1.2, 5.0) | st.floats(0.0, 0.8),
+    n=st.integers(5, 40),
+    data=st.data(),
+)
+def test_a_single_spike_is_found_and_replaced(
+    base: float, spike: float, n: int, data: st.DataObject
+) -> None:
+    k = data.draw(st.integers(1, n - 2))
+    x = np.full(n, base)
+    x[k] = base * spike
+    out, mask = smooth_outliers(x)
+    assert np.flatnonzero(mask).tolist() == [k]
+    np.testing.assert_allclose(out, np.full(n, base), rtol=1e-12)
