@@ -174,3 +174,49 @@ def test_backlash_rattle_statistics_converge_under_dt_halving():
     b = simulate(train, 1.0, settle_s=0.5, dt_s=train.spec.solver.dt_s / 2).roller_rpm()
     np.testing.assert_allclose(a.mean(axis=0), b.mean(axis=0), rtol=1e-6)
     np.testing.assert_allclose(a.std(axis=0), b.std(axis=0), rtol=0.05)
+
+
+def _carriage(mass=95.0, viscous=200.0):
+    """A translational mass as one inertia (radius 1 m: kg for kg m^2, N for N m), no motor."""
+    return {
+        "inertia": [{"name": "carriage", "inertia_kgm2": mass}],
+        "bearing": [{"node": "carriage", "coulomb_torque_nm": 0.0, "viscous_nms": viscous}],
+        "solver": {"dt_s": 1e-4, "output_rate_hz": 1000.0, "settle_s": 0.0},
+    }
+
+
+def test_mass_with_viscous_friction_under_constant_force_matches_closed_form():
+    mass, viscous, force = 95.0, 200.0, 100.0
+    train = DriveTrain.from_dict(_carriage(mass, viscous))
+    train = train.with_torque("carriage", Signal(0.0, 1.0, np.array([force, force])))
+    res = simulate(train, 1.0)
+    # interval mean of v(t) = F/c (1 - exp(-c t / M)) over [t - T, t], from its integral
+    t = res.time_s
+    tau = mass / viscous
+
+    def x(s):
+        return force / viscous * (s + tau * np.exp(-s / tau) - tau)
+
+    expected = (x(t) - x(t - 1e-3)) / 1e-3
+    np.testing.assert_allclose(res.node_rpm[:, 0] * math.pi / 30, expected, rtol=1e-9, atol=1e-12)
+
+
+def test_zero_order_hold_signal_holds_each_value():
+    train = DriveTrain.from_dict(_carriage(1.0, 0.0))
+    steps = np.array([0.0, 1.0, 0.0, 1.0])  # N, held 10 ms each
+    zoh = train.with_torque("carriage", Signal(0.0, 0.01, steps, hold="zoh"))
+    lin = train.with_torque("carriage", Signal(0.0, 0.01, steps))
+    v_zoh = simulate(zoh, 0.03).node_rpm[:, 0] * math.pi / 30
+    v_lin = simulate(lin, 0.03).node_rpm[:, 0] * math.pi / 30
+    # held: 0 N in [0, 10 ms), 1 N in [10, 20 ms), 0 N in [20, 30 ms); the step at 10 ms is
+    # seen only by the last RK4 stage of the 10th interval (dt/6 * 1 N / 1 kg)
+    assert v_zoh[:9].max() == pytest.approx(0.0, abs=1e-12)
+    assert v_lin[:10].max() > 0  # linear interpolation ramps up at once
+    assert v_zoh[29] == pytest.approx(0.01, rel=1e-2)  # after 1 N for 10 ms: 0.01 m/s
+    assert np.ptp(v_zoh[21:30]) < 1e-12  # no force in the third interval: constant speed
+
+
+def test_train_without_motor_has_no_operating_point():
+    train = DriveTrain.from_dict(_carriage())
+    with pytest.raises(Exception, match="no torque-balance operating point"):
+        operating_point(train)

@@ -40,6 +40,9 @@ def kinematics(
 
     train = load_train(preset, config)
     kin = compute(train, motor_rpm)
+    if train.spec.motor is None:  # driven by external torques only: no running state
+        typer.echo(json.dumps(kin.to_dict(), indent=2))
+        return
     op = operating_point(train)
     if as_json:
         out = kin.to_dict()

@@ -31,6 +31,8 @@ class Signal:
     t0_s: float
     dt_s: float
     values: np.ndarray
+    hold: str = "linear"
+    """``linear`` interpolation, or ``zoh``: each value held until the next sample."""
 
     @classmethod
     def from_samples(cls, times_s: Any, values: Any, max_dt_s: float = 1e-3) -> Signal:
@@ -209,7 +211,7 @@ class DriveTrain:
             r = coupling_ratio(kind, c)
             adj.setdefault(a, []).append((kind, c, b, r))
             adj.setdefault(b, []).append((kind, c, a, 1.0 / r))
-        root = self.node_index(self.spec.motor.node)
+        root = self.node_index(self.spec.root_node)
         ratio = {root: 1.0}
         order: list[Edge] = []
         queue = deque([root])
@@ -234,7 +236,7 @@ class DriveTrain:
     def speed_ratios(self) -> np.ndarray:
         """Nominal speed of every node relative to the motor (rigid couplings, no creep)."""
         ratios = np.zeros(len(self.node_names))
-        ratios[self.node_index(self.spec.motor.node)] = 1.0
+        ratios[self.node_index(self.spec.root_node)] = 1.0
         for e in self.edges:
             ratios[e.child] = ratios[e.parent] * e.ratio
         return ratios
@@ -243,6 +245,24 @@ class DriveTrain:
     def _effective_mass(self, a: int, b: int, ra: float, rb: float) -> float:
         ja, jb = self.inertias[a], self.inertias[b]
         return ja * jb / (ja * rb * rb + jb * ra * ra)
+
+    def _motor_rows(self, sig) -> tuple[np.ndarray, np.ndarray]:
+        """Kernel rows of the induction motor (none for a train driven by external torques)."""
+        mot = self.spec.motor
+        if mot is None:
+            return np.zeros((0, 3), dtype=np.int64), np.zeros((0, 6))
+        w_rated = mot.rated_rpm * math.pi / 30.0
+        w_sync_rated = 4.0 * math.pi * mot.rated_supply_hz / mot.poles
+        lam = mot.breakdown_torque_ratio
+        s_n = 1.0 - w_rated / w_sync_rated
+        slip_k = s_n * (lam + math.sqrt(lam * lam - 1.0)) * w_sync_rated
+        motor_i = np.array(
+            [[self.node_index(mot.node), sig(self.supply_hz), sig(self.rotor_resistance)]],
+            dtype=np.int64,
+        )
+        motor_f = np.array([[lam * mot.rated_power_w / w_rated, slip_k, mot.poles / 2,
+                             mot.torque_lag_s, mot.torque_ripple, mot.supply_hz]])  # fmt: skip
+        return motor_i, motor_f
 
     def tables(self) -> Tables:
         """Compile the components (cached per train; trains are immutable)."""
@@ -259,15 +279,7 @@ class DriveTrain:
             return len(signals) - 1
 
         idx = self.node_index
-        mot = self.spec.motor
-        w_rated = mot.rated_rpm * math.pi / 30.0
-        w_sync_rated = 4.0 * math.pi * mot.rated_supply_hz / mot.poles
-        lam = mot.breakdown_torque_ratio
-        s_n = 1.0 - w_rated / w_sync_rated
-        slip_k = s_n * (lam + math.sqrt(lam * lam - 1.0)) * w_sync_rated
-        motor_i = np.array([[idx(mot.node), sig(self.supply_hz), sig(self.rotor_resistance)]])
-        motor_f = np.array([[lam * mot.rated_power_w / w_rated, slip_k, mot.poles / 2,
-                             mot.torque_lag_s, mot.torque_ripple, mot.supply_hz]])  # fmt: skip
+        motor_i, motor_f = self._motor_rows(sig)
 
         belts = [(idx(b.driver), idx(b.driven), b) for b in self.spec.belt]
         belt_i = np.array([[a, b_] for a, b_, _ in belts], dtype=np.int64).reshape(-1, 2)
@@ -335,11 +347,12 @@ class DriveTrain:
 
         starts = np.cumsum([0] + [len(s.values) for s in signals])
         sig_i = np.array(
-            [[starts[k], len(s.values)] for k, s in enumerate(signals)], dtype=np.int64
-        ).reshape(-1, 2)
+            [[starts[k], len(s.values), int(s.hold == "zoh")] for k, s in enumerate(signals)],
+            dtype=np.int64,
+        ).reshape(-1, 3)
         sig_f = np.array([[s.t0_s, s.dt_s] for s in signals], dtype=np.float64).reshape(-1, 2)
         sig_v = np.concatenate([s.values for s in signals]) if signals else np.zeros(1)
-        return Tables(1.0 / self.inertias, motor_i.astype(np.int64), motor_f, belt_i, belt_f,
+        return Tables(1.0 / self.inertias, motor_i, motor_f, belt_i, belt_f,
                       chain_i, chain_f, gear_i, gear_f, spring_i, spring_f, drag_i, drag_f,
                       torque_i, torque_f, sig_i, sig_f, sig_v)  # fmt: skip
 

@@ -40,7 +40,7 @@ class TrainSpec(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     train: TrainInfo = TrainInfo()
-    motor: InductionMotor
+    motor: InductionMotor | None = None
     inertia: list[Inertia]
     belt: list[Belt] = []
     chain: list[ChainDrive] = []
@@ -50,6 +50,11 @@ class TrainSpec(BaseModel):
     bearing: list[BearingFriction] = []
     torque: list[TorqueSeries] = []
     solver: Solver = Solver()
+
+    @property
+    def root_node(self) -> str:
+        """The node speed ratios are measured from: the motor's, else the first inertia."""
+        return self.motor.node if self.motor is not None else self.inertia[0].name
 
     def couplings(self) -> list[tuple[str, Belt | ChainDrive | GearMesh | Shaft]]:
         """All couplings with their kind, in declaration order per kind."""
@@ -110,7 +115,8 @@ def _check_graph(spec: TrainSpec, source: str) -> None:
                 fix=f"use one of the declared inertias: {', '.join(names)}",
             )
 
-    need(spec.motor.node, "[motor]", "node")
+    if spec.motor is not None:
+        need(spec.motor.node, "[motor]", "node")
     parent = {n: n for n in names}
 
     def find(n: str) -> str:
@@ -143,11 +149,11 @@ def _check_graph(spec: TrainSpec, source: str) -> None:
             where="[[roller]]",
             fix="declare each of front, second, third, back once",
         )
-    root = find(spec.motor.node)
+    root = find(spec.root_node)
     loose = [n for n in names if find(n) != root]
     if loose:
         raise ConfigError(
-            f"node(s) {loose} are not connected to the motor node '{spec.motor.node}'",
+            f"node(s) {loose} are not connected to the root node '{spec.root_node}'",
             source=source,
             where="drive train",
             fix="connect them with a belt, chain, gear or shaft, or remove them",

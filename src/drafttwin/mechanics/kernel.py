@@ -42,7 +42,7 @@ DR_COUL, DR_EPS, DR_VISC, DR_KIND = range(4)
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _signal(k, t, sig_i, sig_f, sig_v):
-    """Linear interpolation of signal ``k`` on its uniform grid, clamped at the ends."""
+    """Signal ``k`` at time ``t``: linear or zero-order hold on its uniform grid, clamped."""
     start = sig_i[k, 0]
     length = sig_i[k, 1]
     u = (t - sig_f[k, 0]) / sig_f[k, 1]
@@ -50,6 +50,8 @@ def _signal(k, t, sig_i, sig_f, sig_v):
         return sig_v[start]
     if u >= length - 1:
         return sig_v[start + length - 1]
+    if sig_i[k, 2] == 1:  # zero-order hold; the tolerance keeps sample instants on their sample
+        return sig_v[start + int(u + 1e-9)]
     j = int(u)
     w = u - j
     return sig_v[start + j] * (1.0 - w) + sig_v[start + j + 1] * w

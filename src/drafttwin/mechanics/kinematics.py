@@ -66,7 +66,15 @@ def _drafts(surface: dict[str, float]) -> dict[str, float]:
 
 def kinematics(train: DriveTrain, motor_rpm: float | None = None) -> Kinematics:
     """Nominal speeds at ``motor_rpm`` (default: the motor's rated speed)."""
-    motor_rpm = train.spec.motor.rated_rpm if motor_rpm is None else motor_rpm
+    if motor_rpm is None:
+        if train.spec.motor is None:
+            raise ConfigError(
+                "the train has no motor, so there is no rated speed to start from",
+                source=train.source,
+                where="--motor-rpm",
+                fix="give the root node's speed (--motor-rpm)",
+            )
+        motor_rpm = train.spec.motor.rated_rpm
     node_rpm = train.speed_ratios * motor_rpm
     rollers = {}
     for r in train.spec.roller:
@@ -171,6 +179,13 @@ def operating_point(train: DriveTrain, t: float = 0.0, iterations: int = 30) -> 
     """Steady state with the inputs held at their values at time ``t`` (s)."""
     tab = train.tables()
     mot = train.spec.motor
+    if mot is None:
+        raise ConfigError(
+            "a train without a motor has no torque-balance operating point",
+            source=train.source,
+            where="[motor]",
+            fix="add a [motor] or simulate from rest",
+        )
     t_k, slip_k, pole_pairs = tab.motor_f[0, 0], tab.motor_f[0, 1], tab.motor_f[0, 2]
     supply = _signal_at(train.supply_hz, t, mot.supply_hz)
     w_sync = 2 * math.pi * supply / pole_pairs

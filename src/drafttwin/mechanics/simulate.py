@@ -167,7 +167,10 @@ def simulate(
         )
     args = train.tables().args()
     t0 = t_start_s - settle
-    y = _rest_state(train) if from_rest else _initial_state(train, operating_point(train, t=t0))
+    if from_rest or train.spec.motor is None:
+        y = _rest_state(train)
+    else:
+        y = _initial_state(train, operating_point(train, t=t0))
     start = _time.perf_counter()
     K.integrate(y.copy(), t0, dt, 1, 1, *args)  # compile / load from cache outside the timing
     compile_s = _time.perf_counter() - start
@@ -199,7 +202,7 @@ def simulate(
         energy_j=np.vstack(energies),
         node_names=train.node_names,
         rollers=dict(train.roller_nodes),
-        motor_node=train.node_index(train.spec.motor.node),
+        motor_node=train.node_index(train.spec.root_node),
         dt_s=dt,
         wall_s=wall,
         compile_s=compile_s,
@@ -223,7 +226,11 @@ def simulate_reference(
     args = train.tables().args()
     n = len(train.node_names)
     t0 = -settle_s
-    y0 = _initial_state(train, operating_point(train, t=t0))
+    y0 = (
+        _rest_state(train)
+        if train.spec.motor is None
+        else _initial_state(train, operating_point(train, t=t0))
+    )
 
     def f(t: float, y: np.ndarray) -> np.ndarray:
         dy = np.empty_like(y)
