@@ -1,0 +1,350 @@
+"""The one training loop used by every network in drafttwin.
+
+Adam on mean-squared error in scaled units, mini-batches shuffled by a seeded
+``torch.Generator``, validation on the last ``val_fraction`` of the (chronologically ordered)
+training samples, early stopping with patience and restoration of the best weights, optional
+gradient-norm clipping, deterministic algorithms, CPU/GPU selection, and one rich progress bar
+per model fit (on stderr; silent with ``quiet``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import math
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from torch import nn
+
+from drafttwin.errors import DataError
+
+MAX_THREADS = 4
+"""Upper bound on intra-op CPU threads while training/predicting small recurrent nets."""
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Settings of one training run (see :mod:`drafttwin.models.profiles` for presets)."""
+
+    epochs: int = 30
+    batch_size: int = 64
+    lr: float = 1e-3
+    patience: int | None = 5
+    val_fraction: float = 0.2
+    clip_norm: float | None = 1.0
+    seed: int = 0
+    device: str = "auto"
+
+
+@dataclass
+class History:
+    """Loss per epoch (MSE in scaled units) and what the loop did.
+
+    ``val_loss`` is empty when there was no validation part; ``best_epoch`` is 0-based.
+    """
+
+    train_loss: list[float] = field(default_factory=list)
+    val_loss: list[float] = field(default_factory=list)
+    best_epoch: int = 0
+    stopped_early: bool = False
+    seconds: float = 0.0
+    n_train: int = 0
+    n_val: int = 0
+
+    @property
+    def samples_per_s(self) -> float:
+        """Training samples processed per second of wall time (validation time included)."""
+        epochs = len(self.train_loss)
+        return self.n_train * epochs / self.seconds if self.seconds > 0 else float("nan")
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "train_loss": list(self.train_loss),
+            "val_loss": list(self.val_loss),
+            "best_epoch": self.best_epoch,
+            "stopped_early": self.stopped_early,
+            "seconds": self.seconds,
+            "n_train": self.n_train,
+            "n_val": self.n_val,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, object]) -> History:
+        return cls(**data)  # type: ignore[arg-type]
+
+
+def resolve_device(name: str) -> torch.device:
+    """``"auto"`` -> CUDA when available, else CPU; otherwise ``torch.device(name)``."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    return torch.device(name)
+
+
+@contextlib.contextmanager
+def cpu_threads(device: torch.device) -> Iterator[None]:
+    """Cap intra-op CPU threads at :data:`MAX_THREADS` (small nets), restored afterwards."""
+    threads = torch.get_num_threads()
+    if device.type == "cpu":
+        torch.set_num_threads(min(threads, MAX_THREADS))
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
+@contextlib.contextmanager
+def compute_context(device: torch.device) -> Iterator[None]:
+    """Deterministic algorithms and a capped CPU thread count, restored afterwards.
+
+    Used around training; toggling determinism costs about a millisecond, so inference (which
+    is deterministic on CPU anyway) uses :func:`cpu_threads` only.
+    """
+    det, warn = (
+        torch.are_deterministic_algorithms_enabled(),
+        torch.is_deterministic_algorithms_warn_only_enabled(),
+    )
+    fill = torch.utils.deterministic.fill_uninitialized_memory
+    torch.use_deterministic_algorithms(True, warn_only=device.type != "cpu")
+    # filling every new tensor with NaN only helps debugging and costs ~15 % on conv nets
+    torch.utils.deterministic.fill_uninitialized_memory = False  # type: ignore[attr-defined]
+    try:
+        with cpu_threads(device):
+            yield
+    finally:
+        torch.use_deterministic_algorithms(det, warn_only=warn)
+        torch.utils.deterministic.fill_uninitialized_memory = fill  # type: ignore[attr-defined]
+
+
+class FitProgress:
+    """One progress bar for one model fit; each training stage resets it (epochs as units)."""
+
+    def __init__(self, description: str, *, quiet: bool = False) -> None:
+        self.description = description
+        self._progress = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("{task.fields[loss]}"),
+            TimeElapsedColumn(),
+            console=Console(stderr=True),
+            disable=quiet,
+            transient=False,
+        )
+        self._task = self._progress.add_task(description, total=1, loss="", start=False)
+
+    def __enter__(self) -> FitProgress:
+        self._progress.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._progress.stop()
+
+    def stage(self, name: str, epochs: int) -> None:
+        """Start a stage of ``epochs`` epochs on the same bar."""
+        self._progress.reset(
+            self._task, total=epochs, description=f"{self.description}: {name}", loss=""
+        )
+        self._progress.start_task(self._task)
+
+    def epoch(self, train_loss: float, val_loss: float | None) -> None:
+        text = f"loss {train_loss:.3g}" + ("" if val_loss is None else f" val {val_loss:.3g}")
+        self._progress.update(self._task, advance=1, loss=text)
+
+    def finish(self) -> None:
+        """Fill the bar (early stopping ends a stage before its epoch budget)."""
+        task = self._progress.tasks[0]
+        self._progress.update(self._task, completed=task.total)
+
+
+def _as_tensor(x: np.ndarray | None, device: torch.device) -> torch.Tensor | None:
+    return None if x is None else torch.as_tensor(np.asarray(x, dtype=np.float32), device=device)
+
+
+def _forward(net: nn.Module, x: torch.Tensor, extra: torch.Tensor | None) -> torch.Tensor:
+    return net(x) if extra is None else net(x, extra)
+
+
+def _mean_loss(
+    net: nn.Module,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    extra: torch.Tensor | None,
+    chunk: int = 4096,
+) -> float:
+    """MSE over all samples, evaluated in eval mode in chunks."""
+    net.eval()
+    total = 0.0
+    with torch.no_grad():
+        for i in range(0, x.shape[0], chunk):
+            e = None if extra is None else extra[i : i + chunk]
+            out = _forward(net, x[i : i + chunk], e)
+            total += float(nn.functional.mse_loss(out, y[i : i + chunk], reduction="sum"))
+    return total / (y.shape[0] * y.shape[1])
+
+
+def split_sizes(n: int, val_fraction: float) -> tuple[int, int]:
+    """``(n_train, n_val)``: the last ``floor(n * val_fraction)`` samples validate (if >= 1 and
+    at least one training sample remains)."""
+    n_val = int(math.floor(n * val_fraction))
+    if n - n_val < 1:
+        n_val = 0
+    return n - n_val, n_val
+
+
+def train_network(
+    net: nn.Module,
+    x: np.ndarray,
+    y: np.ndarray,
+    config: TrainConfig,
+    *,
+    extra: np.ndarray | None = None,
+    progress: FitProgress | None = None,
+    stage: str = "training",
+) -> History:
+    """Train ``net`` in place on windows ``x`` (N, T, F), targets ``y`` (N, outputs) and
+    optional per-sample ``extra`` (N, E), all in scaled units and chronological order.
+
+    Returns the loss history; the network ends with the best weights (lowest validation loss,
+    or training loss when there is no validation part) and in eval mode, on ``config.device``.
+    Weight initialisation is the caller's job (seed before building the net).
+    """
+    n = int(x.shape[0])
+    if n < 2:
+        raise DataError(
+            f"only {n} usable training window(s) for {stage}",
+            fix="use a longer training part, a shorter window or fewer cross-fitting folds",
+        )
+    device = resolve_device(config.device)
+    n_train, n_val = split_sizes(n, config.val_fraction)
+    history = History(n_train=n_train, n_val=n_val)
+    start = time.perf_counter()
+    cuda = [device.index or 0] if device.type == "cuda" else []
+    with compute_context(device), torch.random.fork_rng(devices=cuda):
+        torch.manual_seed(config.seed)
+        gen = torch.Generator().manual_seed(config.seed)
+        net.to(device)
+        xt, yt, et = _as_tensor(x, device), _as_tensor(y, device), _as_tensor(extra, device)
+        assert xt is not None and yt is not None
+        parts = _Split(xt, yt, et, n_train)
+        opt = torch.optim.Adam(net.parameters(), lr=config.lr)
+        if progress is not None:
+            progress.stage(stage, config.epochs)
+        _run_epochs(net, opt, parts, config, gen, history, progress)
+    history.seconds = time.perf_counter() - start
+    net.eval()
+    return history
+
+
+@dataclass
+class _Split:
+    x: torch.Tensor
+    y: torch.Tensor
+    extra: torch.Tensor | None
+    n_train: int
+
+    def train(self, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        e = None if self.extra is None else self.extra[idx]
+        return self.x[idx], self.y[idx], e
+
+    def val(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        k = self.n_train
+        e = None if self.extra is None else self.extra[k:]
+        return self.x[k:], self.y[k:], e
+
+
+def _run_epochs(
+    net: nn.Module,
+    opt: torch.optim.Optimizer,
+    parts: _Split,
+    config: TrainConfig,
+    gen: torch.Generator,
+    history: History,
+    progress: FitProgress | None,
+) -> None:
+    best = math.inf
+    best_state = copy.deepcopy(net.state_dict())
+    stale = 0
+    for epoch in range(config.epochs):
+        train_loss = _train_epoch(net, opt, parts, config, gen)
+        history.train_loss.append(train_loss)
+        val_loss = None
+        if history.n_val:
+            vx, vy, ve = parts.val()
+            val_loss = _mean_loss(net, vx, vy, ve)
+            history.val_loss.append(val_loss)
+        if progress is not None:
+            progress.epoch(train_loss, val_loss)
+        score = train_loss if val_loss is None else val_loss
+        if score < best:
+            best, stale, history.best_epoch = score, 0, epoch
+            best_state = copy.deepcopy(net.state_dict())
+        else:
+            stale += 1
+            if config.patience is not None and stale >= config.patience:
+                history.stopped_early = True
+                break
+    net.load_state_dict(best_state)
+    if progress is not None:
+        progress.finish()
+
+
+def _train_epoch(
+    net: nn.Module,
+    opt: torch.optim.Optimizer,
+    parts: _Split,
+    config: TrainConfig,
+    gen: torch.Generator,
+) -> float:
+    """One pass over the shuffled training samples; returns the mean training MSE."""
+    net.train()
+    perm = torch.randperm(parts.n_train, generator=gen).to(parts.x.device)
+    total = torch.zeros((), device=parts.x.device)
+    for i in range(0, parts.n_train, config.batch_size):
+        bx, by, be = parts.train(perm[i : i + config.batch_size])
+        opt.zero_grad(set_to_none=True)
+        loss = nn.functional.mse_loss(_forward(net, bx, be), by)
+        loss.backward()
+        if config.clip_norm is not None:
+            nn.utils.clip_grad_norm_(net.parameters(), config.clip_norm)
+        opt.step()
+        total += loss.detach() * by.shape[0]
+    return float(total) / parts.n_train
+
+
+def place(net: nn.Module, device: torch.device) -> None:
+    """Put ``net`` on ``device`` in eval mode, touching it only if needed (cheap per call)."""
+    param = next(net.parameters(), None)
+    if param is not None and param.device != device:
+        net.to(device)
+    if net.training:
+        net.eval()
+
+
+def predict_network(
+    net: nn.Module,
+    x: np.ndarray,
+    *,
+    extra: np.ndarray | None = None,
+    device: str = "auto",
+    chunk: int = 4096,
+) -> np.ndarray:
+    """Run ``net`` in eval mode on windows ``x`` (N, T, F); returns float64 (N, outputs)."""
+    dev = resolve_device(device)
+    place(net, dev)
+    outs: list[np.ndarray] = []
+    with cpu_threads(dev), torch.inference_mode():
+        for i in range(0, x.shape[0], chunk):
+            xt = _as_tensor(x[i : i + chunk], dev)
+            et = None if extra is None else _as_tensor(extra[i : i + chunk], dev)
+            assert xt is not None
+            outs.append(_forward(net, xt, et).cpu().numpy().astype(np.float64))
+    if not outs:
+        n_out = int(getattr(net, "n_outputs", 0))
+        return np.zeros((0, n_out), dtype=np.float64)
+    return np.concatenate(outs, axis=0)

@@ -1,0 +1,93 @@
+"""Causal windows: the only way model inputs are cut from a series.
+
+Every model builds its inputs through :func:`gather_windows`, which for a target row ``T`` and
+horizon ``h`` takes rows ``T-h-W+1 .. T-h`` of a feature array and nothing later. Measured
+speeds and residuals therefore reach a model only up to ``T-h`` (``t-1`` for ``h = 1``). The
+mechanistic prediction and the data-driven prediction *for* ``T`` enter separately as "extra"
+inputs taken at row ``T`` (they are known at that time; SPEC section 2).
+
+Missing samples are filled with :func:`causal_ffill` (last observation carried forward), which
+uses only earlier rows, so filling cannot leak the future either.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+
+def causal_ffill(x: np.ndarray) -> np.ndarray:
+    """Forward-fill ``NaN`` along axis 0 with the last earlier finite value of each column.
+
+    Rows before a column's first finite value stay ``NaN``. Uses rows ``<= i`` only for row
+    ``i``. Units are those of ``x``.
+    """
+    x = np.array(x, dtype=np.float64, copy=True)
+    if x.ndim == 1:
+        return causal_ffill(x[:, None])[:, 0]
+    n = x.shape[0]
+    if n == 0:
+        return x
+    rows = np.where(np.isnan(x), 0, np.arange(n)[:, None])
+    np.maximum.accumulate(rows, axis=0, out=rows)
+    return x[rows, np.arange(x.shape[1])[None, :]]
+
+
+def first_target(window: int, horizon: int) -> int:
+    """The first row that has a full input window: ``window + horizon - 1``."""
+    return window + horizon - 1
+
+
+def target_rows(n: int, window: int, horizon: int) -> np.ndarray:
+    """All rows ``T`` of an ``n``-row series that have a full window of ``window`` rows ending at
+    ``T - horizon``."""
+    return np.arange(first_target(window, horizon), max(n, first_target(window, horizon)))
+
+
+def gather_windows(
+    features: np.ndarray, targets: np.ndarray, window: int, horizon: int
+) -> np.ndarray:
+    """Input windows for the target rows, shape ``(len(targets), window, n_features)``, float32.
+
+    The window for target ``T`` holds rows ``T-horizon-window+1 .. T-horizon`` of ``features``
+    (oldest first). Raises ``ValueError`` if a window would start before row 0.
+    """
+    features = np.asarray(features, dtype=np.float64)
+    if features.ndim == 1:
+        features = features[:, None]
+    targets = np.asarray(targets, dtype=np.int64)
+    n_feat = features.shape[1]
+    if targets.size == 0:
+        return np.zeros((0, window, n_feat), dtype=np.float32)
+    starts = targets - horizon - window + 1
+    if starts.min() < 0 or targets.max() >= features.shape[0]:
+        raise ValueError("a window reaches outside the series")
+    view = sliding_window_view(features, window, axis=0)  # (n-window+1, n_feat, window)
+    return np.ascontiguousarray(view[starts].transpose(0, 2, 1), dtype=np.float32)
+
+
+def finite_rows(*arrays: np.ndarray) -> np.ndarray:
+    """Boolean mask over the first axis: ``True`` where every value in every array is finite."""
+    mask: np.ndarray | None = None
+    for arr in arrays:
+        ok = np.isfinite(arr).reshape(arr.shape[0], int(np.prod(arr.shape[1:]))).all(axis=1)
+        mask = ok if mask is None else mask & ok
+    if mask is None:
+        raise ValueError("finite_rows needs at least one array")
+    return mask
+
+
+def blocked_folds(start: int, stop: int, n_folds: int) -> list[tuple[int, int]]:
+    """Split rows ``start .. stop-1`` into ``n_folds`` contiguous blocks ``[a, b)``, in order."""
+    edges = np.linspace(start, stop, n_folds + 1).round().astype(int)
+    return [(int(edges[k]), int(edges[k + 1])) for k in range(n_folds)]
+
+
+def footprint_outside(
+    targets: np.ndarray, window: int, horizon: int, block: tuple[int, int]
+) -> np.ndarray:
+    """Mask of targets whose rows ``T-horizon-window+1 .. T`` (inputs and target) all lie outside
+    the held-out ``block = [a, b)``."""
+    a, b = block
+    first_input = targets - horizon - window + 1
+    return (targets < a) | (first_input >= b)

@@ -1,0 +1,113 @@
+"""The shared training loop: determinism, early stopping, best weights, progress, profiles."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from drafttwin.models import MechanisticModel, TrainConfig, make_model, train_network
+from drafttwin.models.networks import RecurrentRegressor, ResidualNet
+from drafttwin.models.training import FitProgress, _mean_loss, split_sizes
+
+from ._synthetic import hyper_for, make_series, mechanistic, one_thread
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    with one_thread():
+        yield
+
+
+@pytest.fixture(scope="module")
+def series():
+    return make_series(260, seed=4)[0]
+
+
+def _toy(n: int = 101, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    x = rng.random((n, 6, 4)).astype(np.float32)
+    y = (x[:, -1] * 0.5 + 0.1).astype(np.float32)
+    return x, y
+
+
+@pytest.mark.parametrize("name", ["gru", "md-s-l+d"])
+def test_same_seed_same_predictions(name: str, series) -> None:
+    mech = MechanisticModel(mechanistic)
+    p1 = make_model(name, **hyper_for(name, seed=5)).fit(series, mech).predict(series, mech)
+    p2 = make_model(name, **hyper_for(name, seed=5)).fit(series, mech).predict(series, mech)
+    p3 = make_model(name, **hyper_for(name, seed=6)).fit(series, mech).predict(series, mech)
+    np.testing.assert_array_equal(p1, p2)
+    assert not np.allclose(p1, p3, equal_nan=True)
+
+
+def test_fit_leaves_global_rng_and_threads_alone(series) -> None:
+    torch.manual_seed(123)
+    expected = torch.rand(1)
+    torch.manual_seed(123)
+    threads = torch.get_num_threads()
+    make_model("gru", **hyper_for("gru")).fit(series)
+    assert torch.equal(torch.rand(1), expected)
+    assert torch.get_num_threads() == threads
+
+
+def test_best_weights_are_restored() -> None:
+    x, y = _toy()
+    torch.manual_seed(0)
+    net = RecurrentRegressor(4, 4, hidden=8, layers=1, skip=False)
+    cfg = TrainConfig(epochs=6, batch_size=16, lr=0.05, patience=None, device="cpu")
+    hist = train_network(net, x, y, cfg)
+    n_train, n_val = split_sizes(len(x), cfg.val_fraction)
+    assert (hist.n_train, hist.n_val) == (n_train, n_val) == (81, 20)
+    assert len(hist.train_loss) == len(hist.val_loss) == 6
+    final = _mean_loss(net, torch.from_numpy(x[n_train:]), torch.from_numpy(y[n_train:]), None)
+    assert final == pytest.approx(min(hist.val_loss), rel=1e-6)
+    assert hist.best_epoch == int(np.argmin(hist.val_loss))
+    assert hist.samples_per_s > 0
+
+
+def test_early_stopping_with_patience() -> None:
+    x, y = _toy()
+    torch.manual_seed(0)
+    net = RecurrentRegressor(4, 4, hidden=4, layers=1)
+    cfg = TrainConfig(epochs=20, batch_size=32, lr=0.0, patience=2, device="cpu")
+    hist = train_network(net, x, y, cfg)  # lr 0: no improvement after the first epoch
+    assert hist.stopped_early
+    assert len(hist.train_loss) == 3
+
+
+def test_no_validation_part_and_batch_of_one() -> None:
+    """n_train % batch_size == 1 leaves a last batch of one sample; SKNet must cope."""
+    rng = np.random.default_rng(1)
+    x = rng.random((33, 7, 8)).astype(np.float32)
+    y = rng.random((33, 4)).astype(np.float32)
+    torch.manual_seed(0)
+    net = ResidualNet(8, 4, sk_channels=6, hidden=4, layers=1)
+    hist = train_network(net, x, y, TrainConfig(epochs=2, batch_size=8, val_fraction=0.0))
+    assert hist.n_val == 0 and hist.val_loss == []
+    assert len(hist.train_loss) == 2
+
+
+def test_one_progress_bar_per_fit(series, capsys: pytest.CaptureFixture[str]) -> None:
+    make_model("gru", **hyper_for("gru", quiet=False)).fit(series)
+    err = capsys.readouterr().err
+    assert "fit gru" in err
+    make_model("gru", **hyper_for("gru", quiet=True)).fit(series)
+    assert capsys.readouterr().err == ""
+
+
+def test_progress_stages_reuse_one_bar() -> None:
+    with FitProgress("fit x", quiet=True) as progress:
+        progress.stage("a", 3)
+        progress.epoch(1.0, None)
+        progress.stage("b", 5)
+        progress.epoch(1.0, 0.5)
+        progress.finish()
+        assert len(progress._progress.tasks) == 1
+
+
+def test_history_is_kept(series) -> None:
+    model = make_model("md-l", **hyper_for("md-l", epochs=3, patience=None))
+    model.fit(series, MechanisticModel(mechanistic))
+    assert len(model.history_.train_loss) == 3
+    assert len(model.data_model_.history_.train_loss) == 3
