@@ -259,3 +259,17 @@ def test_a_single_spike_is_found_and_replaced(
     out, mask = smooth_outliers(x)
     assert np.flatnonzero(mask).tolist() == [k]
     np.testing.assert_allclose(out, np.full(n, base), rtol=1e-12)
+
+
+def test_causal_spike_rejection_uses_only_the_past():
+    from drafttwin.data.preprocess import reject_spikes_causal
+
+    x = np.array([100.0, 101.0, 150.0, 100.5, np.nan, 99.0, 60.0, 98.0])
+    clean, rejected = reject_spikes_causal(x, 0.10)
+    assert rejected.tolist() == [False, False, True, False, False, False, True, False]
+    assert np.isnan(clean[2]) and np.isnan(clean[6]) and clean[7] == 98.0
+    # changing the future never changes an earlier decision
+    y = x.copy()
+    y[5:] = [500.0, 1.0, 3.0]
+    _, rejected_y = reject_spikes_causal(y, 0.10)
+    assert rejected_y[:5].tolist() == rejected[:5].tolist()

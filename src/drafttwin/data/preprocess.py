@@ -264,3 +264,32 @@ def chronological_split(
             fix="use a longer recording or a train fraction nearer 0.5",
         )
     return series.slice(0, n_train), series.slice(n_train)
+
+
+def reject_spikes_causal(rpm: np.ndarray, threshold: float = 0.10) -> tuple[np.ndarray, np.ndarray]:
+    """Mark as missing (``NaN``) every sample that jumps more than ``threshold`` (relative)
+    from the last accepted sample of its column; uses past samples only.
+
+    The paper's outlier rule compares a sample with *both* neighbours, so it needs the next
+    sample and cannot clean a model's inputs online. This causal variant can: a spike is
+    dropped and the models hold the last value. A genuine speed change of more than
+    ``threshold`` within one sample (a start from standstill) would be dropped too, so use it
+    on running data. Returns ``(cleaned rpm, rejected mask)``.
+    """
+    x = np.array(rpm, dtype=np.float64, copy=True)
+    squeeze = x.ndim == 1
+    x2 = x[:, None] if squeeze else x
+    rejected = np.zeros(x2.shape, dtype=bool)
+    for j in range(x2.shape[1]):
+        last = np.nan
+        col = x2[:, j]
+        for i in range(col.shape[0]):  # sequential by nature: each decision depends on the last
+            v = col[i]
+            if np.isnan(v):
+                continue
+            if np.isfinite(last) and abs(v - last) > threshold * abs(last):
+                rejected[i, j] = True
+                col[i] = np.nan
+            else:
+                last = v
+    return (x2[:, 0] if squeeze else x2), (rejected[:, 0] if squeeze else rejected)

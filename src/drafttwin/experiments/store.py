@@ -41,8 +41,14 @@ def data_hash(*arrays: np.ndarray) -> str:
     return h.hexdigest()
 
 
+def public(config: dict[str, Any]) -> dict[str, Any]:
+    """The configuration without context entries (keys starting with ``_``, e.g. file paths)."""
+    return {k: v for k, v in config.items() if not k.startswith("_")}
+
+
 def task_key(config: dict[str, Any], data_digest: str) -> str:
-    return hashlib.sha256((canonical_json(config) + data_digest).encode()).hexdigest()
+    """Identity of a task: its public configuration and the hash of the data it reads."""
+    return hashlib.sha256((canonical_json(public(config)) + data_digest).encode()).hexdigest()
 
 
 class ResultStore:
@@ -64,7 +70,7 @@ class ResultStore:
     def put(self, key: str, config: dict[str, Any], result: dict[str, Any]) -> None:
         if self.has(key):  # written once: a finished task is never overwritten
             return
-        doc = {"config": config, "result": result}
+        doc = {"config": public(config), "result": result}
         write_text_atomic(self._path(key), json.dumps(doc, default=_plain, sort_keys=True))
 
     def __len__(self) -> int:

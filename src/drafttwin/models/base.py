@@ -24,6 +24,16 @@ from drafttwin._io import atomic_path
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError, DrafttwinError, ModelFileError
 from drafttwin.models.mechanistic import MechanisticModel
+from drafttwin.models.simulation import (
+    TASK_CHECKS,
+    blank_after_init,
+    check_task_params,
+    init_rows,
+    input_matrix,
+    input_names,
+    is_simulation,
+    output_names,
+)
 from drafttwin.models.training import FitProgress
 
 FORMAT_NAME = "drafttwin-model"
@@ -64,6 +74,7 @@ _CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "horizon": (_int_at_least(1), "an integer >= 1 (samples ahead)"),
     "folds": (_int_at_least(2), "an integer >= 2"),
     "seed": (_int_at_least(0), "an integer >= 0"),
+    "stride": (_int_at_least(1), "an integer >= 1 (use every stride-th training window)"),
     "sk_channels": (lambda v: _int_at_least(3)(v) and v % 3 == 0, "a multiple of 3"),
     "dropout": (lambda v: isinstance(v, int | float) and 0 <= v < 1, "in [0, 1)"),
     "lr": (lambda v: isinstance(v, int | float) and v > 0 and math.isfinite(v), "> 0"),
@@ -74,6 +85,7 @@ _CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "quiet": (lambda v: isinstance(v, bool), "True or False"),
     "use_disagreement": (lambda v: isinstance(v, bool), "True or False"),
     "device": (_valid_device, '"auto", "cpu", "cuda" or "cuda:N"'),
+    **TASK_CHECKS,
 }
 
 
@@ -127,6 +139,7 @@ class BaseModel:
                     f"hyperparameter {key}={value!r} is invalid for {type(self).__name__}",
                     fix=f"{key} must be {check[1]}",
                 )
+        check_task_params(self)
 
     # ----- boundary checks -------------------------------------------------------------
     def _check_series(self, series: object) -> MeasurementSeries:
@@ -135,11 +148,18 @@ class BaseModel:
                 f"expected a MeasurementSeries, got {type(series).__name__}",
                 fix="read measurements with drafttwin.data.io.read_measurements(...)",
             )
-        if series.rpm.shape[1] != len(ROLLERS):
+        if getattr(self, "outputs", None) is None and series.rpm.shape[1] != len(ROLLERS):
             raise DataError(
                 f"the series has {series.rpm.shape[1]} roller column(s) {list(series.rollers)}; "
                 f"the models need {len(ROLLERS)}: {', '.join(ROLLERS)}",
                 fix="provide one speed column per bottom roller",
+            )
+        wanted = output_names(self)
+        if getattr(self, "outputs", None) is not None and tuple(series.rollers) != wanted:
+            raise DataError(
+                f"the series has output channels {list(series.rollers)} but the model's outputs "
+                f"are {list(wanted)}",
+                fix="build the series with rollers=outputs (same names, same order)",
             )
         fitted = getattr(self, "rollers_", None)
         if fitted is not None and tuple(series.rollers) != tuple(fitted):
@@ -148,6 +168,7 @@ class BaseModel:
                 f"{list(fitted)}",
                 fix="rename or reorder the columns as during fitting",
             )
+        input_matrix(series, input_names(self))  # refuses missing input channels
         return series
 
     def _check_fitted(self) -> None:
@@ -172,8 +193,15 @@ class BaseModel:
                 fix="pass mechanistic=MechanisticModel(source) (a callable, a simulator output "
                 "file, or MechanisticModel.from_preset('fa320a'))",
             )
+        channels = output_names(self)
         if not isinstance(model, MechanisticModel):
-            model = MechanisticModel(model)  # type: ignore[arg-type]
+            model = MechanisticModel(model, channels=channels)  # type: ignore[arg-type]
+        if model.channels != channels:
+            raise DataError(
+                f"the mechanistic source {model.name!r} gives channels {list(model.channels)} "
+                f"but the model predicts {list(channels)}",
+                fix="build the MechanisticModel with channels=<the model's outputs>",
+            )
         return model.predict(series), model
 
     # ----- public API ------------------------------------------------------------------
@@ -188,17 +216,27 @@ class BaseModel:
             self._fit(series, mech, progress)
         self.rollers_ = tuple(series.rollers)
         self.mechanistic_spec_ = None if mech_model is None else mech_model.spec()
+        rate = series.sample_rate_hz
+        self.sample_rate_hz_ = float(rate) if np.isfinite(rate) else None
         return self
 
     def predict(self, series: MeasurementSeries, mechanistic: object | None = None) -> np.ndarray:
-        """Predicted speeds in rpm, shape ``(n, 4)``; row ``t`` uses measurements up to
-        ``t - horizon`` only. ``NaN`` where the history is too short or incomplete.
+        """Predicted speeds in rpm (or the ``outputs`` channels in their units), shape
+        ``(n, channels)``. ``NaN`` where the history is too short or incomplete.
 
-        Pass the whole record (training and test part) and score the test rows: every row's
-        prediction only uses earlier measurements, so this is honest and loses no test rows.
+        ``task="prediction"``: row ``t`` uses measurements up to ``t - horizon`` only. Pass the
+        whole record (training and test part) and score the test rows: every row's prediction
+        only uses earlier measurements, so this is honest and loses no test rows.
+
+        ``task="simulation"``: a free run over the series from its first ``init_samples``
+        measured rows; every later measured output is blanked (NaN) here, before the
+        mechanistic source or the model sees the series. Pass the record to simulate (e.g. the
+        test record alone); rows before the end of the initialisation window are NaN.
         """
         self._check_fitted()
         series = self._check_series(series)
+        if is_simulation(self):
+            series = blank_after_init(series, init_rows(self))
         mech, _ = self._mechanistic(series, mechanistic, fitting=False)
         return self._predict(series, mech)
 
@@ -224,6 +262,7 @@ class BaseModel:
         state = {
             "rollers": list(self.rollers_),
             "mechanistic": self.mechanistic_spec_,
+            "sample_rate_hz": getattr(self, "sample_rate_hz_", None),
             **state,
         }
         payload = {
@@ -260,6 +299,7 @@ class BaseModel:
             state = json.loads(payload["state_json"])
             model.rollers_ = tuple(state.pop("rollers"))
             model.mechanistic_spec_ = state.pop("mechanistic")
+            model.sample_rate_hz_ = state.pop("sample_rate_hz", None)
             model._set_state(state, payload["tensors"])
         except (TypeError, KeyError, ValueError, RuntimeError) as exc:
             raise ModelFileError(

@@ -13,6 +13,13 @@ The data-driven residuals that train the residual model are out-of-sample: the G
 cross-fitted over contiguous blocks of the training part (fitted on the other blocks, with
 every window touching the held-out block removed, then predicting the held-out block). At
 prediction time the GRU fitted on the whole training part supplies ``yhat_d``.
+
+Simulation mode (``task="simulation"``, see :mod:`drafttwin.models.simulation`): no measured
+residual exists after the initialisation window, so the windows hold the exogenous inputs and
+the simulated outputs instead: ``[yhat_m, dyhat_m]`` (parallel), plus the data-driven model's
+free run ``[yhat_d, dyhat_d]`` (MD-*), at rows ``T-W+1 .. T``. The target is the mechanistic
+residual ``e_m(T)``, or with ``skip`` its per-sample change, accumulated from the measured
+residual at the end of the initialisation window.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import torch
 
 from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.data.series import MeasurementSeries
+from drafttwin.models import simulation as sim
 from drafttwin.models.base import pack_module, unpack_module
 from drafttwin.models.datadriven import _NeuralModel, fit_scaler
 from drafttwin.models.networks import ResidualNet
@@ -40,7 +48,8 @@ VARIANTS = ("md-s-l", "md-l", "md-s")
 
 
 class _ResidualHybrid(_NeuralModel):
-    """Residual correction of the mechanistic model from windows of residual channels."""
+    """Residual correction of the mechanistic model from windows of residual channels
+    (prediction) or of the inputs and simulated model outputs (simulation)."""
 
     needs_mechanistic = True
     use_sknet = False
@@ -56,78 +65,134 @@ class _ResidualHybrid(_NeuralModel):
     def _channel_groups(self) -> tuple[str, ...]:
         return ("em",)
 
+    def _sim_channel_groups(self) -> tuple[str, ...]:
+        """Simulation mode: the mechanistic output and its per-sample change."""
+        return ("ym", "dym")
+
     def _extra_group(self) -> str | None:
         return None
 
-    def _fit_data(self, y: np.ndarray, progress: FitProgress) -> np.ndarray | None:
+    def _fit_data(self, y: np.ndarray, u: np.ndarray, progress: FitProgress) -> np.ndarray | None:
         return None
 
-    def _predict_data(self, y: np.ndarray) -> np.ndarray | None:
+    def _predict_data(self, y: np.ndarray, u: np.ndarray) -> np.ndarray | None:
         return None
+
+    # --- task plumbing ---------------------------------------------------------------
+    def _channels(self) -> tuple[str, ...]:
+        """Window channel groups in order (the ``em`` group first in prediction mode)."""
+        base = self._sim_channel_groups() if sim.is_simulation(self) else self._channel_groups()
+        return base + (("u",) if sim.input_names(self) else ())
+
+    def _target_group(self) -> str:
+        """``dem`` (the residual's per-sample change) for an accumulating simulation, else
+        ``em``."""
+        return "dem" if sim.is_simulation(self) and self.skip else "em"
+
+    def _width(self, group: str) -> int:
+        return len(sim.input_names(self) if group == "u" else sim.output_names(self))
+
+    def _all_groups(
+        self, y: np.ndarray, mech: np.ndarray, data: np.ndarray | None, u: np.ndarray
+    ) -> dict[str, np.ndarray]:
+        if not sim.is_simulation(self):
+            groups = self._groups(y, mech, data)
+        else:
+            em = y - mech
+            dem = np.full_like(em, np.nan)
+            dem[1:] = em[1:] - em[:-1]
+            groups = {"em": em, "dem": dem, "ym": mech, "dym": sim.increments(mech)}
+            if data is not None:
+                groups.update({"yd": data, "dyd": sim.increments(data)})
+            if self._extra_group() is not None and data is not None:
+                groups["dis"] = data - mech
+        if u.shape[1]:
+            groups["u"] = u
+        return groups
 
     # --- shared machinery ----------------------------------------------------------
     def _new_net(self) -> ResidualNet:
-        extra = self._extra_group()
+        n_out = len(sim.output_names(self))
         return ResidualNet(
-            4 * len(self._channel_groups()),
-            4,
-            n_extra=4 if extra else 0,
+            sum(self._width(g) for g in self._channels()),
+            n_out,
+            n_extra=n_out if self._extra_group() else 0,
             use_sknet=self.use_sknet,
             use_lstm=self.use_lstm,
             sk_channels=getattr(self, "sk_channels", 24),
             hidden=self.hidden,
             layers=self.layers,
             dropout=self.dropout,
-            skip=self.skip,
+            skip=self.skip and not sim.is_simulation(self),
         )
 
     def _inputs(
         self, groups: dict[str, np.ndarray]
     ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
-        """Scaled windows, extras, targets (scaled ``e_m`` at T) and target rows."""
+        """Scaled windows, extras, scaled targets at T, and target rows. Prediction: rows
+        ``T-h-W+1 .. T-h``; simulation: rows ``T-W+1 .. T`` (no measured channel in them)."""
         scaled = {k: self.scalers_[k].transform(v) for k, v in groups.items()}
-        chans = np.hstack([causal_ffill(scaled[k]) for k in self._channel_groups()])
-        rows = target_rows(len(chans), self.window, self.horizon)
-        x = gather_windows(chans, rows, self.window, self.horizon)
+        chans = np.hstack([causal_ffill(scaled[k]) for k in self._channels()])
+        lag = 0 if sim.is_simulation(self) else self.horizon
+        rows = target_rows(len(chans), self.window, lag)
+        x = gather_windows(chans, rows, self.window, lag)
         key = self._extra_group()
         extra = None if key is None else scaled[key][rows].astype(np.float32)
-        return x, extra, scaled["em"][rows], rows
+        return x, extra, scaled[self._target_group()][rows], rows
 
     def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
         assert mech is not None
         y = series.rpm
-        data = self._fit_data(y, progress)
-        groups = self._groups(y, mech, data)
-        self.scalers_ = {k: fit_scaler(v, f"{k} residuals") for k, v in groups.items()}
+        u = sim.input_matrix(series, sim.input_names(self))
+        data = self._fit_data(y, u, progress)
+        groups = self._all_groups(y, mech, data, u)
+        self.scalers_ = {k: fit_scaler(v, f"{k} channels") for k, v in groups.items()}
         x, extra, target, _ = self._inputs(groups)
         ok = finite_rows(x, target) if extra is None else finite_rows(x, target, extra)
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(self.seed)
             net = self._new_net()
+        extra_ok = None if extra is None else extra[ok]
+        validate = None
+        if self._target_group() == "dem":  # accumulating simulation: stop on the free-run drift
+            validate = sim.drift_validator(
+                x[ok], target[ok], extra_ok, float(self.val_fraction), int(self.stride)
+            )
         self.history_ = train_network(
             net,
             x[ok],
             target[ok],
             self._train_config(self.seed),
-            extra=None if extra is None else extra[ok],
+            extra=extra_ok,
             progress=progress,
             stage=f"{self.name} residual model",
+            validate=validate,
         )
+        if self._target_group() == "dem":
+            sim.debias_head(net, x[ok], target[ok], extra_ok, self.device)
         self.net_ = net
 
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
         assert mech is not None
         y = series.rpm
-        groups = self._groups(y, mech, self._predict_data(y))
+        u = sim.input_matrix(series, sim.input_names(self))
+        groups = self._all_groups(y, mech, self._predict_data(y, u), u)
         x, extra, _, rows = self._inputs(groups)
         ok = finite_rows(x) if extra is None else finite_rows(x, extra)
-        out = np.full(y.shape, np.nan)
+        pred = np.full(y.shape, np.nan)
         if ok.any():
             e = predict_network(
                 self.net_, x[ok], extra=None if extra is None else extra[ok], device=self.device
             )
-            out[rows[ok]] = mech[rows[ok]] + self.scalers_["em"].inverse_transform(e)
-        return out
+            pred[rows[ok]] = self.scalers_[self._target_group()].inverse_transform(e)
+        if not sim.is_simulation(self):
+            return mech + pred
+        init = sim.init_rows(self)
+        if self._target_group() == "dem":  # accumulate from the last measured residual
+            anchor = causal_ffill(y[:init] - mech[:init])[-1]
+            pred = sim.accumulate(anchor, pred, init)
+        pred[:init] = np.nan
+        return mech + pred
 
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
         state = {
@@ -164,6 +229,11 @@ class ParallelHybrid(_ResidualHybrid):
         seed: int = 0,
         device: str = "auto",
         quiet: bool = False,
+        task: str = "prediction",
+        outputs: tuple[str, ...] | None = None,
+        inputs: tuple[str, ...] = (),
+        init_samples: int | None = None,
+        stride: int = 1,
     ) -> None:
         self.window = window
         self.hidden = hidden
@@ -180,6 +250,11 @@ class ParallelHybrid(_ResidualHybrid):
         self.seed = seed
         self.device = device
         self.quiet = quiet
+        self.task = task
+        self.outputs = outputs
+        self.inputs = inputs
+        self.init_samples = init_samples
+        self.stride = stride
 
     @property
     def name(self) -> str:

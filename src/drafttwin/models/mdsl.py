@@ -9,6 +9,12 @@ Inputs for target row ``T`` (horizon ``h``, residual window ``W``):
 part is cross-fitted (blocked K-fold, see :mod:`drafttwin.models.hybrid`), so ``e_d`` is an
 honest out-of-sample residual; the GRU refitted on the whole training part is kept for
 prediction.
+
+Simulation mode (``task="simulation"``): the GRU is a NARX model run free from its own
+outputs; each cross-fitting fold runs free over its held-out block from the block's first
+``init_samples`` measured rows, which gives an honest out-of-sample free run ``yhat_d`` over
+the training part. The residual model sees ``[yhat_m, dyhat_m, yhat_d, dyhat_d]`` (and the
+inputs), never a measured residual (see :mod:`drafttwin.models.hybrid`).
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import numpy as np
 import torch
 
 from drafttwin.errors import ConfigError, DataError
+from drafttwin.models import simulation as sim
 from drafttwin.models.datadriven import GRUModel
 from drafttwin.models.hybrid import VARIANTS, _ResidualHybrid
 from drafttwin.models.training import FitProgress
@@ -35,6 +42,7 @@ class MDSL(_ResidualHybrid):
         sk_channels: SKNet width (multiple of 3; the 8 residual channels are lifted to it).
         data_window / data_hidden / data_layers: the GRU data-driven model.
         folds: contiguous blocks for cross-fitting the GRU over the training part.
+        task / outputs / inputs / init_samples: see :mod:`drafttwin.models.simulation`.
         Other arguments: as :class:`drafttwin.models.GRUModel` (shared by both networks).
     """
 
@@ -62,6 +70,11 @@ class MDSL(_ResidualHybrid):
         seed: int = 0,
         device: str = "auto",
         quiet: bool = False,
+        task: str = "prediction",
+        outputs: tuple[str, ...] | None = None,
+        inputs: tuple[str, ...] = (),
+        init_samples: int | None = None,
+        stride: int = 1,
     ) -> None:
         self.variant = variant
         self.use_disagreement = use_disagreement
@@ -85,6 +98,11 @@ class MDSL(_ResidualHybrid):
         self.seed = seed
         self.device = device
         self.quiet = quiet
+        self.task = task
+        self.outputs = outputs
+        self.inputs = inputs
+        self.init_samples = init_samples
+        self.stride = stride
 
     @property
     def name(self) -> str:
@@ -118,6 +136,9 @@ class MDSL(_ResidualHybrid):
     def _channel_groups(self) -> tuple[str, ...]:
         return ("em", "ed")
 
+    def _sim_channel_groups(self) -> tuple[str, ...]:
+        return ("ym", "dym", "yd", "dyd")
+
     def _extra_group(self) -> str | None:
         return "dis" if self.use_disagreement else None
 
@@ -139,11 +160,18 @@ class MDSL(_ResidualHybrid):
             seed=seed,
             device=self.device,
             quiet=True,
+            task=self.task,
+            outputs=self.outputs,
+            inputs=self.inputs,
+            init_samples=sim.init_rows(self) if sim.is_simulation(self) else self.init_samples,
+            stride=self.stride,
         )
 
-    def _fit_data(self, y: np.ndarray, progress: FitProgress) -> np.ndarray:
+    def _fit_data(self, y: np.ndarray, u: np.ndarray, progress: FitProgress) -> np.ndarray:
         """Cross-fitted (out-of-sample) GRU predictions on the training part, (n, 4) rpm;
         also fits the GRU on the whole training part for prediction time."""
+        if sim.is_simulation(self):
+            return self._fit_data_sim(y, u, progress)
         start = first_target(self.data_window, self.horizon)
         if len(y) - start < 2 * self.folds:
             raise DataError(
@@ -156,22 +184,51 @@ class MDSL(_ResidualHybrid):
         for k, (a, b) in enumerate(blocks):
             fold = self._data_model(seed=self.seed + 1 + k)
             stage = f"GRU fold {k + 1}/{self.folds}"
-            fold._fit_arrays(y, exclude=(a, b), progress=progress, stage=stage)
-            oof[a:b] = fold._predict_arrays(y)[a:b]
+            fold._fit_arrays(y, u=u, exclude=(a, b), progress=progress, stage=stage)
+            oof[a:b] = fold._predict_arrays(y, u)[a:b]
+        return self._finish_data(y, u, blocks, oof, progress)
+
+    def _fit_data_sim(self, y: np.ndarray, u: np.ndarray, progress: FitProgress) -> np.ndarray:
+        """Simulation mode: out-of-sample NARX free runs, one per held-out block, each from
+        the block's own first ``init_samples`` measured rows."""
+        init = sim.init_rows(self)
+        if len(y) < self.folds * (init + self.data_window + 1):
+            raise DataError(
+                f"the training part ({len(y)} samples) is too short for {self.folds} "
+                f"cross-fitting folds of free runs with {init} initialisation samples",
+                fix="use a longer training part, fewer folds or fewer init_samples",
+            )
+        blocks = blocked_folds(0, len(y), self.folds)
+        oof = np.full(y.shape, np.nan)
+        for k, (a, b) in enumerate(blocks):
+            fold = self._data_model(seed=self.seed + 1 + k)
+            stage = f"GRU fold {k + 1}/{self.folds}"
+            fold._fit_arrays(y, u=u, exclude=(a, b), progress=progress, stage=stage)
+            oof[a:b] = fold._simulate_arrays(y, u, [(a, b)])[a:b]
+        return self._finish_data(y, u, blocks, oof, progress)
+
+    def _finish_data(self, y, u, blocks, oof: np.ndarray, progress: FitProgress) -> np.ndarray:
         full = self._data_model(seed=self.seed)
-        full._fit_arrays(y, progress=progress, stage="GRU on the whole training part")
+        full._fit_arrays(y, u=u, progress=progress, stage="GRU on the whole training part")
         self.data_model_ = full
         self.crossfit_blocks_ = blocks
         self.crossfit_pred_ = oof
         return oof
 
-    def _predict_data(self, y: np.ndarray) -> np.ndarray:
-        return self.data_model_._predict_arrays(y)
+    def _predict_data(self, y: np.ndarray, u: np.ndarray) -> np.ndarray:
+        if sim.is_simulation(self):  # the free run, its measured initialisation rows included
+            return self.data_model_._simulate_arrays(y, u)
+        return self.data_model_._predict_arrays(y, u)
 
     def predict_data_driven(self, series: Any) -> np.ndarray:
-        """The internal GRU's predictions (fitted on the whole training part), (n, 4) rpm."""
+        """The internal GRU's predictions (fitted on the whole training part), (n, 4) rpm
+        (simulation mode: its free run, NaN in the initialisation window)."""
         self._check_fitted()
-        return self._predict_data(self._check_series(series).rpm)
+        series = self._check_series(series)
+        if sim.is_simulation(self):
+            series = sim.blank_after_init(series, sim.init_rows(self))
+        u = sim.input_matrix(series, sim.input_names(self))
+        return self.data_model_._predict_arrays(series.rpm, u)
 
     # --- persistence ---------------------------------------------------------------
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:

@@ -8,12 +8,17 @@ known in advance and may be used up to and including the target time (SPEC secti
   column per roller (rpm), linearly interpolated onto the measurement time grid,
 * a ``pandas.DataFrame`` with the same columns,
 * a precomputed ``(n, 4)`` array aligned row by row with the series,
-* the built-in drive-train preset (:meth:`MechanisticModel.from_preset`).
+* the built-in drive-train preset (:meth:`MechanisticModel.from_preset`),
+* a function of the whole series (:meth:`MechanisticModel.from_series_function`), for a
+  simulation driven by the series' exogenous inputs (e.g. the EMPS drive voltage).
+
+Sources of other output channels than the four rollers (e.g. a position in m) name them with
+``channels=(...)``; the estimators check that they match their ``outputs``.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +43,8 @@ class MechanisticModel:
         columns: optional mapping ``roller -> column name`` for files and tables whose roller
             columns are not called front/second/third/back.
         name: a label for reports (defaults to a description of the source).
+        channels: names of the predicted channels (default: the four rollers), in column
+            order; files and tables are read by these names.
     """
 
     def __init__(
@@ -46,22 +53,28 @@ class MechanisticModel:
         *,
         columns: Mapping[str, str] | None = None,
         name: str | None = None,
+        channels: Sequence[str] | None = None,
     ) -> None:
         self._spec: dict[str, Any]
         self._table: tuple[np.ndarray, np.ndarray] | None = None
         self._func: Callable[[np.ndarray], np.ndarray] | None = None
+        self._series_func: Callable[[MeasurementSeries], np.ndarray] | None = None
         self._array: np.ndarray | None = None
+        self.channels: tuple[str, ...] = ROLLERS if channels is None else tuple(channels)
         label: str | None = None
         if isinstance(source, str | Path):
             path = Path(source)
-            self._table = _table_arrays(_read_table(path), columns, source=str(path))
+            frame = _read_table(path)
+            self._table = _table_arrays(frame, columns, source=str(path), channels=self.channels)
             self._spec = {"kind": "file", "path": str(path.resolve())}
             label = str(path)
         elif isinstance(source, pd.DataFrame):
-            self._table = _table_arrays(source, columns, source="mechanistic table")
+            self._table = _table_arrays(
+                source, columns, source="mechanistic table", channels=self.channels
+            )
             self._spec = {"kind": "table"}
         elif isinstance(source, np.ndarray):
-            self._array = _check_rpm(source, None, "mechanistic array")
+            self._array = _check_rpm(source, None, "mechanistic array", self.channels)
             self._spec = {"kind": "array"}
         elif callable(source):
             self._func = source
@@ -72,7 +85,34 @@ class MechanisticModel:
                 fix="pass a callable f(time_s) -> (n, 4) rpm, a CSV/Parquet path, a DataFrame "
                 "or an (n, 4) array",
             )
+        if self.channels != ROLLERS:
+            self._spec["channels"] = list(self.channels)
         self.name = name or label or self._spec["kind"]
+
+    @classmethod
+    def from_series_function(
+        cls,
+        func: Callable[[MeasurementSeries], np.ndarray],
+        *,
+        channels: Sequence[str] | None = None,
+        name: str | None = None,
+    ) -> MechanisticModel:
+        """A source computed from the whole series, ``func(series) -> (n, channels)``.
+
+        For a simulation driven by the series' exogenous inputs (``series.setpoints``). In
+        simulation mode the estimators pass a series whose outputs after the initialisation
+        window are NaN, so such a function can use at most the initial measured state.
+        Not stored in model files (pass it again to ``predict``).
+        """
+        model = cls.__new__(cls)
+        model._table, model._func, model._array = None, None, None
+        model._series_func = func
+        model.channels = ROLLERS if channels is None else tuple(channels)
+        model._spec = {"kind": "series-callable"}
+        if model.channels != ROLLERS:
+            model._spec["channels"] = list(model.channels)
+        model.name = name or "series-callable"
+        return model
 
     @classmethod
     def from_preset(cls, preset: str = "fa320a") -> MechanisticModel:
@@ -102,7 +142,7 @@ class MechanisticModel:
         if spec.get("kind") == "preset":
             return cls.from_preset(str(spec["name"]))
         if spec.get("kind") == "file" and Path(str(spec["path"])).is_file():
-            return cls(str(spec["path"]))
+            return cls(str(spec["path"]), channels=spec.get("channels"))
         return None
 
     def spec(self) -> dict[str, Any]:
@@ -112,12 +152,21 @@ class MechanisticModel:
     def predict(self, series: MeasurementSeries | np.ndarray) -> np.ndarray:
         """Mechanistic speeds in rpm on the series' time grid, shape ``(n, 4)``, float64.
 
-        ``series`` may also be a plain array of sample times in seconds. Raises
-        :class:`DataError` if a file/table does not cover the time span or a source returns
-        the wrong shape or non-finite values.
+        ``series`` may also be a plain array of sample times in seconds (not for a
+        :meth:`from_series_function` source). Raises :class:`DataError` if a file/table does
+        not cover the time span or a source returns the wrong shape or non-finite values.
         """
         time_s = series.time_s if isinstance(series, MeasurementSeries) else np.asarray(series)
         time_s = np.asarray(time_s, dtype=np.float64)
+        where = f"mechanistic source {self.name}"
+        if self._series_func is not None:
+            if not isinstance(series, MeasurementSeries):
+                raise DataError(
+                    "this mechanistic source is a function of the whole series",
+                    source=where,
+                    fix="pass the MeasurementSeries, not an array of sample times",
+                )
+            return _check_rpm(self._series_func(series), time_s.shape[0], where, self.channels)
         if self._array is not None:
             if self._array.shape[0] != time_s.shape[0]:
                 raise DataError(
@@ -130,21 +179,24 @@ class MechanisticModel:
         if self._table is not None:
             return _interpolate(*self._table, time_s, self.name)
         assert self._func is not None
-        return _check_rpm(self._func(time_s), time_s.shape[0], f"mechanistic source {self.name}")
+        return _check_rpm(self._func(time_s), time_s.shape[0], where, self.channels)
 
     def __repr__(self) -> str:
         return f"MechanisticModel({self.name!r})"
 
 
-def _check_rpm(values: object, n: int | None, source: str) -> np.ndarray:
+def _check_rpm(
+    values: object, n: int | None, source: str, channels: tuple[str, ...] = ROLLERS
+) -> np.ndarray:
     arr = np.asarray(values, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != len(ROLLERS) or (n is not None and arr.shape[0] != n):
-        want = f"({n if n is not None else 'n'}, {len(ROLLERS)})"
+    if arr.ndim != 2 or arr.shape[1] != len(channels) or (n is not None and arr.shape[0] != n):
+        want = f"({n if n is not None else 'n'}, {len(channels)})"
+        what = "roller" if channels == ROLLERS else "channel"
         raise DataError(
-            f"expected speeds of shape {want} (one column per roller: {', '.join(ROLLERS)}), "
+            f"expected speeds of shape {want} (one column per {what}: {', '.join(channels)}), "
             f"got shape {arr.shape}",
             source=source,
-            fix="return/provide one rpm column per roller in the order front, second, third, back",
+            fix=f"return/provide one column per {what} in the order {', '.join(channels)}",
         )
     bad = ~np.isfinite(arr)
     if bad.any():
@@ -152,7 +204,7 @@ def _check_rpm(values: object, n: int | None, source: str) -> np.ndarray:
         raise DataError(
             "mechanistic speeds must be finite",
             source=source,
-            where=f"row {row}, roller {ROLLERS[col]}",
+            where=f"row {row}, channel {channels[col]}",
             fix="fill or drop the missing simulator output",
         )
     return arr
@@ -204,14 +256,18 @@ def _numeric(frame: pd.DataFrame, column: str, source: str) -> np.ndarray:
 
 
 def _table_arrays(
-    frame: pd.DataFrame, columns: Mapping[str, str] | None, source: str
+    frame: pd.DataFrame,
+    columns: Mapping[str, str] | None,
+    source: str,
+    channels: tuple[str, ...] = ROLLERS,
 ) -> tuple[np.ndarray, np.ndarray]:
     if len(frame) < 2:
         raise DataError(f"{len(frame)} row(s); need at least 2", source=source)
     time_col = _find_column(frame, TIME_COLUMNS, source, "time")
     mapping = dict(columns or {})
+    what = "roller" if channels == ROLLERS else "channel"
     roller_cols = [
-        _find_column(frame, (mapping.get(r, r),), source, f"roller {r!r}") for r in ROLLERS
+        _find_column(frame, (mapping.get(r, r),), source, f"{what} {r!r}") for r in channels
     ]
     time_s = _numeric(frame, time_col, source)
     steps = np.diff(time_s)
@@ -232,7 +288,7 @@ def _interpolate(
 ) -> np.ndarray:
     """Linear interpolation of the table onto ``time_s``; refuses extrapolation."""
     if time_s.size == 0:
-        return np.zeros((0, len(ROLLERS)))
+        return np.zeros((0, table_rpm.shape[1]))
     tol = 1e-6 * float(np.median(np.diff(table_t)))
     if time_s.min() < table_t[0] - tol or time_s.max() > table_t[-1] + tol:
         raise DataError(
@@ -242,4 +298,6 @@ def _interpolate(
             fix="simulate over the whole measurement span (same time origin, in seconds)",
         )
     clipped = np.clip(time_s, table_t[0], table_t[-1])
-    return np.column_stack([np.interp(clipped, table_t, table_rpm[:, j]) for j in range(4)])
+    return np.column_stack(
+        [np.interp(clipped, table_t, table_rpm[:, j]) for j in range(table_rpm.shape[1])]
+    )

@@ -52,6 +52,13 @@ class OnlinePredictor:
 
     def __init__(self, model: BaseModel, mechanistic: object | None = None) -> None:
         model._check_fitted()
+        if getattr(model, "task", "prediction") != "prediction" or getattr(model, "inputs", ()):
+            raise ConfigError(
+                f"streaming supports task='prediction' models without exogenous inputs; this "
+                f"{model.name} has task={getattr(model, 'task', None)!r}, "
+                f"inputs={list(getattr(model, 'inputs', ()))}",
+                fix="use model.predict(series) for simulation runs and models with inputs",
+            )
         self.model = model
         self.horizon = int(getattr(model, "horizon", 1))
         self._mech: MechanisticModel | None = None

@@ -13,7 +13,7 @@ import contextlib
 import copy
 import math
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,6 +40,8 @@ class TrainConfig:
     clip_norm: float | None = 1.0
     seed: int = 0
     device: str = "auto"
+    stride: int = 1
+    """Use every ``stride``-th training sample (chronological order kept); 1 = all."""
 
 
 @dataclass
@@ -206,14 +208,23 @@ def train_network(
     extra: np.ndarray | None = None,
     progress: FitProgress | None = None,
     stage: str = "training",
+    validate: Callable[[nn.Module], float] | None = None,
 ) -> History:
     """Train ``net`` in place on windows ``x`` (N, T, F), targets ``y`` (N, outputs) and
     optional per-sample ``extra`` (N, E), all in scaled units and chronological order.
 
     Returns the loss history; the network ends with the best weights (lowest validation loss,
     or training loss when there is no validation part) and in eval mode, on ``config.device``.
-    Weight initialisation is the caller's job (seed before building the net).
+    Weight initialisation is the caller's job (seed before building the net). With
+    ``config.stride > 1`` only every ``stride``-th sample is used (for densely sampled records
+    whose neighbouring windows are nearly identical). ``validate(net) -> loss``, if given,
+    replaces the MSE on the validation part as the early-stopping criterion (e.g. a free-run
+    error); it runs with gradients off and the net in eval mode, whenever there is a
+    validation part.
     """
+    if config.stride > 1:
+        x, y = x[:: config.stride], y[:: config.stride]
+        extra = None if extra is None else extra[:: config.stride]
     n = int(x.shape[0])
     if n < 2:
         raise DataError(
@@ -235,7 +246,7 @@ def train_network(
         opt = torch.optim.Adam(net.parameters(), lr=config.lr)
         if progress is not None:
             progress.stage(stage, config.epochs)
-        _run_epochs(net, opt, parts, config, gen, history, progress)
+        _run_epochs(net, opt, parts, config, gen, history, progress, validate)
     history.seconds = time.perf_counter() - start
     net.eval()
     return history
@@ -266,6 +277,7 @@ def _run_epochs(
     gen: torch.Generator,
     history: History,
     progress: FitProgress | None,
+    validate: Callable[[nn.Module], float] | None = None,
 ) -> None:
     best = math.inf
     best_state = copy.deepcopy(net.state_dict())
@@ -276,7 +288,12 @@ def _run_epochs(
         val_loss = None
         if history.n_val:
             vx, vy, ve = parts.val()
-            val_loss = _mean_loss(net, vx, vy, ve)
+            if validate is None:
+                val_loss = _mean_loss(net, vx, vy, ve)
+            else:
+                net.eval()
+                with torch.no_grad():
+                    val_loss = float(validate(net))
             history.val_loss.append(val_loss)
         if progress is not None:
             progress.epoch(train_loss, val_loss)

@@ -165,3 +165,32 @@ class Plant:
         return PlantRecording(
             series, true_rpm, res.motor_rpm, measured.missing, measured.outlier, info
         )
+
+
+def attach_truth(series: MeasurementSeries, path: str | Path) -> MeasurementSeries:
+    """If ``path`` was written by the plant (a ``<stem>.json`` sidecar naming a truth file sits
+    beside it), return the series with ``metadata["true_rpm"]`` and the defect masks."""
+    path = Path(path)
+    sidecar = path.with_suffix(".json")
+    if not sidecar.is_file():
+        return series
+    try:
+        truth_name = json.loads(sidecar.read_text(encoding="utf-8"))["files"]["truth"]
+    except (ValueError, KeyError, TypeError):
+        return series
+    truth_path = path.with_name(truth_name)
+    if not truth_path.is_file():
+        return series
+    frame = (
+        pd.read_parquet(truth_path) if truth_path.suffix == ".parquet" else pd.read_csv(truth_path)
+    )
+    if len(frame) != len(series) or not np.allclose(
+        frame["time"].to_numpy(), series.time_s + series.metadata.get("time_offset_s", 0.0)
+    ):
+        return series  # the measured file was edited: its truth no longer lines up
+    meta = dict(series.metadata)
+    meta["true_rpm"] = frame[[f"true_{r}" for r in series.rollers]].to_numpy(np.float64)
+    meta["missing_mask"] = frame[[f"missing_{r}" for r in series.rollers]].to_numpy(bool)
+    meta["outlier_mask"] = frame[[f"outlier_{r}" for r in series.rollers]].to_numpy(bool)
+    return MeasurementSeries(series.time_s, series.rpm, series.rollers, series.motor_rpm,
+                             series.setpoints, meta)  # fmt: skip

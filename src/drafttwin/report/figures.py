@@ -14,6 +14,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 from scipy.signal import welch  # noqa: E402
 
 from drafttwin import ROLLERS  # noqa: E402
@@ -40,27 +41,45 @@ def _png(fig) -> bytes:
     return buf.getvalue()
 
 
+def _log_axis_plain(axis) -> None:
+    """Log axis ticks at 1, 1.5, 2, 3, 5, 7 × 10^k written as plain numbers."""
+    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 1.5, 2.0, 3.0, 5.0, 7.0)))
+    axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+    axis.set_minor_formatter(NullFormatter())
+
+
 def grid_losses(grid: Mapping[str, Sequence[Mapping]]) -> bytes:
-    """Fig. 7 analogue: validation loss of every (lr, hidden, layers) per network."""
+    """Fig. 7 analogue: validation loss of every (lr, hidden, layers) per network.
+
+    One line per learning rate over the (hidden, layers) combinations, log scale; the best
+    configuration (lowest finite loss) is ringed.
+    """
     nets = list(grid)
     fig, axes = plt.subplots(1, len(nets), figsize=(6.5 * len(nets), 3.8), squeeze=False)
     for ax, net in zip(axes[0], nets, strict=True):
         rows = list(grid[net])
         lrs = sorted({r["lr"] for r in rows})
         combos = sorted({(r["hidden"], r["layers"]) for r in rows})
-        width = 0.8 / len(lrs)
-        for k, lr in enumerate(lrs):
+        x = np.arange(len(combos))
+        for lr in lrs:
             vals = [next((r["val_loss"] for r in rows if r["lr"] == lr and (r["hidden"], r["layers"]) == c),
                          np.nan) for c in combos]  # fmt: skip
-            ax.bar(np.arange(len(combos)) + k * width, vals, width, label=f"lr {lr:g}")
-        best = min(rows, key=lambda r: r["val_loss"])
-        ax.set_xticks(np.arange(len(combos)) + 0.4 - width / 2)
+            ax.plot(x, np.asarray(vals, dtype=float), "o-", ms=5, lw=1, label=f"lr {lr:g}")
+        finite = [r for r in rows if np.isfinite(r["val_loss"])]
+        ax.set_xticks(x)
         ax.set_xticklabels([f"h{h}\nL{nl}" for h, nl in combos])
         ax.set_yscale("log")
+        _log_axis_plain(ax.yaxis)
+        ax.grid(axis="y", which="major", color="#e5e5e5", lw=0.6)
         ax.set_ylabel("validation loss (MSE, scaled)")
-        ax.set_title(f"{net.upper()}: best lr {best['lr']:g}, hidden {best['hidden']}, "
-                     f"layers {best['layers']}")  # fmt: skip
+        if finite:
+            best = min(finite, key=lambda r: r["val_loss"])
+            ax.plot([combos.index((best["hidden"], best["layers"]))], [best["val_loss"]], "o",
+                    ms=13, mfc="none", mec="black", label="best")  # fmt: skip
+            ax.set_title(f"{net.upper()}: best lr {best['lr']:g}, hidden {best['hidden']}, "
+                         f"layers {best['layers']}")  # fmt: skip
         ax.legend(fontsize=8)
+    fig.tight_layout()
     return _png(fig)
 
 
@@ -78,22 +97,24 @@ def predictions(
     for j, roller in enumerate(ROLLERS):
         for col, mask in ((0, slice(None)), (1, zoom)):
             ax = axes[j, col]
-            ax.plot(
-                time_s[mask], measured[mask, j], color=COLORS["measured"], lw=0.8, label="measured"
-            )
+            lw = 0.5 if col == 0 else 0.9
+            ax.plot(time_s[mask], measured[mask, j], color=COLORS["measured"], lw=lw,
+                    label="measured")  # fmt: skip
             if true is not None and col == 1:
-                ax.plot(
-                    time_s[mask], true[mask, j], color=COLORS["true"], lw=0.8, ls=":", label="true"
-                )
+                ax.plot(time_s[mask], true[mask, j], color=COLORS["true"], lw=1.2, ls=":",
+                        label="true")  # fmt: skip
             for name, p in preds.items():
-                ax.plot(time_s[mask], p[mask, j], color=COLORS.get(name), lw=0.8, label=name)
+                ax.plot(time_s[mask], p[mask, j], color=COLORS.get(name), lw=lw, alpha=0.85,
+                        label=name)  # fmt: skip
             ax.set_ylabel(f"{roller} (rpm)")
+            ax.ticklabel_format(axis="y", useOffset=False)
             if j == 0:
                 ax.set_title("test part" if col == 0 else f"zoom {zoom_s[0]:.1f}-{zoom_s[1]:.1f} s")
-    axes[0, 1].legend(fontsize=7, ncol=2, loc="upper right")
+    handles, labels = axes[0, 1].get_legend_handles_labels()
     axes[-1, 0].set_xlabel("time (s)")
     axes[-1, 1].set_xlabel("time (s)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.965))
+    fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
     return _png(fig)
 
 
@@ -110,10 +131,11 @@ def residuals(time_s: np.ndarray, resid: Mapping[str, np.ndarray], rate_hz: floa
                 axes[j, 1].semilogy(f[1:], p[1:], lw=0.8, color=COLORS.get(name), label=name)
         axes[j, 0].set_ylabel(f"{roller} residual (rpm)")
         axes[j, 1].set_ylabel("PSD (rpm²/Hz)")
-    axes[0, 0].legend(fontsize=7, ncol=3)
+    handles, labels = axes[0, 0].get_legend_handles_labels()
     axes[-1, 0].set_xlabel("time (s)")
     axes[-1, 1].set_xlabel("frequency (Hz)")
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.965))
+    fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
     return _png(fig)
 
 
@@ -133,13 +155,55 @@ def ablation_spread(
         ax.set_xticks(range(len(variants)))
         ax.set_xticklabels(variants)
         ax.set_title(roller)
-        ax.set_ylabel("accuracy (%)" if j == 0 else "")
+        ax.set_ylabel("ours: accuracy (%)" if j == 0 else "")
+        ax.ticklabel_format(axis="y", useOffset=False)
         inset = ax.twinx()
         inset.plot(
-            range(len(variants)), paper_means[roller], "kx", ms=7, label="paper (right axis)"
+            range(len(variants)), paper_means[roller], "kx", ms=7, label="paper mean (right axis)"
         )
-        inset.tick_params(labelsize=7)
+        inset.tick_params(labelsize=7, colors="#6b5f45")
+        inset.ticklabel_format(axis="y", useOffset=False)
         if j == len(ROLLERS) - 1:
+            inset.set_ylabel("paper: accuracy (%)", color="#6b5f45")
             inset.legend(fontsize=7, loc="lower left")
     fig.tight_layout()
+    return _png(fig)
+
+
+def rmse_overview(
+    rmse: Mapping[str, Sequence[float]],
+    rmse_true: Mapping[str, Sequence[float]],
+    noise_floor: Sequence[float],
+) -> bytes:
+    """RMSE per model and roller vs the measured (filled dot) and the true speed (open dot).
+
+    ``rmse`` and ``rmse_true`` map a model name to its four per-roller values (rpm);
+    ``noise_floor`` holds the four floors (NaN where unknown), drawn as a dashed line. Log
+    scale, one panel per roller, models top to bottom in the given order.
+    """
+    models = list(rmse)
+    y = np.arange(len(models))[::-1]
+    fig, axes = plt.subplots(1, len(ROLLERS), figsize=(13, 0.45 * len(models) + 1.2), sharey=True)
+    for j, roller in enumerate(ROLLERS):
+        ax = axes[j]
+        for k, m in enumerate(models):
+            c = COLORS.get(m, "#444444")
+            ax.plot(
+                [rmse[m][j]], [y[k]], "o", color=c, ms=7, label="vs measured" if k == 0 else None
+            )
+            t = rmse_true.get(m, [np.nan] * len(ROLLERS))[j]
+            ax.plot([t], [y[k]], "o", mfc="white", mec=c, ms=7, label="vs true" if k == 0 else None)
+        if np.isfinite(noise_floor[j]):
+            ax.axvline(noise_floor[j], color="black", ls="--", lw=1, label="noise floor")
+        ax.set_xscale("log")
+        _log_axis_plain(ax.xaxis)
+        ax.grid(axis="x", which="major", color="#e5e5e5", lw=0.6)
+        ax.set_yticks(y)
+        ax.set_yticklabels(models)
+        ax.set_ylim(-0.6, len(models) - 0.4)
+        ax.set_title(roller)
+        ax.set_xlabel("RMSE (rpm)")
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
     return _png(fig)

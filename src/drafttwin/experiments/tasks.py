@@ -1,0 +1,133 @@
+"""Study tasks: module-level functions ``task(config) -> result`` run by the executor.
+
+Every task reads the prepared data from ``config["_data"]`` (an .npz written by
+:mod:`drafttwin.experiments.prepare`) and writes large artefacts (a fitted GRU, predictions)
+under ``config["_artifacts"]``; both are context, not part of the task's identity.
+Workers use one PyTorch thread each, so parallel tasks do not oversubscribe the cores.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from drafttwin import ROLLERS
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.evaluation.metrics import evaluate, persistence_forecast
+from drafttwin.experiments.prepare import PreparedData
+from drafttwin.experiments.store import task_key
+from drafttwin.models import MechanisticModel, make_model
+from drafttwin.models.datadriven import GRUModel
+from drafttwin.models.mdsl import MDSL
+from drafttwin.models.simulation import input_matrix, input_names
+from drafttwin.models.training import FitProgress
+
+
+def _setup(config: dict[str, Any]) -> PreparedData:
+    torch.set_num_threads(1)
+    return PreparedData.load(config["_data"])
+
+
+def _artifact(config: dict[str, Any], data: PreparedData, suffix: str) -> Path:
+    folder = Path(config["_artifacts"])
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / f"{task_key(config, data.digest)[:24]}{suffix}"
+
+
+def score(data: PreparedData, pred: np.ndarray, horizon: int = 1) -> dict[str, dict[str, float]]:
+    """Per-roller metrics on the scored test samples, plus RMSE against the true speed."""
+    tr = data.n_train
+    pers = persistence_forecast(data.inputs, horizon)[tr:]
+    true = None if data.true is None else data.true[tr:]
+    metrics = evaluate(data.target[tr:], pred[tr:], persistence=pers, true_speed=true)
+    out = {}
+    for j, roller in enumerate(ROLLERS):
+        row = metrics[roller].to_dict()
+        row.pop("roller", None)
+        if true is not None:
+            ok = np.isfinite(data.target[tr:, j]) & np.isfinite(pred[tr:, j])
+            row["rmse_vs_true_rpm"] = float(np.sqrt(np.mean((pred[tr:, j][ok] - true[ok, j]) ** 2)))
+        out[roller] = row
+    return out
+
+
+def grid_point(config: dict[str, Any]) -> dict[str, Any]:
+    """One grid-search configuration: fit on the training part, return the validation loss."""
+    data = _setup(config)
+    y = data.inputs[: data.n_train]
+    start = 0 if config["train_samples"] is None else max(0, len(y) - config["train_samples"])
+    series = MeasurementSeries(data.time_s[start : data.n_train], y[start:])
+    model = make_model(config["net"], config["model_profile"], window=config["window"],
+                       hidden=config["hidden"], layers=config["layers"], lr=config["lr"],
+                       epochs=config["epochs"], patience=config["patience"], seed=config["seed"],
+                       quiet=True)  # fmt: skip
+    t0 = time.perf_counter()
+    model.fit(series)
+    hist = model.history_
+    losses = hist.val_loss or hist.train_loss
+    return {"val_loss": float(min(losses)), "epochs": len(hist.train_loss),
+            "wall_s": time.perf_counter() - t0}  # fmt: skip
+
+
+def data_model(config: dict[str, Any]) -> dict[str, Any]:
+    """The GRU data-driven model: cross-fitted on the training part (honest residuals for the
+    MD models) and refitted on all of it (the comparison's GRU); saves both for reuse."""
+    data = _setup(config)
+    mdsl = make_model("md-s-l", config["model_profile"], seed=config["seed"], quiet=True,
+                      **config["hyper"])  # fmt: skip
+    mdsl._check_params()
+    train = data.series().slice(0, data.n_train)
+    exog = input_matrix(train, input_names(mdsl))  # exogenous inputs (none for roller data)
+    t0 = time.perf_counter()
+    with FitProgress("GRU", quiet=True) as progress:
+        oof = mdsl._fit_data(train.rpm, exog, progress)
+    gru = mdsl.data_model_
+    gru.rollers_ = ROLLERS
+    gru.mechanistic_spec_ = None
+    gru_path = gru.save(_artifact(config, data, ".gru.dtm"))
+    oof_path = _artifact(config, data, ".oof.npy")
+    np.save(oof_path, oof)
+    pred = gru.predict(data.series())
+    pred_path = _artifact(config, data, ".pred.npy")
+    np.save(pred_path, pred)
+    return {"gru_path": str(gru_path), "oof_path": str(oof_path), "pred_path": str(pred_path),
+            "blocks": [list(b) for b in mdsl.crossfit_blocks_], "metrics": score(data, pred),
+            "epochs": len(gru.history_.train_loss), "wall_s": time.perf_counter() - t0}  # fmt: skip
+
+
+class _SharedDataMDSL(MDSL):
+    """An MD model whose cross-fitted GRU comes from a :func:`data_model` task."""
+
+    def _fit_data(self, y: np.ndarray, *_: object) -> np.ndarray:
+        gru_path, oof_path, blocks = self.shared_
+        self.data_model_ = GRUModel.load(gru_path)
+        self.crossfit_blocks_ = [tuple(b) for b in blocks]
+        self.crossfit_pred_ = np.load(oof_path)
+        return self.crossfit_pred_
+
+
+def hybrid(config: dict[str, Any]) -> dict[str, Any]:
+    """Fit one residual hybrid (parallel, md-s-l, md-l, md-s, md-s-l+d) and score it."""
+    data = _setup(config)
+    model = make_model(config["model"], config["model_profile"], seed=config["seed"], quiet=True,
+                       **config["hyper"])  # fmt: skip
+    if isinstance(model, MDSL):
+        shared = _SharedDataMDSL(**model.get_params())
+        dm = config["_data_model"]
+        shared.shared_ = (dm["gru_path"], dm["oof_path"], dm["blocks"])
+        model = shared
+    train = data.series().slice(0, data.n_train)
+    t0 = time.perf_counter()
+    model.fit(train, MechanisticModel(data.mech[: data.n_train]))
+    pred = model.predict(data.series(), MechanisticModel(data.mech))
+    result = {"metrics": score(data, pred), "epochs": len(model.history_.train_loss),
+              "wall_s": time.perf_counter() - t0}  # fmt: skip
+    if config.get("save_predictions"):
+        path = _artifact(config, data, ".pred.npy")
+        np.save(path, pred)
+        result["pred_path"] = str(path)
+    return result

@@ -1,0 +1,154 @@
+"""``write_report``: the study report (one self-contained HTML file) and its CSV tables."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from drafttwin import ROLLERS
+from drafttwin._io import atomic_path, write_text_atomic
+from drafttwin.report import figures, paper, tables
+from drafttwin.report.comparison import comparison_section, figures_section
+from drafttwin.report.html import join, page, tag
+from drafttwin.report.overview import TITLE, header, run_section
+from drafttwin.report.studies import ablation_section, agreement_section, grid_section
+
+TOC = [
+    ("run", "What was run"),
+    ("comparison", "Model comparison (Table 2)"),
+    ("predictions", "Predictions and residuals (Fig. 8)"),
+    ("grid", "Grid search (Fig. 7)"),
+    ("ablation", "Ablation (Table 3)"),
+    ("agreement", "Agreement with the paper"),
+]
+CSV_FLOAT = "%.10g"
+
+
+def _matrix(predictions: pd.DataFrame, prefix: str) -> np.ndarray | None:
+    """The (n, 4) block ``<prefix>_<roller>``, or None if any column is missing."""
+    cols = [f"{prefix}_{r}" for r in ROLLERS]
+    if not all(c in predictions.columns for c in cols):
+        return None
+    return predictions[cols].to_numpy(dtype=np.float64)
+
+
+def zoom_window(time_s: np.ndarray, length_s: float = 2.0) -> tuple[float, float]:
+    """A window of ``length_s`` (at most a quarter of the span) starting mid test part."""
+    if time_s.size == 0:
+        return 0.0, 0.0
+    t0, t1 = float(time_s[0]), float(time_s[-1])
+    length = min(length_s, (t1 - t0) / 4) if t1 > t0 else 0.0
+    start = t0 + (t1 - t0) / 2
+    return start, start + length
+
+
+def _prediction_figures(results: Mapping[str, Any], predictions: pd.DataFrame) -> dict[str, bytes]:
+    main, _ = tables.compared_models(results)
+    time_s = predictions["time"].to_numpy(dtype=np.float64)
+    measured = _matrix(predictions, "measured")
+    if measured is None:
+        raise ValueError("predictions lacks measured_<roller> columns")
+    true = _matrix(predictions, "true")
+    if true is not None and not np.isfinite(true).any():
+        true = None
+    preds = {m: p for m in main if (p := _matrix(predictions, m)) is not None}
+    shown = {m: p for m, p in preds.items() if m != "persistence"}
+    zoom = zoom_window(time_s)
+    resid = {m: measured - p for m, p in preds.items()}
+    rate = float(results["data"].get("rate_hz") or 1.0 / np.median(np.diff(time_s)))
+    return {
+        "predictions": figures.predictions(time_s, measured, shown, zoom, true=true),
+        "residuals": figures.residuals(time_s, resid, rate),
+    }
+
+
+def _summary_figures(results: Mapping[str, Any]) -> dict[str, bytes]:
+    main, extra = tables.compared_models(results)
+    metrics = results["comparison"]["metrics"]
+
+    def values(key: str) -> dict[str, list[float]]:
+        return {m: [tables.as_float(metrics[m][r].get(key)) for r in ROLLERS] for m in main + extra}
+
+    floor = [tables.as_float(metrics[main[0]][r].get("noise_floor_rpm")) for r in ROLLERS]
+    abl = results["ablation"]
+    acc = {v: np.asarray(abl["accuracy"][v], dtype=float) for v in abl["variants"]}
+    paper_means = {
+        r: [
+            paper.table3_mean(r, v) if v in paper.TABLE3_VARIANTS else float("nan")
+            for v in abl["variants"]
+        ]
+        for r in ROLLERS
+    }
+    grid = {net: results["grid"][net] for net in ("lstm", "gru") if results["grid"].get(net)}
+    return {
+        "rmse": figures.rmse_overview(values("rmse_rpm"), values("rmse_vs_true_rpm"), floor),
+        "grid": figures.grid_losses(grid),
+        "ablation": figures.ablation_spread(acc, paper_means),
+    }
+
+
+def render_html(results: Mapping[str, Any], predictions: pd.DataFrame) -> str:
+    """The whole report page as a string."""
+    figs = {**_summary_figures(results), **_prediction_figures(results, predictions)}
+    main, _ = tables.compared_models(results)
+    plotted = [m for m in main if m != "persistence" and _matrix(predictions, m) is not None]
+    zoom = zoom_window(predictions["time"].to_numpy(dtype=np.float64))
+    body = join(
+        [
+            header(results, TOC),
+            run_section(results),
+            comparison_section(results, figs),
+            figures_section(figs, plotted, zoom),
+            grid_section(results, figs),
+            ablation_section(results, figs),
+            agreement_section(results),
+            tag(
+                "footer",
+                f"Written by drafttwin {results.get('drafttwin_version', '')} from the "
+                "study's results.json; tables as CSV beside this file.",
+            ),
+        ]
+    )
+    return page(TITLE, body)
+
+
+def _write_csv(frame: pd.DataFrame, path: Path) -> None:
+    with atomic_path(path) as tmp:
+        frame.to_csv(tmp, index=False, float_format=CSV_FLOAT)
+
+
+def write_report(
+    out_dir: str | Path, results: Mapping[str, Any], predictions: pd.DataFrame
+) -> dict[str, Path]:
+    """Write ``report.html`` and the CSV tables into ``out_dir`` (each file atomically).
+
+    Args:
+        out_dir: folder to write into (created if needed).
+        results: the study's results dictionary (schema in ``drafttwin.experiments.study``).
+        predictions: the test part: ``time``, ``measured_<roller>``, optionally
+            ``true_<roller>``, and ``<model>_<roller>`` per compared model.
+
+    Returns:
+        ``{"report": .../report.html, "table2": ..., "metrics": ..., "table3": ...,
+        "table3_summary": ..., "grid": ...}``.
+    """
+    out = Path(out_dir)
+    frames = {
+        "table2": tables.table2(results),
+        "metrics": tables.metrics_table(results),
+        "table3": tables.table3(results),
+        "table3_summary": tables.table3_summary(results),
+        "grid": tables.grid_table(results),
+    }
+    text = render_html(results, predictions)
+    paths: dict[str, Path] = {}
+    for name, frame in frames.items():
+        paths[name] = out / f"{name}.csv"
+        _write_csv(frame, paths[name])
+    paths["report"] = out / "report.html"
+    write_text_atomic(paths["report"], text)
+    return paths

@@ -1,0 +1,107 @@
+"""``drafttwin fit / predict / evaluate`` end to end on a short plant recording."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin.cli import app
+from drafttwin.plant import Plant
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def data_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("plant") / "plant.csv"
+    Plant().run(16.0, 100.0, seed=11).write(path)
+    return path
+
+
+def _ok(args):
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    return result
+
+
+def test_fit_predict_evaluate_round_trip(data_file, tmp_path):
+    model = tmp_path / "gru.dtm"
+    _ok(["fit", "--model", "gru", "--data", str(data_file), "--out", str(model), "--quiet",
+         "--seed", "3"])  # fmt: skip
+    pred_a, pred_b = tmp_path / "a.csv", tmp_path / "b.parquet"
+    _ok(["predict", "--model", str(model), "--data", str(data_file), "--out", str(pred_a)])
+    _ok(["predict", "--model", str(model), "--data", str(data_file), "--out", str(pred_b)])
+    a, b = pd.read_csv(pred_a), pd.read_parquet(pred_b)
+    assert list(a.columns) == ["time", "front", "second", "third", "back"]
+    np.testing.assert_allclose(
+        a[["front", "back"]].to_numpy(), b[["front", "back"]].to_numpy(), rtol=1e-8
+    )
+    out = json.loads(
+        _ok(["evaluate", "--model", str(model), "--data", str(data_file), "--json"]).output
+    )
+    assert set(out) == {"front", "second", "third", "back"}
+    for m in out.values():
+        assert m["n_scored"] > 300 and np.isfinite(m["rmse_rpm"]) and m["noise_floor_rpm"] > 0
+
+
+def test_hybrid_with_mechanistic_preset(data_file, tmp_path):
+    model = tmp_path / "par.dtm"
+    _ok(["fit", "--model", "parallel", "--data", str(data_file), "--out", str(model), "--quiet"])
+    table = _ok(["evaluate", "--model", str(model), "--data", str(data_file)]).output
+    assert "parallel" in table and "skill" in table
+
+
+def test_refusals_exit_2(data_file, tmp_path):
+    cases = [
+        [
+            "fit",
+            "--model",
+            "transformer",
+            "--data",
+            str(data_file),
+            "--out",
+            str(tmp_path / "x.dtm"),
+        ],
+        [
+            "predict",
+            "--model",
+            str(data_file),
+            "--data",
+            str(data_file),
+            "--out",
+            str(tmp_path / "p.csv"),
+        ],
+        ["evaluate", "--model", str(tmp_path / "missing.dtm"), "--data", str(data_file)],
+        [
+            "fit",
+            "--model",
+            "gru",
+            "--data",
+            str(tmp_path / "nope.csv"),
+            "--out",
+            str(tmp_path / "y.dtm"),
+        ],
+    ]
+    for args in cases:
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, (args, result.output)
+        assert "Traceback" not in result.output
+    assert not (tmp_path / "x.dtm").exists() and not (tmp_path / "p.csv").exists()
+
+
+def test_data_with_other_rollers_or_rate_refused(data_file, tmp_path):
+    model = tmp_path / "p.dtm"
+    _ok(["fit", "--model", "persistence", "--data", str(data_file), "--out", str(model)])
+    frame = pd.read_csv(data_file)
+    slow = frame.iloc[::2].copy()  # 50 Hz
+    slow_path = tmp_path / "slow.csv"
+    slow.to_csv(slow_path, index=False)
+    result = runner.invoke(app, ["evaluate", "--model", str(model), "--data", str(slow_path)])
+    assert result.exit_code == 2 and "50 Hz" in result.output and "100 Hz" in result.output
+    three = frame.drop(columns=["third"])
+    three_path = tmp_path / "three.csv"
+    three.to_csv(three_path, index=False)
+    result = runner.invoke(app, ["evaluate", "--model", str(model), "--data", str(three_path)])
+    assert result.exit_code == 2 and "third" in result.output

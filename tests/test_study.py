@@ -1,0 +1,91 @@
+"""The study end to end on a tiny budget: shapes of every table, resume from the cache."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from drafttwin import ROLLERS
+from drafttwin.datasets import load_default
+from drafttwin.experiments.plan import STUDY_PROFILES
+from drafttwin.experiments.study import Study, write_outputs
+
+TINY = replace(STUDY_PROFILES["quick"], name="tiny", data_duration_s=24.0, epochs=1, patience=None,
+               grid_epochs=1, grid_train_samples=300, ablation_tests=10)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def study_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("study")
+    runs = []
+
+    def stage(name, total):
+        return lambda i, r, cached: runs.append((name, cached))
+
+    study = Study(TINY, out_dir=out, workers=2, stage=stage)
+    results, predictions = study.run(load_default())
+    files = write_outputs(out, results, predictions)
+    return out, results, predictions, files, runs
+
+
+def test_results_hold_every_table(study_run):
+    _, results, predictions, _, _ = study_run
+    comp = results["comparison"]["metrics"]
+    assert list(results["comparison"]["models"]) == [
+        "mechanistic",
+        "persistence",
+        "gru",
+        "parallel",
+        "md-s-l",
+    ]
+    for model in results["comparison"]["models"]:
+        assert set(comp[model]) == set(ROLLERS)
+        for m in comp[model].values():
+            assert {
+                "max_rel_err_pct",
+                "mean_rel_err_pct",
+                "rmse_rpm",
+                "nrmse",
+                "skill",
+                "noise_floor_rpm",
+            } <= set(m)
+    acc = results["ablation"]["accuracy"]
+    assert set(acc) == {"md-s-l", "md-l", "md-s"}
+    assert all(np.array(v).shape == (10, 4) for v in acc.values())
+    assert len(results["grid"]["lstm"]) == 18 and len(results["grid"]["gru"]) == 18
+    assert len(results["ablation"]["differences"]) == 3 * 4
+    assert {f"md-s-l_{r}" for r in ROLLERS} <= set(predictions.columns)
+
+
+def test_metrics_are_consistent(study_run):
+    _, results, _, _, _ = study_run
+    comp = results["comparison"]["metrics"]
+    for r in ROLLERS:
+        assert comp["persistence"][r]["skill"] == pytest.approx(0.0, abs=1e-12)
+        # the noise floor is a property of the data, the same for every model
+        floors = {comp[m][r]["noise_floor_rpm"] for m in results["comparison"]["models"]}
+        assert max(floors) - min(floors) < 1e-9
+        acc = comp["md-s-l"][r]["accuracy_pct"]
+        assert acc == pytest.approx(100 - comp["md-s-l"][r]["mean_rel_err_pct"])
+
+
+def test_seeds_give_a_spread_and_outputs_are_written(study_run):
+    out, results, _, files, _ = study_run
+    acc = np.array(results["ablation"]["accuracy"]["md-s-l"])
+    assert np.all(acc.std(axis=0) > 0)  # ten seeds, ten different residual models
+    saved = json.loads((out / "results.json").read_text())
+    assert saved["data"]["hash"] == results["data"]["hash"]
+    assert saved["timings"]["stages"]["report"] > 0
+    for key in ("report", "results", "predictions"):
+        assert files[key].is_file()
+
+
+def test_rerun_resumes_from_the_cache(study_run):
+    out, results, _, _, first = study_run
+    assert not any(cached for _, cached in first)
+    again = []
+    study = Study(TINY, out_dir=out, workers=2, stage=lambda n, t: lambda i, r, c: again.append(c))
+    results2, _ = study.run(load_default())
+    assert again and all(again)  # nothing was fitted a second time
+    assert results2["comparison"]["metrics"] == results["comparison"]["metrics"]
