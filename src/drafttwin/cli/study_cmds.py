@@ -20,6 +20,8 @@ AddrOpt = Annotated[
         help="Ray cluster address (HOST:PORT or 'auto'); none: a private local Ray instance."
     ),
 ]
+StudyDataOpt = Annotated[str, typer.Option(help="'default' or a CSV/Parquet measurement file.")]
+QuietOpt = Annotated[bool, typer.Option(help="No progress display.")]
 WorkersOpt = Annotated[
     int | None, typer.Option(help="Parallel tasks (default: CPU cores, at most 8).", min=1)
 ]
@@ -81,18 +83,17 @@ def reproduce(
     out: Annotated[
         Path, typer.Option(help="Output folder (report.html, results.json, CSV tables).")
     ] = Path("drafttwin-study"),
-    data: Annotated[
-        str, typer.Option(help="'default' or a CSV/Parquet measurement file.")
-    ] = "default",
+    data: StudyDataOpt = "default",
     executor: ExecOpt = "local",
     address: AddrOpt = None,
     workers: WorkersOpt = None,
-    quiet: Annotated[bool, typer.Option(help="No progress display.")] = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Run the paper's whole study and write a self-contained HTML report.
 
-    Grid search (Fig. 7), model comparison (Table 2, Fig. 8) with honest metrics, ablation over
-    10 repeated tests (Table 3). Finished fits are kept in OUT/cache: a rerun resumes.
+    Grid search (Fig. 7), model comparison (Table 2, Fig. 8) with honest metrics, ablation over 10 repeated tests (Table 3).
+
+    Finished fits are kept in OUT/cache: a rerun resumes.
     """
     from drafttwin.experiments.study import write_outputs
 
@@ -114,13 +115,11 @@ def grid_search(
     out: Annotated[Path, typer.Option(help="Output folder (grid.json and the task cache).")] = Path(
         "drafttwin-study"
     ),
-    data: Annotated[
-        str, typer.Option(help="'default' or a CSV/Parquet measurement file.")
-    ] = "default",
+    data: StudyDataOpt = "default",
     executor: ExecOpt = "local",
     address: AddrOpt = None,
     workers: WorkersOpt = None,
-    quiet: Annotated[bool, typer.Option(help="No progress display.")] = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """The paper's grid search only: lr x hidden x layers for LSTM and GRU (Fig. 7)."""
     import json
