@@ -89,3 +89,35 @@ def test_rerun_resumes_from_the_cache(study_run):
     results2, _ = study.run(load_default())
     assert again and all(again)  # nothing was fitted a second time
     assert results2["comparison"]["metrics"] == results["comparison"]["metrics"]
+
+
+@pytest.mark.parametrize("name", ["quick", "standard", "paper"])
+def test_every_profile_builds_valid_models(name):
+    """Profiles that are too slow to run here still give valid hyperparameters for every model."""
+    from drafttwin.experiments.plan import get_study_profile, grid_configs
+    from drafttwin.models import make_model
+    from drafttwin.models.registry import MODEL_NAMES, get_profile
+
+    profile = get_study_profile(name)
+    overrides = {
+        k: v
+        for k, v in (("epochs", profile.epochs), ("patience", profile.patience))
+        if v is not None
+    }
+    for model in MODEL_NAMES:
+        hyper = overrides if model not in ("mechanistic", "persistence") else {}
+        make_model(model, profile.model_profile, **hyper)._check_params()
+    grid = grid_configs(profile, get_profile(profile.model_profile).window)
+    assert len(grid) == 36 and {c["net"] for c in grid} == {"lstm", "gru"}
+    for c in grid[:: len(grid) - 1]:
+        make_model(c["net"], profile.model_profile, hidden=c["hidden"], layers=c["layers"],
+                   lr=c["lr"], epochs=c["epochs"], patience=c["patience"])._check_params()  # fmt: skip
+    if name == "paper":
+        paper = get_profile("paper")
+        assert (
+            paper.data_hidden,
+            paper.data_layers,
+            paper.residual_hidden,
+            paper.residual_layers,
+        ) == (128, 3, 256, 3)
+        assert (paper.batch_size, paper.epochs, paper.lr, paper.dropout) == (10, 500, 1e-3, 0.2)

@@ -141,7 +141,10 @@ def _print_summary(s: dict[str, Any]) -> None:
 
 @app.command("inspect")
 def inspect_cmd(
-    file: Annotated[Path, typer.Argument(help="Measurement file (.csv, .parquet).")],
+    file: Annotated[
+        Path,
+        typer.Argument(help="Measurement file (.csv, .parquet), or 'default' (embedded data)."),
+    ],
     columns: Annotated[
         str | None,
         typer.Option(help="Map file columns to rollers / time / motor: v1=front,v2=second,..."),
@@ -174,15 +177,20 @@ def inspect_cmd(
 
     A refused file exits with code 2 and a message naming the file, the row or column, and the fix.
     """
-    series = read_measurements(
-        file,
-        columns=parse_pairs(columns, "--columns"),
-        time_column=time_column,
-        expected_rate_hz=rate,
-        rate_tolerance=rate_tolerance,
-        check_units=unit_check,
-        nominal_rpm=parse_numbers(nominal, "--nominal"),
-    )
+    if str(file) == "default" and not file.exists():
+        from drafttwin.datasets import load_default
+
+        series = load_default()
+    else:
+        series = read_measurements(
+            file,
+            columns=parse_pairs(columns, "--columns"),
+            time_column=time_column,
+            expected_rate_hz=rate,
+            rate_tolerance=rate_tolerance,
+            check_units=unit_check,
+            nominal_rpm=parse_numbers(nominal, "--nominal"),
+        )
     summary = summarize(series, outlier_threshold=threshold)
     if as_json:
         typer.echo(json.dumps(summary, indent=2))
