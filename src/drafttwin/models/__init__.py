@@ -8,7 +8,9 @@ mechanistic=None) -> (n, 4) rpm``, ``save(path)``, ``Class.load(path)``):
 * :class:`ParallelHybrid`, :class:`MDSL` (``md-s-l``, ``md-l``, ``md-s``, ``+d``).
 
 Build them by name with :func:`make_model`, load any file with :func:`load_model`;
-step through a record one sample at a time with :class:`OnlinePredictor`.
+step through a record one sample at a time with :class:`OnlinePredictor`. Every estimator
+also takes ``task="simulation"`` (free run), other ``outputs`` and exogenous ``inputs``
+(:mod:`drafttwin.models.simulation`, ``docs/emps.md``).
 """
 
 from drafttwin.models.base import FORMAT_VERSION, BaseModel, NotFittedError
@@ -20,6 +22,7 @@ from drafttwin.models.networks import RecurrentRegressor, ResidualNet, SKConv1d
 from drafttwin.models.online import OnlinePredictor
 from drafttwin.models.profiles import PROFILES, Profile
 from drafttwin.models.registry import MODEL_NAMES, get_profile, load_model, make_model
+from drafttwin.models.simulation import TASKS
 from drafttwin.models.training import FitProgress, History, TrainConfig, train_network
 
 __all__ = [
@@ -42,6 +45,7 @@ __all__ = [
     "RecurrentRegressor",
     "ResidualNet",
     "SKConv1d",
+    "TASKS",
     "TrainConfig",
     "get_profile",
     "load_model",

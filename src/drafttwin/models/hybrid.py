@@ -16,8 +16,8 @@ prediction time the GRU fitted on the whole training part supplies ``yhat_d``.
 
 Simulation mode (``task="simulation"``, see :mod:`drafttwin.models.simulation`): no measured
 residual exists after the initialisation window, so the windows hold the exogenous inputs and
-the simulated outputs instead: ``[yhat_m, dyhat_m]`` (parallel), plus the data-driven model's
-free run ``[yhat_d, dyhat_d]`` (MD-*), at rows ``T-W+1 .. T``. The target is the mechanistic
+the simulated outputs instead: ``[yhat_m, dyhat_m]`` (parallel), plus the per-sample change
+of the data-driven model's free run ``dyhat_d`` (MD-*), at rows ``T-W+1 .. T``. The target is the mechanistic
 residual ``e_m(T)``, or with ``skip`` its per-sample change, accumulated from the measured
 residual at the end of the initialisation window.
 """
@@ -103,7 +103,7 @@ class _ResidualHybrid(_NeuralModel):
             dem[1:] = em[1:] - em[:-1]
             groups = {"em": em, "dem": dem, "ym": mech, "dym": sim.increments(mech)}
             if data is not None:
-                groups.update({"yd": data, "dyd": sim.increments(data)})
+                groups["dyd"] = sim.increments(data)
             if self._extra_group() is not None and data is not None:
                 groups["dis"] = data - mech
         if u.shape[1]:

@@ -19,8 +19,8 @@ Simulation mode, per model (see ``docs/emps.md``):
 * gru / lstm (NARX): a window of ``[y, dy, u]`` (levels, per-sample changes, inputs) at rows
   ``T-W .. T-1`` predicts the change ``dy(T)``; trained one step ahead on measured data, run
   free from its own outputs;
-* parallel / md-s-l: windows of ``[u, yhat_m, dyhat_m]`` (md-s-l adds the data-driven
-  model's free run ``[yhat_d, dyhat_d]``) at rows ``T-W+1 .. T`` predict the mechanistic
+* parallel / md-s-l: windows of ``[u, yhat_m, dyhat_m]`` (md-s-l adds the per-sample change
+  of the data-driven model's free run, ``dyhat_d``) at rows ``T-W+1 .. T`` predict the mechanistic
   residual; with ``skip`` its per-sample change, accumulated from the measured residual at the
   end of the initialisation window (no measured residual after it is ever used); early
   stopping then uses the free-run drift over the validation part.

@@ -1,0 +1,169 @@
+"""The EMPS benchmark report: text table, figure and a self-contained HTML page.
+
+:func:`write_outputs` writes, atomically, into the output folder: ``emps_report.html`` (the
+tables and a PNG figure embedded as base64), ``emps_results.json`` (everything
+:func:`drafttwin.experiments.emps.run_benchmark` measured) and ``emps_predictions.csv``
+(time, measured ``qm`` and each model's seed-0 test prediction, m).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from drafttwin._io import atomic_path, write_text_atomic  # noqa: E402
+from drafttwin.experiments.emps import PREDICTION_START, PUBLISHED, EmpsResult  # noqa: E402
+
+LABELS = {
+    "mechanistic": "physics only",
+    "persistence": "persistence (hold)",
+    "gru": "GRU (black box)",
+    "lstm": "LSTM (black box)",
+    "parallel": "parallel hybrid",
+    "md-s-l": "MD-S-L",
+}
+COLORS = {
+    "mechanistic": "#d62728",
+    "persistence": "#7f7f7f",
+    "gru": "#1f77b4",
+    "lstm": "#17becf",
+    "parallel": "#ff7f0e",
+    "md-s-l": "#2ca02c",
+}
+HEADER = ("model", "task", "test RMSE mm (mean ± std)", "min–max", "runs", "fit %",
+          "published mm")  # fmt: skip
+
+
+def _num(x: float, digits: int = 2) -> str:
+    if x is None or not math.isfinite(x):
+        return "n/a"
+    if abs(x) < 1:
+        digits += 1  # one-step prediction errors are hundredths of a mm
+    return f"{x:.{digits}f}" if abs(x) < 1e4 else f"{x:.3g}"
+
+
+def table_rows(results: dict[str, Any]) -> list[tuple[str, ...]]:
+    """The benchmark table as text cells (see :data:`HEADER`)."""
+    rows = []
+    for r in results["rows"]:
+        spread = f"± {_num(r['rmse_mm_std'])}" if r["runs"] > 1 else ""
+        pub = r.get("published_rmse_mm")
+        rows.append((
+            LABELS.get(r["model"], r["model"]), r["task"],
+            f"{_num(r['rmse_mm_mean'])} {spread}".strip(),
+            f"{_num(r['rmse_mm_min'])}–{_num(r['rmse_mm_max'])}" if r["runs"] > 1 else "",
+            str(r["runs"]), _num(r["fit_pct_mean"], 1), "" if pub is None else _num(pub, 2),
+        ))  # fmt: skip
+    return rows
+
+
+def markdown_table(results: dict[str, Any]) -> str:
+    """The table in Markdown (for docs)."""
+    lines = ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
+    lines += ["| " + " | ".join(cells) + " |" for cells in table_rows(results)]
+    return "\n".join(lines)
+
+
+def figure_png(result: EmpsResult) -> bytes:
+    """Measured vs predicted test position (simulation), and the errors of both tasks."""
+    t, y = result.test_time_s, result.test_qm_m
+    fig, axes = plt.subplots(3, 1, figsize=(11, 10), sharex=True)
+    axes[0].plot(t, y * 1e3, color="#222222", lw=1.6, label="measured qm")
+    span = (np.nanmin(y) * 1e3 - 30, np.nanmax(y) * 1e3 + 30)
+    for (task, name), pred in sorted(result.traces.items()):
+        color = COLORS.get(name)
+        if task == "simulation" and name != "persistence":
+            axes[0].plot(t, pred * 1e3, lw=0.9, color=color, label=LABELS.get(name, name))
+        ax = axes[1] if task == "simulation" else axes[2]
+        ax.plot(t, (pred - y) * 1e3, lw=0.8, color=color, label=LABELS.get(name, name))
+    axes[0].set_ylim(*span)
+    axes[0].set_ylabel("position, mm")
+    axes[0].set_title("EMPS test record (DATA_EMPS_PULSES): free-run simulation, seed 0")
+    axes[1].set_ylim(-40, 40)
+    axes[1].set_ylabel("simulation error, mm")
+    axes[1].set_title("simulation errors (axis clipped at ±40 mm; black boxes leave it)")
+    axes[2].set_ylim(-0.5, 0.5)
+    axes[2].set_ylabel("prediction error, mm")
+    axes[2].set_title("one-step prediction errors (axis clipped at ±0.5 mm)")
+    axes[2].set_xlabel("time, s")
+    for ax in axes:
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper left", fontsize=8, ncol=3)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def _html_table(results: dict[str, Any]) -> str:
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in HEADER)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in cells) + "</tr>"
+        for cells in table_rows(results)
+    )
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def report_html(result: EmpsResult) -> str:
+    """The self-contained report page."""
+    res = result.results
+    png = base64.b64encode(figure_png(result)).decode("ascii")
+    sources = "".join(
+        f"<li><b>{html.escape(LABELS[k])}</b> {v['rmse_mm']} mm: {html.escape(v['source'])}</li>"
+        for k, v in PUBLISHED.items()
+    )
+    proto = res["protocol"]
+    partial = (
+        f"<p class='warn'>Only the first {proto['max_samples']} samples of each record were "
+        "used: a smoke test, not the official protocol.</p>"
+        if proto.get("max_samples")
+        else ""
+    )
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>drafttwin EMPS benchmark</title>
+<style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}}
+table{{border-collapse:collapse}}td,th{{border:1px solid #bbb;padding:4px 8px;text-align:right}}
+td:first-child,th:first-child{{text-align:left}}.warn{{color:#a00}}</style></head><body>
+<h1>EMPS benchmark (real measurements)</h1>
+<p>Train {html.escape(proto["train"])}, test {html.escape(proto["test"])}; input
+{html.escape(proto["input"])}, output {html.escape(proto["output"])}. Simulation: free run
+using only the first {proto["init_samples"]} measured test samples, RMSE over the rest
+(the official metric). Prediction: one step ahead from the measured history (drafttwin's
+protocol), scored from row {PREDICTION_START}; not
+comparable with the simulation-mode literature. Profile <b>{html.escape(res["profile"])}</b>,
+seeds {res["seeds"]}, drafttwin {html.escape(res["drafttwin_version"])},
+wall time {res["wall_s"]:.0f} s.</p>{partial}
+{_html_table(res)}
+<h2>Published numbers (simulation task)</h2><ul>{sources}</ul>
+<h2>Measured vs predicted position</h2>
+<img alt="EMPS test record: measured vs predicted" src="data:image/png;base64,{png}"
+ style="max-width:100%">
+<p>Method, model definitions in simulation mode and findings: docs/emps.md.</p>
+</body></html>
+"""
+
+
+def write_outputs(result: EmpsResult, out_dir: str | Path) -> list[Path]:
+    """Write the report, the results JSON and the predictions CSV; returns the paths."""
+    out = Path(out_dir)
+    paths = [out / "emps_report.html", out / "emps_results.json", out / "emps_predictions.csv"]
+    write_text_atomic(paths[0], report_html(result))
+    write_text_atomic(paths[1], json.dumps(result.results, indent=2, allow_nan=True) + "\n")
+    frame = pd.DataFrame({"time": result.test_time_s, "qm_measured": result.test_qm_m})
+    for (task, name), pred in sorted(result.traces.items()):
+        frame[f"{name}_{task}"] = pred
+    with atomic_path(paths[2]) as tmp:
+        frame.to_csv(tmp, index=False, float_format="%.9g")
+    return paths

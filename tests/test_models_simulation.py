@@ -1,0 +1,220 @@
+"""task="simulation", other output channels and exogenous inputs (no EMPS data needed).
+
+The system: a damped double integrator driven by an input ``u`` (a carriage under a force),
+output ``y`` its position; the "mechanistic" model is the same system with a 5 % gain error,
+simulated open loop from ``u`` and the first measured position.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.errors import ConfigError, DataError
+from drafttwin.models import MechanisticModel, OnlinePredictor, load_model, make_model
+from drafttwin.models import simulation as sim
+
+from ._synthetic import TINY, TINY_MDSL, one_thread
+
+INIT = 8
+NAMES = ("mechanistic", "persistence", "gru", "lstm", "parallel", "md-s-l", "md-s-l+d")
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_thread():
+    with one_thread():
+        yield
+
+
+def _plant(u: np.ndarray, y0: float, gain: float) -> np.ndarray:
+    """Position of a damped double integrator: v' = 0.95 v + gain u, y' = y + v."""
+    y, v = np.empty(len(u)), 0.0
+    y[0] = y0
+    for k in range(len(u) - 1):
+        v = 0.95 * v + gain * u[k]
+        y[k + 1] = y[k] + v
+    return y
+
+
+def make_io_series(n: int = 500, seed: int = 0) -> MeasurementSeries:
+    rng = np.random.default_rng(seed)
+    u = np.repeat(rng.normal(0.0, 1.0, n // 25 + 1), 25)[:n]
+    y = _plant(u, 0.3, 0.01) + rng.normal(0.0, 1e-4, n)
+    return MeasurementSeries(np.arange(n) * 0.01, y[:, None], rollers=("y",),
+                             setpoints={"u": u})  # fmt: skip
+
+
+def physics() -> MechanisticModel:
+    def run(series: MeasurementSeries) -> np.ndarray:
+        return _plant(series.setpoints["u"], float(series.rpm[0, 0]), 0.0105)[:, None]
+
+    return MechanisticModel.from_series_function(run, channels=("y",), name="toy physics")
+
+
+def build(name: str, task: str = "simulation", **extra):
+    base = dict(TINY_MDSL) if name.startswith("md") else dict(TINY)
+    hyper = {**base, "task": task, "outputs": ("y",), "inputs": ("u",), "init_samples": INIT,
+             "data_window": 8, "seed": 1, **extra}  # fmt: skip
+    accepted = set(type(make_model(name)).param_names())
+    return make_model(name, **{k: v for k, v in hyper.items() if k in accepted})
+
+
+@pytest.fixture(scope="module")
+def data() -> tuple[MeasurementSeries, MeasurementSeries]:
+    full = make_io_series(520, seed=4)
+    return full.slice(0, 400), full.slice(400)
+
+
+@pytest.fixture(scope="module")
+def fitted(data) -> dict[str, object]:
+    train, _ = data
+    return {name: build(name).fit(train, physics()) for name in NAMES}
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_simulation_never_uses_measured_outputs_after_the_init_window(name, fitted, data):
+    _, test = data
+    model = fitted[name]
+    base = model.predict(test, physics())
+    assert np.isnan(base[:INIT]).all() if name != "mechanistic" else True
+    assert np.isfinite(base[INIT:]).all()
+    rng = np.random.default_rng(0)
+    changed = test.with_rpm(test.rpm + np.r_[np.zeros(INIT), rng.normal(0, 5, len(test) - INIT)]
+                            [:, None])  # fmt: skip
+    np.testing.assert_array_equal(model.predict(changed, physics()), base)
+    # the initialisation window is used: changing it changes the free run (the test can fail)
+    moved = test.with_rpm(test.rpm + np.r_[np.full(INIT, 0.01), np.zeros(len(test) - INIT)]
+                          [:, None])  # fmt: skip
+    assert not np.array_equal(model.predict(moved, physics())[INIT:], base[INIT:])
+
+
+def test_the_mechanistic_source_sees_nothing_after_the_init_window(fitted, data):
+    seen = {}
+
+    def peek(series: MeasurementSeries) -> np.ndarray:
+        seen["y"] = series.rpm[:, 0].copy()
+        return physics().predict(series)
+
+    fitted["parallel"].predict(
+        data[1], MechanisticModel.from_series_function(peek, channels=("y",))
+    )
+    assert np.isfinite(seen["y"][:INIT]).all() and np.isnan(seen["y"][INIT:]).all()
+
+
+def test_persistence_holds_the_last_init_value(fitted, data):
+    pred = fitted["persistence"].predict(data[1])
+    np.testing.assert_array_equal(pred[INIT:, 0], data[1].rpm[INIT - 1, 0])
+
+
+def test_parallel_simulation_accumulates_from_the_measured_residual(fitted, data):
+    _, test = data
+    model, mech = fitted["parallel"], physics().predict(test)
+    pred = model.predict(test, physics())
+    first_step = pred[INIT, 0] - mech[INIT, 0] - (test.rpm[INIT - 1, 0] - mech[INIT - 1, 0])
+    assert abs(first_step) < 0.05 * np.ptp(test.rpm)  # one predicted change, not a level
+
+
+def test_hybrid_simulation_beats_the_biased_physics(data):
+    train, test = data
+    mech = physics()
+    model = build("parallel", epochs=40, patience=None, hidden=16).fit(train, mech)
+    y = test.rpm[INIT:, 0]
+    err_h = np.sqrt(np.mean((model.predict(test, mech)[INIT:, 0] - y) ** 2))
+    err_m = np.sqrt(np.mean((mech.predict(test)[INIT:, 0] - y) ** 2))
+    assert err_h < err_m
+
+
+@pytest.mark.parametrize("name", ["gru", "parallel", "md-s-l"])
+def test_simulation_models_round_trip(name, fitted, data, tmp_path: Path):
+    model = fitted[name]
+    loaded = load_model(model.save(tmp_path / "m.pt"))
+    assert loaded.get_params() == model.get_params()
+    np.testing.assert_array_equal(loaded.predict(data[1], physics()),
+                                  model.predict(data[1], physics()))  # fmt: skip
+
+
+def test_same_seed_same_simulation(data):
+    a = build("md-s-l").fit(data[0], physics()).predict(data[1], physics())
+    b = build("md-s-l").fit(data[0], physics()).predict(data[1], physics())
+    np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("name", ["gru", "parallel", "md-s-l"])
+def test_prediction_mode_with_inputs_is_causal(name, data):
+    train, test = data
+    model = build(name, task="prediction").fit(train, physics())
+    base = model.predict(test, physics())
+    t = 60
+    changed = test.with_rpm(np.r_[test.rpm[:t, 0], test.rpm[t:, 0] + 1.0][:, None])
+    after = model.predict(changed, physics())
+    np.testing.assert_array_equal(after[:t], base[:t])
+    assert not np.array_equal(after[t:], base[t:])
+
+
+def test_crossfitted_free_runs_are_out_of_sample(fitted, data):
+    model = fitted["md-s-l"]
+    a, b = model.crossfit_blocks_[1]
+    train = data[0]
+    rpm = train.rpm.copy()
+    rpm[a + INIT :] += 1.0  # alter the block after its initialisation rows (and later blocks)
+    fold = model._data_model(seed=model.seed + 2)
+    fold._fit_arrays(train.rpm, u=train.setpoints["u"][:, None], exclude=(a, b))
+    run = fold._simulate_arrays(rpm, train.setpoints["u"][:, None], [(a, b)])
+    np.testing.assert_allclose(run[a:b], model.crossfit_pred_[a:b], rtol=0, atol=1e-12)
+
+
+class _Head(torch.nn.Module):
+    def __init__(self) -> None:
+        super().__init__()
+        self.head = torch.nn.Linear(3, 1)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.head(x)
+
+
+def test_debias_head_removes_the_mean_error():
+    torch.manual_seed(0)
+    net = _Head()
+    x = np.random.default_rng(0).normal(size=(50, 3)).astype(np.float32)
+    target = x @ np.array([[1.0], [0.5], [0.0]]) + 3.0
+    sim.debias_head(net, x, target, None, "cpu")
+    out = net(torch.as_tensor(x)).detach().numpy()
+    assert abs(float(np.mean(target - out))) < 1e-5
+
+
+@pytest.mark.parametrize(
+    ("hyper", "match"),
+    [
+        ({"task": "forecast"}, "task"),
+        ({"window": 12}, "longer than the 8 measured rows"),
+        ({"horizon": 2}, "horizon"),
+        ({"inputs": ("y",)}, "both inputs and outputs"),
+        ({"outputs": ()}, "outputs"),
+        ({"init_samples": 0}, "init_samples"),
+    ],
+)
+def test_invalid_task_settings_are_refused(hyper, match, data):
+    with pytest.raises(ConfigError, match=match):
+        build("gru", **hyper).fit(data[0])
+
+
+def test_channel_problems_are_refused(data):
+    train, _ = data
+    with pytest.raises(DataError, match="no input channel 'v'"):
+        build("gru", inputs=("v",)).fit(train)
+    with pytest.raises(DataError, match="output channels"):
+        build("gru", outputs=("x",)).fit(train)
+    rollers = MechanisticModel(lambda t: np.zeros((len(t), 4)))
+    with pytest.raises(DataError, match="gives channels"):
+        build("parallel").fit(train, rollers)
+    with pytest.raises(DataError, match="function of the whole series"):
+        physics().predict(train.time_s)
+
+
+def test_streaming_refuses_simulation_models(fitted):
+    with pytest.raises(ConfigError, match="streaming supports"):
+        OnlinePredictor(fitted["gru"])
