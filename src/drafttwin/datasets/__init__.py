@@ -10,7 +10,6 @@ import json
 from importlib import resources
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from drafttwin import ROLLERS
@@ -86,16 +85,6 @@ def write_default(path: Path | None = None) -> Path:
     with atomic_path(target) as tmp:
         pq.write_table(table, tmp, compression="zstd")
     return target
-
-
-def as_frame(series: MeasurementSeries) -> pd.DataFrame:
-    """Measured and true speeds side by side (for quick looks)."""
-    frame = series.to_frame()
-    truth = series.metadata.get("true_rpm")
-    if truth is not None:
-        for j, r in enumerate(ROLLERS):
-            frame[f"true_{r}"] = np.asarray(truth)[:, j]
-    return frame
 
 
 __all__ = ["DEFAULT", "build", "default_path", "load_default", "write_default"]

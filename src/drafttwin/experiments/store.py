@@ -18,10 +18,11 @@ from drafttwin._io import write_text_atomic
 
 def canonical_json(obj: Any) -> str:
     """JSON with sorted keys and no whitespace: equal configurations give equal text."""
-    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=_plain)
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), default=json_default)
 
 
-def _plain(obj: Any) -> Any:
+def json_default(obj: Any) -> Any:
+    """``json.dumps(default=...)`` for NumPy scalars and arrays and paths."""
     if isinstance(obj, np.generic):
         return obj.item()
     if isinstance(obj, np.ndarray):
@@ -71,7 +72,7 @@ class ResultStore:
         if self.has(key):  # written once: a finished task is never overwritten
             return
         doc = {"config": public(config), "result": result}
-        write_text_atomic(self._path(key), json.dumps(doc, default=_plain, sort_keys=True))
+        write_text_atomic(self._path(key), json.dumps(doc, default=json_default, sort_keys=True))
 
     def __len__(self) -> int:
         return sum(1 for _ in self.root.glob("*.json"))

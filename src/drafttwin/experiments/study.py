@@ -30,7 +30,7 @@ from drafttwin.experiments import tasks
 from drafttwin.experiments.executor import run_tasks
 from drafttwin.experiments.plan import StudyProfile, get_study_profile, grid_configs
 from drafttwin.experiments.prepare import prepare
-from drafttwin.experiments.store import ResultStore
+from drafttwin.experiments.store import ResultStore, json_default
 from drafttwin.models.registry import get_profile
 
 COMPARISON = ("mechanistic", "persistence", "gru", "parallel", "md-s-l")
@@ -273,18 +273,10 @@ def write_outputs(
     with atomic_path(out_dir / "predictions.csv") as tmp:
         predictions.to_csv(tmp, index=False, float_format="%.6f")
     write_text_atomic(
-        out_dir / "results.json", json.dumps(results, indent=2, default=_plain) + "\n"
+        out_dir / "results.json", json.dumps(results, indent=2, default=json_default) + "\n"
     )
     return {
         **files,
         "predictions": out_dir / "predictions.csv",
         "results": out_dir / "results.json",
     }
-
-
-def _plain(obj: Any) -> Any:
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    raise TypeError(type(obj).__name__)

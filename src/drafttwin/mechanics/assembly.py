@@ -44,6 +44,16 @@ class Signal:
         grid = times[0] + step * np.arange(n)
         return cls(float(times[0]), step, np.interp(grid, times, vals))
 
+    def at(self, time_s: Any) -> Any:
+        """Value(s) at ``time_s`` (s), as the kernel evaluates it: linear or zero-order hold,
+        held constant outside the grid."""
+        u = np.clip(
+            (np.asarray(time_s, dtype=np.float64) - self.t0_s) / self.dt_s, 0, len(self.values) - 1
+        )
+        if self.hold == "zoh":
+            return self.values[(u + 1e-9).astype(np.int64).clip(max=len(self.values) - 1)]
+        return np.interp(u, np.arange(len(self.values)), self.values)
+
 
 @dataclass(frozen=True)
 class Edge:
@@ -77,6 +87,11 @@ def gear_base_radii_m(g: GearMesh) -> tuple[float, float]:
 
 def chain_pitch_radius_m(pitch_mm: float, teeth: int) -> float:
     return pitch_mm * 1e-3 / (2.0 * math.sin(math.pi / teeth))
+
+
+def chain_mean_radius_m(pitch_mm: float, teeth: int) -> float:
+    """Mean chain feed per radian, p z / (2 pi), slightly below the pitch radius."""
+    return pitch_mm * 1e-3 * teeth / (2 * math.pi)
 
 
 def mesh_stiffness_fourier(g: GearMesh) -> tuple[np.ndarray, np.ndarray]:
@@ -196,6 +211,13 @@ class DriveTrain:
     @cached_property
     def inertias(self) -> np.ndarray:
         return np.array([n.inertia_kgm2 for n in self.spec.inertia])
+
+    @cached_property
+    def external_torques(self) -> tuple[tuple[int, Signal], ...]:
+        """(node index, torque signal in N m) of every external torque: config series first."""
+        from_config = [(self.node_index(t.node), Signal.from_samples(t.times_s, t.torque_nm))
+                       for t in self.spec.torque]  # fmt: skip
+        return (*from_config, *((self.node_index(n), s) for n, s in self.torques))
 
     @cached_property
     def roller_nodes(self) -> dict[str, int]:
@@ -340,8 +362,7 @@ class DriveTrain:
         drag_i = np.array([[n] for n, _ in drags], dtype=np.int64).reshape(-1, 1)
         drag_f = np.array([row for _, row in drags], dtype=np.float64).reshape(-1, 4)
 
-        ext = [(idx(t.node), Signal.from_samples(t.times_s, t.torque_nm)) for t in self.spec.torque]
-        ext += [(idx(node), s) for node, s in self.torques]
+        ext = self.external_torques
         torque_i = np.array([[n, sig(s)] for n, s in ext], dtype=np.int64).reshape(-1, 2)
         torque_f = np.ones((len(ext), 1))
 

@@ -19,6 +19,7 @@ from drafttwin.errors import ConfigError
 from drafttwin.mechanics.assembly import (
     DriveTrain,
     Signal,
+    chain_mean_radius_m,
     chain_pitch_radius_m,
     gear_base_radii_m,
 )
@@ -115,8 +116,8 @@ def stiffness_matrix(train: DriveTrain) -> np.ndarray:
         elif kind == "chain":
             a, b = idx(c.driver), idx(c.driven)
             # mean feed radius p z / 2 pi; both spans taut under pretension act in parallel
-            ra = c.pitch_mm * 1e-3 * c.driver_teeth / (2 * math.pi)
-            rb = c.pitch_mm * 1e-3 * c.driven_teeth / (2 * math.pi)
+            ra = chain_mean_radius_m(c.pitch_mm, c.driver_teeth)
+            rb = chain_mean_radius_m(c.pitch_mm, c.driven_teeth)
             k = 2 * c.span_stiffness_n_per_m
         else:
             a, b = idx(c.driver), idx(c.driven)
@@ -151,9 +152,7 @@ class OperatingPoint:
 
 
 def _signal_at(s: Signal | None, t: float, default: float) -> float:
-    if s is None:
-        return default
-    return float(np.interp(t, s.t0_s + s.dt_s * np.arange(len(s.values)), s.values))
+    return default if s is None else float(s.at(t))
 
 
 def _node_drag(train: DriveTrain, w: np.ndarray, t: float) -> tuple[np.ndarray, float, float]:
@@ -165,13 +164,9 @@ def _node_drag(train: DriveTrain, w: np.ndarray, t: float) -> tuple[np.ndarray, 
         t_d = coul * math.tanh(w[node] / eps) + visc * w[node]
         torque[node] += t_d
         powers[int(kind)] += t_d * w[node]
-    ext = [
-        (train.node_index(t_.node), Signal.from_samples(t_.times_s, t_.torque_nm))
-        for t_ in train.spec.torque
-    ]
-    ext += [(train.node_index(n), s) for n, s in train.torques]
+    ext = train.external_torques
     for node, s in ext:
-        torque[node] -= _signal_at(s, t, 0.0)
+        torque[node] -= float(s.at(t))
     return torque, powers[0], powers[1]
 
 
@@ -243,11 +238,6 @@ def operating_point(train: DriveTrain, t: float = 0.0, iterations: int = 30) -> 
         bearing_power_w=p_bear,
         creep_power_w=p_creep,
     )
-
-
-def chain_mean_radius_m(pitch_mm: float, teeth: int) -> float:
-    """Mean chain feed per radian, p z / (2 pi), slightly below the pitch radius."""
-    return pitch_mm * 1e-3 * teeth / (2 * math.pi)
 
 
 __all__ = [

@@ -21,7 +21,12 @@ from scipy.integrate import solve_ivp
 from drafttwin import ROLLERS
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import kernel as K
-from drafttwin.mechanics.assembly import DriveTrain, chain_pitch_radius_m, gear_base_radii_m
+from drafttwin.mechanics.assembly import (
+    DriveTrain,
+    chain_mean_radius_m,
+    chain_pitch_radius_m,
+    gear_base_radii_m,
+)
 from drafttwin.mechanics.kinematics import RPM, OperatingPoint, operating_point
 
 ENERGY_NAMES = ("motor", "roller_loads", "bearings", "coupling_losses", "external")
@@ -117,7 +122,7 @@ def _chain_angle_for_feed(c, theta_driver: float, stretch: float) -> float:
     ra = chain_pitch_radius_m(c.pitch_mm, c.driver_teeth)
     rb = chain_pitch_radius_m(c.pitch_mm, c.driven_teeth)
     target = K._chain_feed(theta_driver, c.driver_teeth, c.pitch_mm * 1e-3, ra)[0] - stretch
-    theta = target / (c.pitch_mm * 1e-3 * c.driven_teeth / (2 * math.pi))
+    theta = target / chain_mean_radius_m(c.pitch_mm, c.driven_teeth)
     for _ in range(20):
         x, dx = K._chain_feed(theta, c.driven_teeth, c.pitch_mm * 1e-3, rb)
         theta -= (x - target) / dx

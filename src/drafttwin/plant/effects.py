@@ -99,9 +99,7 @@ def disturbances(
 ) -> Disturbances:
     """Build every disturbance signal over ``[t_start_s, t_end_s]`` (s, recording time)."""
     t_sup = _grid(t_start_s, t_end_s, SUPPLY_GRID_S)
-    set_hz = np.interp(
-        t_sup, setpoint.t0_s + setpoint.dt_s * np.arange(len(setpoint.values)), setpoint.values
-    )
+    set_hz = setpoint.at(t_sup)
     jitter = ou_process(
         streams["supply"], len(t_sup), SUPPLY_GRID_S, cfg.supply.correlation_s, cfg.supply.jitter_hz
     )

@@ -11,7 +11,7 @@ from __future__ import annotations
 import contextlib
 import json
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +25,7 @@ from drafttwin.errors import DataError
 from drafttwin.mechanics import DriveTrain, simulate
 from drafttwin.plant.config import PlantConfig
 from drafttwin.plant.effects import disturbances, true_train
-from drafttwin.plant.scenarios import get_scenario, setpoint_on_grid
+from drafttwin.plant.scenarios import get_scenario
 from drafttwin.plant.sensors import encoder_rpm, inject_defects, quantisation_step_rpm
 
 STREAMS = ("mismatch", "supply", "drafting", "runout", "encoder", "missing", "outlier")
@@ -85,8 +85,7 @@ class PlantRecording:
         with contextlib.ExitStack() as stack:
             tmp_sidecar = stack.enter_context(atomic_path(sidecar))
             tmp_truth = stack.enter_context(atomic_path(truth))
-            measured = self.series
-            object.__setattr__(measured, "metadata", {"sidecar": sidecar.name})
+            measured = replace(self.series, metadata={"sidecar": sidecar.name})
             write_measurements(measured, stack.enter_context(atomic_path(path)))
             frame = self.truth_frame()
             if suffix == ".parquet":
@@ -159,7 +158,7 @@ class Plant:
         series = MeasurementSeries(
             time_s=res.time_s,
             rpm=measured.rpm,
-            setpoints={"supply_hz": setpoint_on_grid(setpoint, res.time_s)},
+            setpoints={"supply_hz": setpoint.at(res.time_s)},
             metadata={"source": "drafttwin plant", "seed": seed, "scenario": scenario},
         )
         return PlantRecording(

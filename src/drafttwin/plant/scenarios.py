@@ -8,8 +8,6 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-import numpy as np
-
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import Signal
 
@@ -78,8 +76,3 @@ def get_scenario(name: str) -> Scenario:
             where="--scenario",
             fix=f"use one of: {', '.join(SCENARIOS)}",
         ) from None
-
-
-def setpoint_on_grid(signal: Signal, time_s: np.ndarray) -> np.ndarray:
-    grid = signal.t0_s + signal.dt_s * np.arange(len(signal.values))
-    return np.interp(time_s, grid, signal.values)
