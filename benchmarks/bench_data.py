@@ -37,7 +37,7 @@ def synthetic(rows: int, seed: int = 0) -> MeasurementSeries:
     rpm[rng.random((rows, 4)) < 0.005] = np.nan
     spikes = rng.random((rows, 4)) < 0.001
     rpm[spikes] *= 1.5
-    return MeasurementSeries(time_s=np.arange(rows) / 100.0, rpm=rpm)
+    return MeasurementSeries(time_s=np.arange(rows) / 100.0, values=rpm)
 
 
 def best_of(repeat: int, fn: Callable[[], Any]) -> tuple[float, Any]:

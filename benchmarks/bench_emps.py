@@ -59,7 +59,7 @@ def main() -> None:
         model.fit(train.series(), mech)
         add(f"fit {name}, simulation mode, quick profile", time.perf_counter() - start, "s")
         start = time.perf_counter()
-        model.predict(test.series(), mech)
+        model.predict_values(test.series(), mech)
         wall = time.perf_counter() - start
         add(f"free run of {name} over the test record", wall, "s")
         if name == "gru":

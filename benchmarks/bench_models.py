@@ -136,7 +136,7 @@ def online_steps(model: MDSL, mech: MechanisticModel, series: MeasurementSeries,
         t0 = time.perf_counter()
         yhat = online.forecast(float(series.time_s[row]))
         t1 = time.perf_counter()
-        online.observe(float(series.time_s[row]), series.rpm[row])
+        online.observe(float(series.time_s[row]), series.values[row])
         fc.append(t1 - t0)
         ob.append(time.perf_counter() - t1)
     assert np.isfinite(yhat).all()
@@ -148,12 +148,12 @@ def latency(profile: str, series: MeasurementSeries, runs: int):
     mech = MechanisticModel(mechanistic)
     need = model.data_window + model.window + 2 * model.horizon - 1
     tail = series.slice(len(series) - need)
-    assert np.isfinite(model.predict(tail, mech)[-1]).all()
+    assert np.isfinite(model.predict_values(tail, mech)[-1]).all()
     api, net = [], []
     x = torch.randn(1, model.window, 8)
     for i in range(runs + 20):
         t0 = time.perf_counter()
-        model.predict(tail, mech)
+        model.predict_values(tail, mech)
         t1 = time.perf_counter()
         with torch.inference_mode():
             model.net_(x)

@@ -32,12 +32,12 @@ def baseline_table() -> list[dict]:
     truth = series.metadata["true_rpm"]
     clean, _ = preprocess(series)
     mech = simulate_on_grid(DriveTrain.preset("fa320a"), series.time_s)
-    ok = ~np.isnan(series.rpm) & ~series.metadata["outlier_mask"]
+    ok = ~np.isnan(series.values) & ~series.metadata["outlier_mask"]
     rows = []
     print(f"{'roller':8} {'mean rel %':>10} {'max rel %':>10} {'RMSE meas':>10} {'RMSE true':>10} "
           f"{'noise floor':>11} {'std(y)':>8}")  # fmt: skip
     for j, r in enumerate(ROLLERS):
-        y, t, m = clean.rpm[:, j], truth[:, j], mech[:, j]
+        y, t, m = clean.values[:, j], truth[:, j], mech[:, j]
         rel = 100 * np.abs(y - m) / np.abs(y)
         row = {
             "roller": r,
@@ -46,7 +46,7 @@ def baseline_table() -> list[dict]:
             "mech_rmse_vs_measured_rpm": float(np.sqrt(np.mean((y - m) ** 2))),
             "mech_rmse_vs_true_rpm": float(np.sqrt(np.mean((t - m) ** 2))),
             "noise_floor_rmse_rpm": float(
-                np.sqrt(np.mean((series.rpm[ok[:, j], j] - t[ok[:, j]]) ** 2))
+                np.sqrt(np.mean((series.values[ok[:, j], j] - t[ok[:, j]]) ** 2))
             ),
             "noise_floor_after_preprocess_rpm": float(np.sqrt(np.mean((y - t) ** 2))),
             "std_measured_rpm": float(np.std(y)),

@@ -76,7 +76,7 @@ def make_series(
     measured = true + rng.normal(0.0, 0.0002, (n, 4)) * BASE_RPM
     if missing > 0:
         measured[rng.random((n, 4)) < missing] = np.nan
-    return MeasurementSeries(time_s=time_s, rpm=measured), true
+    return MeasurementSeries(time_s=time_s, values=measured), true
 
 
 def mechanistic_source() -> Callable[[np.ndarray], np.ndarray]:

@@ -25,9 +25,9 @@ def make_series(n: int = 50, rate_hz: float = 100.0, seed: int = 0) -> Measureme
     rpm[10:13, 2] = np.nan
     return MeasurementSeries(
         time_s=np.arange(n) / rate_hz,
-        rpm=rpm,
+        values=rpm,
         motor_rpm=1450.0 + rng.normal(0.0, 0.5, n),
-        setpoints={"supply_hz": np.full(n, 50.0), "setpoint_delivery": np.full(n, 256.61)},
+        inputs={"supply_hz": np.full(n, 50.0), "setpoint_delivery": np.full(n, 256.61)},
         metadata={"seed": seed},
     )
 
@@ -46,12 +46,12 @@ def test_round_trip_is_bit_identical(tmp_path: Path, suffix: str) -> None:
     series = make_series()
     path = write_measurements(series, tmp_path / f"m{suffix}")
     back = read_measurements(path)
-    np.testing.assert_array_equal(back.rpm, series.rpm)  # NaN positions included
+    np.testing.assert_array_equal(back.values, series.values)  # NaN positions included
     np.testing.assert_array_equal(back.time_s, series.time_s)
     np.testing.assert_array_equal(back.motor_rpm, series.motor_rpm)
-    assert set(back.setpoints) == {"supply_hz", "setpoint_delivery"}
-    np.testing.assert_array_equal(back.setpoints["supply_hz"], series.setpoints["supply_hz"])
-    assert back.rollers == ROLLERS
+    assert set(back.inputs) == {"supply_hz", "setpoint_delivery"}
+    np.testing.assert_array_equal(back.inputs["supply_hz"], series.inputs["supply_hz"])
+    assert back.channels == ROLLERS
     assert back.metadata["source"] == str(path)
     assert back.metadata["inserted_rows"] == 0
     assert abs(back.sample_rate_hz - 100.0) < 1e-6
@@ -81,7 +81,7 @@ def test_write_failure_leaves_existing_file_untouched(tmp_path: Path) -> None:
     path = write_measurements(make_series(), tmp_path / "m.csv")
     before = path.read_bytes()
     bad = make_series()
-    object.__setattr__(bad, "setpoints", {"x": np.zeros(3)})  # wrong length: to_frame fails
+    object.__setattr__(bad, "inputs", {"x": np.zeros(3)})  # wrong length: to_frame fails
     with pytest.raises(ValueError):
         write_measurements(bad, path)
     assert path.read_bytes() == before
@@ -133,7 +133,7 @@ def test_column_mapping(tmp_path: Path) -> None:
     path = write_csv(tmp_path / "v.csv", "time,v1,v2,v3,v4", speed_rows())
     mapping = {"v1": "front", "v2": "second", "v3": "third", "V4": "back"}
     series = read_measurements(path, columns=mapping)
-    np.testing.assert_array_equal(series.rpm[0], NOMINAL)
+    np.testing.assert_array_equal(series.values[0], NOMINAL)
     assert series.metadata["columns"]["v1"] == "front"
 
 
@@ -147,7 +147,7 @@ def test_mapping_can_swap_columns(tmp_path: Path) -> None:
 def test_headers_with_rpm_units_and_case(tmp_path: Path) -> None:
     header = "Time [s],Front [rpm],second_rpm,THIRD (rpm),back"
     series = read_measurements(write_csv(tmp_path / "u.csv", header, speed_rows()))
-    np.testing.assert_array_equal(series.rpm[-1], NOMINAL)
+    np.testing.assert_array_equal(series.values[-1], NOMINAL)
 
 
 def test_motor_and_setpoints(tmp_path: Path) -> None:
@@ -155,8 +155,8 @@ def test_motor_and_setpoints(tmp_path: Path) -> None:
     header = "time,front,second,third,back,motor,supply_hz,setpoint_delivery"
     series = read_measurements(write_csv(tmp_path / "m.csv", header, rows))
     np.testing.assert_array_equal(series.motor_rpm, np.full(4, 1450.0))
-    assert series.setpoints["supply_hz"][0] == 50.0
-    assert series.setpoints["setpoint_delivery"][0] == 256.6
+    assert series.inputs["supply_hz"][0] == 50.0
+    assert series.inputs["setpoint_delivery"][0] == 256.6
 
 
 def test_extra_numeric_column_is_ignored_and_listed(tmp_path: Path) -> None:
@@ -176,8 +176,8 @@ def test_text_column_can_be_ignored_by_mapping(tmp_path: Path) -> None:
 def test_missing_cells_become_nan(tmp_path: Path) -> None:
     rows = ["0,1815,1500,450,355", "0.01,,1500,,355", "0.02,1815,NaN,450,355"]
     series = read_measurements(write_csv(tmp_path / "n.csv", "time,front,second,third,back", rows))
-    assert np.isnan(series.rpm).sum() == 3
-    assert np.isnan(series.rpm[1, 0]) and np.isnan(series.rpm[2, 1])
+    assert np.isnan(series.values).sum() == 3
+    assert np.isnan(series.values[1, 0]) and np.isnan(series.values[2, 1])
 
 
 def test_dropped_rows_are_reinserted_as_missing(tmp_path: Path) -> None:
@@ -187,7 +187,7 @@ def test_dropped_rows_are_reinserted_as_missing(tmp_path: Path) -> None:
     assert len(series) == 7
     assert series.metadata["inserted_rows"] == 2
     np.testing.assert_allclose(series.time_s, np.arange(7) * 0.01, atol=1e-12)
-    assert np.isnan(series.rpm[2:4]).all() and not np.isnan(series.rpm[[0, 1, 4, 5, 6]]).any()
+    assert np.isnan(series.values[2:4]).all() and not np.isnan(series.values[[0, 1, 4, 5, 6]]).any()
 
 
 def test_small_jitter_is_accepted(tmp_path: Path) -> None:
@@ -241,6 +241,6 @@ def test_crlf_line_endings(tmp_path: Path) -> None:
 )
 def test_round_trip_property(tmp_path: Path, values: np.ndarray, suffix: str) -> None:
     values[0] = [2000.0, 1500.0, 450.0, 355.0]  # at least one value per column, front fastest
-    series = MeasurementSeries(time_s=np.arange(values.shape[0]) * 0.01, rpm=values)
+    series = MeasurementSeries(time_s=np.arange(values.shape[0]) * 0.01, values=values)
     back = read_measurements(write_measurements(series, tmp_path / f"p{suffix}"), check_units=False)
-    np.testing.assert_array_equal(back.rpm, values)
+    np.testing.assert_array_equal(back.values, values)

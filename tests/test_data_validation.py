@@ -318,7 +318,7 @@ def test_standstill_file_passes_unit_check(tmp_path: Path) -> None:
 
 
 def test_split_refuses_bad_fraction() -> None:
-    series = MeasurementSeries(time_s=np.arange(10.0), rpm=np.ones((10, 4)))
+    series = MeasurementSeries(time_s=np.arange(10.0), values=np.ones((10, 4)))
     for fraction in (0.0, 1.0, 1.5):
         with pytest.raises(DataError, match="train_fraction"):
             chronological_split(series, fraction)

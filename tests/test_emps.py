@@ -161,10 +161,10 @@ def test_simulation_mode_ignores_test_outputs_after_the_window(records) -> None:
                        quiet=True, device="cpu")  # fmt: skip
     model.fit(train.head(3000).series(), mech)
     series = test.head(1500).series()
-    base = model.predict(series, mech)
+    base = model.predict_values(series, mech)
     rng = np.random.default_rng(1)
-    noisy = series.with_rpm(series.rpm + np.r_[np.zeros(20), rng.normal(0, 0.05, 1480)][:, None])
-    np.testing.assert_array_equal(model.predict(noisy, mech), base)
+    noisy = series.with_values(series.values + np.r_[np.zeros(20), rng.normal(0, 0.05, 1480)][:, None])
+    np.testing.assert_array_equal(model.predict_values(noisy, mech), base)
     # the physics itself is causal: a 20-sample record gives the first 20 rows of a long one
     np.testing.assert_allclose(mech.predict(noisy.slice(0, 20)), mech.predict(series)[:20],
                                rtol=1e-12, atol=0)  # fmt: skip

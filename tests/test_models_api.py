@@ -80,25 +80,25 @@ def test_invalid_hyperparameters_are_refused_at_fit(name, hyper, field, series) 
 @pytest.mark.parametrize("name", MODEL_NAMES)
 def test_predict_before_fit_is_refused(name: str, series) -> None:
     with pytest.raises(NotFittedError, match="not fitted"):
-        make_model(name).predict(series, MechanisticModel(mechanistic))
+        make_model(name).predict_values(series, MechanisticModel(mechanistic))
 
 
 def test_wrong_roller_count_is_refused(series) -> None:
     three = MeasurementSeries(
-        series.time_s, series.rpm[:, :3], rollers=("front", "second", "third")
+        series.time_s, series.values[:, :3], channels=("front", "second", "third")
     )
     with pytest.raises(DataError, match="3 roller column"):
         make_model("gru", **hyper_for("gru")).fit(three)
     fitted = make_model("persistence").fit(series)
     with pytest.raises(DataError, match="3 roller column"):
-        fitted.predict(three)
+        fitted.predict_values(three)
 
 
 def test_other_roller_names_are_refused_at_predict(series) -> None:
     fitted = make_model("persistence").fit(series)
-    renamed = MeasurementSeries(series.time_s, series.rpm, rollers=("a", "b", "c", "d"))
+    renamed = MeasurementSeries(series.time_s, series.values, channels=("a", "b", "c", "d"))
     with pytest.raises(DataError, match="fitted on"):
-        fitted.predict(renamed)
+        fitted.predict_values(renamed)
 
 
 def test_not_a_series_is_refused() -> None:
@@ -120,18 +120,18 @@ def test_too_short_training_part_is_refused(series) -> None:
 
 def test_predict_on_a_short_series_is_all_nan(series) -> None:
     model = GRUModel(**hyper_for("gru")).fit(series)
-    assert np.isnan(model.predict(series.slice(0, 8))).all()
+    assert np.isnan(model.predict_values(series.slice(0, 8))).all()
 
 
 def test_persistence_model_is_the_last_observation(series) -> None:
-    rpm = series.rpm.copy()
+    rpm = series.values.copy()
     rpm[50, 1] = np.nan
-    s = series.with_rpm(rpm)
+    s = series.with_values(rpm)
     for h in (1, 3):
-        pred = make_model("persistence", horizon=h).fit(s).predict(s)
+        pred = make_model("persistence", horizon=h).fit(s).predict_values(s)
         np.testing.assert_array_equal(pred, persistence_forecast(rpm, h))
         np.testing.assert_array_equal(pred[h:, 0], rpm[:-h, 0])
-    pred = make_model("persistence").fit(s).predict(s)
+    pred = make_model("persistence").fit(s).predict_values(s)
     assert pred[51, 1] == rpm[49, 1]  # missing y_50 -> carry y_49 forward
 
 

@@ -40,14 +40,14 @@ def test_online_steps_match_batch_predict(name: str, horizon: int, series) -> No
     mech = MechanisticModel(mechanistic)
     extra = {} if name == "mechanistic" else {"horizon": horizon}
     model = make_model(name, **hyper_for(name, **extra)).fit(series.slice(0, 200), mech)
-    batch = model.predict(series, mech)
+    batch = model.predict_values(series, mech)
     h = 1 if name == "mechanistic" else horizon
     online = OnlinePredictor(model, mech)
     online.observe_series(series.slice(0, 150))  # warm start, then step
     steps = []
     for i in range(150, len(series) - h + 1):
         steps.append(online.forecast(float(series.time_s[i + h - 1])))
-        online.observe(float(series.time_s[i]), series.rpm[i])
+        online.observe(float(series.time_s[i]), series.values[i])
     got = np.array(steps)
     want = batch[150 + h - 1 :]
     np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
@@ -57,12 +57,12 @@ def test_online_steps_match_batch_predict(name: str, horizon: int, series) -> No
 def test_online_from_scratch_matches_and_starts_with_nan(series) -> None:
     mech = MechanisticModel(mechanistic)
     model = make_model("md-s-l+d", **hyper_for("md-s-l+d")).fit(series.slice(0, 200), mech)
-    batch = model.predict(series.slice(0, 80), mech)
+    batch = model.predict_values(series.slice(0, 80), mech)
     online = OnlinePredictor(model, mech)
     got = []
     for i in range(80):
         got.append(online.forecast(float(series.time_s[i])))
-        online.observe(float(series.time_s[i]), series.rpm[i])
+        online.observe(float(series.time_s[i]), series.values[i])
     np.testing.assert_allclose(np.array(got), batch, rtol=0, atol=1e-3, equal_nan=True)
     assert np.isnan(got[0]).all() and np.isfinite(got[-1]).all()
 

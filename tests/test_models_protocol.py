@@ -45,10 +45,10 @@ def data() -> MeasurementSeries:
 
 
 def _altered(series: MeasurementSeries, start: int) -> MeasurementSeries:
-    rpm = series.rpm.copy()
+    rpm = series.values.copy()
     rng = np.random.default_rng(99)
     rpm[start:] = rpm[start:] * 1.03 + rng.normal(0, 5.0, rpm[start:].shape)
-    return series.with_rpm(rpm)
+    return series.with_values(rpm)
 
 
 def _fit(name: str, series: MeasurementSeries, horizon: int):
@@ -64,8 +64,8 @@ def test_changing_y_from_t_on_leaves_predictions_up_to_t_plus_h_minus_1(
 ) -> None:
     mech = MechanisticModel(mechanistic)
     model = _fit(name, data, horizon)
-    before = model.predict(data, mech)
-    after = model.predict(_altered(data, T_CUT), mech)
+    before = model.predict_values(data, mech)
+    after = model.predict_values(_altered(data, T_CUT), mech)
     keep = T_CUT + horizon  # targets <= T_CUT + h - 1 use measurements <= T_CUT - 1 only
     np.testing.assert_array_equal(before[:keep], after[:keep])
     assert np.isfinite(before[keep - 5 : keep]).all()
@@ -99,9 +99,9 @@ def test_crossfitted_gru_residuals_are_out_of_sample(data: MeasurementSeries) ->
     a_model = make_model("md-s-l", **hyper).fit(train, mech)
     (a0, b0), (a1, b1) = a_model.crossfit_blocks_
     s = a0 + 20
-    rpm = train.rpm.copy()
+    rpm = train.values.copy()
     rpm[s:b0] *= 1.02
-    b_model = make_model("md-s-l", **hyper).fit(train.with_rpm(rpm), mech)
+    b_model = make_model("md-s-l", **hyper).fit(train.with_values(rpm), mech)
     np.testing.assert_array_equal(
         a_model.crossfit_pred_[a0 : s + 1], b_model.crossfit_pred_[a0 : s + 1]
     )

@@ -60,14 +60,14 @@ def test_round_trip_gives_identical_predictions(name: str, series, tmp_path: Pat
     assert type(loaded) is type(model)
     assert loaded.get_params() == model.get_params()
     assert loaded.name == model.name
-    np.testing.assert_array_equal(loaded.predict(series, mech), model.predict(series, mech))
+    np.testing.assert_array_equal(loaded.predict_values(series, mech), model.predict_values(series, mech))
     if hasattr(model, "history_"):
         assert loaded.history_.train_loss == model.history_.train_loss
 
 
 def test_class_load_and_file_contents(gru_file: Path, series) -> None:
     model = GRUModel.load(gru_file)
-    assert model.rollers_ == series.rollers
+    assert model.rollers_ == series.channels
     payload = torch.load(gru_file, weights_only=True)
     assert payload["format"] == "drafttwin-model"
     assert payload["format_version"] == FORMAT_VERSION
@@ -145,10 +145,10 @@ def test_saved_preset_or_file_source_is_reused(series, tmp_path: Path) -> None:
     """A file-based mechanistic source is recorded in the model and reused by predict."""
     frame = series.to_frame()[["time"]].copy()
     mech = mechanistic(series.time_s)
-    for j, name in enumerate(series.rollers):
+    for j, name in enumerate(series.channels):
         frame[name] = mech[:, j]
     csv = tmp_path / "sim.csv"
     frame.to_csv(csv, index=False)
     model = make_model("parallel", **hyper_for("parallel")).fit(series, MechanisticModel(csv))
     loaded = load_model(model.save(tmp_path / "p.pt"))
-    np.testing.assert_array_equal(loaded.predict(series), model.predict(series, csv))
+    np.testing.assert_array_equal(loaded.predict_values(series), model.predict_values(series, csv))

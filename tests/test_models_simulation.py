@@ -44,13 +44,13 @@ def make_io_series(n: int = 500, seed: int = 0) -> MeasurementSeries:
     rng = np.random.default_rng(seed)
     u = np.repeat(rng.normal(0.0, 1.0, n // 25 + 1), 25)[:n]
     y = _plant(u, 0.3, 0.01) + rng.normal(0.0, 1e-4, n)
-    return MeasurementSeries(np.arange(n) * 0.01, y[:, None], rollers=("y",),
-                             setpoints={"u": u})  # fmt: skip
+    return MeasurementSeries(np.arange(n) * 0.01, y[:, None], channels=("y",),
+                             inputs={"u": u})  # fmt: skip
 
 
 def physics() -> MechanisticModel:
     def run(series: MeasurementSeries) -> np.ndarray:
-        return _plant(series.setpoints["u"], float(series.rpm[0, 0]), 0.0105)[:, None]
+        return _plant(series.inputs["u"], float(series.values[0, 0]), 0.0105)[:, None]
 
     return MechanisticModel.from_series_function(run, channels=("y",), name="toy physics")
 
@@ -79,51 +79,51 @@ def fitted(data) -> dict[str, object]:
 def test_simulation_never_uses_measured_outputs_after_the_init_window(name, fitted, data):
     _, test = data
     model = fitted[name]
-    base = model.predict(test, physics())
+    base = model.predict_values(test, physics())
     assert np.isnan(base[:INIT]).all() if name != "mechanistic" else True
     assert np.isfinite(base[INIT:]).all()
     rng = np.random.default_rng(0)
-    changed = test.with_rpm(test.rpm + np.r_[np.zeros(INIT), rng.normal(0, 5, len(test) - INIT)]
+    changed = test.with_values(test.values + np.r_[np.zeros(INIT), rng.normal(0, 5, len(test) - INIT)]
                             [:, None])  # fmt: skip
-    np.testing.assert_array_equal(model.predict(changed, physics()), base)
+    np.testing.assert_array_equal(model.predict_values(changed, physics()), base)
     # the initialisation window is used: changing it changes the free run (the test can fail)
-    moved = test.with_rpm(test.rpm + np.r_[np.full(INIT, 0.01), np.zeros(len(test) - INIT)]
+    moved = test.with_values(test.values + np.r_[np.full(INIT, 0.01), np.zeros(len(test) - INIT)]
                           [:, None])  # fmt: skip
-    assert not np.array_equal(model.predict(moved, physics())[INIT:], base[INIT:])
+    assert not np.array_equal(model.predict_values(moved, physics())[INIT:], base[INIT:])
 
 
 def test_the_mechanistic_source_sees_nothing_after_the_init_window(fitted, data):
     seen = {}
 
     def peek(series: MeasurementSeries) -> np.ndarray:
-        seen["y"] = series.rpm[:, 0].copy()
+        seen["y"] = series.values[:, 0].copy()
         return physics().predict(series)
 
-    fitted["parallel"].predict(
+    fitted["parallel"].predict_values(
         data[1], MechanisticModel.from_series_function(peek, channels=("y",))
     )
     assert np.isfinite(seen["y"][:INIT]).all() and np.isnan(seen["y"][INIT:]).all()
 
 
 def test_persistence_holds_the_last_init_value(fitted, data):
-    pred = fitted["persistence"].predict(data[1])
-    np.testing.assert_array_equal(pred[INIT:, 0], data[1].rpm[INIT - 1, 0])
+    pred = fitted["persistence"].predict_values(data[1])
+    np.testing.assert_array_equal(pred[INIT:, 0], data[1].values[INIT - 1, 0])
 
 
 def test_parallel_simulation_accumulates_from_the_measured_residual(fitted, data):
     _, test = data
     model, mech = fitted["parallel"], physics().predict(test)
-    pred = model.predict(test, physics())
-    first_step = pred[INIT, 0] - mech[INIT, 0] - (test.rpm[INIT - 1, 0] - mech[INIT - 1, 0])
-    assert abs(first_step) < 0.05 * np.ptp(test.rpm)  # one predicted change, not a level
+    pred = model.predict_values(test, physics())
+    first_step = pred[INIT, 0] - mech[INIT, 0] - (test.values[INIT - 1, 0] - mech[INIT - 1, 0])
+    assert abs(first_step) < 0.05 * np.ptp(test.values)  # one predicted change, not a level
 
 
 def test_hybrid_simulation_beats_the_biased_physics(data):
     train, test = data
     mech = physics()
     model = build("parallel", epochs=40, patience=None, hidden=16).fit(train, mech)
-    y = test.rpm[INIT:, 0]
-    err_h = np.sqrt(np.mean((model.predict(test, mech)[INIT:, 0] - y) ** 2))
+    y = test.values[INIT:, 0]
+    err_h = np.sqrt(np.mean((model.predict_values(test, mech)[INIT:, 0] - y) ** 2))
     err_m = np.sqrt(np.mean((mech.predict(test)[INIT:, 0] - y) ** 2))
     assert err_h < err_m
 
@@ -133,13 +133,13 @@ def test_simulation_models_round_trip(name, fitted, data, tmp_path: Path):
     model = fitted[name]
     loaded = load_model(model.save(tmp_path / "m.pt"))
     assert loaded.get_params() == model.get_params()
-    np.testing.assert_array_equal(loaded.predict(data[1], physics()),
-                                  model.predict(data[1], physics()))  # fmt: skip
+    np.testing.assert_array_equal(loaded.predict_values(data[1], physics()),
+                                  model.predict_values(data[1], physics()))  # fmt: skip
 
 
 def test_same_seed_same_simulation(data):
-    a = build("md-s-l").fit(data[0], physics()).predict(data[1], physics())
-    b = build("md-s-l").fit(data[0], physics()).predict(data[1], physics())
+    a = build("md-s-l").fit(data[0], physics()).predict_values(data[1], physics())
+    b = build("md-s-l").fit(data[0], physics()).predict_values(data[1], physics())
     np.testing.assert_array_equal(a, b)
 
 
@@ -147,10 +147,10 @@ def test_same_seed_same_simulation(data):
 def test_prediction_mode_with_inputs_is_causal(name, data):
     train, test = data
     model = build(name, task="prediction").fit(train, physics())
-    base = model.predict(test, physics())
+    base = model.predict_values(test, physics())
     t = 60
-    changed = test.with_rpm(np.r_[test.rpm[:t, 0], test.rpm[t:, 0] + 1.0][:, None])
-    after = model.predict(changed, physics())
+    changed = test.with_values(np.r_[test.values[:t, 0], test.values[t:, 0] + 1.0][:, None])
+    after = model.predict_values(changed, physics())
     np.testing.assert_array_equal(after[:t], base[:t])
     assert not np.array_equal(after[t:], base[t:])
 
@@ -159,11 +159,11 @@ def test_crossfitted_free_runs_are_out_of_sample(fitted, data):
     model = fitted["md-s-l"]
     a, b = model.crossfit_blocks_[1]
     train = data[0]
-    rpm = train.rpm.copy()
+    rpm = train.values.copy()
     rpm[a + INIT :] += 1.0  # alter the block after its initialisation rows (and later blocks)
     fold = model._data_model(seed=model.seed + 2)
-    fold._fit_arrays(train.rpm, u=train.setpoints["u"][:, None], exclude=(a, b))
-    run = fold._simulate_arrays(rpm, train.setpoints["u"][:, None], [(a, b)])
+    fold._fit_arrays(train.values, u=train.inputs["u"][:, None], exclude=(a, b))
+    run = fold._simulate_arrays(rpm, train.inputs["u"][:, None], [(a, b)])
     np.testing.assert_allclose(run[a:b], model.crossfit_pred_[a:b], rtol=0, atol=1e-12)
 
 

@@ -34,9 +34,9 @@ def _toy(n: int = 101, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 @pytest.mark.parametrize("name", ["gru", "md-s-l+d"])
 def test_same_seed_same_predictions(name: str, series) -> None:
     mech = MechanisticModel(mechanistic)
-    p1 = make_model(name, **hyper_for(name, seed=5)).fit(series, mech).predict(series, mech)
-    p2 = make_model(name, **hyper_for(name, seed=5)).fit(series, mech).predict(series, mech)
-    p3 = make_model(name, **hyper_for(name, seed=6)).fit(series, mech).predict(series, mech)
+    p1 = make_model(name, **hyper_for(name, seed=5)).fit(series, mech).predict_values(series, mech)
+    p2 = make_model(name, **hyper_for(name, seed=5)).fit(series, mech).predict_values(series, mech)
+    p3 = make_model(name, **hyper_for(name, seed=6)).fit(series, mech).predict_values(series, mech)
     np.testing.assert_array_equal(p1, p2)
     assert not np.allclose(p1, p3, equal_nan=True)
 

@@ -51,7 +51,7 @@ def test_generated_file_reads_back_with_sidecar(tmp_path):
     )
     assert result.exit_code == 0, result.output
     series = read_measurements(out)
-    assert series.rollers == ROLLERS and len(series) == 200
+    assert series.channels == ROLLERS and len(series) == 200
     assert series.sample_rate_hz == pytest.approx(100.0)
     info = json.loads(out.with_suffix(".json").read_text())
     assert info["seed"] == 1 and info["files"]["truth"] == "d.truth.parquet"
@@ -65,7 +65,7 @@ def test_shipped_default_data_set_is_what_the_code_generates(default):
     assert len(default) == int(DEFAULT["duration_s"] * DEFAULT["rate_hz"])
     frame, _ = build(duration_s=5.0)
     n = len(frame)
-    np.testing.assert_array_equal(frame[list(ROLLERS)].to_numpy(), default.rpm[:n])
+    np.testing.assert_array_equal(frame[list(ROLLERS)].to_numpy(), default.values[:n])
     np.testing.assert_array_equal(
         frame[[f"true_{r}" for r in ROLLERS]].to_numpy(), default.metadata["true_rpm"][:n]
     )
@@ -73,11 +73,11 @@ def test_shipped_default_data_set_is_what_the_code_generates(default):
 
 def test_encoder_quantisation_and_noise_floor(default):
     truth = default.metadata["true_rpm"]
-    ok = ~np.isnan(default.rpm) & ~default.metadata["outlier_mask"]
+    ok = ~np.isnan(default.values) & ~default.metadata["outlier_mask"]
     step = quantisation_step_rpm(Sensors(), 100.0)
     assert step == pytest.approx(0.6)
     for j in range(4):
-        err = (default.rpm[:, j] - truth[:, j])[ok[:, j]]
+        err = (default.values[:, j] - truth[:, j])[ok[:, j]]
         # pulse counting: error of a difference of two floors, at least step/sqrt(6)
         assert np.sqrt(np.mean(err**2)) >= 0.9 * step / np.sqrt(6)
         assert np.abs(err).max() < 10 * step
@@ -97,7 +97,7 @@ def test_encoder_counts_whole_edges():
 def test_injected_defects_are_found_and_repaired(default):
     """Preprocessing fills every dropped sample and smooths the injected spikes."""
     clean, report = preprocess(default)
-    assert not np.isnan(clean.rpm).any()
+    assert not np.isnan(clean.values).any()
     np.testing.assert_array_equal(report.missing, default.metadata["missing_mask"])
     injected = default.metadata["outlier_mask"]
     found = report.outliers
@@ -106,7 +106,7 @@ def test_injected_defects_are_found_and_repaired(default):
     precision = (found & injected).sum() / max(found.sum(), 1)
     assert recall >= 0.95 and precision >= 0.95
     truth = default.metadata["true_rpm"]
-    rel = np.abs(clean.rpm - truth) / truth
+    rel = np.abs(clean.values - truth) / truth
     assert rel.max() < 0.01  # no spike survives; repaired samples are near the truth
 
 
@@ -126,7 +126,7 @@ def test_startup_scenario_reaches_operating_speed():
     assert front[:50].max() < 5.0  # at rest before the ramp
     target = operating_point(DriveTrain.preset("fa320a")).roller_rpm["front"]
     assert front[-100:].mean() == pytest.approx(target, rel=5e-3)
-    assert np.all(np.diff(rec.series.setpoints["supply_hz"]) >= 0)
+    assert np.all(np.diff(rec.series.inputs["supply_hz"]) >= 0)
 
 
 def test_speed_change_scenario_lowers_speed_by_15_percent():

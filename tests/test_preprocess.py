@@ -139,8 +139,8 @@ def _series(rpm: np.ndarray, **kwargs: object) -> MeasurementSeries:
     rollers = ROLLERS if rpm.shape[1] == 4 else tuple(f"r{j}" for j in range(rpm.shape[1]))
     return MeasurementSeries(
         time_s=np.arange(rpm.shape[0]) * 0.01,
-        rpm=rpm,
-        rollers=rollers,
+        values=rpm,
+        channels=rollers,
         **kwargs,  # type: ignore[arg-type]
     )
 
@@ -151,13 +151,13 @@ def test_preprocess_interpolates_then_smooths() -> None:
     rpm[5, 3] = 700.0
     motor = np.array([1450.0, NAN, 1452.0, 1450.0, 1450.0, 1450.0, 1450.0, NAN])
     supply = np.array([NAN, 50.0, 50.0, NAN, 49.0, 49.0, NAN, 49.0])
-    clean, report = preprocess(_series(rpm, motor_rpm=motor, setpoints={"supply_hz": supply}))
-    np.testing.assert_allclose(clean.rpm, np.tile([1815.0, 1500.0, 450.0, 355.0], (8, 1)))
+    clean, report = preprocess(_series(rpm, motor_rpm=motor, inputs={"supply_hz": supply}))
+    np.testing.assert_allclose(clean.values, np.tile([1815.0, 1500.0, 450.0, 355.0], (8, 1)))
     assert report.n_missing == {"front": 1, "second": 0, "third": 0, "back": 0}
     assert report.n_filled["front"] == 1 and report.n_outliers["back"] == 1
     assert report.gaps()["front"] == {"count": 1, "longest": 1}
     np.testing.assert_allclose(clean.motor_rpm[[1, 7]], [1451.0, 1450.0])
-    np.testing.assert_array_equal(clean.setpoints["supply_hz"], [50, 50, 50, 50, 49, 49, 49, 49])
+    np.testing.assert_array_equal(clean.inputs["supply_hz"], [50, 50, 50, 50, 49, 49, 49, 49])
     assert clean.metadata["preprocess"]["outliers"]["back"] == 1
     assert report.extra == {"motor": 2, "supply_hz": 3}
     assert json.loads(json.dumps(report.to_dict()))["filled"]["front"] == 1
@@ -167,14 +167,14 @@ def test_preprocess_without_smoothing() -> None:
     rpm = np.full((5, 4), 1000.0)
     rpm[2, 1] = 3000.0
     clean, report = preprocess(_series(rpm), outlier_threshold=None)
-    assert clean.rpm[2, 1] == 3000.0 and report.threshold is None and not report.outliers.any()
+    assert clean.values[2, 1] == 3000.0 and report.threshold is None and not report.outliers.any()
 
 
 def test_chronological_split_70_30() -> None:
     series = _series(np.arange(40.0).reshape(10, 4))
     train, test = chronological_split(series)
     assert (len(train), len(test)) == (7, 3)
-    np.testing.assert_array_equal(np.concatenate([train.rpm, test.rpm]), series.rpm)
+    np.testing.assert_array_equal(np.concatenate([train.values, test.values]), series.values)
     assert train.time_s[-1] < test.time_s[0]
 
 
@@ -192,13 +192,13 @@ with_missing = hnp.arrays(
 @given(rpm=with_missing, threshold=st.sampled_from([0.0, 0.05, 0.10, 0.5]))
 def test_never_crashes_and_fills_every_column_with_data(rpm: np.ndarray, threshold: float) -> None:
     clean, report = preprocess(_series(rpm), outlier_threshold=threshold)
-    assert clean.rpm.shape == rpm.shape
+    assert clean.values.shape == rpm.shape
     has_data = ~np.isnan(rpm).all(axis=0)
-    assert not np.isnan(clean.rpm[:, has_data]).any()
-    assert np.isnan(clean.rpm[:, ~has_data]).all()
+    assert not np.isnan(clean.values[:, has_data]).any()
+    assert np.isnan(clean.values[:, ~has_data]).all()
     np.testing.assert_array_equal(report.filled[:, has_data], np.isnan(rpm)[:, has_data])
     kept = ~np.isnan(rpm) & ~report.outliers
-    np.testing.assert_array_equal(clean.rpm[kept], rpm[kept])
+    np.testing.assert_array_equal(clean.values[kept], rpm[kept])
 
 
 @PROPS
@@ -229,7 +229,7 @@ clean_rpm = hnp.arrays(
 @given(rpm=clean_rpm, sign=st.sampled_from([1.0, -1.0]))
 def test_clean_data_is_unchanged(rpm: np.ndarray, sign: float) -> None:
     clean, report = preprocess(_series(sign * rpm))
-    np.testing.assert_array_equal(clean.rpm, sign * rpm)
+    np.testing.assert_array_equal(clean.values, sign * rpm)
     assert not report.filled.any() and not report.outliers.any()
 
 

@@ -69,13 +69,13 @@ def summarize(series: MeasurementSeries, *, outlier_threshold: float = 0.10) -> 
     gaps = report.gaps()
     rollers = {
         r: {
-            **_stats(series.rpm[:, j]),
+            **_stats(series.values[:, j]),
             "missing": report.n_missing[r],
             "gaps": gaps[r]["count"],
             "longest_gap": gaps[r]["longest"],
             "outliers": report.n_outliers[r],
         }
-        for j, r in enumerate(series.rollers)
+        for j, r in enumerate(series.channels)
     }
     meta = series.metadata
     return {
@@ -91,7 +91,7 @@ def summarize(series: MeasurementSeries, *, outlier_threshold: float = 0.10) -> 
         "outlier_threshold": outlier_threshold,
         "rollers": rollers,
         "motor": None if series.motor_rpm is None else _stats(series.motor_rpm),
-        "setpoints": sorted(series.setpoints),
+        "setpoints": sorted(series.inputs),
     }
 
 

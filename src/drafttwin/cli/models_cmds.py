@@ -118,9 +118,9 @@ def predict(
     estimator = load_model(model)
     series = load_data(data)
     _check_rate(estimator, series, data)
-    pred = estimator.predict(series, mechanistic_source(mechanistic))
+    pred = estimator.predict_values(series, mechanistic_source(mechanistic))
     frame = pd.DataFrame(
-        {"time": series.time_s, **{r: pred[:, j] for j, r in enumerate(series.rollers)}}
+        {"time": series.time_s, **{r: pred[:, j] for j, r in enumerate(series.channels)}}
     )
     write_frame(frame, out)
     console.print(f"wrote {len(frame)} predictions to {out}")
@@ -148,13 +148,13 @@ def evaluate(
     _check_rate(estimator, series, data)
     n_train = int(round(train_fraction * len(series)))
     train, _ = preprocess(series.slice(0, n_train))
-    test_inputs, _ = reject_spikes_causal(series.rpm[n_train:])
-    inputs = series.with_rpm(np.vstack([train.rpm, test_inputs]))
+    test_inputs, _ = reject_spikes_causal(series.values[n_train:])
+    inputs = series.with_values(np.vstack([train.values, test_inputs]))
     _, full = preprocess(series)
-    target = np.where(np.isnan(series.rpm) | full.outliers, np.nan, series.rpm)[n_train:]
-    pred = estimator.predict(inputs, mechanistic_source(mechanistic))[n_train:]
+    target = np.where(np.isnan(series.values) | full.outliers, np.nan, series.values)[n_train:]
+    pred = estimator.predict_values(inputs, mechanistic_source(mechanistic))[n_train:]
     true = series.metadata.get("true_rpm")
-    metrics = score(target, pred, persistence=persistence_forecast(inputs.rpm, getattr(estimator, "horizon", 1))[n_train:],
+    metrics = score(target, pred, persistence=persistence_forecast(inputs.values, getattr(estimator, "horizon", 1))[n_train:],
                     true_speed=None if true is None else np.asarray(true)[n_train:])  # fmt: skip
     if as_json:
         typer.echo(json.dumps({r: m.to_dict() for r, m in metrics.items()}, indent=2))

@@ -47,8 +47,8 @@ def generate(
     table = Table(title=f"plant, scenario '{scenario}', seed {seed}: {duration:g} s at {rate:g} Hz")
     for col in ("roller", "mean rpm", "true std %", "missing", "spikes", "noise rms rpm"):
         table.add_column(col, justify="right" if col != "roller" else "left")
-    for j, name in enumerate(rec.series.rollers):
-        x, t = rec.series.rpm[:, j], rec.true_rpm[:, j]
+    for j, name in enumerate(rec.series.channels):
+        x, t = rec.series.values[:, j], rec.true_rpm[:, j]
         ok = ~np.isnan(x) & ~rec.outlier[:, j]
         noise = float(np.sqrt(np.mean((x[ok] - t[ok]) ** 2)))
         table.add_row(name, f"{np.nanmean(x):.2f}", f"{t.std() / t.mean() * 100:.4f}",

@@ -432,10 +432,10 @@ def _on_grid(
     )
     return MeasurementSeries(
         time_s=time_s,
-        rpm=spread(rpm),
-        rollers=rollers,
+        values=spread(rpm),
+        channels=rollers,
         motor_rpm=spread(channels["motor"]) if plan.motor else None,
-        setpoints={name: spread(channels[name]) for name in plan.setpoints},
+        inputs={name: spread(channels[name]) for name in plan.setpoints},
         metadata=metadata,
     )
 

@@ -186,18 +186,18 @@ def _fill_optional(series: MeasurementSeries, max_gap: int | None) -> tuple[dict
     if series.motor_rpm is not None:
         motor, filled = interpolate_missing(series.motor_rpm, max_gap)
         changes["motor_rpm"], counts["motor"] = motor, int(filled.sum())
-    setpoints = {}
-    for name, values in series.setpoints.items():
+    inputs = {}
+    for name, values in series.inputs.items():
         x = np.asarray(values, dtype=np.float64)
         valid = ~np.isnan(x)
         if valid.all() or not valid.any():
-            setpoints[name] = x
+            inputs[name] = x
             continue
         idx = np.maximum.accumulate(np.where(valid, np.arange(x.shape[0]), -1))
         idx[idx < 0] = np.flatnonzero(valid)[0]
-        setpoints[name], counts[name] = x[idx], int((~valid).sum())
-    if setpoints:
-        changes["setpoints"] = setpoints
+        inputs[name], counts[name] = x[idx], int((~valid).sum())
+    if inputs:
+        changes["inputs"] = inputs
     return changes, counts
 
 
@@ -220,15 +220,15 @@ def preprocess(
         report's counts. Motor speed is interpolated like the rollers; set-points hold their
         last value.
     """
-    filled_rpm, filled = interpolate_missing(series.rpm, max_gap)
+    filled_rpm, filled = interpolate_missing(series.values, max_gap)
     if outlier_threshold is None:
         clean, outliers = filled_rpm, np.zeros(filled.shape, dtype=bool)
     else:
         clean, outliers = smooth_outliers(filled_rpm, outlier_threshold)
     changes, extra = _fill_optional(series, max_gap)
     report = PreprocessReport(
-        rollers=series.rollers,
-        missing=np.isnan(series.rpm),
+        rollers=series.channels,
+        missing=np.isnan(series.values),
         filled=filled,
         outliers=outliers,
         max_gap=max_gap,
@@ -236,7 +236,7 @@ def preprocess(
         extra=extra,
     )
     metadata = {**series.metadata, "preprocess": report.to_dict()}
-    return replace(series, rpm=clean, metadata=metadata, **changes), report
+    return replace(series, values=clean, metadata=metadata, **changes), report
 
 
 def chronological_split(

@@ -36,8 +36,8 @@ def _series(frame: pd.DataFrame, info: dict) -> MeasurementSeries:
     }
     return MeasurementSeries(
         time_s=frame["time"].to_numpy(),
-        rpm=frame[list(ROLLERS)].to_numpy(),
-        setpoints={"supply_hz": frame["supply_hz"].to_numpy()},
+        values=frame[list(ROLLERS)].to_numpy(),
+        inputs={"supply_hz": frame["supply_hz"].to_numpy()},
         metadata=meta,
     )
 

@@ -182,7 +182,7 @@ def run_one(cfg: dict[str, Any]) -> dict[str, Any]:
     model.fit(train.series(), mech)
     fit_s = time.perf_counter() - start
     start = time.perf_counter()
-    pred = model.predict(test.series(), mech)[:, 0]
+    pred = model.predict_values(test.series(), mech)[:, 0]
     predict_s = time.perf_counter() - start
     first = score_start(cfg["task"])
     history = getattr(model, "history_", None)
@@ -193,7 +193,7 @@ def run_one(cfg: dict[str, Any]) -> dict[str, Any]:
         "epochs": None if history is None else len(history.train_loss),
     }  # fmt: skip
     if cfg["train_metrics"]:
-        train_pred = model.predict(train.series(), mech)[:, 0]
+        train_pred = model.predict_values(train.series(), mech)[:, 0]
         out["train_rmse_mm"] = rmse_mm(train.qm_m, train_pred, first)
     if cfg["trace"]:
         out["trace"] = pred.tolist()

@@ -74,9 +74,9 @@ class EmpsRecord:
         and ``qg`` (m) among the set-points."""
         return MeasurementSeries(
             time_s=self.time_s,
-            rpm=self.qm_m[:, None],
-            rollers=(OUTPUT,),
-            setpoints={INPUT: self.vir_v, "qg": self.qg_m},
+            values=self.qm_m[:, None],
+            channels=(OUTPUT,),
+            inputs={INPUT: self.vir_v, "qg": self.qg_m},
             metadata={"source": self.name, "units": {"qm": "m", "vir": "V", "qg": "m"}},
         )
 

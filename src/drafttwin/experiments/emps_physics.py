@@ -93,8 +93,8 @@ class EmpsPhysics:
         its input ``vir`` and its first measured position."""
 
         def run(series: MeasurementSeries) -> np.ndarray:
-            q0 = float(series.rpm[0, 0])
-            return self.simulate(series.setpoints[INPUT], q0, _step(series))[:, None]
+            q0 = float(series.values[0, 0])
+            return self.simulate(series.inputs[INPUT], q0, _step(series))[:, None]
 
         return MechanisticModel.from_series_function(run, channels=(OUTPUT,), name="EMPS physics")
 

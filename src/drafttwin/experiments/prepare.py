@@ -93,16 +93,16 @@ def prepare(
     n = len(series)
     n_train = int(round(train_fraction * n))
     clean_train, train_report = preprocess(series.slice(0, n_train))
-    test_raw = series.rpm[n_train:]
+    test_raw = series.values[n_train:]
     test_inputs, rejected = reject_spikes_causal(test_raw)
     _, full_report = preprocess(series)
-    scored = ~np.isnan(series.rpm) & ~full_report.outliers
+    scored = ~np.isnan(series.values) & ~full_report.outliers
     scored[:n_train] = False
-    target = np.where(scored, series.rpm, np.nan)
+    target = np.where(scored, series.values, np.nan)
     true = series.metadata.get("true_rpm")
     data = PreparedData(
         time_s=series.time_s,
-        inputs=np.vstack([clean_train.rpm, test_inputs]),
+        inputs=np.vstack([clean_train.values, test_inputs]),
         target=target,
         mech=_mechanistic(series, preset, cache_dir),
         true=None if true is None else np.asarray(true, dtype=np.float64)[:n],
@@ -120,7 +120,7 @@ def prepare(
             "train": train_report.to_dict(),
             "test_spikes_rejected_causally": int(rejected.sum()),
             "test_scored_samples": int(scored.sum()),
-            "test_samples": int((n - n_train) * series.rpm.shape[1]),
+            "test_samples": int((n - n_train) * series.values.shape[1]),
         },
     }
     return data, summary

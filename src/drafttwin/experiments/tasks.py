@@ -84,14 +84,14 @@ def data_model(config: dict[str, Any]) -> dict[str, Any]:
     exog = input_matrix(train, input_names(mdsl))  # exogenous inputs (none for roller data)
     t0 = time.perf_counter()
     with FitProgress("GRU", quiet=True) as progress:
-        oof = mdsl._fit_data(train.rpm, exog, progress)
+        oof = mdsl._fit_data(train.values, exog, progress)
     gru = mdsl.data_model_
     gru.rollers_ = ROLLERS
     gru.mechanistic_spec_ = None
     gru_path = gru.save(_artifact(config, data, ".gru.dtm"))
     oof_path = _artifact(config, data, ".oof.npy")
     np.save(oof_path, oof)
-    pred = gru.predict(data.series())
+    pred = gru.predict_values(data.series())
     pred_path = _artifact(config, data, ".pred.npy")
     np.save(pred_path, pred)
     return {"gru_path": str(gru_path), "oof_path": str(oof_path), "pred_path": str(pred_path),
@@ -123,7 +123,7 @@ def hybrid(config: dict[str, Any]) -> dict[str, Any]:
     train = data.series().slice(0, data.n_train)
     t0 = time.perf_counter()
     model.fit(train, MechanisticModel(data.mech[: data.n_train]))
-    pred = model.predict(data.series(), MechanisticModel(data.mech))
+    pred = model.predict_values(data.series(), MechanisticModel(data.mech))
     result = {"metrics": score(data, pred), "epochs": len(model.history_.train_loss),
               "wall_s": time.perf_counter() - t0}  # fmt: skip
     if config.get("save_predictions"):

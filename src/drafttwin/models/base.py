@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, ClassVar, Self
 
 import numpy as np
+import pandas as pd
 import torch
 from torch import nn
 
@@ -148,23 +149,23 @@ class BaseModel:
                 f"expected a MeasurementSeries, got {type(series).__name__}",
                 fix="read measurements with drafttwin.data.io.read_measurements(...)",
             )
-        if getattr(self, "outputs", None) is None and series.rpm.shape[1] != len(ROLLERS):
+        if getattr(self, "outputs", None) is None and series.values.shape[1] != len(ROLLERS):
             raise DataError(
-                f"the series has {series.rpm.shape[1]} roller column(s) {list(series.rollers)}; "
+                f"the series has {series.values.shape[1]} roller column(s) {list(series.channels)}; "
                 f"the models need {len(ROLLERS)}: {', '.join(ROLLERS)}",
                 fix="provide one speed column per bottom roller",
             )
         wanted = output_names(self)
-        if getattr(self, "outputs", None) is not None and tuple(series.rollers) != wanted:
+        if getattr(self, "outputs", None) is not None and tuple(series.channels) != wanted:
             raise DataError(
-                f"the series has output channels {list(series.rollers)} but the model's outputs "
+                f"the series has output channels {list(series.channels)} but the model's outputs "
                 f"are {list(wanted)}",
-                fix="build the series with rollers=outputs (same names, same order)",
+                fix="build the series with channels=outputs (same names, same order)",
             )
         fitted = getattr(self, "rollers_", None)
-        if fitted is not None and tuple(series.rollers) != tuple(fitted):
+        if fitted is not None and tuple(series.channels) != tuple(fitted):
             raise DataError(
-                f"the series has rollers {list(series.rollers)} but the model was fitted on "
+                f"the series has rollers {list(series.channels)} but the model was fitted on "
                 f"{list(fitted)}",
                 fix="rename or reorder the columns as during fitting",
             )
@@ -214,13 +215,29 @@ class BaseModel:
         quiet = bool(getattr(self, "quiet", True)) or not self.trains_networks
         with FitProgress(f"fit {self.name}", quiet=quiet) as progress:
             self._fit(series, mech, progress)
-        self.rollers_ = tuple(series.rollers)
+        self.rollers_ = tuple(series.channels)
         self.mechanistic_spec_ = None if mech_model is None else mech_model.spec()
         rate = series.sample_rate_hz
         self.sample_rate_hz_ = float(rate) if np.isfinite(rate) else None
         return self
 
-    def predict(self, series: MeasurementSeries, mechanistic: object | None = None) -> np.ndarray:
+    def predict(self, series: MeasurementSeries, mechanistic: object | None = None) -> pd.DataFrame:
+        """Predictions as a labelled frame: ``time`` (s) and one column per output channel
+        (plus ``record`` for a series of several records); ``frame.attrs["units"]`` holds the
+        channel units. Same rows and rules as :meth:`predict_values`."""
+        values = self.predict_values(series, mechanistic)
+        frame = pd.DataFrame({"time": series.time_s})
+        for j, name in enumerate(output_names(self)):
+            frame[name] = values[:, j]
+        if series.n_records > 1:
+            frame["record"] = series.record_ids()
+        frame.attrs["units"] = {name: series.unit(name) for name in output_names(self)}
+        frame.attrs["model"] = self.name
+        return frame
+
+    def predict_values(
+        self, series: MeasurementSeries, mechanistic: object | None = None
+    ) -> np.ndarray:
         """Predicted speeds in rpm (or the ``outputs`` channels in their units), shape
         ``(n, channels)``. ``NaN`` where the history is too short or incomplete.
 

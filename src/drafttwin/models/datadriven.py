@@ -85,11 +85,11 @@ class PersistenceModel(BaseModel):
 
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
         if not sim.is_simulation(self):
-            return persistence_forecast(series.rpm, self.horizon)
+            return persistence_forecast(series.values, self.horizon)
         init = sim.init_rows(self)
-        out = np.full(series.rpm.shape, np.nan)
+        out = np.full(series.values.shape, np.nan)
         if len(series) > init:
-            out[init:] = causal_ffill(series.rpm[:init])[-1]
+            out[init:] = causal_ffill(series.values[:init])[-1]
         return out
 
 
@@ -188,7 +188,7 @@ class _RecurrentModel(_NeuralModel):
         return sim.input_matrix(series, sim.input_names(self))
 
     def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
-        self._fit_arrays(series.rpm, u=self._inputs_of(series), progress=progress)
+        self._fit_arrays(series.values, u=self._inputs_of(series), progress=progress)
 
     def _fit_arrays(
         self,
@@ -266,7 +266,7 @@ class _RecurrentModel(_NeuralModel):
         return out
 
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
-        return self._predict_arrays(series.rpm, self._inputs_of(series))
+        return self._predict_arrays(series.values, self._inputs_of(series))
 
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
         state: dict[str, Any] = {

@@ -142,7 +142,7 @@ class _ResidualHybrid(_NeuralModel):
 
     def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
         assert mech is not None
-        y = series.rpm
+        y = series.values
         u = sim.input_matrix(series, sim.input_names(self))
         data = self._fit_data(y, u, progress)
         groups = self._all_groups(y, mech, data, u)
@@ -174,7 +174,7 @@ class _ResidualHybrid(_NeuralModel):
 
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
         assert mech is not None
-        y = series.rpm
+        y = series.values
         u = sim.input_matrix(series, sim.input_names(self))
         groups = self._all_groups(y, mech, self._predict_data(y, u), u)
         x, extra, _, rows = self._inputs(groups)

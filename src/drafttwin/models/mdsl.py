@@ -232,7 +232,7 @@ class MDSL(_ResidualHybrid):
         if sim.is_simulation(self):
             series = sim.blank_after_init(series, sim.init_rows(self))
         u = sim.input_matrix(series, sim.input_names(self))
-        return self.data_model_._predict_arrays(series.rpm, u)
+        return self.data_model_._predict_arrays(series.values, u)
 
     # --- persistence ---------------------------------------------------------------
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:

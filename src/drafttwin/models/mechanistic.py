@@ -99,7 +99,7 @@ class MechanisticModel:
     ) -> MechanisticModel:
         """A source computed from the whole series, ``func(series) -> (n, channels)``.
 
-        For a simulation driven by the series' exogenous inputs (``series.setpoints``). In
+        For a simulation driven by the series' exogenous inputs (``series.inputs``). In
         simulation mode the estimators pass a series whose outputs after the initialisation
         window are NaN, so such a function can use at most the initial measured state.
         Not stored in model files (pass it again to ``predict``).

@@ -117,10 +117,10 @@ class OnlinePredictor:
         """Append a whole record (vectorised when nothing was observed yet)."""
         series = self.model._check_series(series)
         if self.n_observed:
-            for t, row in zip(series.time_s, series.rpm, strict=True):
+            for t, row in zip(series.time_s, series.values, strict=True):
                 self.observe(float(t), row)
             return
-        y = series.rpm
+        y = series.values
         keep = self._yf.maxlen or 1
         self._yf.extend(causal_ffill(y)[-keep:])
         if self._mech is not None:

@@ -7,8 +7,8 @@ original roller-speed behaviour):
   ``T - horizon``) or ``"simulation"`` (free run: only the first ``init_samples`` measured rows
   of the series are used; :meth:`BaseModel.predict` blanks every later measured output before
   any model code sees it);
-* ``outputs``: names of the output channels (``series.rollers``); ``None`` = the four rollers;
-* ``inputs``: exogenous input channels taken from ``series.setpoints`` (e.g. a drive voltage),
+* ``outputs``: names of the output channels (``series.channels``); ``None`` = the four rollers;
+* ``inputs``: exogenous input channels taken from ``series.inputs`` (e.g. a drive voltage),
   known at every row in both tasks;
 * ``init_samples``: measured rows a simulation may use (default: the longest window).
 
@@ -135,16 +135,16 @@ def check_task_params(model: object) -> None:
 
 
 def input_matrix(series: MeasurementSeries, names: Sequence[str]) -> np.ndarray:
-    """Exogenous inputs ``(n, len(names))`` from ``series.setpoints`` (their own units)."""
+    """Exogenous inputs ``(n, len(names))`` from ``series.inputs`` (their own units)."""
     cols = []
     for name in names:
-        if name not in series.setpoints:
+        if name not in series.inputs:
             raise DataError(
                 f"the series has no input channel {name!r} (set-points: "
-                f"{sorted(series.setpoints) or 'none'})",
-                fix="put the exogenous input into MeasurementSeries.setpoints under that name",
+                f"{sorted(series.inputs) or 'none'})",
+                fix="put the exogenous input into MeasurementSeries.inputs under that name",
             )
-        col = np.asarray(series.setpoints[name], dtype=np.float64)
+        col = np.asarray(series.inputs[name], dtype=np.float64)
         if col.shape != (len(series),):
             raise DataError(f"input channel {name!r} has shape {col.shape}, not ({len(series)},)")
         cols.append(col)
@@ -154,9 +154,9 @@ def input_matrix(series: MeasurementSeries, names: Sequence[str]) -> np.ndarray:
 def blank_after_init(series: MeasurementSeries, init: int) -> MeasurementSeries:
     """The series with every measured output after the first ``init`` rows set to NaN: what a
     simulation may see (inputs and set-points are kept: they are known in advance)."""
-    rpm = np.array(series.rpm, dtype=np.float64, copy=True)
+    rpm = np.array(series.values, dtype=np.float64, copy=True)
     rpm[init:] = np.nan
-    return series.with_rpm(rpm)
+    return series.with_values(rpm)
 
 
 def increments(x: np.ndarray) -> np.ndarray:

@@ -157,8 +157,8 @@ class Plant:
         }
         series = MeasurementSeries(
             time_s=res.time_s,
-            rpm=measured.rpm,
-            setpoints={"supply_hz": setpoint.at(res.time_s)},
+            values=measured.rpm,
+            inputs={"supply_hz": setpoint.at(res.time_s)},
             metadata={"source": "drafttwin plant", "seed": seed, "scenario": scenario},
         )
         return PlantRecording(
@@ -188,8 +188,7 @@ def attach_truth(series: MeasurementSeries, path: str | Path) -> MeasurementSeri
     ):
         return series  # the measured file was edited: its truth no longer lines up
     meta = dict(series.metadata)
-    meta["true_rpm"] = frame[[f"true_{r}" for r in series.rollers]].to_numpy(np.float64)
-    meta["missing_mask"] = frame[[f"missing_{r}" for r in series.rollers]].to_numpy(bool)
-    meta["outlier_mask"] = frame[[f"outlier_{r}" for r in series.rollers]].to_numpy(bool)
-    return MeasurementSeries(series.time_s, series.rpm, series.rollers, series.motor_rpm,
-                             series.setpoints, meta)  # fmt: skip
+    meta["true_rpm"] = frame[[f"true_{r}" for r in series.channels]].to_numpy(np.float64)
+    meta["missing_mask"] = frame[[f"missing_{r}" for r in series.channels]].to_numpy(bool)
+    meta["outlier_mask"] = frame[[f"outlier_{r}" for r in series.channels]].to_numpy(bool)
+    return replace(series, metadata=meta)
