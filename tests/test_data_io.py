@@ -105,11 +105,13 @@ def test_parquet_datetime_time_column(tmp_path: Path) -> None:
     assert series.metadata["start_time"] == "2024-05-01T08:00:00"
 
 
-def test_numeric_time_is_shifted_to_zero(tmp_path: Path) -> None:
+def test_numeric_time_is_kept_as_in_the_file(tmp_path: Path) -> None:
     path = write_csv(tmp_path / "t.csv", "t,front,second,third,back", speed_rows(start=100.0))
     series = read_measurements(path)
-    assert series.time_s[0] == 0.0
-    assert series.metadata["time_offset_s"] == 100.0
+    expected = [float(f"{100.0 + i * 0.01:.6f}") for i in range(6)]  # the file's own cells
+    np.testing.assert_array_equal(series.time_s, expected)
+    assert series.time_s[0] == 100.0
+    assert series.metadata["time_offset_s"] == 100.0  # the file's first time value
 
 
 def test_time_in_milliseconds_by_header_unit(tmp_path: Path) -> None:

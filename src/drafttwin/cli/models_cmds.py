@@ -148,7 +148,7 @@ def evaluate(
     _check_rate(estimator, series, data)
     n_train = int(round(train_fraction * len(series)))
     train, _ = preprocess(series.slice(0, n_train))
-    test_inputs, _ = reject_spikes_causal(series.values[n_train:])
+    test_inputs, _ = reject_spikes_causal(series.slice(n_train))
     inputs = series.with_values(np.vstack([train.values, test_inputs]))
     _, full = preprocess(series)
     target = np.where(np.isnan(series.values) | full.outliers, np.nan, series.values)[n_train:]

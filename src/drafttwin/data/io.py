@@ -1,19 +1,20 @@
 """Reading and writing measurement files: CSV and Parquet.
 
-File format (see ``docs/data.md``): one row per sample; a time column (seconds, or ISO 8601
-timestamps converted to seconds from the first sample); one column per roller speed in rpm
-(``front, second, third, back`` by default, other names mapped with ``columns``); optional
-``motor`` (rpm) and set-point columns (``setpoint_*``, ``supply_hz``). Empty cells are missing
-samples. Rows dropped from a regular time grid are re-inserted as missing samples.
+File format (see ``docs/data.md``): one row per sample; a time column (seconds, kept as in the
+file, or ISO 8601 timestamps converted to seconds from the first sample); one column per
+output channel (the four FA320A rollers in rpm by default, any names with ``outputs``), with
+optional unit in the header (``y [m]``); optional ``motor`` (rpm), exogenous inputs (set-point
+columns ``setpoint_*``, ``supply_hz`` by default, any names with ``inputs``) and an integer
+``record`` column numbering separate experiments. Empty cells are missing samples. Rows
+dropped from a record's regular time grid are re-inserted as missing samples.
 """
 
 from __future__ import annotations
 
 import io
 import json
-import re
-from collections.abc import Sequence
-from dataclasses import dataclass, field
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -23,147 +24,23 @@ import pyarrow as pa
 import pyarrow.csv as pa_csv
 import pyarrow.parquet as pq
 
-from drafttwin import ROLLERS
 from drafttwin._io import atomic_path
 from drafttwin.data import validate as v
+from drafttwin.data.columns import RECORD, ChannelSpec, channel_spec, plan_columns
+from drafttwin.data.records import (
+    check_same_rate,
+    join_files,
+    join_records,
+    record_bounds,
+    record_on_grid,
+)
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.errors import DataError
+from drafttwin.data.units import check_units as check_rpm
+from drafttwin.data.units import is_rpm
+from drafttwin.errors import ConfigError, DataError
 
 _META_KEY = b"drafttwin"
-
-
-# ------------------------------------------------------------------------- column mapping
-
-
-@dataclass
-class ColumnPlan:
-    """Which file column feeds which channel of a :class:`MeasurementSeries`."""
-
-    time: str
-    time_scale: float
-    rollers: dict[str, str]  # roller -> file column
-    motor: str | None = None
-    setpoints: dict[str, str] = field(default_factory=dict)  # set-point name -> file column
-    unknown: list[str] = field(default_factory=list)
-    ignored: list[str] = field(default_factory=list)
-
-    def used(self) -> dict[str, str]:
-        """File column -> canonical name, for provenance."""
-        out = {self.time: "time", **{c: r for r, c in self.rollers.items()}}
-        if self.motor:
-            out[self.motor] = "motor"
-        out.update({c: s for s, c in self.setpoints.items()})
-        return out
-
-
-_UNIT_RE = re.compile(r"^(.*?)\s*[\[(]\s*([^\])]+?)\s*[\])]$")
-
-
-def split_unit(name: str) -> tuple[str, str | None]:
-    """``'front [rpm]'`` -> ``('front', 'rpm')``; ``'front_rpm'`` -> ``('front', 'rpm')``."""
-    name = name.strip()
-    m = _UNIT_RE.match(name)
-    if m:
-        return m.group(1).strip().lower(), m.group(2).replace(" ", "").lower()
-    low = name.lower()
-    if low.endswith("_rpm") and len(low) > 4:
-        return low[:-4], "rpm"
-    return low, None
-
-
-def _is_setpoint(base: str) -> bool:
-    return base.startswith("setpoint_") or base == "supply_hz"
-
-
-def _mapping_targets(
-    columns: dict[str, str], headers: Sequence[str], rollers: Sequence[str], source: str | Path
-) -> dict[str, str]:
-    """Resolve a user mapping {file column: target} against the headers (case-insensitive)."""
-    by_lower = {h.strip().lower(): h for h in headers}
-    allowed = (*rollers, "time", "motor", v.IGNORE)
-    out: dict[str, str] = {}
-    for key, target in columns.items():
-        header = key if key in headers else by_lower.get(key.strip().lower())
-        if header is None:
-            raise DataError(
-                f"mapped column '{key}' is not in the file",
-                source=source,
-                where="--columns",
-                fix=f"the file's columns are: {', '.join(headers)}",
-            )
-        tgt = target.strip().lower()
-        if tgt not in allowed and not _is_setpoint(tgt):
-            raise DataError(
-                f"unknown target '{target}' for column '{key}'",
-                source=source,
-                where="--columns",
-                fix=f"map to one of {', '.join(allowed)}, or a name starting with 'setpoint_'",
-            )
-        out[header] = tgt
-    return out
-
-
-def plan_columns(
-    headers: Sequence[str],
-    source: str | Path,
-    *,
-    columns: dict[str, str] | None = None,
-    time_column: str | None = None,
-    rollers: Sequence[str] = ROLLERS,
-) -> ColumnPlan:
-    """Assign every file column to time, a roller, motor, a set-point, or ``unknown``."""
-    headers = [str(h) for h in headers]
-    mapping = _mapping_targets(columns or {}, headers, rollers, source)
-    if time_column is not None:
-        mapping.update(_mapping_targets({time_column: "time"}, headers, rollers, source))
-    assigned: dict[str, str] = {}  # target -> header
-    unknown: list[str] = []
-    ignored = [h for h in headers if mapping.get(h) == v.IGNORE]
-    explicit = [(h, t) for h, t in mapping.items() if t != v.IGNORE]
-    defaults = [
-        (h, _default_target(split_unit(h)[0], rollers)) for h in headers if h not in mapping
-    ]
-    for h, target in explicit + defaults:
-        if target is None or (
-            target in assigned and assigned[target] in mapping and h not in mapping
-        ):
-            unknown.append(h)  # unrecognised, or its default role is taken by a mapped column
-        elif target in assigned:
-            raise DataError(
-                f"two columns give '{target}': '{assigned[target]}' and '{h}'",
-                source=source,
-                where=f"column '{h}'",
-                fix=f"remove one, or drop it on reading with --columns '{h}'=ignore",
-            )
-        else:
-            assigned[target] = h
-    units = {t: split_unit(h)[1] for t, h in assigned.items()}
-    v.check_time_present(assigned, headers, source)
-    v.check_rollers_present(assigned, headers, rollers, source)
-    for target, h in assigned.items():
-        if (target in rollers or target == "motor") and units[target] is not None:
-            v.refuse_unit(h, units[target], source)
-    return ColumnPlan(
-        time=assigned["time"],
-        time_scale=v.time_scale(assigned["time"], units["time"], source),
-        rollers={r: assigned[r] for r in rollers},
-        motor=assigned.get("motor"),
-        setpoints={t: h for t, h in assigned.items() if _is_setpoint(t)},
-        unknown=[h for h in headers if h in unknown],
-        ignored=ignored,
-    )
-
-
-def _default_target(base: str, rollers: Sequence[str]) -> str | None:
-    if base in v.TIME_NAMES:
-        return "time"
-    if base in rollers:
-        return base
-    if base in v.MOTOR_NAMES:
-        return "motor"
-    if _is_setpoint(base):
-        return base
-    return None
+_UNITS_KEY = b"drafttwin.units"
 
 
 # ----------------------------------------------------------------------------------- reading
@@ -171,7 +48,8 @@ def _default_target(base: str, rollers: Sequence[str]) -> str | None:
 
 @dataclass(frozen=True)
 class TimeAxis:
-    """Parsed time column: seconds from the first sample, plus its absolute start if known."""
+    """Parsed time column in seconds (a numeric column as in the file, timestamps from the
+    first one), plus the absolute start of timestamps."""
 
     seconds: np.ndarray
     start: str | None  # ISO 8601 timestamp of the first sample, when the file has timestamps
@@ -181,7 +59,8 @@ class TimeAxis:
 def parse_time(
     values: pd.Series, header: str, scale: float, source: str | Path, row_label: v.RowLabel
 ) -> TimeAxis:
-    """Seconds from start for a numeric (seconds) or ISO 8601 timestamp column.
+    """Seconds for a numeric column (the file's own times, scaled by the header's unit) or an
+    ISO 8601 timestamp column (seconds from the first timestamp).
 
     A text column whose cells are mostly numbers is read as seconds (so one bad cell is
     named, not the first good one); otherwise as timestamps.
@@ -197,7 +76,7 @@ def parse_time(
         numbers = pd.to_numeric(values, errors="coerce")
     t = numbers.to_numpy(dtype=np.float64, na_value=np.nan) * scale
     v.check_time_cells(~np.isfinite(t), values, header, source, row_label)
-    return TimeAxis(seconds=t - t[0], start=None, offset_s=float(t[0]))
+    return TimeAxis(seconds=t, start=None, offset_s=float(t[0]))
 
 
 def _from_stamps(
@@ -225,65 +104,113 @@ def _parse_timestamps(values: pd.Series, header: str, source: str | Path) -> pd.
 
 
 def read_measurements(
-    path: str | Path,
+    path: str | Path | Sequence[str | Path],
     *,
-    columns: dict[str, str] | None = None,
+    outputs: Sequence[str] | None = None,
+    inputs: Sequence[str] | None = None,
+    units: Mapping[str, str] | None = None,
     time_column: str | None = None,
+    columns: Mapping[str, str] | None = None,
     expected_rate_hz: float | None = None,
     rate_tolerance: float = 0.01,
-    rollers: Sequence[str] = ROLLERS,
     check_units: bool = True,
     nominal_rpm: dict[str, float] | None = None,
     diameters_mm: dict[str, float] | None = None,
 ) -> MeasurementSeries:
-    """Read and validate a CSV or Parquet measurement file.
+    """Read and validate CSV or Parquet measurement files.
 
     Args:
-        path: ``.csv``, ``.parquet`` or ``.pq`` file.
-        columns: file column -> role (a roller name, ``time``, ``motor``, ``setpoint_*``,
-            ``supply_hz`` or ``ignore``), e.g. ``{"v1": "front"}``; names are case-insensitive.
+        path: a ``.csv``, ``.parquet`` or ``.pq`` file, or a sequence of them (separate
+            experiments, joined as records; each file is validated on its own, and all must
+            give the same outputs, inputs, units and sample rate).
+        outputs: output channel names in order; ``None`` = the four FA320A rollers ``front,
+            second, third, back`` in rpm. Headers match case-insensitively.
+        inputs: exogenous input columns (each required); ``None`` = every set-point column
+            (``setpoint_*``, ``supply_hz``) in the file; ``()`` = none.
+        units: unit per output or input (``{"y": "m", "u": "V"}``); it must agree with a
+            unit in the header (``y [m]``). Default: rollers and motor rpm, ``supply_hz`` Hz,
+            anything else undeclared (``""``).
         time_column: the time column's name when it is not one of ``time, t, time_s,
             timestamp, datetime``.
-        expected_rate_hz: refuse the file unless its median sample rate matches (Hz).
-        rate_tolerance: allowed deviation of a time step from the grid, as a fraction of a
-            step (default 1 %).
-        rollers: the roller columns required, in order.
-        check_units: run the unit heuristics (plausible rpm range, front faster than back,
-            ratio to ``nominal_rpm``).
-        nominal_rpm: nominal speed per roller (rpm), to recognise rad/s, rev/s or m/min.
+        columns: file column -> role (an output or input name, ``time``, ``motor``,
+            ``record``, ``ignore``; with ``inputs=None`` also ``setpoint_*``, ``supply_hz``),
+            e.g. ``{"v1": "front"}``; names are case-insensitive.
+        expected_rate_hz: refuse a file unless its median sample rate matches (Hz).
+        rate_tolerance: allowed deviation of a time step from the grid, and of one file's (or
+            record's) rate from another's, as a fraction of a step (default 1 %).
+        check_units: run the unit heuristics on the channels in rpm (plausible range, sign,
+            front faster than back, ratio to ``nominal_rpm``).
+        nominal_rpm: nominal speed per channel (rpm), to recognise rad/s, rev/s or m/min.
         diameters_mm: roller diameters (mm), to recognise surface speed in m/min.
 
     Returns:
-        A :class:`MeasurementSeries` on a regular grid (time in s from the first sample, speeds
-        in rpm, ``NaN`` = missing) with provenance in ``metadata``.
+        A :class:`MeasurementSeries` on a regular grid per record (time in s as in the file,
+        or from the first timestamp; values in each channel's unit, ``NaN`` = missing),
+        ``units`` per channel and input, and provenance in ``metadata``. A file with an
+        integer ``record`` column, or several files, give several records.
 
     Raises:
-        DataError: for every problem with the file, naming file, row or column and the fix.
+        DataError: for every problem with a file, naming file, row or column and the fix.
+        ConfigError: for contradictory or reserved ``outputs`` / ``inputs`` / ``units``.
     """
-    source = Path(path)
+    spec = channel_spec(outputs, inputs, units)
+    paths = [Path(path)] if isinstance(path, str | Path) else [Path(p) for p in path]
+    if not paths:
+        raise ConfigError("no measurement file given", where="path", fix="name a file")
+    opts = _Options(
+        columns=dict(columns or {}),
+        time_column=time_column,
+        expected_rate_hz=expected_rate_hz,
+        rate_tolerance=rate_tolerance,
+        check_units=check_units,
+        nominal_rpm=nominal_rpm,
+        diameters_mm=diameters_mm,
+    )
+    parts = [_read_file(p, spec, opts) for p in paths]
+    return parts[0] if len(parts) == 1 else join_files(parts, paths, rate_tolerance)
+
+
+@dataclass(frozen=True)
+class _Options:
+    columns: dict[str, str]
+    time_column: str | None
+    expected_rate_hz: float | None
+    rate_tolerance: float
+    check_units: bool
+    nominal_rpm: dict[str, float] | None
+    diameters_mm: dict[str, float] | None
+
+
+def _read_file(source: Path, spec: ChannelSpec, opts: _Options) -> MeasurementSeries:
+    """One file: its columns, time, values and records, validated."""
     fmt = v.check_file(source)
     raw = _read_csv(source) if fmt == "csv" else _read_parquet(source)
     frame, row_label = raw.frame, raw.row_label
     v.check_has_rows(len(frame), source)
     plan = plan_columns(
-        list(frame.columns), source, columns=columns, time_column=time_column, rollers=rollers
+        list(frame.columns),
+        source,
+        spec,
+        columns=opts.columns,
+        time_column=opts.time_column,
+        stored_units=raw.units,
     )
     ignored = plan.ignored + v.refuse_unknown_text_columns(frame, plan.unknown, source)
     axis = parse_time(frame[plan.time], plan.time, plan.time_scale, source, row_label)
-    v.check_monotonic(axis.seconds, source, row_label)
-    positions, step = v.regular_grid(
-        axis.seconds,
-        source,
-        row_label,
-        rate_tolerance=rate_tolerance,
-        expected_rate_hz=expected_rate_hz,
-    )
-    channels = {
-        role: _channel(frame, header, source, row_label) for role, header in _roles(plan).items()
-    }
-    rpm = np.column_stack([channels[r] for r in rollers])
-    if check_units:
-        v.check_units(rpm, rollers, source, nominal_rpm=nominal_rpm, diameters_mm=diameters_mm)
+    data = {role: _channel(frame, col, source, row_label) for role, col in plan.roles().items()}
+    if opts.check_units:
+        rpm = [n for n in (*plan.outputs, *plan.inputs) if is_rpm(plan.units[n])]
+        if rpm:
+            check_rpm(np.column_stack([data[n] for n in rpm]), rpm, source,
+                      nominal_rpm=opts.nominal_rpm, diameters_mm=opts.diameters_mm)  # fmt: skip
+    bounds, ids = [(0, len(frame))], None
+    if plan.record:
+        bounds, ids = record_bounds(frame[plan.record], plan.record, source, row_label)
+    records = [
+        record_on_grid(axis.seconds, data, plan, rows, source, row_label,
+                       rate_tolerance=opts.rate_tolerance, expected_rate_hz=opts.expected_rate_hz)
+        for rows in bounds
+    ]  # fmt: skip
     metadata = {
         "source": str(source),
         "format": fmt,
@@ -291,12 +218,20 @@ def read_measurements(
         "ignored_columns": ignored,
         "start_time": axis.start,
         "time_offset_s": axis.offset_s,
-        "sample_step_s": step,
+        "sample_step_s": records[0][1]["sample_step_s"],
         "rows_in_file": len(frame),
-        "inserted_rows": int(positions[-1]) + 1 - len(frame),
+        "inserted_rows": sum(meta["inserted_rows"] for _, meta in records),
         **raw.metadata,
     }
-    return _on_grid(axis.seconds, positions, rpm, channels, plan, tuple(rollers), metadata)
+    if ids is None:
+        return replace(records[0][0], metadata=metadata)
+    names = [f"record {ids[a]:g} (from {row_label(a)})" for a, _ in bounds]
+    check_same_rate([m["sample_step_s"] for _, m in records], names, opts.rate_tolerance, source)
+    metas = [
+        {**metadata, **meta, "record": int(ids[a]), "first_row": a + 1}
+        for (a, _), (_, meta) in zip(bounds, records, strict=True)
+    ]
+    return join_records([s for s, _ in records], metas, metadata)
 
 
 @dataclass
@@ -304,6 +239,7 @@ class _Raw:
     frame: pd.DataFrame
     row_label: v.RowLabel
     metadata: dict[str, Any] = field(default_factory=dict)
+    units: dict[str, str] = field(default_factory=dict)  # column -> unit kept in the file
 
 
 def _read_csv(source: Path) -> _Raw:
@@ -386,18 +322,11 @@ def _read_parquet(source: Path) -> _Raw:
     stored = (table.schema.metadata or {}).get(_META_KEY)
     if stored:
         meta["file_metadata"] = json.loads(stored)
+    units = json.loads((table.schema.metadata or {}).get(_UNITS_KEY) or b"{}")
     frame = table.to_pandas()
     frame = frame.reset_index(drop=True)
     frame.columns = [str(c).strip() for c in frame.columns]
-    return _Raw(frame=frame, row_label=v.default_row_label, metadata=meta)
-
-
-def _roles(plan: ColumnPlan) -> dict[str, str]:
-    roles = dict(plan.rollers)
-    if plan.motor:
-        roles["motor"] = plan.motor
-    roles.update(plan.setpoints)
-    return roles
+    return _Raw(frame=frame, row_label=v.default_row_label, metadata=meta, units=units)
 
 
 def _channel(frame: pd.DataFrame, header: str, source: Path, row_label: v.RowLabel) -> np.ndarray:
@@ -406,49 +335,17 @@ def _channel(frame: pd.DataFrame, header: str, source: Path, row_label: v.RowLab
     return values
 
 
-def _on_grid(
-    seconds: np.ndarray,
-    positions: np.ndarray,
-    rpm: np.ndarray,
-    channels: dict[str, np.ndarray],
-    plan: ColumnPlan,
-    rollers: tuple[str, ...],
-    metadata: dict[str, Any],
-) -> MeasurementSeries:
-    """Place the samples on the regular grid; dropped rows become ``NaN`` rows."""
-    n_grid = int(positions[-1]) + 1
-
-    def spread(x: np.ndarray) -> np.ndarray:
-        if n_grid == x.shape[0]:
-            return x
-        out = np.full((n_grid, *x.shape[1:]), np.nan)
-        out[positions] = x
-        return out
-
-    time_s = (
-        seconds
-        if n_grid == seconds.shape[0]
-        else np.interp(np.arange(n_grid, dtype=np.float64), positions.astype(np.float64), seconds)
-    )
-    return MeasurementSeries(
-        time_s=time_s,
-        values=spread(rpm),
-        channels=rollers,
-        motor_rpm=spread(channels["motor"]) if plan.motor else None,
-        inputs={name: spread(channels[name]) for name in plan.setpoints},
-        metadata=metadata,
-    )
-
-
 # ----------------------------------------------------------------------------------- writing
 
 
 def write_measurements(series: MeasurementSeries, path: str | Path) -> Path:
     """Write a series as CSV or Parquet (by suffix), atomically; return the path.
 
-    CSV: header ``time,front,second,third,back[,motor][,set-points]``, time in s, speeds in rpm,
-    missing samples as empty cells, floats written so that they read back bit-identical.
-    Parquet: the same columns; ``series.metadata`` is kept as JSON in the file's metadata.
+    Columns: ``time`` (s), the output channels, ``motor`` (if any), the inputs, and ``record``
+    (the record number of each row) when the series has several records. Missing samples are
+    empty cells (CSV) or nulls; floats are written so that they read back bit-identical. CSV
+    headers are the plain names (give units with ``units=`` when reading). Parquet also keeps
+    ``series.metadata`` and the unit of every channel and input, read back into ``units``.
     """
     target = Path(path)
     fmt = v.SUFFIXES.get(target.suffix.lower())
@@ -458,6 +355,7 @@ def write_measurements(series: MeasurementSeries, path: str | Path) -> Path:
             source=target,
             fix="use a .csv or .parquet file name",
         )
+    _check_column_names(series, target)
     frame = series.to_frame()
     table = pa.table({str(c): pa.array(frame[c].to_numpy(), from_pandas=True) for c in frame})
     with atomic_path(target) as tmp:
@@ -467,11 +365,31 @@ def write_measurements(series: MeasurementSeries, path: str | Path) -> Path:
                 pa_csv.write_csv(table, fh, pa_csv.WriteOptions(include_header=False))
         else:
             meta = json.dumps(series.metadata, default=_jsonable).encode("utf-8")
+            units = {n: series.unit(n) for n in (*series.channels, *series.inputs)}
+            if series.motor_rpm is not None:
+                units["motor"] = "rpm"
+            stored = json.dumps({n: u for n, u in units.items() if u}).encode("utf-8")
             table = table.replace_schema_metadata(
-                {**(table.schema.metadata or {}), _META_KEY: meta}
+                {**(table.schema.metadata or {}), _META_KEY: meta, _UNITS_KEY: stored}
             )
             pq.write_table(table, tmp)
     return target
+
+
+def _check_column_names(series: MeasurementSeries, target: Path) -> None:
+    """Every written column needs its own name, distinct from time, motor and record."""
+    names = ["time", *series.channels, *(["motor"] if series.motor_rpm is not None else [])]
+    names += [*series.inputs, *([RECORD] if series.n_records > 1 else [])]
+    seen: set[str] = set()
+    for name in names:
+        if name.lower() in seen:
+            raise DataError(
+                f"two columns would be named '{name}'",
+                source=target,
+                where="channels and inputs",
+                fix="rename the channel or input (time, motor and record are taken)",
+            )
+        seen.add(name.lower())
 
 
 def _jsonable(obj: object) -> object:

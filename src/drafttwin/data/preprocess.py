@@ -11,25 +11,38 @@ Policies (see ``docs/data.md``):
   ``max_gap=k`` a run of more than ``k`` missing samples (interior or at an edge) is left
   ``NaN`` and counted in the report, because interpolating across it would invent data.
 * **Outliers**: a sample is an outlier when it differs from *both* neighbours by more than
-  ``threshold`` (relative to each neighbour's magnitude) *in the same direction*, i.e. it is
-  a one-sample spike. "Both" rather than the paper's "either": with "either", the two samples
+  the tolerance *in the same direction*, i.e. it is a one-sample spike. The tolerance is
+  ``threshold`` times each neighbour's magnitude (the paper's relative rule) for speeds in rpm
+  and for channels whose values stay clear of zero; for a channel that crosses or sits near
+  zero (a position, a voltage) 10 % of the value means nothing, so the tolerance is
+  ``threshold`` times the channel's scale, the spread between its 1st and 99th percentiles. "Both" rather than the paper's "either": with "either", the two samples
   next to a spike, and both sides of every genuine step change, would be flagged too. The
   first and last samples (one neighbour) and samples next to a missing value are never
   flagged. An outlier is replaced by the mean of its neighbours (paper); a run of adjacent
   outliers (alternating spikes) is interpolated between its nearest good neighbours. Bursts
   of two or more equal wrong samples are not one-sample spikes and are not detected.
-* **Order**: interpolation first, then smoothing (the paper's order), on each roller.
+* **Order**: interpolation first, then smoothing (the paper's order), on each channel.
+* **Records** (separate experiments in one series) are preprocessed apart: no interpolation
+  or outlier test uses a sample of another record; a record's first and last samples are edges.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from drafttwin.data.series import MeasurementSeries
+from drafttwin.data.units import is_rpm
 from drafttwin.errors import DataError
+
+RELATIVE = "relative"
+"""Outlier rule: tolerance = threshold x |neighbour| (the paper's rule)."""
+SCALE = "scale"
+"""Outlier rule: tolerance = threshold x the channel's 1st-99th percentile spread."""
+SCALE_PERCENTILES: tuple[float, float] = (1.0, 99.0)
 
 
 def nan_runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -38,6 +51,12 @@ def nan_runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     starts = np.flatnonzero(edges == 1)
     ends = np.flatnonzero(edges == -1)
     return starts, ends - starts
+
+
+def _bounds(n: int, record_starts: Sequence[int] | None) -> list[tuple[int, int]]:
+    """``[(start, stop), ...]`` of the records of ``n`` rows (one record by default)."""
+    starts = [int(s) for s in (record_starts or (0,)) if 0 < int(s) < n]
+    return [(a, b) for a, b in zip([0, *starts], [*starts, n], strict=True) if b > a]
 
 
 def _fill_column(x: np.ndarray, max_gap: int | None) -> np.ndarray:
@@ -59,15 +78,16 @@ def _fill_column(x: np.ndarray, max_gap: int | None) -> np.ndarray:
 
 
 def interpolate_missing(
-    rpm: np.ndarray, max_gap: int | None = None
+    values: np.ndarray, max_gap: int | None = None, record_starts: Sequence[int] | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Fill missing samples (``NaN``) by linear interpolation (paper eq. 12).
+    """Fill missing samples (``NaN``) by linear interpolation (paper eq. 12), record by record.
 
     Args:
-        rpm: speeds, shape ``(n,)`` or ``(n, k)``, rpm.
+        values: samples, shape ``(n,)`` or ``(n, k)``, in any unit.
         max_gap: the longest run of missing samples to fill (samples); longer runs stay
-            ``NaN``. ``None`` fills every gap. Leading and trailing gaps take the nearest
-            valid value. A column without any valid sample stays ``NaN``.
+            ``NaN``. ``None`` fills every gap. Leading and trailing gaps (of each record) take
+            the nearest valid value. A column without any valid sample stays ``NaN``.
+        record_starts: first row of each record; a gap is never bridged across records.
 
     Returns:
         ``(filled, filled_mask)``: the new array (same shape, float64) and a boolean mask of
@@ -75,67 +95,133 @@ def interpolate_missing(
     """
     if max_gap is not None and max_gap < 0:
         raise ValueError(f"max_gap must be >= 0 or None, got {max_gap}")
-    x = np.asarray(rpm, dtype=np.float64)
+    x = np.asarray(values, dtype=np.float64)
     x2 = x.reshape(x.shape[0], -1)
-    out = np.column_stack([_fill_column(x2[:, j], max_gap) for j in range(x2.shape[1])])
-    out = out.reshape(x.shape)
-    return out, np.isnan(x) & ~np.isnan(out)
+    out = np.empty_like(x2)
+    for a, b in _bounds(x2.shape[0], record_starts):
+        for j in range(x2.shape[1]):
+            out[a:b, j] = _fill_column(x2[a:b, j], max_gap)
+    filled = out.reshape(x.shape)
+    return filled, np.isnan(x) & ~np.isnan(filled)
 
 
-def find_outliers(rpm: np.ndarray, threshold: float = 0.10) -> np.ndarray:
-    """Mask of one-sample spikes: > ``threshold`` (relative) away from both neighbours.
+def _tolerance(neighbour: np.ndarray, threshold: float, scale: np.ndarray | None) -> np.ndarray:
+    """Per-sample tolerance: relative to the neighbour, or to the column's scale where given
+    (``NaN`` in ``scale`` = relative rule for that column)."""
+    relative = threshold * np.abs(neighbour)
+    if scale is None:
+        return relative
+    return np.where(np.isnan(scale), relative, threshold * np.nan_to_num(scale))
 
-    The deviation from a neighbour ``a`` counts when ``|x - a| > threshold * |a|`` and both
-    deviations have the same sign (the sample is above both neighbours or below both).
+
+def find_outliers(
+    values: np.ndarray,
+    threshold: float = 0.10,
+    scale: float | np.ndarray | None = None,
+    record_starts: Sequence[int] | None = None,
+) -> np.ndarray:
+    """Mask of one-sample spikes: more than the tolerance away from both neighbours.
+
+    The deviation from a neighbour ``a`` counts when ``|x - a| > threshold * |a|`` (relative
+    rule) or, for a column with a ``scale``, ``|x - a| > threshold * scale`` (scale rule), and
+    both deviations have the same sign (the sample is above both neighbours or below both).
+    ``scale``: ``None`` = relative rule everywhere; else one value per column, ``NaN`` for a
+    column on the relative rule. The first and last sample of every record are never flagged.
     """
-    x = np.asarray(rpm, dtype=np.float64)
+    x = np.asarray(values, dtype=np.float64)
     mask = np.zeros(x.shape, dtype=bool)
     if x.shape[0] < 3:
         return mask
+    sc = None if scale is None else np.asarray(scale, dtype=np.float64)
     prev, cur, nxt = x[:-2], x[1:-1], x[2:]
     with np.errstate(over="ignore", invalid="ignore"):
-        tol_p, tol_n = threshold * np.abs(prev), threshold * np.abs(nxt)
+        tol_p, tol_n = _tolerance(prev, threshold, sc), _tolerance(nxt, threshold, sc)
         up = (cur - prev > tol_p) & (cur - nxt > tol_n)
         down = (prev - cur > tol_p) & (nxt - cur > tol_n)
     mask[1:-1] = up | down
+    for a, _ in _bounds(x.shape[0], record_starts)[1:]:
+        mask[a - 1 : a + 1] = False  # the neighbour across a record boundary is not one
     return mask
 
 
-def smooth_outliers(rpm: np.ndarray, threshold: float = 0.10) -> tuple[np.ndarray, np.ndarray]:
+def smooth_outliers(
+    values: np.ndarray,
+    threshold: float = 0.10,
+    scale: float | np.ndarray | None = None,
+    record_starts: Sequence[int] | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
     """Replace one-sample spikes by the mean of their neighbours (paper's rule, "both" variant).
 
     Args:
-        rpm: speeds, shape ``(n,)`` or ``(n, k)``, rpm; ``NaN`` allowed (never flagged, and a
+        values: samples, shape ``(n,)`` or ``(n, k)``; ``NaN`` allowed (never flagged, and a
             sample next to a ``NaN`` is never flagged).
-        threshold: relative deviation from each neighbour that makes a spike (0.10 = 10 %).
+        threshold: deviation from each neighbour that makes a spike (0.10 = 10 %), relative to
+            the neighbour, or to ``scale`` (see :func:`find_outliers`).
+        scale: per-column scale for the scale rule (``None`` / ``NaN``: relative rule).
+        record_starts: first row of each record; record edges are never flagged, so a
+            replacement only uses samples of its own record.
 
     Returns:
         ``(smoothed, outlier_mask)``.
     """
     if not threshold >= 0:
         raise ValueError(f"threshold must be >= 0, got {threshold}")
-    x = np.asarray(rpm, dtype=np.float64)
+    x = np.asarray(values, dtype=np.float64)
     x2 = x.reshape(x.shape[0], -1)
-    mask2 = find_outliers(x2, threshold)
+    mask2 = find_outliers(x2, threshold, scale, record_starts)
     out = x2.copy()
     for j in np.flatnonzero(mask2.any(axis=0)):
+        # a flagged run is bracketed by valid, unflagged samples of the same record
         bad = mask2[:, j]
         good = np.flatnonzero(~bad & ~np.isnan(x2[:, j]))
         out[bad, j] = np.interp(np.flatnonzero(bad), good, x2[good, j])
     return out.reshape(x.shape), mask2.reshape(x.shape)
 
 
+def outlier_scale(values: np.ndarray, unit: str = "") -> float | None:
+    """The scale for the scale rule, or ``None`` where the paper's relative rule applies.
+
+    Speeds in rpm keep the relative rule. Other channels keep it when their robust range
+    (1st to 99th percentile) lies on one side of zero at least its own width away from it,
+    i.e. where 10 % of the value is everywhere at least 10 % of the spread; otherwise (the
+    channel crosses or sits near zero) the scale is that spread.
+    """
+    if is_rpm(unit):
+        return None
+    x = np.asarray(values, dtype=np.float64)
+    x = x[np.isfinite(x)]
+    if x.shape[0] == 0:
+        return None
+    lo, hi = (float(q) for q in np.percentile(x, SCALE_PERCENTILES))
+    spread = hi - lo
+    if (lo > 0 or hi < 0) and min(abs(lo), abs(hi)) >= spread:
+        return None
+    return spread
+
+
 @dataclass
 class PreprocessReport:
-    """What preprocessing changed, per roller (counts in samples)."""
+    """What preprocessing changed, per output channel (counts in samples)."""
 
-    rollers: tuple[str, ...]
+    channels: tuple[str, ...]
     missing: np.ndarray  # (n, k) bool: NaN in the input
     filled: np.ndarray  # (n, k) bool: filled by interpolation / edge hold
     outliers: np.ndarray  # (n, k) bool: replaced by the neighbour mean
     max_gap: int | None = None
     threshold: float | None = 0.10  # None: smoothing skipped
-    extra: dict[str, int] = field(default_factory=dict)  # motor / set-point samples filled
+    extra: dict[str, int] = field(default_factory=dict)  # motor / input samples filled
+    scales: dict[str, float | None] = field(default_factory=dict)  # None: relative rule
+    record_starts: tuple[int, ...] = (0,)
+
+    @property
+    def rollers(self) -> tuple[str, ...]:
+        """The channel names (the four rollers for FA320A data)."""
+        return self.channels
+
+    @property
+    def rules(self) -> dict[str, str]:
+        """Outlier rule per channel: ``relative`` (the paper's) or ``scale``."""
+        return {c: RELATIVE if self.scales.get(c) is None else SCALE for c in self.channels}
 
     @property
     def n_missing(self) -> dict[str, int]:
@@ -155,19 +241,23 @@ class PreprocessReport:
         return self._count(self.outliers)
 
     def gaps(self) -> dict[str, dict[str, int]]:
-        """Per roller: number of runs of missing samples and the longest run (samples)."""
+        """Per channel: number of runs of missing samples and the longest run (samples);
+        a run never continues into the next record."""
         out = {}
-        for j, r in enumerate(self.rollers):
-            _, lengths = nan_runs(self.missing[:, j])
+        bounds = _bounds(self.missing.shape[0], self.record_starts)
+        for j, r in enumerate(self.channels):
+            lengths = np.concatenate(
+                [nan_runs(self.missing[a:b, j])[1] for a, b in bounds] or [np.zeros(0, int)]
+            )
             out[r] = {"count": int(lengths.shape[0]), "longest": int(lengths.max(initial=0))}
         return out
 
     def _count(self, mask: np.ndarray) -> dict[str, int]:
-        return {r: int(c) for r, c in zip(self.rollers, mask.sum(axis=0), strict=True)}
+        return {r: int(c) for r, c in zip(self.channels, mask.sum(axis=0), strict=True)}
 
     def to_dict(self) -> dict[str, Any]:
         """Counts only (no masks), JSON-ready."""
-        return {
+        out: dict[str, Any] = {
             "max_gap": self.max_gap,
             "outlier_threshold": self.threshold,
             "missing": self.n_missing,
@@ -177,28 +267,53 @@ class PreprocessReport:
             "gaps": self.gaps(),
             "other_channels_filled": dict(self.extra),
         }
+        if self.threshold is not None:
+            out["outlier_rule"] = self.rules
+            scaled = {c: s for c, s in self.scales.items() if s is not None}
+            if scaled:
+                out["outlier_scale"] = scaled
+        return out
+
+
+def _hold(x: np.ndarray) -> np.ndarray:
+    """Missing samples take the last valid value (leading ones the first valid value)."""
+    valid = ~np.isnan(x)
+    if valid.all() or not valid.any():
+        return x
+    idx = np.maximum.accumulate(np.where(valid, np.arange(x.shape[0]), -1))
+    idx[idx < 0] = np.flatnonzero(valid)[0]
+    return x[idx]
 
 
 def _fill_optional(series: MeasurementSeries, max_gap: int | None) -> tuple[dict, dict]:
-    """Motor speed: interpolated like the rollers; set-points: last value held (then first)."""
+    """Motor speed: interpolated like the outputs; inputs: last value held (then first), within
+    each record."""
     counts: dict[str, int] = {}
     changes: dict[str, Any] = {}
+    starts = series.record_starts
     if series.motor_rpm is not None:
-        motor, filled = interpolate_missing(series.motor_rpm, max_gap)
+        motor, filled = interpolate_missing(series.motor_rpm, max_gap, starts)
         changes["motor_rpm"], counts["motor"] = motor, int(filled.sum())
     inputs = {}
     for name, values in series.inputs.items():
         x = np.asarray(values, dtype=np.float64)
-        valid = ~np.isnan(x)
-        if valid.all() or not valid.any():
+        n_missing = int(np.isnan(x).sum())
+        if not n_missing or not (~np.isnan(x)).any():
             inputs[name] = x
             continue
-        idx = np.maximum.accumulate(np.where(valid, np.arange(x.shape[0]), -1))
-        idx[idx < 0] = np.flatnonzero(valid)[0]
-        inputs[name], counts[name] = x[idx], int((~valid).sum())
+        inputs[name] = np.concatenate([_hold(x[a:b]) for a, b in _bounds(len(x), starts)])
+        counts[name] = n_missing - int(np.isnan(inputs[name]).sum())
     if inputs:
         changes["inputs"] = inputs
     return changes, counts
+
+
+def outlier_scales(series: MeasurementSeries) -> dict[str, float | None]:
+    """Per output channel: the scale rule's scale, or ``None`` for the relative rule (see
+    :func:`outlier_scale`), from the series' values and units."""
+    return {
+        c: outlier_scale(series.values[:, j], series.unit(c)) for j, c in enumerate(series.channels)
+    }
 
 
 def preprocess(
@@ -207,33 +322,40 @@ def preprocess(
     max_gap: int | None = None,
     outlier_threshold: float | None = 0.10,
 ) -> tuple[MeasurementSeries, PreprocessReport]:
-    """Interpolate missing samples, then smooth one-sample outliers (the paper's order).
+    """Interpolate missing samples, then smooth one-sample outliers (the paper's order), each
+    record on its own.
 
     Args:
-        series: measured speeds (rpm), ``NaN`` = missing.
+        series: measured outputs, ``NaN`` = missing.
         max_gap: longest run of missing samples to fill; ``None`` fills all (see module doc).
-        outlier_threshold: relative spike threshold (0.10 = the paper's 10 %); ``None`` skips
-            outlier smoothing.
+        outlier_threshold: spike threshold (0.10 = the paper's 10 %), relative to each
+            neighbour, or to the channel's 1st-99th percentile spread for channels that cross
+            or sit near zero (see :func:`outlier_scale`); ``None`` skips outlier smoothing.
 
     Returns:
         ``(clean series, report)``. The clean series' ``metadata["preprocess"]`` holds the
-        report's counts. Motor speed is interpolated like the rollers; set-points hold their
-        last value.
+        report's counts and the outlier rule of each channel. Motor speed is interpolated like
+        the outputs; inputs hold their last value.
     """
-    filled_rpm, filled = interpolate_missing(series.values, max_gap)
+    starts = series.record_starts
+    filled_values, filled = interpolate_missing(series.values, max_gap, starts)
+    scales = outlier_scales(series) if outlier_threshold is not None else {}
     if outlier_threshold is None:
-        clean, outliers = filled_rpm, np.zeros(filled.shape, dtype=bool)
+        clean, outliers = filled_values, np.zeros(filled.shape, dtype=bool)
     else:
-        clean, outliers = smooth_outliers(filled_rpm, outlier_threshold)
+        scale = np.array([np.nan if s is None else s for s in scales.values()])
+        clean, outliers = smooth_outliers(filled_values, outlier_threshold, scale, starts)
     changes, extra = _fill_optional(series, max_gap)
     report = PreprocessReport(
-        rollers=series.channels,
+        channels=series.channels,
         missing=np.isnan(series.values),
         filled=filled,
         outliers=outliers,
         max_gap=max_gap,
         threshold=None if outlier_threshold is None else float(outlier_threshold),
         extra=extra,
+        scales=scales,
+        record_starts=starts,
     )
     metadata = {**series.metadata, "preprocess": report.to_dict()}
     return replace(series, values=clean, metadata=metadata, **changes), report
@@ -266,28 +388,46 @@ def chronological_split(
     return series.slice(0, n_train), series.slice(n_train)
 
 
-def reject_spikes_causal(rpm: np.ndarray, threshold: float = 0.10) -> tuple[np.ndarray, np.ndarray]:
-    """Mark as missing (``NaN``) every sample that jumps more than ``threshold`` (relative)
-    from the last accepted sample of its column; uses past samples only.
+def reject_spikes_causal(
+    values: np.ndarray | MeasurementSeries,
+    threshold: float = 0.10,
+    *,
+    record_starts: Sequence[int] | None = None,
+    scale: float | np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mark as missing (``NaN``) every sample that jumps more than the tolerance from the last
+    accepted sample of its column; uses past samples only.
 
     The paper's outlier rule compares a sample with *both* neighbours, so it needs the next
     sample and cannot clean a model's inputs online. This causal variant can: a spike is
-    dropped and the models hold the last value. A genuine speed change of more than
-    ``threshold`` within one sample (a start from standstill) would be dropped too, so use it
-    on running data. Returns ``(cleaned rpm, rejected mask)``.
+    dropped and the models hold the last value. A genuine change of more than the tolerance
+    within one sample (a start from standstill) would be dropped too, so use it on running
+    data. The tolerance is ``threshold * |last accepted|`` (relative rule), or ``threshold *
+    scale`` for a column with a ``scale`` (one per column, ``NaN`` = relative; take it from
+    the training data with :func:`outlier_scales`, as the future is not known online). Each
+    record starts afresh (``record_starts``, or the series' records): its first sample is
+    never compared with another record's. Returns ``(cleaned values, rejected mask)``.
     """
-    x = np.array(rpm, dtype=np.float64, copy=True)
+    if isinstance(values, MeasurementSeries):
+        record_starts = values.record_starts if record_starts is None else record_starts
+        values = values.values
+    x = np.array(values, dtype=np.float64, copy=True)
     squeeze = x.ndim == 1
     x2 = x[:, None] if squeeze else x
     rejected = np.zeros(x2.shape, dtype=bool)
+    sc = np.broadcast_to(np.nan if scale is None else np.asarray(scale, float), x2.shape[1:])
+    starts = {a for a, _ in _bounds(x2.shape[0], record_starts)}
     for j in range(x2.shape[1]):
         last = np.nan
         col = x2[:, j]
         for i in range(col.shape[0]):  # sequential by nature: each decision depends on the last
+            if i in starts:
+                last = np.nan
             v = col[i]
             if np.isnan(v):
                 continue
-            if np.isfinite(last) and abs(v - last) > threshold * abs(last):
+            tol = threshold * (abs(last) if np.isnan(sc[j]) else sc[j])
+            if np.isfinite(last) and abs(v - last) > tol:
                 rejected[i, j] = True
                 col[i] = np.nan
             else:

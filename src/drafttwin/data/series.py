@@ -22,8 +22,9 @@ class MeasurementSeries:
 
     Attributes:
         time_s: sample times in seconds, shape ``(n,)``, strictly increasing inside each record
-            (every record read from a file starts at 0 s; the file's own start is in
-            ``metadata['time_offset_s']`` or ``metadata['records'][k]['time_offset_s']``).
+            (a file's numeric times are kept as they are, so a simulation and a measurement
+            share one time axis; timestamps count from the file's first one; the first time
+            is also in ``metadata['time_offset_s']`` or ``metadata['records'][k]``).
         values: output values, shape ``(n, len(channels))``, float64, in each channel's unit;
             ``NaN`` marks a missing sample.
         channels: output channel names, one per column of ``values`` (default: the four
@@ -181,8 +182,14 @@ class MeasurementSeries:
         a, b, _ = slice(start, stop).indices(len(self))
         b = max(a, b)
         starts = [0] + [s - a for s in self.record_starts if a < s < b]
+        metadata = self.metadata
+        metas = metadata.get("records")
+        if isinstance(metas, list) and len(metas) == self.n_records:
+            first = sum(1 for s in self.record_starts if s <= a) - 1  # record holding row a
+            metadata = {**metadata, "records": metas[first : first + len(starts)]}
         return replace(
             self,
+            metadata=metadata,
             time_s=self.time_s[a:b],
             values=self.values[a:b],
             inputs={k: v[a:b] for k, v in self.inputs.items()},

@@ -31,19 +31,6 @@ SUFFIXES: dict[str, str] = {".csv": "csv", ".parquet": "parquet", ".pq": "parque
 TIME_NAMES: tuple[str, ...] = ("time", "t", "time_s", "timestamp", "datetime")
 MOTOR_NAMES: tuple[str, ...] = ("motor", "motor_rpm")
 IGNORE = "ignore"
-PLAUSIBLE_RPM: tuple[float, float] = (10.0, 10_000.0)
-"""Plausible running speed range of drawing-frame bottom rollers, rpm."""
-
-RPM_UNITS = frozenset({"rpm", "r/min", "1/min", "min^-1", "min-1", "u/min", "rev/min"})
-TO_RPM: dict[str, str] = {  # how to convert a speed unit to rpm
-    "rad/s": "multiply by 60/(2*pi) = 9.5493",
-    "rev/s": "multiply by 60",
-    "rps": "multiply by 60",
-    "hz": "multiply by 60",
-    "deg/s": "divide by 6",
-    "m/min": "divide by pi * roller diameter in m",
-    "m/s": "multiply by 60 and divide by pi * roller diameter in m",
-}
 TIME_UNITS: dict[str, float] = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0}
 MAX_INSERTED_FACTOR = 10
 """Refuse a file whose dropped-row gaps would add more than this many times its row count."""
@@ -170,19 +157,6 @@ def _each_line_has(seps: np.ndarray, starts: np.ndarray, ends: np.ndarray, k: in
 # ------------------------------------------------------------------------------ the columns
 
 
-def refuse_unit(header: str, unit: str, source: str | Path) -> None:
-    """Refuse a roller or motor column whose header declares a unit other than rpm."""
-    if unit in RPM_UNITS:
-        return
-    hint = TO_RPM.get(unit, "convert to rpm")
-    raise DataError(
-        f"column is in {unit}, drafttwin needs roller speeds in rpm",
-        source=source,
-        where=f"column '{header}'",
-        fix=f"{hint} to get rpm, and name the column without the unit (e.g. 'front')",
-    )
-
-
 def time_scale(header: str, unit: str | None, source: str | Path) -> float:
     """Seconds per unit of a numeric time column whose header declares a unit."""
     if unit is None:
@@ -212,23 +186,28 @@ def check_time_present(
     )
 
 
-def check_rollers_present(
-    assigned: dict[str, str], headers: Sequence[str], rollers: Sequence[str], source: str | Path
+def check_channels_present(
+    assigned: dict[str, str],
+    headers: Sequence[str],
+    names: Sequence[str],
+    source: str | Path,
+    kind: str = "roller",
 ) -> None:
-    """Refuse a file lacking roller columns; suggest a ``--columns`` mapping from its headers."""
-    missing = [r for r in rollers if r not in assigned]
+    """Refuse a file lacking declared channel columns (``kind``: roller, output or input);
+    the message lists the file's columns and suggests a ``--columns`` mapping from them."""
+    missing = [r for r in names if r not in assigned]
     if not missing:
         return
     others = [h for h in headers if h not in assigned.values()]
     example = ",".join(f"{h}={r}" for h, r in zip(others, missing, strict=False)) or (
         ",".join(f"v{i + 1}={r}" for i, r in enumerate(missing))
     )
+    what = "the columns " + ", ".join(names) + (" (speeds in rpm)" if kind == "roller" else "")
     raise DataError(
-        f"missing roller column{'s' if len(missing) > 1 else ''}: {', '.join(missing)}",
+        f"missing {kind} column{'s' if len(missing) > 1 else ''}: {', '.join(missing)}",
         source=source,
         where=f"columns: {', '.join(headers)}",
-        fix=f"name the columns {', '.join(rollers)} (speeds in rpm), or map yours: "
-        f"--columns {example}",
+        fix=f"name {what}, or map yours: --columns {example}",
     )
 
 
@@ -345,7 +324,8 @@ def check_monotonic(t: np.ndarray, source: str | Path, row_label: RowLabel) -> N
         source=source,
         where=row_label(i),
         fix="sort the rows by time and remove duplicate rows; if the file joins several "
-        "recordings, split it into one file per recording",
+        "recordings, number them in an integer 'record' column or split it into one file per "
+        "recording",
     )
 
 
@@ -413,88 +393,6 @@ def _check_insertions(
             f"{inserted} empty rows to {n} measured ones",
             source=source,
             where=row_label(i),
-            fix="this looks like several recordings joined together: split the file there",
-        )
-
-
-# -------------------------------------------------------------------------------- the units
-
-
-def _running_median(x: np.ndarray) -> float:
-    """Median of |x| over finite, non-zero samples (stops excluded); NaN if none."""
-    a = np.abs(x[np.isfinite(x)])
-    a = a[a > 0]
-    return float(np.median(a)) if a.shape[0] else float("nan")
-
-
-def check_units(
-    rpm: np.ndarray,
-    rollers: Sequence[str],
-    source: str | Path,
-    *,
-    nominal_rpm: dict[str, float] | None = None,
-    diameters_mm: dict[str, float] | None = None,
-    plausible: tuple[float, float] = PLAUSIBLE_RPM,
-) -> dict[str, float]:
-    """Refuse roller speeds that look like another unit; return the running medians (rpm).
-
-    Heuristics: a running median outside the plausible rpm range of drafting rollers; a front
-    (delivery) roller slower than the back roller (drafting makes the front fastest, so the
-    columns are swapped); and, when nominal speeds are given, a median whose ratio to the
-    nominal speed matches a unit factor (rad/s, rev/s, deg/s, or m/min with known diameters).
-    """
-    medians = {r: _running_median(rpm[:, j]) for j, r in enumerate(rollers)}
-    for r, med in medians.items():
-        if np.isfinite(med) and not plausible[0] <= med <= plausible[1]:
-            _refuse_range(r, med, plausible, source)
-    if "front" in medians and "back" in medians and medians["front"] < medians["back"]:
-        raise DataError(
-            f"front roller median {medians['front']:.4g} rpm is slower than back roller "
-            f"{medians['back']:.4g} rpm, but drafting makes the front (delivery) roller fastest",
-            source=source,
-            where="columns 'front', 'back'",
-            fix="the roller columns look swapped or reversed: map them, e.g. "
-            "--columns front=back,back=front (file column = roller)",
-        )
-    for r, nominal in (nominal_rpm or {}).items():
-        if r in medians and np.isfinite(medians[r]) and nominal > 0:
-            _compare_nominal(r, medians[r], nominal, (diameters_mm or {}).get(r), source)
-    return medians
-
-
-def _refuse_range(
-    roller: str, med: float, plausible: tuple[float, float], source: str | Path
-) -> None:
-    if med < plausible[0]:
-        guess = (
-            f"rev/s (x60 -> {med * 60:.4g} rpm) or rad/s (x60/(2*pi) = x9.5493 -> "
-            f"{med * 60 / (2 * math.pi):.4g} rpm)"
-        )
-    else:
-        guess = "encoder counts, mrad/s or deg/min rather than rpm"
-    raise DataError(
-        f"median running speed {med:.4g} is outside the plausible range "
-        f"{plausible[0]:g}-{plausible[1]:g} rpm of drafting rollers; it looks like {guess}",
-        source=source,
-        where=f"column '{roller}'",
-        fix="convert the column to rpm; if the speeds really are in rpm, skip this check "
-        "(check_units=False / --no-unit-check)",
-    )
-
-
-def _compare_nominal(
-    roller: str, med: float, nominal: float, diameter_mm: float | None, source: str | Path
-) -> None:
-    candidates = {"rad/s": 2 * math.pi / 60, "rev/s": 1 / 60, "deg/s": 6.0}
-    if diameter_mm:
-        candidates["m/min"] = math.pi * diameter_mm / 1000.0
-    ratio = med / nominal
-    matches = [u for u, f in candidates.items() if abs(math.log(ratio / f)) < math.log(1.15)]
-    if matches and abs(math.log(ratio)) > math.log(1.15):
-        raise DataError(
-            f"median running speed {med:.4g} is {ratio:.3g} x the nominal {nominal:.4g} rpm, "
-            f"which matches a column in {' or '.join(matches)}",
-            source=source,
-            where=f"column '{roller}'",
-            fix="convert to rpm: " + "; ".join(f"{u}: {TO_RPM[u]}" for u in matches),
+            fix="this looks like several recordings joined together: split the file there, "
+            "or number the recordings in an integer 'record' column",
         )

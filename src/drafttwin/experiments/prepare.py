@@ -93,8 +93,7 @@ def prepare(
     n = len(series)
     n_train = int(round(train_fraction * n))
     clean_train, train_report = preprocess(series.slice(0, n_train))
-    test_raw = series.values[n_train:]
-    test_inputs, rejected = reject_spikes_causal(test_raw)
+    test_inputs, rejected = reject_spikes_causal(series.slice(n_train))
     _, full_report = preprocess(series)
     scored = ~np.isnan(series.values) & ~full_report.outliers
     scored[:n_train] = False

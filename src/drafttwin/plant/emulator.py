@@ -183,9 +183,7 @@ def attach_truth(series: MeasurementSeries, path: str | Path) -> MeasurementSeri
     frame = (
         pd.read_parquet(truth_path) if truth_path.suffix == ".parquet" else pd.read_csv(truth_path)
     )
-    if len(frame) != len(series) or not np.allclose(
-        frame["time"].to_numpy(), series.time_s + series.metadata.get("time_offset_s", 0.0)
-    ):
+    if len(frame) != len(series) or not np.allclose(frame["time"].to_numpy(), series.time_s):
         return series  # the measured file was edited: its truth no longer lines up
     meta = dict(series.metadata)
     meta["true_rpm"] = frame[[f"true_{r}" for r in series.channels]].to_numpy(np.float64)

@@ -1,0 +1,201 @@
+"""Units of measured channels: a header's or a user's unit, defaults, and the rpm heuristics.
+
+A channel's unit comes from ``units=`` (declared), from its header (``y [m]``, ``front_rpm``, or
+the units stored in a Parquet file written by drafttwin), or from its name: the FA320A rollers
+and ``motor`` are in rpm, ``supply_hz`` in Hz, anything else is undeclared (``""``). A declared
+unit that contradicts the header's is refused. The plausibility heuristics (running speed
+range, sign, front faster than back, ratio to nominal speeds) run on channels in rpm only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from drafttwin import ROLLERS
+from drafttwin.errors import DataError
+
+RPM = "rpm"
+PLAUSIBLE_RPM: tuple[float, float] = (10.0, 10_000.0)
+"""Plausible running speed range of drawing-frame bottom rollers, rpm."""
+
+RPM_UNITS = frozenset({"rpm", "r/min", "1/min", "min^-1", "min-1", "u/min", "rev/min"})
+TO_RPM: dict[str, str] = {  # how to convert a speed unit to rpm
+    "rad/s": "multiply by 60/(2*pi) = 9.5493",
+    "rev/s": "multiply by 60",
+    "rps": "multiply by 60",
+    "hz": "multiply by 60",
+    "deg/s": "divide by 6",
+    "m/min": "divide by pi * roller diameter in m",
+    "m/s": "multiply by 60 and divide by pi * roller diameter in m",
+}
+_DEFAULT_UNITS = {**dict.fromkeys(ROLLERS, RPM), "motor": RPM, "supply_hz": "Hz"}
+
+
+def normalise_unit(unit: str) -> str:
+    """A comparable spelling: no spaces, lower case, every rpm synonym as ``rpm``."""
+    low = unit.replace(" ", "").lower()
+    return RPM if low in RPM_UNITS else low
+
+
+def is_rpm(unit: str | None) -> bool:
+    return bool(unit) and normalise_unit(str(unit)) == RPM
+
+
+def default_unit(name: str) -> str:
+    """``rpm`` for the four rollers and the motor, ``Hz`` for ``supply_hz``, else ``""``."""
+    return _DEFAULT_UNITS.get(name, "")
+
+
+def refuse_unit(header: str, unit: str, source: str | Path) -> None:
+    """Refuse a roller or motor column whose header declares a unit other than rpm."""
+    if is_rpm(unit):
+        return
+    hint = TO_RPM.get(normalise_unit(unit), "convert to rpm")
+    raise DataError(
+        f"column is in {unit}, drafttwin needs roller speeds in rpm",
+        source=source,
+        where=f"column '{header}'",
+        fix=f"{hint} to get rpm, and name the column without the unit (e.g. 'front')",
+    )
+
+
+def resolve_unit(
+    name: str, header: str, header_unit: str | None, declared: str | None, source: str | Path
+) -> str:
+    """The unit of channel ``name`` read from column ``header``.
+
+    A declared unit wins but must agree with the header's; without a declaration the header's
+    unit is taken, and for a channel that is rpm by name (a roller, the motor) a header in
+    another unit is refused with the conversion to rpm.
+    """
+    if declared:
+        if header_unit and normalise_unit(header_unit) != normalise_unit(declared):
+            raise DataError(
+                f"the header gives the unit '{header_unit}' but units declares '{declared}' "
+                f"for '{name}'",
+                source=source,
+                where=f"column '{header}'",
+                fix="correct the unit in the header or in units= (they must agree)",
+            )
+        return RPM if is_rpm(declared) else declared
+    default = default_unit(name)
+    if not header_unit:
+        return default
+    if default and normalise_unit(header_unit) != normalise_unit(default):
+        if is_rpm(default):
+            refuse_unit(header, header_unit, source)
+        raise DataError(
+            f"column is in {header_unit}, but '{name}' is in {default} by name",
+            source=source,
+            where=f"column '{header}'",
+            fix=f"convert the column to {default}, or map it to another name with --columns",
+        )
+    return RPM if is_rpm(header_unit) else header_unit
+
+
+# ------------------------------------------------------------------------- rpm heuristics
+
+
+def _nonzero(x: np.ndarray) -> np.ndarray:
+    a = x[np.isfinite(x)]
+    return a[a != 0]
+
+
+def _running_median(x: np.ndarray) -> float:
+    """Median of |x| over finite, non-zero samples (stops excluded); NaN if none."""
+    a = np.abs(_nonzero(x))
+    return float(np.median(a)) if a.shape[0] else float("nan")
+
+
+def check_units(
+    rpm: np.ndarray,
+    names: Sequence[str],
+    source: str | Path,
+    *,
+    nominal_rpm: dict[str, float] | None = None,
+    diameters_mm: dict[str, float] | None = None,
+    plausible: tuple[float, float] = PLAUSIBLE_RPM,
+) -> dict[str, float]:
+    """Refuse speeds in rpm that look like another unit; return the running medians (rpm).
+
+    ``rpm`` holds one column per name in ``names`` (only channels in rpm). Heuristics: a
+    channel that mostly runs backwards (negative median of its non-zero samples: a reversed
+    sign); a running median outside the plausible rpm range of drafting rollers; a front
+    (delivery) roller slower than the back roller (drafting makes the front fastest, so the
+    columns are swapped); and, when nominal speeds are given, a median whose ratio to the
+    nominal speed matches a unit factor (rad/s, rev/s, deg/s, or m/min with known diameters).
+    """
+    for j, name in enumerate(names):
+        running = _nonzero(rpm[:, j])
+        if running.shape[0] and float(np.median(running)) < 0:
+            _refuse_negative(name, float(np.median(running)), source)
+    medians = {r: _running_median(rpm[:, j]) for j, r in enumerate(names)}
+    for r, med in medians.items():
+        if np.isfinite(med) and not plausible[0] <= med <= plausible[1]:
+            _refuse_range(r, med, plausible, source)
+    if "front" in medians and "back" in medians and medians["front"] < medians["back"]:
+        raise DataError(
+            f"front roller median {medians['front']:.4g} rpm is slower than back roller "
+            f"{medians['back']:.4g} rpm, but drafting makes the front (delivery) roller fastest",
+            source=source,
+            where="columns 'front', 'back'",
+            fix="the roller columns look swapped or reversed: map them, e.g. "
+            "--columns front=back,back=front (file column = roller)",
+        )
+    for r, nominal in (nominal_rpm or {}).items():
+        if r in medians and np.isfinite(medians[r]) and nominal > 0:
+            _compare_nominal(r, medians[r], nominal, (diameters_mm or {}).get(r), source)
+    return medians
+
+
+def _refuse_negative(name: str, med: float, source: str | Path) -> None:
+    raise DataError(
+        f"the running speed is negative (median {med:.4g} rpm over the non-zero samples)",
+        source=source,
+        where=f"column '{name}'",
+        fix="the encoder counts backwards: flip the sign of the column; if the machine really "
+        "runs backwards, skip this check (check_units=False / --no-unit-check)",
+    )
+
+
+def _refuse_range(
+    name: str, med: float, plausible: tuple[float, float], source: str | Path
+) -> None:
+    if med < plausible[0]:
+        guess = (
+            f"rev/s (x60 -> {med * 60:.4g} rpm) or rad/s (x60/(2*pi) = x9.5493 -> "
+            f"{med * 60 / (2 * math.pi):.4g} rpm)"
+        )
+    else:
+        guess = "encoder counts, mrad/s or deg/min rather than rpm"
+    what = "drafting rollers" if name in ROLLERS else "running speeds"
+    raise DataError(
+        f"median running speed {med:.4g} is outside the plausible range "
+        f"{plausible[0]:g}-{plausible[1]:g} rpm of {what}; it looks like {guess}",
+        source=source,
+        where=f"column '{name}'",
+        fix="convert the column to rpm; if the speeds really are in rpm, skip this check "
+        "(check_units=False / --no-unit-check)",
+    )
+
+
+def _compare_nominal(
+    name: str, med: float, nominal: float, diameter_mm: float | None, source: str | Path
+) -> None:
+    candidates = {"rad/s": 2 * math.pi / 60, "rev/s": 1 / 60, "deg/s": 6.0}
+    if diameter_mm:
+        candidates["m/min"] = math.pi * diameter_mm / 1000.0
+    ratio = med / nominal
+    matches = [u for u, f in candidates.items() if abs(math.log(ratio / f)) < math.log(1.15)]
+    if matches and abs(math.log(ratio)) > math.log(1.15):
+        raise DataError(
+            f"median running speed {med:.4g} is {ratio:.3g} x the nominal {nominal:.4g} rpm, "
+            f"which matches a column in {' or '.join(matches)}",
+            source=source,
+            where=f"column '{name}'",
+            fix="convert to rpm: " + "; ".join(f"{u}: {TO_RPM[u]}" for u in matches),
+        )
