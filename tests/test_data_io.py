@@ -246,3 +246,182 @@ def test_round_trip_property(tmp_path: Path, values: np.ndarray, suffix: str) ->
     series = MeasurementSeries(time_s=np.arange(values.shape[0]) * 0.01, values=values)
     back = read_measurements(write_measurements(series, tmp_path / f"p{suffix}"), check_units=False)
     np.testing.assert_array_equal(back.values, values)
+
+
+# ------------------------------------------------------------- any machine: outputs, inputs
+
+
+def tuy_rows(n: int = 8, start: float = 2.5, step: float = 0.001) -> list[str]:
+    """A small machine: drive voltage u (V) and position y (m) crossing zero."""
+    return [
+        f"{start + i * step:.6f},{2.0 * np.sin(i):.6f},{0.004 * np.cos(i) - 0.001:.6f}"
+        for i in range(n)
+    ]
+
+
+def test_any_machine_outputs_inputs_and_units(tmp_path: Path) -> None:
+    lines = tuy_rows()
+    path = write_csv(tmp_path / "tuy.csv", "t,u,y", lines)
+    series = read_measurements(path, outputs=["y"], inputs=["u"], units={"y": "m", "u": "V"})
+    cells = np.array([[float(c) for c in row.split(",")] for row in lines])
+    assert series.channels == ("y",) and list(series.inputs) == ["u"]
+    np.testing.assert_array_equal(series.values[:, 0], cells[:, 2])  # no conversion, no check
+    np.testing.assert_array_equal(series.inputs["u"], cells[:, 1])
+    np.testing.assert_array_equal(series.time_s, cells[:, 0])  # the file's own times
+    assert series.units == {"y": "m", "u": "V"}
+    assert series.unit("y") == "m" and series.motor_rpm is None
+    assert series.metadata["columns"] == {"t": "time", "y": "y", "u": "u"}
+    assert series.sample_rate_hz == pytest.approx(1000.0)
+
+
+def test_undeclared_channel_is_not_checked_as_rpm(tmp_path: Path) -> None:
+    path = write_csv(tmp_path / "tuy.csv", "t,u,y", tuy_rows())
+    series = read_measurements(path, outputs=["y"], inputs=["u"])
+    assert series.unit("y") == "" and series.unit("u") == ""
+    assert np.nanmax(np.abs(series.values)) < 0.01  # far below any rpm, yet accepted
+
+
+def test_units_from_headers_keep_their_spelling(tmp_path: Path) -> None:
+    path = write_csv(tmp_path / "tuy.csv", "time [ms],u (V),Y [m]", tuy_rows(start=0, step=1))
+    series = read_measurements(path, outputs=["y"], inputs=["u"], units={"y": "m"})
+    assert series.units == {"y": "m", "u": "V"}
+    assert series.sample_rate_hz == pytest.approx(1000.0)  # ms -> s
+
+
+def test_outputs_keep_declared_order_and_case(tmp_path: Path) -> None:
+    rows = [f"{i * 0.01},{i},{10 + i},{20 + i}" for i in range(4)]
+    path = write_csv(tmp_path / "m.csv", "time,Pos_B,pos_a,volts", rows)
+    series = read_measurements(path, outputs=["pos_A", "pos_b"], inputs=["Volts"])
+    assert series.channels == ("pos_A", "pos_b") and list(series.inputs) == ["Volts"]
+    np.testing.assert_array_equal(series.values[:, 0], [10, 11, 12, 13])
+    np.testing.assert_array_equal(series.values[:, 1], [0, 1, 2, 3])
+
+
+def test_mapping_targets_a_declared_output(tmp_path: Path) -> None:
+    path = write_csv(tmp_path / "m.csv", "t,drive,position", tuy_rows())
+    series = read_measurements(
+        path, outputs=["y"], inputs=["u"], columns={"position": "y", "DRIVE": "u"}
+    )
+    assert series.metadata["columns"] == {"t": "time", "position": "y", "drive": "u"}
+    assert series.values[0, 0] == pytest.approx(0.003)
+
+
+def test_inputs_none_auto_detects_and_empty_means_none(tmp_path: Path) -> None:
+    rows = [f"{i * 0.01},1815,1500,450,355,50,256.6" for i in range(4)]
+    path = write_csv(tmp_path / "m.csv", "time,front,second,third,back,supply_hz,setpoint_x", rows)
+    assert list(read_measurements(path).inputs) == ["supply_hz", "setpoint_x"]
+    assert read_measurements(path).units["supply_hz"] == "Hz"
+    none = read_measurements(path, inputs=())
+    assert none.inputs == {} and none.metadata["ignored_columns"] == ["supply_hz", "setpoint_x"]
+    only = read_measurements(path, inputs=["supply_hz"])
+    assert list(only.inputs) == ["supply_hz"] and only.metadata["ignored_columns"] == ["setpoint_x"]
+
+
+def test_rollers_as_declared_outputs_are_still_checked_in_rpm(tmp_path: Path) -> None:
+    path = write_csv(
+        tmp_path / "r.csv", "time,front,back", [f"{i * 0.01},7.5,5.9" for i in range(4)]
+    )
+    with pytest.raises(DataError, match="column 'front'.*plausible range"):
+        read_measurements(path, outputs=["front", "back"])
+    series = read_measurements(
+        path, outputs=["front", "back"], units={"front": "rev/s", "back": "rev/s"}
+    )
+    assert series.units["front"] == "rev/s"
+
+
+# --------------------------------------------------------------------------------- records
+
+
+def test_several_files_become_records(tmp_path: Path) -> None:
+    a = write_csv(tmp_path / "a.csv", "t,u,y", tuy_rows(n=5, start=0.0))
+    b_times = [10.0, 10.001, 10.004, 10.005]  # two rows dropped after the second
+    b = write_csv(tmp_path / "b.csv", "t,u,y", [f"{t:.3f},1.0,0.5" for t in b_times])
+    series = read_measurements([a, b], outputs=["y"], inputs=["u"], units={"y": "m", "u": "V"})
+    assert series.record_starts == (0, 5) and len(series) == 5 + 6
+    np.testing.assert_allclose(series.time_s[5:], 10.0 + np.arange(6) * 0.001, atol=1e-12)
+    assert np.isnan(series.values[7:9, 0]).all() and series.values[9, 0] == 0.5
+    records = series.metadata["records"]
+    assert [r["source"] for r in records] == [str(a), str(b)]
+    assert [r["time_offset_s"] for r in records] == [0.0, 10.0]
+    assert records[1]["inserted_rows"] == 2 and series.metadata["inserted_rows"] == 2
+    assert series.metadata["sources"] == [str(a), str(b)]
+    parts = list(series.records())
+    assert [len(p) for p in parts] == [5, 6] and parts[1].metadata["source"] == str(b)
+    assert series.units == {"y": "m", "u": "V"}
+
+
+def test_record_column_splits_a_file(tmp_path: Path) -> None:
+    rows = [f"{r},{t},{1815 + t},1500,450,355" for r, t in [(3, 0), (3, 1), (3, 2), (7, 0), (7, 1)]]
+    path = write_csv(tmp_path / "r.csv", "record,time,front,second,third,back", rows)
+    series = read_measurements(path)
+    assert series.record_starts == (0, 3)
+    np.testing.assert_array_equal(series.time_s, [0, 1, 2, 0, 1])  # time restarts per record
+    np.testing.assert_array_equal(series.values[:, 0], [1815, 1816, 1817, 1815, 1816])
+    recs = series.metadata["records"]
+    assert [(r["record"], r["first_row"], r["rows_in_file"]) for r in recs] == [
+        (3, 1, 3),
+        (7, 4, 2),
+    ]
+    assert series.metadata["columns"]["record"] == "record"
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
+def test_round_trip_with_units_inputs_and_records(tmp_path: Path, suffix: str) -> None:
+    rng = np.random.default_rng(3)
+    parts = [
+        MeasurementSeries(
+            time_s=start + np.arange(n) * 0.002,
+            values=rng.normal(0.0, 0.01, (n, 2)),
+            channels=("x", "y"),
+            units={"x": "m", "y": "mm", "u": "V"},
+            inputs={"u": rng.normal(0.0, 1.0, n)},
+            metadata={"run": k},
+        )
+        for k, (start, n) in enumerate([(0.0, 7), (0.0, 5), (3.0, 4)])
+    ]
+    series = MeasurementSeries.concat(parts)
+    series.values[2, 1] = np.nan
+    path = write_measurements(series, tmp_path / f"m{suffix}")
+    units = None if suffix == ".parquet" else {"x": "m", "y": "mm", "u": "V"}
+    back = read_measurements(path, outputs=["x", "y"], inputs=["u"], units=units)
+    assert back.record_starts == (0, 7, 12) and back.channels == ("x", "y")
+    np.testing.assert_array_equal(back.values, series.values)
+    np.testing.assert_array_equal(back.time_s, series.time_s)
+    np.testing.assert_array_equal(back.inputs["u"], series.inputs["u"])
+    assert back.units == {"x": "m", "y": "mm", "u": "V"}
+    if suffix == ".parquet":
+        with pytest.raises(
+            DataError, match="the header gives the unit 'mm' but units declares 'm'"
+        ):
+            read_measurements(path, outputs=["x", "y"], inputs=["u"], units={"y": "m"})
+
+
+def test_csv_header_has_plain_names_and_record_column(tmp_path: Path) -> None:
+    series = MeasurementSeries.concat([make_series(n=14), make_series(n=13)])
+    path = write_measurements(series, tmp_path / "m.csv")
+    lines = path.read_text().splitlines()
+    assert lines[0] == "time,front,second,third,back,motor,supply_hz,setpoint_delivery,record"
+    assert [line.rsplit(",", 1)[1] for line in lines[1:]] == ["0"] * 14 + ["1"] * 13
+    back = read_measurements(path)
+    assert back.record_starts == (0, 14)
+    np.testing.assert_array_equal(back.values, series.values)
+    np.testing.assert_array_equal(back.motor_rpm, series.motor_rpm)
+
+
+def test_parquet_round_trip_of_roller_units(tmp_path: Path) -> None:
+    path = write_measurements(make_series(), tmp_path / "m.parquet")
+    back = read_measurements(path)
+    assert back.units == {
+        **dict.fromkeys(ROLLERS, "rpm"),
+        "supply_hz": "Hz",
+        "setpoint_delivery": "",
+    }
+
+
+def test_write_refuses_clashing_column_names(tmp_path: Path) -> None:
+    series = MeasurementSeries(
+        np.arange(3.0), np.ones((3, 1)), channels=("y",), inputs={"Y": np.zeros(3)}
+    )
+    with pytest.raises(DataError, match="two columns would be named 'Y'"):
+        write_measurements(series, tmp_path / "m.csv")
+    assert list(tmp_path.iterdir()) == []

@@ -10,7 +10,7 @@ import pytest
 
 from drafttwin import ROLLERS
 from drafttwin.data import MeasurementSeries, chronological_split, read_measurements
-from drafttwin.errors import DataError
+from drafttwin.errors import ConfigError, DataError
 
 HEADER = "time,front,second,third,back"
 
@@ -25,11 +25,12 @@ def csv(tmp_path: Path, lines: list[str], name: str = "m.csv") -> Path:
     return path
 
 
-def refuse(path: Path, *places: str, **kwargs: object) -> str:
-    """Read ``path``, expect a DataError; check it names the file and ``places``."""
+def refuse(path: Path, *places: str, paths: list[Path] | None = None, **kwargs: object) -> str:
+    """Read ``path`` (or ``paths`` as records), expect a DataError; check it names the file
+    ``path`` and ``places``."""
     before = sorted(p.name for p in path.parent.iterdir())
     with pytest.raises(DataError) as info:
-        read_measurements(path, **kwargs)  # type: ignore[arg-type]
+        read_measurements(paths or path, **kwargs)  # type: ignore[arg-type]
     message = info.value.message
     assert str(path) in message
     for place in places:
@@ -312,6 +313,169 @@ def test_unit_check_can_be_switched_off(tmp_path: Path) -> None:
 
 def test_standstill_file_passes_unit_check(tmp_path: Path) -> None:
     assert len(read_measurements(csv(tmp_path, [HEADER, *rows(speeds="0,0,0,0")]))) == 6
+
+
+def test_negative_running_speed(tmp_path: Path) -> None:
+    path = csv(tmp_path, [HEADER, *rows(speeds="-1815,-1500,-450,-355")])
+    msg = refuse(path, "column 'front'", "running speed is negative", "flip the sign")
+    assert "-1815 rpm" in msg
+
+
+def test_output_declared_rpm_with_implausible_values(tmp_path: Path) -> None:
+    lines = ["t,u,y", *[f"{i * 0.01},{i % 3},{0.002 + 0.001 * (i % 2)}" for i in range(6)]]
+    path = csv(tmp_path, lines)
+    refuse(
+        path,
+        "column 'y'",
+        "plausible range 10-10000 rpm",
+        outputs=["y"],
+        inputs=["u"],
+        units={"y": "rpm"},
+    )
+    assert read_measurements(path, outputs=["y"], inputs=["u"]).unit("y") == ""  # undeclared
+
+
+def test_header_unit_contradicts_declared_unit(tmp_path: Path) -> None:
+    lines = ["t,u [V],y [mm]", *[f"{i * 0.01},1,{i}" for i in range(4)]]
+    msg = refuse(
+        csv(tmp_path, lines),
+        "column 'y [mm]'",
+        outputs=["y"],
+        inputs=["u"],
+        units={"y": "m", "u": "V"},
+    )
+    assert "the header gives the unit 'mm' but units declares 'm' for 'y'" in msg
+
+
+def test_named_column_in_another_unit_than_its_name(tmp_path: Path) -> None:
+    lines = ["time,front,second,third,back,supply_hz [rpm]", *[f"{r},50" for r in rows()]]
+    refuse(csv(tmp_path, lines), "column 'supply_hz [rpm]'", "'supply_hz' is in Hz by name")
+
+
+def test_explicit_input_missing(tmp_path: Path) -> None:
+    lines = ["t,y,volts", *[f"{i * 0.01},{i},1" for i in range(4)]]
+    msg = refuse(
+        csv(tmp_path, lines),
+        "columns: t, y, volts",
+        "missing input column: u",
+        outputs=["y"],
+        inputs=["u"],
+    )
+    assert "--columns volts=u" in msg
+
+
+def test_explicit_output_missing(tmp_path: Path) -> None:
+    lines = ["t,u,z", *[f"{i * 0.01},1,{i}" for i in range(4)]]
+    refuse(
+        csv(tmp_path, lines),
+        "columns: t, u, z",
+        "missing output column: y",
+        outputs=["y"],
+        inputs=["u"],
+    )
+
+
+def test_mapping_to_undeclared_target_lists_declared_names(tmp_path: Path) -> None:
+    lines = ["t,u,y", *[f"{i * 0.01},1,{i}" for i in range(4)]]
+    msg = refuse(
+        csv(tmp_path, lines), "unknown target 'x'", outputs=["y"], inputs=["u"], columns={"y": "x"}
+    )
+    assert "map to one of y, u, time, motor, record, ignore" in msg
+    assert "setpoint_" not in msg  # explicit inputs: no set-point auto-detection
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "expected"),
+    [
+        ({"outputs": ["time"]}, "'time' cannot name an output channel"),
+        ({"outputs": ["y"], "inputs": ["record"]}, "'record' cannot name an input channel"),
+        ({"outputs": ["y", "Y"]}, "'Y' is named twice"),
+        ({"outputs": []}, "no output channels declared"),
+        ({"outputs": "y"}, "outputs must be a list of names"),
+        ({"outputs": ["y"], "inputs": ["Y"]}, "'y' is declared both as an output and as an input"),
+        ({"outputs": ["y"], "units": {"z": "m"}}, "units names 'z', which is neither"),
+        ({"units": {"motor": "rad/s"}}, "the motor speed must be in rpm"),
+    ],
+)
+def test_contradictory_declarations(tmp_path: Path, kwargs: dict, expected: str) -> None:
+    path = csv(tmp_path, [HEADER, *rows()])
+    with pytest.raises(ConfigError) as info:
+        read_measurements(path, **kwargs)
+    assert expected in info.value.message and "fix:" in info.value.message
+
+
+# ------------------------------------------------------------------------------ records
+
+
+def test_error_in_second_file_names_that_file(tmp_path: Path) -> None:
+    good = csv(tmp_path, [HEADER, *rows()], "good.csv")
+    bad = csv(tmp_path, [HEADER, *rows(3), "0.03,1815,1500,x,355"], "bad.csv")
+    with pytest.raises(DataError) as info:
+        read_measurements([good, bad])
+    assert info.value.message.startswith(f"{bad}: row 4 (line 5), column 'third'")
+    assert str(good) not in info.value.message
+
+
+def test_files_with_different_rates(tmp_path: Path) -> None:
+    a = csv(tmp_path, [HEADER, *rows()], "a.csv")
+    b = csv(tmp_path, [HEADER, *rows(step=0.02)], "b.csv")
+    msg = refuse(b, "sample rate 50 Hz of", "differs from 100 Hz of", paths=[a, b])
+    assert f"50 Hz of {b}" in msg and f"100 Hz of {a}" in msg
+
+
+def test_files_with_different_inputs(tmp_path: Path) -> None:
+    a = csv(tmp_path, [HEADER + ",supply_hz", *[f"{r},50" for r in rows()]], "a.csv")
+    b = csv(tmp_path, [HEADER, *rows()], "b.csv")
+    refuse(b, f"inputs none here but supply_hz in {a}", paths=[a, b])
+
+
+def test_files_with_different_motor_or_units(tmp_path: Path) -> None:
+    a = csv(tmp_path, [HEADER + ",motor", *[f"{r},1450" for r in rows()]], "a.csv")
+    b = csv(tmp_path, [HEADER, *rows()], "b.csv")
+    refuse(b, f"a motor column in {a} but not in {b}", paths=[a, b])
+    c = csv(tmp_path, ["t,y [m]", *[f"{i * 0.01},{i}" for i in range(4)]], "c.csv")
+    d = csv(tmp_path, ["t,y [mm]", *[f"{i * 0.01},{i}" for i in range(4)]], "d.csv")
+    refuse(d, f"'y' is in mm here but in m in {c}", paths=[c, d], outputs=["y"])
+
+
+def test_record_column_must_hold_whole_numbers(tmp_path: Path) -> None:
+    lines = [
+        "record,time,front,second,third,back",
+        *[f"{k},{r}" for k, r in zip(["0", "0", "0.5", "1", "1", "1"], rows(), strict=True)],
+    ]
+    refuse(csv(tmp_path, lines), "row 3 (line 4), column 'record'", "'0.5' is not a whole number")
+    lines[3] = lines[3].replace("0.5", "", 1)
+    refuse(csv(tmp_path, lines), "row 3 (line 4), column 'record'", "is not a whole number")
+
+
+def test_one_row_record(tmp_path: Path) -> None:
+    lines = [
+        "record,time,front,second,third,back",
+        *[f"{k},{r}" for k, r in zip([0, 0, 1, 2, 2, 2], rows(), strict=True)],
+    ]
+    refuse(csv(tmp_path, lines), "row 3 (line 4), column 'record'", "record 1 has only one row")
+
+
+def test_record_time_errors_name_file_rows(tmp_path: Path) -> None:
+    times = [0.0, 0.01, 0.02, 5.0, 5.01, 5.005]  # second record goes back in its third row
+    lines = [
+        "record,time,front,second,third,back",
+        *[f"{k},{t},1815,1500,450,355" for k, t in zip([0, 0, 0, 1, 1, 1], times, strict=True)],
+    ]
+    refuse(csv(tmp_path, lines), "row 6 (line 7)", "time goes backwards", "from row 5 (line 6)")
+
+
+def test_records_with_different_rates(tmp_path: Path) -> None:
+    times = [0.0, 0.01, 0.02, 0.0, 0.02, 0.04]
+    lines = [
+        "record,time,front,second,third,back",
+        *[f"{k},{t},1815,1500,450,355" for k, t in zip([0, 0, 0, 1, 1, 1], times, strict=True)],
+    ]
+    refuse(
+        csv(tmp_path, lines),
+        "sample rate 50 Hz of record 1 (from row 4 (line 5))",
+        "differs from 100 Hz of record 0",
+    )
 
 
 # -------------------------------------------------------------------------------- the split

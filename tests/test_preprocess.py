@@ -19,6 +19,7 @@ from drafttwin.data import (
     preprocess,
     smooth_outliers,
 )
+from drafttwin.data.preprocess import outlier_scale
 
 NAN = np.nan
 PROPS = settings(max_examples=80, deadline=None)
@@ -273,3 +274,169 @@ def test_causal_spike_rejection_uses_only_the_past():
     y[5:] = [500.0, 1.0, 3.0]
     _, rejected_y = reject_spikes_causal(y, 0.10)
     assert rejected_y[:5].tolist() == rejected[:5].tolist()
+
+
+# -------------------------------------------------------------------------------- records
+
+
+def _records(
+    *parts: np.ndarray, channels: tuple[str, ...] = ROLLERS[:1], **kw
+) -> MeasurementSeries:
+    return MeasurementSeries.concat(
+        [MeasurementSeries(np.arange(len(p)) * 0.01, p, channels=channels, **kw) for p in parts]
+    )
+
+
+def test_gaps_at_a_record_boundary_are_not_bridged() -> None:
+    series = _records(np.array([10.0, 11.0, NAN, NAN]), np.array([NAN, 50.0, 51.0]))
+    clean, report = preprocess(series)
+    # each record holds its own edge value; across the boundary eq. 12 would give 21..40
+    np.testing.assert_array_equal(clean.values[:, 0], [10, 11, 11, 11, 50, 50, 51])
+    assert report.gaps()["front"] == {"count": 2, "longest": 2}  # two gaps, not one of 3
+    filled, mask = interpolate_missing(series.values, max_gap=1, record_starts=(0, 4))
+    assert np.isnan(filled[2:4, 0]).all() and filled[4, 0] == 50.0  # 2 > max_gap, 1 <= max_gap
+    joined, _ = interpolate_missing(series.values, max_gap=1)  # one run of 3 without records
+    assert np.isnan(joined[2:5, 0]).all()
+
+
+def test_outlier_test_never_looks_across_a_boundary() -> None:
+    # record 1 ends high, record 2 starts high: with one record both would be spikes
+    x = np.array([100.0, 100.0, 100.0, 150.0, 150.0, 100.0, 100.0])
+    assert np.flatnonzero(find_outliers(x)).tolist() == []  # a plateau of two, no spike
+    x = np.array([100.0, 100.0, 150.0, 100.0, 100.0, 100.0])
+    assert np.flatnonzero(find_outliers(x)).tolist() == [2]
+    assert not find_outliers(x, record_starts=(0, 3)).any()  # 150 ends record 1
+    assert not find_outliers(x, record_starts=(0, 2)).any()  # 150 starts record 2
+    clean, report = preprocess(_records(x[:3], x[3:]))
+    np.testing.assert_array_equal(clean.values[:, 0], x)
+    assert not report.outliers.any()
+    # a spike just inside a record is replaced by the mean of its own record's samples
+    y = _records(np.array([100.0, 100.0, 100.0]), np.array([300.0, 200.0, 300.0, 310.0]))
+    clean, report = preprocess(y)
+    assert np.flatnonzero(report.outliers[:, 0]).tolist() == [4]
+    assert clean.values[4, 0] == pytest.approx((300.0 + 300.0) / 2)
+
+
+def test_inputs_and_motor_are_filled_within_their_record() -> None:
+    rpm = np.full((6, 1), 1000.0)
+    series = MeasurementSeries(
+        np.arange(6) * 0.01,
+        rpm,
+        channels=("front",),
+        inputs={"supply_hz": np.array([50.0, 50.0, NAN, NAN, 40.0, 40.0])},
+        motor_rpm=np.array([1450.0, 1460.0, NAN, NAN, 1200.0, 1210.0]),
+        record_starts=(0, 3),
+    )
+    clean, report = preprocess(series)
+    np.testing.assert_array_equal(clean.inputs["supply_hz"], [50, 50, 50, 40, 40, 40])
+    np.testing.assert_array_equal(clean.motor_rpm, [1450, 1460, 1460, 1200, 1200, 1210])
+    assert report.extra == {"motor": 2, "supply_hz": 2}
+
+
+@PROPS
+@given(
+    a=hnp.arrays(
+        np.float64,
+        st.tuples(st.integers(1, 25), st.just(4)),
+        elements=st.one_of(st.floats(100.0, 3000.0), st.just(NAN)),
+    ),
+    b=hnp.arrays(
+        np.float64,
+        st.tuples(st.integers(1, 25), st.just(4)),
+        elements=st.one_of(st.floats(100.0, 3000.0), st.just(NAN)),
+    ),
+    max_gap=st.one_of(st.none(), st.integers(0, 3)),
+)
+def test_records_are_preprocessed_as_if_alone(
+    a: np.ndarray, b: np.ndarray, max_gap: int | None
+) -> None:
+    """Preprocessing two records equals preprocessing each alone: no sample crosses over."""
+    both, report = preprocess(_records(a, b, channels=ROLLERS), max_gap=max_gap)
+    alone = [preprocess(_series(x), max_gap=max_gap) for x in (a, b)]
+    np.testing.assert_array_equal(both.values, np.vstack([c.values for c, _ in alone]))
+    np.testing.assert_array_equal(report.outliers, np.vstack([r.outliers for _, r in alone]))
+    for r in ROLLERS:
+        assert report.gaps()[r]["count"] == sum(rep.gaps()[r]["count"] for _, rep in alone)
+
+
+def test_causal_rejection_restarts_at_each_record() -> None:
+    from drafttwin.data.preprocess import reject_spikes_causal
+
+    x = np.array([100.0, 101.0, 200.0, 201.0, 300.0])
+    _, rejected = reject_spikes_causal(x)
+    assert rejected.tolist() == [False, False, True, True, True]
+    _, rejected = reject_spikes_causal(x, record_starts=(0, 2, 4))
+    assert rejected.tolist() == [False, False, False, False, False]
+    series = _records(x[:2, None], x[2:, None])
+    _, from_series = reject_spikes_causal(series)
+    assert from_series[:, 0].tolist() == [False, False, False, False, True]
+
+
+def test_split_keeps_record_boundaries_and_their_metadata() -> None:
+    parts = [
+        MeasurementSeries(
+            np.arange(n) * 0.01,
+            np.full((n, 1), 1000.0),
+            channels=("front",),
+            metadata={"source": name},
+        )
+        for name, n in (("a", 4), ("b", 3), ("c", 3))
+    ]
+    train, test = chronological_split(MeasurementSeries.concat(parts), 0.5)
+    assert train.record_starts == (0, 4) and test.record_starts == (0, 2)
+    assert [r.metadata["source"] for r in train.records()] == ["a", "b"]
+    assert [r.metadata["source"] for r in test.records()] == ["b", "c"]
+
+
+# ------------------------------------------------------------------ scale rule for outliers
+
+
+def _sine_through_zero(n: int = 2000, seed: int = 1) -> tuple[np.ndarray, int]:
+    """A slow +-20 mm position (m) crossing zero twice, 0.2 mm noise, one 10 mm spike."""
+    rng = np.random.default_rng(seed)
+    x = 0.02 * np.sin(2 * np.pi * (np.arange(n) + 250) / n) + rng.normal(0.0, 2e-4, n)
+    k = 1234
+    x[k] += 0.01
+    return x, k
+
+
+def test_zero_crossing_channel_uses_the_scale_rule() -> None:
+    x, k = _sine_through_zero()
+    series = MeasurementSeries(np.arange(x.shape[0]) * 0.001, x, channels=("y",), units={"y": "m"})
+    clean, report = preprocess(series)
+    assert report.rules == {"y": "scale"}
+    assert np.flatnonzero(report.outliers[:, 0]).tolist() == [k]
+    assert clean.values[k, 0] == pytest.approx((x[k - 1] + x[k + 1]) / 2, rel=1e-12)
+    srt = np.sort(x)  # 1st / 99th percentile by hand: positions 19.99 and 1979.01 of 0..1999
+    lo = srt[19] + 0.99 * (srt[20] - srt[19])
+    hi = srt[1979] + 0.01 * (srt[1980] - srt[1979])
+    assert report.scales["y"] == pytest.approx(hi - lo, rel=1e-12)
+    assert 0.039 < report.scales["y"] < 0.041
+    assert report.to_dict()["outlier_rule"] == {"y": "scale"}
+    assert report.to_dict()["outlier_scale"]["y"] == pytest.approx(hi - lo, rel=1e-12)
+    # the paper's relative rule flags the noise around both zero crossings of the same signal
+    relative = np.flatnonzero(find_outliers(x))
+    assert relative.shape[0] > 10 and k in relative
+
+
+def test_channels_clear_of_zero_and_speeds_keep_the_relative_rule() -> None:
+    rng = np.random.default_rng(2)
+    temp = 22.0 + rng.normal(0.0, 0.3, (200, 1))  # clear of zero: relative rule
+    rpm = np.column_stack([np.linspace(0.0, 1815.0, 200)] * 4)  # from standstill, in rpm
+    assert outlier_scale(temp[:, 0], "degC") is None
+    assert outlier_scale(rpm[:, 0], "rpm") is None
+    assert outlier_scale(rpm[:, 0], "") == pytest.approx(0.98 * 1815.0)  # touches zero
+    assert outlier_scale(np.linspace(-1.0, 1.0, 101)) == pytest.approx(1.96)
+    assert outlier_scale(np.linspace(50.0, 150.0, 101)) == pytest.approx(98.0)  # nearer than wide
+    _, report = preprocess(_series(rpm))
+    assert set(report.rules.values()) == {"relative"}
+
+
+def test_causal_rejection_with_a_scale() -> None:
+    from drafttwin.data.preprocess import reject_spikes_causal
+
+    x = np.array([0.001, -0.001, 0.0015, 0.02, 0.0])
+    _, relative = reject_spikes_causal(x)
+    assert relative.sum() >= 2  # near zero every change is "more than 10 %"
+    _, scaled = reject_spikes_causal(x, scale=0.04)  # tolerance 4 mm
+    assert scaled.tolist() == [False, False, False, True, False]

@@ -6,7 +6,10 @@ from drafttwin.data.preprocess import (
     chronological_split,
     find_outliers,
     interpolate_missing,
+    outlier_scale,
+    outlier_scales,
     preprocess,
+    reject_spikes_causal,
     smooth_outliers,
 )
 from drafttwin.data.scaling import MinMaxScaler
@@ -19,8 +22,11 @@ __all__ = [
     "chronological_split",
     "find_outliers",
     "interpolate_missing",
+    "outlier_scale",
+    "outlier_scales",
     "preprocess",
     "read_measurements",
+    "reject_spikes_causal",
     "smooth_outliers",
     "write_measurements",
 ]

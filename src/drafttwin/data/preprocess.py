@@ -133,6 +133,8 @@ def find_outliers(
     if x.shape[0] < 3:
         return mask
     sc = None if scale is None else np.asarray(scale, dtype=np.float64)
+    if sc is not None and np.isnan(sc).all():
+        sc = None  # relative rule everywhere
     prev, cur, nxt = x[:-2], x[1:-1], x[2:]
     with np.errstate(over="ignore", invalid="ignore"):
         tol_p, tol_n = _tolerance(prev, threshold, sc), _tolerance(nxt, threshold, sc)

@@ -139,9 +139,9 @@ def _record_metas(part: MeasurementSeries) -> list[dict[str, Any]]:
     return [{**own, **r} for r in recs]
 
 
-def _refuse_mismatch(what: str, path: Path, first: Path) -> None:
+def _refuse_mismatch(what: str, path: Path) -> None:
     raise DataError(
-        f"{what} (compared with {first})",
+        what,
         source=path,
         where="columns",
         fix="give every file the same output and input columns in the same units, or read "
@@ -154,15 +154,17 @@ def _check_compatible(
 ) -> None:
     if sorted(part.inputs) != sorted(first.inputs):
         got, want = sorted(part.inputs) or ["none"], sorted(first.inputs) or ["none"]
-        _refuse_mismatch(f"inputs {', '.join(got)} differ from {', '.join(want)}", path, p0)
+        _refuse_mismatch(f"inputs {', '.join(got)} here but {', '.join(want)} in {p0}", path)
     if (part.motor_rpm is None) != (first.motor_rpm is None):
         has, lacks = (path, p0) if part.motor_rpm is not None else (p0, path)
-        _refuse_mismatch(f"a motor column in {has} but not in {lacks}", path, p0)
+        _refuse_mismatch(f"a motor column in {has} but not in {lacks}", path)
     for name in (*first.channels, *first.inputs):
         here, there = part.unit(name), first.unit(name)
         if normalise_unit(here) != normalise_unit(there):
             _refuse_mismatch(
-                f"'{name}' is in '{here or 'no unit'}' but in '{there or 'no unit'}'", path, p0
+                f"'{name}' is in {here or 'no declared unit'} here but in "
+                f"{there or 'no declared unit'} in {p0}",
+                path,
             )
 
 

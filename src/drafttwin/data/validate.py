@@ -202,7 +202,8 @@ def check_channels_present(
     example = ",".join(f"{h}={r}" for h, r in zip(others, missing, strict=False)) or (
         ",".join(f"v{i + 1}={r}" for i, r in enumerate(missing))
     )
-    what = "the columns " + ", ".join(names) + (" (speeds in rpm)" if kind == "roller" else "")
+    what = ("the column " if len(names) == 1 else "the columns ") + ", ".join(names)
+    what += " (speeds in rpm)" if kind == "roller" else ""
     raise DataError(
         f"missing {kind} column{'s' if len(missing) > 1 else ''}: {', '.join(missing)}",
         source=source,
