@@ -167,6 +167,10 @@ def belt() -> DriveTrain:
 
 
 def test_belt_drive_example_kinematics_and_mapping(belt):
+    raw = belt.to_dict()  # plain data without None, so it could be written back as TOML
+    assert raw["input"] == [{"channel": "u", "drives": "supply_hz", "gain": 5.0, "offset": 0.0,
+                             "hold": "zoh"}]  # fmt: skip
+    assert DriveTrain.from_dict(raw).spec == belt.spec
     (u,) = belt.input_channels()
     assert (u.channel, u.drives, u.gain, u.offset, u.hold) == ("u", "supply_hz", 5.0, 0.0, "zoh")
     assert belt.output_channels() == (OutputMap("y", "flywheel", "rad/s", None),)

@@ -177,8 +177,9 @@ class DriveTrain:
         return cls(spec_from_dict(raw, source), source=source)
 
     def to_dict(self) -> dict[str, Any]:
-        """The declaration as plain data (round-trips through :meth:`from_dict`)."""
-        return self.spec.model_dump(mode="json")
+        """The declaration as plain data (round-trips through :meth:`from_dict`); unset
+        optional fields (an absent motor, a supply input's node) are left out, as in TOML."""
+        return self.spec.model_dump(mode="json", exclude_none=True)
 
     def with_spec_changes(self, **changes: Any) -> DriveTrain:
         """A copy with top-level spec fields replaced (e.g. ``motor=new_motor``), re-validated."""

@@ -33,9 +33,10 @@ ENERGY_NAMES = ("motor", "roller_loads", "bearings", "coupling_losses", "externa
 
 STOPPED_SUPPLY_HZ = 0.5
 """Below this supply frequency (Hz) the machine counts as stopped and a simulation starts from
-rest. VFDs do not drive a motor below their start frequency (typically 0.5 Hz, the factory
-setting of e.g. Mitsubishi FR-series Pr. 13), and a torque-balance operating point at a few
-rpm would sit inside the friction regularisation of the rollers and bearings."""
+rest. A VFD does not start its output below its starting frequency (e.g. the "starting
+frequency" parameter Pr. 13 of Mitsubishi FR inverters; 0.5 Hz is an assumed typical setting),
+and a torque-balance operating point at a few rpm would sit inside the friction
+regularisation of the rollers and bearings."""
 
 
 def starts_at_rest(train: DriveTrain, t_s: float) -> bool:
