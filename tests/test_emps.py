@@ -163,9 +163,7 @@ def test_simulation_mode_ignores_test_outputs_after_the_window(records) -> None:
     series = test.head(1500).series()
     base = model.predict_values(series, mech)
     rng = np.random.default_rng(1)
-    noisy = series.with_values(
-        series.values + np.r_[np.zeros(20), rng.normal(0, 0.05, 1480)][:, None]
-    )
+    noisy = series.with_values(series.values + np.r_[np.zeros(20), rng.normal(0, 0.05, 1480)][:, None])
     np.testing.assert_array_equal(model.predict_values(noisy, mech), base)
     # the physics itself is causal: a 20-sample record gives the first 20 rows of a long one
     np.testing.assert_allclose(mech.predict(noisy.slice(0, 20)), mech.predict(series)[:20],

@@ -60,9 +60,7 @@ def test_round_trip_gives_identical_predictions(name: str, series, tmp_path: Pat
     assert type(loaded) is type(model)
     assert loaded.get_params() == model.get_params()
     assert loaded.name == model.name
-    np.testing.assert_array_equal(
-        loaded.predict_values(series, mech), model.predict_values(series, mech)
-    )
+    np.testing.assert_array_equal(loaded.predict_values(series, mech), model.predict_values(series, mech))
     if hasattr(model, "history_"):
         assert loaded.history_.train_loss == model.history_.train_loss
 
