@@ -134,3 +134,23 @@ def test_simulate_writes_csv_and_parquet(tmp_path):
 def test_preset_toml_is_data_not_code():
     # the preset parses as plain TOML (configs are data, never executed)
     assert tomllib.loads(PRESET_TEXT)["train"]["name"] == "fa320a"
+
+
+def test_channel_tables_in_a_file_are_checked(tmp_path):
+    inputs = '\n[[input]]\nchannel = "force"\ndrives = "torque"\nnode = "front_rollr"\n'
+    msg = _refused(tmp_path, PRESET_TEXT + inputs)
+    assert "input 'force'" in msg and "'node'" in msg and "front_rollr" in msg
+    assert "fix: use one of the declared inertias" in msg
+    outputs = '\n[[output]]\nchannel = "v"\nnode = "motor"\nunit = "m/min"\n'
+    msg = _refused(tmp_path, PRESET_TEXT + outputs)
+    assert "output 'v'" in msg and "m/min" in msg and "node 'motor'" in msg
+    result = CliRunner().invoke(app, ["kinematics", "--config", str(tmp_path / "train.toml")])
+    assert result.exit_code == 2 and "Traceback" not in result.output
+    good = '\n[[input]]\nchannel = "u"\ndrives = "supply_hz"\ngain = 5.0\nhold = "zoh"\n'
+    train = DriveTrain.from_toml(
+        _write(tmp_path, PRESET_TEXT + good + outputs.replace("motor", "front"))
+    )
+    (u,) = train.input_channels()
+    assert (u.channel, u.gain, u.hold) == ("u", 5.0, "zoh")
+    assert [(o.channel, o.node, o.unit) for o in train.output_channels()] == [
+        ("v", "front_roller", "m/min")]  # fmt: skip

@@ -7,10 +7,14 @@ Public API::
     op = operating_point(train)                  # steady state from torque balance
     res = simulate(train, duration_s=10.0)       # numba RK4, interval-mean speeds
     res.to_frame()                               # time, front, second, third, back, motor
+    y = simulate_channels(train, time_s, inputs={"supply_hz": hz})   # recorded set-points
 """
 
 from drafttwin.mechanics.assembly import DriveTrain, Signal
+from drafttwin.mechanics.channels import OutputMap, convert_rpm
+from drafttwin.mechanics.components import InputChannel, OutputChannel
 from drafttwin.mechanics.config import PRESETS, TrainSpec
+from drafttwin.mechanics.grid import drive_from_inputs, simulate_channels, simulate_on_grid
 from drafttwin.mechanics.kinematics import (
     Kinematics,
     OperatingPoint,
@@ -19,24 +23,33 @@ from drafttwin.mechanics.kinematics import (
     operating_point,
 )
 from drafttwin.mechanics.simulate import (
+    STOPPED_SUPPLY_HZ,
     SimulationResult,
     simulate,
-    simulate_on_grid,
     simulate_reference,
+    starts_at_rest,
 )
 
 __all__ = [
     "PRESETS",
+    "STOPPED_SUPPLY_HZ",
     "DriveTrain",
+    "InputChannel",
     "Kinematics",
     "OperatingPoint",
+    "OutputChannel",
+    "OutputMap",
     "Signal",
     "SimulationResult",
     "TrainSpec",
+    "convert_rpm",
+    "drive_from_inputs",
     "eigenfrequencies_hz",
     "kinematics",
     "operating_point",
     "simulate",
+    "simulate_channels",
     "simulate_on_grid",
     "simulate_reference",
+    "starts_at_rest",
 ]

@@ -17,8 +17,17 @@ from typing import Any
 import numpy as np
 
 from drafttwin.errors import ConfigError
+from drafttwin.mechanics import channels
 from drafttwin.mechanics import kernel as K
-from drafttwin.mechanics.components import BearingFriction, Belt, ChainDrive, GearMesh, Shaft
+from drafttwin.mechanics.channels import OutputMap
+from drafttwin.mechanics.components import (
+    BearingFriction,
+    Belt,
+    ChainDrive,
+    GearMesh,
+    InputChannel,
+    Shaft,
+)
 from drafttwin.mechanics.config import TrainSpec, load_toml, preset_path, spec_from_dict
 
 Coupling = Belt | ChainDrive | GearMesh | Shaft
@@ -168,8 +177,9 @@ class DriveTrain:
         return cls(spec_from_dict(raw, source), source=source)
 
     def to_dict(self) -> dict[str, Any]:
-        """The declaration as plain data (round-trips through :meth:`from_dict`)."""
-        return self.spec.model_dump(mode="json")
+        """The declaration as plain data (round-trips through :meth:`from_dict`); unset
+        optional fields (an absent motor, a supply input's node) are left out, as in TOML."""
+        return self.spec.model_dump(mode="json", exclude_none=True)
 
     def with_spec_changes(self, **changes: Any) -> DriveTrain:
         """A copy with top-level spec fields replaced (e.g. ``motor=new_motor``), re-validated."""
@@ -192,6 +202,17 @@ class DriveTrain:
         self.node_index(node)
         return DriveTrain(self.spec, self.source, self.supply_hz, self.rotor_resistance,
                           (*self.torques, (node, signal)))  # fmt: skip
+
+    # ---- measured channels --------------------------------------------------------------
+    def input_channels(self) -> tuple[InputChannel, ...]:
+        """Measured input columns that drive the train: the ``[[input]]`` tables, or by
+        default a ``supply_hz`` column (Hz) setting the motor's supply (none without a motor)."""
+        return channels.input_channels(self.spec)
+
+    def output_channels(self) -> tuple[OutputMap, ...]:
+        """Measured output columns resolved onto nodes with their units: the ``[[output]]``
+        tables, or by default every roller, every node and ``motor``, all in rpm."""
+        return channels.output_channels(self.spec)
 
     # ---- topology -----------------------------------------------------------------------
     @cached_property

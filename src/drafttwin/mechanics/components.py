@@ -13,7 +13,7 @@ encoder reports them).
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -21,6 +21,10 @@ Positive = Annotated[float, Field(gt=0)]
 NonNegative = Annotated[float, Field(ge=0)]
 DampingRatio = Annotated[float, Field(ge=0, le=2)]
 Teeth = Annotated[int, Field(ge=6, le=400)]
+RollerName = Literal["front", "second", "third", "back"]
+ROLLER_NAMES: tuple[str, ...] = get_args(RollerName)
+OutputUnit = Literal["rpm", "rad/s", "rev/s", "m/min"]
+OUTPUT_UNITS: tuple[str, ...] = get_args(OutputUnit)
 
 
 class Component(BaseModel):
@@ -150,7 +154,7 @@ class Roller(Component):
     regularised near zero speed as ``tanh(w / friction_speed_eps_rad_s)``.
     """
 
-    name: Literal["front", "second", "third", "back"]
+    name: RollerName
     node: str
     diameter_mm: Positive
     top_load_per_side_n: NonNegative
@@ -186,6 +190,35 @@ class TorqueSeries(Component):
         return self
 
 
+class InputChannel(Component):
+    """A measured input channel that drives the train.
+
+    ``physical = gain * channel + offset``: the motor's supply frequency in Hz
+    (``drives = "supply_hz"``) or a torque in N m on ``node`` (``drives = "torque"``, positive
+    drives the node). ``hold = "linear"`` ramps between samples (a logged set-point);
+    ``"zoh"`` holds each sample until the next (a controller output updated per sample).
+    """
+
+    channel: str = Field(min_length=1)
+    drives: Literal["supply_hz", "torque"]
+    node: str | None = None
+    gain: Annotated[float, Field(allow_inf_nan=False)] = 1.0
+    offset: Annotated[float, Field(allow_inf_nan=False)] = 0.0
+    hold: Literal["linear", "zoh"] = "linear"
+
+
+class OutputChannel(Component):
+    """A measured output channel: the interval-mean speed of one node in ``unit``.
+
+    ``node`` is a node name, or a roller name (front, second, third, back) meaning that
+    roller's node. ``m/min`` is the surface speed of a roller (from its diameter).
+    """
+
+    channel: str = Field(min_length=1)
+    node: str = Field(min_length=1)
+    unit: OutputUnit = "rpm"
+
+
 class Solver(Component):
     """Integrator settings: fixed-step RK4, interval-mean output."""
 
@@ -206,5 +239,7 @@ LIST_KINDS = {
     "roller": Roller,
     "bearing": BearingFriction,
     "torque": TorqueSeries,
+    "input": InputChannel,
+    "output": OutputChannel,
 }
 SINGLE_KINDS = {"train": TrainInfo, "motor": InductionMotor, "solver": Solver}

@@ -14,6 +14,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from drafttwin.errors import ConfigError
+from drafttwin.mechanics.channels import output_target
 from drafttwin.mechanics.components import (
     COUPLING_KINDS,
     LIST_KINDS,
@@ -24,6 +25,8 @@ from drafttwin.mechanics.components import (
     GearMesh,
     InductionMotor,
     Inertia,
+    InputChannel,
+    OutputChannel,
     Roller,
     Shaft,
     Solver,
@@ -49,6 +52,8 @@ class TrainSpec(BaseModel):
     roller: list[Roller] = []
     bearing: list[BearingFriction] = []
     torque: list[TorqueSeries] = []
+    input: list[InputChannel] = []
+    output: list[OutputChannel] = []
     solver: Solver = Solver()
 
     @property
@@ -67,7 +72,7 @@ def _component_label(raw: dict[str, Any], loc: tuple[Any, ...]) -> tuple[str, st
     if kind in LIST_KINDS and len(loc) > 1 and isinstance(loc[1], int):
         items = raw.get(kind) or []
         item = items[loc[1]] if loc[1] < len(items) and isinstance(items[loc[1]], dict) else {}
-        label = item.get("name") or item.get("node") or f"#{loc[1] + 1}"
+        label = item.get("name") or item.get("channel") or item.get("node") or f"#{loc[1] + 1}"
         field = ".".join(str(p) for p in loc[2:])
         return f"{kind} '{label}'", field
     return f"[{kind}]", ".".join(str(p) for p in loc[1:])
@@ -84,6 +89,9 @@ def _translate(exc: ValidationError, raw: dict[str, Any], source: str) -> Config
     elif kind == "extra_forbidden":
         problem = f"unknown field '{field}'"
         fix = "remove it or correct its spelling (see docs/mechanics.md for the field list)"
+    elif kind == "literal_error":
+        problem = f"field '{field}' is {got!r}, which is not an allowed value"
+        fix = f"use {err.get('ctx', {}).get('expected', 'one of the documented values')}"
     else:
         shown = f" (got {got!r})" if not isinstance(got, dict | list) else ""
         problem = f"field '{field}': {err['msg']}{shown}" if field else f"{err['msg']}{shown}"
@@ -160,6 +168,109 @@ def _check_graph(spec: TrainSpec, source: str) -> None:
         )
 
 
+def _check_inputs(spec: TrainSpec, source: str) -> None:
+    """Each [[input]] drives something that exists: the motor's supply or a known node."""
+    nodes = ", ".join(n.name for n in spec.inertia)
+    for item in spec.input:
+        where = f"input '{item.channel}'"
+        if item.gain == 0.0:
+            raise ConfigError(
+                "field 'gain' is 0, so the channel would have no effect",
+                source=source,
+                where=where,
+                fix="give the scale from the channel's unit to Hz or N m "
+                "(physical value = gain * channel + offset)",
+            )
+        if item.drives == "torque":
+            if item.node is None:
+                raise ConfigError(
+                    "field 'node' is missing: a torque input acts on a node",
+                    source=source,
+                    where=where,
+                    fix=f'add node = "..." naming one of: {nodes}',
+                )
+            if item.node not in {n.name for n in spec.inertia}:
+                raise ConfigError(
+                    f"field 'node' names unknown node '{item.node}'",
+                    source=source,
+                    where=where,
+                    fix=f"use one of the declared inertias: {nodes}",
+                )
+        elif spec.motor is None:
+            raise ConfigError(
+                "drives 'supply_hz', but the train has no [motor]",
+                source=source,
+                where=where,
+                fix='add a [motor] whose VFD this channel sets, or use drives = "torque" '
+                "with a node",
+            )
+        elif item.node is not None and item.node != spec.motor.node:
+            raise ConfigError(
+                f"field 'node' names '{item.node}', but a supply input drives the motor "
+                f"on node '{spec.motor.node}'",
+                source=source,
+                where=where,
+                fix="remove 'node' (a supply_hz input always drives the motor)",
+            )
+    supplies = [i.channel for i in spec.input if i.drives == "supply_hz"]
+    if len(supplies) > 1:
+        raise ConfigError(
+            f"{len(supplies)} inputs drive 'supply_hz' ({', '.join(supplies)})",
+            source=source,
+            where="[[input]]",
+            fix="keep one: the motor has one supply frequency",
+        )
+
+
+def _check_outputs(spec: TrainSpec, source: str) -> None:
+    """Each [[output]] reads a known node or roller, once, in a unit that node can give."""
+    inputs = {i.channel for i in spec.input}
+    seen: set[str] = set()
+    for out in spec.output:
+        where = f"output '{out.channel}'"
+        if out.channel in seen:
+            raise ConfigError(
+                f"channel '{out.channel}' is declared twice",
+                source=source,
+                where="[[output]]",
+                fix="give every output channel a unique name",
+            )
+        seen.add(out.channel)
+        if out.channel in inputs:
+            raise ConfigError(
+                f"channel '{out.channel}' is declared both as an input and as an output",
+                source=source,
+                where=where,
+                fix="a measured column is either an input or an output; rename one",
+            )
+        try:
+            node, diameter = output_target(spec, out.node)
+        except KeyError:
+            rollers = [r.name for r in spec.roller]
+            raise ConfigError(
+                f"field 'node' names unknown node '{out.node}'",
+                source=source,
+                where=where,
+                fix=f"use a node ({', '.join(n.name for n in spec.inertia)})"
+                + (f" or a roller ({', '.join(rollers)})" if rollers else ""),
+            ) from None
+        if out.unit == "m/min" and diameter is None:
+            raise ConfigError(m_per_min_problem(node), source=source, where=where,
+                              fix=M_PER_MIN_FIX)  # fmt: skip
+
+
+M_PER_MIN_FIX = (
+    "name a roller (or a node carrying one roller) as 'node', or use rpm, rad/s or rev/s"
+)
+
+
+def m_per_min_problem(node: str) -> str:
+    return (
+        f"unit 'm/min' is a roller's surface speed, but node '{node}' does not carry one "
+        "roller to take the diameter from"
+    )
+
+
 def spec_from_dict(raw: dict[str, Any], source: str = "<config>") -> TrainSpec:
     """Validate a parsed document (e.g. from TOML) into a :class:`TrainSpec`."""
     known = set(LIST_KINDS) | set(SINGLE_KINDS)
@@ -184,6 +295,8 @@ def spec_from_dict(raw: dict[str, Any], source: str = "<config>") -> TrainSpec:
     except ValidationError as exc:
         raise _translate(exc, raw, source) from None
     _check_graph(spec, source)
+    _check_inputs(spec, source)
+    _check_outputs(spec, source)
     return spec
 
 

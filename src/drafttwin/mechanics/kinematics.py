@@ -183,6 +183,14 @@ def operating_point(train: DriveTrain, t: float = 0.0, iterations: int = 30) -> 
         )
     t_k, slip_k, pole_pairs = tab.motor_f[0, 0], tab.motor_f[0, 1], tab.motor_f[0, 2]
     supply = _signal_at(train.supply_hz, t, mot.supply_hz)
+    if not supply > 0.0:
+        raise ConfigError(
+            f"the motor's supply is {supply:g} Hz at t = {t:g} s: a stopped train has no "
+            "running operating point",
+            source=train.source,
+            where="[motor] supply_hz",
+            fix="simulate from rest (from_rest=True) or give a positive supply frequency",
+        )
     w_sync = 2 * math.pi * supply / pole_pairs
     slip_k *= _signal_at(train.rotor_resistance, t, 1.0)
     root = train.node_index(mot.node)

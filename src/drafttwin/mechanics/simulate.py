@@ -31,6 +31,23 @@ from drafttwin.mechanics.kinematics import RPM, OperatingPoint, operating_point
 
 ENERGY_NAMES = ("motor", "roller_loads", "bearings", "coupling_losses", "external")
 
+STOPPED_SUPPLY_HZ = 0.5
+"""Below this supply frequency (Hz) the machine counts as stopped and a simulation starts from
+rest. A VFD does not start its output below its starting frequency (e.g. the "starting
+frequency" parameter Pr. 13 of Mitsubishi FR inverters; 0.5 Hz is an assumed typical setting),
+and a torque-balance operating point at a few rpm would sit inside the friction
+regularisation of the rollers and bearings."""
+
+
+def starts_at_rest(train: DriveTrain, t_s: float) -> bool:
+    """True if a simulation starting at ``t_s`` (s) starts at standstill: the train has no motor,
+    or the motor's supply at ``t_s`` is below :data:`STOPPED_SUPPLY_HZ`."""
+    motor = train.spec.motor
+    if motor is None:
+        return True
+    supply = motor.supply_hz if train.supply_hz is None else float(train.supply_hz.at(t_s))
+    return supply < STOPPED_SUPPLY_HZ
+
 
 @dataclass(frozen=True)
 class SimulationResult:
@@ -111,6 +128,13 @@ def _initial_state(train: DriveTrain, op: OperatingPoint) -> np.ndarray:
     return y
 
 
+def _start_state(train: DriveTrain, t0: float, from_rest: bool) -> np.ndarray:
+    """Standstill if asked or if the train is stopped at ``t0``, else the operating point."""
+    if from_rest or starts_at_rest(train, t0):
+        return _rest_state(train)
+    return _initial_state(train, operating_point(train, t=t0))
+
+
 def _rest_state(train: DriveTrain) -> np.ndarray:
     tab = train.tables()
     n = len(train.node_names)
@@ -154,7 +178,8 @@ def simulate(
         settle_s: machine time simulated and discarded before recording, s.
         t_start_s: time of the start of recording, s (inputs are functions of this time).
         from_rest: start at standstill, unloaded (e.g. a start-up), instead of at the
-            torque-balance operating point with static preloads.
+            torque-balance operating point with static preloads. A train without a motor, or
+            whose supply at the start is below :data:`STOPPED_SUPPLY_HZ`, always starts at rest.
         progress: called with the machine seconds completed since the last call.
     """
     import time as _time
@@ -172,10 +197,7 @@ def simulate(
         )
     args = train.tables().args()
     t0 = t_start_s - settle
-    if from_rest or train.spec.motor is None:
-        y = _rest_state(train)
-    else:
-        y = _initial_state(train, operating_point(train, t=t0))
+    y = _start_state(train, t0, from_rest)
     start = _time.perf_counter()
     K.integrate(y.copy(), t0, dt, 1, 1, *args)  # compile / load from cache outside the timing
     compile_s = _time.perf_counter() - start
@@ -231,11 +253,7 @@ def simulate_reference(
     args = train.tables().args()
     n = len(train.node_names)
     t0 = -settle_s
-    y0 = (
-        _rest_state(train)
-        if train.spec.motor is None
-        else _initial_state(train, operating_point(train, t=t0))
-    )
+    y0 = _start_state(train, t0, from_rest=False)
 
     def f(t: float, y: np.ndarray) -> np.ndarray:
         dy = np.empty_like(y)
@@ -249,22 +267,3 @@ def simulate_reference(
     if not sol.success:
         raise RuntimeError(f"reference integration failed: {sol.message}")
     return np.diff(sol.y[:n].T, axis=0) * rate * RPM
-
-
-def simulate_on_grid(train: DriveTrain, time_s: np.ndarray, **kwargs) -> np.ndarray:
-    """Roller speeds (rpm, columns front, second, third, back) on a measurement time grid.
-
-    Each value is the mean over the sample interval that ends at that time stamp, as an
-    encoder sampled on that grid reports it. The grid must be uniform.
-    """
-    time_s = np.asarray(time_s, dtype=np.float64)
-    step = float(np.median(np.diff(time_s)))
-    if np.max(np.abs(np.diff(time_s) - step)) > 1e-6 * step + 1e-9:
-        raise ConfigError(
-            "simulate_on_grid needs a uniform time grid",
-            where="time",
-            fix="resample the measurements to a regular grid first",
-        )
-    res = simulate(train, duration_s=len(time_s) * step, output_rate_hz=1.0 / step,
-                   t_start_s=float(time_s[0]) - step, **kwargs)  # fmt: skip
-    return res.roller_rpm()
