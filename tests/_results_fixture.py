@@ -68,13 +68,13 @@ def _comparison(measured: np.ndarray, true: np.ndarray, preds: dict[str, np.ndar
     pers = preds["persistence"]
     out: dict[str, dict] = {}
     for name, p in preds.items():
-        m = evaluate(measured, p, persistence=pers, true_speed=true)
+        m = evaluate(measured, p, units="rpm", persistence=pers, true_values=true)
         out[name] = {}
         for j, r in enumerate(ROLLERS):
             d = m[r].to_dict()
-            d.pop("roller")
+            d.pop("channel")
             ok = np.isfinite(p[:, j])
-            d["rmse_vs_true_rpm"] = float(np.sqrt(np.mean((p[ok, j] - true[ok, j]) ** 2)))
+            d["rmse_vs_true"] = float(np.sqrt(np.mean((p[ok, j] - true[ok, j]) ** 2)))
             out[name][r] = d
     return out
 

@@ -43,7 +43,8 @@ def test_fit_predict_evaluate_round_trip(data_file, tmp_path):
     )
     assert set(out) == {"front", "second", "third", "back"}
     for m in out.values():
-        assert m["n_scored"] > 300 and np.isfinite(m["rmse_rpm"]) and m["noise_floor_rpm"] > 0
+        assert m["n_scored"] > 300 and np.isfinite(m["rmse"]) and m["noise_floor"] > 0
+        assert m["unit"] == "rpm" and m["rel_note"] is None
 
 
 def test_hybrid_with_mechanistic_preset(data_file, tmp_path):
@@ -105,3 +106,23 @@ def test_data_with_other_rollers_or_rate_refused(data_file, tmp_path):
     three.to_csv(three_path, index=False)
     result = runner.invoke(app, ["evaluate", "--model", str(model), "--data", str(three_path)])
     assert result.exit_code == 2 and "third" in result.output
+
+
+def test_metrics_table_names_units_for_any_channels():
+    from rich.console import Console
+
+    from drafttwin.cli.models_cmds import _metrics_table
+    from drafttwin.evaluation import evaluate
+
+    def render(metrics) -> str:
+        console = Console(width=200, record=True)
+        console.print(_metrics_table(metrics, "t"))
+        return console.export_text()
+
+    y = np.sin(np.linspace(0, 20, 400))
+    one = render(evaluate(y, y + 0.01, channels=["position"], units="m"))
+    assert "RMSE m" in one and "noise floor m" in one and "position" in one
+    assert "0.01" in one  # the RMSE, in m
+    two = np.column_stack([y + 2, y + 5])
+    mixed = render(evaluate(two, two, channels=["a", "b"], units={"a": "m", "b": "V"}))
+    assert "unit" in mixed and " V " in mixed and "RMSE m" not in mixed

@@ -64,15 +64,17 @@ def test_metric_ablation_and_grid_tables(report: tuple[dict, dict[str, Path]]) -
     results, paths = report
     metrics = _csv(paths, "metrics")
     assert len(metrics) == 6 * len(ROLLERS)
-    for col in ("rmse_rpm", "nrmse", "skill", "mean_rel_err_pct", "max_rel_err_pct",
-                "accuracy_pct", "noise_floor_rpm", "rmse_vs_true_rpm"):  # fmt: skip
+    for col in ("rmse", "nrmse", "skill", "mean_rel_err_pct", "max_rel_err_pct",
+                "accuracy_pct", "noise_floor", "rmse_vs_true", "rel_threshold"):  # fmt: skip
         assert metrics[col].notna().all(), col
+    assert (metrics.unit == "rpm").all() and (metrics.n_rel_excluded == 0).all()
     t3 = _csv(paths, "table3")
     n_tests = len(results["ablation"]["seeds"])
     assert len(t3) == 3 * n_tests * len(ROLLERS)
     assert set(t3.variant) == {"md-s-l", "md-l", "md-s"}
     first = t3[(t3.variant == "md-l") & (t3.test == 1) & (t3.roller == "second")].iloc[0]
     assert first.paper_accuracy_pct == pytest.approx(98.55)
+    assert (t3.unit == "rpm").all() and t3.rmse.notna().all()
     summary = _csv(paths, "table3_summary")
     assert len(summary) == 3 * len(ROLLERS)
     assert {"mean", "std", "min", "max", "paper_mean", "paper_std"} <= set(summary.columns)
@@ -91,6 +93,8 @@ def test_page_is_self_contained_and_escaped(report: tuple[dict, dict[str, Path]]
     assert HOSTILE not in text and "&lt;b&gt;raw&lt;/b&gt; &amp; &lt;script&gt;" in text
     assert "plant emulator, not a real FA320A" in text
     assert "Table 2 gives the same model" in text  # the paper-inconsistency note
+    assert "RMSE (rpm)" in text and "RMSE vs true (rpm)" in text and "RMSE in rpm" in text
+    assert "Relative errors omitted" not in text
 
 
 class _Dom(HTMLParser):
@@ -163,8 +167,8 @@ def test_agreement_follows_the_numbers() -> None:
 
 def test_agreement_partly_and_ablation_spread() -> None:
     results, _ = build(n_test=400)
-    rmse = [results["comparison"]["metrics"]["md-s-l"][r]["rmse_rpm"] for r in ROLLERS]
-    _set(results, "parallel", "rmse_rpm", [rmse[0] - 0.01, *(x + 0.01 for x in rmse[1:])])
+    rmse = [results["comparison"]["metrics"]["md-s-l"][r]["rmse"] for r in ROLLERS]
+    _set(results, "parallel", "rmse", [rmse[0] - 0.01, *(x + 0.01 for x in rmse[1:])])
     claim = _claim(results, "md-s-l>parallel")
     assert "lower RMSE on 3 of 4 (second, third, back)" in claim.ours
     assert claim.verdict == agreement.AGREES  # the verdict follows the paper's metric
@@ -194,13 +198,29 @@ def test_report_without_truth_or_extra_variants(tmp_path: Path) -> None:
     results["data"]["plant_summary"] = []
     for model in results["comparison"]["metrics"].values():
         for m in model.values():
-            m["noise_floor_rpm"] = m["rmse_vs_true_rpm"] = float("nan")
+            m["noise_floor"] = m["rmse_vs_true"] = None
     predictions = predictions.drop(columns=[f"true_{r}" for r in ROLLERS])
     paths = write_report(tmp_path, results, predictions)
     text = paths["report"].read_text(encoding="utf-8")
     assert "not a real FA320A" not in text and "noise floor unknown" in text
     assert "Welch t-test" not in text and "as computed by the study" in text
-    assert np.isnan(pd.read_csv(paths["metrics"]).noise_floor_rpm).all()
+    assert np.isnan(pd.read_csv(paths["metrics"]).noise_floor).all()
+
+
+def test_units_and_omitted_relative_errors_come_from_the_results(tmp_path: Path) -> None:
+    results, predictions = build(n_test=300)
+    for model in results["comparison"]["metrics"].values():
+        for r, m in model.items():
+            m["unit"] = "m"
+            if r == "third":
+                m["rel_note"] = "signal crosses zero: relative errors are not defined"
+                m["mean_rel_err_pct"] = m["max_rel_err_pct"] = m["accuracy_pct"] = None
+    text = write_report(tmp_path, results, predictions)["report"].read_text(encoding="utf-8")
+    assert "RMSE (m)" in text and "RMSE in m;" in text and "RMSE (rpm)" not in text
+    assert "Relative errors omitted: third (signal crosses zero" in text
+    floor = _claim(results, "floor").ours
+    assert " m = " in floor and "rpm" not in floor
+    assert (pd.read_csv(tmp_path / "table3.csv").unit == "m").all()
 
 
 def test_formatting_helpers() -> None:

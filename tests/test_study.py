@@ -45,11 +45,16 @@ def test_results_hold_every_table(study_run):
             assert {
                 "max_rel_err_pct",
                 "mean_rel_err_pct",
-                "rmse_rpm",
+                "rmse",
                 "nrmse",
                 "skill",
-                "noise_floor_rpm",
+                "noise_floor",
+                "rmse_vs_true",
+                "rel_threshold",
+                "n_rel_excluded",
+                "rel_note",
             } <= set(m)
+            assert m["unit"] == "rpm" and m["rel_note"] is None
     acc = results["ablation"]["accuracy"]
     assert set(acc) == {"md-s-l", "md-l", "md-s"}
     assert all(np.array(v).shape == (10, 4) for v in acc.values())
@@ -64,7 +69,7 @@ def test_metrics_are_consistent(study_run):
     for r in ROLLERS:
         assert comp["persistence"][r]["skill"] == pytest.approx(0.0, abs=1e-12)
         # the noise floor is a property of the data, the same for every model
-        floors = {comp[m][r]["noise_floor_rpm"] for m in results["comparison"]["models"]}
+        floors = {comp[m][r]["noise_floor"] for m in results["comparison"]["models"]}
         assert max(floors) - min(floors) < 1e-9
         acc = comp["md-s-l"][r]["accuracy_pct"]
         assert acc == pytest.approx(100 - comp["md-s-l"][r]["mean_rel_err_pct"])

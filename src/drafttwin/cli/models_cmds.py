@@ -126,6 +126,29 @@ def predict(
     console.print(f"wrote {len(frame)} predictions to {out}")
 
 
+def _metrics_table(metrics: dict, title: str) -> Table:
+    """One row per channel; the unit in the headers when the channels share one, else in a
+    column of its own."""
+    units = {m.unit for m in metrics.values()}
+    shared = units.pop() if len(units) == 1 else None
+
+    def head(label: str) -> str:
+        return f"{label} {shared}" if shared else label
+
+    table = Table(title=title)
+    table.add_column("channel")
+    if shared is None:
+        table.add_column("unit")
+    for c in ("max rel %", "mean rel %", "accuracy %", head("RMSE"), "NRMSE", "skill",
+              head("noise floor")):  # fmt: skip
+        table.add_column(c, justify="right")
+    for r, m in metrics.items():
+        cells = [f"{m.max_rel_err_pct:.4f}", f"{m.mean_rel_err_pct:.4f}", f"{m.accuracy_pct:.3f}",
+                 f"{m.rmse:.4g}", f"{m.nrmse:.3f}", f"{m.skill:.3f}", f"{m.noise_floor:.4g}"]  # fmt: skip
+        table.add_row(r, *([] if shared is not None else [m.unit]), *cells)
+    return table
+
+
 @app.command()
 def evaluate(
     model: ModelFileOpt,
@@ -133,7 +156,8 @@ def evaluate(
     mechanistic: MechOpt = None,
     train_fraction: FractionOpt = 0.7,
     as_json: Annotated[
-        bool, typer.Option("--json", help="One JSON object keyed by roller.")
+        bool,
+        typer.Option("--json", help="One JSON object keyed by channel (null: not computable)."),
     ] = False,
 ) -> None:
     """Score a model on the test part of a data set (after --train-fraction): the paper's
@@ -153,29 +177,22 @@ def evaluate(
     _, full = preprocess(series)
     target = np.where(np.isnan(series.values) | full.outliers, np.nan, series.values)[n_train:]
     pred = estimator.predict_values(inputs, mechanistic_source(mechanistic))[n_train:]
-    true = series.metadata.get("true_rpm")
-    metrics = score(target, pred, persistence=persistence_forecast(inputs.values, getattr(estimator, "horizon", 1))[n_train:],
-                    true_speed=None if true is None else np.asarray(true)[n_train:])  # fmt: skip
+    true = series.metadata.get("true_rpm")  # the plant emulator's truth, one column per roller
+    true_ok = true is not None and np.shape(true) == series.values.shape
+    units = {c: series.unit(c) for c in series.channels}
+    metrics = score(target, pred, channels=series.channels, units=units,
+                    persistence=persistence_forecast(inputs.values, getattr(estimator, "horizon", 1))[n_train:],
+                    true_values=np.asarray(true)[n_train:] if true_ok else None)  # fmt: skip
     if as_json:
-        typer.echo(json.dumps({r: m.to_dict() for r, m in metrics.items()}, indent=2))
+        typer.echo(json.dumps({r: m.to_dict() for r, m in metrics.items()}, indent=2,
+                              allow_nan=False))  # fmt: skip
         return
-    table = Table(title=f"{estimator.name} on the test part ({len(target)} samples)")
-    cols = (
-        "max rel %",
-        "mean rel %",
-        "accuracy %",
-        "RMSE rpm",
-        "NRMSE",
-        "skill",
-        "noise floor rpm",
+    console.print(
+        _metrics_table(metrics, f"{estimator.name} on the test part ({len(target)} samples)")
     )
-    table.add_column("roller")
-    for c in cols:
-        table.add_column(c, justify="right")
     for r, m in metrics.items():
-        table.add_row(r, f"{m.max_rel_err_pct:.4f}", f"{m.mean_rel_err_pct:.4f}", f"{m.accuracy_pct:.3f}",
-                      f"{m.rmse_rpm:.3f}", f"{m.nrmse:.3f}", f"{m.skill:.3f}", f"{m.noise_floor_rpm:.3f}")  # fmt: skip
-    console.print(table)
+        if m.rel_note:
+            console.print(f"{r}: {m.rel_note}")
     console.print(
         "skill = 1 - RMSE / RMSE(persistence); scored: measured samples not flagged as outliers"
     )

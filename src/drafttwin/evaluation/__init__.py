@@ -1,10 +1,11 @@
-"""Evaluation of roller-speed predictions: per-roller metrics (SPEC section 3)."""
+"""Evaluation of predictions of any measured signal: per-channel metrics."""
 
 from drafttwin.evaluation.metrics import (
-    RollerMetrics,
+    ChannelMetrics,
     evaluate,
+    json_number,
     metrics_frame,
     persistence_forecast,
 )
 
-__all__ = ["RollerMetrics", "evaluate", "metrics_frame", "persistence_forecast"]
+__all__ = ["ChannelMetrics", "evaluate", "json_number", "metrics_frame", "persistence_forecast"]

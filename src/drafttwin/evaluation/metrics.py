@@ -1,50 +1,101 @@
-"""Per-roller prediction metrics: the paper's relative errors and honest ones (SPEC section 3).
+"""Per-channel prediction metrics for any measured signal (a roller speed in rpm, a position
+in m, a voltage, a level): the paper's relative errors where they mean something, and honest
+ones everywhere.
 
-For each roller, on the samples where both the measurement and the prediction are finite:
+For each output channel, on the *scored* samples (measurement and prediction both finite;
+finite measurements without a prediction are counted in ``n_nan_pred``):
 
-* relative error ``100 * |y - yhat| / |y|`` in %, over samples with ``|y| >= min_abs_rpm``
-  (the others are excluded from the relative errors and counted): max, mean, and
-  "prediction accuracy" ``100 - mean``;
-* RMSE in rpm; NRMSE = RMSE / std(y) (population std of the scored measurements);
-* skill = 1 - RMSE / RMSE_persistence, both RMSEs on the samples where the model, the
+* ``rmse`` in the channel's unit; ``nrmse`` = RMSE / std(y) (population std of the scored
+  measurements);
+* ``skill`` = 1 - RMSE / RMSE_persistence, both RMSEs on the samples where the model, the
   persistence forecast and the measurement are all finite;
-* noise floor: RMSE of measured vs true speed (when the true speed is known, e.g. from the
-  plant emulator), over the samples where both are finite.
+* ``noise_floor``: RMSE of the measurement against the true value (when known, e.g. from the
+  plant emulator), over the samples where both are finite;
+* relative error ``100 * |y - yhat| / |y|`` in %: max, mean and "prediction accuracy"
+  ``100 - mean``. A relative error is only meaningful away from zero, so:
 
-NaN predictions are not scored; they are counted in ``n_nan_pred``.
+  - the channel's *scale* is a robust maximum of ``|y|``: its 99th percentile over the
+    channel's finite measurements (the samples there are to score; one spike cannot set it,
+    and every model scored against the same measurement gets the same threshold);
+  - ``rel_threshold = rel_floor * scale``; scored samples with ``|y| < rel_threshold`` (and
+    exact zeros) are left out of the relative errors and counted in ``n_rel_excluded``. With
+    the default ``rel_floor`` (:data:`DEFAULT_REL_FLOOR`, 1 %) this excludes start-up and stop samples of the FA320A
+    rollers (running at 350-1800 rpm) and nothing at steady running;
+  - a signal that *crosses zero* has no meaningful relative error (it explodes at every
+    crossing): when more than :data:`ZERO_CROSSING_SHARE` of the finite measurements lie above
+    ``+rel_threshold`` *and* more than that share lie below ``-rel_threshold``, the relative
+    errors are omitted (NaN) and ``rel_note`` says why. Noise around zero during a stop stays
+    inside the threshold and does not count as a crossing.
+
+RMSE, NRMSE, skill and noise floor are reported in every case. A channel without scored
+samples gets NaN metrics and ``n_scored = 0``.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
 from drafttwin import ROLLERS
-from drafttwin.errors import DataError
+from drafttwin.errors import ConfigError, DataError
+
+DEFAULT_REL_FLOOR = 0.01
+"""Relative errors leave out samples with ``|y|`` below this share of the channel's scale."""
+
+SCALE_PERCENTILE = 99.0
+"""Percentile of ``|y|`` used as the channel's scale (a maximum that ignores the top 1 %)."""
+
+ZERO_CROSSING_SHARE = 0.01
+"""A signal crosses zero when more than this share of its finite measurements lies beyond
+``+rel_threshold`` and more than this share beyond ``-rel_threshold``."""
+
+NOTE_CROSSES_ZERO = "signal crosses zero: relative errors are not defined"
+NOTE_ZERO = "signal is zero everywhere: relative errors are not defined"
+NOTE_ALL_LOW = "every scored sample lies below the threshold: no relative error to report"
+
+UnitsArg = str | Mapping[str, str] | Sequence[str] | None
+
+
+def json_number(value: float) -> float | None:
+    """``value`` as a float, or ``None`` when it is NaN or infinite (JSON has neither)."""
+    x = float(value)
+    return x if math.isfinite(x) else None
 
 
 @dataclass(frozen=True)
-class RollerMetrics:
-    """Metrics of one roller. Relative errors and accuracy in %, RMSEs in rpm."""
+class ChannelMetrics:
+    """Metrics of one output channel.
 
-    roller: str
+    Relative errors and accuracy in %; ``rel_threshold``, ``rmse``, ``rmse_persistence`` and
+    ``noise_floor`` in the channel's ``unit`` (``""`` when undeclared); ``nrmse`` and
+    ``skill`` are dimensionless. NaN where a metric cannot be computed; ``rel_note`` is
+    ``None``, or why the relative errors are omitted.
+    """
+
+    channel: str
+    unit: str
     n_scored: int
     n_nan_pred: int
-    n_excluded_low: int
     max_rel_err_pct: float
     mean_rel_err_pct: float
     accuracy_pct: float
-    rmse_rpm: float
+    rel_threshold: float
+    n_rel_excluded: int
+    rel_note: str | None
+    rmse: float
     nrmse: float
-    rmse_persistence_rpm: float
+    rmse_persistence: float
     skill: float
-    noise_floor_rpm: float
+    noise_floor: float
 
-    def to_dict(self) -> dict[str, float | int | str]:
-        return asdict(self)
+    def to_dict(self) -> dict[str, str | int | float | None]:
+        """The fields as a JSON-safe dict: NaN and infinities become ``None``."""
+        return {k: json_number(v) if isinstance(v, float) else v for k, v in asdict(self).items()}
 
 
 def persistence_forecast(rpm: np.ndarray, horizon: int = 1) -> np.ndarray:
@@ -66,15 +117,98 @@ def persistence_forecast(rpm: np.ndarray, horizon: int = 1) -> np.ndarray:
     return out[:, 0] if squeeze else out
 
 
-def _as_matrix(x: np.ndarray | None, n_cols: int, what: str) -> np.ndarray | None:
-    if x is None:
-        return None
+# ----- argument checks ---------------------------------------------------------------------
+def _named(channels: Sequence[str]) -> str:
+    k = len(channels)
+    return f"{k} channel{'s were' if k != 1 else ' was'} named ({', '.join(channels)})"
+
+
+def _as_matrix(x: np.ndarray, channels: Sequence[str], what: str) -> np.ndarray:
+    """``x`` as an ``(n, len(channels))`` float64 array; a 1-D array is one channel."""
     arr = np.asarray(x, dtype=np.float64)
-    if arr.ndim == 1 and n_cols == 1:
-        arr = arr[:, None]
-    if arr.ndim != 2 or arr.shape[1] != n_cols:
-        raise DataError(f"{what} has shape {arr.shape}; expected (n, {n_cols})")
+    k = len(channels)
+    if arr.ndim == 1 and k == 1:
+        return arr[:, None]
+    if arr.ndim == 1:
+        raise DataError(
+            f"{what} is 1-D (a single channel) but {_named(channels)}",
+            fix="pass one column per channel, shape (n, k), or name the one channel "
+            "(channels=('name',))",
+        )
+    if arr.ndim != 2:
+        raise DataError(
+            f"{what} has shape {arr.shape}; expected (n, {k}): one row per sample and one "
+            f"column per channel, as {_named(channels)}",
+            fix="pass a 2-D array (or a 1-D array for a single channel)",
+        )
+    if arr.shape[1] != k:
+        raise DataError(
+            f"{what} has {arr.shape[1]} column{'s' if arr.shape[1] != 1 else ''} but "
+            f"{_named(channels)}",
+            fix="pass channels= with one name per column, in column order",
+        )
     return arr
+
+
+def _check_channels(channels: Sequence[str]) -> tuple[str, ...]:
+    names = (channels,) if isinstance(channels, str) else tuple(str(c) for c in channels)
+    if not names:
+        raise DataError("no channel was named", fix="pass channels= with one name per column")
+    if len(set(names)) != len(names):
+        raise DataError(f"channel names must be distinct, got ({', '.join(names)})",
+                        fix="give every column its own name")  # fmt: skip
+    return names
+
+
+def _units(units: UnitsArg, channels: tuple[str, ...]) -> list[str]:
+    """One unit per channel: a single string for all, a sequence in channel order, or a
+    mapping by channel name (extra names, e.g. inputs' units, are ignored)."""
+    if units is None:
+        return [""] * len(channels)
+    if isinstance(units, str):
+        return [units] * len(channels)
+    if isinstance(units, Mapping):
+        return [str(units.get(c, "")) for c in channels]
+    listed = [str(u) for u in units]
+    if len(listed) != len(channels):
+        raise DataError(f"{len(listed)} units were given but {_named(channels)}",
+                        fix="give one unit per channel, or a mapping channel -> unit")  # fmt: skip
+    return listed
+
+
+# ----- the metrics -------------------------------------------------------------------------
+class _Relative(NamedTuple):
+    max_pct: float
+    mean_pct: float
+    threshold: float
+    n_excluded: int
+    note: str | None
+
+
+def _omission(measured: np.ndarray, threshold: float) -> str | None:
+    """Why relative errors are not defined for this measurement, or None."""
+    if not np.any(measured != 0):
+        return NOTE_ZERO
+    above = float(np.mean(measured > threshold))
+    below = float(np.mean(measured < -threshold))
+    return NOTE_CROSSES_ZERO if min(above, below) > ZERO_CROSSING_SHARE else None
+
+
+def _relative(measured: np.ndarray, ys: np.ndarray, err: np.ndarray, rel_floor: float) -> _Relative:
+    """Relative errors of the scored samples ``ys`` (errors ``err``) against the threshold
+    set by the channel's finite measurements ``measured``."""
+    nan = float("nan")
+    if measured.size == 0:
+        return _Relative(nan, nan, nan, 0, None)
+    threshold = rel_floor * float(np.percentile(np.abs(measured), SCALE_PERCENTILE))
+    low = (np.abs(ys) < threshold) | (ys == 0)
+    note = _omission(measured, threshold)
+    if note is None and ys.size and low.all():
+        note = NOTE_ALL_LOW
+    if note is not None or not ys.size:
+        return _Relative(nan, nan, threshold, int(low.sum()), note)
+    rel = 100.0 * np.abs(err[~low]) / np.abs(ys[~low])
+    return _Relative(float(rel.max()), float(rel.mean()), threshold, int(low.sum()), None)
 
 
 def _rmse(err: np.ndarray) -> float:
@@ -85,21 +219,20 @@ def _ratio(num: float, den: float) -> float:
     return num / den if np.isfinite(den) and den > 0 else float("nan")
 
 
-def _roller_metrics(
+def _channel_metrics(
     name: str,
+    unit: str,
     y: np.ndarray,
     yhat: np.ndarray,
     pers: np.ndarray | None,
     true: np.ndarray | None,
-    min_abs_rpm: float,
-) -> RollerMetrics:
-    y_ok = np.isfinite(y)
-    scored = y_ok & np.isfinite(yhat)
-    err = yhat[scored] - y[scored]
+    rel_floor: float,
+) -> ChannelMetrics:
+    measured = np.isfinite(y)
+    scored = measured & np.isfinite(yhat)
     ys = y[scored]
-    high = np.abs(ys) >= min_abs_rpm
-    rel = 100.0 * np.abs(err[high]) / np.abs(ys[high])
-    mean_rel = float(rel.mean()) if rel.size else float("nan")
+    err = yhat[scored] - ys
+    rel = _relative(y[measured], ys, err, rel_floor)
     rmse = _rmse(err)
     rmse_p = skill = float("nan")
     if pers is not None:
@@ -108,21 +241,24 @@ def _roller_metrics(
         skill = 1.0 - _ratio(_rmse(yhat[common] - y[common]), rmse_p)
     floor = float("nan")
     if true is not None:
-        both = y_ok & np.isfinite(true)
+        both = measured & np.isfinite(true)
         floor = _rmse(y[both] - true[both])
-    return RollerMetrics(
-        roller=name,
+    return ChannelMetrics(
+        channel=name,
+        unit=unit,
         n_scored=int(scored.sum()),
-        n_nan_pred=int((y_ok & ~np.isfinite(yhat)).sum()),
-        n_excluded_low=int((~high).sum()),
-        max_rel_err_pct=float(rel.max()) if rel.size else float("nan"),
-        mean_rel_err_pct=mean_rel,
-        accuracy_pct=100.0 - mean_rel,
-        rmse_rpm=rmse,
+        n_nan_pred=int((measured & ~np.isfinite(yhat)).sum()),
+        max_rel_err_pct=rel.max_pct,
+        mean_rel_err_pct=rel.mean_pct,
+        accuracy_pct=100.0 - rel.mean_pct,
+        rel_threshold=rel.threshold,
+        n_rel_excluded=rel.n_excluded,
+        rel_note=rel.note,
+        rmse=rmse,
         nrmse=_ratio(rmse, float(ys.std()) if ys.size else float("nan")),
-        rmse_persistence_rpm=rmse_p,
+        rmse_persistence=rmse_p,
         skill=skill,
-        noise_floor_rpm=floor,
+        noise_floor=floor,
     )
 
 
@@ -130,47 +266,64 @@ def evaluate(
     y_true: np.ndarray,
     y_pred: np.ndarray,
     *,
-    rollers: Sequence[str] = ROLLERS,
+    channels: Sequence[str] = ROLLERS,
+    units: UnitsArg = None,
     persistence: np.ndarray | None = None,
-    true_speed: np.ndarray | None = None,
-    min_abs_rpm: float = 1.0,
-) -> dict[str, RollerMetrics]:
-    """Metrics per roller of predictions ``y_pred`` against measurements ``y_true``.
+    true_values: np.ndarray | None = None,
+    rel_floor: float = DEFAULT_REL_FLOOR,
+) -> dict[str, ChannelMetrics]:
+    """Metrics per output channel of predictions ``y_pred`` against measurements ``y_true``.
 
     Args:
-        y_true: measured speeds in rpm, ``(n, len(rollers))``; ``NaN`` = missing (not scored).
-        y_pred: predicted speeds in rpm, same shape; ``NaN`` = no prediction (counted).
-        rollers: column names.
+        y_true: measurements, ``(n, len(channels))`` (or ``(n,)`` for one channel), in each
+            channel's unit; ``NaN`` = missing (not scored).
+        y_pred: predictions, same shape; ``NaN`` = no prediction (counted in ``n_nan_pred``).
+        channels: channel names, one per column (default: the four FA320A rollers).
+        units: the channels' units: one string for all, one per channel, or a mapping by
+            channel name; ``""`` where not given.
         persistence: the persistence forecast on the same rows (for skill); see
             :func:`persistence_forecast`.
-        true_speed: true speeds in rpm (for the noise floor), when known.
-        min_abs_rpm: samples with ``|y| <`` this are excluded from relative errors.
+        true_values: the true values (for the noise floor), when known.
+        rel_floor: samples with ``|y|`` below ``rel_floor`` times the channel's scale (99th
+            percentile of ``|y|``) are left out of the relative errors; in ``[0, 1)``.
+
+    Raises:
+        DataError: an array's shape does not fit the named channels or ``y_true``'s rows.
+        ConfigError: ``rel_floor`` outside ``[0, 1)``.
     """
-    k = len(rollers)
-    y = _as_matrix(y_true, k, "y_true")
-    yhat = _as_matrix(y_pred, k, "y_pred")
-    assert y is not None and yhat is not None
-    pers = _as_matrix(persistence, k, "persistence")
-    true = _as_matrix(true_speed, k, "true_speed")
-    for name, arr in (("y_pred", yhat), ("persistence", pers), ("true_speed", true)):
+    names = _check_channels(channels)
+    if not 0.0 <= rel_floor < 1.0:
+        raise ConfigError(f"rel_floor must be in [0, 1), got {rel_floor}", where="rel_floor",
+                          fix="use a small fraction of the channel's scale, e.g. 0.01")  # fmt: skip
+    unit_of = _units(units, names)
+    y = _as_matrix(y_true, names, "y_true")
+    others = {"y_pred": y_pred, "persistence": persistence, "true_values": true_values}
+    arrays = {k: None if v is None else _as_matrix(v, names, k) for k, v in others.items()}
+    for what, arr in arrays.items():
         if arr is not None and arr.shape[0] != y.shape[0]:
-            raise DataError(f"{name} has {arr.shape[0]} rows but y_true has {y.shape[0]}")
+            raise DataError(f"{what} has {arr.shape[0]} rows but y_true has {y.shape[0]}",
+                            fix=f"give {what} one row per measured sample, on the same rows "
+                                "as y_true")  # fmt: skip
+    yhat, pers, true = arrays["y_pred"], arrays["persistence"], arrays["true_values"]
+    assert yhat is not None
     return {
-        name: _roller_metrics(
+        name: _channel_metrics(
             name,
+            unit_of[j],
             y[:, j],
             yhat[:, j],
             None if pers is None else pers[:, j],
             None if true is None else true[:, j],
-            min_abs_rpm,
+            rel_floor,
         )
-        for j, name in enumerate(rollers)
+        for j, name in enumerate(names)
     }
 
 
-def metrics_frame(metrics: Mapping[str, RollerMetrics], model: str | None = None) -> pd.DataFrame:
-    """A tidy DataFrame, one row per roller (plus a ``model`` column when given)."""
-    frame = pd.DataFrame([m.to_dict() for m in metrics.values()])
+def metrics_frame(metrics: Mapping[str, ChannelMetrics], model: str | None = None) -> pd.DataFrame:
+    """A tidy DataFrame, one row per channel (plus a ``model`` column when given); NaN where
+    a metric cannot be computed."""
+    frame = pd.DataFrame([asdict(m) for m in metrics.values()])
     if model is not None:
         frame.insert(0, "model", model)
     return frame

@@ -75,6 +75,11 @@ class Study:
     def _base(self) -> dict[str, Any]:
         return {"model_profile": self.profile.model_profile}
 
+    def _scored(self) -> dict[str, Any]:
+        """Configuration of the tasks that return metrics: the metric schema is part of their
+        identity, so results stored under an older schema are not reused."""
+        return {**self._base(), "metric_schema": tasks.METRIC_SCHEMA}
+
     def _hyper(self, best: dict[str, dict]) -> tuple[dict, dict]:
         """Hyperparameter overrides for the data-driven GRU and the residual models."""
         train = {
@@ -111,12 +116,12 @@ class Study:
         return {**rows, "best": best, "budget": budget}
 
     def data_models(self, seeds: list[int], hyper: dict) -> list[dict]:
-        configs = [{**self._base(), "seed": s, "hyper": hyper} for s in seeds]
+        configs = [{**self._scored(), "seed": s, "hyper": hyper} for s in seeds]
         return self._run("data model", tasks.data_model, configs)
 
     def hybrids(self, stage: str, models: list[str], seeds: list[int], hyper: dict, dms: dict[int, dict],
                 save: bool) -> list[dict]:  # fmt: skip
-        configs = [{**self._base(), "model": m, "seed": s, "hyper": hyper, "save_predictions": save,
+        configs = [{**self._scored(), "model": m, "seed": s, "hyper": hyper, "save_predictions": save,
                     "data_model_seed": ds, "_data_model": dms[ds]}
                    for m in models for s, ds in seeds]  # fmt: skip
         return self._run(stage, tasks.hybrid, configs)
@@ -186,16 +191,16 @@ class Study:
     def _ablation(self, abl: list[dict], n_tests: int) -> dict[str, Any]:
         acc = {v: [[abl[i * n_tests + k]["metrics"][r]["accuracy_pct"] for r in ROLLERS]
                    for k in range(n_tests)] for i, v in enumerate(ABLATION)}  # fmt: skip
-        rmse = {v: [[abl[i * n_tests + k]["metrics"][r]["rmse_rpm"] for r in ROLLERS]
+        rmse = {v: [[abl[i * n_tests + k]["metrics"][r]["rmse"] for r in ROLLERS]
                     for k in range(n_tests)] for i, v in enumerate(ABLATION)}  # fmt: skip
         summary = {
-            v: {r: _describe(np.array(acc[v])[:, j]) for j, r in enumerate(ROLLERS)}
+            v: {r: _describe(np.array(acc[v], dtype=float)[:, j]) for j, r in enumerate(ROLLERS)}
             for v in ABLATION
         }
         diffs = []
         for a, b in combinations(ABLATION, 2):
             for j, r in enumerate(ROLLERS):
-                xa, xb = np.array(acc[a])[:, j], np.array(acc[b])[:, j]
+                xa, xb = np.array(acc[a], dtype=float)[:, j], np.array(acc[b], dtype=float)[:, j]
                 spread = float(np.sqrt((xa.var(ddof=1) + xb.var(ddof=1)) / 2))
                 diff = float(xa.mean() - xb.mean())
                 p = (

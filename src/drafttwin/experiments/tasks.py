@@ -17,7 +17,7 @@ import torch
 
 from drafttwin import ROLLERS
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.evaluation.metrics import evaluate, persistence_forecast
+from drafttwin.evaluation.metrics import evaluate, json_number, persistence_forecast
 from drafttwin.experiments.prepare import PreparedData
 from drafttwin.experiments.store import task_key
 from drafttwin.models import MechanisticModel, make_model
@@ -38,19 +38,29 @@ def _artifact(config: dict[str, Any], data: PreparedData, suffix: str) -> Path:
     return folder / f"{task_key(config, data.digest)[:24]}{suffix}"
 
 
-def score(data: PreparedData, pred: np.ndarray, horizon: int = 1) -> dict[str, dict[str, float]]:
-    """Per-roller metrics on the scored test samples, plus RMSE against the true speed."""
+METRIC_SCHEMA = "channel-metrics-2"
+"""Names the fields of :func:`score`'s rows (``rmse``, ``noise_floor``, ``rel_threshold``, ...);
+changes whenever they change, so the study does not reuse results scored differently."""
+
+
+def score(data: PreparedData, pred: np.ndarray, horizon: int = 1) -> dict[str, dict[str, Any]]:
+    """Per-roller metrics on the scored test samples (JSON-safe: None where not computable),
+    plus ``rmse_vs_true``: RMSE against the plant's true value, in the channel's unit."""
     tr = data.n_train
+    series = data.series()
     pers = persistence_forecast(data.inputs, horizon)[tr:]
     true = None if data.true is None else data.true[tr:]
-    metrics = evaluate(data.target[tr:], pred[tr:], persistence=pers, true_speed=true)
+    metrics = evaluate(data.target[tr:], pred[tr:], channels=series.channels,
+                       units={c: series.unit(c) for c in series.channels}, persistence=pers,
+                       true_values=true)  # fmt: skip
     out = {}
-    for j, roller in enumerate(ROLLERS):
+    for j, roller in enumerate(series.channels):
         row = metrics[roller].to_dict()
-        row.pop("roller", None)
+        row.pop("channel", None)
         if true is not None:
             ok = np.isfinite(data.target[tr:, j]) & np.isfinite(pred[tr:, j])
-            row["rmse_vs_true_rpm"] = float(np.sqrt(np.mean((pred[tr:, j][ok] - true[ok, j]) ** 2)))
+            err = pred[tr:, j][ok] - true[ok, j]
+            row["rmse_vs_true"] = json_number(np.sqrt(np.mean(err**2)) if err.size else np.nan)
         out[roller] = row
     return out
 

@@ -15,7 +15,7 @@ from typing import Any
 from drafttwin import ROLLERS
 from drafttwin.report import paper
 from drafttwin.report.fmt import count_text, is_num, num, span
-from drafttwin.report.tables import paper_table2, paper_table3_stats
+from drafttwin.report.tables import metric_unit, paper_table2, paper_table3_stats
 
 AGREES, PARTLY, DISAGREES, NOT_IN_PAPER = "agrees", "partly", "does not agree", "not in paper"
 LABELS = {
@@ -85,7 +85,7 @@ def beats(results: Mapping[str, Any], a: str, b: str) -> Claim:
     The verdict compares directions with the paper's Table 2 on its own metric: a roller
     agrees when ``a`` has the lower mean relative error in both, or in neither.
     """
-    by_rmse = _lower(results, a, b, "rmse_rpm")
+    by_rmse = _lower(results, a, b, "rmse")
     by_rel = _lower(results, a, b, "mean_rel_err_pct")
     p_lower, p_tied = _paper_lower(a, b)
     paper_text = f"lower mean relative error on {count_text(p_lower)}"
@@ -120,9 +120,10 @@ def skill_claim(results: Mapping[str, Any], models: list[str]) -> Claim:
 def noise_floor_claim(results: Mapping[str, Any], models: list[str]) -> Claim:
     """How close the best model's RMSE per roller comes to the sensor-noise floor."""
     parts = []
+    unit = metric_unit(results)
     for r in ROLLERS:
-        floor = _metric(results, models[0], r, "noise_floor_rpm")
-        rmses = {m: _metric(results, m, r, "rmse_rpm") for m in models}
+        floor = _metric(results, models[0], r, "noise_floor")
+        rmses = {m: _metric(results, m, r, "rmse") for m in models}
         finite = {m: v for m, v in rmses.items() if is_num(v)}
         if not finite:
             continue
@@ -132,7 +133,9 @@ def noise_floor_claim(results: Mapping[str, Any], models: list[str]) -> Claim:
             if is_num(floor) and floor > 0
             else "noise floor unknown"
         )
-        parts.append(f"{r}: {label(best)} {num(finite[best], 3)} rpm = {ratio}")
+        parts.append(
+            f"{r}: {label(best)} {num(finite[best], 3)} {unit} = {ratio}".replace("  ", " ")
+        )
     return Claim(
         "How close does the best RMSE come to the sensor-noise floor?",
         "not reported",

@@ -10,21 +10,22 @@ import numpy as np
 
 from drafttwin import ROLLERS
 from drafttwin.report.agreement import label
-from drafttwin.report.fmt import DASH, is_num, num
+from drafttwin.report.fmt import DASH, is_num, num, with_unit
 from drafttwin.report.html import Cell, Raw, figure, join, para, section, table, tag
 from drafttwin.report.overview import is_plant
-from drafttwin.report.tables import compared_models, paper_table2
+from drafttwin.report.tables import compared_models, metric_unit, paper_table2
 
-# (key, header, decimals, lower is better)
+# (key, header, decimals, lower is better); headers in UNIT_HEADERS get the metrics' unit
 HONEST = (
-    ("rmse_rpm", "RMSE (rpm)", 3, True),
-    ("rmse_vs_true_rpm", "RMSE vs true (rpm)", 3, True),
+    ("rmse", "RMSE", 3, True),
+    ("rmse_vs_true", "RMSE vs true", 3, True),
     ("nrmse", "NRMSE", 3, True),
     ("skill", "skill vs persistence", 3, False),
     ("mean_rel_err_pct", "mean rel. err. (%)", 4, True),
     ("max_rel_err_pct", "max rel. err. (%)", 4, True),
     ("accuracy_pct", "accuracy (%)", 4, False),
 )
+UNIT_HEADERS = ("rmse", "rmse_vs_true")
 
 
 def _value(results: Mapping[str, Any], model: str, roller: str, key: str) -> float:
@@ -98,7 +99,7 @@ def _honest_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) 
     ncol = len(HONEST) + 3
     for r in ROLLERS:
         body.append(("group", [Cell(f"{r} roller", colspan=ncol)]))
-        floor = _value(results, main[0], r, "noise_floor_rpm")
+        floor = _value(results, main[0], r, "noise_floor")
         floor_cells: list = [Cell("noise floor (measured vs true speed)", cls="name")]
         body.append(("floor", floor_cells + [num(floor, 3)] + [""] * (ncol - 2)))
         best = {key: _best(results, main, r, key, lower) for key, _, _, lower in HONEST}
@@ -114,13 +115,26 @@ def _honest_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) 
     return body
 
 
+def _rel_notes(results: Mapping[str, Any]) -> list[str]:
+    """``"front (signal crosses zero: ...)"`` for every roller whose relative errors the
+    metrics omit, with the reason (the first model's; it depends on the measurement)."""
+    main = compared_models(results)[0]
+    out = []
+    for r in ROLLERS:
+        note = results["comparison"]["metrics"][main[0]][r].get("rel_note")
+        if note:
+            out.append(f"{r} ({note})")
+    return out
+
+
 def metrics_html(results: Mapping[str, Any]) -> Raw:
     """The honest metrics per roller and model; best value per roller highlighted."""
     main, extra = compared_models(results)
+    unit = metric_unit(results)
     head = [
         [
             Cell("model", header=True, cls="name"),
-            *[h for _, h, _, _ in HONEST],
+            *[with_unit(h, unit) if k in UNIT_HEADERS else h for k, h, _, _ in HONEST],
             "n scored",
             "no prediction",
         ]
@@ -151,6 +165,9 @@ def comparison_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) ->
         ),
         metrics_html(results),
     ]
+    notes = _rel_notes(results)
+    if notes:
+        parts.append(para("Relative errors omitted: " + "; ".join(notes) + ".", cls="note"))
     if extra:
         parts.append(
             para(

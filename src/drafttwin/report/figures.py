@@ -18,6 +18,7 @@ from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: 
 from scipy.signal import welch  # noqa: E402
 
 from drafttwin import ROLLERS  # noqa: E402
+from drafttwin.report.fmt import with_unit  # noqa: E402
 
 COLORS = {
     "measured": "#222222",
@@ -89,8 +90,10 @@ def predictions(
     preds: Mapping[str, np.ndarray],
     zoom_s: tuple[float, float],
     true: np.ndarray | None = None,
+    unit: str = "",
 ) -> bytes:
-    """Fig. 8 analogue: measured vs predicted speed per roller, whole test part and a zoom."""
+    """Fig. 8 analogue: measured vs predicted speed per roller, whole test part and a zoom;
+    ``unit`` labels the axes."""
     fig, axes = plt.subplots(len(ROLLERS), 2, figsize=(13, 2.4 * len(ROLLERS)),
                              gridspec_kw={"width_ratios": [2, 1]})  # fmt: skip
     zoom = (time_s >= zoom_s[0]) & (time_s <= zoom_s[1])
@@ -106,7 +109,7 @@ def predictions(
             for name, p in preds.items():
                 ax.plot(time_s[mask], p[mask, j], color=COLORS.get(name), lw=lw, alpha=0.85,
                         label=name)  # fmt: skip
-            ax.set_ylabel(f"{roller} (rpm)")
+            ax.set_ylabel(with_unit(roller, unit))
             ax.ticklabel_format(axis="y", useOffset=False)
             if j == 0:
                 ax.set_title("test part" if col == 0 else f"zoom {zoom_s[0]:.1f}-{zoom_s[1]:.1f} s")
@@ -118,8 +121,11 @@ def predictions(
     return _png(fig)
 
 
-def residuals(time_s: np.ndarray, resid: Mapping[str, np.ndarray], rate_hz: float) -> bytes:
-    """Residual time series (measured - predicted) and their spectra (Welch), per roller."""
+def residuals(
+    time_s: np.ndarray, resid: Mapping[str, np.ndarray], rate_hz: float, unit: str = ""
+) -> bytes:
+    """Residual time series (measured - predicted) and their spectra (Welch), per roller;
+    ``unit`` labels the axes."""
     fig, axes = plt.subplots(len(ROLLERS), 2, figsize=(13, 2.3 * len(ROLLERS)))
     for j, roller in enumerate(ROLLERS):
         for name, r in resid.items():
@@ -129,8 +135,8 @@ def residuals(time_s: np.ndarray, resid: Mapping[str, np.ndarray], rate_hz: floa
             if ok.sum() > 64:
                 f, p = welch(x[ok] - x[ok].mean(), fs=rate_hz, nperseg=min(1024, ok.sum() // 2))
                 axes[j, 1].semilogy(f[1:], p[1:], lw=0.8, color=COLORS.get(name), label=name)
-        axes[j, 0].set_ylabel(f"{roller} residual (rpm)")
-        axes[j, 1].set_ylabel("PSD (rpm²/Hz)")
+        axes[j, 0].set_ylabel(with_unit(f"{roller} residual", unit))
+        axes[j, 1].set_ylabel(with_unit("PSD", f"{unit}²/Hz" if unit else ""))
     handles, labels = axes[0, 0].get_legend_handles_labels()
     axes[-1, 0].set_xlabel("time (s)")
     axes[-1, 1].set_xlabel("frequency (Hz)")
@@ -174,10 +180,11 @@ def rmse_overview(
     rmse: Mapping[str, Sequence[float]],
     rmse_true: Mapping[str, Sequence[float]],
     noise_floor: Sequence[float],
+    unit: str = "",
 ) -> bytes:
     """RMSE per model and roller vs the measured (filled dot) and the true speed (open dot).
 
-    ``rmse`` and ``rmse_true`` map a model name to its four per-roller values (rpm);
+    ``rmse`` and ``rmse_true`` map a model name to its four per-roller values (in ``unit``);
     ``noise_floor`` holds the four floors (NaN where unknown), drawn as a dashed line. Log
     scale, one panel per roller, models top to bottom in the given order.
     """
@@ -202,7 +209,7 @@ def rmse_overview(
         ax.set_yticklabels(models)
         ax.set_ylim(-0.6, len(models) - 0.4)
         ax.set_title(roller)
-        ax.set_xlabel("RMSE (rpm)")
+        ax.set_xlabel(with_unit("RMSE", unit))
     handles, labels = axes[0].get_legend_handles_labels()
     fig.tight_layout(rect=(0, 0, 1, 0.9))
     fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)

@@ -53,3 +53,8 @@ def span(values: Sequence[float], nd: int = 3, unit: str = "") -> str:
     a, b = num(lo, nd).replace("-", "−"), num(hi, nd).replace("-", "−")
     text = a if a == b else (f"{a} to {b}" if lo < 0 else f"{a}–{b}")
     return f"{text}{unit}"
+
+
+def with_unit(label: str, unit: str) -> str:
+    """``"RMSE (rpm)"``; the bare label when the unit is unknown (``""``)."""
+    return f"{label} ({unit})" if unit else label

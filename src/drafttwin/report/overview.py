@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from drafttwin import ROLLERS
+from drafttwin.evaluation.metrics import DEFAULT_REL_FLOOR
 from drafttwin.report import agreement
 from drafttwin.report.fmt import DASH, is_num, seconds
 from drafttwin.report.html import (
@@ -20,6 +21,7 @@ from drafttwin.report.html import (
     tag,
     value_text,
 )
+from drafttwin.report.tables import metric_unit
 
 TITLE = "drafttwin study: predicting the bottom-roller speeds of an FA320A drafting section"
 
@@ -39,13 +41,22 @@ PLANT_LEAVES_OUT = (
     "assumptions, not measurements on an FA320A (docs/plant.md)"
 )
 METRIC_RULES = (
-    "Relative error = 100·|y − ŷ|/|y| in % (max and mean); prediction accuracy = 100 − mean "
-    "relative error (the paper's Table 3 quantity). RMSE in rpm; NRMSE = RMSE / std of the "
-    "measured test speed; skill = 1 − RMSE / RMSE of persistence (ŷ(t) = y(t−1)): 0 means no "
-    "better than repeating the last measurement. Noise floor = RMSE of measured vs true speed: "
-    "no model can predict the measurement better than that. Each prediction uses measurements "
-    "up to t−1 only; scalers and all fitted statistics come from the training part."
+    "Relative error = 100·|y − ŷ|/|y| in % (max and mean), over the samples with |y| at least "
+    "{floor:.0%} of the roller's scale (the 99th percentile of |y|; lower samples, start-up and "
+    "stops, "
+    "are excluded and counted; a signal that crosses zero gets none); prediction accuracy = "
+    "100 − mean relative error (the paper's Table 3 quantity). RMSE in {unit}; NRMSE = RMSE / "
+    "std of the measured test speed; skill = 1 − RMSE / RMSE of persistence (ŷ(t) = y(t−1)): 0 "
+    "means no better than repeating the last measurement. Noise floor = RMSE of measured vs "
+    "true speed: no model can predict the measurement better than that. Each prediction uses "
+    "measurements up to t−1 only; scalers and all fitted statistics come from the training part."
 )
+"""The scoring rules; ``{unit}`` is the metrics' unit, ``{floor}`` the relative-error floor."""
+
+
+def metric_rules(unit: str) -> str:
+    """The scoring rules for metrics in ``unit`` (``""``: undeclared)."""
+    return METRIC_RULES.format(unit=unit or "the signal's unit", floor=DEFAULT_REL_FLOOR)
 
 
 def is_plant(results: Mapping[str, Any]) -> bool:
@@ -54,7 +65,7 @@ def is_plant(results: Mapping[str, Any]) -> bool:
     if results["data"].get("plant_summary"):
         return True
     metrics = results["comparison"]["metrics"].values()
-    return any(is_num(m.get("noise_floor_rpm")) for per in metrics for m in per.values())
+    return any(is_num(m.get("noise_floor")) for per in metrics for m in per.values())
 
 
 def _hyper_items(prof: Mapping[str, Any]) -> dict[str, Any]:
@@ -225,7 +236,7 @@ def run_section(results: Mapping[str, Any]) -> Raw:
     parts += [
         tag("h3", "Scoring rules"),
         para(results["data"].get("scoring", DASH)),
-        para(METRIC_RULES, cls="note"),
+        para(metric_rules(metric_unit(results)), cls="note"),
     ]
     if results["data"].get("preprocessing"):
         parts += [

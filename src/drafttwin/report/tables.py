@@ -17,24 +17,38 @@ from drafttwin import ROLLERS
 from drafttwin.report import paper
 
 METRIC_COLUMNS = (
-    "rmse_rpm",
+    "rmse",
     "nrmse",
     "skill",
     "mean_rel_err_pct",
     "max_rel_err_pct",
     "accuracy_pct",
-    "noise_floor_rpm",
-    "rmse_vs_true_rpm",
-    "rmse_persistence_rpm",
+    "noise_floor",
+    "rmse_vs_true",
+    "rmse_persistence",
+    "rel_threshold",
     "n_scored",
-    "n_excluded_low",
+    "n_rel_excluded",
     "n_nan_pred",
 )
+"""Numeric columns of the metrics table; RMSEs, noise floor and threshold in ``unit``."""
+COUNT_COLUMNS = ("n_scored", "n_rel_excluded", "n_nan_pred")
 
 
 def as_float(value: Any) -> float:
     """A float, NaN for ``None`` (JSON null)."""
     return float("nan") if value is None else float(value)
+
+
+def metric_unit(results: Mapping[str, Any]) -> str:
+    """The unit of the comparison's metrics: the ``unit`` its rows share, ``""`` if they do
+    not share one or do not declare it."""
+    units = {
+        str(m.get("unit") or "")
+        for per_model in results["comparison"]["metrics"].values()
+        for m in per_model.values()
+    }
+    return units.pop() if len(units) == 1 else ""
 
 
 def compared_models(results: Mapping[str, Any]) -> tuple[list[str], list[str]]:
@@ -83,11 +97,13 @@ def metrics_table(results: Mapping[str, Any]) -> pd.DataFrame:
     for model in main + extra:
         for roller in ROLLERS:
             m = metrics[model][roller]
-            row: dict[str, Any] = {"model": model, "roller": roller, "extra": model in extra}
+            row: dict[str, Any] = {"model": model, "roller": roller, "extra": model in extra,
+                                   "unit": m.get("unit", "")}  # fmt: skip
             row.update({c: as_float(m.get(c)) for c in METRIC_COLUMNS})
+            row["rel_note"] = m.get("rel_note") or ""
             rows.append(row)
     frame = pd.DataFrame(rows)
-    for c in ("n_scored", "n_excluded_low", "n_nan_pred"):
+    for c in COUNT_COLUMNS:
         frame[c] = frame[c].astype("Int64")
     return frame
 
@@ -96,6 +112,7 @@ def table3(results: Mapping[str, Any]) -> pd.DataFrame:
     """Table 3 analogue: accuracy per variant, repeated test and roller, with the paper's."""
     abl = results["ablation"]
     seeds = list(abl["seeds"])
+    unit = metric_unit(results)
     rows = []
     for variant in abl["variants"]:
         acc = np.asarray(abl["accuracy"][variant], dtype=float)
@@ -112,7 +129,8 @@ def table3(results: Mapping[str, Any]) -> pd.DataFrame:
                         "seed": seed,
                         "roller": roller,
                         "accuracy_pct": acc[i, j],
-                        "rmse_rpm": rmse[i, j],
+                        "rmse": rmse[i, j],
+                        "unit": unit,
                         "paper_accuracy_pct": p,
                     }
                 )

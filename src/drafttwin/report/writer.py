@@ -60,9 +60,10 @@ def _prediction_figures(results: Mapping[str, Any], predictions: pd.DataFrame) -
     zoom = zoom_window(time_s)
     resid = {m: measured - p for m, p in preds.items()}
     rate = float(results["data"].get("rate_hz") or 1.0 / np.median(np.diff(time_s)))
+    unit = tables.metric_unit(results)
     return {
-        "predictions": figures.predictions(time_s, measured, shown, zoom, true=true),
-        "residuals": figures.residuals(time_s, resid, rate),
+        "predictions": figures.predictions(time_s, measured, shown, zoom, true=true, unit=unit),
+        "residuals": figures.residuals(time_s, resid, rate, unit=unit),
     }
 
 
@@ -73,7 +74,7 @@ def _summary_figures(results: Mapping[str, Any]) -> dict[str, bytes]:
     def values(key: str) -> dict[str, list[float]]:
         return {m: [tables.as_float(metrics[m][r].get(key)) for r in ROLLERS] for m in main + extra}
 
-    floor = [tables.as_float(metrics[main[0]][r].get("noise_floor_rpm")) for r in ROLLERS]
+    floor = [tables.as_float(metrics[main[0]][r].get("noise_floor")) for r in ROLLERS]
     abl = results["ablation"]
     acc = {v: np.asarray(abl["accuracy"][v], dtype=float) for v in abl["variants"]}
     paper_means = {
@@ -85,7 +86,9 @@ def _summary_figures(results: Mapping[str, Any]) -> dict[str, bytes]:
     }
     grid = {net: results["grid"][net] for net in ("lstm", "gru") if results["grid"].get(net)}
     return {
-        "rmse": figures.rmse_overview(values("rmse_rpm"), values("rmse_vs_true_rpm"), floor),
+        "rmse": figures.rmse_overview(
+            values("rmse"), values("rmse_vs_true"), floor, unit=tables.metric_unit(results)
+        ),
         "grid": figures.grid_losses(grid),
         "ablation": figures.ablation_spread(acc, paper_means),
     }
