@@ -17,7 +17,8 @@ import pandas as pd
 from scipy import stats
 
 from drafttwin import ROLLERS
-from drafttwin.evaluation import evaluate, persistence_forecast
+from drafttwin.evaluation import evaluate
+from drafttwin.models import persistence_forecast
 
 MEAN_RPM = np.array([1813.18, 434.07, 425.54, 354.62])
 NOISE_RPM = np.array([0.57, 0.27, 0.27, 0.27])

@@ -41,8 +41,10 @@ def test_fit_predict_evaluate_round_trip(data_file, tmp_path):
     out = json.loads(
         _ok(["evaluate", "--model", str(model), "--data", str(data_file), "--json"]).output
     )
-    assert set(out) == {"front", "second", "third", "back"}
-    for m in out.values():
+    assert out["model"] == "gru" and out["task"] == "prediction" and out["selection"] == {}
+    assert set(out["channels"]) == {"front", "second", "third", "back"}
+    assert out["split"]["mode"] == "chronological" and out["split"]["train_rows"] == 1120
+    for m in out["channels"].values():
         assert m["n_scored"] > 300 and np.isfinite(m["rmse"]) and m["noise_floor"] > 0
         assert m["unit"] == "rpm" and m["rel_note"] is None
 

@@ -23,8 +23,6 @@ from drafttwin.experiments.emps_data import TEST_FILE, TRAIN_FILE, find_data_dir
 from drafttwin.experiments.emps_physics import EmpsPhysics, rmse_mm
 from drafttwin.models import make_model
 
-from ._synthetic import one_thread
-
 
 def _data_dir() -> Path | None:
     try:
@@ -40,12 +38,6 @@ needs_data = pytest.mark.skipif(
     reason="EMPS data not found: set DRAFTTWIN_EMPS_DIR to the folder with DATA_EMPS.mat and "
     "DATA_EMPS_PULSES.mat (not shipped: licence unclear)",
 )
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with one_thread():
-        yield
 
 
 @pytest.fixture(scope="module")
@@ -163,7 +155,9 @@ def test_simulation_mode_ignores_test_outputs_after_the_window(records) -> None:
     series = test.head(1500).series()
     base = model.predict_values(series, mech)
     rng = np.random.default_rng(1)
-    noisy = series.with_values(series.values + np.r_[np.zeros(20), rng.normal(0, 0.05, 1480)][:, None])
+    noisy = series.with_values(
+        series.values + np.r_[np.zeros(20), rng.normal(0, 0.05, 1480)][:, None]
+    )
     np.testing.assert_array_equal(model.predict_values(noisy, mech), base)
     # the physics itself is causal: a 20-sample record gives the first 20 rows of a long one
     np.testing.assert_allclose(mech.predict(noisy.slice(0, 20)), mech.predict(series)[:20],

@@ -9,8 +9,9 @@ import numpy as np
 import pytest
 
 from drafttwin.errors import ConfigError, DataError
-from drafttwin.evaluation import ChannelMetrics, evaluate, metrics_frame, persistence_forecast
+from drafttwin.evaluation import ChannelMetrics, evaluate, metrics_frame
 from drafttwin.evaluation.metrics import NOTE_ALL_LOW, NOTE_CROSSES_ZERO, NOTE_ZERO
+from drafttwin.models import persistence_forecast
 
 
 def _one(y, yhat, **kw) -> ChannelMetrics:

@@ -1,38 +1,27 @@
-"""Estimator API: registry, profiles, refusals at the boundary, mechanistic sources."""
+"""Estimator API: registry, profiles, settings objects, refusals at the boundary."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
-import pandas as pd
 import pytest
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError, DrafttwinError
-from drafttwin.evaluation import persistence_forecast
 from drafttwin.models import (
     MDSL,
     MODEL_NAMES,
     PROFILES,
     GRUModel,
+    LSTMModel,
     MechanisticModel,
     NotFittedError,
+    Task,
+    Training,
     make_model,
+    persistence_forecast,
 )
 
-from ._synthetic import hyper_for, make_series, mechanistic, one_thread
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with one_thread():
-        yield
-
-
-@pytest.fixture(scope="module")
-def series() -> MeasurementSeries:
-    return make_series(200, seed=3)[0]
+from ._synthetic import hyper_for, mechanistic
 
 
 def test_registry_builds_every_name_under_every_profile() -> None:
@@ -41,9 +30,29 @@ def test_registry_builds_every_name_under_every_profile() -> None:
             model = make_model(name, profile=profile)
             assert model.name == name
     paper = make_model("md-s-l", profile="paper")
-    assert (paper.hidden, paper.layers, paper.data_hidden, paper.data_layers) == (256, 3, 128, 3)
-    assert (paper.batch_size, paper.epochs, paper.lr, paper.dropout) == (10, 500, 1e-3, 0.2)
+    assert (paper.hidden, paper.layers) == (256, 3)
+    assert (paper.data_model.hidden, paper.data_model.layers) == (128, 3)
+    tr = paper.training
+    assert (tr.batch_size, tr.epochs, tr.lr, tr.patience, paper.dropout) == (
+        10,
+        500,
+        1e-3,
+        None,
+        0.2,
+    )
+    assert paper.skip is False and make_model("md-s-l").skip is True
     assert make_model("md-s-l+d").use_disagreement is True
+
+
+def test_flat_options_map_onto_the_settings_objects() -> None:
+    model = make_model("md-s-l", epochs=3, lr=0.01, data_hidden=7, horizon=2, inputs=["u"])
+    assert model.training.epochs == 3 and model.training.lr == 0.01
+    assert model.data_model.hidden == 7 and model.data_model.training.epochs == 3
+    assert model.task == Task(horizon=2, inputs=("u",))
+    sim = make_model("parallel", task="simulation", init_samples=30)
+    assert sim.task.simulation and sim.task.init_samples == 30
+    assert sim.skip is None  # the profile's skip applies to one-step prediction only
+    assert make_model("md-s-l", task="simulation").data_model.skip is None
 
 
 def test_unknown_model_name_is_refused() -> None:
@@ -52,11 +61,16 @@ def test_unknown_model_name_is_refused() -> None:
     assert "md-s-l" in str(err.value)
 
 
-def test_unknown_profile_and_hyperparameter_are_refused() -> None:
+def test_unknown_profile_and_options_are_refused() -> None:
     with pytest.raises(ConfigError, match="unknown profile"):
         make_model("gru", profile="huge")
-    with pytest.raises(ConfigError, match="unknown hyperparameter"):
+    with pytest.raises(ConfigError, match=r"\['kernel'\] do not apply to the gru model") as err:
         make_model("gru", kernel=5)
+    assert "hidden" in str(err.value) and "epochs" in str(err.value)
+    with pytest.raises(ConfigError, match=r"\['epochs', 'seed'\] do not apply to the mechanistic"):
+        make_model("mechanistic", seed=1, epochs=3)
+    with pytest.raises(ConfigError, match="data_hidden"):
+        make_model("parallel", data_hidden=8)
 
 
 @pytest.mark.parametrize(
@@ -69,36 +83,63 @@ def test_unknown_profile_and_hyperparameter_are_refused() -> None:
         ("md-s-l", {"folds": 1}, "folds"),
         ("md-s-l", {"variant": "md-x"}, "variant"),
         ("lstm", {"device": "tpu-9"}, "device"),
+        ("gru", {"lr": -1.0}, "lr"),
+        ("gru", {"task": "forecast"}, "unknown task"),
     ],
 )
-def test_invalid_hyperparameters_are_refused_at_fit(name, hyper, field, series) -> None:
-    model = make_model(name, **hyper_for(name, **hyper))
+def test_invalid_hyperparameters_are_refused(name, hyper, field, series, mech) -> None:
     with pytest.raises(ConfigError, match=field):
-        model.fit(series, MechanisticModel(mechanistic))
+        make_model(name, **hyper_for(name, **hyper)).fit(series, mech)
+
+
+def test_options_that_mean_nothing_for_the_task_are_refused(series, mech) -> None:
+    with pytest.raises(ConfigError, match="accumulate=True does not apply .* 'prediction'"):
+        make_model("parallel", **hyper_for("parallel", accumulate=True)).fit(series, mech)
+    gru = GRUModel(skip=True, task=Task("simulation"), training=Training(epochs=1))
+    with pytest.raises(ConfigError, match="skip=True does not apply .* 'simulation'"):
+        gru.fit(series)
+    with pytest.raises(ConfigError, match="init_samples=5 is only meaningful for task 'simul"):
+        Task(init_samples=5)
+    with pytest.raises(ConfigError, match="horizon=2 is only meaningful"):
+        Task("simulation", horizon=2)
+    with pytest.raises(ConfigError, match="both inputs and outputs"):
+        Task(outputs=("y",), inputs=("y",))
+    with pytest.raises(ConfigError, match="takes no exogenous inputs"):
+        make_model("persistence", inputs=("supply_hz",)).fit(series)
+    with pytest.raises(ConfigError, match="val_fraction is 0"):
+        make_model("parallel", task="simulation", val_fraction=0.0, **hyper_for("parallel")).fit(
+            series, mech
+        )
+
+
+def test_simulation_window_longer_than_the_measured_start_is_refused(series, mech) -> None:
+    model = make_model("gru", task="simulation", init_samples=4, **hyper_for("gru"))
+    with pytest.raises(ConfigError, match="window=8 is longer than the 4 measured rows"):
+        model.fit(series)
 
 
 @pytest.mark.parametrize("name", MODEL_NAMES)
-def test_predict_before_fit_is_refused(name: str, series) -> None:
+def test_predict_before_fit_is_refused(name: str, series, mech) -> None:
     with pytest.raises(NotFittedError, match="not fitted"):
-        make_model(name).predict_values(series, MechanisticModel(mechanistic))
+        make_model(name).predict_values(series, mech)
 
 
-def test_wrong_roller_count_is_refused(series) -> None:
-    three = MeasurementSeries(
-        series.time_s, series.values[:, :3], channels=("front", "second", "third")
-    )
-    with pytest.raises(DataError, match="3 roller column"):
-        make_model("gru", **hyper_for("gru")).fit(three)
-    fitted = make_model("persistence").fit(series)
-    with pytest.raises(DataError, match="3 roller column"):
-        fitted.predict_values(three)
+def test_channels_are_those_of_the_fit(series) -> None:
+    three = MeasurementSeries(series.time_s, series.values[:, :3], channels=("a", "b", "c"))
+    model = make_model("gru", **hyper_for("gru")).fit(three)
+    assert model.channels_ == ("a", "b", "c")
+    assert model.predict_values(three).shape == (len(three), 3)
+    with pytest.raises(DataError, match=r"output channels \['front'.* fitted on \['a'"):
+        model.predict_values(series)
+    declared = make_model("persistence", outputs=("front", "second", "third", "back"))
+    with pytest.raises(DataError, match="the model predicts"):
+        declared.fit(three)
 
 
-def test_other_roller_names_are_refused_at_predict(series) -> None:
-    fitted = make_model("persistence").fit(series)
-    renamed = MeasurementSeries(series.time_s, series.values, channels=("a", "b", "c", "d"))
-    with pytest.raises(DataError, match="fitted on"):
-        fitted.predict_values(renamed)
+def test_missing_input_channel_is_named(series) -> None:
+    model = make_model("gru", inputs=("u",), **hyper_for("gru"))
+    with pytest.raises(DataError, match="no input channel 'u'"):
+        model.fit(series)
 
 
 def test_not_a_series_is_refused() -> None:
@@ -111,15 +152,15 @@ def test_hybrid_without_mechanistic_is_refused(series) -> None:
         make_model("parallel", **hyper_for("parallel")).fit(series)
 
 
-def test_too_short_training_part_is_refused(series) -> None:
+def test_too_short_training_part_is_refused(series, mech) -> None:
     with pytest.raises(DataError, match="too short"):
-        MDSL(**hyper_for("md-s-l")).fit(series.slice(0, 10), MechanisticModel(mechanistic))
+        make_model("md-s-l", **hyper_for("md-s-l")).fit(series.slice(0, 10), mech)
     with pytest.raises(DataError, match="training window"):
-        GRUModel(**hyper_for("gru")).fit(series.slice(0, 9))
+        make_model("gru", **hyper_for("gru")).fit(series.slice(0, 9))
 
 
 def test_predict_on_a_short_series_is_all_nan(series) -> None:
-    model = GRUModel(**hyper_for("gru")).fit(series)
+    model = make_model("gru", **hyper_for("gru")).fit(series)
     assert np.isnan(model.predict_values(series.slice(0, 8))).all()
 
 
@@ -135,6 +176,20 @@ def test_persistence_model_is_the_last_observation(series) -> None:
     assert pred[51, 1] == rpm[49, 1]  # missing y_50 -> carry y_49 forward
 
 
+def test_persistence_and_windows_never_cross_a_record_boundary(series) -> None:
+    two = MeasurementSeries.concat([series.slice(0, 100), series.slice(100)])
+    pers = make_model("persistence").fit(two).predict_values(two)
+    assert np.isnan(pers[100]).all() and np.isnan(pers[0]).all()
+    np.testing.assert_array_equal(pers[101], two.values[100])
+    gru = make_model("gru", **hyper_for("gru")).fit(two)
+    pred = gru.predict_values(two)
+    window = gru.window
+    assert np.isnan(pred[100 : 100 + window]).all()  # a new record needs its own window
+    assert np.isfinite(pred[100 + window :]).all() and np.isfinite(pred[window:100]).all()
+    # the second record alone gives the same numbers: nothing leaks across the boundary
+    np.testing.assert_allclose(pred[100:], gru.predict_values(two.slice(100)), atol=1e-6)
+
+
 def test_get_and_set_params() -> None:
     model = make_model("gru", hidden=7)
     assert model.get_params()["hidden"] == 7
@@ -144,69 +199,22 @@ def test_get_and_set_params() -> None:
     assert "hidden=9" in repr(model)
 
 
+def test_mdsl_takes_its_data_model_as_an_object(series, mech) -> None:
+    lstm = LSTMModel(window=6, hidden=5, layers=1, training=Training(epochs=1, device="cpu"))
+    tiny = {k: v for k, v in hyper_for("md-s-l").items() if not k.startswith("data_")}
+    model = make_model("md-s-l", data_model=lstm, **tiny)
+    assert model.data_model.get_params() == {**lstm.get_params(), "training": lstm.training
+                                             .replace(epochs=2, patience=2, batch_size=64)}  # fmt: skip
+    model = MDSL(window=8, hidden=4, layers=1, sk_channels=6, folds=2, data_model=lstm,
+                 training=Training(epochs=1, device="cpu"), quiet=True)  # fmt: skip
+    assert model.data_model is lstm
+    model.fit(series, mech)
+    assert isinstance(model.data_model_, LSTMModel) and model.data_model_.hidden == 5
+    assert model.data_model_.task == model.task
+    with pytest.raises(ConfigError, match="data_model must be an unfitted GRUModel"):
+        make_model("md-s-l", data_model="gru").fit(series, mech)
+
+
 def test_errors_are_drafttwin_errors() -> None:
     assert issubclass(NotFittedError, DrafttwinError)
-
-
-# ----- mechanistic sources ---------------------------------------------------------------
-def _sim_frame(time_s: np.ndarray) -> pd.DataFrame:
-    mech = mechanistic(time_s)
-    return pd.DataFrame({"time": time_s, **{r: mech[:, j] for j, r in enumerate(
-        ("front", "second", "third", "back"))}})  # fmt: skip
-
-
-@pytest.mark.parametrize("suffix", [".csv", ".parquet"])
-def test_file_source_is_interpolated_onto_the_grid(suffix: str, series, tmp_path: Path) -> None:
-    coarse = np.arange(0, series.time_s[-1] + 0.05, 0.05)
-    frame = _sim_frame(coarse)
-    path = tmp_path / f"sim{suffix}"
-    frame.to_parquet(path) if suffix == ".parquet" else frame.to_csv(path, index=False)
-    got = MechanisticModel(path).predict(series)
-    want = np.column_stack(
-        [np.interp(series.time_s, coarse, frame[r]) for r in ("front", "second", "third", "back")]
-    )
-    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
-
-
-def test_file_source_not_covering_the_span_is_refused(series, tmp_path: Path) -> None:
-    path = tmp_path / "short.csv"
-    _sim_frame(np.arange(0, 1.0, 0.01)).to_csv(path, index=False)
-    with pytest.raises(DataError, match="covers 0 s to 0.99 s") as err:
-        MechanisticModel(path).predict(series)
-    assert str(path) in str(err.value)
-
-
-def test_file_source_problems_are_named(tmp_path: Path) -> None:
-    bad = tmp_path / "bad.csv"
-    bad.write_text("time,front,second,third,back\n0,1,2,3,4\n0.01,1,x,3,4\n")
-    with pytest.raises(DataError, match="column 'second'"):
-        MechanisticModel(bad)
-    back = tmp_path / "back.csv"
-    back.write_text("time,front,second,third,back\n0,1,2,3,4\n0,1,2,3,4\n")
-    with pytest.raises(DataError, match="not strictly increasing"):
-        MechanisticModel(back)
-    no_time = tmp_path / "nt.csv"
-    no_time.write_text("front,second,third,back\n1,2,3,4\n1,2,3,4\n")
-    with pytest.raises(DataError, match="no time column"):
-        MechanisticModel(no_time)
-    with pytest.raises(DataError, match="file not found"):
-        MechanisticModel(tmp_path / "missing.csv")
-
-
-def test_column_mapping(series, tmp_path: Path) -> None:
-    frame = _sim_frame(series.time_s).rename(columns={"front": "v1", "back": "v4"})
-    model = MechanisticModel(frame, columns={"front": "v1", "back": "v4"})
-    np.testing.assert_allclose(model.predict(series), mechanistic(series.time_s), atol=1e-9)
-
-
-def test_array_and_callable_sources_are_checked(series) -> None:
-    arr = mechanistic(series.time_s)
-    np.testing.assert_array_equal(MechanisticModel(arr).predict(series), arr)
-    with pytest.raises(DataError, match="rows but the series has"):
-        MechanisticModel(arr[:-1]).predict(series)
-    with pytest.raises(DataError, match="shape"):
-        MechanisticModel(lambda t: np.zeros((len(t), 3))).predict(series)
-    with pytest.raises(DataError, match="finite"):
-        MechanisticModel(lambda t: np.full((len(t), 4), np.nan)).predict(series)
-    with pytest.raises(DataError, match="cannot use"):
-        MechanisticModel(42)  # type: ignore[arg-type]
+    assert MechanisticModel(mechanistic).required_inputs() == ()

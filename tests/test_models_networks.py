@@ -7,14 +7,6 @@ import torch
 
 from drafttwin.models.networks import RecurrentRegressor, ResidualNet, SKConv1d
 
-from ._synthetic import one_thread
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with one_thread():
-        yield
-
 
 def test_sknet_shapes_and_attention_sum_to_one() -> None:
     torch.manual_seed(0)

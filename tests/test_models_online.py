@@ -8,7 +8,7 @@ import pytest
 from drafttwin.errors import DataError
 from drafttwin.models import MechanisticModel, OnlinePredictor, make_model
 
-from ._synthetic import hyper_for, make_series, mechanistic, one_thread
+from ._synthetic import hyper_for, make_series, mechanistic
 
 ALL = [
     "mechanistic",
@@ -21,12 +21,6 @@ ALL = [
     "md-s",
     "md-s-l+d",
 ]
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with one_thread():
-        yield
 
 
 @pytest.fixture(scope="module")
@@ -69,7 +63,9 @@ def test_online_from_scratch_matches_and_starts_with_nan(series) -> None:
 
 def test_online_refuses_bad_rows(series) -> None:
     online = OnlinePredictor(make_model("persistence").fit(series))
-    with pytest.raises(DataError, match="4 roller speeds"):
+    with pytest.raises(
+        DataError, match=r"a row needs 4 values \(front, second, third, back\), got 3"
+    ):
         online.observe(0.0, [1.0, 2.0, 3.0])
 
 

@@ -15,7 +15,7 @@ from drafttwin.models.windows import (
     target_rows,
 )
 
-from ._synthetic import hyper_for, make_series, mechanistic, one_thread
+from ._synthetic import hyper_for, make_series, mechanistic
 
 ALL = [
     "mechanistic",
@@ -30,12 +30,6 @@ ALL = [
 ]
 N_TRAIN = 240
 T_CUT = 290  # rows >= T_CUT are altered
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with one_thread():
-        yield
 
 
 @pytest.fixture(scope="module")

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from drafttwin.errors import ModelFileError
+from drafttwin.errors import ConfigError, ModelFileError
 from drafttwin.models import (
     FORMAT_VERSION,
     MDSL,
@@ -17,8 +18,11 @@ from drafttwin.models import (
     load_model,
     make_model,
 )
+from drafttwin.models.params import encode_params
 
-from ._synthetic import hyper_for, make_series, mechanistic, one_thread
+from ._synthetic import hyper_for, make_series, mechanistic
+
+BELT = Path(__file__).resolve().parents[1] / "docs" / "examples" / "belt_drive.toml"
 
 ALL = [
     "mechanistic",
@@ -31,12 +35,6 @@ ALL = [
     "md-s",
     "md-s-l+d",
 ]
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with one_thread():
-        yield
 
 
 @pytest.fixture(scope="module")
@@ -58,16 +56,19 @@ def test_round_trip_gives_identical_predictions(name: str, series, tmp_path: Pat
     path = model.save(tmp_path / "m.pt")
     loaded = load_model(path)
     assert type(loaded) is type(model)
-    assert loaded.get_params() == model.get_params()
+    assert encode_params(loaded.get_params()) == encode_params(model.get_params())
     assert loaded.name == model.name
-    np.testing.assert_array_equal(loaded.predict_values(series, mech), model.predict_values(series, mech))
+    np.testing.assert_array_equal(
+        loaded.predict_values(series, mech), model.predict_values(series, mech)
+    )
     if hasattr(model, "history_"):
         assert loaded.history_.train_loss == model.history_.train_loss
 
 
 def test_class_load_and_file_contents(gru_file: Path, series) -> None:
     model = GRUModel.load(gru_file)
-    assert model.rollers_ == series.channels
+    assert model.channels_ == series.channels
+    assert model.units_ == {c: "rpm" for c in series.channels}
     payload = torch.load(gru_file, weights_only=True)
     assert payload["format"] == "drafttwin-model"
     assert payload["format_version"] == FORMAT_VERSION
@@ -126,10 +127,30 @@ def test_refuses_a_truncated_file(gru_file: Path, tmp_path: Path) -> None:
 
 def test_refuses_inconsistent_weights(gru_file: Path, tmp_path: Path) -> None:
     payload = torch.load(gru_file, weights_only=True)
-    payload["params"]["hidden"] = 5  # the stored tensors no longer fit
+    params = json.loads(payload["params_json"])
+    payload["params_json"] = json.dumps({**params, "hidden": 5})  # tensors no longer fit
     path = tmp_path / "bad.pt"
     torch.save(payload, path)
     with pytest.raises(ModelFileError, match="damaged or inconsistent"):
+        load_model(path)
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        ({"window": 0}, "window=0 is invalid"),
+        ({"training": {"__training__": {"epochs": 0}}}, "training setting epochs=0"),
+        ({"task": {"__task__": {"kind": "prediction", "horizon": 0}}}, "horizon=0"),
+        ({"task": {"__model__": "Evil", "params": {}}}, "unknown estimator class 'Evil'"),
+    ],
+)
+def test_refuses_invalid_hyperparameters_on_load(gru_file, tmp_path, change, match) -> None:
+    """Model files are validated on load as on save: a hand-edited file is refused."""
+    payload = torch.load(gru_file, weights_only=True)
+    payload["params_json"] = json.dumps({**json.loads(payload["params_json"]), **change})
+    path = tmp_path / "edited.pt"
+    torch.save(payload, path)
+    with pytest.raises(ModelFileError, match=match):
         load_model(path)
 
 
@@ -141,8 +162,9 @@ def test_save_is_atomic_and_refuses_unfitted(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
-def test_saved_preset_or_file_source_is_reused(series, tmp_path: Path) -> None:
-    """A file-based mechanistic source is recorded in the model and reused by predict."""
+def test_a_file_source_is_named_but_never_read_back_from_the_model(series, tmp_path) -> None:
+    """A model file names the simulator output it was fitted with but never makes predict
+    read a path recorded in it: the user passes the source again."""
     frame = series.to_frame()[["time"]].copy()
     mech = mechanistic(series.time_s)
     for j, name in enumerate(series.channels):
@@ -151,4 +173,27 @@ def test_saved_preset_or_file_source_is_reused(series, tmp_path: Path) -> None:
     frame.to_csv(csv, index=False)
     model = make_model("parallel", **hyper_for("parallel")).fit(series, MechanisticModel(csv))
     loaded = load_model(model.save(tmp_path / "p.pt"))
-    np.testing.assert_array_equal(loaded.predict_values(series), model.predict_values(series, csv))
+    with pytest.raises(ConfigError, match=r"fitted with the simulator output file\(s\) .*sim.csv"):
+        loaded.predict_values(series)
+    np.testing.assert_array_equal(loaded.predict_values(series, MechanisticModel(csv)),
+                                  model.predict_values(series, MechanisticModel(csv)))  # fmt: skip
+
+
+def test_a_drive_train_source_is_stored_whole(tmp_path) -> None:
+    """A drive train (the user's TOML) is kept in the model file: predict needs no file."""
+    from drafttwin.data.series import MeasurementSeries
+    from drafttwin.mechanics import DriveTrain
+
+    toml = tmp_path / "train.toml"
+    toml.write_text(BELT.read_text())
+    train = DriveTrain.from_toml(toml)
+    t = np.arange(1, 301) * 0.01
+    u = np.where(t < 1.0, 6.0, 8.0)
+    physics = MechanisticModel.from_train(train)
+    truth = physics.predict(MeasurementSeries(t, np.zeros(300), channels=("y",), inputs={"u": u}))
+    y = truth[:, 0] * 1.01
+    data = MeasurementSeries(t, y, channels=("y",), units={"y": "rad/s"}, inputs={"u": u})
+    model = make_model("mechanistic").fit(data, MechanisticModel.from_config(toml))
+    toml.unlink()  # the file is gone; the model holds the train
+    loaded = load_model(model.save(tmp_path / "m.pt"))
+    np.testing.assert_array_equal(loaded.predict_values(data), truth)

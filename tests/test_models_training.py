@@ -6,22 +6,26 @@ import numpy as np
 import pytest
 import torch
 
-from drafttwin.models import MechanisticModel, TrainConfig, make_model, train_network
+from drafttwin.errors import ConfigError
+from drafttwin.models import MechanisticModel, Training, make_model, train_network
 from drafttwin.models.networks import RecurrentRegressor, ResidualNet
 from drafttwin.models.training import FitProgress, _mean_loss, split_sizes
 
-from ._synthetic import hyper_for, make_series, mechanistic, one_thread
-
-
-@pytest.fixture(autouse=True, scope="module")
-def _one_thread():
-    with one_thread():
-        yield
+from ._synthetic import hyper_for, make_series, mechanistic
 
 
 @pytest.fixture(scope="module")
 def series():
     return make_series(260, seed=4)[0]
+
+
+def test_training_settings_are_checked_on_construction() -> None:
+    for bad in ({"epochs": 0}, {"lr": float("nan")}, {"val_fraction": 1.0}, {"stride": 0},
+                {"patience": 0}, {"clip_norm": -1.0}, {"device": "tpu-9"}, {"batch_size": True}):  # fmt: skip
+        name = next(iter(bad))
+        with pytest.raises(ConfigError, match=f"training setting {name}="):
+            Training(**bad)
+    assert Training(epochs=3).replace(lr=0.1) == Training(epochs=3, lr=0.1)
 
 
 def _toy(n: int = 101, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -55,7 +59,7 @@ def test_best_weights_are_restored() -> None:
     x, y = _toy()
     torch.manual_seed(0)
     net = RecurrentRegressor(4, 4, hidden=8, layers=1, skip=False)
-    cfg = TrainConfig(epochs=6, batch_size=16, lr=0.05, patience=None, device="cpu")
+    cfg = Training(epochs=6, batch_size=16, lr=0.05, patience=None, device="cpu")
     hist = train_network(net, x, y, cfg)
     n_train, n_val = split_sizes(len(x), cfg.val_fraction)
     assert (hist.n_train, hist.n_val) == (n_train, n_val) == (81, 20)
@@ -70,8 +74,9 @@ def test_early_stopping_with_patience() -> None:
     x, y = _toy()
     torch.manual_seed(0)
     net = RecurrentRegressor(4, 4, hidden=4, layers=1)
-    cfg = TrainConfig(epochs=20, batch_size=32, lr=0.0, patience=2, device="cpu")
-    hist = train_network(net, x, y, cfg)  # lr 0: no improvement after the first epoch
+    cfg = Training(epochs=20, batch_size=32, lr=0.01, patience=2, device="cpu")
+    # a criterion that never improves after the first epoch: stop after `patience` more
+    hist = train_network(net, x, y, cfg, validate=lambda net: 1.0)
     assert hist.stopped_early
     assert len(hist.train_loss) == 3
 
@@ -83,7 +88,7 @@ def test_no_validation_part_and_batch_of_one() -> None:
     y = rng.random((33, 4)).astype(np.float32)
     torch.manual_seed(0)
     net = ResidualNet(8, 4, sk_channels=6, hidden=4, layers=1)
-    hist = train_network(net, x, y, TrainConfig(epochs=2, batch_size=8, val_fraction=0.0))
+    hist = train_network(net, x, y, Training(epochs=2, batch_size=8, val_fraction=0.0))
     assert hist.n_val == 0 and hist.val_loss == []
     assert len(hist.train_loss) == 2
 

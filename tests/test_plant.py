@@ -67,12 +67,12 @@ def test_shipped_default_data_set_is_what_the_code_generates(default):
     n = len(frame)
     np.testing.assert_array_equal(frame[list(ROLLERS)].to_numpy(), default.values[:n])
     np.testing.assert_array_equal(
-        frame[[f"true_{r}" for r in ROLLERS]].to_numpy(), default.metadata["true_rpm"][:n]
+        frame[[f"true_{r}" for r in ROLLERS]].to_numpy(), default.truth[:n]
     )
 
 
 def test_encoder_quantisation_and_noise_floor(default):
-    truth = default.metadata["true_rpm"]
+    truth = default.truth
     ok = ~np.isnan(default.values) & ~default.metadata["outlier_mask"]
     step = quantisation_step_rpm(Sensors(), 100.0)
     assert step == pytest.approx(0.6)
@@ -105,7 +105,7 @@ def test_injected_defects_are_found_and_repaired(default):
     recall = (found & injected).sum() / injected.sum()
     precision = (found & injected).sum() / max(found.sum(), 1)
     assert recall >= 0.95 and precision >= 0.95
-    truth = default.metadata["true_rpm"]
+    truth = default.truth
     rel = np.abs(clean.values - truth) / truth
     assert rel.max() < 0.01  # no spike survives; repaired samples are near the truth
 
@@ -113,7 +113,7 @@ def test_injected_defects_are_found_and_repaired(default):
 def test_plant_differs_from_the_nominal_model_but_not_wildly(default):
     nominal = DriveTrain.preset("fa320a")
     mech = simulate_on_grid(nominal, default.time_s[:2000])
-    truth = default.metadata["true_rpm"][:2000]
+    truth = default.truth[:2000]
     rel = np.abs(mech.mean(axis=0) - truth.mean(axis=0)) / truth.mean(axis=0)
     assert np.all(rel > 1e-5)  # true parameters and loads differ from the nominal ones
     assert np.all(rel < 5e-3)  # but the machine is the same machine

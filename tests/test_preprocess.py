@@ -276,6 +276,24 @@ def test_causal_spike_rejection_uses_only_the_past():
     assert rejected_y[:5].tolist() == rejected[:5].tolist()
 
 
+def test_causal_rejection_follows_a_step_after_one_sample():
+    """A fast genuine change (a speed step) is held for one sample, then followed: only
+    isolated samples are spikes, and the cleaning never stays stuck on the old level."""
+    from drafttwin.data.preprocess import reject_spikes_causal
+
+    step = np.r_[np.full(5, 60.0), 50.0, 49.0, np.full(5, 48.5)]  # 10 in one sample > 10 %
+    clean, rejected = reject_spikes_causal(step, 0.10)
+    assert rejected.tolist() == [False] * 5 + [True] + [False] * 6
+    np.testing.assert_array_equal(clean[6:], step[6:])
+    ramp = np.r_[np.full(3, 60.0), 52.0, 44.0, 40.0, 39.0]  # held until two samples agree
+    assert reject_spikes_causal(ramp, 0.10)[1].tolist() == [False] * 3 + [True, True, False, False]
+    # from standstill 10 % of the last value is nothing: without a floor a start-up is lost,
+    # with one (the protocol takes half the training data's typical level) it is kept
+    start = np.r_[0.0, 0.0, np.linspace(3.0, 30.0, 10)]
+    assert reject_spikes_causal(start, 0.10)[1].tolist() == [False] * 2 + [True] * 10
+    assert not reject_spikes_causal(start, 0.10, floor=40.0)[1].any()
+
+
 # -------------------------------------------------------------------------------- records
 
 
@@ -364,7 +382,8 @@ def test_causal_rejection_restarts_at_each_record() -> None:
 
     x = np.array([100.0, 101.0, 200.0, 201.0, 300.0])
     _, rejected = reject_spikes_causal(x)
-    assert rejected.tolist() == [False, False, True, True, True]
+    # 200 jumps: rejected; 201 agrees with it, so the level moved: followed from there on
+    assert rejected.tolist() == [False, False, True, False, True]
     _, rejected = reject_spikes_causal(x, record_starts=(0, 2, 4))
     assert rejected.tolist() == [False, False, False, False, False]
     series = _records(x[:2, None], x[2:, None])

@@ -1,13 +1,127 @@
-"""drafttwin: mechanism-data hybrid models of a drawing frame's drafting section (FA320A)."""
+"""drafttwin: mechanism-data hybrid models of drive trains, with the FA320A drawing frame's
+drafting section built in.
 
-from importlib.metadata import PackageNotFoundError, version
+The public API in one place (``import drafttwin as dt``)::
 
-try:
-    __version__ = version("drafttwin")
-except PackageNotFoundError:  # running from a source tree without installation
-    __version__ = "0.0.0"
+    series = dt.read_measurements("run.csv", outputs=["y"], inputs=["u"], units={"y": "m"})
+    physics = dt.MechanisticModel.from_config("my_train.toml")    # or a simulator output file
+    model = dt.make_model("md-s-l", task="simulation", inputs=["u"], init_samples=20)
+    part = dt.fit(model, series, test=dt.read_measurements("test.csv", ...), mechanistic=physics)
+    frame = model.predict(part.test, physics)        # time + one column per output channel
+    print(dt.evaluate(model, part, mechanistic=physics).to_frame())
 
-ROLLERS: tuple[str, ...] = ("front", "second", "third", "back")
-"""The four bottom rollers of the 4-over-4 drafting section, delivery side first."""
+Names are loaded on first use, so ``import drafttwin`` stays light (PyTorch and numba load
+with the models and the mechanics).
+"""
 
-__all__ = ["ROLLERS", "__version__"]
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+from drafttwin._constants import ROLLERS, __version__
+
+_EXPORTS: dict[str, str] = {
+    # measurements
+    "MeasurementSeries": "drafttwin.data.series",
+    "read_measurements": "drafttwin.data.io",
+    "write_measurements": "drafttwin.data.io",
+    "preprocess": "drafttwin.data.preprocess",
+    # physics
+    "DriveTrain": "drafttwin.mechanics",
+    "kinematics": "drafttwin.mechanics",
+    "simulate": "drafttwin.mechanics",
+    "simulate_channels": "drafttwin.mechanics",
+    # models
+    "MechanisticModel": "drafttwin.models",
+    "Task": "drafttwin.models",
+    "Training": "drafttwin.models",
+    "make_model": "drafttwin.models",
+    "load_model": "drafttwin.models",
+    "MODEL_NAMES": "drafttwin.models",
+    "GRUModel": "drafttwin.models",
+    "LSTMModel": "drafttwin.models",
+    "ParallelHybrid": "drafttwin.models",
+    "MDSL": "drafttwin.models",
+    "MechanisticBaseline": "drafttwin.models",
+    "PersistenceModel": "drafttwin.models",
+    # the evaluation protocol
+    "split": "drafttwin.evaluation.protocol",
+    "fit": "drafttwin.evaluation.protocol",
+    "evaluate": "drafttwin.evaluation.protocol",
+    "Evaluation": "drafttwin.evaluation.protocol",
+    # errors
+    "DrafttwinError": "drafttwin.errors",
+    "ConfigError": "drafttwin.errors",
+    "DataError": "drafttwin.errors",
+    "ModelFileError": "drafttwin.errors",
+}
+
+__all__ = [
+    "ROLLERS",
+    "__version__",
+    "MeasurementSeries",
+    "read_measurements",
+    "write_measurements",
+    "preprocess",
+    "DriveTrain",
+    "kinematics",
+    "simulate",
+    "simulate_channels",
+    "MechanisticModel",
+    "Task",
+    "Training",
+    "make_model",
+    "load_model",
+    "MODEL_NAMES",
+    "GRUModel",
+    "LSTMModel",
+    "ParallelHybrid",
+    "MDSL",
+    "MechanisticBaseline",
+    "PersistenceModel",
+    "split",
+    "fit",
+    "evaluate",
+    "Evaluation",
+    "DrafttwinError",
+    "ConfigError",
+    "DataError",
+    "ModelFileError",
+]
+
+
+def __getattr__(name: str) -> Any:
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'drafttwin' has no attribute {name!r}")
+    value = getattr(importlib.import_module(module), name)
+    globals()[name] = value  # later lookups skip this function
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(__all__)
+
+
+if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load lazily
+    from drafttwin.data.io import read_measurements, write_measurements
+    from drafttwin.data.preprocess import preprocess
+    from drafttwin.data.series import MeasurementSeries
+    from drafttwin.errors import ConfigError, DataError, DrafttwinError, ModelFileError
+    from drafttwin.evaluation.protocol import Evaluation, evaluate, fit, split
+    from drafttwin.mechanics import DriveTrain, kinematics, simulate, simulate_channels
+    from drafttwin.models import (
+        MDSL,
+        MODEL_NAMES,
+        GRUModel,
+        LSTMModel,
+        MechanisticBaseline,
+        MechanisticModel,
+        ParallelHybrid,
+        PersistenceModel,
+        Task,
+        Training,
+        load_model,
+        make_model,
+    )

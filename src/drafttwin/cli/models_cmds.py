@@ -1,69 +1,148 @@
-"""``drafttwin fit``, ``predict`` and ``evaluate``: the models on measured data."""
+"""``drafttwin fit``, ``predict`` and ``evaluate``: the models on measured data, any machine."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from drafttwin.cli._common import write_frame
-from drafttwin.cli.app import app, console
-from drafttwin.errors import DataError
+from drafttwin.cli._data import (
+    Channels,
+    DataOpt,
+    InitOpt,
+    InputsOpt,
+    MechanisticOpt,
+    OutputsOpt,
+    TaskOpt,
+    TestDataOpt,
+    TimeColumnOpt,
+    UnitsOpt,
+)
+from drafttwin.cli.app import app, console, err_console
+from drafttwin.errors import ConfigError, DataError
 
-DataOpt = Annotated[
-    str,
-    typer.Option("--data", help="'default' (embedded FA320A plant data) or a CSV/Parquet file."),
-]
-MechOpt = Annotated[
-    str | None,
-    typer.Option("--mechanistic", help="'preset' (fa320a), 'preset:NAME', or a simulator output "
-                 "file (time + roller rpm). Default: the source recorded in the model file."),
-]  # fmt: skip
+if TYPE_CHECKING:
+    from drafttwin.data.series import MeasurementSeries
+    from drafttwin.evaluation.protocol import Evaluation
+    from drafttwin.models import BaseModel
+
 ModelFileOpt = Annotated[
     Path, typer.Option("--model", help="A model file written by 'fit'.", dir_okay=False)
 ]
 FractionOpt = Annotated[
-    float,
+    float | None,
     typer.Option(
-        help="Chronological share used for fitting; the rest is the test part.", min=0.05, max=0.95
+        help="Chronological share of --data that trains; the rest is the test part (default "
+        "0.7 for fit, the model's own for evaluate; 1 on fit: all of it, no test part). Not "
+        "with --test-data.",
+        min=0.05,
+        max=1.0,
     ),
 ]
+JsonOpt = Annotated[
+    bool,
+    typer.Option("--json", help="Print one JSON object: metrics per channel (null: not "
+                 "computable), the task and the options chosen on validation data."),
+]  # fmt: skip
 
 
-def load_data(data: str):
-    """The series named by ``--data`` (``default`` or a file path)."""
-    if data == "default":
-        from drafttwin.datasets import load_default
-
-        return load_default()
-    from drafttwin.data.io import read_measurements
-    from drafttwin.plant.emulator import attach_truth
-
-    return attach_truth(read_measurements(Path(data)), Path(data))
-
-
-def mechanistic_source(spec: str | None):
+def _source(option: str | None, model: BaseModel, channels: tuple[str, ...] | None):
+    """The mechanistic source of ``--mechanistic``, else the model's own (or the FA320A
+    preset for a new hybrid on the roller channels)."""
+    from drafttwin._constants import ROLLERS
     from drafttwin.models import MechanisticModel
+    from drafttwin.models.mechanistic import describe_spec
 
-    if spec is None:
+    if not model.needs_mechanistic:
+        if option is not None:
+            raise ConfigError(f"the {model.name} model uses no mechanistic source",
+                              where="--mechanistic", fix="leave --mechanistic out")  # fmt: skip
         return None
-    if spec == "preset" or spec.startswith("preset:"):
-        return MechanisticModel.from_preset(spec.partition(":")[2] or "fa320a")
-    return MechanisticModel(Path(spec))
+    if option is not None:
+        return MechanisticModel.from_option(option)
+    fitted = getattr(model, "mechanistic_spec_", None)
+    if hasattr(model, "channels_"):
+        source = MechanisticModel.from_spec(fitted)
+        if source is None:
+            raise ConfigError(
+                f"the model was fitted with {describe_spec(fitted)}, which the model file does "
+                "not hold",
+                where="--mechanistic",
+                fix="pass the mechanistic source again with --mechanistic",
+            )
+        return source
+    if channels not in (None, ROLLERS):
+        raise ConfigError(
+            f"the {model.name} model needs the physics of the channels {', '.join(channels)}",
+            where="--mechanistic",
+            fix="give config:YOUR_TRAIN.toml or a simulator output file (time + those columns)",
+        )
+    return MechanisticModel.from_preset("fa320a")
 
 
-def _check_rate(model, series, source: str) -> None:
+def _check_task(model: BaseModel, task: str | None, init_samples: int | None) -> None:
+    """``--task`` / ``--init-samples`` on predict and evaluate must match the model file."""
+    if task is not None and task != model.task.kind:
+        raise ConfigError(f"--task {task} but the model was fitted for {model.task.kind!r}",
+                          where="--task", fix="leave --task out, or fit a model for that task")  # fmt: skip
+    if init_samples is not None and init_samples != model.task.init_samples:
+        raise ConfigError(
+            f"--init-samples {init_samples} but the model was fitted with "
+            f"{model.task.init_samples}",
+            where="--init-samples",
+            fix="leave --init-samples out (the free-run start is part of the model)",
+        )
+
+
+def _check_rate(model: BaseModel, series: MeasurementSeries, source: str) -> None:
     rate = getattr(model, "sample_rate_hz_", None)
     if rate and not np.isclose(series.sample_rate_hz, rate, rtol=0.01):
         raise DataError(
-            f"the data are sampled at {series.sample_rate_hz:g} Hz but the model was fitted at {rate:g} Hz",
+            f"the data are sampled at {series.sample_rate_hz:g} Hz but the model was fitted at "
+            f"{rate:g} Hz",
             source=source,
             fix="resample the data to the model's rate, or fit a model on data at this rate",
         )
+
+
+def _new_model(name: str, profile: str, task: str | None, init: int | None, horizon: int,
+               channels: Channels, seed: int, quiet: bool, epochs: int | None) -> BaseModel:  # fmt: skip
+    from drafttwin.models import make_model
+    from drafttwin.models.registry import model_class
+
+    options: dict[str, Any] = {"task": task or "prediction", "inputs": channels.inputs or ()}
+    if channels.outputs is not None:
+        options["outputs"] = channels.outputs
+    if init is not None:
+        options["init_samples"] = init
+    if horizon != 1:
+        options["horizon"] = horizon
+    accepted = set(model_class(name).param_names())
+    options |= {k: v for k, v in {"seed": seed, "quiet": quiet}.items() if k in accepted}
+    if epochs is not None:
+        if "training" not in accepted:
+            raise ConfigError(f"the {name} model trains no network", where="--epochs",
+                              fix="leave --epochs out")  # fmt: skip
+        options["epochs"] = epochs
+    return make_model(name, profile, **options)
+
+
+def _selection_lines(selection: dict[str, Any]) -> list[str]:
+    lines = []
+    choice = selection.get("accumulate")
+    if choice:
+        what = "accumulated changes" if choice["accumulate"] else "residual level"
+        scores = ", ".join(f"{k} {v:.3g}" for k, v in choice.get("validation_nrmse", {}).items()
+                           if v is not None)  # fmt: skip
+        how = f"chosen on validation data (free-run NRMSE: {scores})" if scores else "set"
+        lines.append(f"residual model predicts the {what}: {how}")
+    return lines
 
 
 @app.command()
@@ -71,36 +150,79 @@ def fit(
     model: Annotated[
         str,
         typer.Option(
-            help="mechanistic | persistence | gru | lstm | parallel | md-s-l | md-l | md-s | md-s-l+d"
+            help="mechanistic | persistence | gru | lstm | parallel | md-s-l | md-l | "
+            "md-s | md-s-l+d"
         ),
-    ],
+    ],  # fmt: skip
     out: Annotated[
         Path, typer.Option(help="Model file to write (weights, scalers, config).", dir_okay=False)
     ],
     data: DataOpt = "default",
-    mechanistic: MechOpt = None,
+    test_data: TestDataOpt = None,
+    outputs: OutputsOpt = None,
+    inputs: InputsOpt = None,
+    time_column: TimeColumnOpt = None,
+    units: UnitsOpt = None,
+    mechanistic: MechanisticOpt = None,
+    task: TaskOpt = None,
+    init_samples: InitOpt = None,
     profile: Annotated[
         str, typer.Option(help="quick | standard | paper (hyperparameters).")
     ] = "quick",
-    train_fraction: FractionOpt = 0.7,
+    train_fraction: FractionOpt = None,
     seed: Annotated[int, typer.Option(help="Seed: same seed, same numbers on CPU.")] = 0,
     horizon: Annotated[int, typer.Option(help="Predict t+h-1 from data up to t-1.", min=1)] = 1,
+    epochs: Annotated[
+        int | None,
+        typer.Option(
+            min=1,
+            help="Most training epochs per network (default: the profile's); "
+            "a small number gives a quick first look.",
+        ),
+    ] = None,  # fmt: skip
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    as_json: JsonOpt = False,
 ) -> None:
-    """Fit a model on the first part of a data set (preprocessed as in the paper) and save it."""
-    from drafttwin.data.preprocess import preprocess
-    from drafttwin.models import make_model
+    """Fit a model and save it. Trains on the first --train-fraction of --data (preprocessed as
+    in the paper; 'drafttwin evaluate' then scores the rest), or on all of --data when separate
+    --test-data records are given: these are scored at once and the metrics printed."""
+    from drafttwin.evaluation import protocol
 
-    estimator = make_model(model, profile, seed=seed, horizon=horizon, quiet=quiet) if model not in (
-        "mechanistic", "persistence") else make_model(model, profile, horizon=horizon)  # fmt: skip
-    series = load_data(data)
-    n_train = int(round(train_fraction * len(series)))
-    train, report = preprocess(series.slice(0, n_train))
-    mech = mechanistic_source(mechanistic or ("preset" if estimator.needs_mechanistic else None))
-    estimator.fit(train, mech)
+    if test_data is not None and train_fraction is not None:
+        raise ConfigError("--train-fraction splits --data, but --test-data is given",
+                          where="--train-fraction",
+                          fix="with --test-data every row of --data trains: drop --train-fraction")  # fmt: skip
+    channels = Channels.parse(outputs, inputs, time_column, units)
+    estimator = _new_model(model, profile, task, init_samples, horizon, channels, seed, quiet,
+                           epochs)  # fmt: skip
+    source = _source(mechanistic, estimator, channels.outputs)
+    needs = () if source is None else source.required_inputs()
+    series = channels.read(data, needs)
+    test = None if test_data is None else channels.read(test_data, needs)
+    fraction = None if test is not None else (train_fraction or 0.7)
+    test_source = source
+    if test is not None and source is not None:
+        source, test_source = source.split_records(series.n_records, test.n_records)
+    part = protocol.fit(estimator, series, train_fraction=fraction, test=test,
+                        mechanistic=source)  # fmt: skip
+    estimator.provenance_["data"] = data
     estimator.save(out)
-    console.print(f"fitted {model} on {n_train} samples ({report.to_dict()['filled']} filled, "
-                  f"{report.to_dict()['outliers']} outliers smoothed); wrote {out}")  # fmt: skip
+    pre = part.summary["preprocessing"]["train"]
+    filled, smoothed = sum(pre["filled"].values()), sum(pre["outliers"].values())
+    (err_console if as_json else console).print(  # --json: stdout holds the JSON alone
+        f"fitted {estimator.name} ({estimator.task.kind}) on {part.summary['train_rows']} rows "
+        f"in {part.summary['train_records']} record(s), channels {', '.join(estimator.channels_)} "
+        f"({filled} samples filled, {smoothed} outliers smoothed); wrote {escape(str(out))}"
+    )
+    if test is not None:  # separate test records: score them now (else: drafttwin evaluate)
+        _report(protocol.evaluate(estimator, part, mechanistic=test_source), as_json)
+        return
+    if as_json:
+        typer.echo(json.dumps({"model": estimator.name, "selection": estimator.selection_,
+                               "split": part.summary}, indent=2, allow_nan=False))  # fmt: skip
+        return
+    for line in _selection_lines(estimator.selection_):
+        console.print(line)
 
 
 @app.command()
@@ -108,22 +230,96 @@ def predict(
     model: ModelFileOpt,
     out: Annotated[Path, typer.Option(help="Predictions, .csv or .parquet.", dir_okay=False)],
     data: DataOpt = "default",
-    mechanistic: MechOpt = None,
+    test_data: TestDataOpt = None,
+    outputs: OutputsOpt = None,
+    inputs: InputsOpt = None,
+    time_column: TimeColumnOpt = None,
+    units: UnitsOpt = None,
+    mechanistic: MechanisticOpt = None,
+    task: TaskOpt = None,
+    init_samples: InitOpt = None,
 ) -> None:
-    """Predict roller speeds for every sample of a data set (each from earlier samples only)."""
-    import pandas as pd
-
+    """Predict every sample of a data set (time + one column per output channel). One-step
+    prediction uses earlier samples only; a simulation runs free over each record from its
+    first --init-samples measured samples. --test-data replaces --data."""
     from drafttwin.models import load_model
 
     estimator = load_model(model)
-    series = load_data(data)
-    _check_rate(estimator, series, data)
-    pred = estimator.predict_values(series, mechanistic_source(mechanistic))
-    frame = pd.DataFrame(
-        {"time": series.time_s, **{r: pred[:, j] for j, r in enumerate(series.channels)}}
-    )
+    _check_task(estimator, task, init_samples)
+    channels = Channels.parse(outputs, inputs, time_column, units).for_model(estimator)
+    source = _source(mechanistic, estimator, channels.outputs)
+    spec = _data_spec(data, test_data)
+    series = channels.read(spec, () if source is None else source.required_inputs())
+    _check_rate(estimator, series, spec)
+    frame = estimator.predict(series, source)
     write_frame(frame, out)
-    console.print(f"wrote {len(frame)} predictions to {out}")
+    console.print(f"wrote {len(frame)} predictions of {', '.join(estimator.channels_)} to "
+                  f"{escape(str(out))}")  # fmt: skip
+
+
+def _data_spec(data: str, test_data: str | None) -> str:
+    if test_data is None:
+        return data
+    if data != "default":
+        raise ConfigError("--test-data replaces --data here; both were given",
+                          where="--data / --test-data", fix="give one of them")  # fmt: skip
+    return test_data
+
+
+@app.command()
+def evaluate(
+    model: ModelFileOpt,
+    data: DataOpt = "default",
+    test_data: TestDataOpt = None,
+    outputs: OutputsOpt = None,
+    inputs: InputsOpt = None,
+    time_column: TimeColumnOpt = None,
+    units: UnitsOpt = None,
+    mechanistic: MechanisticOpt = None,
+    task: TaskOpt = None,
+    init_samples: InitOpt = None,
+    train_fraction: FractionOpt = None,
+    as_json: JsonOpt = False,
+) -> None:
+    """Score a model on the test part of --data (the chronological split it was fitted with)
+    or on separate --test-data records (replacing --data): the paper's relative errors and
+    honest metrics (RMSE, NRMSE, skill against persistence, noise floor) per channel."""
+    from drafttwin.evaluation import protocol
+    from drafttwin.models import load_model
+
+    estimator = load_model(model)
+    _check_task(estimator, task, init_samples)
+    if test_data is not None and train_fraction is not None:
+        raise ConfigError("--train-fraction splits --data, but --test-data is given",
+                          where="--train-fraction", fix="drop --train-fraction")  # fmt: skip
+    channels = Channels.parse(outputs, inputs, time_column, units).for_model(estimator)
+    source = _source(mechanistic, estimator, channels.outputs)
+    spec = _data_spec(data, test_data)
+    series = channels.read(spec, () if source is None else source.required_inputs())
+    _check_rate(estimator, series, spec)
+    if test_data is not None:
+        result = protocol.evaluate(estimator, test=series, mechanistic=source)
+    else:
+        result = protocol.evaluate(estimator, series, train_fraction=train_fraction,
+                                   mechanistic=source)  # fmt: skip
+    _report(result, as_json)
+
+
+def _report(result: Evaluation, as_json: bool) -> None:
+    if as_json:
+        typer.echo(json.dumps(result.to_dict(), indent=2, allow_nan=False))
+        return
+    rows = result.split.get("test_rows")
+    console.print(_metrics_table(result.metrics, f"{result.model} ({result.task}) on "
+                                 f"{rows} test rows, {result.scored_rows} scored"))  # fmt: skip
+    for name, m in result.metrics.items():
+        if m.rel_note:
+            console.print(f"{escape(name)}: {m.rel_note}")
+    for line in _selection_lines(result.selection):
+        console.print(line)
+    console.print("skill = 1 - RMSE / RMSE(persistence); scored: measured samples not flagged "
+                  "as outliers" + ("" if result.task == "prediction" else ", after each "
+                                   "record's initialisation window"))  # fmt: skip
 
 
 def _metrics_table(metrics: dict, title: str) -> Table:
@@ -135,7 +331,7 @@ def _metrics_table(metrics: dict, title: str) -> Table:
     def head(label: str) -> str:
         return f"{label} {shared}" if shared else label
 
-    table = Table(title=title)
+    table = Table(title=escape(title))
     table.add_column("channel")
     if shared is None:
         table.add_column("unit")
@@ -145,54 +341,5 @@ def _metrics_table(metrics: dict, title: str) -> Table:
     for r, m in metrics.items():
         cells = [f"{m.max_rel_err_pct:.4f}", f"{m.mean_rel_err_pct:.4f}", f"{m.accuracy_pct:.3f}",
                  f"{m.rmse:.4g}", f"{m.nrmse:.3f}", f"{m.skill:.3f}", f"{m.noise_floor:.4g}"]  # fmt: skip
-        table.add_row(r, *([] if shared is not None else [m.unit]), *cells)
+        table.add_row(escape(r), *([] if shared is not None else [m.unit]), *cells)
     return table
-
-
-@app.command()
-def evaluate(
-    model: ModelFileOpt,
-    data: DataOpt = "default",
-    mechanistic: MechOpt = None,
-    train_fraction: FractionOpt = 0.7,
-    as_json: Annotated[
-        bool,
-        typer.Option("--json", help="One JSON object keyed by channel (null: not computable)."),
-    ] = False,
-) -> None:
-    """Score a model on the test part of a data set (after --train-fraction): the paper's
-    relative errors and honest metrics (RMSE, NRMSE, skill vs persistence, noise floor)."""
-    from drafttwin.data.preprocess import preprocess, reject_spikes_causal
-    from drafttwin.evaluation.metrics import evaluate as score
-    from drafttwin.evaluation.metrics import persistence_forecast
-    from drafttwin.models import load_model
-
-    estimator = load_model(model)
-    series = load_data(data)
-    _check_rate(estimator, series, data)
-    n_train = int(round(train_fraction * len(series)))
-    train, _ = preprocess(series.slice(0, n_train))
-    test_inputs, _ = reject_spikes_causal(series.slice(n_train))
-    inputs = series.with_values(np.vstack([train.values, test_inputs]))
-    _, full = preprocess(series)
-    target = np.where(np.isnan(series.values) | full.outliers, np.nan, series.values)[n_train:]
-    pred = estimator.predict_values(inputs, mechanistic_source(mechanistic))[n_train:]
-    true = series.metadata.get("true_rpm")  # the plant emulator's truth, one column per roller
-    true_ok = true is not None and np.shape(true) == series.values.shape
-    units = {c: series.unit(c) for c in series.channels}
-    metrics = score(target, pred, channels=series.channels, units=units,
-                    persistence=persistence_forecast(inputs.values, getattr(estimator, "horizon", 1))[n_train:],
-                    true_values=np.asarray(true)[n_train:] if true_ok else None)  # fmt: skip
-    if as_json:
-        typer.echo(json.dumps({r: m.to_dict() for r, m in metrics.items()}, indent=2,
-                              allow_nan=False))  # fmt: skip
-        return
-    console.print(
-        _metrics_table(metrics, f"{estimator.name} on the test part ({len(target)} samples)")
-    )
-    for r, m in metrics.items():
-        if m.rel_note:
-            console.print(f"{r}: {m.rel_note}")
-    console.print(
-        "skill = 1 - RMSE / RMSE(persistence); scored: measured samples not flagged as outliers"
-    )

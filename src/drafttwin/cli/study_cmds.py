@@ -60,10 +60,10 @@ def _study(
     workers: int | None,
     quiet: bool,
 ):
-    from drafttwin.cli.models_cmds import load_data
+    from drafttwin.cli._data import Channels
     from drafttwin.experiments.study import Study
 
-    series = load_data(data)
+    series = Channels().read(data)
     display = _Display(quiet)
     study = Study(
         profile,

@@ -13,7 +13,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.data import validate as v
 from drafttwin.data.units import is_rpm, resolve_unit
 from drafttwin.errors import ConfigError, DataError
@@ -35,12 +35,18 @@ class ChannelSpec:
         inputs: exogenous input names, or ``None`` to take the set-point columns of the file.
         units: declared unit per output, input or ``motor``.
         rollers: whether the outputs are the default four rollers.
+        setpoints: with declared ``inputs``, also take the file's set-point columns.
     """
 
     outputs: tuple[str, ...] = ROLLERS
     inputs: tuple[str, ...] | None = None
     units: dict[str, str] = field(default_factory=dict)
     rollers: bool = True
+    setpoints: bool = False
+
+    def auto_setpoints(self) -> bool:
+        """Whether set-point columns (``setpoint_*``, ``supply_hz``) are read as inputs."""
+        return self.inputs is None or self.setpoints
 
     def declared(self) -> dict[str, str]:
         """Lower-case name -> name, for every declared output and input."""
@@ -80,6 +86,7 @@ def channel_spec(
     outputs: Sequence[str] | None = None,
     inputs: Sequence[str] | None = None,
     units: Mapping[str, str] | None = None,
+    setpoints: bool = False,
 ) -> ChannelSpec:
     """Check and normalise the declared outputs, inputs and units (``ConfigError`` if wrong)."""
     outs = ROLLERS if outputs is None else _names(outputs, "outputs")
@@ -98,7 +105,7 @@ def channel_spec(
     resolved: dict[str, str] = {}
     for key, unit in (units or {}).items():
         name = declared.get(str(key).strip().lower())
-        if name is None and ins is None and _is_setpoint(str(key).strip().lower()):
+        if name is None and (ins is None or setpoints) and _is_setpoint(str(key).strip().lower()):
             name = str(key).strip().lower()
         if name is None:
             raise ConfigError(
@@ -113,7 +120,8 @@ def channel_spec(
                 fix="convert the motor column to rpm, or read it as an output of its own",
             )
         resolved[name] = str(unit).strip()
-    return ChannelSpec(outputs=outs, inputs=ins, units=resolved, rollers=spec.rollers)
+    return ChannelSpec(outputs=outs, inputs=ins, units=resolved, rollers=spec.rollers,
+                       setpoints=setpoints)  # fmt: skip
 
 
 @dataclass
@@ -176,7 +184,7 @@ def _target(name: str, spec: ChannelSpec) -> str | None:
         return declared[name]
     if name in ("time", "motor", RECORD, v.IGNORE):
         return name
-    if spec.inputs is None and _is_setpoint(name):
+    if spec.auto_setpoints() and _is_setpoint(name):
         return name
     return None
 
@@ -199,7 +207,7 @@ def _mapping_targets(
         tgt = _target(target.strip().lower(), spec)
         if tgt is None:
             allowed = (*spec.outputs, *(spec.inputs or ()), "time", "motor", RECORD, v.IGNORE)
-            setpoints = ", or a name starting with 'setpoint_'" if spec.inputs is None else ""
+            setpoints = ", or a name starting with 'setpoint_'" if spec.auto_setpoints() else ""
             raise DataError(
                 f"unknown target '{target}' for column '{key}'",
                 source=source,
@@ -218,7 +226,7 @@ def _default_target(base: str, spec: ChannelSpec) -> str | None:
         return "time"
     if base in v.MOTOR_NAMES:
         return "motor"
-    if spec.inputs is None and _is_setpoint(base):
+    if spec.auto_setpoints() and _is_setpoint(base):
         return base
     if base == RECORD:
         return RECORD
@@ -272,11 +280,9 @@ def plan_columns(
     v.check_channels_present(assigned, headers, spec.outputs, source, kind)
     if spec.inputs is not None:
         v.check_channels_present(assigned, headers, spec.inputs, source, "input")
-    inputs = (
-        list(spec.inputs)
-        if spec.inputs is not None
-        else [t for t in assigned if _is_setpoint(t) and t not in spec.declared().values()]
-    )
+    inputs = list(spec.inputs or ())
+    if spec.auto_setpoints():
+        inputs += [t for t in assigned if _is_setpoint(t) and t not in spec.declared().values()]
     units = {}
     for name in (*spec.outputs, *inputs, *(["motor"] if "motor" in assigned else [])):
         header = assigned[name]

@@ -116,6 +116,7 @@ def read_measurements(
     check_units: bool = True,
     nominal_rpm: dict[str, float] | None = None,
     diameters_mm: dict[str, float] | None = None,
+    setpoints: bool = False,
 ) -> MeasurementSeries:
     """Read and validate CSV or Parquet measurement files.
 
@@ -127,6 +128,8 @@ def read_measurements(
             second, third, back`` in rpm. Headers match case-insensitively.
         inputs: exogenous input columns (each required); ``None`` = every set-point column
             (``setpoint_*``, ``supply_hz``) in the file; ``()`` = none.
+        setpoints: with declared ``inputs``, also read the file's set-point columns (so a
+            drive train's physics can follow the VFD set-point beside other inputs).
         units: unit per output or input (``{"y": "m", "u": "V"}``); it must agree with a
             unit in the header (``y [m]``). Default: rollers and motor rpm, ``supply_hz`` Hz,
             anything else undeclared (``""``).
@@ -153,7 +156,7 @@ def read_measurements(
         DataError: for every problem with a file, naming file, row or column and the fix.
         ConfigError: for contradictory or reserved ``outputs`` / ``inputs`` / ``units``.
     """
-    spec = channel_spec(outputs, inputs, units)
+    spec = channel_spec(outputs, inputs, units, setpoints)
     paths = [Path(path)] if isinstance(path, str | Path) else [Path(p) for p in path]
     if not paths:
         raise ConfigError("no measurement file given", where="path", fix="name a file")

@@ -396,19 +396,24 @@ def reject_spikes_causal(
     *,
     record_starts: Sequence[int] | None = None,
     scale: float | np.ndarray | None = None,
+    floor: float | np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Mark as missing (``NaN``) every sample that jumps more than the tolerance from the last
     accepted sample of its column; uses past samples only.
 
     The paper's outlier rule compares a sample with *both* neighbours, so it needs the next
     sample and cannot clean a model's inputs online. This causal variant can: a spike is
-    dropped and the models hold the last value. A genuine change of more than the tolerance
-    within one sample (a start from standstill) would be dropped too, so use it on running
-    data. The tolerance is ``threshold * |last accepted|`` (relative rule), or ``threshold *
+    dropped and the models hold the last value. A spike is one sample: when the next sample
+    agrees with a rejected one (within the tolerance), the level has moved (a fast speed
+    change) and the cleaning follows it from that sample on; only the first sample of such a
+    step is held. The tolerance is ``threshold * |last accepted|`` (relative rule), or ``threshold *
     scale`` for a column with a ``scale`` (one per column, ``NaN`` = relative; take it from
-    the training data with :func:`outlier_scales`, as the future is not known online). Each
-    record starts afresh (``record_starts``, or the series' records): its first sample is
-    never compared with another record's. Returns ``(cleaned values, rejected mask)``.
+    the training data with :func:`outlier_scales`, as the future is not known online). With a
+    ``floor`` (one per column) the relative rule uses ``max(|last accepted|, floor)``: near
+    standstill 10 % of the last value is nothing, and a start-up would be rejected sample
+    after sample; take half the training part's typical magnitude. Each record starts afresh
+    (``record_starts``, or the series' records): its first sample is never compared with
+    another record's. Returns ``(cleaned values, rejected mask)``.
     """
     if isinstance(values, MeasurementSeries):
         record_starts = values.record_starts if record_starts is None else record_starts
@@ -418,20 +423,22 @@ def reject_spikes_causal(
     x2 = x[:, None] if squeeze else x
     rejected = np.zeros(x2.shape, dtype=bool)
     sc = np.broadcast_to(np.nan if scale is None else np.asarray(scale, float), x2.shape[1:])
+    low = np.broadcast_to(0.0 if floor is None else np.asarray(floor, float), x2.shape[1:])
     starts = {a for a, _ in _bounds(x2.shape[0], record_starts)}
     for j in range(x2.shape[1]):
-        last = np.nan
+        last = held = np.nan  # last accepted value; the sample rejected just before (if any)
         col = x2[:, j]
         for i in range(col.shape[0]):  # sequential by nature: each decision depends on the last
             if i in starts:
-                last = np.nan
+                last = held = np.nan
             v = col[i]
             if np.isnan(v):
                 continue
-            tol = threshold * (abs(last) if np.isnan(sc[j]) else sc[j])
-            if np.isfinite(last) and abs(v - last) > tol:
+            tol = threshold * (max(abs(last), low[j]) if np.isnan(sc[j]) else sc[j])
+            moved = np.isfinite(held) and abs(v - held) <= tol
+            if np.isfinite(last) and abs(v - last) > tol and not moved:
                 rejected[i, j] = True
-                col[i] = np.nan
+                held, col[i] = v, np.nan
             else:
-                last = v
+                last, held = v, np.nan
     return (x2[:, 0] if squeeze else x2), (rejected[:, 0] if squeeze else rejected)

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 
 RPM = "rpm"
 """The unit of the FA320A roller speeds (the default output channels)."""
@@ -34,6 +34,9 @@ class MeasurementSeries:
         inputs: exogenous input channels known in advance (set-points such as the VFD supply
             frequency ``supply_hz``, a drive voltage), each shape ``(n,)``.
         motor_rpm: optional measured motor speed in rpm, shape ``(n,)``.
+        truth: the true output values, shape like ``values``, when they are known (data from
+            the plant emulator); ``None`` otherwise. Never a model input: it gives the noise
+            floor and the error against the true value in evaluations.
         record_starts: first row of each record (separate experiments concatenated row-wise);
             ``(0,)`` for one record. No model window crosses a record boundary.
         metadata: free-form provenance (source file, seed, plant parameters, ...).
@@ -45,6 +48,7 @@ class MeasurementSeries:
     units: dict[str, str] = field(default_factory=dict)
     inputs: dict[str, np.ndarray] = field(default_factory=dict)
     motor_rpm: np.ndarray | None = None
+    truth: np.ndarray | None = None
     record_starts: tuple[int, ...] = (0,)
     metadata: dict[str, Any] = field(default_factory=dict)
 
@@ -81,6 +85,12 @@ class MeasurementSeries:
         object.__setattr__(self, "record_starts", starts)
         if self.motor_rpm is not None:
             object.__setattr__(self, "motor_rpm", np.asarray(self.motor_rpm, dtype=np.float64))
+        if self.truth is not None:
+            truth = np.asarray(self.truth, dtype=np.float64)
+            truth = truth[:, None] if truth.ndim == 1 else truth
+            if truth.shape != values.shape:
+                raise ValueError(f"truth has shape {truth.shape}, values {values.shape}")
+            object.__setattr__(self, "truth", truth)
 
     # ----- shape and time -------------------------------------------------------------------
     def __len__(self) -> int:
@@ -164,6 +174,10 @@ class MeasurementSeries:
         motor = None
         if all(p.motor_rpm is not None for p in parts):
             motor = np.concatenate([p.motor_rpm for p in parts if p.motor_rpm is not None])
+        truth = None
+        if any(p.truth is not None for p in parts):  # unknown parts: NaN
+            truth = np.vstack([np.full(p.values.shape, np.nan) if p.truth is None else p.truth
+                               for p in parts])  # fmt: skip
         return cls(
             time_s=np.concatenate([p.time_s for p in parts]),
             values=np.vstack([p.values for p in parts]),
@@ -171,6 +185,7 @@ class MeasurementSeries:
             units={k: v for p in parts for k, v in p.units.items()},
             inputs={k: np.concatenate([p.inputs[k] for p in parts]) for k in first.inputs},
             motor_rpm=motor,
+            truth=truth,
             record_starts=tuple(starts),
             metadata={**first.metadata, "records": [p.metadata for p in parts]},
         )
@@ -194,6 +209,7 @@ class MeasurementSeries:
             values=self.values[a:b],
             inputs={k: v[a:b] for k, v in self.inputs.items()},
             motor_rpm=None if self.motor_rpm is None else self.motor_rpm[a:b],
+            truth=None if self.truth is None else self.truth[a:b],
             record_starts=tuple(starts),
         )
 

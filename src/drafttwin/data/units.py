@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.errors import DataError
 
 RPM = "rpm"

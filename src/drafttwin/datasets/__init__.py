@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.data.series import MeasurementSeries
 
 DEFAULT = {"seed": 20260101, "duration_s": 300.0, "rate_hz": 100.0, "scenario": "steady"}
@@ -28,7 +28,6 @@ def _series(frame: pd.DataFrame, info: dict) -> MeasurementSeries:
     meta = {
         "source": "drafttwin default data set (plant emulator)",
         **{k: info[k] for k in ("seed", "scenario", "duration_s", "rate_hz")},
-        "true_rpm": truth,
         "true_motor_rpm": frame["true_motor"].to_numpy(),
         "missing_mask": frame[[f"missing_{r}" for r in ROLLERS]].to_numpy(bool),
         "outlier_mask": frame[[f"outlier_{r}" for r in ROLLERS]].to_numpy(bool),
@@ -38,6 +37,7 @@ def _series(frame: pd.DataFrame, info: dict) -> MeasurementSeries:
         time_s=frame["time"].to_numpy(),
         values=frame[list(ROLLERS)].to_numpy(),
         inputs={"supply_hz": frame["supply_hz"].to_numpy()},
+        truth=truth,
         metadata=meta,
     )
 
@@ -45,7 +45,7 @@ def _series(frame: pd.DataFrame, info: dict) -> MeasurementSeries:
 def load_default() -> MeasurementSeries:
     """The default data set: 5 min of FA320A roller speeds at 100 Hz from the plant emulator.
 
-    ``metadata`` carries the truth: ``true_rpm`` (n, 4), ``true_motor_rpm``,
+    ``truth`` holds the true roller speeds; ``metadata`` carries ``true_motor_rpm``,
     ``missing_mask`` and ``outlier_mask`` (where the plant dropped / spiked samples), and
     ``plant`` (seed, true parameters, effects).
     """

@@ -41,7 +41,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.errors import ConfigError, DataError
 
 DEFAULT_REL_FLOOR = 0.01
@@ -98,26 +98,6 @@ class ChannelMetrics:
         return {k: json_number(v) if isinstance(v, float) else v for k, v in asdict(self).items()}
 
 
-def persistence_forecast(rpm: np.ndarray, horizon: int = 1) -> np.ndarray:
-    """The naive forecast ``yhat_T = y_{T-horizon}`` (last observed value at or before
-    ``T - horizon`` when samples are missing); ``NaN`` where no earlier value exists. rpm in,
-    rpm out, same shape."""
-    if horizon < 1:
-        raise ValueError("horizon must be >= 1")
-    y = np.asarray(rpm, dtype=np.float64)
-    squeeze = y.ndim == 1
-    y2 = y[:, None] if squeeze else y
-    n = y2.shape[0]
-    rows = np.where(np.isnan(y2), 0, np.arange(n)[:, None])
-    np.maximum.accumulate(rows, axis=0, out=rows)
-    filled = y2[rows, np.arange(y2.shape[1])[None, :]]
-    out = np.full_like(y2, np.nan)
-    if n > horizon:
-        out[horizon:] = filled[: n - horizon]
-    return out[:, 0] if squeeze else out
-
-
-# ----- argument checks ---------------------------------------------------------------------
 def _named(channels: Sequence[str]) -> str:
     k = len(channels)
     return f"{k} channel{'s were' if k != 1 else ' was'} named ({', '.join(channels)})"
@@ -282,7 +262,7 @@ def evaluate(
         units: the channels' units: one string for all, one per channel, or a mapping by
             channel name; ``""`` where not given.
         persistence: the persistence forecast on the same rows (for skill); see
-            :func:`persistence_forecast`.
+            :func:`drafttwin.models.persistence_forecast`.
         true_values: the true values (for the noise floor), when known.
         rel_floor: samples with ``|y|`` below ``rel_floor`` times the channel's scale (99th
             percentile of ``|y|``) are left out of the relative errors; in ``[0, 1)``.

@@ -22,10 +22,10 @@ from typing import Any
 
 import numpy as np
 
-from drafttwin import __version__
+from drafttwin._constants import __version__
 from drafttwin.errors import ConfigError
 from drafttwin.experiments.emps_data import INIT_SAMPLES, INPUT, OUTPUT, SHA256, load_emps
-from drafttwin.experiments.emps_physics import EmpsPhysics, fit_pct, rmse_mm
+from drafttwin.experiments.emps_physics import EmpsPhysics, fit_pct
 from drafttwin.experiments.executor import run_tasks
 
 MODELS = ("mechanistic", "persistence", "gru", "lstm", "parallel", "md-s-l")
@@ -116,25 +116,20 @@ class EmpsConfig:
 
 
 def hyperparameters(name: str, task: str, config: EmpsConfig, seed: int) -> dict[str, Any]:
-    """Constructor arguments of model ``name`` for the benchmark (profile + EMPS settings)."""
-    from drafttwin.models import make_model
-
-    wanted: dict[str, Any] = {
-        "task": task,
-        "outputs": (OUTPUT,),
-        "inputs": (INPUT,),
-        "init_samples": INIT_SAMPLES,
-        "window": WINDOW,
-        "data_window": WINDOW,
-        "seed": seed,
-        "quiet": True,
-        "device": config.device,
-        **PROFILE_ADAPTATION[config.profile],
-    }
+    """Options of model ``name`` for :func:`~drafttwin.models.make_model` in the benchmark
+    (profile + EMPS settings); the models without learning take the task only."""
+    wanted: dict[str, Any] = {"task": task, "outputs": (OUTPUT,)}
+    if task == "simulation":
+        wanted["init_samples"] = INIT_SAMPLES
+    if name in DETERMINISTIC:
+        return wanted
+    wanted |= {"inputs": (INPUT,), "window": WINDOW, "seed": seed, "quiet": True,
+               "device": config.device, **PROFILE_ADAPTATION[config.profile]}  # fmt: skip
+    if name in ("md-s-l", "md-l", "md-s", "md-s-l+d"):
+        wanted["data_window"] = WINDOW
     if config.epochs is not None:
         wanted["epochs"] = config.epochs
-    accepted = set(type(make_model(name)).param_names())
-    return {k: v for k, v in wanted.items() if k in accepted}
+    return wanted
 
 
 def task_configs(config: EmpsConfig) -> list[dict[str, Any]]:
@@ -167,10 +162,12 @@ def score_start(task: str) -> int:
 
 
 def run_one(cfg: dict[str, Any]) -> dict[str, Any]:
-    """Fit one model on the training record and score it on the test record (a task for
-    :func:`run_tasks`; module level so worker processes can run it)."""
+    """Fit one model on the training record and score it on the test record with the
+    evaluation protocol (a task for :func:`run_tasks`; module level so worker processes can
+    run it)."""
     import torch
 
+    from drafttwin.evaluation import protocol
     from drafttwin.models import make_model
 
     torch.set_num_threads(int(cfg.get("_threads", 1)))
@@ -179,22 +176,24 @@ def run_one(cfg: dict[str, Any]) -> dict[str, Any]:
     mech = EmpsPhysics(**cfg["physics"]).mechanistic()
     model = make_model(cfg["model"], cfg["profile"], **cfg["hyper"])
     start = time.perf_counter()
-    model.fit(train.series(), mech)
+    part = protocol.fit(model, train.series(), test=test.series(), mechanistic=mech)
     fit_s = time.perf_counter() - start
-    start = time.perf_counter()
-    pred = model.predict_values(test.series(), mech)[:, 0]
-    predict_s = time.perf_counter() - start
     first = score_start(cfg["task"])
+    start = time.perf_counter()
+    result = protocol.evaluate(model, part, mechanistic=mech, skip_rows=first)
+    predict_s = time.perf_counter() - start
+    pred = result.predictions[OUTPUT].to_numpy()
     history = getattr(model, "history_", None)
     out: dict[str, Any] = {
         "task": cfg["task"], "model": cfg["model"], "seed": cfg["seed"],
-        "rmse_mm": rmse_mm(test.qm_m, pred, first), "fit_pct": fit_pct(test.qm_m, pred, first),
+        "rmse_mm": 1e3 * result.metrics[OUTPUT].rmse, "fit_pct": fit_pct(test.qm_m, pred, first),
         "n_nan": int(np.isnan(pred[first:]).sum()), "fit_s": fit_s, "predict_s": predict_s,
         "epochs": None if history is None else len(history.train_loss),
+        "selection": dict(model.selection_),
     }  # fmt: skip
     if cfg["train_metrics"]:
-        train_pred = model.predict_values(train.series(), mech)[:, 0]
-        out["train_rmse_mm"] = rmse_mm(train.qm_m, train_pred, first)
+        on_train = protocol.evaluate(model, test=train.series(), mechanistic=mech, skip_rows=first)
+        out["train_rmse_mm"] = 1e3 * on_train.metrics[OUTPUT].rmse
     if cfg["trace"]:
         out["trace"] = pred.tolist()
     return out

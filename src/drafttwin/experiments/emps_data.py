@@ -77,7 +77,8 @@ class EmpsRecord:
             values=self.qm_m[:, None],
             channels=(OUTPUT,),
             inputs={INPUT: self.vir_v, "qg": self.qg_m},
-            metadata={"source": self.name, "units": {"qm": "m", "vir": "V", "qg": "m"}},
+            units={"qm": "m", "vir": "V", "qg": "m"},
+            metadata={"source": self.name},
         )
 
 

@@ -1,12 +1,10 @@
 """The study's data: one prepared set, shared by every task through a file.
 
-* model inputs: the training part preprocessed as in the paper (interpolation, outlier
-  smoothing: it may use the future, it is all in the past of the test part); the test part
-  cleaned causally (spikes rejected using past samples only; gaps stay NaN and the models hold
-  the last value), so no prediction sees the future;
-* scoring target: the measured test samples that preprocessing did not flag (not missing, not
-  an outlier by the paper's rule); everything else is not scored;
-* the mechanistic prediction on the same grid (simulated once, cached by grid and preset).
+* the split, preprocessing and scoring target of the evaluation protocol
+  (:mod:`drafttwin.evaluation.protocol`): training part preprocessed as in the paper, test
+  part cleaned causally, measured non-outlier test samples scored;
+* the mechanistic prediction on the same grid, following the record's set-points (simulated
+  once, cached by grid, set-points and preset).
 """
 
 from __future__ import annotations
@@ -17,8 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from drafttwin.data.preprocess import preprocess, reject_spikes_causal
 from drafttwin.data.series import MeasurementSeries
+from drafttwin.evaluation import protocol
+from drafttwin.evaluation.protocol import Split
 from drafttwin.experiments.store import data_hash
 
 SCORING = (
@@ -32,7 +31,7 @@ SCORING = (
 @dataclass
 class PreparedData:
     time_s: np.ndarray
-    inputs: np.ndarray  # (n, 4) rpm, NaN = missing
+    inputs: np.ndarray  # (n, 4) rpm as the models see them, NaN = missing
     target: np.ndarray  # (n, 4) rpm, NaN = not scored (whole training part included)
     mech: np.ndarray  # (n, 4) rpm
     true: np.ndarray | None  # (n, 4) rpm, plant truth
@@ -45,7 +44,16 @@ class PreparedData:
                          np.array([self.n_train]))  # fmt: skip
 
     def series(self) -> MeasurementSeries:
-        return MeasurementSeries(self.time_s, self.inputs)
+        """The whole record as the models see it (training rows preprocessed, test rows
+        cleaned causally), with the true speeds when known."""
+        return MeasurementSeries(self.time_s, self.inputs, truth=self.true)
+
+    def split(self) -> Split:
+        """The protocol's chronological split of the prepared record."""
+        whole = self.series()
+        tr = self.n_train
+        return Split(whole.slice(0, tr), whole.slice(tr), self.target[tr:], whole,
+                     "chronological")  # fmt: skip
 
     def save(self, path: Path) -> Path:
         arrays = {"time_s": self.time_s, "inputs": self.inputs, "target": self.target,
@@ -64,12 +72,14 @@ class PreparedData:
 
 
 def _mechanistic(series: MeasurementSeries, preset: str, cache_dir: Path) -> np.ndarray:
+    """The preset simulated on the series' grid, following its set-points (cached by grid,
+    set-points and preset file)."""
     from drafttwin.mechanics.config import preset_path
     from drafttwin.models import MechanisticModel
 
-    key = hashlib.sha256(series.time_s.tobytes() + preset_path(preset).read_bytes()).hexdigest()[
-        :20
-    ]
+    parts = [series.time_s.tobytes(), preset_path(preset).read_bytes()]
+    parts += [k.encode() + v.tobytes() for k, v in sorted(series.inputs.items())]
+    key = hashlib.sha256(b"|".join(parts)).hexdigest()[:20]
     cache = cache_dir / f"mechanistic-{preset}-{key}.npy"
     if cache.is_file():
         return np.load(cache)
@@ -87,24 +97,21 @@ def prepare(
     cache_dir: Path,
     duration_s: float | None = None,
 ) -> tuple[PreparedData, dict]:
-    """Split, preprocess, clean, simulate; returns the data and a summary for the report."""
+    """Split, preprocess, clean (the evaluation protocol), simulate; returns the data and a
+    summary for the report."""
     if duration_s is not None:
         series = series.slice(0, int(np.searchsorted(series.time_s, series.time_s[0] + duration_s)))
-    n = len(series)
-    n_train = int(round(train_fraction * n))
-    clean_train, train_report = preprocess(series.slice(0, n_train))
-    test_inputs, rejected = reject_spikes_causal(series.slice(n_train))
-    _, full_report = preprocess(series)
-    scored = ~np.isnan(series.values) & ~full_report.outliers
-    scored[:n_train] = False
-    target = np.where(scored, series.values, np.nan)
-    true = series.metadata.get("true_rpm")
+    part = protocol.split(series, train_fraction=train_fraction)
+    assert part.joined is not None
+    n, n_train = len(series), len(series) - len(part.test)
+    target = np.full(series.values.shape, np.nan)
+    target[n_train:] = part.target
     data = PreparedData(
         time_s=series.time_s,
-        inputs=np.vstack([clean_train.values, test_inputs]),
+        inputs=part.joined.values,
         target=target,
         mech=_mechanistic(series, preset, cache_dir),
-        true=None if true is None else np.asarray(true, dtype=np.float64)[:n],
+        true=series.truth,
         n_train=n_train,
     )
     summary = {
@@ -115,11 +122,6 @@ def prepare(
         "test_rows": n - n_train,
         "train_fraction": train_fraction,
         "scoring": SCORING,
-        "preprocessing": {
-            "train": train_report.to_dict(),
-            "test_spikes_rejected_causally": int(rejected.sum()),
-            "test_scored_samples": int(scored.sum()),
-            "test_samples": int((n - n_train) * series.values.shape[1]),
-        },
+        "preprocessing": part.summary["preprocessing"],
     }
     return data, summary

@@ -23,14 +23,14 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from drafttwin import ROLLERS, __version__
+from drafttwin._constants import ROLLERS, __version__
 from drafttwin._io import write_text_atomic
-from drafttwin.evaluation.metrics import persistence_forecast
 from drafttwin.experiments import tasks
 from drafttwin.experiments.executor import run_tasks
 from drafttwin.experiments.plan import StudyProfile, get_study_profile, grid_configs
 from drafttwin.experiments.prepare import prepare
 from drafttwin.experiments.store import ResultStore, json_default
+from drafttwin.models import make_model, persistence_forecast
 from drafttwin.models.registry import get_profile
 
 COMPARISON = ("mechanistic", "persistence", "gru", "parallel", "md-s-l")
@@ -171,7 +171,7 @@ class Study:
         return results, self._prediction_frame(preds)
 
     def _predictions(self, dm: dict, comp: list[dict]) -> dict[str, np.ndarray]:
-        out = {"mechanistic": self.data.mech, "persistence": persistence_forecast(self.data.inputs, 1),
+        out = {"mechanistic": self.data.mech, "persistence": persistence_forecast(self.data.inputs),
                "gru": np.load(dm["pred_path"])}  # fmt: skip
         for name, r in zip(["parallel", "md-s-l", *EXTRA], comp, strict=True):
             out[name] = np.load(r["pred_path"])
@@ -181,7 +181,8 @@ class Study:
         self, dm: dict, comp: list[dict], preds: dict[str, np.ndarray]
     ) -> dict[str, Any]:
         metrics = {
-            name: tasks.score(self.data, preds[name]) for name in ("mechanistic", "persistence")
+            name: tasks.score(self.data, preds[name], make_model(name))
+            for name in ("mechanistic", "persistence")
         }
         metrics["gru"] = dm["metrics"]
         for name, r in zip(["parallel", "md-s-l", *EXTRA], comp, strict=True):

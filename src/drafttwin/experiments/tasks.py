@@ -15,15 +15,15 @@ from typing import Any
 import numpy as np
 import torch
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.evaluation.metrics import evaluate, json_number, persistence_forecast
+from drafttwin.evaluation import protocol
 from drafttwin.experiments.prepare import PreparedData
 from drafttwin.experiments.store import task_key
-from drafttwin.models import MechanisticModel, make_model
+from drafttwin.models import BaseModel, MechanisticModel, make_model
 from drafttwin.models.datadriven import GRUModel
 from drafttwin.models.mdsl import MDSL
-from drafttwin.models.simulation import input_matrix, input_names
+from drafttwin.models.task import input_matrix
 from drafttwin.models.training import FitProgress
 
 
@@ -43,26 +43,15 @@ METRIC_SCHEMA = "channel-metrics-2"
 changes whenever they change, so the study does not reuse results scored differently."""
 
 
-def score(data: PreparedData, pred: np.ndarray, horizon: int = 1) -> dict[str, dict[str, Any]]:
-    """Per-roller metrics on the scored test samples (JSON-safe: None where not computable),
-    plus ``rmse_vs_true``: RMSE against the plant's true value, in the channel's unit."""
-    tr = data.n_train
-    series = data.series()
-    pers = persistence_forecast(data.inputs, horizon)[tr:]
-    true = None if data.true is None else data.true[tr:]
-    metrics = evaluate(data.target[tr:], pred[tr:], channels=series.channels,
-                       units={c: series.unit(c) for c in series.channels}, persistence=pers,
-                       true_values=true)  # fmt: skip
-    out = {}
-    for j, roller in enumerate(series.channels):
-        row = metrics[roller].to_dict()
+def score(data: PreparedData, pred: np.ndarray, model: BaseModel) -> dict[str, dict[str, Any]]:
+    """Per-roller metrics of ``model``'s predictions over the whole record, scored by the
+    evaluation protocol on the test part (JSON-safe: None where not computable), with
+    ``rmse_vs_true``: RMSE against the plant's true value, in the channel's unit."""
+    result = protocol.score(data.split(), pred[data.n_train :], model)
+    rows = result.rows()
+    for row in rows.values():
         row.pop("channel", None)
-        if true is not None:
-            ok = np.isfinite(data.target[tr:, j]) & np.isfinite(pred[tr:, j])
-            err = pred[tr:, j][ok] - true[ok, j]
-            row["rmse_vs_true"] = json_number(np.sqrt(np.mean(err**2)) if err.size else np.nan)
-        out[roller] = row
-    return out
+    return rows
 
 
 def grid_point(config: dict[str, Any]) -> dict[str, Any]:
@@ -89,15 +78,17 @@ def data_model(config: dict[str, Any]) -> dict[str, Any]:
     data = _setup(config)
     mdsl = make_model("md-s-l", config["model_profile"], seed=config["seed"], quiet=True,
                       **config["hyper"])  # fmt: skip
+    assert isinstance(mdsl, MDSL)
     mdsl._check_params()
     train = data.series().slice(0, data.n_train)
-    exog = input_matrix(train, input_names(mdsl))  # exogenous inputs (none for roller data)
+    exog = input_matrix(train, mdsl.task.inputs)  # exogenous inputs (none for roller data)
     t0 = time.perf_counter()
     with FitProgress("GRU", quiet=True) as progress:
-        oof = mdsl._fit_data(train.values, exog, progress)
+        oof = mdsl._fit_data(train.values, exog, train.record_starts, progress)
     gru = mdsl.data_model_
-    gru.rollers_ = ROLLERS
-    gru.mechanistic_spec_ = None
+    gru.channels_, gru.units_ = ROLLERS, {r: "rpm" for r in ROLLERS}
+    gru.mechanistic_spec_, gru.selection_, gru.provenance_ = None, {}, {}
+    gru.sample_rate_hz_ = train.sample_rate_hz
     gru_path = gru.save(_artifact(config, data, ".gru.dtm"))
     oof_path = _artifact(config, data, ".oof.npy")
     np.save(oof_path, oof)
@@ -105,14 +96,14 @@ def data_model(config: dict[str, Any]) -> dict[str, Any]:
     pred_path = _artifact(config, data, ".pred.npy")
     np.save(pred_path, pred)
     return {"gru_path": str(gru_path), "oof_path": str(oof_path), "pred_path": str(pred_path),
-            "blocks": [list(b) for b in mdsl.crossfit_blocks_], "metrics": score(data, pred),
+            "blocks": [list(b) for b in mdsl.crossfit_blocks_], "metrics": score(data, pred, gru),
             "epochs": len(gru.history_.train_loss), "wall_s": time.perf_counter() - t0}  # fmt: skip
 
 
 class _SharedDataMDSL(MDSL):
     """An MD model whose cross-fitted GRU comes from a :func:`data_model` task."""
 
-    def _fit_data(self, y: np.ndarray, *_: object) -> np.ndarray:
+    def _fit_data(self, y: np.ndarray, *_: object) -> np.ndarray:  # type: ignore[override]
         gru_path, oof_path, blocks = self.shared_
         self.data_model_ = GRUModel.load(gru_path)
         self.crossfit_blocks_ = [tuple(b) for b in blocks]
@@ -134,7 +125,7 @@ def hybrid(config: dict[str, Any]) -> dict[str, Any]:
     t0 = time.perf_counter()
     model.fit(train, MechanisticModel(data.mech[: data.n_train]))
     pred = model.predict_values(data.series(), MechanisticModel(data.mech))
-    result = {"metrics": score(data, pred), "epochs": len(model.history_.train_loss),
+    result = {"metrics": score(data, pred, model), "epochs": len(model.history_.train_loss),
               "wall_s": time.perf_counter() - t0}  # fmt: skip
     if config.get("save_predictions"):
         path = _artifact(config, data, ".pred.npy")

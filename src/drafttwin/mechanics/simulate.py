@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 from scipy.integrate import solve_ivp
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics.assembly import (

@@ -1,20 +1,22 @@
-"""Neural and hybrid models of the roller speeds (SPEC sections 1-2).
+"""Neural and hybrid models of measured outputs (the FA320A roller speeds, or any channels).
 
 Estimators (scikit-learn style; ``fit(series, mechanistic=None)``, ``predict(series,
-mechanistic=None) -> (n, 4) rpm``, ``save(path)``, ``Class.load(path)``):
+mechanistic=None)`` -> a labelled frame, ``predict_values`` -> an array, ``save(path)``,
+``Class.load(path)``):
 
 * :class:`MechanisticBaseline`, :class:`PersistenceModel`,
 * :class:`GRUModel`, :class:`LSTMModel` (data-driven),
 * :class:`ParallelHybrid`, :class:`MDSL` (``md-s-l``, ``md-l``, ``md-s``, ``+d``).
 
-Build them by name with :func:`make_model`, load any file with :func:`load_model`;
-step through a record one sample at a time with :class:`OnlinePredictor`. Every estimator
-also takes ``task="simulation"`` (free run), other ``outputs`` and exogenous ``inputs``
-(:mod:`drafttwin.models.simulation`, ``docs/emps.md``).
+Each takes a :class:`Task` (one-step prediction or free-run simulation, output and input
+channels) and the networks a :class:`Training`. Build them by name with :func:`make_model`,
+load any file with :func:`load_model`; step through a record one sample at a time with
+:class:`OnlinePredictor`.
 """
 
 from drafttwin.models.base import FORMAT_VERSION, BaseModel, NotFittedError
-from drafttwin.models.datadriven import GRUModel, LSTMModel, MechanisticBaseline, PersistenceModel
+from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel, persistence_forecast
+from drafttwin.models.datadriven import GRUModel, LSTMModel
 from drafttwin.models.hybrid import ParallelHybrid
 from drafttwin.models.mdsl import MDSL
 from drafttwin.models.mechanistic import MechanisticModel
@@ -22,14 +24,15 @@ from drafttwin.models.networks import RecurrentRegressor, ResidualNet, SKConv1d
 from drafttwin.models.online import OnlinePredictor
 from drafttwin.models.profiles import PROFILES, Profile
 from drafttwin.models.registry import MODEL_NAMES, get_profile, load_model, make_model
-from drafttwin.models.simulation import TASKS
-from drafttwin.models.training import FitProgress, History, TrainConfig, train_network
+from drafttwin.models.task import TASKS, Task
+from drafttwin.models.training import FitProgress, History, Training, train_network
 
 __all__ = [
     "FORMAT_VERSION",
     "MDSL",
     "MODEL_NAMES",
     "PROFILES",
+    "TASKS",
     "BaseModel",
     "FitProgress",
     "GRUModel",
@@ -45,10 +48,11 @@ __all__ = [
     "RecurrentRegressor",
     "ResidualNet",
     "SKConv1d",
-    "TASKS",
-    "TrainConfig",
+    "Task",
+    "Training",
     "get_profile",
     "load_model",
     "make_model",
+    "persistence_forecast",
     "train_network",
 ]

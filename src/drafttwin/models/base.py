@@ -8,10 +8,9 @@ written with ``torch.save`` holding only tensors and JSON-able primitives, and r
 
 from __future__ import annotations
 
+import abc
 import inspect
 import json
-import math
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any, ClassVar, Self
 
@@ -20,26 +19,19 @@ import pandas as pd
 import torch
 from torch import nn
 
-from drafttwin import ROLLERS, __version__
+from drafttwin._constants import __version__
 from drafttwin._io import atomic_path
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError, DrafttwinError, ModelFileError
-from drafttwin.models.mechanistic import MechanisticModel
-from drafttwin.models.simulation import (
-    TASK_CHECKS,
-    blank_after_init,
-    check_task_params,
-    init_rows,
-    input_matrix,
-    input_names,
-    is_simulation,
-    output_names,
-)
+from drafttwin.models import params as P
+from drafttwin.models.mechanistic import MechanisticModel, as_mechanistic, describe_spec
+from drafttwin.models.task import Task, blank_after_init, init_rows, input_matrix
 from drafttwin.models.training import FitProgress
 
 FORMAT_NAME = "drafttwin-model"
-FORMAT_VERSION = 1
-"""Bumped whenever the layout of a model file changes incompatibly."""
+FORMAT_VERSION = 2
+"""Bumped whenever the layout of a model file changes incompatibly (2: settings objects,
+named channels with units, records, data-chosen options)."""
 
 MODEL_CLASSES: dict[str, type[BaseModel]] = {}
 """Estimator classes by class name (filled automatically), used to load model files."""
@@ -49,52 +41,20 @@ class NotFittedError(DrafttwinError):
     """A model was used (predict, save) before ``fit``."""
 
 
-def _int_at_least(low: int) -> Callable[[Any], bool]:
-    return lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= low
+class BaseModel(abc.ABC):
+    """Base of all drafttwin estimators (see :func:`drafttwin.models.make_model`).
 
-
-def _valid_device(v: Any) -> bool:
-    if v == "auto":
-        return True
-    try:
-        torch.device(v)
-    except (RuntimeError, TypeError):
-        return False
-    return True
-
-
-_CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "window": (_int_at_least(1), "an integer >= 1 (samples)"),
-    "data_window": (_int_at_least(1), "an integer >= 1 (samples)"),
-    "hidden": (_int_at_least(1), "an integer >= 1"),
-    "data_hidden": (_int_at_least(1), "an integer >= 1"),
-    "layers": (_int_at_least(1), "an integer >= 1"),
-    "data_layers": (_int_at_least(1), "an integer >= 1"),
-    "batch_size": (_int_at_least(1), "an integer >= 1"),
-    "epochs": (_int_at_least(1), "an integer >= 1"),
-    "horizon": (_int_at_least(1), "an integer >= 1 (samples ahead)"),
-    "folds": (_int_at_least(2), "an integer >= 2"),
-    "seed": (_int_at_least(0), "an integer >= 0"),
-    "stride": (_int_at_least(1), "an integer >= 1 (use every stride-th training window)"),
-    "sk_channels": (lambda v: _int_at_least(3)(v) and v % 3 == 0, "a multiple of 3"),
-    "dropout": (lambda v: isinstance(v, int | float) and 0 <= v < 1, "in [0, 1)"),
-    "lr": (lambda v: isinstance(v, int | float) and v > 0 and math.isfinite(v), "> 0"),
-    "val_fraction": (lambda v: isinstance(v, int | float) and 0 <= v < 1, "in [0, 1)"),
-    "patience": (lambda v: v is None or _int_at_least(1)(v), "None or an integer >= 1"),
-    "clip_norm": (lambda v: v is None or (isinstance(v, int | float) and v > 0), "None or > 0"),
-    "skip": (lambda v: isinstance(v, bool), "True or False"),
-    "quiet": (lambda v: isinstance(v, bool), "True or False"),
-    "use_disagreement": (lambda v: isinstance(v, bool), "True or False"),
-    "device": (_valid_device, '"auto", "cpu", "cuda" or "cuda:N"'),
-    **TASK_CHECKS,
-}
-
-
-class BaseModel:
-    """Base of all drafttwin estimators (see :func:`drafttwin.models.make_model`)."""
+    Fitted state common to all: ``channels_`` (output channel names), ``units_`` (their
+    units), ``mechanistic_spec_`` (the mechanistic source, JSON), ``sample_rate_hz_`` and
+    ``selection_`` (options chosen on validation data, with the scores that chose them) and
+    ``provenance_`` (how it was trained: data files, split; filled by the evaluation protocol
+    and the command line).
+    """
 
     needs_mechanistic: ClassVar[bool] = False
+    learns_from_mechanistic: ClassVar[bool] = True
     trains_networks: ClassVar[bool] = False
+    task: Task
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -130,50 +90,44 @@ class BaseModel:
     @property
     def name(self) -> str:
         """Registry name of this model (as in reports)."""
-        raise NotImplementedError
+        return type(self).__name__.lower()
 
     def _check_params(self) -> None:
-        for key, value in self.get_params().items():
-            check = _CHECKS.get(key)
-            if check is not None and not check[0](value):
-                raise ConfigError(
-                    f"hyperparameter {key}={value!r} is invalid for {type(self).__name__}",
-                    fix=f"{key} must be {check[1]}",
-                )
-        check_task_params(self)
+        """Validate the hyperparameters (called by ``fit``); subclasses add their rules."""
+        P.check_params(type(self).__name__, self.get_params())
+
+    def _refuse_for_task(self, name: str, why: str) -> None:
+        """Refuse a hyperparameter that was set but means nothing for this task."""
+        if getattr(self, name, None) is not None:
+            raise ConfigError(
+                f"{name}={getattr(self, name)!r} does not apply to {type(self).__name__} with "
+                f"task {self.task.kind!r}: {why}",
+                fix=f"leave {name} unset (None) for this task",
+            )
 
     # ----- boundary checks -------------------------------------------------------------
     def _check_series(self, series: object) -> MeasurementSeries:
         if not isinstance(series, MeasurementSeries):
             raise DataError(
                 f"expected a MeasurementSeries, got {type(series).__name__}",
-                fix="read measurements with drafttwin.data.io.read_measurements(...)",
+                fix="read measurements with drafttwin.read_measurements(...)",
             )
-        if getattr(self, "outputs", None) is None and series.values.shape[1] != len(ROLLERS):
+        fitted = getattr(self, "channels_", None)
+        wanted = fitted if fitted is not None else self.task.outputs
+        if wanted is not None and tuple(series.channels) != tuple(wanted):
+            when = "was fitted on" if fitted is not None else "predicts"
             raise DataError(
-                f"the series has {series.values.shape[1]} roller column(s) {list(series.channels)}; "
-                f"the models need {len(ROLLERS)}: {', '.join(ROLLERS)}",
-                fix="provide one speed column per bottom roller",
+                f"the data have output channels {list(series.channels)} but the model {when} "
+                f"{list(wanted)}",
+                fix="read the data with the same --outputs (same names, same order)",
             )
-        wanted = output_names(self)
-        if getattr(self, "outputs", None) is not None and tuple(series.channels) != wanted:
-            raise DataError(
-                f"the series has output channels {list(series.channels)} but the model's outputs "
-                f"are {list(wanted)}",
-                fix="build the series with channels=outputs (same names, same order)",
-            )
-        fitted = getattr(self, "rollers_", None)
-        if fitted is not None and tuple(series.channels) != tuple(fitted):
-            raise DataError(
-                f"the series has rollers {list(series.channels)} but the model was fitted on "
-                f"{list(fitted)}",
-                fix="rename or reorder the columns as during fitting",
-            )
-        input_matrix(series, input_names(self))  # refuses missing input channels
+        if len(series) == 0:
+            raise DataError("the series has no rows", fix="pass a non-empty series")
+        input_matrix(series, self.task.inputs)  # refuses missing input channels
         return series
 
     def _check_fitted(self) -> None:
-        if not hasattr(self, "rollers_"):
+        if not hasattr(self, "channels_"):
             raise NotFittedError(
                 f"this {type(self).__name__} is not fitted",
                 fix="call fit(training_series, ...) first, or load a saved model",
@@ -182,40 +136,54 @@ class BaseModel:
     def _mechanistic(
         self, series: MeasurementSeries, mechanistic: object | None, *, fitting: bool
     ) -> tuple[np.ndarray | None, MechanisticModel | None]:
-        """The mechanistic prediction on the series' grid (``None`` if not needed)."""
+        """The mechanistic prediction on the series' grid (``None`` if not needed, or when
+        fitting a model that learns nothing from it) and its source."""
         if not self.needs_mechanistic:
             return None, None
         model = mechanistic
         if model is None and not fitting:
-            model = MechanisticModel.from_spec(getattr(self, "mechanistic_spec_", None))
+            spec = getattr(self, "mechanistic_spec_", None)
+            model = MechanisticModel.from_spec(spec)
+            if model is None and spec:
+                raise ConfigError(
+                    f"the {self.name} model was fitted with {describe_spec(spec)}, which the "
+                    "model file does not hold",
+                    fix="pass the mechanistic source again (mechanistic= / --mechanistic)",
+                )
         if model is None:
             raise ConfigError(
                 f"the {self.name} model needs a mechanistic prediction",
-                fix="pass mechanistic=MechanisticModel(source) (a callable, a simulator output "
-                "file, or MechanisticModel.from_preset('fa320a'))",
+                fix="pass a mechanistic source: a preset, a drive-train file, a simulator "
+                "output file or a callable (MechanisticModel / --mechanistic)",
             )
-        channels = output_names(self)
-        if not isinstance(model, MechanisticModel):
-            model = MechanisticModel(model, channels=channels)  # type: ignore[arg-type]
-        if model.channels != channels:
-            raise DataError(
-                f"the mechanistic source {model.name!r} gives channels {list(model.channels)} "
-                f"but the model predicts {list(channels)}",
-                fix="build the MechanisticModel with channels=<the model's outputs>",
-            )
-        return model.predict(series), model
+        source = as_mechanistic(model)
+        if fitting and not self.learns_from_mechanistic:
+            return None, source  # e.g. the physics alone: nothing to fit, nothing to simulate
+        return source.predict(series, channels=series.channels), source
+
+    def _window_lengths(self) -> list[int]:
+        """The model's input windows, samples (a simulation needs as many measured rows)."""
+        return [int(getattr(self, "window", 1))]
+
+    def _init_rows(self) -> int:
+        """Measured rows at the start of each record that a simulation may use."""
+        return init_rows(self.task, *self._window_lengths())
 
     # ----- public API ------------------------------------------------------------------
     def fit(self, series: MeasurementSeries, mechanistic: object | None = None) -> Self:
-        """Fit on a training series (rpm, regular time grid). Hybrids need ``mechanistic``
-        (a :class:`MechanisticModel` or any source it accepts). Returns ``self``."""
+        """Fit on a training series (regular time grid, one or several records). Hybrids need
+        ``mechanistic`` (a :class:`MechanisticModel` or any source it accepts). Returns
+        ``self``."""
         self._check_params()
         series = self._check_series(series)
         mech, mech_model = self._mechanistic(series, mechanistic, fitting=True)
+        self.selection_: dict[str, Any] = {}
+        self.provenance_: dict[str, Any] = {}
         quiet = bool(getattr(self, "quiet", True)) or not self.trains_networks
         with FitProgress(f"fit {self.name}", quiet=quiet) as progress:
             self._fit(series, mech, progress)
-        self.rollers_ = tuple(series.channels)
+        self.channels_ = tuple(series.channels)
+        self.units_ = {name: series.unit(name) for name in (*series.channels, *self.task.inputs)}
         self.mechanistic_spec_ = None if mech_model is None else mech_model.spec()
         rate = series.sample_rate_hz
         self.sample_rate_hz_ = float(rate) if np.isfinite(rate) else None
@@ -227,48 +195,53 @@ class BaseModel:
         channel units. Same rows and rules as :meth:`predict_values`."""
         values = self.predict_values(series, mechanistic)
         frame = pd.DataFrame({"time": series.time_s})
-        for j, name in enumerate(output_names(self)):
+        for j, name in enumerate(self.channels_):
             frame[name] = values[:, j]
         if series.n_records > 1:
             frame["record"] = series.record_ids()
-        frame.attrs["units"] = {name: series.unit(name) for name in output_names(self)}
+        frame.attrs["units"] = {name: self.units_.get(name, "") for name in self.channels_}
         frame.attrs["model"] = self.name
         return frame
 
     def predict_values(
         self, series: MeasurementSeries, mechanistic: object | None = None
     ) -> np.ndarray:
-        """Predicted speeds in rpm (or the ``outputs`` channels in their units), shape
-        ``(n, channels)``. ``NaN`` where the history is too short or incomplete.
+        """Predicted outputs in their units, shape ``(n, channels)``; ``NaN`` where the history
+        is too short or incomplete.
 
-        ``task="prediction"``: row ``t`` uses measurements up to ``t - horizon`` only. Pass the
+        Task ``prediction``: row ``T`` uses measurements up to ``T - horizon`` only. Pass the
         whole record (training and test part) and score the test rows: every row's prediction
         only uses earlier measurements, so this is honest and loses no test rows.
 
-        ``task="simulation"``: a free run over the series from its first ``init_samples``
+        Task ``simulation``: a free run over each record from its first ``init_samples``
         measured rows; every later measured output is blanked (NaN) here, before the
-        mechanistic source or the model sees the series. Pass the record to simulate (e.g. the
-        test record alone); rows before the end of the initialisation window are NaN.
+        mechanistic source or the model sees the series. Rows inside the initialisation
+        window are NaN.
         """
         self._check_fitted()
         series = self._check_series(series)
-        if is_simulation(self):
-            series = blank_after_init(series, init_rows(self))
+        if self.task.simulation:
+            series = blank_after_init(series, self._init_rows())
         mech, _ = self._mechanistic(series, mechanistic, fitting=False)
         return self._predict(series, mech)
 
-    def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
-        raise NotImplementedError
+    def _fit(  # noqa: B027  (an optional hook: models without state keep it empty)
+        self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress
+    ) -> None:
+        """Fit the model's own state (subclasses); ``mech``: the mechanistic prediction."""
 
+    @abc.abstractmethod
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
-        raise NotImplementedError
+        """Predictions ``(n, channels)`` for a checked (and, in a simulation, blanked) series."""
 
     # ----- persistence -----------------------------------------------------------------
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
         """Fitted state: JSON-able primitives and named tensors."""
         return {}, {}
 
-    def _set_state(self, state: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
+    def _set_state(  # noqa: B027  (an optional hook, as _get_state)
+        self, state: dict[str, Any], tensors: dict[str, torch.Tensor]
+    ) -> None:
         """Restore what :meth:`_get_state` returned."""
 
     def save(self, path: str | Path) -> Path:
@@ -277,9 +250,12 @@ class BaseModel:
         self._check_fitted()
         state, tensors = self._get_state()
         state = {
-            "rollers": list(self.rollers_),
+            "channels": list(self.channels_),
+            "units": dict(self.units_),
             "mechanistic": self.mechanistic_spec_,
-            "sample_rate_hz": getattr(self, "sample_rate_hz_", None),
+            "sample_rate_hz": self.sample_rate_hz_,
+            "selection": self.selection_,
+            "provenance": self.provenance_,
             **state,
         }
         payload = {
@@ -288,7 +264,7 @@ class BaseModel:
             "drafttwin_version": __version__,
             "model_class": type(self).__name__,
             "model_name": self.name,
-            "params": self.get_params(),
+            "params_json": json.dumps(P.encode_params(self.get_params()), allow_nan=False),
             "state_json": json.dumps(state, allow_nan=True),
             "tensors": {k: v.detach().cpu().contiguous() for k, v in tensors.items()},
         }
@@ -300,8 +276,8 @@ class BaseModel:
     @classmethod
     def load(cls, path: str | Path) -> Self:
         """Read a model file written by :meth:`save`. Raises :class:`ModelFileError` for a file
-        that is missing, not a drafttwin model, corrupt, of another format version, or holds a
-        model of a different class than ``cls``."""
+        that is missing, not a drafttwin model, corrupt, of another format version, holds
+        invalid hyperparameters, or a model of a different class than ``cls``."""
         path = Path(path)
         payload = read_model_file(path)
         klass = MODEL_CLASSES.get(str(payload["model_class"]))
@@ -309,25 +285,31 @@ class BaseModel:
             raise ModelFileError(
                 f"the file holds a {payload['model_class']}, not a {cls.__name__}",
                 source=path,
-                fix="load it with drafttwin.models.load_model(path)",
+                fix="load it with drafttwin.load_model(path)",
             )
         try:
-            model = klass(**payload["params"])
+            params = P.decode_params(json.loads(payload["params_json"]), MODEL_CLASSES)
+            model = klass(**params)
+            model._check_params()
             state = json.loads(payload["state_json"])
-            model.rollers_ = tuple(state.pop("rollers"))
+            model.channels_ = tuple(state.pop("channels"))
+            model.units_ = dict(state.pop("units"))
             model.mechanistic_spec_ = state.pop("mechanistic")
             model.sample_rate_hz_ = state.pop("sample_rate_hz", None)
+            model.selection_ = dict(state.pop("selection", {}))
+            model.provenance_ = dict(state.pop("provenance", {}))
             model._set_state(state, payload["tensors"])
-        except (TypeError, KeyError, ValueError, RuntimeError) as exc:
+        except (TypeError, KeyError, ValueError, RuntimeError, DrafttwinError) as exc:
+            detail = exc.message if isinstance(exc, DrafttwinError) else str(exc)
             raise ModelFileError(
-                f"the model file is damaged or inconsistent ({type(exc).__name__}: {exc})",
+                f"the model file is damaged or inconsistent ({type(exc).__name__}: {detail})",
                 source=path,
                 fix="re-fit and save the model again",
             ) from exc
         return model  # type: ignore[return-value]
 
 
-_REQUIRED = ("format_version", "model_class", "params", "state_json", "tensors")
+_REQUIRED = ("format_version", "model_class", "params_json", "state_json", "tensors")
 
 
 def read_model_file(path: Path) -> dict[str, Any]:

@@ -1,11 +1,10 @@
-"""Single models: the mechanistic baseline, persistence, and the GRU/LSTM data-driven models.
+"""The data-driven models: GRU and LSTM on windows of past measured outputs.
 
-The data-driven models see a window of past measured speeds of all four rollers jointly,
-rows ``T-h-W+1 .. T-h`` for target row ``T`` (``W`` = window, ``h`` = horizon), min-max scaled
-with a scaler fitted on the training part only, and predict the four speeds at ``T``. Optional
-exogenous ``inputs`` (set-point channels) join the window as extra channels. With
-``task="simulation"`` they become NARX models run free from their own outputs
-(:mod:`drafttwin.models.simulation`).
+Task ``prediction``: a window of the measured outputs (all channels jointly) at rows
+``T-h-W+1 .. T-h`` (``W`` = window, ``h`` = horizon), min-max scaled with a scaler fitted on
+the training part only, predicts the outputs at ``T``; exogenous ``inputs`` join the window as
+extra channels. Task ``simulation``: a NARX model run free from its own outputs
+(:mod:`drafttwin.models.narx`).
 """
 
 from __future__ import annotations
@@ -17,15 +16,15 @@ import torch
 
 from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.evaluation.metrics import persistence_forecast
-from drafttwin.models import simulation as sim
+from drafttwin.models import narx
 from drafttwin.models.base import BaseModel, pack_module, unpack_module
+from drafttwin.models.features import fit_scaler, scale_inputs
 from drafttwin.models.networks import RecurrentRegressor
-from drafttwin.models.simulation import fit_scaler
+from drafttwin.models.task import Task, check_windows, input_matrix
 from drafttwin.models.training import (
     FitProgress,
     History,
-    TrainConfig,
+    Training,
     predict_network,
     train_network,
 )
@@ -38,83 +37,31 @@ from drafttwin.models.windows import (
 )
 
 
-class MechanisticBaseline(BaseModel):
-    """The mechanistic model alone, as an estimator: ``predict`` returns its speeds (in both
-    tasks: a mechanistic source is an open-loop simulation)."""
-
-    needs_mechanistic = True
-
-    def __init__(self, task: str = "prediction", outputs: tuple[str, ...] | None = None) -> None:
-        self.task = task
-        self.outputs = outputs
-
-    @property
-    def name(self) -> str:
-        return "mechanistic"
-
-    def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
-        return None
-
-    def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
-        assert mech is not None
-        return np.asarray(mech, dtype=np.float64).copy()
-
-
-class PersistenceModel(BaseModel):
-    """Naive forecast: the speed at ``T`` is the last measured speed at or before ``T-h``
-    (simulation: the last measured value of the initialisation window, held)."""
-
-    def __init__(
-        self,
-        horizon: int = 1,
-        task: str = "prediction",
-        outputs: tuple[str, ...] | None = None,
-        init_samples: int | None = None,
-    ) -> None:
-        self.horizon = horizon
-        self.task = task
-        self.outputs = outputs
-        self.init_samples = init_samples
-
-    @property
-    def name(self) -> str:
-        return "persistence"
-
-    def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
-        return None
-
-    def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
-        if not sim.is_simulation(self):
-            return persistence_forecast(series.values, self.horizon)
-        init = sim.init_rows(self)
-        out = np.full(series.values.shape, np.nan)
-        if len(series) > init:
-            out[init:] = causal_ffill(series.values[:init])[-1]
-        return out
-
-
 class _NeuralModel(BaseModel):
     """Shared pieces of the estimators that train networks."""
 
     trains_networks = True
+    training: Training
+    seed: int
 
-    def _train_config(self, seed: int) -> TrainConfig:
-        p = self.get_params()
-        return TrainConfig(
-            epochs=p["epochs"],
-            batch_size=p["batch_size"],
-            lr=float(p["lr"]),
-            patience=p["patience"],
-            val_fraction=float(p["val_fraction"]),
-            clip_norm=p["clip_norm"],
-            seed=seed,
-            device=p["device"],
-            stride=p.get("stride", 1),
-        )
+    def _device(self) -> str:
+        return self.training.device
 
 
 class _RecurrentModel(_NeuralModel):
-    """GRU/LSTM regressor on windows of past measured speeds (all rollers jointly)."""
+    """GRU/LSTM regressor on windows of past measured outputs (all channels jointly).
+
+    Args:
+        window: input window, samples. hidden / layers: recurrent size. dropout: between
+            layers.
+        skip: task ``prediction``: the head predicts a change added to the last measured
+            value (``None``: True; an untrained net is then persistence); ``False``: the
+            plain regression of the paper. Must stay ``None`` in a simulation, where the NARX
+            network always predicts the per-sample change.
+        task: what is predicted from what (:class:`~drafttwin.models.task.Task`).
+        training: how the network is trained (:class:`~drafttwin.models.training.Training`).
+        seed: weight initialisation and batch order. quiet: no progress bar.
+    """
 
     cell = "gru"
 
@@ -124,56 +71,41 @@ class _RecurrentModel(_NeuralModel):
         hidden: int = 48,
         layers: int = 2,
         dropout: float = 0.1,
-        lr: float = 2e-3,
-        batch_size: int = 64,
-        epochs: int = 30,
-        patience: int | None = 5,
-        val_fraction: float = 0.2,
-        clip_norm: float | None = 1.0,
-        skip: bool = True,
-        horizon: int = 1,
+        skip: bool | None = None,
+        task: Task = Task(),
+        training: Training = Training(),
         seed: int = 0,
-        device: str = "auto",
         quiet: bool = False,
-        task: str = "prediction",
-        outputs: tuple[str, ...] | None = None,
-        inputs: tuple[str, ...] = (),
-        init_samples: int | None = None,
-        stride: int = 1,
     ) -> None:
         self.window = window
         self.hidden = hidden
         self.layers = layers
         self.dropout = dropout
-        self.lr = lr
-        self.batch_size = batch_size
-        self.epochs = epochs
-        self.patience = patience
-        self.val_fraction = val_fraction
-        self.clip_norm = clip_norm
         self.skip = skip
-        self.horizon = horizon
-        self.seed = seed
-        self.device = device
-        self.quiet = quiet
         self.task = task
-        self.outputs = outputs
-        self.inputs = inputs
-        self.init_samples = init_samples
-        self.stride = stride
+        self.training = training
+        self.seed = seed
+        self.quiet = quiet
 
     @property
     def name(self) -> str:
         return self.cell
 
-    def _build(self) -> RecurrentRegressor:
+    def _check_params(self) -> None:
+        super()._check_params()
+        if self.task.simulation:
+            self._refuse_for_task("skip", "the NARX network always predicts the change")
+        check_windows(self.task, window=self.window)
+
+    def _build(self, n_out: int) -> RecurrentRegressor:
+        """A new network for ``n_out`` output channels, initialised from ``seed``."""
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(self.seed)
-            return self._new_net()
+            return self._new_net(n_out)
 
-    def _new_net(self) -> RecurrentRegressor:
-        n_out, n_in = len(sim.output_names(self)), len(sim.input_names(self))
-        simulating = sim.is_simulation(self)
+    def _new_net(self, n_out: int) -> RecurrentRegressor:
+        n_in = len(self.task.inputs)
+        simulating = self.task.simulation
         return RecurrentRegressor(
             (2 * n_out if simulating else n_out) + n_in,
             n_out,
@@ -181,49 +113,48 @@ class _RecurrentModel(_NeuralModel):
             hidden=self.hidden,
             layers=self.layers,
             dropout=self.dropout,
-            skip=self.skip and not simulating,  # NARX: the free run adds the change itself
+            skip=not simulating and self.skip is not False,
         )
 
-    def _inputs_of(self, series: MeasurementSeries) -> np.ndarray:
-        return sim.input_matrix(series, sim.input_names(self))
-
     def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
-        self._fit_arrays(series.values, u=self._inputs_of(series), progress=progress)
+        self._fit_arrays(series.values, input_matrix(series, self.task.inputs),
+                         series.record_starts, progress=progress)  # fmt: skip
 
     def _fit_arrays(
         self,
         y: np.ndarray,
+        u: np.ndarray,
+        starts: tuple[int, ...],
         *,
-        u: np.ndarray | None = None,
         exclude: tuple[int, int] | None = None,
         progress: FitProgress | None = None,
         stage: str | None = None,
     ) -> None:
-        """Fit on measured speeds ``y`` (n, 4) rpm (or the output channels) and inputs ``u``
-        (n, k). With ``exclude = (a, b)`` rows ``a..b-1`` are held out: blanked before scaling
-        and filling, and no training window or target touches them (used for cross-fitting)."""
-        u = np.zeros((len(y), 0)) if u is None else u
-        if sim.is_simulation(self):
-            sim.fit_narx(self, y, u, exclude=exclude, progress=progress,
-                         stage=stage or f"{self.cell.upper()} (NARX)")  # fmt: skip
+        """Fit on measured outputs ``y`` (n, channels) and inputs ``u`` (n, k) of records
+        starting at ``starts``. With ``exclude = (a, b)`` rows ``a..b-1`` are held out:
+        blanked before scaling and filling, and no training window or target touches them
+        (used for cross-fitting)."""
+        if self.task.simulation:
+            narx.fit_narx(self, y, u, starts, exclude=exclude, progress=progress,
+                          stage=stage or f"{self.cell.upper()} (NARX)")  # fmt: skip
             return
         y_in = np.array(y, dtype=np.float64, copy=True)
         if exclude is not None:
             y_in[exclude[0] : exclude[1]] = np.nan
-        scaler = fit_scaler(y_in, "measured speeds")
+        scaler = fit_scaler(y_in, "measured outputs")
         u_scaler = self._fit_input_scaler(u, exclude)
-        feats = np.hstack([scaler.transform(causal_ffill(y_in)), sim.scale_inputs(u_scaler, u)])
-        targets = target_rows(len(y_in), self.window, self.horizon)
+        feats = np.hstack([scaler.transform(causal_ffill(y_in, starts)),
+                           scale_inputs(u_scaler, u, starts)])  # fmt: skip
+        h = self.task.horizon
+        targets = target_rows(len(y_in), self.window, h, starts)
         if exclude is not None:
-            targets = targets[footprint_outside(targets, self.window, self.horizon, exclude)]
-        x = gather_windows(feats, targets, self.window, self.horizon)
+            targets = targets[footprint_outside(targets, self.window, h, exclude)]
+        x = gather_windows(feats, targets, self.window, h)
         t = scaler.transform(y_in)[targets]
         ok = finite_rows(x, t)
-        net = self._build()
-        history = train_network(
-            net, x[ok], t[ok], self._train_config(self.seed), progress=progress,
-            stage=stage or self.cell.upper(),
-        )  # fmt: skip
+        net = self._build(y.shape[1])
+        history = train_network(net, x[ok], t[ok], self.training, seed=self.seed,
+                                progress=progress, stage=stage or self.cell.upper())  # fmt: skip
         self.scaler_, self.net_, self.history_ = scaler, net, history
         self.input_scaler_ = u_scaler
 
@@ -238,61 +169,70 @@ class _RecurrentModel(_NeuralModel):
         return fit_scaler(u_fit, "inputs")
 
     def _simulate_arrays(
-        self, y: np.ndarray, u: np.ndarray, segments: list[tuple[int, int]] | None = None
+        self, y: np.ndarray, u: np.ndarray, segments: list[tuple[int, int]], init: int
     ) -> np.ndarray:
-        """NARX free runs (simulation mode) over ``segments`` (default: the whole series),
-        including their measured initialisation rows; see :func:`simulation.run_narx`."""
-        return sim.run_narx(self, np.asarray(y, np.float64), u, segments or [(0, len(y))])
+        """NARX free runs over ``segments``, their measured initialisation rows included."""
+        return narx.run_narx(self, np.asarray(y, np.float64), u, segments, init)
 
-    def _predict_arrays(self, y: np.ndarray, u: np.ndarray | None = None) -> np.ndarray:
-        """Predictions (n, 4) rpm for measured speeds ``y`` (n, 4); NaN without full history.
-        Simulation mode: the free run from the first ``init_samples`` rows (earlier rows NaN)."""
+    def _predict_arrays(
+        self, y: np.ndarray, u: np.ndarray, starts: tuple[int, ...], init: int | None = None
+    ) -> np.ndarray:
+        """Predictions (n, channels) for measured outputs ``y``; NaN without full history.
+        Simulation: each record's free run from its first ``init`` rows (those rows NaN)."""
         y = np.asarray(y, dtype=np.float64)
-        u = np.zeros((len(y), 0)) if u is None else u
-        if sim.is_simulation(self):
-            out = self._simulate_arrays(y, u)
-            out[: sim.init_rows(self)] = np.nan
+        if self.task.simulation:
+            init = self._init_rows() if init is None else init
+            bounds = _bounds(len(y), starts)
+            out = self._simulate_arrays(y, u, bounds, init)
+            for a, b in bounds:
+                out[a : min(b, a + init)] = np.nan
             return out
         out = np.full(y.shape, np.nan)
-        feats = np.hstack(
-            [self.scaler_.transform(causal_ffill(y)), sim.scale_inputs(self.input_scaler_, u)]
-        )
-        targets = target_rows(len(y), self.window, self.horizon)
-        x = gather_windows(feats, targets, self.window, self.horizon)
+        feats = np.hstack([self.scaler_.transform(causal_ffill(y, starts)),
+                           scale_inputs(self.input_scaler_, u, starts)])  # fmt: skip
+        h = self.task.horizon
+        targets = target_rows(len(y), self.window, h, starts)
+        x = gather_windows(feats, targets, self.window, h)
         ok = finite_rows(x)
         if ok.any():
-            pred = predict_network(self.net_, x[ok], device=self.device)
+            pred = predict_network(self.net_, x[ok], device=self._device())
             out[targets[ok]] = self.scaler_.inverse_transform(pred)
         return out
 
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
-        return self._predict_arrays(series.values, self._inputs_of(series))
+        u = input_matrix(series, self.task.inputs)
+        return self._predict_arrays(series.values, u, series.record_starts)
 
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
-        state: dict[str, Any] = {
-            "scaler": self.scaler_.to_dict(),
-            "history": self.history_.to_dict(),
-        }
-        if getattr(self, "input_scaler_", None) is not None:
-            state["input_scaler"] = self.input_scaler_.to_dict()
-        if sim.is_simulation(self):
-            state["sim_scalers"] = sim.narx_state(self)
+        state: dict[str, Any] = {"history": self.history_.to_dict()}
+        if self.task.simulation:
+            state["sim_scalers"] = narx.narx_state(self.sim_scalers_)
+        else:
+            state["scaler"] = self.scaler_.to_dict()
+            if self.input_scaler_ is not None:
+                state["input_scaler"] = self.input_scaler_.to_dict()
         return state, pack_module("net", self.net_)
 
     def _set_state(self, state: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
-        self.scaler_ = MinMaxScaler.from_dict(state["scaler"])
         self.history_ = History.from_dict(state["history"])
-        inp = state.get("input_scaler")
-        self.input_scaler_ = None if inp is None else MinMaxScaler.from_dict(inp)
-        if "sim_scalers" in state:
-            self.sim_scalers_ = sim.narx_restore(state["sim_scalers"])
-        net = self._new_net()
+        if self.task.simulation:
+            self.sim_scalers_ = narx.narx_restore(state["sim_scalers"])
+        else:
+            self.scaler_ = MinMaxScaler.from_dict(state["scaler"])
+            inp = state.get("input_scaler")
+            self.input_scaler_ = None if inp is None else MinMaxScaler.from_dict(inp)
+        net = self._new_net(len(self.channels_))
         unpack_module("net", tensors, net)
         self.net_ = net
 
 
+def _bounds(n: int, starts: tuple[int, ...]) -> list[tuple[int, int]]:
+    ends = (*starts[1:], n)
+    return [(a, b) for a, b in zip(starts, ends, strict=True) if b > a]
+
+
 class GRUModel(_RecurrentModel):
-    """The paper's data-driven model: a GRU on a window of the four measured speeds."""
+    """The paper's data-driven model: a GRU on a window of the measured outputs."""
 
     cell = "gru"
 

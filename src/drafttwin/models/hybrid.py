@@ -1,25 +1,18 @@
-"""Hybrid models: the parallel hybrid and multi-model residual learning (MD-S-L and ablations).
+"""Hybrid models: the parallel hybrid and the residual machinery MD-S-L builds on.
 
 Both correct the mechanistic prediction with a learned residual (paper eq. 15):
-``yhat(T) = yhat_m(T) + ehat_m(T)``, where ``ehat_m(T)`` is predicted from residual channels up
-to ``T-h`` only:
+``yhat(T) = yhat_m(T) + ehat_m(T)``.
 
-* parallel: the mechanistic residual ``e_m = y - yhat_m`` (4 channels) -> LSTM -> head;
-* MD-S-L: ``e_m`` and the data-driven residual ``e_d = y - yhat_d`` (8 channels) -> SKNet ->
-  LSTM -> head; MD-L drops the SKNet, MD-S drops the LSTM; with ``use_disagreement`` the
-  current disagreement ``yhat_d(T) - yhat_m(T)`` (known at ``T``) enters the head too.
+Task ``prediction``: ``ehat_m(T)`` comes from residual channels up to ``T-h`` only; the parallel
+hybrid sees the mechanistic residual ``e_m = y - yhat_m``; MD-S-L adds the data-driven
+residual ``e_d`` (:mod:`drafttwin.models.mdsl`).
 
-The data-driven residuals that train the residual model are out-of-sample: the GRU is
-cross-fitted over contiguous blocks of the training part (fitted on the other blocks, with
-every window touching the held-out block removed, then predicting the held-out block). At
-prediction time the GRU fitted on the whole training part supplies ``yhat_d``.
-
-Simulation mode (``task="simulation"``, see :mod:`drafttwin.models.simulation`): no measured
-residual exists after the initialisation window, so the windows hold the exogenous inputs and
-the simulated outputs instead: ``[yhat_m, dyhat_m]`` (parallel), plus the per-sample change
-of the data-driven model's free run ``dyhat_d`` (MD-*), at rows ``T-W+1 .. T``. The target is the mechanistic
-residual ``e_m(T)``, or with ``skip`` its per-sample change, accumulated from the measured
-residual at the end of the initialisation window.
+Task ``simulation``: no measured residual exists after each record's initialisation window,
+so the windows hold the inputs and the simulated outputs instead: ``[yhat_m, dyhat_m]``
+(parallel), plus the per-sample change of the data-driven free run ``dyhat_d`` (MD-*), at rows
+``T-W+1 .. T``. The target is the residual's level ``e_m(T)`` or its per-sample change summed
+from the last measured residual; :mod:`drafttwin.models.accumulation` chooses between them on
+validation data unless ``accumulate`` is set.
 """
 
 from __future__ import annotations
@@ -31,20 +24,33 @@ import torch
 
 from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.models import simulation as sim
+from drafttwin.errors import ConfigError, DataError
+from drafttwin.models import accumulation as acc
 from drafttwin.models.base import pack_module, unpack_module
-from drafttwin.models.datadriven import _NeuralModel, fit_scaler
+from drafttwin.models.datadriven import _NeuralModel
+from drafttwin.models.features import fit_scaler
 from drafttwin.models.networks import ResidualNet
-from drafttwin.models.training import FitProgress, History, predict_network, train_network
+from drafttwin.models.task import Task, check_windows, input_matrix
+from drafttwin.models.training import (
+    FitProgress,
+    History,
+    Training,
+    debias_head,
+    predict_network,
+    train_network,
+)
 from drafttwin.models.windows import (
     causal_ffill,
     finite_rows,
     gather_windows,
+    increments,
     target_rows,
 )
 
 VARIANTS = ("md-s-l", "md-l", "md-s")
 """MD-S-L (SKNet + LSTM), MD-L (no SKNet), MD-S (no LSTM)."""
+
+Groups = dict[str, np.ndarray]
 
 
 class _ResidualHybrid(_NeuralModel):
@@ -54,163 +60,249 @@ class _ResidualHybrid(_NeuralModel):
     needs_mechanistic = True
     use_sknet = False
     use_lstm = True
+    window: int
+    hidden: int
+    layers: int
+    dropout: float
+    skip: bool | None
+    accumulate: bool | None
 
-    # --- what each hybrid feeds the residual net -------------------------------------
-    def _groups(
-        self, y: np.ndarray, mech: np.ndarray, data: np.ndarray | None
-    ) -> dict[str, np.ndarray]:
-        """Raw channel groups (n, 4) each: ``em`` residual channels first (also the target)."""
+    # --- what each hybrid feeds the residual net ---------------------------------------
+    def _groups(self, y: np.ndarray, mech: np.ndarray, data: np.ndarray | None) -> Groups:
+        """Prediction: raw channel groups, ``em`` (the residual, also the target) first."""
         return {"em": y - mech}
 
     def _channel_groups(self) -> tuple[str, ...]:
         return ("em",)
 
     def _sim_channel_groups(self) -> tuple[str, ...]:
-        """Simulation mode: the mechanistic output and its per-sample change."""
+        """Simulation: the mechanistic output and its per-sample change."""
         return ("ym", "dym")
 
     def _extra_group(self) -> str | None:
         return None
 
-    def _fit_data(self, y: np.ndarray, u: np.ndarray, progress: FitProgress) -> np.ndarray | None:
+    def _fit_data(
+        self, y: np.ndarray, u: np.ndarray, starts: tuple[int, ...], progress: FitProgress
+    ) -> np.ndarray | None:
         return None
 
-    def _predict_data(self, y: np.ndarray, u: np.ndarray) -> np.ndarray | None:
+    def _predict_data(
+        self, y: np.ndarray, u: np.ndarray, starts: tuple[int, ...]
+    ) -> np.ndarray | None:
         return None
 
-    # --- task plumbing ---------------------------------------------------------------
+    # --- checks and channel plumbing -------------------------------------------------
+    def _check_params(self) -> None:
+        super()._check_params()
+        if self.task.simulation:
+            self._refuse_for_task("skip", "a free run has no measured residual to add to")
+            if self.accumulate is None and self.training.val_fraction == 0:
+                raise ConfigError(
+                    "accumulate=None chooses residual accumulation on the validation part of "
+                    "the training data, but training.val_fraction is 0",
+                    fix="set val_fraction > 0, or fix accumulate=True or False",
+                )
+        else:
+            self._refuse_for_task("accumulate", "one-step prediction sees measured residuals")
+        check_windows(self.task, window=self.window)
+
     def _channels(self) -> tuple[str, ...]:
         """Window channel groups in order (the ``em`` group first in prediction mode)."""
-        base = self._sim_channel_groups() if sim.is_simulation(self) else self._channel_groups()
-        return base + (("u",) if sim.input_names(self) else ())
-
-    def _target_group(self) -> str:
-        """``dem`` (the residual's per-sample change) for an accumulating simulation, else
-        ``em``."""
-        return "dem" if sim.is_simulation(self) and self.skip else "em"
-
-    def _width(self, group: str) -> int:
-        return len(sim.input_names(self) if group == "u" else sim.output_names(self))
+        base = self._sim_channel_groups() if self.task.simulation else self._channel_groups()
+        return base + (("u",) if self.task.inputs else ())
 
     def _all_groups(
-        self, y: np.ndarray, mech: np.ndarray, data: np.ndarray | None, u: np.ndarray
-    ) -> dict[str, np.ndarray]:
-        if not sim.is_simulation(self):
+        self, y: np.ndarray, mech: np.ndarray, data: np.ndarray | None, u: np.ndarray,
+        starts: tuple[int, ...],
+    ) -> Groups:  # fmt: skip
+        if not self.task.simulation:
             groups = self._groups(y, mech, data)
         else:
             em = y - mech
             dem = np.full_like(em, np.nan)
             dem[1:] = em[1:] - em[:-1]
-            groups = {"em": em, "dem": dem, "ym": mech, "dym": sim.increments(mech)}
+            dem[[s for s in starts if 0 < s < len(em)]] = np.nan
+            groups = {"em": em, "dem": dem, "ym": mech, "dym": increments(mech, starts)}
             if data is not None:
-                groups["dyd"] = sim.increments(data)
-            if self._extra_group() is not None and data is not None:
-                groups["dis"] = data - mech
+                groups["dyd"] = increments(data, starts)
+                if self._extra_group() is not None:
+                    groups["dis"] = data - mech
         if u.shape[1]:
             groups["u"] = u
         return groups
 
-    # --- shared machinery ----------------------------------------------------------
-    def _new_net(self) -> ResidualNet:
-        n_out = len(sim.output_names(self))
+    def _new_net(self, n_out: int) -> ResidualNet:
+        widths = {g: (len(self.task.inputs) if g == "u" else n_out) for g in self._channels()}
         return ResidualNet(
-            sum(self._width(g) for g in self._channels()),
+            sum(widths.values()),
             n_out,
             n_extra=n_out if self._extra_group() else 0,
             use_sknet=self.use_sknet,
             use_lstm=self.use_lstm,
-            sk_channels=getattr(self, "sk_channels", 24),
+            sk_channels=int(getattr(self, "sk_channels", 24)),
             hidden=self.hidden,
             layers=self.layers,
             dropout=self.dropout,
-            skip=self.skip and not sim.is_simulation(self),
+            skip=not self.task.simulation and self.skip is not False,
         )
 
-    def _inputs(
-        self, groups: dict[str, np.ndarray]
-    ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
-        """Scaled windows, extras, scaled targets at T, and target rows. Prediction: rows
+    def _windows(
+        self, groups: Groups, starts: tuple[int, ...]
+    ) -> tuple[np.ndarray, np.ndarray | None, dict[str, np.ndarray], np.ndarray]:
+        """Scaled windows, extras, scaled groups and target rows. Prediction: rows
         ``T-h-W+1 .. T-h``; simulation: rows ``T-W+1 .. T`` (no measured channel in them)."""
         scaled = {k: self.scalers_[k].transform(v) for k, v in groups.items()}
-        chans = np.hstack([causal_ffill(scaled[k]) for k in self._channels()])
-        lag = 0 if sim.is_simulation(self) else self.horizon
-        rows = target_rows(len(chans), self.window, lag)
+        chans = np.hstack([causal_ffill(scaled[k], starts) for k in self._channels()])
+        lag = 0 if self.task.simulation else self.task.horizon
+        rows = target_rows(len(chans), self.window, lag, starts)
         x = gather_windows(chans, rows, self.window, lag)
         key = self._extra_group()
         extra = None if key is None else scaled[key][rows].astype(np.float32)
-        return x, extra, scaled[self._target_group()][rows], rows
+        return x, extra, scaled, rows
 
+    # --- fitting ----------------------------------------------------------------------
     def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
         assert mech is not None
-        y = series.values
-        u = sim.input_matrix(series, sim.input_names(self))
-        data = self._fit_data(y, u, progress)
-        groups = self._all_groups(y, mech, data, u)
+        y, starts = series.values, series.record_starts
+        u = input_matrix(series, self.task.inputs)
+        data = self._fit_data(y, u, starts, progress)
+        groups = self._all_groups(y, mech, data, u, starts)
         self.scalers_ = {k: fit_scaler(v, f"{k} channels") for k, v in groups.items()}
-        x, extra, target, _ = self._inputs(groups)
-        ok = finite_rows(x, target) if extra is None else finite_rows(x, target, extra)
+        x, extra, scaled, rows = self._windows(groups, starts)
+        if not self.task.simulation:
+            ok = _finite(x, scaled["em"][rows], extra)
+            self.net_, self.history_ = self._train(x, scaled["em"][rows], extra, ok, progress,
+                                                   accumulate=False)  # fmt: skip
+            return
+        candidates = [True, False] if self.accumulate is None else [self.accumulate]
+        fits = {}
+        for accumulate in candidates:
+            target = scaled["dem" if accumulate else "em"][rows]
+            ok = _finite(x, target, extra)
+            fits[accumulate] = (*self._train(x, target, extra, ok, progress, accumulate), ok)
+        if self.accumulate is None:
+            choice = self._choose(fits, x, extra, rows, groups["em"], starts)
+        else:
+            choice = acc.Choice(self.accumulate, "user", {}, 0)
+        self.accumulate_ = choice.accumulate
+        self.net_, self.history_, _ = fits[choice.accumulate]
+        self.selection_["accumulate"] = choice.to_dict()
+
+    def _train(
+        self, x: np.ndarray, target: np.ndarray, extra: np.ndarray | None, ok: np.ndarray,
+        progress: FitProgress, accumulate: bool,
+    ) -> tuple[ResidualNet, History]:  # fmt: skip
+        net = self._build(target.shape[1])
+        extra_ok = None if extra is None else extra[ok]
+        tr = self.training
+        validate = (acc.drift_validator(x[ok], target[ok], extra_ok, tr.val_fraction, tr.stride)
+                    if accumulate else None)  # fmt: skip
+        what = " (accumulated changes)" if accumulate else ""
+        history = train_network(net, x[ok], target[ok], tr, seed=self.seed, extra=extra_ok,
+                                progress=progress, stage=f"{self.name} residual model{what}",
+                                validate=validate)  # fmt: skip
+        if accumulate:
+            debias_head(net, x[ok], target[ok], extra_ok, self._device())
+        return net, history
+
+    def _build(self, n_out: int) -> ResidualNet:
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(self.seed)
-            net = self._new_net()
-        extra_ok = None if extra is None else extra[ok]
-        validate = None
-        if self._target_group() == "dem":  # accumulating simulation: stop on the free-run drift
-            validate = sim.drift_validator(
-                x[ok], target[ok], extra_ok, float(self.val_fraction), int(self.stride)
-            )
-        self.history_ = train_network(
-            net,
-            x[ok],
-            target[ok],
-            self._train_config(self.seed),
-            extra=extra_ok,
-            progress=progress,
-            stage=f"{self.name} residual model",
-            validate=validate,
-        )
-        if self._target_group() == "dem":
-            sim.debias_head(net, x[ok], target[ok], extra_ok, self.device)
-        self.net_ = net
+            return self._new_net(n_out)
 
+    def _choose(
+        self, fits: dict[bool, tuple[ResidualNet, History, np.ndarray]], x: np.ndarray,
+        extra: np.ndarray | None, rows: np.ndarray, em: np.ndarray, starts: tuple[int, ...],
+    ) -> acc.Choice:  # fmt: skip
+        """Free-run error of each candidate over the validation part of the training rows."""
+        tr = self.training
+        scale = np.nanstd(em, axis=0)
+        scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
+        anchors = causal_ffill(em, starts)
+        scores, n_val = {}, 0
+        for accumulate, (net, _, ok) in fits.items():
+            val = acc.validation_slice(int(ok.sum()), tr.val_fraction, tr.stride)
+            vrows = rows[ok][val]
+            if vrows.size == 0:
+                raise DataError(
+                    "no validation samples to choose residual accumulation on",
+                    fix="use a longer training part, or fix accumulate=True or False",
+                )
+            xv = x[ok][val]
+            ev = None if extra is None else extra[ok][val]
+            out = predict_network(net, xv, extra=ev, device=self._device())
+            key = "dem" if accumulate else "em"
+            pred = self.scalers_[key].inverse_transform(out)
+            if accumulate:
+                pred = acc.accumulate_runs(pred, vrows, anchors, starts)
+            scores[accumulate] = acc.free_run_nrmse(pred, em[vrows], scale)
+            n_val = int(vrows.size)
+        return acc.choose(scores, n_val)
+
+    # --- prediction -------------------------------------------------------------------
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
         assert mech is not None
-        y = series.values
-        u = sim.input_matrix(series, sim.input_names(self))
-        groups = self._all_groups(y, mech, self._predict_data(y, u), u)
-        x, extra, _, rows = self._inputs(groups)
+        y, starts = series.values, series.record_starts
+        u = input_matrix(series, self.task.inputs)
+        groups = self._all_groups(y, mech, self._predict_data(y, u, starts), u, starts)
+        x, extra, _, rows = self._windows(groups, starts)
         ok = finite_rows(x) if extra is None else finite_rows(x, extra)
+        accumulate = self.task.simulation and self.accumulate_
+        key = "dem" if accumulate else "em"
         pred = np.full(y.shape, np.nan)
         if ok.any():
-            e = predict_network(
-                self.net_, x[ok], extra=None if extra is None else extra[ok], device=self.device
-            )
-            pred[rows[ok]] = self.scalers_[self._target_group()].inverse_transform(e)
-        if not sim.is_simulation(self):
+            e = predict_network(self.net_, x[ok], extra=None if extra is None else extra[ok],
+                                device=self._device())  # fmt: skip
+            pred[rows[ok]] = self.scalers_[key].inverse_transform(e)
+        if not self.task.simulation:
             return mech + pred
-        init = sim.init_rows(self)
-        if self._target_group() == "dem":  # accumulate from the last measured residual
-            anchor = causal_ffill(y[:init] - mech[:init])[-1]
-            pred = sim.accumulate(anchor, pred, init)
-        pred[:init] = np.nan
+        init = self._init_rows()
+        anchors = causal_ffill(y - mech, starts)  # measured only in the init rows
+        for a, b in series.record_bounds():
+            if accumulate and b - a > init:
+                seg = np.arange(a + init, b)
+                pred[seg] = acc.accumulate_runs(pred[seg], seg, anchors, starts)
+            pred[a : min(b, a + init)] = np.nan
         return mech + pred
 
+    # --- persistence ------------------------------------------------------------------
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
-        state = {
+        state: dict[str, Any] = {
             "scalers": {k: s.to_dict() for k, s in self.scalers_.items()},
             "history": self.history_.to_dict(),
         }
+        if self.task.simulation:
+            state["accumulate"] = bool(self.accumulate_)
         return state, pack_module("net", self.net_)
 
     def _set_state(self, state: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
         self.scalers_ = {k: MinMaxScaler.from_dict(v) for k, v in state["scalers"].items()}
         self.history_ = History.from_dict(state["history"])
-        net = self._new_net()
+        if self.task.simulation:
+            self.accumulate_ = bool(state["accumulate"])
+        net = self._new_net(len(self.channels_))
         unpack_module("net", tensors, net)
         self.net_ = net
 
 
+def _finite(x: np.ndarray, target: np.ndarray, extra: np.ndarray | None) -> np.ndarray:
+    return finite_rows(x, target) if extra is None else finite_rows(x, target, extra)
+
+
 class ParallelHybrid(_ResidualHybrid):
-    """Parallel hybrid: an LSTM learns the mechanistic residual; output ``yhat_m + ehat_m``."""
+    """Parallel hybrid: an LSTM learns the mechanistic residual; output ``yhat_m + ehat_m``.
+
+    Args:
+        window: residual window, samples. hidden / layers: LSTM size. dropout: between layers.
+        skip: prediction: the head predicts a change on top of the last residual (``None``:
+            True); must stay ``None`` in a simulation.
+        accumulate: simulation: predict the residual's per-sample change and sum it (True) or
+            its level (False); ``None`` (default): both are trained and the one with the
+            smaller free-run error on the validation part of the training data is kept
+            (``selection_`` says which, with the scores). Must stay ``None`` in prediction.
+        task / training / seed / quiet: as :class:`~drafttwin.models.GRUModel`.
+    """
 
     def __init__(
         self,
@@ -218,43 +310,23 @@ class ParallelHybrid(_ResidualHybrid):
         hidden: int = 48,
         layers: int = 2,
         dropout: float = 0.1,
-        lr: float = 2e-3,
-        batch_size: int = 64,
-        epochs: int = 30,
-        patience: int | None = 5,
-        val_fraction: float = 0.2,
-        clip_norm: float | None = 1.0,
-        skip: bool = True,
-        horizon: int = 1,
+        skip: bool | None = None,
+        accumulate: bool | None = None,
+        task: Task = Task(),
+        training: Training = Training(),
         seed: int = 0,
-        device: str = "auto",
         quiet: bool = False,
-        task: str = "prediction",
-        outputs: tuple[str, ...] | None = None,
-        inputs: tuple[str, ...] = (),
-        init_samples: int | None = None,
-        stride: int = 1,
     ) -> None:
         self.window = window
         self.hidden = hidden
         self.layers = layers
         self.dropout = dropout
-        self.lr = lr
-        self.batch_size = batch_size
-        self.epochs = epochs
-        self.patience = patience
-        self.val_fraction = val_fraction
-        self.clip_norm = clip_norm
         self.skip = skip
-        self.horizon = horizon
-        self.seed = seed
-        self.device = device
-        self.quiet = quiet
+        self.accumulate = accumulate
         self.task = task
-        self.outputs = outputs
-        self.inputs = inputs
-        self.init_samples = init_samples
-        self.stride = stride
+        self.training = training
+        self.seed = seed
+        self.quiet = quiet
 
     @property
     def name(self) -> str:

@@ -1,93 +1,157 @@
 """The mechanistic prediction as a pluggable source.
 
-A mechanistic model depends only on machine settings, so its prediction for any sample time is
-known in advance and may be used up to and including the target time (SPEC section 2). Sources:
+A mechanistic model depends only on the machine and its settings (set-points, exogenous
+inputs), so its prediction for any sample is known in advance and may be used up to and
+including the target time. Sources:
 
-* a Python callable ``f(time_s) -> (n, 4)`` rpm,
-* a CSV/Parquet file from any external simulator with a ``time`` column (seconds) and one
-  column per roller (rpm), linearly interpolated onto the measurement time grid,
-* a ``pandas.DataFrame`` with the same columns,
-* a precomputed ``(n, 4)`` array aligned row by row with the series,
-* the built-in drive-train preset (:meth:`MechanisticModel.from_preset`),
-* a function of the whole series (:meth:`MechanisticModel.from_series_function`), for a
-  simulation driven by the series' exogenous inputs (e.g. the EMPS drive voltage).
+* a drive train (:meth:`MechanisticModel.from_train`, :meth:`~MechanisticModel.from_preset`,
+  :meth:`~MechanisticModel.from_config`): simulated on each record's time grid, following the
+  record's input channels (the VFD supply frequency ``supply_hz``, or what the train's
+  ``[[input]]`` tables map), giving the output channels its ``[[output]]`` tables (or node and
+  roller names) name;
+* a simulator's output file (CSV/Parquet: a time column in seconds and one column per output
+  channel), or several, one per record: aligned on the data's own time axis and linearly
+  interpolated onto it; any start time, refused only where it does not cover the data;
+* a ``pandas.DataFrame`` with the same columns;
+* a Python callable ``f(time_s)`` or ``f(time_s, inputs)`` (``inputs``: dict of the record's
+  input channels) returning ``(n, channels)`` values, or a DataFrame / dict by channel name;
+* a function of the whole record (:meth:`MechanisticModel.from_series_function`);
+* a precomputed ``(n, channels)`` array aligned row by row with the series.
 
-Sources of other output channels than the four rollers (e.g. a position in m) name them with
-``channels=(...)``; the estimators check that they match their ``outputs``.
+:meth:`MechanisticModel.predict` returns the requested channels (by default the series'),
+computed record by record.
 """
 
 from __future__ import annotations
 
+import copy
+import inspect
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
 
-from drafttwin import ROLLERS
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.errors import DataError
+from drafttwin.errors import ConfigError, DataError
+
+if TYPE_CHECKING:
+    from drafttwin.mechanics import DriveTrain
 
 TIME_COLUMNS = ("time", "time_s", "t")
 """Accepted names (case-insensitive) of the time column of a simulator output file."""
 
-MechanisticSource = Callable[[np.ndarray], np.ndarray] | str | Path | np.ndarray | pd.DataFrame
+Table = tuple[np.ndarray, dict[str, np.ndarray]]
+"""A simulator table: time (s) and columns by lower-cased name."""
+
+RecordFunction = Callable[[np.ndarray, dict[str, np.ndarray], tuple[str, ...], dict[str, str]], Any]
+"""What a source computes for one record: ``f(time_s, inputs, channels, units)``."""
 
 
 class MechanisticModel:
-    """Mechanistic roller-speed prediction from a callable, a file, a table or an array.
+    """A mechanistic source: the physics' prediction of the output channels.
 
     Args:
-        source: see the module docstring.
-        columns: optional mapping ``roller -> column name`` for files and tables whose roller
-            columns are not called front/second/third/back.
+        source: a callable, a simulator output file path (or a list of paths, one per record),
+            a DataFrame or an aligned array; see the module docstring. Drive trains: use
+            :meth:`from_train`, :meth:`from_preset` or :meth:`from_config`.
+        columns: optional mapping ``channel -> column name`` for files and tables whose
+            columns are named otherwise.
         name: a label for reports (defaults to a description of the source).
-        channels: names of the predicted channels (default: the four rollers), in column
-            order; files and tables are read by these names.
+        channels: the channels an array or a callable returns, in column order (default: the
+            channels asked for at prediction time).
     """
 
     def __init__(
         self,
-        source: MechanisticSource,
+        source: Any,
         *,
         columns: Mapping[str, str] | None = None,
         name: str | None = None,
         channels: Sequence[str] | None = None,
     ) -> None:
-        self._spec: dict[str, Any]
-        self._table: tuple[np.ndarray, np.ndarray] | None = None
-        self._func: Callable[[np.ndarray], np.ndarray] | None = None
-        self._series_func: Callable[[MeasurementSeries], np.ndarray] | None = None
+        self.channels: tuple[str, ...] | None = None if channels is None else tuple(channels)
+        self._columns = {k: str(v).lower() for k, v in (columns or {}).items()}
         self._array: np.ndarray | None = None
-        self.channels: tuple[str, ...] = ROLLERS if channels is None else tuple(channels)
-        label: str | None = None
-        if isinstance(source, str | Path):
-            path = Path(source)
-            frame = _read_table(path)
-            self._table = _table_arrays(frame, columns, source=str(path), channels=self.channels)
-            self._spec = {"kind": "file", "path": str(path.resolve())}
-            label = str(path)
+        self._tables: list[Table] = []
+        self._record_fn: RecordFunction | None = None
+        self._series_fn: Callable[[MeasurementSeries], np.ndarray] | None = None
+        self._inputs: tuple[str, ...] = ()
+        self._spec: dict[str, Any]
+        if isinstance(source, str | Path) or _is_path_list(source):
+            paths = [Path(p) for p in ([source] if isinstance(source, str | Path) else source)]
+            self._tables = [t for p in paths for t in _tables(_read_table(p), str(p))]
+            self._spec = {"kind": "file", "paths": [str(p) for p in paths]}
+            label = ", ".join(str(p) for p in paths)
         elif isinstance(source, pd.DataFrame):
-            self._table = _table_arrays(
-                source, columns, source="mechanistic table", channels=self.channels
-            )
-            self._spec = {"kind": "table"}
+            self._tables = _tables(source, "mechanistic table")
+            self._spec, label = {"kind": "table"}, "table"
         elif isinstance(source, np.ndarray):
-            self._array = _check_rpm(source, None, "mechanistic array", self.channels)
-            self._spec = {"kind": "array"}
+            self._array = np.asarray(source, dtype=np.float64)
+            if self._array.ndim == 1:
+                self._array = self._array[:, None]
+            self._spec, label = {"kind": "array"}, "array"
         elif callable(source):
-            self._func = source
-            self._spec = {"kind": "callable"}
+            self._record_fn = _adapt_callable(source)
+            self._spec, label = {"kind": "callable"}, getattr(source, "__name__", "callable")
         else:
             raise DataError(
                 f"cannot use a {type(source).__name__} as a mechanistic source",
-                fix="pass a callable f(time_s) -> (n, 4) rpm, a CSV/Parquet path, a DataFrame "
-                "or an (n, 4) array",
+                fix="pass a drive train (MechanisticModel.from_train), a simulator output file, "
+                "a DataFrame, a callable f(time_s[, inputs]) or an (n, channels) array",
             )
-        if self.channels != ROLLERS:
-            self._spec["channels"] = list(self.channels)
-        self.name = name or label or self._spec["kind"]
+        self.name = name or label
+
+    # ----- constructors -------------------------------------------------------------------
+    @classmethod
+    def _from_function(
+        cls, fn: RecordFunction, spec: dict[str, Any], name: str
+    ) -> MechanisticModel:
+        model = cls(fn, name=name)  # a callable source, then its real calling convention
+        model._record_fn, model._spec = fn, spec
+        return model
+
+    @classmethod
+    def from_train(cls, train: DriveTrain, *, name: str | None = None) -> MechanisticModel:
+        """A drive train simulated on each record's grid, following its input channels."""
+        from drafttwin.mechanics import simulate_channels
+        from drafttwin.mechanics.components import OUTPUT_UNITS
+
+        cache: dict[bytes, np.ndarray] = {}
+
+        def run(time_s: np.ndarray, inputs: dict[str, np.ndarray], channels: tuple[str, ...],
+                units: dict[str, str]) -> np.ndarray:  # fmt: skip
+            speed = {c: u for c, u in units.items() if u in OUTPUT_UNITS}  # else the train's
+            key = b"|".join([np.ascontiguousarray(time_s).tobytes(), repr((channels, speed)).encode(),
+                             *(np.ascontiguousarray(v).tobytes() for _, v in sorted(inputs.items()))])  # fmt: skip
+            if key not in cache:
+                cache.clear()  # one record at a time is what fit/predict re-use
+                cache[key] = simulate_channels(train, time_s, inputs=inputs, channels=channels,
+                                               units=speed)  # fmt: skip
+            return cache[key]
+
+        spec = {"kind": "train", "name": train.spec.train.name, "source": str(train.source),
+                "spec": train.spec.model_dump(mode="json", exclude_defaults=True)}  # fmt: skip
+        model = cls._from_function(run, spec, name or f"drive train {train.spec.train.name}")
+        model._inputs = tuple(c.channel for c in train.spec.input)  # declared: required
+        return model
+
+    @classmethod
+    def from_preset(cls, preset: str = "fa320a") -> MechanisticModel:
+        """The built-in drive train ``preset`` (see :func:`from_train`)."""
+        from drafttwin.mechanics import DriveTrain
+
+        model = cls.from_train(DriveTrain.preset(preset), name=f"preset {preset}")
+        model._spec = {"kind": "preset", "name": preset}
+        return model
+
+    @classmethod
+    def from_config(cls, path: str | Path) -> MechanisticModel:
+        """A drive train declared in a TOML file (see :func:`from_train`)."""
+        from drafttwin.mechanics import DriveTrain
+
+        return cls.from_train(DriveTrain.from_toml(Path(path)), name=f"config {path}")
 
     @classmethod
     def from_series_function(
@@ -97,116 +161,238 @@ class MechanisticModel:
         channels: Sequence[str] | None = None,
         name: str | None = None,
     ) -> MechanisticModel:
-        """A source computed from the whole series, ``func(series) -> (n, channels)``.
+        """A source computed from each whole record, ``func(record) -> (n, channels)``.
 
-        For a simulation driven by the series' exogenous inputs (``series.inputs``). In
-        simulation mode the estimators pass a series whose outputs after the initialisation
-        window are NaN, so such a function can use at most the initial measured state.
-        Not stored in model files (pass it again to ``predict``).
+        For a simulation driven by the record's inputs and its initial measured state (in a
+        simulation the outputs after the initialisation window are NaN). Not stored in model
+        files (pass it again to ``predict``).
         """
-        model = cls.__new__(cls)
-        model._table, model._func, model._array = None, None, None
-        model._series_func = func
-        model.channels = ROLLERS if channels is None else tuple(channels)
+        model = cls(func, channels=channels, name=name or "series function")
+        model._record_fn, model._series_fn = None, func
         model._spec = {"kind": "series-callable"}
-        if model.channels != ROLLERS:
-            model._spec["channels"] = list(model.channels)
-        model.name = name or "series-callable"
         return model
 
     @classmethod
-    def from_preset(cls, preset: str = "fa320a") -> MechanisticModel:
-        """The built-in torsional drive-train model ``preset`` simulated on the series' grid."""
-        from drafttwin import mechanics  # heavy (numba); imported only when used
-
-        train = mechanics.DriveTrain.preset(preset)
-        cache: dict[bytes, np.ndarray] = {}
-
-        def simulate(time_s: np.ndarray) -> np.ndarray:
-            key = np.ascontiguousarray(time_s, dtype=np.float64).tobytes()
-            if key not in cache:
-                cache.clear()
-                cache[key] = np.asarray(mechanics.simulate_on_grid(train, time_s), np.float64)
-            return cache[key]
-
-        model = cls(simulate, name=f"preset {preset}")
-        model._spec = {"kind": "preset", "name": preset}
-        return model
+    def from_option(cls, text: str) -> MechanisticModel:
+        """The source named by a command-line value: ``preset``, ``preset:NAME``,
+        ``config:FILE.toml`` or a simulator output file (``FILE[,FILE...]``, one per record)."""
+        kind, _, rest = text.partition(":")
+        if text == "preset" or kind == "preset":
+            return cls.from_preset(rest or "fa320a")
+        if kind == "config":
+            if not rest:
+                raise ConfigError("config: needs a file", where="--mechanistic",
+                                  fix="write --mechanistic config:my_train.toml")  # fmt: skip
+            return cls.from_config(rest)
+        return cls([p.strip() for p in text.split(",") if p.strip()])
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any] | None) -> MechanisticModel | None:
-        """Rebuild a source recorded by :meth:`spec` when possible (preset or file), else
-        ``None`` (callables, tables and arrays are not stored in model files)."""
+        """Rebuild a source recorded by :meth:`spec` when it is self-contained (a preset, a
+        drive train), else ``None`` (files, callables, tables and arrays are passed again)."""
         if not spec:
             return None
         if spec.get("kind") == "preset":
             return cls.from_preset(str(spec["name"]))
-        if spec.get("kind") == "file" and Path(str(spec["path"])).is_file():
-            return cls(str(spec["path"]), channels=spec.get("channels"))
+        if spec.get("kind") == "train":
+            from drafttwin.mechanics import DriveTrain
+
+            train = DriveTrain.from_dict(dict(spec["spec"]), source=f"model file ({spec['name']})")
+            return cls.from_train(train, name=f"drive train {spec['name']}")
         return None
 
+    def split_records(self, first: int, second: int) -> tuple[MechanisticModel, MechanisticModel]:
+        """Sources for two series of ``first`` and ``second`` records: a list of one
+        simulator file per record (training records, then test records) is cut in two; any
+        other source serves both."""
+        if len(self._tables) != first + second or len(self._tables) < 2:
+            return self, self
+        a, b = copy.copy(self), copy.copy(self)
+        a._tables, b._tables = self._tables[:first], self._tables[first:]
+        paths = self._spec["paths"]
+        a._spec = {**self._spec, "paths": paths[:first]}
+        b._spec = {**self._spec, "paths": paths[first:]}
+        return a, b
+
+    def required_inputs(self) -> tuple[str, ...]:
+        """Input channels the source needs in the data (a drive train's ``[[input]]``s)."""
+        return self._inputs
+
     def spec(self) -> dict[str, Any]:
-        """A JSON-able description of the source (kind, plus preset name or file path)."""
+        """A JSON-able description of the source (a drive train is stored whole)."""
         return dict(self._spec)
 
-    def predict(self, series: MeasurementSeries | np.ndarray) -> np.ndarray:
-        """Mechanistic speeds in rpm on the series' time grid, shape ``(n, 4)``, float64.
+    # ----- prediction ---------------------------------------------------------------------
+    def predict(
+        self, series: MeasurementSeries, channels: Sequence[str] | None = None
+    ) -> np.ndarray:
+        """The mechanistic values of ``channels`` (default: the series' output channels) on
+        the series' time grid, ``(n, len(channels))``, float64, record by record.
 
-        ``series`` may also be a plain array of sample times in seconds (not for a
-        :meth:`from_series_function` source). Raises :class:`DataError` if a file/table does
-        not cover the time span or a source returns the wrong shape or non-finite values.
+        Raises :class:`DataError` where a file does not cover a record, lacks a channel, or a
+        source returns the wrong shape or non-finite values.
         """
-        time_s = series.time_s if isinstance(series, MeasurementSeries) else np.asarray(series)
-        time_s = np.asarray(time_s, dtype=np.float64)
-        where = f"mechanistic source {self.name}"
-        if self._series_func is not None:
-            if not isinstance(series, MeasurementSeries):
-                raise DataError(
-                    "this mechanistic source is a function of the whole series",
-                    source=where,
-                    fix="pass the MeasurementSeries, not an array of sample times",
-                )
-            return _check_rpm(self._series_func(series), time_s.shape[0], where, self.channels)
+        if not isinstance(series, MeasurementSeries):
+            raise DataError(f"expected a MeasurementSeries, got {type(series).__name__}")
+        names = tuple(series.channels if channels is None else channels)
         if self._array is not None:
-            if self._array.shape[0] != time_s.shape[0]:
-                raise DataError(
-                    f"the mechanistic array has {self._array.shape[0]} rows but the series has "
-                    f"{time_s.shape[0]} samples",
-                    source="mechanistic array",
-                    fix="pass an array aligned with the series, or a table with a time column",
-                )
-            return self._array.copy()
-        if self._table is not None:
-            return _interpolate(*self._table, time_s, self.name)
-        assert self._func is not None
-        return _check_rpm(self._func(time_s), time_s.shape[0], where, self.channels)
+            return self._aligned_array(series, names)
+        bounds = series.record_bounds()
+        if self._tables and len(self._tables) not in (1, len(bounds)):
+            raise DataError(
+                f"{len(self._tables)} simulator output files for {len(bounds)} records",
+                source=f"mechanistic source {self.name}",
+                fix="give one file covering every record, or one file per record, in order",
+            )
+        parts = [self._record(series, k, a, b, names) for k, (a, b) in enumerate(bounds)]
+        return np.vstack(parts) if parts else np.zeros((0, len(names)))
+
+    def values_at(
+        self,
+        time_s: np.ndarray,
+        channels: Sequence[str],
+        inputs: Mapping[str, np.ndarray] | None = None,
+    ) -> np.ndarray:
+        """Values of ``channels`` at arbitrary time stamps (s), for sources that can be
+        evaluated one time stamp at a time: files, tables and ``f(time_s[, inputs])``
+        callables (a drive-train simulation needs the whole record)."""
+        names, time_s = tuple(channels), np.asarray(time_s, dtype=np.float64)
+        where = f"mechanistic source {self.name}"
+        if self._tables:
+            if len(self._tables) > 1:
+                raise DataError("several simulator files: evaluate them record by record",
+                                source=where)  # fmt: skip
+            return _interpolate(self._tables[0], time_s, self._table_columns(names), names, where)
+        if self._record_fn is None or self._spec["kind"] != "callable":
+            raise DataError(f"{where} cannot be evaluated at single time stamps",
+                            fix="pass a table or a callable of time")  # fmt: skip
+        out = self._record_fn(time_s, dict(inputs or {}), names, {})
+        return _check_values(out, len(time_s), names, self.channels, where)
+
+    def _record(
+        self, series: MeasurementSeries, k: int, a: int, b: int, names: tuple[str, ...]
+    ) -> np.ndarray:
+        where = f"mechanistic source {self.name}"
+        if series.n_records > 1:
+            where += f" (record {k + 1})"
+        time_s = series.time_s[a:b]
+        if self._tables:
+            table = self._tables[k if len(self._tables) > 1 else 0]
+            return _interpolate(table, time_s, self._table_columns(names), names, where)
+        if self._series_fn is not None:
+            out = self._series_fn(series.slice(a, b))
+        else:
+            assert self._record_fn is not None
+            inputs = {name: v[a:b] for name, v in series.inputs.items()}
+            units = {c: series.unit(c) for c in names}
+            out = self._record_fn(time_s, inputs, names, units)
+        return _check_values(out, b - a, names, self.channels, where)
+
+    def _table_columns(self, names: tuple[str, ...]) -> list[str]:
+        return [self._columns.get(n, n).lower() for n in names]
+
+    def _aligned_array(self, series: MeasurementSeries, names: tuple[str, ...]) -> np.ndarray:
+        assert self._array is not None
+        if self._array.shape[0] != len(series):
+            raise DataError(
+                f"the mechanistic array has {self._array.shape[0]} rows but the series has "
+                f"{len(series)} samples",
+                source="mechanistic array",
+                fix="pass an array aligned with the series, or a table with a time column",
+            )
+        return _check_values(self._array, len(series), names, self.channels, "mechanistic array")
 
     def __repr__(self) -> str:
         return f"MechanisticModel({self.name!r})"
 
 
-def _check_rpm(
-    values: object, n: int | None, source: str, channels: tuple[str, ...] = ROLLERS
+def as_mechanistic(source: object) -> MechanisticModel:
+    """``source`` as a :class:`MechanisticModel` (a drive train is simulated)."""
+    if isinstance(source, MechanisticModel):
+        return source
+    from drafttwin.mechanics import DriveTrain
+
+    if isinstance(source, DriveTrain):
+        return MechanisticModel.from_train(source)
+    return MechanisticModel(source)
+
+
+def describe_spec(spec: Mapping[str, Any] | None) -> str:
+    """How a stored source reads in a message (``simulator output file a.csv``...)."""
+    if not spec:
+        return "no mechanistic source"
+    kind = spec.get("kind")
+    if kind == "file":
+        return "the simulator output file(s) " + ", ".join(spec.get("paths", []))
+    return {"callable": "a Python callable", "series-callable": "a Python function",
+            "table": "a DataFrame", "array": "an array"}.get(str(kind), str(kind))  # fmt: skip
+
+
+# ----- helpers ----------------------------------------------------------------------------
+def _is_path_list(source: object) -> bool:
+    return (
+        isinstance(source, list | tuple)
+        and bool(source)
+        and all(isinstance(p, str | Path) for p in source)
+    )
+
+
+def _adapt_callable(fn: Callable[..., Any]) -> RecordFunction:
+    """``f(time_s)`` or ``f(time_s, inputs)`` as a record function."""
+    try:
+        params = [
+            p
+            for p in inspect.signature(fn).parameters.values()
+            if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.VAR_POSITIONAL)
+        ]
+    except (TypeError, ValueError):  # builtins without a signature: one argument
+        params = []
+    takes_inputs = len(params) >= 2 or any(p.kind == p.VAR_POSITIONAL for p in params)
+    if takes_inputs:
+        return lambda t, inputs, channels, units: fn(t, inputs)
+    return lambda t, inputs, channels, units: fn(t)
+
+
+def _check_values(
+    values: object,
+    n: int,
+    names: tuple[str, ...],
+    provided: tuple[str, ...] | None,
+    source: str,
 ) -> np.ndarray:
-    arr = np.asarray(values, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != len(channels) or (n is not None and arr.shape[0] != n):
-        want = f"({n if n is not None else 'n'}, {len(channels)})"
-        what = "roller" if channels == ROLLERS else "channel"
+    """Validate a source's result: pick ``names`` from a frame/dict or from ``provided``
+    columns, check the shape and that every value is finite."""
+    if isinstance(values, pd.DataFrame | Mapping):
+        missing = [c for c in names if c not in values]
+        if missing:
+            raise DataError(f"the source gives no channel(s) {missing}", source=source,
+                            fix=f"return a column for each of {', '.join(names)}")  # fmt: skip
+        arr = np.column_stack([np.asarray(values[c], dtype=np.float64) for c in names])
+    else:
+        arr = np.asarray(values, dtype=np.float64)
+        if arr.ndim == 1:
+            arr = arr[:, None]
+        if provided is not None and arr.ndim == 2 and arr.shape[1] == len(provided):
+            if any(c not in provided for c in names):
+                raise DataError(
+                    f"the source gives channels {list(provided)}, not {list(names)}",
+                    source=source,
+                    fix="build the MechanisticModel with channels= the data's output channels",
+                )
+            arr = arr[:, [provided.index(c) for c in names]]
+    if arr.ndim != 2 or arr.shape != (n, len(names)):
         raise DataError(
-            f"expected speeds of shape {want} (one column per {what}: {', '.join(channels)}), "
-            f"got shape {arr.shape}",
+            f"expected values of shape ({n}, {len(names)}) (one column per channel: "
+            f"{', '.join(names)}), got shape {arr.shape}",
             source=source,
-            fix=f"return/provide one column per {what} in the order {', '.join(channels)}",
+            fix=f"return one column per channel in the order {', '.join(names)}",
         )
     bad = ~np.isfinite(arr)
     if bad.any():
         row, col = np.argwhere(bad)[0]
-        raise DataError(
-            "mechanistic speeds must be finite",
-            source=source,
-            where=f"row {row}, channel {channels[col]}",
-            fix="fill or drop the missing simulator output",
-        )
+        raise DataError("mechanistic values must be finite", source=source,
+                        where=f"row {row}, channel {names[col]}",
+                        fix="fill or drop the missing simulator output")  # fmt: skip
     return arr
 
 
@@ -228,76 +414,98 @@ def _read_table(path: Path) -> pd.DataFrame:
     )
 
 
-def _find_column(frame: pd.DataFrame, names: tuple[str, ...], source: str, what: str) -> str:
+def _tables(frame: pd.DataFrame, source: str) -> list[Table]:
+    """One table per record: a ``record`` column (as ``drafttwin predict`` writes for several
+    records) splits the frame where it changes."""
     lower = {str(c).strip().lower(): c for c in frame.columns}
-    for name in names:
-        if name.lower() in lower:
-            return str(lower[name.lower()])
-    raise DataError(
-        f"no {what} column (looked for {', '.join(names)})",
-        source=source,
-        where=f"columns {list(map(str, frame.columns))}",
-        fix=f"add a {what} column or map it with columns={{...}}",
-    )
+    if "record" not in lower:
+        return [_table(frame, source)]
+    ids = pd.to_numeric(frame[lower["record"]], errors="coerce").to_numpy(dtype=np.float64)
+    _refuse_non_finite(ids, frame[lower["record"]], "record", source)
+    cuts = np.flatnonzero(np.diff(ids) != 0) + 1
+    parts = np.split(np.arange(len(frame)), cuts)
+    return [_table(frame.iloc[rows].drop(columns=[lower["record"]]), f"{source} (record {k + 1})")
+            for k, rows in enumerate(parts)]  # fmt: skip
 
 
-def _numeric(frame: pd.DataFrame, column: str, source: str) -> np.ndarray:
-    values = pd.to_numeric(frame[column], errors="coerce").to_numpy(dtype=np.float64)
-    bad = ~np.isfinite(values)
-    if bad.any():
-        row = int(np.argmax(bad))
-        raise DataError(
-            f"non-numeric or missing value {frame[column].iloc[row]!r}",
-            source=source,
-            where=f"row {row + 2} (data row {row}), column {column!r}",
-            fix="the simulator output must be complete numbers (time in seconds, speeds in rpm)",
-        )
-    return values
-
-
-def _table_arrays(
-    frame: pd.DataFrame,
-    columns: Mapping[str, str] | None,
-    source: str,
-    channels: tuple[str, ...] = ROLLERS,
-) -> tuple[np.ndarray, np.ndarray]:
+def _table(frame: pd.DataFrame, source: str) -> Table:
+    """Time and numeric columns of a simulator table, checked."""
     if len(frame) < 2:
         raise DataError(f"{len(frame)} row(s); need at least 2", source=source)
-    time_col = _find_column(frame, TIME_COLUMNS, source, "time")
-    mapping = dict(columns or {})
-    what = "roller" if channels == ROLLERS else "channel"
-    roller_cols = [
-        _find_column(frame, (mapping.get(r, r),), source, f"{what} {r!r}") for r in channels
-    ]
+    lower = {str(c).strip().lower(): c for c in frame.columns}
+    time_col = next((lower[n] for n in TIME_COLUMNS if n in lower), None)
+    if time_col is None:
+        raise DataError(f"no time column (looked for {', '.join(TIME_COLUMNS)})", source=source,
+                        where=f"columns {list(map(str, frame.columns))}",
+                        fix="name the time column 'time' (seconds)")  # fmt: skip
     time_s = _numeric(frame, time_col, source)
     steps = np.diff(time_s)
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
+        raise DataError("time is not strictly increasing", source=source,
+                        where=f"data row {row}, column {time_col!r}",
+                        fix="sort the simulator output by time and drop duplicate times")  # fmt: skip
+    # other columns are checked when a channel uses them (the rest may be text or empty)
+    cols = {name: frame[col] for name, col in lower.items() if col != time_col}
+    return time_s, {
+        name: pd.to_numeric(col, errors="coerce").to_numpy(dtype=np.float64)
+        for name, col in cols.items()
+    }
+
+
+def _numeric(frame: pd.DataFrame, column: Any, source: str) -> np.ndarray:
+    values = pd.to_numeric(frame[column], errors="coerce").to_numpy(dtype=np.float64)
+    _refuse_non_finite(values, frame[column], str(column), source)
+    return values
+
+
+def _refuse_non_finite(values: np.ndarray, raw: pd.Series, column: str, source: str) -> None:
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row = int(np.argmax(bad))
         raise DataError(
-            "time is not strictly increasing",
+            f"non-numeric or missing value {raw.iloc[row]!r}",
             source=source,
-            where=f"data row {row}, column {time_col!r}",
-            fix="sort the simulator output by time and drop duplicate times",
+            where=f"row {row + 2} (data row {row}), column {column!r}",
+            fix="the simulator output must be complete numbers (time in seconds, values in "
+            "the channels' units)",
         )
-    rpm = np.column_stack([_numeric(frame, c, source) for c in roller_cols])
-    return time_s, rpm
 
 
 def _interpolate(
-    table_t: np.ndarray, table_rpm: np.ndarray, time_s: np.ndarray, source: str
+    table: Table, time_s: np.ndarray, columns: list[str], names: tuple[str, ...], where: str
 ) -> np.ndarray:
-    """Linear interpolation of the table onto ``time_s``; refuses extrapolation."""
+    """The table's columns linearly interpolated onto ``time_s``.
+
+    A simulator may stamp an interval's mean at its start or at its end, so the table may
+    start or end up to one of its own steps inside the data's span: the edge value is held
+    there. Anything further outside is refused.
+    """
+    table_t, table_cols = table
+    missing = [c for c in columns if c not in table_cols]
+    if missing:
+        raise DataError(
+            f"no column(s) {missing} for the output channel(s) "
+            f"{[n for n, c in zip(names, columns, strict=True) if c in missing]}",
+            source=where,
+            where=f"columns {sorted(table_cols)}",
+            fix="write one column per output channel, named like the channel",
+        )
     if time_s.size == 0:
-        return np.zeros((0, table_rpm.shape[1]))
-    tol = 1e-6 * float(np.median(np.diff(table_t)))
+        return np.zeros((0, len(columns)))
+    step = float(np.median(np.diff(table_t)))
+    tol = step * (1 + 1e-6)
     if time_s.min() < table_t[0] - tol or time_s.max() > table_t[-1] + tol:
         raise DataError(
-            f"the mechanistic output covers {table_t[0]:g} s to {table_t[-1]:g} s but the series "
-            f"spans {time_s.min():g} s to {time_s.max():g} s",
-            source=source,
-            fix="simulate over the whole measurement span (same time origin, in seconds)",
+            f"the simulator output covers {table_t[0]:g} s to {table_t[-1]:g} s but the data "
+            f"span {time_s.min():g} s to {time_s.max():g} s",
+            source=where,
+            fix="simulate over the whole measurement span, on the same time axis (seconds, as "
+            "in the data file's time column)",
         )
-    clipped = np.clip(time_s, table_t[0], table_t[-1])
-    return np.column_stack(
-        [np.interp(clipped, table_t, table_rpm[:, j]) for j in range(table_rpm.shape[1])]
-    )
+    out = []
+    for column in columns:
+        values = table_cols[column]
+        _refuse_non_finite(values, pd.Series(values), column, where)
+        out.append(np.interp(time_s, table_t, values))
+    return np.column_stack(out)

@@ -22,7 +22,8 @@ from torch import nn
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.models.base import BaseModel
-from drafttwin.models.datadriven import MechanisticBaseline, PersistenceModel, _RecurrentModel
+from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel
+from drafttwin.models.datadriven import _RecurrentModel
 from drafttwin.models.hybrid import _ResidualHybrid
 from drafttwin.models.mdsl import MDSL
 from drafttwin.models.mechanistic import MechanisticModel
@@ -52,15 +53,15 @@ class OnlinePredictor:
 
     def __init__(self, model: BaseModel, mechanistic: object | None = None) -> None:
         model._check_fitted()
-        if getattr(model, "task", "prediction") != "prediction" or getattr(model, "inputs", ()):
+        if model.task.simulation or model.task.inputs:
             raise ConfigError(
-                f"streaming supports task='prediction' models without exogenous inputs; this "
-                f"{model.name} has task={getattr(model, 'task', None)!r}, "
-                f"inputs={list(getattr(model, 'inputs', ()))}",
+                f"streaming supports task 'prediction' models without exogenous inputs; this "
+                f"{model.name} has task {model.task.kind!r}, inputs {list(model.task.inputs)}",
                 fix="use model.predict(series) for simulation runs and models with inputs",
             )
         self.model = model
-        self.horizon = int(getattr(model, "horizon", 1))
+        self.horizon = int(model.task.horizon)
+        self.n_channels = len(model.channels_)
         self._mech: MechanisticModel | None = None
         if model.needs_mechanistic:
             mech = (
@@ -74,16 +75,18 @@ class OnlinePredictor:
                     fix="pass mechanistic=MechanisticModel(source)",
                 )
             self._mech = mech if isinstance(mech, MechanisticModel) else MechanisticModel(mech)
-            if self._mech.spec()["kind"] in ("preset", "array"):
+            if self._mech.spec()["kind"] not in ("file", "table", "callable"):
                 raise ConfigError(
                     f"a {self._mech.spec()['kind']} mechanistic source cannot be evaluated one "
                     "time stamp at a time",
                     fix="simulate the planned run once and pass it as a table: "
-                    "MechanisticModel(DataFrame with time + roller columns)",
+                    "MechanisticModel(DataFrame with time + channel columns)",
                 )
+        training = getattr(model, "training", None)
         for net in self._nets():
-            place(net, resolve_device(str(getattr(model, "device", "cpu"))))
-        keep = max(getattr(model, "window", 1), getattr(model, "data_window", 0) + self.horizon)
+            place(net, resolve_device(training.device if training is not None else "cpu"))
+        data_window = model._template().window if isinstance(model, MDSL) else 0
+        keep = max(getattr(model, "window", 1), data_window + self.horizon)
         self._yf: deque[np.ndarray] = deque(maxlen=keep + 1)
         self._em: deque[np.ndarray] = deque(maxlen=keep + 1)
         self._ed: deque[np.ndarray] = deque(maxlen=keep + 1)
@@ -97,16 +100,20 @@ class OnlinePredictor:
         return [n for n in nets if n is not None]
 
     # ----- feeding measurements -----------------------------------------------------
-    def observe(self, time_s: float, rpm: Sequence[float] | np.ndarray) -> None:
-        """Append one measured row (time in s, four speeds in rpm; ``NaN`` = missing)."""
-        y = np.asarray(rpm, dtype=np.float64).reshape(-1)
-        if y.shape != (4,):
-            raise DataError(f"a row needs 4 roller speeds, got {y.shape[0]}")
+    def observe(self, time_s: float, values: Sequence[float] | np.ndarray) -> None:
+        """Append one measured row (time in s, one value per output channel; ``NaN`` =
+        missing)."""
+        y = np.asarray(values, dtype=np.float64).reshape(-1)
+        if y.shape != (self.n_channels,):
+            raise DataError(
+                f"a row needs {self.n_channels} values ({', '.join(self.model.channels_)}), "
+                f"got {y.shape[0]}"
+            )
         row = self.n_observed
         data = self._data_forecast(row) if isinstance(self.model, MDSL) else None
         self._yf.append(self._carry(self._yf, y))
         if self._mech is not None:
-            m = self._mech.predict(np.array([float(time_s)]))[0]
+            m = self._mech.values_at(np.array([float(time_s)]), self.model.channels_)[0]
             self._em.append(self._carry(self._em, y - m))
             if data is not None:
                 self._ed.append(self._carry(self._ed, y - data))
@@ -116,6 +123,8 @@ class OnlinePredictor:
     def observe_series(self, series: MeasurementSeries) -> None:
         """Append a whole record (vectorised when nothing was observed yet)."""
         series = self.model._check_series(series)
+        if series.n_records > 1:
+            raise DataError("streaming follows one record", fix="observe one record at a time")
         if self.n_observed:
             for t, row in zip(series.time_s, series.values, strict=True):
                 self.observe(float(t), row)
@@ -124,10 +133,10 @@ class OnlinePredictor:
         keep = self._yf.maxlen or 1
         self._yf.extend(causal_ffill(y)[-keep:])
         if self._mech is not None:
-            m = self._mech.predict(series)
+            m = self._mech.predict(series, self.model.channels_)
             self._em.extend(causal_ffill(y - m)[-keep:])
             if isinstance(self.model, MDSL):
-                d = self.model.data_model_._predict_arrays(y)
+                d = self.model.data_model_._predict_arrays(y, np.zeros((len(y), 0)), (0,))
                 self._ed.extend(causal_ffill(y - d)[-keep:])
         self.n_observed = len(series)
 
@@ -146,7 +155,7 @@ class OnlinePredictor:
         data = self.model.data_model_
         end = len(self._yf) + (target - self.n_observed) - self.horizon + 1  # exclusive
         start = end - data.window
-        pred = np.full(4, np.nan)
+        pred = np.full(self.n_channels, np.nan)
         if start >= 0 and end <= len(self._yf):
             rows = [self._yf[i] for i in range(start, end)]
             if np.isfinite(rows).all():
@@ -156,16 +165,16 @@ class OnlinePredictor:
         return pred
 
     def forecast(self, time_s: float) -> np.ndarray:
-        """Predicted speeds (4,) rpm for the row ``horizon`` samples after the last observed
+        """Predicted values (channels,) for the row ``horizon`` samples after the last observed
         one, at time ``time_s`` (s); ``NaN`` while the history is too short."""
         target = self.n_observed - 1 + self.horizon
         model = self.model
         if isinstance(model, PersistenceModel):
-            return self._yf[-1].copy() if self._yf else np.full(4, np.nan)
+            return self._yf[-1].copy() if self._yf else np.full(self.n_channels, np.nan)
         if isinstance(model, _RecurrentModel):
             return self._recurrent(model)
         assert self._mech is not None
-        m = self._mech.predict(np.array([float(time_s)]))[0]
+        m = self._mech.values_at(np.array([float(time_s)]), self.model.channels_)[0]
         if isinstance(model, MechanisticBaseline):
             return m
         if isinstance(model, _ResidualHybrid):
@@ -175,7 +184,7 @@ class OnlinePredictor:
     def _recurrent(self, model: _RecurrentModel) -> np.ndarray:
         rows = list(self._yf)[-model.window :]
         if len(rows) < model.window or not np.isfinite(rows).all():
-            return np.full(4, np.nan)
+            return np.full(self.n_channels, np.nan)
         out = _run(model.net_, list(model.scaler_.transform(np.asarray(rows))))
         return model.scaler_.inverse_transform(out)
 
@@ -183,7 +192,7 @@ class OnlinePredictor:
         w = model.window
         scalers = model.scalers_
         if len(self._em) < w or (isinstance(model, MDSL) and len(self._ed) < w):
-            return np.full(4, np.nan)
+            return np.full(self.n_channels, np.nan)
         parts = [scalers["em"].transform(np.asarray(list(self._em)[-w:]))]
         extra = None
         if isinstance(model, MDSL):
@@ -191,8 +200,8 @@ class OnlinePredictor:
             if model.use_disagreement:
                 extra = scalers["dis"].transform(self._data_forecast(target) - m)
         if not all(np.isfinite(p).all() for p in parts):
-            return np.full(4, np.nan)
+            return np.full(self.n_channels, np.nan)
         if extra is not None and not np.isfinite(extra).all():
-            return np.full(4, np.nan)
+            return np.full(self.n_channels, np.nan)
         e = _run(model.net_, list(np.hstack(parts)), extra)
         return m + scalers["em"].inverse_transform(e)

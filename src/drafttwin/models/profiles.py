@@ -11,6 +11,10 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from drafttwin.models.datadriven import GRUModel
+from drafttwin.models.task import Task
+from drafttwin.models.training import Training
+
 
 @dataclass(frozen=True)
 class Profile:
@@ -30,7 +34,10 @@ class Profile:
         val_fraction: share of the training samples, taken from the end, used for validation.
         clip_norm: gradient-norm clipping threshold; ``None`` = no clipping.
         folds: blocks for cross-fitting the data-driven model inside MD-S-L.
-        skip: networks predict a change on top of the last input step (see networks).
+        skip: one-step prediction: networks predict a change on top of the last input step
+            (an architecture prior: an untrained net is persistence); the paper's networks
+            do not. Not used in a simulation, where residual accumulation is chosen on
+            validation data instead.
     """
 
     name: str
@@ -50,45 +57,31 @@ class Profile:
     folds: int
     skip: bool
 
-    def _training(self) -> dict[str, Any]:
-        return {
-            "dropout": self.dropout,
-            "lr": self.lr,
-            "batch_size": self.batch_size,
-            "epochs": self.epochs,
-            "patience": self.patience,
-            "val_fraction": self.val_fraction,
-            "clip_norm": self.clip_norm,
-            "skip": self.skip,
-        }
+    def training(self) -> Training:
+        """The training settings of every network under this profile."""
+        return Training(epochs=self.epochs, batch_size=self.batch_size, lr=self.lr,
+                        patience=self.patience, val_fraction=self.val_fraction,
+                        clip_norm=self.clip_norm)  # fmt: skip
 
-    def hyperparameters(self, model: str) -> dict[str, Any]:
-        """Constructor keyword arguments for registry name ``model`` under this profile."""
+    def hyperparameters(self, model: str, task: Task | None = None) -> dict[str, Any]:
+        """Constructor keyword arguments for registry name ``model`` under this profile and
+        ``task`` (``skip`` applies to one-step prediction only, so a simulation leaves it
+        unset)."""
         if model in ("mechanistic", "persistence"):
             return {}
+        common: dict[str, Any] = {"window": self.window, "dropout": self.dropout,
+                                  "training": self.training()}  # fmt: skip
+        if task is None or not task.simulation:
+            common["skip"] = self.skip
         if model in ("gru", "lstm"):
-            return {
-                "window": self.window,
-                "hidden": self.data_hidden,
-                "layers": self.data_layers,
-                **self._training(),
-            }
-        residual = {
-            "window": self.window,
-            "hidden": self.residual_hidden,
-            "layers": self.residual_layers,
-            **self._training(),
-        }
+            return {**common, "hidden": self.data_hidden, "layers": self.data_layers}
+        residual = {**common, "hidden": self.residual_hidden, "layers": self.residual_layers}
         if model == "parallel":
             return residual
-        return {
-            **residual,
-            "sk_channels": self.sk_channels,
-            "data_window": self.window,
-            "data_hidden": self.data_hidden,
-            "data_layers": self.data_layers,
-            "folds": self.folds,
-        }
+        data = {**common, "window": self.window, "hidden": self.data_hidden,
+                "layers": self.data_layers}  # fmt: skip
+        return {**residual, "sk_channels": self.sk_channels, "folds": self.folds,
+                "data_model": GRUModel(**data)}  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
 from drafttwin.errors import ConfigError
 from drafttwin.models.base import MODEL_CLASSES, BaseModel, read_model_file
-from drafttwin.models.datadriven import GRUModel, LSTMModel, MechanisticBaseline, PersistenceModel
+from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel
+from drafttwin.models.datadriven import GRUModel, LSTMModel
 from drafttwin.models.hybrid import ParallelHybrid
 from drafttwin.models.mdsl import MDSL
 from drafttwin.models.profiles import PROFILES, Profile
+from drafttwin.models.task import Task
+from drafttwin.models.training import Training
 
 MODEL_NAMES: tuple[str, ...] = (
     "mechanistic",
@@ -37,6 +41,19 @@ _FACTORIES: dict[str, tuple[type[BaseModel], dict[str, Any]]] = {
     "md-s-l+d": (MDSL, {"variant": "md-s-l", "use_disagreement": True}),
 }
 
+TASK_FIELDS = tuple(f.name for f in dataclasses.fields(Task) if f.name != "kind")
+TRAINING_FIELDS = tuple(f.name for f in dataclasses.fields(Training))
+DATA_MODEL_FIELDS = {"data_window": "window", "data_hidden": "hidden", "data_layers": "layers"}
+"""Shortcuts for MD models: ``data_hidden=64`` sets the data-driven model's ``hidden``."""
+
+
+def model_class(name: str) -> type[BaseModel]:
+    """The estimator class behind a registry name (``ConfigError`` for an unknown one)."""
+    key = str(name).strip().lower()
+    if key not in _FACTORIES:
+        raise ConfigError(f"unknown model {name!r}", fix=f"use one of {', '.join(MODEL_NAMES)}")
+    return _FACTORIES[key][0]
+
 
 def get_profile(profile: str | Profile) -> Profile:
     """A :class:`Profile` by name (``quick``, ``standard``, ``paper``) or as given."""
@@ -47,26 +64,75 @@ def get_profile(profile: str | Profile) -> Profile:
     return PROFILES[profile]
 
 
-def make_model(name: str, profile: str | Profile = "quick", **hyper: Any) -> BaseModel:
+def make_model(name: str, profile: str | Profile = "quick", **overrides: Any) -> BaseModel:
     """A new, unfitted estimator by registry name with the profile's hyperparameters,
-    overridden by ``hyper`` (e.g. ``horizon=2, seed=3, quiet=True``).
+    overridden by ``overrides``.
 
-    Raises :class:`ConfigError` for an unknown name, profile or hyperparameter.
+    Besides the constructor's own arguments, ``overrides`` may name the task's fields
+    (``task="simulation"`` or a :class:`Task`, ``horizon``, ``outputs``, ``inputs``,
+    ``init_samples``), the training settings (``epochs``, ``lr``, ``device``, ... ; for MD
+    models they apply to the data-driven model too) and, for MD models, ``data_window``,
+    ``data_hidden``, ``data_layers``. Raises :class:`ConfigError` for an unknown name, profile
+    or option, naming the valid ones.
     """
+    cls = model_class(name)
     key = str(name).strip().lower()
-    if key not in _FACTORIES:
-        raise ConfigError(f"unknown model {name!r}", fix=f"use one of {', '.join(MODEL_NAMES)}")
-    cls, fixed = _FACTORIES[key]
-    params = {**get_profile(profile).hyperparameters(key.removesuffix("+d")), **fixed}
+    fixed = _FACTORIES[key][1]
     accepted = set(cls.param_names())
+    task = _task(overrides)
+    params: dict[str, Any] = {**get_profile(profile).hyperparameters(key.removesuffix("+d"), task),
+                              **fixed}  # fmt: skip
     params = {k: v for k, v in params.items() if k in accepted}
-    unknown = sorted(set(hyper) - accepted)
+    params["task"] = task
+    training = {k: overrides.pop(k) for k in TRAINING_FIELDS if k in overrides}
+    data = {DATA_MODEL_FIELDS[k]: overrides.pop(k) for k in DATA_MODEL_FIELDS if k in overrides}
+    unknown = sorted(set(overrides) - accepted)
+    valid = sorted(accepted - {"task"})
+    if training and "training" not in accepted:
+        unknown += sorted(training)
+    if data and "data_model" not in accepted:
+        unknown += [f"data_{k}" for k in sorted(data)]
     if unknown:
+        unknown = sorted(unknown)
+        extra = [*TASK_FIELDS, "task"] + ([*TRAINING_FIELDS] if "training" in accepted else [])
         raise ConfigError(
-            f"unknown hyperparameter(s) {unknown} for model {key!r}",
-            fix=f"valid: {', '.join(cls.param_names()) or '(none)'}",
+            f"option(s) {unknown} do not apply to the {key} model",
+            fix=f"valid: {', '.join(sorted(set(valid + extra)))}",
         )
-    return cls(**{**params, **hyper})
+    params.update(overrides)
+    if training:
+        params["training"] = params.get("training", Training()).replace(**training)
+    if "data_model" in accepted:
+        params["data_model"] = _data_model(params.get("data_model"), data, training)
+    return cls(**params)
+
+
+def _task(overrides: dict[str, Any]) -> Task:
+    """The Task named by ``task=`` (a kind or a Task) and the task fields in ``overrides``
+    (removed from it)."""
+    given = overrides.pop("task", None)
+    fields = {k: overrides.pop(k) for k in TASK_FIELDS if k in overrides}
+    base = given if isinstance(given, Task) else Task(kind=given or "prediction")
+    if isinstance(fields.get("outputs"), list):
+        fields["outputs"] = tuple(fields["outputs"])
+    if isinstance(fields.get("inputs"), list):
+        fields["inputs"] = tuple(fields["inputs"])
+    return base.replace(**fields) if fields else base
+
+
+def _data_model(template: Any, data: dict[str, Any], training: dict[str, Any]) -> GRUModel:
+    if template is not None and not isinstance(template, GRUModel | LSTMModel):
+        raise ConfigError(
+            f"data_model must be an unfitted GRUModel or LSTMModel, got {type(template).__name__}",
+            fix="pass data_model=GRUModel(window=..., hidden=..., layers=...)",
+        )
+    if template is not None and not data and not training:
+        return template
+    base = template if template is not None else GRUModel()
+    params = {**base.get_params(), **data}
+    if training:
+        params["training"] = params["training"].replace(**training)
+    return type(base)(**params)
 
 
 def load_model(path: str | Path) -> BaseModel:

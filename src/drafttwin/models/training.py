@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import contextlib
 import copy
+import dataclasses
 import math
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -22,15 +24,57 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from torch import nn
 
-from drafttwin.errors import DataError
+from drafttwin.errors import ConfigError, DataError
 
 MAX_THREADS = 4
 """Upper bound on intra-op CPU threads while training/predicting small recurrent nets."""
 
 
+_TRAINING_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
+    "epochs": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    "batch_size": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    "lr": (lambda v: _is_real(v) and 0 < v < math.inf, "a number > 0"),
+    "patience": (lambda v: v is None or (_is_int(v) and v >= 1), "None or an integer >= 1"),
+    "val_fraction": (lambda v: _is_real(v) and 0 <= v < 1, "in [0, 1)"),
+    "clip_norm": (lambda v: v is None or (_is_real(v) and 0 < v < math.inf), "None or > 0"),
+    "stride": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    "device": (lambda v: _valid_device(v), '"auto", "cpu", "cuda" or "cuda:N"'),
+}
+
+
+def _is_int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _is_real(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _valid_device(v: Any) -> bool:
+    if v == "auto":
+        return True
+    try:
+        torch.device(v)
+    except (RuntimeError, TypeError):
+        return False
+    return True
+
+
 @dataclass(frozen=True)
-class TrainConfig:
-    """Settings of one training run (see :mod:`drafttwin.models.profiles` for presets)."""
+class Training:
+    """How a network is trained (checked on construction; see :mod:`drafttwin.models.profiles`
+    for the named presets). The seed is the estimator's, not part of these settings.
+
+    Attributes:
+        epochs: maximum passes over the training samples.
+        batch_size: samples per Adam step.
+        lr: Adam learning rate.
+        patience: epochs without validation improvement before stopping (``None``: never).
+        val_fraction: share of the training samples, taken from the end, that validates.
+        clip_norm: gradient-norm clipping threshold (``None``: no clipping).
+        stride: use every ``stride``-th training sample (chronological order kept); 1 = all.
+        device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"`` or ``"cuda:N"``.
+    """
 
     epochs: int = 30
     batch_size: int = 64
@@ -38,10 +82,21 @@ class TrainConfig:
     patience: int | None = 5
     val_fraction: float = 0.2
     clip_norm: float | None = 1.0
-    seed: int = 0
-    device: str = "auto"
     stride: int = 1
-    """Use every ``stride``-th training sample (chronological order kept); 1 = all."""
+    device: str = "auto"
+
+    def __post_init__(self) -> None:
+        for name, (ok, rule) in _TRAINING_RULES.items():
+            value = getattr(self, name)
+            if not ok(value):
+                raise ConfigError(f"training setting {name}={value!r} is invalid",
+                                  fix=f"{name} must be {rule}")  # fmt: skip
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def replace(self, **changes: Any) -> Training:
+        return dataclasses.replace(self, **changes)
 
 
 @dataclass
@@ -203,8 +258,9 @@ def train_network(
     net: nn.Module,
     x: np.ndarray,
     y: np.ndarray,
-    config: TrainConfig,
+    config: Training,
     *,
+    seed: int = 0,
     extra: np.ndarray | None = None,
     progress: FitProgress | None = None,
     stage: str = "training",
@@ -237,8 +293,8 @@ def train_network(
     start = time.perf_counter()
     cuda = [device.index or 0] if device.type == "cuda" else []
     with compute_context(device), torch.random.fork_rng(devices=cuda):
-        torch.manual_seed(config.seed)
-        gen = torch.Generator().manual_seed(config.seed)
+        torch.manual_seed(seed)
+        gen = torch.Generator().manual_seed(seed)
         net.to(device)
         xt, yt, et = _as_tensor(x, device), _as_tensor(y, device), _as_tensor(extra, device)
         assert xt is not None and yt is not None
@@ -273,7 +329,7 @@ def _run_epochs(
     net: nn.Module,
     opt: torch.optim.Optimizer,
     parts: _Split,
-    config: TrainConfig,
+    config: Training,
     gen: torch.Generator,
     history: History,
     progress: FitProgress | None,
@@ -315,7 +371,7 @@ def _train_epoch(
     net: nn.Module,
     opt: torch.optim.Optimizer,
     parts: _Split,
-    config: TrainConfig,
+    config: Training,
     gen: torch.Generator,
 ) -> float:
     """One pass over the shuffled training samples; returns the mean training MSE."""
@@ -365,3 +421,22 @@ def predict_network(
         n_out = int(getattr(net, "n_outputs", 0))
         return np.zeros((0, n_out), dtype=np.float64)
     return np.concatenate(outs, axis=0)
+
+
+def debias_head(
+    net: nn.Module, x: np.ndarray, target: np.ndarray, extra: np.ndarray | None, device: str
+) -> np.ndarray:
+    """Re-fit the output bias of a change-predicting network in closed form on its training
+    samples: add the mean ``target - prediction`` (scaled units) to ``net.head.bias``.
+
+    A free run sums the predicted changes, so a constant error ``c`` in them grows into a
+    drift of ``c`` per sample; the stochastic optimiser leaves such a ``c`` (it moves the
+    bias by about its learning rate every step). After this step the summed changes have no
+    mean drift over the training samples. Returns the shift (scaled units).
+    """
+    out = predict_network(net, x, extra=extra, device=device)
+    shift = np.mean(np.asarray(target, np.float64) - out, axis=0)
+    head = net.head
+    with torch.no_grad():
+        head.bias += torch.as_tensor(shift, dtype=head.bias.dtype, device=head.bias.device)
+    return shift

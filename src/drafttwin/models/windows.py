@@ -4,33 +4,57 @@ Every model builds its inputs through :func:`gather_windows`, which for a target
 horizon ``h`` takes rows ``T-h-W+1 .. T-h`` of a feature array and nothing later. Measured
 speeds and residuals therefore reach a model only up to ``T-h`` (``t-1`` for ``h = 1``). The
 mechanistic prediction and the data-driven prediction *for* ``T`` enter separately as "extra"
-inputs taken at row ``T`` (they are known at that time; SPEC section 2).
+inputs taken at row ``T`` (they are known at that time).
 
 Missing samples are filled with :func:`causal_ffill` (last observation carried forward), which
-uses only earlier rows, so filling cannot leak the future either.
+uses only earlier rows, so filling cannot leak the future either. A series may hold several
+records (separate experiments): no window, fill or change crosses a record boundary.
 """
 
 from __future__ import annotations
+
+from collections.abc import Sequence
 
 import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 
-def causal_ffill(x: np.ndarray) -> np.ndarray:
-    """Forward-fill ``NaN`` along axis 0 with the last earlier finite value of each column.
+def causal_ffill(x: np.ndarray, starts: Sequence[int] = (0,)) -> np.ndarray:
+    """Forward-fill ``NaN`` along axis 0 with the last earlier finite value of each column,
+    never across a record boundary (``starts``: first row of each record).
 
-    Rows before a column's first finite value stay ``NaN``. Uses rows ``<= i`` only for row
-    ``i``. Units are those of ``x``.
+    Rows before a column's first finite value in a record stay ``NaN``. Uses rows ``<= i`` of
+    the same record only for row ``i``. Units are those of ``x``.
     """
     x = np.array(x, dtype=np.float64, copy=True)
     if x.ndim == 1:
-        return causal_ffill(x[:, None])[:, 0]
+        return causal_ffill(x[:, None], starts)[:, 0]
     n = x.shape[0]
     if n == 0:
         return x
     rows = np.where(np.isnan(x), 0, np.arange(n)[:, None])
+    barriers = np.asarray([s for s in starts if 0 < s < n], dtype=np.int64)
+    rows[barriers] = barriers[:, None]  # a record start is its own last value (NaN or not)
     np.maximum.accumulate(rows, axis=0, out=rows)
     return x[rows, np.arange(x.shape[1])[None, :]]
+
+
+def record_ids(n: int, starts: Sequence[int] = (0,)) -> np.ndarray:
+    """Record index of each of ``n`` rows, from the records' first rows ``starts``."""
+    marks = np.zeros(n, dtype=np.int64)
+    inner = [s for s in starts if 0 < s < n]
+    marks[inner] = 1
+    return np.cumsum(marks)
+
+
+def increments(x: np.ndarray, starts: Sequence[int] = (0,)) -> np.ndarray:
+    """Per-sample change ``x(T) - x(T-1)`` (0 at the first row of each record), same units and
+    shape as ``x``."""
+    x = np.asarray(x, dtype=np.float64)
+    out = np.zeros_like(x)
+    out[1:] = x[1:] - x[:-1]
+    out[[s for s in starts if 0 < s < len(x)]] = 0.0
+    return out
 
 
 def first_target(window: int, horizon: int) -> int:
@@ -38,10 +62,15 @@ def first_target(window: int, horizon: int) -> int:
     return window + horizon - 1
 
 
-def target_rows(n: int, window: int, horizon: int) -> np.ndarray:
+def target_rows(n: int, window: int, horizon: int, starts: Sequence[int] = (0,)) -> np.ndarray:
     """All rows ``T`` of an ``n``-row series that have a full window of ``window`` rows ending at
-    ``T - horizon``."""
-    return np.arange(first_target(window, horizon), max(n, first_target(window, horizon)))
+    ``T - horizon`` inside ``T``'s own record (``starts``: first row of each record)."""
+    first = first_target(window, horizon)
+    rows = np.arange(first, max(n, first))
+    if len(starts) <= 1 or rows.size == 0:
+        return rows
+    rec = record_ids(n, starts)
+    return rows[rec[rows - first] == rec[rows]]
 
 
 def gather_windows(

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from drafttwin import ROLLERS, __version__
+from drafttwin._constants import ROLLERS, __version__
 from drafttwin._io import atomic_path
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
@@ -159,6 +159,7 @@ class Plant:
             time_s=res.time_s,
             values=measured.rpm,
             inputs={"supply_hz": setpoint.at(res.time_s)},
+            truth=true_rpm,
             metadata={"source": "drafttwin plant", "seed": seed, "scenario": scenario},
         )
         return PlantRecording(
@@ -186,7 +187,7 @@ def attach_truth(series: MeasurementSeries, path: str | Path) -> MeasurementSeri
     if len(frame) != len(series) or not np.allclose(frame["time"].to_numpy(), series.time_s):
         return series  # the measured file was edited: its truth no longer lines up
     meta = dict(series.metadata)
-    meta["true_rpm"] = frame[[f"true_{r}" for r in series.channels]].to_numpy(np.float64)
+    truth = frame[[f"true_{r}" for r in series.channels]].to_numpy(np.float64)
     meta["missing_mask"] = frame[[f"missing_{r}" for r in series.channels]].to_numpy(bool)
     meta["outlier_mask"] = frame[[f"outlier_{r}" for r in series.channels]].to_numpy(bool)
-    return replace(series, metadata=meta)
+    return replace(series, metadata=meta, truth=truth)

@@ -12,7 +12,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.report import paper
 from drafttwin.report.fmt import count_text, is_num, num, span
 from drafttwin.report.tables import metric_unit, paper_table2, paper_table3_stats

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, with_unit
 from drafttwin.report.html import Cell, Raw, figure, join, para, section, table, tag

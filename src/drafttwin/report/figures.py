@@ -17,7 +17,7 @@ import numpy as np  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 from scipy.signal import welch  # noqa: E402
 
-from drafttwin import ROLLERS  # noqa: E402
+from drafttwin._constants import ROLLERS  # noqa: E402
 from drafttwin.report.fmt import with_unit  # noqa: E402
 
 COLORS = {

@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.evaluation.metrics import DEFAULT_REL_FLOOR
 from drafttwin.report import agreement
 from drafttwin.report.fmt import DASH, is_num, seconds

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.report import agreement, paper
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, sig

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.report import paper
 
 METRIC_COLUMNS = (

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin._io import atomic_path, write_text_atomic
 from drafttwin.report import figures, paper, tables
 from drafttwin.report.comparison import comparison_section, figures_section

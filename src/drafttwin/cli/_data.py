@@ -1,0 +1,186 @@
+"""Data and channel options shared by ``fit``, ``predict``, ``evaluate`` and ``inspect``."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+
+from drafttwin.errors import ConfigError
+
+if TYPE_CHECKING:
+    from drafttwin.data.series import MeasurementSeries
+    from drafttwin.models import BaseModel, MechanisticModel
+
+DataOpt = Annotated[
+    str,
+    typer.Option(
+        "--data",
+        help="'default' (the embedded FA320A plant data) or CSV/Parquet file(s), comma-separated "
+        "(separate experiments: no model window crosses from one to the next).",
+    ),
+]
+TestDataOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--test-data",
+        help="Separate test record(s), comma-separated: scored whole instead of the "
+        "chronological split.",
+    ),
+]
+OutputsOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--outputs",
+        help="Output channels NAME[,NAME...] (default: the FA320A rollers front, second, third, "
+        "back).",
+    ),
+]
+InputsOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--inputs",
+        help="Exogenous input channels NAME[,NAME...] that the networks see (set-points, a drive "
+        "voltage). Set-point columns (supply_hz, setpoint_*) are always read for the physics.",
+    ),
+]
+TimeColumnOpt = Annotated[
+    str | None, typer.Option("--time-column", help="Name of the time column (seconds).")
+]
+UnitsOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--units",
+        help="Units NAME=UNIT[,...] (e.g. y=m,u=V). The rpm plausibility check runs only on "
+        "channels in rpm (the FA320A rollers by default).",
+    ),
+]
+MechanisticOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--mechanistic",
+        help="The physics: 'preset' / 'preset:NAME' (fa320a), 'config:FILE.toml' (your drive "
+        "train), or simulator output file(s) FILE[,FILE...] (time + one column per output, "
+        "one file for all records or one per record). Default: the model file's.",
+    ),
+]
+TaskOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--task",
+        help="prediction (one step ahead, default) or simulation (free run from the inputs and "
+        "--init-samples measured samples).",
+    ),
+]
+InitOpt = Annotated[
+    int | None,
+    typer.Option("--init-samples", min=1, help="Simulation: measured samples at the start "
+                 "of each record the free run may use (default: the model's window)."),
+]  # fmt: skip
+
+
+def names(text: str | None, option: str) -> tuple[str, ...] | None:
+    """``'a, b'`` -> ``('a', 'b')``; ``None`` stays ``None``."""
+    if text is None:
+        return None
+    out = tuple(p.strip() for p in text.split(",") if p.strip())
+    if not out:
+        raise ConfigError(f"{option} is empty", where=option, fix=f"write {option} a,b")
+    return out
+
+
+def pairs(text: str | None, option: str) -> dict[str, str]:
+    """``'y=m,u=V'`` -> ``{'y': 'm', 'u': 'V'}``."""
+    out: dict[str, str] = {}
+    for item in (text or "").split(","):
+        if not item.strip():
+            continue
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise ConfigError(f"'{item}' is not NAME=VALUE", where=option,
+                              fix=f"write {option} y=m,u=V")  # fmt: skip
+        out[key.strip()] = value.strip()
+    return out
+
+
+@dataclass(frozen=True)
+class Channels:
+    """The channel options as given on the command line."""
+
+    outputs: tuple[str, ...] | None = None
+    inputs: tuple[str, ...] | None = None
+    time_column: str | None = None
+    units: dict[str, str] | None = None
+
+    @classmethod
+    def parse(
+        cls, outputs: str | None, inputs: str | None, time_column: str | None, units: str | None
+    ) -> Channels:
+        return cls(names(outputs, "--outputs"), names(inputs, "--inputs"), time_column,
+                   pairs(units, "--units") or None)  # fmt: skip
+
+    def for_model(self, model: BaseModel) -> Channels:
+        """These options checked against a fitted model: outputs, inputs and units must not
+        contradict the model file; what is not given is taken from it."""
+        problems = []
+        if self.outputs is not None and tuple(self.outputs) != tuple(model.channels_):
+            problems.append(f"--outputs {','.join(self.outputs)} (model: "
+                            f"{','.join(model.channels_)})")  # fmt: skip
+        missing = [n for n in model.task.inputs if n not in (self.inputs or model.task.inputs)]
+        if missing:
+            problems.append(f"--inputs lacks {','.join(missing)} that the model uses")
+        for name, unit in (self.units or {}).items():
+            known = model.units_.get(name)
+            if known is not None and known != unit:
+                problems.append(f"--units {name}={unit} (model: {name}={known or '(none)'})")
+        if problems:
+            raise ConfigError(
+                "the channel options contradict the model file: " + "; ".join(problems),
+                where="--outputs / --inputs / --units",
+                fix="leave them out to use the model's channels, or fit a model on these",
+            )
+        units = {k: v for k, v in model.units_.items() if v} | dict(self.units or {})
+        inputs = tuple(dict.fromkeys((*model.task.inputs, *(self.inputs or ()))))
+        return Channels(tuple(model.channels_), inputs, self.time_column, units)
+
+    def read(self, spec: str, extra_inputs: tuple[str, ...] = ()) -> MeasurementSeries:
+        """The series named by ``--data``/``--test-data``: ``default`` or file(s)."""
+        if spec == "default":
+            if self.outputs not in (None, _rollers()) or self.inputs or self.time_column:
+                raise ConfigError(
+                    "the embedded default data have the FA320A rollers and supply_hz only",
+                    where="--data default",
+                    fix="drop the channel options, or pass your own file with --data",
+                )
+            from drafttwin.datasets import load_default
+
+            return load_default()
+        from drafttwin.data.io import read_measurements
+        from drafttwin.plant.emulator import attach_truth
+
+        paths = [Path(p.strip()) for p in spec.split(",") if p.strip()]
+        # a column given a unit is read too (as an input unless it is an output)
+        with_units = [n for n in (self.units or {}) if n not in (*(self.outputs or ()), "motor")]
+        inputs = tuple(dict.fromkeys((*(self.inputs or ()), *extra_inputs, *with_units)))
+        kwargs: dict[str, Any] = {"outputs": self.outputs, "units": self.units,
+                                  "time_column": self.time_column, "inputs": inputs,
+                                  "setpoints": True}  # fmt: skip
+        parts = [attach_truth(read_measurements(p, **kwargs), p) for p in paths]
+        if len(parts) == 1:
+            return parts[0]
+        from drafttwin.data.records import join_files
+
+        return join_files(parts, paths, rate_tolerance=0.01)
+
+
+def _rollers() -> tuple[str, ...]:
+    from drafttwin._constants import ROLLERS
+
+    return ROLLERS
+
+
+def physics_inputs(source: MechanisticModel | None) -> tuple[str, ...]:
+    """Input channels the mechanistic source needs from the data."""
+    return () if source is None else source.required_inputs()

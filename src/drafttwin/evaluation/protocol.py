@@ -1,0 +1,345 @@
+"""The evaluation protocol: split, preprocess, predict, score. One implementation, used by the
+command line, ``drafttwin reproduce`` and the EMPS benchmark.
+
+* **Split.** Chronological (the first ``train_fraction`` of the rows train, the rest test,
+  the paper's 70 / 30) or by records (every row of the given data trains; separate test
+  records are scored whole).
+* **Training data** are preprocessed as in the paper: missing samples interpolated, one-sample
+  outliers smoothed. Both may use the next sample, which is fine: all of it lies before the
+  test part.
+* **Test inputs** are cleaned causally: a spike is dropped using past samples only and the
+  models hold the last value; gaps stay gaps. No prediction sees a future sample.
+* **Scoring target**: the measured test samples that the paper's outlier rule does not flag;
+  everything else is not scored. In a simulation the initialisation window of each test
+  record (the measured start the free run may use) is not scored either.
+* **Baseline**: persistence with the same task (the last measured value, or in a simulation
+  the last value of the initialisation window, held), for the skill score.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from drafttwin.data.preprocess import outlier_scales, preprocess, reject_spikes_causal
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.errors import ConfigError, DataError
+from drafttwin.evaluation.metrics import ChannelMetrics, json_number
+from drafttwin.evaluation.metrics import evaluate as score_channels
+from drafttwin.models.base import BaseModel
+from drafttwin.models.baselines import PersistenceModel
+
+OUTLIER_THRESHOLD = 0.10
+"""The paper's outlier rule: a one-sample jump of more than 10 %."""
+
+
+@dataclass(frozen=True)
+class Split:
+    """Training and test data prepared by the protocol.
+
+    Attributes:
+        train: the training series, preprocessed as in the paper.
+        test: the test series as the models see it (spikes dropped causally), with the
+            measured values kept for scoring in ``target``. Chronological split: the test
+            rows continue the training record(s) on the same time axis.
+        target: the scoring target on ``test``'s rows, ``(n_test, channels)``; ``NaN`` = not
+            scored (missing or an outlier by the paper's rule).
+        joined: chronological split only: the whole series as one-step prediction sees it,
+            the preprocessed training rows as history followed by ``test`` (same records as
+            the data); ``None`` otherwise.
+        mode: ``"chronological"``, ``"records"`` (separate test records) or ``"all"`` (every
+            row trains, no test part: ``test`` is ``None``).
+        summary: counts for reports (rows, preprocessing, scored samples).
+        stats: what causal cleaning took from the training data (:func:`cleaning_stats`).
+    """
+
+    train: MeasurementSeries | None
+    test: MeasurementSeries | None
+    target: np.ndarray
+    joined: MeasurementSeries | None
+    mode: str
+    summary: dict[str, Any] = field(default_factory=dict)
+    stats: dict[str, dict[str, float | None]] = field(default_factory=dict)
+
+
+def cleaning_stats(train: MeasurementSeries) -> dict[str, dict[str, float | None]]:
+    """Per channel, what causal cleaning of test data needs from the training data: the
+    outlier rule's scale (``None``: the relative rule) and a floor for the relative rule
+    (half the typical magnitude: near standstill 10 % of the last value is nothing, and a
+    start-up must not be taken for a run of spikes)."""
+    scales = outlier_scales(train)
+    typical = np.nanmedian(np.abs(train.values), axis=0) if len(train) else np.zeros(0)
+    return {
+        c: {"scale": scales[c], "floor": float(0.5 * np.nan_to_num(typical[j]))}
+        for j, c in enumerate(train.channels)
+    }
+
+
+def split(
+    data: MeasurementSeries,
+    *,
+    train_fraction: float | None = 0.7,
+    test: MeasurementSeries | None = None,
+    outlier_threshold: float = OUTLIER_THRESHOLD,
+) -> Split:
+    """Split ``data`` chronologically (``train_fraction``) or, with ``test``, train on all of
+    ``data`` and test on the separate records ``test``."""
+    if test is None:
+        if train_fraction is None or not 0.0 < train_fraction < 1.0:
+            raise ConfigError(
+                f"train fraction {train_fraction} leaves no test part",
+                where="--train-fraction",
+                fix="use a fraction below 1 (e.g. 0.7), or give separate --test-data",
+            )
+        train_rows = int(round(train_fraction * len(data)))
+        if train_rows < 2 or len(data) - train_rows < 2:
+            raise DataError(f"{len(data)} rows are too few to split at {train_fraction:g}",
+                            fix="use a longer recording or a train fraction nearer 0.5")  # fmt: skip
+        train_part, test_part, mode = (
+            data.slice(0, train_rows),
+            data.slice(train_rows),
+            "chronological",
+        )
+    else:
+        train_part, test_part, mode = data, test, "records"
+    clean_train, train_report = preprocess(train_part, outlier_threshold=outlier_threshold)
+    stats = cleaning_stats(train_part)
+    flagged = None
+    if mode == "chronological":  # the first test sample's earlier neighbour is a training one
+        flagged = preprocess(data, outlier_threshold=outlier_threshold)[1].outliers[
+            len(train_part) :
+        ]
+    part = test_split(test_part, stats, outlier_threshold=outlier_threshold, outliers=flagged)
+    summary = {**part.summary, "mode": mode, "train_rows": len(train_part),
+               "train_records": train_part.n_records}  # fmt: skip
+    summary["preprocessing"] = {"train": train_report.to_dict(), **part.summary["preprocessing"]}
+    joined = None
+    if mode == "chronological":
+        joined = data.with_values(np.vstack([clean_train.values, part.test.values]))
+    return Split(clean_train, part.test, part.target, joined, mode, summary, stats)
+
+
+def test_split(
+    test: MeasurementSeries,
+    stats: dict[str, dict[str, float | None]],
+    *,
+    outlier_threshold: float = OUTLIER_THRESHOLD,
+    outliers: np.ndarray | None = None,
+) -> Split:
+    """Separate test records, cleaned causally with the training data's ``stats``
+    (:func:`cleaning_stats`, as a fitted model records them); nothing trains. The scoring
+    target leaves out missing samples and the paper's outliers (found in the test records,
+    or given as ``outliers``)."""
+    if set(stats) != set(test.channels):
+        raise DataError(
+            f"the test data have channels {list(test.channels)}, the training data {sorted(stats)}",
+            fix="read both with the same --outputs",
+        )
+    test_inputs, rejected = clean_causally(test, stats, outlier_threshold)
+    if outliers is None:
+        outliers = preprocess(test, outlier_threshold=outlier_threshold)[1].outliers
+    scored = np.isfinite(test.values) & ~outliers
+    target = np.where(scored, test.values, np.nan)
+    summary = {
+        "mode": "records",
+        "test_rows": len(test),
+        "test_records": test.n_records,
+        "rate_hz": test.sample_rate_hz,
+        "preprocessing": {
+            "test_spikes_rejected_causally": int(rejected.sum()),
+            "test_scored_samples": int(scored.sum()),
+            "test_samples": int(scored.size),
+        },
+    }
+    return Split(None, test_inputs, target, None, "records", summary, stats)
+
+
+def clean_causally(
+    test: MeasurementSeries, stats: dict[str, dict[str, float | None]], threshold: float
+) -> tuple[MeasurementSeries, np.ndarray]:
+    """The test series with spikes dropped using past samples only; the rule's scales and
+    floors come from the training data (the future is not known online)."""
+    rows = [stats[c] for c in test.channels]
+    scale = np.array([np.nan if r["scale"] is None else r["scale"] for r in rows], dtype=float)
+    floor = np.array([r["floor"] or 0.0 for r in rows], dtype=float)
+    values, rejected = reject_spikes_causal(test, threshold, scale=scale, floor=floor)
+    return test.with_values(values), rejected
+
+
+def model_input(model: BaseModel, data: Split) -> tuple[MeasurementSeries, int]:
+    """The series a model predicts on, and the row of it where the test part starts.
+
+    One-step prediction after a chronological split sees the training rows as history (every
+    prediction uses earlier rows only). A simulation runs free over the test records alone,
+    from their own measured starts."""
+    if data.joined is not None and not model.task.simulation:
+        return data.joined, len(data.joined) - len(data.test)
+    return data.test, 0
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """What :func:`evaluate` measured: per-channel metrics and how they were obtained.
+
+    ``rmse_vs_true``: the prediction's RMSE against the true values, per channel, where the
+    data carry them (plant data): how close the twin is to the machine, not to its encoders.
+    """
+
+    model: str
+    task: str
+    metrics: dict[str, ChannelMetrics]
+    predictions: pd.DataFrame
+    scored_rows: int
+    selection: dict[str, Any]
+    split: dict[str, Any]
+    rmse_vs_true: dict[str, float | None] = field(default_factory=dict)
+
+    def rows(self) -> dict[str, dict[str, Any]]:
+        """Per channel, the metrics (JSON-safe) and ``rmse_vs_true`` when known."""
+        out = {}
+        for c, m in self.metrics.items():
+            row = m.to_dict()
+            if c in self.rmse_vs_true:
+                row["rmse_vs_true"] = self.rmse_vs_true[c]
+            out[c] = row
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe (no NaN): metrics per channel, the task, options chosen on data."""
+        return {
+            "model": self.model,
+            "task": self.task,
+            "channels": self.rows(),
+            "selection": self.selection,
+            "scored_rows": self.scored_rows,
+            "split": self.split,
+        }
+
+    def to_frame(self) -> pd.DataFrame:
+        """One row per channel."""
+        return pd.DataFrame([{"channel": c, **r} for c, r in self.rows().items()])
+
+
+def prepare(
+    model: BaseModel,
+    data: MeasurementSeries | Split | None,
+    test: MeasurementSeries | None,
+    train_fraction: float | None,
+) -> Split:
+    """The split a fitted model is scored on: ``data`` split as when the model was fitted
+    (its recorded train fraction unless given), or the separate ``test`` records cleaned with
+    the statistics the model recorded of its training data."""
+    if isinstance(data, Split):
+        return data
+    fitted = getattr(model, "provenance_", {}) or {}
+    if test is not None and data is None:
+        stats = fitted.get("cleaning")
+        if not stats:
+            raise ConfigError(
+                "the model file does not record its training data's statistics",
+                fix="pass the training data too (data=... / --data), or re-fit the model",
+            )
+        return test_split(test, stats)
+    if data is None:
+        raise ConfigError("nothing to evaluate on", fix="pass data= and/or test=")
+    if train_fraction is None and test is None:
+        train_fraction = fitted.get("train_fraction") or 0.7
+    return split(data, train_fraction=train_fraction, test=test)
+
+
+def evaluate(
+    model: BaseModel,
+    data: MeasurementSeries | Split | None = None,
+    *,
+    test: MeasurementSeries | None = None,
+    train_fraction: float | None = None,
+    mechanistic: object | None = None,
+    skip_rows: int = 0,
+) -> Evaluation:
+    """Score a fitted model on the test part of ``data`` (chronological split, by default at
+    the fraction the model was fitted with) or on the separate ``test`` records: the paper's
+    relative errors and RMSE, NRMSE, skill against persistence, and the noise floor and the
+    error against the true values when the data carry them. ``skip_rows``: rows at the start
+    of each test record left unscored (so that models with different warm-ups are scored on
+    the same rows)."""
+    part = prepare(model, data, test, train_fraction)
+    series, first = model_input(model, part)
+    pred = model.predict_values(series, mechanistic)[first:]
+    return score(part, pred, model, skip_rows=skip_rows)
+
+
+def score(part: Split, pred: np.ndarray, model: BaseModel, *, skip_rows: int = 0) -> Evaluation:
+    """Score predictions ``pred`` of ``part``'s test rows made by ``model`` (its task sets the
+    persistence baseline and, in a simulation, the unscored initialisation rows)."""
+    series, first = model_input(model, part)
+    baseline = PersistenceModel(task=model.task.replace(inputs=()))
+    baseline.fit(part.test)
+    pers = baseline.predict_values(series)[first:]
+    target = part.target.copy()
+    unscored = max(skip_rows, model._init_rows() if model.task.simulation else 0)
+    for a, b in part.test.record_bounds():  # a simulation's measured start is no prediction
+        target[a : min(b, a + unscored)] = np.nan
+    units = {c: part.test.unit(c) for c in part.test.channels}
+    truth = part.test.truth
+    metrics = score_channels(target, pred, channels=part.test.channels, units=units,
+                             persistence=pers, true_values=truth)  # fmt: skip
+    vs_true = {}
+    if truth is not None:
+        for j, c in enumerate(part.test.channels):
+            ok = np.isfinite(target[:, j]) & np.isfinite(pred[:, j]) & np.isfinite(truth[:, j])
+            err = pred[ok, j] - truth[ok, j]
+            vs_true[c] = json_number(float(np.sqrt(np.mean(err**2))) if err.size else np.nan)
+    frame = pd.DataFrame({"time": part.test.time_s})
+    for j, name in enumerate(part.test.channels):
+        frame[name] = pred[:, j]
+    if part.test.n_records > 1:
+        frame["record"] = part.test.record_ids()
+    frame.attrs["units"] = units
+    return Evaluation(
+        model=model.name,
+        task=model.task.kind,
+        metrics=metrics,
+        predictions=frame,
+        scored_rows=int(np.isfinite(target).any(axis=1).sum()),
+        selection=dict(getattr(model, "selection_", {})),
+        split=part.summary,
+        rmse_vs_true=vs_true,
+    )
+
+
+def fit(
+    model: BaseModel,
+    data: MeasurementSeries | Split,
+    *,
+    train_fraction: float | None = 0.7,
+    test: MeasurementSeries | None = None,
+    mechanistic: object | None = None,
+) -> Split:
+    """Fit ``model`` on the protocol's training part of ``data`` (the first
+    ``train_fraction``; all of it with ``train_fraction=1`` or when separate ``test`` records
+    are given) and record how in ``model.provenance_``; returns the split, so the same test
+    part can be scored with :func:`evaluate` (``split.test`` is ``None`` without a test part).
+    """
+    if isinstance(data, Split):
+        part = data
+    elif test is None and train_fraction is not None and train_fraction >= 1.0:
+        clean, report = preprocess(data)
+        summary = {"mode": "all", "train_rows": len(data), "train_records": data.n_records,
+                   "preprocessing": {"train": report.to_dict()}}  # fmt: skip
+        part = Split(clean, None, np.zeros((0, len(data.channels))), None, "all", summary,
+                     cleaning_stats(data))  # fmt: skip
+    else:
+        part = split(data, train_fraction=train_fraction, test=test)
+    assert part.train is not None
+    model.fit(part.train, mechanistic)
+    model.provenance_.update({
+        "split": part.mode,
+        "train_fraction": train_fraction if part.mode != "records" else None,
+        "train_rows": len(part.train),
+        "train_records": part.train.n_records,
+        "cleaning": part.stats,
+    })  # fmt: skip
+    return part

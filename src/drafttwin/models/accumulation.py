@@ -1,0 +1,114 @@
+"""Residual accumulation in a simulation, and choosing it on validation data.
+
+In a free run no measured residual exists after the initialisation window, so a residual
+model predicts either the mechanistic residual ``e_m(T)`` itself (its *level*) or its
+per-sample change, summed from the last measured residual (*accumulation*). Which is better
+depends on the data: accumulation suits a physics error that drifts (EMPS: friction and
+offset errors integrate twice open loop), the level suits a bounded error. So the hybrids
+train both and keep the one with the smaller free-run error over the validation part of the
+training data (:func:`choose`), unless the user fixed it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from torch import nn
+
+from drafttwin.models.training import predict_network, split_sizes
+from drafttwin.models.windows import record_ids
+
+
+def validation_slice(n_samples: int, val_fraction: float, stride: int) -> slice:
+    """The samples (in chronological order, before ``stride`` subsampling) that
+    :func:`~drafttwin.models.training.train_network` holds out for validation: the time span
+    after its last strided training sample, at full resolution. Empty without a validation
+    part."""
+    n_strided = len(range(0, n_samples, max(1, stride)))
+    n_train, n_val = split_sizes(n_strided, val_fraction)
+    if n_val == 0:
+        return slice(n_samples, n_samples)
+    return slice(n_train * max(1, stride), n_samples)
+
+
+def drift_validator(
+    x: np.ndarray,
+    target: np.ndarray,
+    extra: np.ndarray | None,
+    val_fraction: float,
+    stride: int,
+) -> Callable[[nn.Module], float] | None:
+    """Early-stopping criterion of an accumulating residual model: the mean squared drift of
+    the accumulated predicted changes over the validation part, in scaled units squared.
+    ``None`` when there is no validation part."""
+    val = validation_slice(len(x), val_fraction, stride)
+    if val.start >= len(x):
+        return None
+    xv, tv = x[val], target[val]
+    ev = None if extra is None else extra[val]
+
+    def score(net: nn.Module) -> float:
+        device = str(next(net.parameters()).device)
+        out = predict_network(net, xv, extra=ev, device=device)
+        drift = np.cumsum(out - tv, axis=0)
+        return float(np.mean(drift**2))
+
+    return score
+
+
+def accumulate_runs(
+    steps: np.ndarray, rows: np.ndarray, anchors: np.ndarray, starts: Sequence[int]
+) -> np.ndarray:
+    """Levels rebuilt from per-sample changes ``steps`` at target ``rows``: each run of
+    consecutive rows of one record starts from ``anchors[row - 1]`` (the level just before
+    it) and adds the changes up. Same shape as ``steps``."""
+    out = np.empty_like(steps)
+    if rows.size == 0:
+        return out
+    rec = record_ids(int(max(rows.max() + 1, anchors.shape[0])), starts)
+    breaks = np.flatnonzero((np.diff(rows) != 1) | (rec[rows[1:]] != rec[rows[:-1]])) + 1
+    for seg in np.split(np.arange(rows.size), breaks):
+        first = rows[seg[0]]
+        out[seg] = anchors[first - 1] + np.cumsum(steps[seg], axis=0)
+    return out
+
+
+@dataclass(frozen=True)
+class Choice:
+    """The outcome of choosing accumulation: what was chosen, by whom, on what evidence."""
+
+    accumulate: bool
+    chosen_by: str  # "validation" or "user"
+    scores: dict[str, float]  # candidate -> free-run NRMSE of the residual on validation
+    validation_rows: int
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "accumulate": self.accumulate,
+            "chosen_by": self.chosen_by,
+            "validation_nrmse": {
+                k: (v if np.isfinite(v) else None) for k, v in self.scores.items()
+            },
+            "validation_rows": self.validation_rows,
+        }
+
+
+def free_run_nrmse(pred: np.ndarray, measured: np.ndarray, scale: np.ndarray) -> float:
+    """Mean over channels of RMSE / scale on the rows where both are finite (channels in
+    different units weigh alike)."""
+    err = pred - measured
+    ok = np.isfinite(err)
+    per_channel = [
+        np.sqrt(np.mean(err[ok[:, j], j] ** 2)) / scale[j] if ok[:, j].any() else np.inf
+        for j in range(err.shape[1])
+    ]
+    return float(np.mean(per_channel))
+
+
+def choose(scores: dict[bool, float], n_rows: int) -> Choice:
+    """The candidate with the smaller validation error (accumulation on a tie)."""
+    best = min(scores, key=lambda k: (scores[k], not k))
+    named = {("accumulate" if k else "level"): v for k, v in scores.items()}
+    return Choice(best, "validation", named, n_rows)
