@@ -1,8 +1,8 @@
 """The EMPS benchmark: data checks, the physical model, leakage, and the CLI on a slice.
 
-The EMPS files are not in the repository (licence unclear). Tests that need them look in
-``$DRAFTTWIN_EMPS_DIR`` or beside the project (``../shared/data/external/emps``) and skip
-with a reason when they are absent; the refusal tests use fake files and always run.
+The EMPS files are not in the repository (licence unclear). Tests that need them take the
+folder from ``$DRAFTTWIN_EMPS_DIR`` (``.ci/run`` sets it) and skip with a reason when it is
+not set; the refusal tests use fake files and always run.
 """
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from drafttwin.benchmarks.emps.physics import EmpsPhysics, rmse_mm
 from drafttwin.cli import app
+from drafttwin.datasets import emps as emps_data
+from drafttwin.datasets.emps import TEST_FILE, TRAIN_FILE, find_data_dir, load_emps
 from drafttwin.errors import DataError
-from drafttwin.experiments import emps_data
-from drafttwin.experiments.emps_data import TEST_FILE, TRAIN_FILE, find_data_dir, load_emps
-from drafttwin.experiments.emps_physics import EmpsPhysics, rmse_mm
 from drafttwin.models import make_model
 
 
@@ -64,6 +64,10 @@ def test_missing_folder_and_env_var_are_refused(tmp_path: Path, monkeypatch) -> 
         find_data_dir()
     monkeypatch.setenv(emps_data.ENV_VAR, str(tmp_path))
     assert find_data_dir() == tmp_path
+    monkeypatch.delenv(emps_data.ENV_VAR)
+    with pytest.raises(DataError, match="no folder of EMPS data was given") as err:
+        find_data_dir()  # library code searches nowhere else
+    assert emps_data.ENV_VAR in str(err.value) and "--data-dir" in str(err.value)
 
 
 def test_cli_refuses_missing_data_with_exit_code_2(tmp_path: Path) -> None:

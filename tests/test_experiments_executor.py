@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from drafttwin.errors import DrafttwinError
-from drafttwin.experiments import ResultStore, data_hash, run_tasks, task_key
+from drafttwin.execution import ResultStore, data_hash, run_tasks, task_key
 
 from ._tasks import slow_marked_task, supply_sweep_point
 
@@ -52,7 +52,7 @@ def test_killed_sweep_resumes_without_repeating(tmp_path):
     store_dir, markers = tmp_path / "store", tmp_path / "markers"
     markers.mkdir()
     script = textwrap.dedent(f"""
-        from drafttwin.experiments import ResultStore, run_tasks
+        from drafttwin.execution import ResultStore, run_tasks
         from tests._tasks import slow_marked_task
         configs = [{{"k": k, "marker_dir": {str(markers)!r}, "sleep": 0.3}} for k in range(8)]
         run_tasks(slow_marked_task, configs, store=ResultStore({str(store_dir)!r}), workers=1)

@@ -9,7 +9,8 @@ import pytest
 from drafttwin import ROLLERS
 from drafttwin.datasets import load_default
 from drafttwin.experiments.plan import STUDY_PROFILES
-from drafttwin.experiments.study import Study, write_outputs
+from drafttwin.experiments.study import Study
+from drafttwin.report import write_study
 
 TINY = replace(STUDY_PROFILES["quick"], name="tiny", data_duration_s=24.0, epochs=1, patience=None,
                grid_epochs=1, grid_train_samples=300, ablation_tests=10)  # fmt: skip
@@ -25,7 +26,7 @@ def study_run(tmp_path_factory):
 
     study = Study(TINY, out_dir=out, workers=2, stage=stage)
     results, predictions = study.run(load_default())
-    files = write_outputs(out, results, predictions)
+    files = write_study(out, results, predictions)
     return out, results, predictions, files, runs
 
 

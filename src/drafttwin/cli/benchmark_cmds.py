@@ -65,9 +65,9 @@ def emps(
     one-step prediction mode (reported apart). Prints the table beside the published numbers
     and writes OUT/emps_report.html, OUT/emps_results.json and OUT/emps_predictions.csv.
     """
-    from drafttwin.experiments.emps import EmpsConfig, run_benchmark, task_configs
-    from drafttwin.experiments.emps_data import load_emps
-    from drafttwin.experiments.emps_report import HEADER, table_rows, write_outputs
+    from drafttwin.benchmarks.emps.run import EmpsConfig, run_benchmark, task_configs
+    from drafttwin.datasets.emps import load_emps
+    from drafttwin.report.emps import HEADER, table_rows, write_outputs
 
     config = EmpsConfig(
         data_dir=data_dir, seeds=seeds, profile=profile, models=_names(models),

@@ -95,13 +95,13 @@ def reproduce(
 
     Finished fits are kept in OUT/cache: a rerun resumes.
     """
-    from drafttwin.experiments.study import write_outputs
+    from drafttwin.report import write_study
 
     t0 = time.perf_counter()
     study, series, display = _study(profile, out, data, executor, address, workers, quiet)
     with display.progress:
         results, predictions = study.run(series)
-    files = write_outputs(out, results, predictions)
+    files = write_study(out, results, predictions)
     console.print(
         f"study '{profile}' done in {time.perf_counter() - t0:.0f} s; report: {files['report']}"
     )

@@ -18,7 +18,7 @@ import numpy as np
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.evaluation import protocol
 from drafttwin.evaluation.protocol import Split
-from drafttwin.experiments.store import data_hash
+from drafttwin.execution.store import data_hash
 
 SCORING = (
     "Scored: test-part samples that were measured and not flagged as outliers by the paper's "

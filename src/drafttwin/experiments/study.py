@@ -10,7 +10,6 @@ rerun skips finished work.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import os
 import platform
 import time
@@ -24,12 +23,11 @@ import pandas as pd
 from scipy import stats
 
 from drafttwin._constants import ROLLERS, __version__
-from drafttwin._io import write_text_atomic
+from drafttwin.execution.executor import run_tasks
+from drafttwin.execution.store import ResultStore
 from drafttwin.experiments import tasks
-from drafttwin.experiments.executor import run_tasks
 from drafttwin.experiments.plan import StudyProfile, get_study_profile, grid_configs
 from drafttwin.experiments.prepare import prepare
-from drafttwin.experiments.store import ResultStore, json_default
 from drafttwin.models import make_model, persistence_forecast
 from drafttwin.models.registry import get_profile
 
@@ -262,27 +260,3 @@ def machine() -> dict[str, Any]:
     return {"cpu": platform.processor() or platform.machine(), "logical_cores": os.cpu_count(),
             "python": platform.python_version(), "torch": torch.__version__,
             "device": "cuda" if torch.cuda.is_available() else "cpu"}  # fmt: skip
-
-
-def write_outputs(
-    out_dir: Path, results: dict[str, Any], predictions: pd.DataFrame
-) -> dict[str, Path]:
-    """The report and its CSV tables, predictions.csv, then results.json (which records how
-    long the report took, so it is written last)."""
-    from drafttwin._io import atomic_path
-    from drafttwin.report import write_report
-
-    out_dir.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    files = write_report(out_dir, results, predictions)
-    results["timings"]["stages"]["report"] = time.perf_counter() - t0
-    with atomic_path(out_dir / "predictions.csv") as tmp:
-        predictions.to_csv(tmp, index=False, float_format="%.6f")
-    write_text_atomic(
-        out_dir / "results.json", json.dumps(results, indent=2, default=json_default) + "\n"
-    )
-    return {
-        **files,
-        "predictions": out_dir / "predictions.csv",
-        "results": out_dir / "results.json",
-    }

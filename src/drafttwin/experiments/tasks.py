@@ -18,8 +18,8 @@ import torch
 from drafttwin._constants import ROLLERS
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.evaluation import protocol
+from drafttwin.execution.store import task_key
 from drafttwin.experiments.prepare import PreparedData
-from drafttwin.experiments.store import task_key
 from drafttwin.models import BaseModel, MechanisticModel, make_model
 from drafttwin.models.datadriven import GRUModel
 from drafttwin.models.mdsl import MDSL

@@ -181,14 +181,6 @@ class DriveTrain:
         optional fields (an absent motor, a supply input's node) are left out, as in TOML."""
         return self.spec.model_dump(mode="json", exclude_none=True)
 
-    def with_spec_changes(self, **changes: Any) -> DriveTrain:
-        """A copy with top-level spec fields replaced (e.g. ``motor=new_motor``), re-validated."""
-        raw = self.to_dict()
-        for key, value in changes.items():
-            raw[key] = value.model_dump(mode="json") if hasattr(value, "model_dump") else value
-        return DriveTrain(spec_from_dict(raw, self.source), self.source, self.supply_hz,
-                          self.rotor_resistance, self.torques)  # fmt: skip
-
     def with_supply_schedule(self, signal: Signal) -> DriveTrain:
         """Supply (VFD set-point) frequency in Hz over time, replacing ``motor.supply_hz``."""
         return DriveTrain(self.spec, self.source, signal, self.rotor_resistance, self.torques)

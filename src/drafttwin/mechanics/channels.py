@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,9 +21,7 @@ from drafttwin.mechanics.components import (
     InputChannel,
     OutputChannel,
 )
-
-if TYPE_CHECKING:
-    from drafttwin.mechanics.config import TrainSpec
+from drafttwin.mechanics.config import TrainSpec, output_target
 
 DEFAULT_SUPPLY_CHANNEL = "supply_hz"
 """The input column that sets the motor's supply frequency (Hz) when no [[input]] is declared."""
@@ -72,23 +69,6 @@ def convert_rpm(rpm: np.ndarray, unit: str, diameter_mm: float | None = None) ->
             raise ValueError("m/min needs a roller diameter")
         return rpm * (math.pi * diameter_mm * 1e-3)
     raise ValueError(f"unknown unit {unit!r}; use one of {', '.join(OUTPUT_UNITS)}")
-
-
-def output_target(spec: TrainSpec, name: str) -> tuple[str, float | None]:
-    """Node and roller diameter (mm) an output's ``node`` field refers to.
-
-    A node name is taken first; otherwise a roller name means that roller's node. The
-    diameter is the one roller on that node (``None`` if it carries none or several of
-    different diameters). Raises KeyError if ``name`` is neither.
-    """
-    nodes = [n.name for n in spec.inertia]
-    if name in nodes:
-        diameters = {r.diameter_mm for r in spec.roller if r.node == name}
-        return name, diameters.pop() if len(diameters) == 1 else None
-    for r in spec.roller:
-        if r.name == name:
-            return r.node, r.diameter_mm
-    raise KeyError(name)
 
 
 def input_channels(spec: TrainSpec) -> tuple[InputChannel, ...]:

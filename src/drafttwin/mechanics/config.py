@@ -14,7 +14,6 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, ValidationError
 
 from drafttwin.errors import ConfigError
-from drafttwin.mechanics.channels import output_target
 from drafttwin.mechanics.components import (
     COUPLING_KINDS,
     LIST_KINDS,
@@ -64,6 +63,23 @@ class TrainSpec(BaseModel):
     def couplings(self) -> list[tuple[str, Belt | ChainDrive | GearMesh | Shaft]]:
         """All couplings with their kind, in declaration order per kind."""
         return [(kind, c) for kind in COUPLING_KINDS for c in getattr(self, kind)]
+
+
+def output_target(spec: TrainSpec, name: str) -> tuple[str, float | None]:
+    """Node and roller diameter (mm) an output's ``node`` field refers to.
+
+    A node name is taken first; otherwise a roller name means that roller's node. The
+    diameter is the one roller on that node (``None`` if it carries none or several of
+    different diameters). Raises KeyError if ``name`` is neither.
+    """
+    nodes = [n.name for n in spec.inertia]
+    if name in nodes:
+        diameters = {r.diameter_mm for r in spec.roller if r.node == name}
+        return name, diameters.pop() if len(diameters) == 1 else None
+    for r in spec.roller:
+        if r.name == name:
+            return r.node, r.diameter_mm
+    raise KeyError(name)
 
 
 def _component_label(raw: dict[str, Any], loc: tuple[Any, ...]) -> tuple[str, str]:

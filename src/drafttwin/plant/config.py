@@ -1,6 +1,6 @@
 """Plant emulator settings: every magnitude with its source or marked as an assumption.
 
-Sources are the numbered references of ``shared/research/domain.md`` (written [dN] here);
+Sources are the numbered references of ``docs/sources.md`` (written [dN] here);
 ``docs/plant.md`` carries the same table for users. None of these values was chosen by looking
 at how any model performs on the resulting data.
 """

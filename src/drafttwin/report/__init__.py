@@ -5,6 +5,6 @@ Fig. 8 analogues, honest metrics, agreement with the paper).
 results dictionary, ``predictions`` the test part's measured, true and predicted speeds.
 """
 
-from drafttwin.report.writer import render_html, write_report
+from drafttwin.report.writer import render_html, write_report, write_study
 
-__all__ = ["render_html", "write_report"]
+__all__ = ["render_html", "write_report", "write_study"]

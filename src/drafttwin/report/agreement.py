@@ -40,10 +40,6 @@ class Claim:
     verdict: str
     key: str = ""
 
-    @property
-    def sentence(self) -> str:
-        return f"{self.topic} — paper: {self.paper}; ours: {self.ours} ({self.verdict})."
-
 
 def label(model: str) -> str:
     """The display name of a model or variant."""

@@ -1,6 +1,7 @@
 """The reference paper's published numbers (a real FA320A; ours come from the plant emulator).
 
-Transcribed from ``shared/reference/000_b85454101be049a8.txt``: Table 2 (max and mean
+Transcribed from the paper (Zhang & Li, "Mechanism-data hybrid modeling method for the drafting
+section of a sliver machine", Molecular & Cellular Biomechanics, article 1733): Table 2 (max and mean
 relative error, %, per roller and model), Table 3 (ablation "prediction accuracy", %, ten
 repeated tests) and the grid-search optima of Fig. 7.
 """

@@ -1,7 +1,10 @@
-"""``write_report``: the study report (one self-contained HTML file) and its CSV tables."""
+"""``write_report``: the study report (one self-contained HTML file) and its CSV tables;
+``write_study``: all a study run writes."""
 
 from __future__ import annotations
 
+import json
+import time
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -11,6 +14,7 @@ import pandas as pd
 
 from drafttwin._constants import ROLLERS
 from drafttwin._io import atomic_path, write_text_atomic
+from drafttwin.execution.store import json_default
 from drafttwin.report import figures, paper, tables
 from drafttwin.report.comparison import comparison_section, figures_section
 from drafttwin.report.html import join, page, tag
@@ -155,3 +159,24 @@ def write_report(
     paths["report"] = out / "report.html"
     write_text_atomic(paths["report"], text)
     return paths
+
+
+def write_study(
+    out_dir: Path, results: dict[str, Any], predictions: pd.DataFrame
+) -> dict[str, Path]:
+    """Everything a study run leaves in ``out_dir``: the report and its CSV tables,
+    predictions.csv, then results.json (written last: it records how long the report took)."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    files = write_report(out_dir, results, predictions)
+    results["timings"]["stages"]["report"] = time.perf_counter() - t0
+    with atomic_path(out_dir / "predictions.csv") as tmp:
+        predictions.to_csv(tmp, index=False, float_format="%.6f")
+    write_text_atomic(
+        out_dir / "results.json", json.dumps(results, indent=2, default=json_default) + "\n"
+    )
+    return {
+        **files,
+        "predictions": out_dir / "predictions.csv",
+        "results": out_dir / "results.json",
+    }

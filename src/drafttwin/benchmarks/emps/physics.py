@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.experiments.emps_data import INPUT, OUTPUT, SAMPLE_TIME_S
+from drafttwin.datasets.emps import INPUT, OUTPUT, SAMPLE_TIME_S
 from drafttwin.mechanics import DriveTrain, Signal, simulate
 from drafttwin.models.mechanistic import MechanisticModel
 

@@ -2,7 +2,7 @@
 
 :func:`write_outputs` writes, atomically, into the output folder: ``emps_report.html`` (the
 tables and a PNG figure embedded as base64), ``emps_results.json`` (everything
-:func:`drafttwin.experiments.emps.run_benchmark` measured) and ``emps_predictions.csv``
+:func:`drafttwin.benchmarks.emps.run.run_benchmark` measured) and ``emps_predictions.csv``
 (time, measured ``qm`` and each model's seed-0 test prediction, m).
 """
 
@@ -24,7 +24,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from drafttwin._io import atomic_path, write_text_atomic  # noqa: E402
-from drafttwin.experiments.emps import PREDICTION_START, PUBLISHED, EmpsResult  # noqa: E402
+from drafttwin.benchmarks.emps.run import PREDICTION_START, PUBLISHED, EmpsResult  # noqa: E402
 
 LABELS = {
     "mechanistic": "physics only",
@@ -67,13 +67,6 @@ def table_rows(results: dict[str, Any]) -> list[tuple[str, ...]]:
             str(r["runs"]), _num(r["fit_pct_mean"], 1), "" if pub is None else _num(pub, 2),
         ))  # fmt: skip
     return rows
-
-
-def markdown_table(results: dict[str, Any]) -> str:
-    """The table in Markdown (for docs)."""
-    lines = ["| " + " | ".join(HEADER) + " |", "|" + "---|" * len(HEADER)]
-    lines += ["| " + " | ".join(cells) + " |" for cells in table_rows(results)]
-    return "\n".join(lines)
 
 
 def figure_png(result: EmpsResult) -> bytes:

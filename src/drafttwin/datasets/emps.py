@@ -1,10 +1,9 @@
 """The EMPS benchmark data (Janot et al. 2019): finding, checking and loading the records.
 
 The two original MATLAB files of the benchmark (train ``DATA_EMPS.mat``, test
-``DATA_EMPS_PULSES.mat``) are not shipped with drafttwin (their licence is unclear). They are
-looked up in this order: an explicit folder (``--data-dir``), the ``DRAFTTWIN_EMPS_DIR``
-environment variable, then ``data/external/emps`` in the project and
-``../shared/data/external/emps`` beside it. Every file is checked against the SHA-256 listed in
+``DATA_EMPS_PULSES.mat``) are not shipped with drafttwin (their licence is unclear). Their
+folder is given explicitly (``--data-dir``) or by the ``DRAFTTWIN_EMPS_DIR`` environment
+variable; nothing else is searched. Every file is checked against the SHA-256 listed in
 the data set's README before it is read; a missing or altered file is refused with a
 :class:`DataError` naming the file and what to do.
 """
@@ -82,21 +81,9 @@ class EmpsRecord:
         )
 
 
-def project_root() -> Path:
-    """The drafttwin source tree (``src/drafttwin/..``/..) this module was loaded from."""
-    return Path(__file__).resolve().parents[3]
-
-
-def candidate_dirs() -> list[Path]:
-    """Folders searched when no folder is given (after ``DRAFTTWIN_EMPS_DIR``)."""
-    root = project_root()
-    return [root / "data" / "external" / "emps", root.parent / "shared" / "data" / "external"
-            / "emps"]  # fmt: skip
-
-
 def find_data_dir(data_dir: str | Path | None = None) -> Path:
-    """The folder holding the EMPS files: ``data_dir``, else ``$DRAFTTWIN_EMPS_DIR``, else the
-    first of :func:`candidate_dirs` that holds both files. Raises :class:`DataError`."""
+    """The folder holding the EMPS files: ``data_dir``, else ``$DRAFTTWIN_EMPS_DIR``. Nothing
+    else is searched. Raises :class:`DataError`."""
     if data_dir is not None:
         path = Path(data_dir)
         if not path.is_dir():
@@ -111,12 +98,8 @@ def find_data_dir(data_dir: str | Path | None = None) -> Path:
             raise DataError("folder not found", source=path, where=ENV_VAR,
                             fix=f"point {ENV_VAR} at the EMPS data folder or unset it")  # fmt: skip
         return path
-    for path in candidate_dirs():
-        if all((path / f).is_file() for f in SHA256):
-            return path
-    searched = ", ".join(str(p) for p in candidate_dirs())
     raise DataError(
-        f"the EMPS data were not found (searched {searched})",
+        "no folder of EMPS data was given",
         fix=f"pass --data-dir DIR or set {ENV_VAR} to the folder holding {TRAIN_FILE} and "
         f"{TEST_FILE} (from https://www.nonlinearbenchmark.org/benchmarks/emps)",
     )

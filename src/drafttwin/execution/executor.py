@@ -15,7 +15,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from drafttwin.errors import DrafttwinError
-from drafttwin.experiments.store import ResultStore, task_key
+from drafttwin.execution.store import ResultStore, task_key
 
 Task = Callable[[dict[str, Any]], dict[str, Any]]
 EXECUTORS = ("local", "ray")

@@ -3,7 +3,7 @@
 Official protocol (``nonlinear_benchmarks.EMPS`` v1.0.1): train on ``DATA_EMPS``, test on
 ``DATA_EMPS_PULSES``, input ``vir`` (V), output ``qm`` (m), free-run simulation that may use
 only ``test.y[:20]``, RMSE over ``test.y[20:]`` in mm. Every model also runs in drafttwin's
-prediction mode (one step ahead from measured history, SPEC section 2), reported apart: those
+prediction mode (one step ahead from measured history), reported apart: those
 numbers are not comparable with the simulation-mode literature.
 
 :func:`run_benchmark` runs one task per (task, model, seed) through
@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 
 from drafttwin._constants import __version__
+from drafttwin.benchmarks.emps.physics import EmpsPhysics, fit_pct
+from drafttwin.datasets.emps import INIT_SAMPLES, INPUT, OUTPUT, SHA256, load_emps
 from drafttwin.errors import ConfigError
-from drafttwin.experiments.emps_data import INIT_SAMPLES, INPUT, OUTPUT, SHA256, load_emps
-from drafttwin.experiments.emps_physics import EmpsPhysics, fit_pct
-from drafttwin.experiments.executor import run_tasks
+from drafttwin.execution.executor import run_tasks
 
 MODELS = ("mechanistic", "persistence", "gru", "lstm", "parallel", "md-s-l")
 """Models of the benchmark; ``mechanistic`` is the physics-only model."""

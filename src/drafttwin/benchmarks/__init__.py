@@ -1,0 +1,1 @@
+"""Benchmarks on real measurements: EMPS (:mod:`drafttwin.benchmarks.emps`)."""
