@@ -159,8 +159,9 @@ def test_contradicting_and_meaningless_options_are_refused(belt: Path, tmp_path:
     _refused([*fit, "--model", "gru", "--task", "simulation", "--horizon", "2"], "horizon=2")
     _refused([*fit, "--model", "gru", "--test-data", belt / "test.csv", "--train-fraction",
               "0.5"], "--train-fraction")  # fmt: skip
-    _refused([*fit, "--model", "mechanistic", "--epochs", "3", "--mechanistic",
-              f"config:{BELT}"], "trains no network")  # fmt: skip
+    _refused([*fit, "--model", "mechanistic", "--epochs", "3", "--seed", "1", "--mechanistic",
+              f"config:{BELT}"], "trains no network", "--seed, --epochs")  # fmt: skip
+    _refused([*fit, "--model", "persistence", "--profile", "paper"], "--profile")
     _refused(["fit", "--model", "gru", "--data", "default", "--outputs", "y", "--out",
               tmp_path / "d.dtm"], "--data default")  # fmt: skip
     _refused([*fit, "--model", "parallel", "--mechanistic", f"{belt / 'sim_test.csv'}"],

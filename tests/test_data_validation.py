@@ -552,10 +552,11 @@ def test_cli_inspect_summary(tmp_path: Path) -> None:
     summary = json.loads(output)
     assert summary["rows"] == 10
     assert summary["sample_rate_hz"] == pytest.approx(100.0)
-    assert summary["rollers"]["third"]["missing"] == 2
-    assert summary["rollers"]["third"]["longest_gap"] == 2
-    assert summary["rollers"]["second"]["outliers"] == 1
-    assert summary["rollers"]["front"]["mean_rpm"] == pytest.approx(1815.0)
+    assert summary["channels"]["third"]["missing"] == 2
+    assert summary["channels"]["third"]["longest_gap"] == 2
+    assert summary["channels"]["second"]["outliers"] == 1
+    assert summary["channels"]["front"]["mean"] == pytest.approx(1815.0)
+    assert summary["channels"]["front"]["unit"] == "rpm" and summary["records"] == 1
     code, text = _cli()(["inspect", str(path), "--columns", "third=third"])
     assert code == 0 and "front" in text and "outliers" in text
 

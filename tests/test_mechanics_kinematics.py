@@ -79,7 +79,17 @@ def test_operating_point_matches_hand_torque_balance():
     assert op.motor_rpm == pytest.approx(120 * m.supply_hz / m.poles - slip_rpm, rel=1e-9)
 
 
-def test_eigenfrequencies_positive_and_sorted():
-    f = np.array(kinematics(FA320A).eigenfrequencies_hz)
-    assert len(f) == len(FA320A.node_names) - 1
-    assert np.all(f > 0) and np.all(np.diff(f) >= 0)
+def test_three_inertia_shaft_chain_eigenfrequencies_match_the_characteristic_equation():
+    """Free-free chain J1 -k1- J2 -k2- J3: the two elastic modes solve
+    w^4 - w^2 (k1/J1 + k1/J2 + k2/J2 + k2/J3) + k1 k2 (J1 + J2 + J3) / (J1 J2 J3) = 0."""
+    j1, j2, j3, k1, k2 = 0.02, 0.005, 0.01, 3.0e4, 1.2e4
+    train = DriveTrain.from_dict({
+        "inertia": [{"name": n, "inertia_kgm2": j} for n, j in (("a", j1), ("b", j2), ("c", j3))],
+        "shaft": [{"name": "ab", "a": "a", "b": "b", "stiffness_nm_per_rad": k1},
+                  {"name": "bc", "a": "b", "b": "c", "stiffness_nm_per_rad": k2}],
+    })  # fmt: skip
+    b = k1 / j1 + k1 / j2 + k2 / j2 + k2 / j3
+    c = k1 * k2 * (j1 + j2 + j3) / (j1 * j2 * j3)
+    w2 = np.sort(np.roots([1.0, -b, c]).real)
+    np.testing.assert_allclose(eigenfrequencies_hz(train), np.sqrt(w2) / (2 * math.pi), rtol=1e-9)
+    assert len(kinematics(FA320A).eigenfrequencies_hz) == len(FA320A.node_names) - 1

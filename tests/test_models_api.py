@@ -6,14 +6,13 @@ import numpy as np
 import pytest
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.errors import ConfigError, DataError, DrafttwinError
+from drafttwin.errors import ConfigError, DataError
 from drafttwin.models import (
     MDSL,
     MODEL_NAMES,
     PROFILES,
     GRUModel,
     LSTMModel,
-    MechanisticModel,
     NotFittedError,
     Task,
     Training,
@@ -21,7 +20,7 @@ from drafttwin.models import (
     persistence_forecast,
 )
 
-from ._synthetic import hyper_for, mechanistic
+from ._synthetic import hyper_for
 
 
 def test_registry_builds_every_name_under_every_profile() -> None:
@@ -120,8 +119,9 @@ def test_simulation_window_longer_than_the_measured_start_is_refused(series, mec
 
 @pytest.mark.parametrize("name", MODEL_NAMES)
 def test_predict_before_fit_is_refused(name: str, series, mech) -> None:
-    with pytest.raises(NotFittedError, match="not fitted"):
+    with pytest.raises(NotFittedError, match="not fitted") as err:
         make_model(name).predict_values(series, mech)
+    assert err.value.exit_code == 2 and "fix: call fit(" in err.value.message
 
 
 def test_channels_are_those_of_the_fit(series) -> None:
@@ -159,9 +159,12 @@ def test_too_short_training_part_is_refused(series, mech) -> None:
         make_model("gru", **hyper_for("gru")).fit(series.slice(0, 9))
 
 
-def test_predict_on_a_short_series_is_all_nan(series) -> None:
-    model = make_model("gru", **hyper_for("gru")).fit(series)
+def test_predictions_start_with_the_first_full_window(series) -> None:
+    model = make_model("gru", **hyper_for("gru")).fit(series)  # window 8
     assert np.isnan(model.predict_values(series.slice(0, 8))).all()
+    nine = model.predict_values(series.slice(0, 9))
+    assert np.isnan(nine[:8]).all() and np.isfinite(nine[8]).all()
+    np.testing.assert_allclose(nine[8], model.predict_values(series)[8], rtol=1e-9)  # batching
 
 
 def test_persistence_model_is_the_last_observation(series) -> None:
@@ -213,8 +216,3 @@ def test_mdsl_takes_its_data_model_as_an_object(series, mech) -> None:
     assert model.data_model_.task == model.task
     with pytest.raises(ConfigError, match="data_model must be an unfitted GRUModel"):
         make_model("md-s-l", data_model="gru").fit(series, mech)
-
-
-def test_errors_are_drafttwin_errors() -> None:
-    assert issubclass(NotFittedError, DrafttwinError)
-    assert MechanisticModel(mechanistic).required_inputs() == ()

@@ -27,6 +27,7 @@ _EXPORTS: dict[str, str] = {
     "read_measurements": "drafttwin.data.io",
     "write_measurements": "drafttwin.data.io",
     "preprocess": "drafttwin.data.preprocess",
+    "load_default": "drafttwin.datasets",
     # physics
     "DriveTrain": "drafttwin.mechanics",
     "kinematics": "drafttwin.mechanics",
@@ -64,6 +65,7 @@ __all__ = [
     "read_measurements",
     "write_measurements",
     "preprocess",
+    "load_default",
     "DriveTrain",
     "kinematics",
     "simulate",
@@ -108,6 +110,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load lazi
     from drafttwin.data.io import read_measurements, write_measurements
     from drafttwin.data.preprocess import preprocess
     from drafttwin.data.series import MeasurementSeries
+    from drafttwin.datasets import load_default
     from drafttwin.errors import ConfigError, DataError, DrafttwinError, ModelFileError
     from drafttwin.evaluation.protocol import Evaluation, evaluate, fit, split
     from drafttwin.mechanics import DriveTrain, kinematics, simulate, simulate_channels

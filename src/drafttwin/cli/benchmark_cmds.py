@@ -28,7 +28,7 @@ def emps(
         Path | None,
         typer.Option(
             help="Folder with DATA_EMPS.mat and DATA_EMPS_PULSES.mat (default: "
-            "$DRAFTTWIN_EMPS_DIR, else found relative to the project)."
+            "$DRAFTTWIN_EMPS_DIR)."
         ),
     ] = None,
     seeds: Annotated[int, typer.Option(help="Seeds per trained model.", min=1)] = 3,

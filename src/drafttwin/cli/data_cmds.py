@@ -12,6 +12,7 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
+from drafttwin.cli._data import Channels, InputsOpt, OutputsOpt, TimeColumnOpt, UnitsOpt
 from drafttwin.cli.app import app, console
 from drafttwin.data.io import read_measurements
 from drafttwin.data.preprocess import preprocess
@@ -54,33 +55,42 @@ def parse_numbers(text: str | None, option: str) -> dict[str, float] | None:
 def _stats(x: np.ndarray) -> dict[str, float | None]:
     finite = x[np.isfinite(x)]
     if not finite.shape[0]:
-        return {"mean_rpm": None, "std_rpm": None, "min_rpm": None, "max_rpm": None}
+        return {"mean": None, "std": None, "min": None, "max": None}
     return {
-        "mean_rpm": float(finite.mean()),
-        "std_rpm": float(finite.std(ddof=1)) if finite.shape[0] > 1 else 0.0,
-        "min_rpm": float(finite.min()),
-        "max_rpm": float(finite.max()),
+        "mean": float(finite.mean()),
+        "std": float(finite.std(ddof=1)) if finite.shape[0] > 1 else 0.0,
+        "min": float(finite.min()),
+        "max": float(finite.max()),
     }
 
 
 def summarize(series: MeasurementSeries, *, outlier_threshold: float = 0.10) -> dict[str, Any]:
-    """Rows, duration, rate, gaps, outliers (smoothing rule) and per-roller statistics."""
+    """Rows, records, duration, rate, gaps, outliers (smoothing rule) and statistics per
+    output channel and input, each in its unit."""
     _, report = preprocess(series, outlier_threshold=outlier_threshold)
     gaps = report.gaps()
-    rollers = {
-        r: {
+    rules = report.rules
+    channels = {
+        c: {
+            "unit": series.unit(c),
             **_stats(series.values[:, j]),
-            "missing": report.n_missing[r],
-            "gaps": gaps[r]["count"],
-            "longest_gap": gaps[r]["longest"],
-            "outliers": report.n_outliers[r],
+            "missing": report.n_missing[c],
+            "gaps": gaps[c]["count"],
+            "longest_gap": gaps[c]["longest"],
+            "outliers": report.n_outliers[c],
+            "outlier_rule": rules[c],
         }
-        for j, r in enumerate(series.channels)
+        for j, c in enumerate(series.channels)
+    }
+    inputs = {
+        name: {"unit": series.unit(name), **_stats(v), "missing": int(np.isnan(v).sum())}
+        for name, v in series.inputs.items()
     }
     meta = series.metadata
     return {
         "file": meta.get("source"),
         "rows": len(series),
+        "records": series.n_records,
         "rows_in_file": meta.get("rows_in_file", len(series)),
         "inserted_rows": meta.get("inserted_rows", 0),
         "duration_s": series.duration_s,
@@ -89,14 +99,14 @@ def summarize(series: MeasurementSeries, *, outlier_threshold: float = 0.10) -> 
         "columns": meta.get("columns", {}),
         "ignored_columns": meta.get("ignored_columns", []),
         "outlier_threshold": outlier_threshold,
-        "rollers": rollers,
+        "channels": channels,
+        "inputs": inputs,
         "motor": None if series.motor_rpm is None else _stats(series.motor_rpm),
-        "setpoints": sorted(series.inputs),
     }
 
 
-def _fmt(x: float | None, digits: int = 2) -> str:
-    return "-" if x is None else f"{x:.{digits}f}"
+def _fmt(x: float | None, digits: int = 4) -> str:
+    return "-" if x is None else f"{x:.{digits}g}"
 
 
 def _print_summary(s: dict[str, Any]) -> None:
@@ -105,6 +115,8 @@ def _print_summary(s: dict[str, Any]) -> None:
     rows = f"{s['rows']}"
     if s["inserted_rows"]:
         rows += f" ({s['rows_in_file']} in the file + {s['inserted_rows']} dropped rows as gaps)"
+    if s["records"] > 1:
+        rows += f" in {s['records']} records"
     head.add_row("rows", rows)
     head.add_row("duration", f"{s['duration_s']:.3f} s")
     head.add_row("sample rate", f"{s['sample_rate_hz']:.4g} Hz")
@@ -114,26 +126,31 @@ def _print_summary(s: dict[str, Any]) -> None:
     if s["ignored_columns"]:
         head.add_row("ignored", escape(", ".join(s["ignored_columns"])))
     if s["motor"]:
-        head.add_row("motor", f"mean {_fmt(s['motor']['mean_rpm'])} rpm")
-    if s["setpoints"]:
-        head.add_row("set-points", escape(", ".join(s["setpoints"])))
+        head.add_row("motor", f"mean {_fmt(s['motor']['mean'])} rpm")
+    for name, st in s["inputs"].items():
+        unit = f" {st['unit']}" if st["unit"] else ""
+        head.add_row(f"input {escape(name)}", f"{_fmt(st['min'])} to {_fmt(st['max'])}{unit}, "
+                     f"{st['missing']} missing")  # fmt: skip
     console.print(head)
     table = Table(
         box=box.SIMPLE_HEAD,
         pad_edge=False,
         collapse_padding=True,
-        title="roller speeds (rpm); missing and gaps in samples",
-        caption=f"outliers: one-sample spikes > {s['outlier_threshold']:.0%} off both neighbours",
+        title="output channels; missing and gaps in samples",
+        caption=f"outliers: one-sample spikes > {s['outlier_threshold']:.0%} off both neighbours "
+        "(of the value, or of the channel's spread for signals near or through zero)",
     )
-    for col in ("roller", "mean", "std", "min", "max", "missing", "gaps", "longest", "outliers"):
-        table.add_column(col, justify="left" if col == "roller" else "right")
-    for r, st in s["rollers"].items():
+    for col in ("channel", "unit", "mean", "std", "min", "max", "missing", "gaps", "longest",
+                "outliers"):  # fmt: skip
+        table.add_column(col, justify="left" if col in ("channel", "unit") else "right")
+    for name, st in s["channels"].items():
         table.add_row(
-            escape(r),
-            _fmt(st["mean_rpm"], 1),
-            _fmt(st["std_rpm"], 3),
-            _fmt(st["min_rpm"], 1),
-            _fmt(st["max_rpm"], 1),
+            escape(name),
+            escape(st["unit"] or "-"),
+            _fmt(st["mean"]),
+            _fmt(st["std"], 3),
+            _fmt(st["min"]),
+            _fmt(st["max"]),
             *(str(st[k]) for k in ("missing", "gaps", "longest_gap", "outliers")),
         )
     console.print(table)
@@ -142,14 +159,20 @@ def _print_summary(s: dict[str, Any]) -> None:
 @app.command("inspect")
 def inspect_cmd(
     file: Annotated[
-        Path,
-        typer.Argument(help="Measurement file (.csv, .parquet), or 'default' (embedded data)."),
-    ],
+        str,
+        typer.Argument(
+            help="Measurement file(s) (.csv, .parquet), comma-separated for several "
+            "experiments, or 'default' (the embedded FA320A data)."
+        ),
+    ],  # fmt: skip
+    outputs: OutputsOpt = None,
+    inputs: InputsOpt = None,
+    units: UnitsOpt = None,
+    time_column: TimeColumnOpt = None,
     columns: Annotated[
         str | None,
-        typer.Option(help="Map file columns to rollers / time / motor: v1=front,v2=second,..."),
+        typer.Option(help="Map file columns to channels / time / motor: v1=front,v2=second,..."),
     ] = None,
-    time_column: Annotated[str | None, typer.Option(help="Name of the time column.")] = None,
     rate: Annotated[
         float | None,
         typer.Option(min=1e-9, help="Expected sample rate in Hz; refuse others."),
@@ -160,30 +183,46 @@ def inspect_cmd(
     ] = 0.01,
     nominal: Annotated[
         str | None,
-        typer.Option(help="Nominal roller speeds in rpm (front=1815,...) to detect unit mix-ups."),
+        typer.Option(help="Nominal speeds in rpm (front=1815,...) to detect unit mix-ups."),
     ] = None,
     unit_check: Annotated[
-        bool, typer.Option("--unit-check/--no-unit-check", help="Run the unit heuristics.")
-    ] = True,
+        bool,
+        typer.Option(
+            "--unit-check/--no-unit-check",
+            help="Run the plausibility checks on the channels in rpm.",
+        ),
+    ] = True,  # fmt: skip
     threshold: Annotated[
         float,
-        typer.Option(min=0.0, help="Outlier threshold, relative to each neighbour (0.10 = 10 %)."),
-    ] = 0.10,
+        typer.Option(
+            min=0.0,
+            help="Outlier threshold (0.10 = 10 % of the value, or of the "
+            "channel's spread for signals near or through zero).",
+        ),
+    ] = 0.10,  # fmt: skip
     as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
 ) -> None:
-    """Validate a measurement file and summarise it.
+    """Validate measurement files and summarise them.
 
-    Prints rows, duration, sample rate, missing samples and gaps, outliers (by the smoothing rule) and per-roller mean and std (rpm).
+    Prints rows, records, duration, sample rate, and per output channel (in its unit) mean,
+    std, range, missing samples, gaps and outliers by the smoothing rule; inputs with their
+    ranges. Without --outputs the FA320A rollers (rpm) are expected.
 
     A refused file exits with code 2 and a message naming the file, the row or column, and the fix.
     """
-    if str(file) == "default" and not file.exists():
+    if file == "default" and not Path(file).exists():
         from drafttwin.datasets import load_default
 
         series = load_default()
     else:
+        channels = Channels.parse(outputs, inputs, time_column, units)
+        with_units = [n for n in (channels.units or {}) if n not in (channels.outputs or ())]
         series = read_measurements(
-            file,
+            [Path(p.strip()) for p in file.split(",") if p.strip()],
+            outputs=channels.outputs,
+            inputs=tuple(dict.fromkeys((*(channels.inputs or ()), *with_units))),
+            setpoints=True,
+            units=channels.units,
             columns=parse_pairs(columns, "--columns"),
             time_column=time_column,
             expected_rate_hz=rate,
@@ -193,6 +232,6 @@ def inspect_cmd(
         )
     summary = summarize(series, outlier_threshold=threshold)
     if as_json:
-        typer.echo(json.dumps(summary, indent=2))
+        typer.echo(json.dumps(summary, indent=2, allow_nan=False))
     else:
         _print_summary(summary)

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Annotated
 
 import numpy as np
+import pandas as pd
 import typer
 from rich.table import Table
 
@@ -56,6 +57,24 @@ def kinematics(
         }
         typer.echo(json.dumps(out, indent=2))
         return
+    if kin.rollers:
+        _roller_table(train, kin, op)
+    if train.spec.output or not kin.rollers:
+        _output_table(train, op)
+    console.print(
+        f"* running: torque balance with motor slip {op.slip * 100:.3f} % "
+        f"({op.motor_rpm:.2f} rpm, {op.motor_torque_nm:.2f} N m)"
+        + "".join(f", belt creep {k} {v * 100:.4f} %" for k, v in op.belt_creep.items())
+    )
+    freqs = {**kin.mesh_frequencies_hz, **kin.chain_tooth_frequencies_hz}
+    if freqs:
+        console.print("mesh / chain-tooth frequencies (Hz): "
+                      + ", ".join(f"{k} {v:.1f}" for k, v in freqs.items()))  # fmt: skip
+    console.print("torsional eigenfrequencies (Hz):     "
+                  + ", ".join(f"{f:.1f}" for f in kin.eigenfrequencies_hz))  # fmt: skip
+
+
+def _roller_table(train, kin, op) -> None:
     table = Table(title=f"{train.spec.train.name}: nominal kinematics at {kin.motor_rpm:g} rpm")
     for col in ("roller", "diameter mm", "rpm", "surface m/min", "running rpm*"):
         table.add_column(col, justify="right" if col != "roller" else "left")
@@ -65,16 +84,23 @@ def kinematics(
     console.print(table)
     console.print(f"delivery speed  {kin.delivery_speed_m_min:.2f} m/min")
     console.print("drafts          " + ", ".join(f"{k} {v:.4f}" for k, v in kin.drafts.items()))
-    console.print(
-        f"* running: torque balance with motor slip {op.slip * 100:.3f} % "
-        f"({op.motor_rpm:.2f} rpm, {op.motor_torque_nm:.2f} N m) and belt creep "
-        + ", ".join(f"{k} {v * 100:.4f} %" for k, v in op.belt_creep.items())
-    )
-    freqs = {**kin.mesh_frequencies_hz, **kin.chain_tooth_frequencies_hz}
-    console.print("mesh / chain-tooth frequencies (Hz): "
-                  + ", ".join(f"{k} {v:.1f}" for k, v in freqs.items()))  # fmt: skip
-    console.print("torsional eigenfrequencies (Hz):     "
-                  + ", ".join(f"{f:.1f}" for f in kin.eigenfrequencies_hz))  # fmt: skip
+
+
+def _output_table(train, op) -> None:
+    """The measured output channels at the running operating point, in their units."""
+    from drafttwin.mechanics.kinematics import RPM
+
+    table = Table(title=f"{train.spec.train.name}: output channels at the operating point*")
+    for col in ("channel", "node", "unit", "running*"):
+        table.add_column(col, justify="right" if col == "running*" else "left")
+    for m in train.output_channels():
+        rpm = np.array([op.node_speed_rad_s[train.node_index(m.node)] * RPM])
+        table.add_row(m.channel, m.node, m.unit, f"{float(m.from_rpm(rpm)[0]):.4g}")
+    console.print(table)
+    inputs = ", ".join(f"{c.channel} -> {c.drives}" + (f" on {c.node}" if c.node else "")
+                       for c in train.input_channels())  # fmt: skip
+    if inputs:
+        console.print(f"input channels  {inputs}")
 
 
 @app.command()
@@ -87,38 +113,102 @@ def simulate(
     settle: Annotated[
         float | None, typer.Option(help="Settling time before recording, s (default from config).")
     ] = None,
+    setpoints: Annotated[
+        Path | None,
+        typer.Option(
+            "--setpoints",
+            dir_okay=False,
+            help="Follow the input columns of a recorded file (those the train's "
+            "[[input]] tables map, e.g. supply_hz or u) on its time grid, record by "
+            "record, and write the output channels: a simulator output file for "
+            "--mechanistic. --duration and --rate then come from the file.",
+        ),
+    ] = None,  # fmt: skip
     out: Annotated[
-        Path | None, typer.Option(help="Write time + roller and motor rpm to .csv or .parquet.")
+        Path | None,
+        typer.Option(help="Write time + the output channels to .csv or .parquet."),
     ] = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
-    """Simulate the drive train (numba RK4) and summarise the roller speeds.
+    """Simulate the drive train (numba RK4) and summarise its output channels (the rollers
+    and the motor for the FA320A).
 
-    Speeds are means over each output interval, as an encoder reports them.
+    Values are means over each output interval, as an encoder reports them.
     """
-    from drafttwin.mechanics import simulate as run
-
     train = load_train(preset, config)
     if out is not None:
         check_output_suffix(out)
+    if setpoints is not None:
+        frame = _follow(train, setpoints, dt, settle)
+        label = f"{setpoints} ({len(frame)} rows)"
+        wall = None
+    else:
+        frame, wall, label = _run(train, duration, rate, dt, settle, quiet)
+    if out is not None:
+        write_frame(frame, out)
+    _summary(frame, label)
+    if wall is not None:
+        console.print(wall)
+    if out is not None:
+        console.print(f"wrote {out}")
+
+
+def _run(train, duration: float, rate: float, dt: float | None, settle: float | None,
+         quiet: bool):  # fmt: skip
+    from drafttwin.mechanics import simulate as run
+
     with progress_bar("simulating (machine s)", duration, quiet=quiet) as bar:
         task = bar.task_ids[0]
         res = run(train, duration, output_rate_hz=rate, dt_s=dt, settle_s=settle,
                   progress=lambda s: bar.advance(task, s))  # fmt: skip
     frame = res.to_frame()
-    if out is not None:
-        write_frame(frame, out)
-    table = Table(
-        title=f"{train.spec.train.name}: {duration:g} s at {rate:g} Hz (dt {res.dt_s:.2e} s)"
-    )
-    for col in ("roller", "mean rpm", "std %", "peak-to-peak %"):
-        table.add_column(col, justify="right" if col != "roller" else "left")
-    for name in [*res.rollers, "motor"]:
+    if not res.rollers:  # a train of your own: its output channels
+        frame = pd.DataFrame({"time": res.time_s, **{
+            m.channel: m.from_rpm(res.node_rpm[:, train.node_index(m.node)])
+            for m in train.output_channels()}})  # fmt: skip
+    compiled = f" (+{res.compile_s:.1f} s kernel compilation)" if res.compile_s > 0.5 else ""
+    wall = (f"wall time {res.wall_s:.2f} s{compiled}, real-time factor "
+            f"{duration / res.wall_s:.1f}x")  # fmt: skip
+    return frame, wall, f"{duration:g} s at {rate:g} Hz (dt {res.dt_s:.2e} s)"
+
+
+def _follow(train, path: Path, dt: float | None, settle: float | None) -> pd.DataFrame:
+    """The train simulated on a recorded file's grid, following its input columns."""
+    from drafttwin.data.io import read_measurements
+    from drafttwin.errors import ConfigError
+    from drafttwin.mechanics import simulate_channels
+
+    names = tuple(c.channel for c in train.input_channels())
+    if not names:
+        raise ConfigError(
+            f"the drive train {train.spec.train.name} maps no input channel to follow",
+            where="--setpoints",
+            fix="declare [[input]] tables in the drive-train file (see docs/mechanics.md)",
+        )
+    series = read_measurements(path, outputs=(), inputs=names, check_units=False)
+    channels = [m.channel for m in train.output_channels()]
+    kwargs = {k: v for k, v in (("dt_s", dt), ("settle_s", settle)) if v is not None}
+    parts = []
+    for k, record in enumerate(series.records()):
+        values = simulate_channels(train, record.time_s, inputs=record.inputs,
+                                   channels=channels, **kwargs)  # fmt: skip
+        part = pd.DataFrame({"time": record.time_s, **dict(zip(channels, values.T, strict=True))})
+        if series.n_records > 1:
+            part["record"] = k + 1
+        parts.append(part)
+    return pd.concat(parts, ignore_index=True)
+
+
+def _summary(frame: pd.DataFrame, label: str) -> None:
+    table = Table(title=f"simulated: {label}")
+    for col in ("channel", "mean", "std %", "peak-to-peak %"):
+        table.add_column(col, justify="right" if col != "channel" else "left")
+    for name in frame.columns:
+        if name in ("time", "record"):
+            continue
         x = frame[name].to_numpy()
         mean = float(np.mean(x))
-        table.add_row(name, f"{mean:.3f}", f"{np.std(x) / mean * 100:.4f}",
-                      f"{np.ptp(x) / mean * 100:.4f}")  # fmt: skip
+        scale = abs(mean) if mean else 1.0
+        table.add_row(name, f"{mean:.4g}", f"{np.std(x) / scale * 100:.4f}",
+                      f"{np.ptp(x) / scale * 100:.4f}")  # fmt: skip
     console.print(table)
-    compiled = f" (+{res.compile_s:.1f} s kernel compilation)" if res.compile_s > 0.5 else ""
-    console.print(f"wall time {res.wall_s:.2f} s{compiled}, real-time factor "
-                  f"{duration / res.wall_s:.1f}x" + (f"; wrote {out}" if out else ""))  # fmt: skip

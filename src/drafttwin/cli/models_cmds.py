@@ -111,8 +111,9 @@ def _check_rate(model: BaseModel, series: MeasurementSeries, source: str) -> Non
         )
 
 
-def _new_model(name: str, profile: str, task: str | None, init: int | None, horizon: int,
-               channels: Channels, seed: int, quiet: bool, epochs: int | None) -> BaseModel:  # fmt: skip
+def _new_model(name: str, profile: str | None, task: str | None, init: int | None,
+               horizon: int, channels: Channels, seed: int | None, quiet: bool,
+               epochs: int | None) -> BaseModel:  # fmt: skip
     from drafttwin.models import make_model
     from drafttwin.models.registry import model_class
 
@@ -124,13 +125,16 @@ def _new_model(name: str, profile: str, task: str | None, init: int | None, hori
     if horizon != 1:
         options["horizon"] = horizon
     accepted = set(model_class(name).param_names())
-    options |= {k: v for k, v in {"seed": seed, "quiet": quiet}.items() if k in accepted}
+    networks = {"--profile": profile, "--seed": seed, "--epochs": epochs}
+    given = [opt for opt, value in networks.items() if value is not None]
+    if given and "training" not in accepted:
+        raise ConfigError(f"the {name} model trains no network: {', '.join(given)} do(es) not "
+                          "apply", where=", ".join(given), fix="leave them out")  # fmt: skip
+    if "training" in accepted:
+        options |= {"seed": seed or 0, "quiet": quiet}
     if epochs is not None:
-        if "training" not in accepted:
-            raise ConfigError(f"the {name} model trains no network", where="--epochs",
-                              fix="leave --epochs out")  # fmt: skip
         options["epochs"] = epochs
-    return make_model(name, profile, **options)
+    return make_model(name, profile or "quick", **options)
 
 
 def _selection_lines(selection: dict[str, Any]) -> list[str]:
@@ -167,10 +171,18 @@ def fit(
     task: TaskOpt = None,
     init_samples: InitOpt = None,
     profile: Annotated[
-        str, typer.Option(help="quick | standard | paper (hyperparameters).")
-    ] = "quick",
+        str | None,
+        typer.Option(
+            help="quick | standard | paper: the networks' hyperparameters (default quick)."
+        ),
+    ] = None,  # fmt: skip
     train_fraction: FractionOpt = None,
-    seed: Annotated[int, typer.Option(help="Seed: same seed, same numbers on CPU.")] = 0,
+    seed: Annotated[
+        int | None,
+        typer.Option(
+            min=0, help="Seed of the networks (default 0): same seed, same numbers on CPU."
+        ),
+    ] = None,  # fmt: skip
     horizon: Annotated[int, typer.Option(help="Predict t+h-1 from data up to t-1.", min=1)] = 1,
     epochs: Annotated[
         int | None,

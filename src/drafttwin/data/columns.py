@@ -90,9 +90,9 @@ def channel_spec(
 ) -> ChannelSpec:
     """Check and normalise the declared outputs, inputs and units (``ConfigError`` if wrong)."""
     outs = ROLLERS if outputs is None else _names(outputs, "outputs")
-    if not outs:
-        raise ConfigError("no output channels declared", where="outputs", fix="name at least one")
     ins = None if inputs is None else _names(inputs, "inputs")
+    if not outs and not ins:  # a file of inputs alone (set-points to simulate) is fine
+        raise ConfigError("no output channels declared", where="outputs", fix="name at least one")
     both = {n.lower() for n in outs} & {n.lower() for n in ins or ()}
     if both:
         raise ConfigError(

@@ -93,7 +93,9 @@ def record_on_grid(
     )
     series = MeasurementSeries(
         time_s=time_s,
-        values=np.column_stack([spread(data[c]) for c in plan.outputs]),
+        values=np.column_stack([spread(data[c]) for c in plan.outputs])
+        if plan.outputs
+        else np.zeros((n_grid, 0)),
         channels=tuple(plan.outputs),
         units={k: u for k, u in plan.units.items() if k != "motor"},
         inputs={name: spread(data[name]) for name in plan.inputs},
