@@ -306,7 +306,7 @@ class BaseModel(abc.ABC):
                 source=path,
                 fix="re-fit and save the model again",
             ) from exc
-        return model  # type: ignore[return-value]
+        return model
 
 
 _REQUIRED = ("format_version", "model_class", "params_json", "state_json", "tensors")

@@ -166,7 +166,8 @@ def compute_context(device: torch.device) -> Iterator[None]:
         torch.are_deterministic_algorithms_enabled(),
         torch.is_deterministic_algorithms_warn_only_enabled(),
     )
-    fill = torch.utils.deterministic.fill_uninitialized_memory
+    # torch sets this module attribute at import time; its stubs do not declare it
+    fill = torch.utils.deterministic.fill_uninitialized_memory  # type: ignore[attr-defined]
     torch.use_deterministic_algorithms(True, warn_only=device.type != "cpu")
     # filling every new tensor with NaN only helps debugging and costs ~15 % on conv nets
     torch.utils.deterministic.fill_uninitialized_memory = False  # type: ignore[attr-defined]
@@ -437,6 +438,8 @@ def debias_head(
     out = predict_network(net, x, extra=extra, device=device)
     shift = np.mean(np.asarray(target, np.float64) - out, axis=0)
     head = net.head
+    if not isinstance(head, nn.Linear):
+        raise TypeError(f"{type(net).__name__} has no linear output layer 'head' to re-fit")
     with torch.no_grad():
-        head.bias += torch.as_tensor(shift, dtype=head.bias.dtype, device=head.bias.device)
+        head.bias.add_(torch.as_tensor(shift, dtype=head.bias.dtype, device=head.bias.device))
     return shift
