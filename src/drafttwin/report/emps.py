@@ -56,7 +56,7 @@ def _num(x: float, digits: int = 2) -> str:
 
 def table_rows(results: dict[str, Any]) -> list[tuple[str, ...]]:
     """The benchmark table as text cells (see :data:`HEADER`)."""
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for r in results["rows"]:
         spread = f"± {_num(r['rmse_mm_std'])}" if r["runs"] > 1 else ""
         pub = r.get("published_rmse_mm")
