@@ -60,11 +60,6 @@ class _ResidualHybrid(_NeuralModel):
     needs_mechanistic = True
     use_sknet = False
     use_lstm = True
-    window: int
-    hidden: int
-    layers: int
-    dropout: float
-    skip: bool | None
     accumulate: bool | None
 
     # --- what each hybrid feeds the residual net ---------------------------------------
@@ -317,16 +312,7 @@ class ParallelHybrid(_ResidualHybrid):
         seed: int = 0,
         quiet: bool = False,
     ) -> None:
-        self.window = window
-        self.hidden = hidden
-        self.layers = layers
-        self.dropout = dropout
-        self.skip = skip
-        self.accumulate = accumulate
-        self.task = task
-        self.training = training
-        self.seed = seed
-        self.quiet = quiet
+        self._store_params(locals())
 
     @property
     def name(self) -> str:

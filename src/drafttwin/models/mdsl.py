@@ -53,6 +53,12 @@ class MDSL(_ResidualHybrid):
             trains the residual model (the data-driven model keeps its own).
     """
 
+    variant: str
+    use_disagreement: bool
+    sk_channels: int
+    folds: int
+    data_model: _RecurrentModel | None
+
     def __init__(
         self,
         variant: str = "md-s-l",
@@ -71,21 +77,7 @@ class MDSL(_ResidualHybrid):
         seed: int = 0,
         quiet: bool = False,
     ) -> None:
-        self.variant = variant
-        self.use_disagreement = use_disagreement
-        self.window = window
-        self.hidden = hidden
-        self.layers = layers
-        self.sk_channels = sk_channels
-        self.dropout = dropout
-        self.skip = skip
-        self.accumulate = accumulate
-        self.folds = folds
-        self.data_model = data_model
-        self.task = task
-        self.training = training
-        self.seed = seed
-        self.quiet = quiet
+        self._store_params(locals())
 
     @property
     def name(self) -> str:
