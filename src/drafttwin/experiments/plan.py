@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
-from drafttwin.errors import ConfigError
+from drafttwin.errors import unknown_choice
 
 GRID_LR = (0.001, 0.005, 0.01)
 GRID_HIDDEN = (64, 128, 256)
@@ -99,10 +99,8 @@ def get_study_profile(name: str) -> StudyProfile:
     try:
         return STUDY_PROFILES[name]
     except KeyError:
-        raise ConfigError(
-            f"unknown profile '{name}'",
-            where="--profile",
-            fix=f"use one of: {', '.join(STUDY_PROFILES)}",
+        raise unknown_choice(
+            f"unknown profile '{name}'", STUDY_PROFILES, where="--profile"
         ) from None
 
 
