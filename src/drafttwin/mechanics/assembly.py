@@ -76,20 +76,6 @@ class Edge:
     ratio: float  # child speed / parent speed (nominal, no creep)
 
 
-def coupling_ends(c: Coupling) -> tuple[str, str]:
-    """The names of the two nodes a coupling joins (driver first)."""
-    return (c.a, c.b) if isinstance(c, Shaft) else (c.driver, c.driven)
-
-
-def coupling_ratio(c: Coupling) -> float:
-    """Nominal speed ratio driven/driver (rigid, no creep)."""
-    if isinstance(c, Belt):
-        return c.driver_diameter_mm / c.driven_diameter_mm
-    if isinstance(c, ChainDrive | GearMesh):
-        return c.driver_teeth / c.driven_teeth
-    return 1.0
-
-
 def gear_base_radii_m(g: GearMesh) -> tuple[float, float]:
     cos_a = math.cos(math.radians(g.pressure_angle_deg))
     m = g.module_mm * 1e-3
@@ -244,8 +230,8 @@ class DriveTrain:
         """Couplings in breadth-first order from the motor, oriented parent -> child."""
         adj: dict[int, list[tuple[str, Coupling, int, float]]] = {}
         for kind, c in self.spec.couplings():
-            a, b = (self.node_index(x) for x in coupling_ends(c))
-            r = coupling_ratio(c)
+            a, b = (self.node_index(x) for x in c.ends)
+            r = c.speed_ratio
             adj.setdefault(a, []).append((kind, c, b, r))
             adj.setdefault(b, []).append((kind, c, a, 1.0 / r))
         root = self.node_index(self.spec.root_node)
