@@ -58,9 +58,17 @@ class _ResidualHybrid(_NeuralModel):
     (prediction) or of the inputs and simulated model outputs (simulation)."""
 
     needs_mechanistic = True
-    use_sknet = False
-    use_lstm = True
     accumulate: bool | None
+
+    @property
+    def use_sknet(self) -> bool:
+        """Whether the residual net lifts its channels with SKNet first."""
+        return False
+
+    @property
+    def use_lstm(self) -> bool:
+        """Whether the residual net runs an LSTM over the window."""
+        return True
 
     # --- what each hybrid feeds the residual net ---------------------------------------
     def _groups(self, y: np.ndarray, mech: np.ndarray, data: np.ndarray | None) -> Groups:

@@ -84,11 +84,11 @@ class MDSL(_ResidualHybrid):
         return self.variant + ("+d" if self.use_disagreement else "")
 
     @property
-    def use_sknet(self) -> bool:  # type: ignore[override]
+    def use_sknet(self) -> bool:
         return self.variant in ("md-s-l", "md-s")
 
     @property
-    def use_lstm(self) -> bool:  # type: ignore[override]
+    def use_lstm(self) -> bool:
         return self.variant in ("md-s-l", "md-l")
 
     def _check_params(self) -> None:

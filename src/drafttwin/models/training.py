@@ -16,7 +16,7 @@ import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import torch
@@ -99,6 +99,18 @@ class Training:
         return dataclasses.replace(self, **changes)
 
 
+class HistoryDict(TypedDict):
+    """:class:`History` as plain data (JSON)."""
+
+    train_loss: list[float]
+    val_loss: list[float]
+    best_epoch: int
+    stopped_early: bool
+    seconds: float
+    n_train: int
+    n_val: int
+
+
 @dataclass
 class History:
     """Loss per epoch (MSE in scaled units) and what the loop did.
@@ -120,7 +132,7 @@ class History:
         epochs = len(self.train_loss)
         return self.n_train * epochs / self.seconds if self.seconds > 0 else float("nan")
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self) -> HistoryDict:
         return {
             "train_loss": list(self.train_loss),
             "val_loss": list(self.val_loss),
@@ -132,8 +144,8 @@ class History:
         }
 
     @classmethod
-    def from_dict(cls, data: dict[str, object]) -> History:
-        return cls(**data)  # type: ignore[arg-type]
+    def from_dict(cls, data: HistoryDict) -> History:
+        return cls(**data)
 
 
 def resolve_device(name: str) -> torch.device:
