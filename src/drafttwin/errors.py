@@ -8,6 +8,7 @@ what to do about it.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from pathlib import Path
 
 
@@ -49,3 +50,18 @@ class DataError(DrafttwinError):
 
 class ModelFileError(DrafttwinError):
     """A saved model file is not a drafttwin model or comes from an incompatible version."""
+
+
+def unknown_choice(
+    problem: str,
+    choices: Iterable[str],
+    *,
+    source: str | Path | None = None,
+    where: str | None = None,
+    fix_also: str = "",
+) -> ConfigError:
+    """The error for a name that is not one of ``choices``; its fix lists them (then
+    ``fix_also``). Raise it: ``raise unknown_choice(f"unknown scenario '{name}'", ...)``."""
+    return ConfigError(
+        problem, source=source, where=where, fix=f"use one of: {', '.join(choices)}{fix_also}"
+    )

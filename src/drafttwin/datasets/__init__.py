@@ -7,15 +7,27 @@ bit-identically (``python -m drafttwin.datasets``).
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from importlib import resources
 from pathlib import Path
+from typing import Any, TypedDict
 
 import pandas as pd
 
 from drafttwin._constants import ROLLERS
 from drafttwin.data.series import MeasurementSeries
 
-DEFAULT = {"seed": 20260101, "duration_s": 300.0, "rate_hz": 100.0, "scenario": "steady"}
+
+class PlantRun(TypedDict):
+    """How the plant emulator is run to make a data set."""
+
+    seed: int
+    duration_s: float
+    rate_hz: float
+    scenario: str
+
+
+DEFAULT: PlantRun = {"seed": 20260101, "duration_s": 300.0, "rate_hz": 100.0, "scenario": "steady"}
 _FILE = "fa320a_default.parquet"
 
 
@@ -23,7 +35,7 @@ def default_path() -> Path:
     return Path(str(resources.files("drafttwin.datasets") / _FILE))
 
 
-def _series(frame: pd.DataFrame, info: dict) -> MeasurementSeries:
+def _series(frame: pd.DataFrame, info: dict[str, Any]) -> MeasurementSeries:
     truth = frame[[f"true_{r}" for r in ROLLERS]].to_numpy()
     meta = {
         "source": "drafttwin default data set (plant emulator)",
@@ -56,11 +68,13 @@ def load_default() -> MeasurementSeries:
     return _series(table.to_pandas(), info)
 
 
-def build(duration_s: float | None = None, progress=None) -> tuple[pd.DataFrame, dict]:
+def build(
+    duration_s: float | None = None, progress: Callable[[float], None] | None = None
+) -> tuple[pd.DataFrame, dict[str, Any]]:
     """Regenerate the default data set (or its first ``duration_s`` seconds)."""
     from drafttwin.plant import Plant
 
-    spec = dict(DEFAULT)
+    spec = DEFAULT.copy()
     if duration_s is not None:
         spec["duration_s"] = duration_s
     rec = Plant().run(spec["duration_s"], spec["rate_hz"], seed=spec["seed"],

@@ -64,6 +64,16 @@ class Split:
     summary: dict[str, Any] = field(default_factory=dict)
     stats: dict[str, dict[str, float | None]] = field(default_factory=dict)
 
+    def test_part(self) -> MeasurementSeries:
+        """``test``; a ConfigError for a split without a test part (every row trained)."""
+        if self.test is None:
+            raise ConfigError(
+                "the data were split with no test part: every row trained the model",
+                where="--train-fraction",
+                fix="fit with a train fraction below 1, or give separate --test-data",
+            )
+        return self.test
+
 
 def cleaning_stats(train: MeasurementSeries) -> dict[str, dict[str, float | None]]:
     """Per channel, what causal cleaning of test data needs from the training data: the
@@ -118,7 +128,7 @@ def split(
     summary["preprocessing"] = {"train": train_report.to_dict(), **part.summary["preprocessing"]}
     joined = None
     if mode == "chronological":
-        joined = data.with_values(np.vstack([clean_train.values, part.test.values]))
+        joined = data.with_values(np.vstack([clean_train.values, part.test_part().values]))
     return Split(clean_train, part.test, part.target, joined, mode, summary, stats)
 
 
@@ -176,8 +186,8 @@ def model_input(model: BaseModel, data: Split) -> tuple[MeasurementSeries, int]:
     prediction uses earlier rows only). A simulation runs free over the test records alone,
     from their own measured starts."""
     if data.joined is not None and not model.task.simulation:
-        return data.joined, len(data.joined) - len(data.test)
-    return data.test, 0
+        return data.joined, len(data.joined) - len(data.test_part())
+    return data.test_part(), 0
 
 
 @dataclass(frozen=True)
@@ -275,28 +285,29 @@ def score(part: Split, pred: np.ndarray, model: BaseModel, *, skip_rows: int = 0
     """Score predictions ``pred`` of ``part``'s test rows made by ``model`` (its task sets the
     persistence baseline and, in a simulation, the unscored initialisation rows)."""
     series, first = model_input(model, part)
+    test = part.test_part()
     baseline = PersistenceModel(task=model.task.replace(inputs=()))
-    baseline.fit(part.test)
+    baseline.fit(test)
     pers = baseline.predict_values(series)[first:]
     target = part.target.copy()
     unscored = max(skip_rows, model._init_rows() if model.task.simulation else 0)
-    for a, b in part.test.record_bounds():  # a simulation's measured start is no prediction
+    for a, b in test.record_bounds():  # a simulation's measured start is no prediction
         target[a : min(b, a + unscored)] = np.nan
-    units = {c: part.test.unit(c) for c in part.test.channels}
-    truth = part.test.truth
-    metrics = score_channels(target, pred, channels=part.test.channels, units=units,
+    units = {c: test.unit(c) for c in test.channels}
+    truth = test.truth
+    metrics = score_channels(target, pred, channels=test.channels, units=units,
                              persistence=pers, true_values=truth)  # fmt: skip
     vs_true = {}
     if truth is not None:
-        for j, c in enumerate(part.test.channels):
+        for j, c in enumerate(test.channels):
             ok = np.isfinite(target[:, j]) & np.isfinite(pred[:, j]) & np.isfinite(truth[:, j])
             err = pred[ok, j] - truth[ok, j]
             vs_true[c] = json_number(float(np.sqrt(np.mean(err**2))) if err.size else np.nan)
-    frame = pd.DataFrame({"time": part.test.time_s})
-    for j, name in enumerate(part.test.channels):
+    frame = pd.DataFrame({"time": test.time_s})
+    for j, name in enumerate(test.channels):
         frame[name] = pred[:, j]
-    if part.test.n_records > 1:
-        frame["record"] = part.test.record_ids()
+    if test.n_records > 1:
+        frame["record"] = test.record_ids()
     frame.attrs["units"] = units
     return Evaluation(
         model=model.name,

@@ -18,6 +18,9 @@ from drafttwin.errors import DrafttwinError
 from drafttwin.execution.store import ResultStore, task_key
 
 Task = Callable[[dict[str, Any]], dict[str, Any]]
+Pending = list[tuple[int, dict[str, Any]]]
+"""(index, configuration) of each task still to run."""
+Finish = Callable[[int, dict[str, Any]], None]
 EXECUTORS = ("local", "ray")
 
 
@@ -53,7 +56,7 @@ def run_tasks(
             fix=f"use one of: {', '.join(EXECUTORS)}",
         )
     keys = [task_key(c, data_digest) for c in configs]
-    results: list[dict[str, Any] | None] = [None] * len(configs)
+    results: dict[int, dict[str, Any]] = {}
     todo = []
     for i, key in enumerate(keys):
         if store is not None and store.has(key):
@@ -73,10 +76,10 @@ def run_tasks(
     if todo:
         runner = _run_ray if executor == "ray" else _run_local
         runner(fn, [(i, configs[i]) for i in todo], finish, workers or _default_workers(), address)
-    return results  # type: ignore[return-value]
+    return [results[i] for i in range(len(configs))]
 
 
-def _run_local(fn: Task, todo, finish, workers: int, address: str | None) -> None:
+def _run_local(fn: Task, todo: Pending, finish: Finish, workers: int, address: str | None) -> None:
     if workers <= 1 or len(todo) == 1:
         for i, config in todo:
             finish(i, fn(config))
@@ -89,7 +92,7 @@ def _run_local(fn: Task, todo, finish, workers: int, address: str | None) -> Non
             finish(futures[fut], fut.result())
 
 
-def _run_ray(fn: Task, todo, finish, workers: int, address: str | None) -> None:
+def _run_ray(fn: Task, todo: Pending, finish: Finish, workers: int, address: str | None) -> None:
     try:
         import ray
     except ImportError:

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
-from drafttwin.errors import ConfigError
+from drafttwin.errors import unknown_choice
 
 GRID_LR = (0.001, 0.005, 0.01)
 GRID_HIDDEN = (64, 128, 256)
@@ -46,6 +46,19 @@ class StudyProfile:
         return asdict(self)
 
 
+_STANDARD = StudyProfile(
+    name="standard",
+    model_profile="standard",
+    data_duration_s=None,
+    epochs=None,
+    patience=None,
+    grid_epochs=30,
+    grid_patience=5,
+    grid_train_samples=None,
+    use_grid_best=True,
+    notes=("standard profile: the whole data set, grid winners used, full repeats",),
+)
+
 STUDY_PROFILES: dict[str, StudyProfile] = {
     "quick": StudyProfile(
         name="quick",
@@ -68,28 +81,14 @@ STUDY_PROFILES: dict[str, StudyProfile] = {
             "model's seed",
         ),
     ),
-    "standard": StudyProfile(
-        name="standard",
-        model_profile="standard",
-        data_duration_s=None,
-        epochs=None,
-        patience=None,
-        grid_epochs=30,
-        grid_patience=5,
-        grid_train_samples=None,
-        use_grid_best=True,
-        notes=("standard profile: the whole data set, grid winners used, full repeats",),
-    ),
-    "paper": StudyProfile(
+    "standard": _STANDARD,
+    # the standard study at the paper's budget: its model profile and a full-length grid search
+    "paper": replace(
+        _STANDARD,
         name="paper",
         model_profile="paper",
-        data_duration_s=None,
-        epochs=None,
-        patience=None,
         grid_epochs=500,
         grid_patience=None,
-        grid_train_samples=None,
-        use_grid_best=True,
         notes=("paper profile: the paper's settings (500 epochs, batch 10); GPU recommended",),
     ),
 }
@@ -99,10 +98,8 @@ def get_study_profile(name: str) -> StudyProfile:
     try:
         return STUDY_PROFILES[name]
     except KeyError:
-        raise ConfigError(
-            f"unknown profile '{name}'",
-            where="--profile",
-            fix=f"use one of: {', '.join(STUDY_PROFILES)}",
+        raise unknown_choice(
+            f"unknown profile '{name}'", STUDY_PROFILES, where="--profile"
         ) from None
 
 

@@ -61,7 +61,7 @@ class PreparedData:
         if self.true is not None:
             arrays["true"] = self.true
         path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(path, **arrays)
+        np.savez(path, allow_pickle=False, **arrays)  # numbers only
         return path
 
     @classmethod
@@ -103,7 +103,7 @@ def prepare(
         series = series.slice(0, int(np.searchsorted(series.time_s, series.time_s[0] + duration_s)))
     part = protocol.split(series, train_fraction=train_fraction)
     assert part.joined is not None
-    n, n_train = len(series), len(series) - len(part.test)
+    n, n_train = len(series), len(series) - len(part.test_part())
     target = np.full(series.values.shape, np.nan)
     target[n_train:] = part.target
     data = PreparedData(

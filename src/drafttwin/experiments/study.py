@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable
 from itertools import combinations
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import pandas as pd
@@ -37,6 +37,14 @@ ABLATION = ("md-s-l", "md-l", "md-s")
 Stage = Callable[[str, int], Callable[[int, dict, bool], None]]
 
 
+class ExecutorSettings(TypedDict):
+    """Where the study's tasks run (the keyword arguments of :func:`run_tasks`)."""
+
+    executor: str
+    address: str | None
+    workers: int | None
+
+
 class Study:
     """One study run: profile, data, output folder, executor settings and a progress hook."""
 
@@ -47,7 +55,11 @@ class Study:
         self.out = Path(out_dir)
         self.cache = self.out / "cache"
         self.store = ResultStore(self.cache / "results")
-        self.exec_args = {"executor": executor, "address": address, "workers": workers}
+        self.exec_args: ExecutorSettings = {
+            "executor": executor,
+            "address": address,
+            "workers": workers,
+        }
         self.stage = stage or (lambda name, total: lambda i, r, cached: None)
         self.preset = preset
         self.data_name = "default"
@@ -117,8 +129,8 @@ class Study:
         configs = [{**self._scored(), "seed": s, "hyper": hyper} for s in seeds]
         return self._run("data model", tasks.data_model, configs)
 
-    def hybrids(self, stage: str, models: list[str], seeds: list[int], hyper: dict, dms: dict[int, dict],
-                save: bool) -> list[dict]:  # fmt: skip
+    def hybrids(self, stage: str, models: list[str], seeds: list[tuple[int, int]], hyper: dict,
+                dms: dict[int, dict], save: bool) -> list[dict]:  # fmt: skip
         configs = [{**self._scored(), "model": m, "seed": s, "hyper": hyper, "save_predictions": save,
                     "data_model_seed": ds, "_data_model": dms[ds]}
                    for m in models for s, ds in seeds]  # fmt: skip

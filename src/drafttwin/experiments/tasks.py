@@ -24,7 +24,7 @@ from drafttwin.models import BaseModel, MechanisticModel, make_model
 from drafttwin.models.datadriven import GRUModel
 from drafttwin.models.mdsl import MDSL
 from drafttwin.models.task import input_matrix
-from drafttwin.models.training import FitProgress
+from drafttwin.models.training import FitProgress, History
 
 
 def _setup(config: dict[str, Any]) -> PreparedData:
@@ -36,6 +36,14 @@ def _artifact(config: dict[str, Any], data: PreparedData, suffix: str) -> Path:
     folder = Path(config["_artifacts"])
     folder.mkdir(parents=True, exist_ok=True)
     return folder / f"{task_key(config, data.digest)[:24]}{suffix}"
+
+
+def _history(model: BaseModel) -> History:
+    """The training history of a model that trains a network."""
+    history = getattr(model, "history_", None)
+    if not isinstance(history, History):
+        raise TypeError(f"{type(model).__name__} trains no network, so it has no history")
+    return history
 
 
 METRIC_SCHEMA = "channel-metrics-2"
@@ -66,7 +74,7 @@ def grid_point(config: dict[str, Any]) -> dict[str, Any]:
                        quiet=True)  # fmt: skip
     t0 = time.perf_counter()
     model.fit(series)
-    hist = model.history_
+    hist = _history(model)
     losses = hist.val_loss or hist.train_loss
     return {"val_loss": float(min(losses)), "epochs": len(hist.train_loss),
             "wall_s": time.perf_counter() - t0}  # fmt: skip
@@ -103,10 +111,13 @@ def data_model(config: dict[str, Any]) -> dict[str, Any]:
 class _SharedDataMDSL(MDSL):
     """An MD model whose cross-fitted GRU comes from a :func:`data_model` task."""
 
-    def _fit_data(self, y: np.ndarray, *_: object) -> np.ndarray:  # type: ignore[override]
+    shared_: tuple[str, str, list[list[int]]]
+    """The task's saved GRU, its out-of-fold predictions (.npy) and the cross-fitting blocks."""
+
+    def _fit_data(self, y: np.ndarray, *_: object) -> np.ndarray:
         gru_path, oof_path, blocks = self.shared_
         self.data_model_ = GRUModel.load(gru_path)
-        self.crossfit_blocks_ = [tuple(b) for b in blocks]
+        self.crossfit_blocks_ = [(int(a), int(b)) for a, b in blocks]
         self.crossfit_pred_ = np.load(oof_path)
         return self.crossfit_pred_
 
@@ -125,7 +136,7 @@ def hybrid(config: dict[str, Any]) -> dict[str, Any]:
     t0 = time.perf_counter()
     model.fit(train, MechanisticModel(data.mech[: data.n_train]))
     pred = model.predict_values(data.series(), MechanisticModel(data.mech))
-    result = {"metrics": score(data, pred, model), "epochs": len(model.history_.train_loss),
+    result = {"metrics": score(data, pred, model), "epochs": len(_history(model).train_loss),
               "wall_s": time.perf_counter() - t0}  # fmt: skip
     if config.get("save_predictions"):
         path = _artifact(config, data, ".pred.npy")

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -73,19 +74,6 @@ class Edge:
     parent: int
     child: int
     ratio: float  # child speed / parent speed (nominal, no creep)
-
-
-def coupling_ends(kind: str, c: Coupling) -> tuple[str, str]:
-    return (c.a, c.b) if kind == "shaft" else (c.driver, c.driven)
-
-
-def coupling_ratio(kind: str, c: Coupling) -> float:
-    """Nominal speed ratio driven/driver (rigid, no creep)."""
-    if kind == "belt":
-        return c.driver_diameter_mm / c.driven_diameter_mm
-    if kind in ("chain", "gear"):
-        return c.driver_teeth / c.driven_teeth
-    return 1.0
 
 
 def gear_base_radii_m(g: GearMesh) -> tuple[float, float]:
@@ -242,8 +230,8 @@ class DriveTrain:
         """Couplings in breadth-first order from the motor, oriented parent -> child."""
         adj: dict[int, list[tuple[str, Coupling, int, float]]] = {}
         for kind, c in self.spec.couplings():
-            a, b = (self.node_index(x) for x in coupling_ends(kind, c))
-            r = coupling_ratio(kind, c)
+            a, b = (self.node_index(x) for x in c.ends)
+            r = c.speed_ratio
             adj.setdefault(a, []).append((kind, c, b, r))
             adj.setdefault(b, []).append((kind, c, a, 1.0 / r))
         root = self.node_index(self.spec.root_node)
@@ -281,7 +269,7 @@ class DriveTrain:
         ja, jb = self.inertias[a], self.inertias[b]
         return ja * jb / (ja * rb * rb + jb * ra * ra)
 
-    def _motor_rows(self, sig) -> tuple[np.ndarray, np.ndarray]:
+    def _motor_rows(self, sig: Callable[[Signal | None], int]) -> tuple[np.ndarray, np.ndarray]:
         """Kernel rows of the induction motor (none for a train driven by external torques)."""
         mot = self.spec.motor
         if mot is None:
@@ -319,27 +307,27 @@ class DriveTrain:
         belts = [(idx(b.driver), idx(b.driven), b) for b in self.spec.belt]
         belt_i = np.array([[a, b_] for a, b_, _ in belts], dtype=np.int64).reshape(-1, 2)
         belt_f = np.zeros((len(belts), 5))
-        for row, (a, b_, b) in enumerate(belts):
-            ra, rb = b.driver_diameter_mm * 5e-4, b.driven_diameter_mm * 5e-4
+        for row, (a, b_, belt) in enumerate(belts):
+            ra, rb = belt.driver_diameter_mm * 5e-4, belt.driven_diameter_mm * 5e-4
             c = (
                 2
-                * b.damping_ratio
-                * math.sqrt(b.span_stiffness_n_per_m * self._effective_mass(a, b_, ra, rb))
+                * belt.damping_ratio
+                * math.sqrt(belt.span_stiffness_n_per_m * self._effective_mass(a, b_, ra, rb))
             )
-            belt_f[row] = (ra, rb, b.span_stiffness_n_per_m, c, 1.0 / b.axial_rigidity_n)
+            belt_f[row] = (ra, rb, belt.span_stiffness_n_per_m, c, 1.0 / belt.axial_rigidity_n)
 
         chains = [(idx(c.driver), idx(c.driven), c) for c in self.spec.chain]
         chain_i = np.array([[a, b] for a, b, _ in chains], dtype=np.int64).reshape(-1, 2)
         chain_f = np.zeros((len(chains), 8))
-        for row, (a, b, c) in enumerate(chains):
-            ra = chain_pitch_radius_m(c.pitch_mm, c.driver_teeth)
-            rb = chain_pitch_radius_m(c.pitch_mm, c.driven_teeth)
+        for row, (a, b, chain) in enumerate(chains):
+            ra = chain_pitch_radius_m(chain.pitch_mm, chain.driver_teeth)
+            rb = chain_pitch_radius_m(chain.pitch_mm, chain.driven_teeth)
             # both spans taut: stiffness 2k, so each span carries half the damping
-            damp = c.damping_ratio * math.sqrt(
-                2 * c.span_stiffness_n_per_m * self._effective_mass(a, b, ra, rb)
+            damp = chain.damping_ratio * math.sqrt(
+                2 * chain.span_stiffness_n_per_m * self._effective_mass(a, b, ra, rb)
             )
-            chain_f[row] = (c.driver_teeth, c.driven_teeth, c.pitch_mm * 1e-3, ra, rb,
-                            c.span_stiffness_n_per_m, damp, c.pretension_n)  # fmt: skip
+            chain_f[row] = (chain.driver_teeth, chain.driven_teeth, chain.pitch_mm * 1e-3, ra, rb,
+                            chain.span_stiffness_n_per_m, damp, chain.pretension_n)  # fmt: skip
 
         gears = [(idx(g.driver), idx(g.driven), g) for g in self.spec.gear]
         gear_i = np.array([[a, b, g.harmonics] for a, b, g in gears], dtype=np.int64).reshape(-1, 3)

@@ -3,8 +3,9 @@
 In the style of Modelica.Mechanics.Rotational: inertias are the nodes; couplings (belt, chain,
 gear mesh, shaft torsion) connect two nodes by name; sources and sinks (motor, roller friction
 load, bearing friction, external torque) act on one node. Every field carries its unit in its
-name. These classes only hold and check parameters; :mod:`drafttwin.mechanics.assembly` turns
-them into the numeric tables the integrator uses.
+name. These classes hold and check parameters (a coupling also names the two nodes it joins
+and its nominal speed ratio); :mod:`drafttwin.mechanics.assembly` turns them into the numeric
+tables the integrator uses.
 
 Speed convention: every coupling keeps its driven node turning in the same sense as its driver,
 so all speeds in a running train are positive (bottom-roller speeds are magnitudes, as an
@@ -70,42 +71,64 @@ class InductionMotor(Component):
         return self
 
 
-class Belt(Component):
+class _Transmission(Component):
+    """A coupling that drives node ``driven`` from node ``driver``."""
+
+    name: str
+    driver: str
+    driven: str
+
+    @property
+    def ends(self) -> tuple[str, str]:
+        """The nodes it joins: (driver, driven)."""
+        return self.driver, self.driven
+
+
+class Belt(_Transmission):
     """Flat/V belt: span spring between the pulley rims plus elastic creep.
 
     Creep ``eps = F / axial_rigidity_n`` (strain difference between tight and slack strand),
     so the driven rim runs ``(1 - eps)`` slower than the driver rim.
     """
 
-    name: str
-    driver: str
-    driven: str
     driver_diameter_mm: Positive
     driven_diameter_mm: Positive
     span_stiffness_n_per_m: Positive
     axial_rigidity_n: Positive
     damping_ratio: DampingRatio = 0.05
 
+    @property
+    def speed_ratio(self) -> float:
+        """Nominal driven / driver speed (rigid, no creep)."""
+        return self.driver_diameter_mm / self.driven_diameter_mm
 
-class ChainDrive(Component):
+
+class _ToothedTransmission(_Transmission):
+    """A transmission whose speed ratio is set by tooth counts (chain sprockets, gears)."""
+
+    driver_teeth: Teeth
+    driven_teeth: Teeth
+
+    @property
+    def speed_ratio(self) -> float:
+        """Nominal driven / driver speed."""
+        return self.driver_teeth / self.driven_teeth
+
+
+class ChainDrive(_ToothedTransmission):
     """Roller chain on two sprockets: polygon (chordal) action, compliant spans, pretension.
 
     Chain feed of a sprocket ``x(theta) = p n + R sin(phi)``, ``R = p / (2 sin(pi/z))``;
     each span carries ``max(0, pretension +/- k (x_driver - x_driven) +/- c d/dt(...))``.
     """
 
-    name: str
-    driver: str
-    driven: str
-    driver_teeth: Teeth
-    driven_teeth: Teeth
     pitch_mm: Positive = 12.7
     span_stiffness_n_per_m: Positive
     pretension_n: NonNegative = 150.0
     damping_ratio: DampingRatio = 0.05
 
 
-class GearMesh(Component):
+class GearMesh(_ToothedTransmission):
     """Spur gear pair: time-varying mesh stiffness, damping, backlash, eccentricity.
 
     Mesh deflection along the line of action ``delta = r_b1 th1 - r_b2 th2 - e(th1, th2)``;
@@ -115,11 +138,6 @@ class GearMesh(Component):
     to ``harmonics`` Fourier terms; its mean is ``mesh_stiffness_n_per_m``.
     """
 
-    name: str
-    driver: str
-    driven: str
-    driver_teeth: Teeth
-    driven_teeth: Teeth
     module_mm: Positive = 2.0
     pressure_angle_deg: Annotated[float, Field(gt=10, lt=35)] = 20.0
     mesh_stiffness_n_per_m: Positive = 3.0e8
@@ -145,6 +163,16 @@ class Shaft(Component):
     b: str
     stiffness_nm_per_rad: Positive
     damping_ratio: DampingRatio = 0.05
+
+    @property
+    def ends(self) -> tuple[str, str]:
+        """The nodes it joins: (a, b)."""
+        return self.a, self.b
+
+    @property
+    def speed_ratio(self) -> float:
+        """Nominal b / a speed: a shaft turns both ends together."""
+        return 1.0
 
 
 class Roller(Component):

@@ -13,7 +13,7 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, ValidationError
 
-from drafttwin.errors import ConfigError
+from drafttwin.errors import ConfigError, unknown_choice
 from drafttwin.mechanics.components import (
     COUPLING_KINDS,
     LIST_KINDS,
@@ -292,12 +292,8 @@ def spec_from_dict(raw: dict[str, Any], source: str = "<config>") -> TrainSpec:
     known = set(LIST_KINDS) | set(SINGLE_KINDS)
     for key in raw:
         if key not in known:
-            raise ConfigError(
-                f"unknown component type '{key}'",
-                source=source,
-                where=f"[{key}]",
-                fix=f"use one of: {', '.join(sorted(known))}",
-            )
+            raise unknown_choice(f"unknown component type '{key}'", sorted(known),
+                                 source=source, where=f"[{key}]")  # fmt: skip
     for key in LIST_KINDS:
         if key in raw and not isinstance(raw[key], list):
             raise ConfigError(
@@ -335,11 +331,8 @@ def load_toml(path: str | Path) -> TrainSpec:
 def preset_path(name: str) -> Path:
     """Path of a built-in preset's TOML file."""
     if name not in PRESETS:
-        raise ConfigError(
-            f"unknown preset '{name}'",
-            where="--preset",
-            fix=f"use one of: {', '.join(PRESETS)}, or give --config FILE",
-        )
+        raise unknown_choice(f"unknown preset '{name}'", PRESETS, where="--preset",
+                             fix_also=", or give --config FILE")  # fmt: skip
     return Path(str(resources.files("drafttwin.mechanics") / "presets" / f"{name}.toml"))
 
 

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from drafttwin.errors import ConfigError, DataError
+from drafttwin.errors import ConfigError, DataError, unknown_choice
 from drafttwin.mechanics.assembly import DriveTrain, Signal
 from drafttwin.mechanics.channels import DEFAULT_SUPPLY_CHANNEL, OutputMap
 from drafttwin.mechanics.components import OUTPUT_UNITS, InputChannel
@@ -140,12 +140,9 @@ def _select_outputs(
     names = list(available) if channels is None else [str(c) for c in channels]
     for name in names:
         if name not in available:
-            raise ConfigError(
-                f"unknown output channel '{name}'",
-                source=train.source,
-                where="channels",
-                fix=f"use one of: {', '.join(available)} (or map it in an [[output]] table)",
-            )
+            raise unknown_choice(f"unknown output channel '{name}'", available,
+                                 source=train.source, where="channels",
+                                 fix_also=" (or map it in an [[output]] table)")  # fmt: skip
     units = dict(units or {})
     for name, unit in units.items():
         if name not in names:
@@ -156,12 +153,8 @@ def _select_outputs(
                 fix=f"give units only for the simulated channels: {', '.join(names)}",
             )
         if unit not in OUTPUT_UNITS:
-            raise ConfigError(
-                f"unknown unit '{unit}' for channel '{name}'",
-                source=train.source,
-                where="units",
-                fix=f"use one of: {', '.join(OUTPUT_UNITS)}",
-            )
+            raise unknown_choice(f"unknown unit '{unit}' for channel '{name}'", OUTPUT_UNITS,
+                                 source=train.source, where="units")  # fmt: skip
         if unit == "m/min" and available[name].diameter_mm is None:
             raise ConfigError(m_per_min_problem(available[name].node), source=train.source,
                               where=f"units['{name}']", fix=M_PER_MIN_FIX)  # fmt: skip

@@ -23,6 +23,7 @@ from drafttwin.mechanics.assembly import (
     chain_pitch_radius_m,
     gear_base_radii_m,
 )
+from drafttwin.mechanics.components import Belt, ChainDrive, Shaft
 
 RPM = 30.0 / math.pi  # rad/s -> rpm
 
@@ -77,7 +78,7 @@ def kinematics(train: DriveTrain, motor_rpm: float | None = None) -> Kinematics:
             )
         motor_rpm = train.spec.motor.rated_rpm
     node_rpm = train.speed_ratios * motor_rpm
-    rollers = {}
+    rollers: dict[str, RollerKinematics] = {}
     for r in train.spec.roller:
         rpm = float(node_rpm[train.roller_nodes[r.name]])
         v = rpm * math.pi * r.diameter_mm * 1e-3
@@ -103,17 +104,17 @@ def stiffness_matrix(train: DriveTrain) -> np.ndarray:
     n = len(train.node_names)
     k_mat = np.zeros((n, n))
     idx = train.node_index
-    for kind, c in train.spec.couplings():
-        if kind == "shaft":
+    for _, c in train.spec.couplings():
+        if isinstance(c, Shaft):
             a, b, ra, rb, k = idx(c.a), idx(c.b), 1.0, 1.0, c.stiffness_nm_per_rad
-        elif kind == "belt":
+        elif isinstance(c, Belt):
             a, b = idx(c.driver), idx(c.driven)
             ra, rb, k = (
                 c.driver_diameter_mm * 5e-4,
                 c.driven_diameter_mm * 5e-4,
                 c.span_stiffness_n_per_m,
             )
-        elif kind == "chain":
+        elif isinstance(c, ChainDrive):
             a, b = idx(c.driver), idx(c.driven)
             # mean feed radius p z / 2 pi; both spans taut under pretension act in parallel
             ra = chain_mean_radius_m(c.pitch_mm, c.driver_teeth)
@@ -210,16 +211,11 @@ def operating_point(train: DriveTrain, t: float = 0.0, iterations: int = 30) -> 
         for e in reversed(train.edges):
             transmitted[e.coupling.name] = p_sub[e.child] / w[e.child]
             through = p_sub[e.child]
-            if e.kind == "belt":
-                pull = through / (e.coupling.driven_diameter_mm * 5e-4 * w[e.child])
-                creep[e.coupling.name] = pull / e.coupling.axial_rigidity_n
-                loss = (
-                    pull
-                    * e.coupling.driver_diameter_mm
-                    * 5e-4
-                    * w[e.parent]
-                    * creep[e.coupling.name]
-                )
+            belt = e.coupling
+            if isinstance(belt, Belt):
+                pull = through / (belt.driven_diameter_mm * 5e-4 * w[e.child])
+                creep[belt.name] = pull / belt.axial_rigidity_n
+                loss = pull * belt.driver_diameter_mm * 5e-4 * w[e.parent] * creep[belt.name]
                 p_creep += loss
                 through += loss
             p_sub[e.parent] += through

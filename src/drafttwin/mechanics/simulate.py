@@ -27,6 +27,7 @@ from drafttwin.mechanics.assembly import (
     chain_pitch_radius_m,
     gear_base_radii_m,
 )
+from drafttwin.mechanics.components import Belt, ChainDrive, GearMesh, Shaft
 from drafttwin.mechanics.kinematics import RPM, OperatingPoint, operating_point
 
 ENERGY_NAMES = ("motor", "roller_loads", "bearings", "coupling_losses", "external")
@@ -109,14 +110,14 @@ def _initial_state(train: DriveTrain, op: OperatingPoint) -> np.ndarray:
     belt_row = {b.name: k for k, b in enumerate(train.spec.belt)}
     for e in train.edges:
         c, torque = e.coupling, op.transmitted[e.coupling.name]
-        if e.kind == "shaft":
+        if isinstance(c, Shaft):
             sign = 1.0 if c.a == train.node_names[e.parent] else -1.0
             y[e.child] = y[e.parent] - torque / c.stiffness_nm_per_rad * sign
-        elif e.kind == "belt":
+        elif isinstance(c, Belt):
             rb = c.driven_diameter_mm * 5e-4
             y[2 * n + belt_row[c.name]] = torque / rb / c.span_stiffness_n_per_m
             y[e.child] = y[e.parent] * e.ratio
-        elif e.kind == "gear":
+        elif isinstance(c, GearMesh):
             rba, rbb = gear_base_radii_m(c)
             delta = torque / rbb / c.mesh_stiffness_n_per_m + 0.5e-6 * c.backlash_um
             y[e.child] = (rba * y[e.parent] - delta) / rbb
@@ -141,7 +142,7 @@ def _rest_state(train: DriveTrain) -> np.ndarray:
     return np.zeros(2 * n + tab.belt_i.shape[0] + 2 * tab.motor_i.shape[0] + K.N_ENERGY)
 
 
-def _chain_angle_for_feed(c, theta_driver: float, stretch: float) -> float:
+def _chain_angle_for_feed(c: ChainDrive, theta_driver: float, stretch: float) -> float:
     """Driven-sprocket angle whose chain feed trails the driver's by ``stretch`` (Newton)."""
     ra = chain_pitch_radius_m(c.pitch_mm, c.driver_teeth)
     rb = chain_pitch_radius_m(c.pitch_mm, c.driven_teeth)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import abc
 import inspect
 import json
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any, ClassVar, Self
 
@@ -67,6 +68,12 @@ class BaseModel(abc.ABC):
         """Constructor hyperparameter names, in signature order."""
         sig = inspect.signature(cls.__init__)
         return [p for p in sig.parameters if p != "self"]
+
+    def _store_params(self, arguments: Mapping[str, Any]) -> None:
+        """Keep every constructor argument as the attribute of its name, unchanged (checks
+        happen in ``fit``): call as ``self._store_params(locals())`` from ``__init__``."""
+        for name in self.param_names():
+            setattr(self, name, arguments[name])
 
     def get_params(self) -> dict[str, Any]:
         """Hyperparameters as a dict (constructor keyword arguments)."""
@@ -306,7 +313,7 @@ class BaseModel(abc.ABC):
                 source=path,
                 fix="re-fit and save the model again",
             ) from exc
-        return model  # type: ignore[return-value]
+        return model
 
 
 _REQUIRED = ("format_version", "model_class", "params_json", "state_json", "tensors")

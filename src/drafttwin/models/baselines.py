@@ -7,6 +7,7 @@ nearly constant signal a tiny relative error can mean no skill at all.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import ClassVar
 
 import numpy as np
 
@@ -39,7 +40,29 @@ def persistence_forecast(
     return out[:, 0] if squeeze else out
 
 
-class MechanisticBaseline(BaseModel):
+class _FixedRule(BaseModel):
+    """A model that learns nothing: ``fit`` only records the channels, and ``task.inputs``
+    must stay empty (``inputs_refused_because`` says why, in the error)."""
+
+    registry_name: ClassVar[str]
+    inputs_refused_because: ClassVar[str]
+
+    def __init__(self, task: Task = Task()) -> None:
+        self.task = task
+
+    @property
+    def name(self) -> str:
+        return self.registry_name
+
+    def _check_params(self) -> None:
+        super()._check_params()
+        _refuse_inputs(self, self.inputs_refused_because)
+
+    def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
+        return None
+
+
+class MechanisticBaseline(_FixedRule):
     """The mechanistic model alone, as an estimator: ``predict`` returns the physics' values
     (in both tasks: a mechanistic source runs open loop from the machine's inputs; in a
     simulation the rows of the initialisation window are NaN, as for every model).
@@ -50,20 +73,8 @@ class MechanisticBaseline(BaseModel):
 
     needs_mechanistic = True
     learns_from_mechanistic = False
-
-    def __init__(self, task: Task = Task()) -> None:
-        self.task = task
-
-    @property
-    def name(self) -> str:
-        return "mechanistic"
-
-    def _check_params(self) -> None:
-        super()._check_params()
-        _refuse_inputs(self, "its source reads the input channels it maps from the series")
-
-    def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
-        return None
+    registry_name = "mechanistic"
+    inputs_refused_because = "its source reads the input channels it maps from the series"
 
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
         assert mech is not None
@@ -73,24 +84,13 @@ class MechanisticBaseline(BaseModel):
         return out
 
 
-class PersistenceModel(BaseModel):
+class PersistenceModel(_FixedRule):
     """Naive forecast: the value at ``T`` is the last measured value at or before
     ``T - horizon`` (simulation: the last measured value of each record's initialisation
     window, held)."""
 
-    def __init__(self, task: Task = Task()) -> None:
-        self.task = task
-
-    @property
-    def name(self) -> str:
-        return "persistence"
-
-    def _check_params(self) -> None:
-        super()._check_params()
-        _refuse_inputs(self, "persistence repeats the last measured output")
-
-    def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
-        return None
+    registry_name = "persistence"
+    inputs_refused_because = "persistence repeats the last measured output"
 
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
         starts = series.record_starts

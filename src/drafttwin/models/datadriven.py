@@ -41,8 +41,14 @@ class _NeuralModel(BaseModel):
     """Shared pieces of the estimators that train networks."""
 
     trains_networks = True
+    window: int
+    hidden: int
+    layers: int
+    dropout: float
+    skip: bool | None
     training: Training
     seed: int
+    quiet: bool
 
     def _device(self) -> str:
         return self.training.device
@@ -77,15 +83,7 @@ class _RecurrentModel(_NeuralModel):
         seed: int = 0,
         quiet: bool = False,
     ) -> None:
-        self.window = window
-        self.hidden = hidden
-        self.layers = layers
-        self.dropout = dropout
-        self.skip = skip
-        self.task = task
-        self.training = training
-        self.seed = seed
-        self.quiet = quiet
+        self._store_params(locals())
 
     @property
     def name(self) -> str:

@@ -58,14 +58,17 @@ class _ResidualHybrid(_NeuralModel):
     (prediction) or of the inputs and simulated model outputs (simulation)."""
 
     needs_mechanistic = True
-    use_sknet = False
-    use_lstm = True
-    window: int
-    hidden: int
-    layers: int
-    dropout: float
-    skip: bool | None
     accumulate: bool | None
+
+    @property
+    def use_sknet(self) -> bool:
+        """Whether the residual net lifts its channels with SKNet first."""
+        return False
+
+    @property
+    def use_lstm(self) -> bool:
+        """Whether the residual net runs an LSTM over the window."""
+        return True
 
     # --- what each hybrid feeds the residual net ---------------------------------------
     def _groups(self, y: np.ndarray, mech: np.ndarray, data: np.ndarray | None) -> Groups:
@@ -317,16 +320,7 @@ class ParallelHybrid(_ResidualHybrid):
         seed: int = 0,
         quiet: bool = False,
     ) -> None:
-        self.window = window
-        self.hidden = hidden
-        self.layers = layers
-        self.dropout = dropout
-        self.skip = skip
-        self.accumulate = accumulate
-        self.task = task
-        self.training = training
-        self.seed = seed
-        self.quiet = quiet
+        self._store_params(locals())
 
     @property
     def name(self) -> str:

@@ -53,6 +53,12 @@ class MDSL(_ResidualHybrid):
             trains the residual model (the data-driven model keeps its own).
     """
 
+    variant: str
+    use_disagreement: bool
+    sk_channels: int
+    folds: int
+    data_model: _RecurrentModel | None
+
     def __init__(
         self,
         variant: str = "md-s-l",
@@ -71,32 +77,18 @@ class MDSL(_ResidualHybrid):
         seed: int = 0,
         quiet: bool = False,
     ) -> None:
-        self.variant = variant
-        self.use_disagreement = use_disagreement
-        self.window = window
-        self.hidden = hidden
-        self.layers = layers
-        self.sk_channels = sk_channels
-        self.dropout = dropout
-        self.skip = skip
-        self.accumulate = accumulate
-        self.folds = folds
-        self.data_model = data_model
-        self.task = task
-        self.training = training
-        self.seed = seed
-        self.quiet = quiet
+        self._store_params(locals())
 
     @property
     def name(self) -> str:
         return self.variant + ("+d" if self.use_disagreement else "")
 
     @property
-    def use_sknet(self) -> bool:  # type: ignore[override]
+    def use_sknet(self) -> bool:
         return self.variant in ("md-s-l", "md-s")
 
     @property
-    def use_lstm(self) -> bool:  # type: ignore[override]
+    def use_lstm(self) -> bool:
         return self.variant in ("md-s-l", "md-l")
 
     def _check_params(self) -> None:

@@ -14,10 +14,10 @@ from typing import Any, Protocol
 
 import numpy as np
 import torch
-from torch import nn
 
 from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.models.features import fit_scaler, scale_inputs
+from drafttwin.models.networks import RecurrentRegressor
 from drafttwin.models.training import FitProgress, History, Training, debias_head, train_network
 from drafttwin.models.windows import (
     causal_ffill,
@@ -35,11 +35,11 @@ class NarxModel(Protocol):
     window: int
     seed: int
     training: Training
-    net_: nn.Module
+    net_: RecurrentRegressor
     sim_scalers_: dict[str, MinMaxScaler]
     history_: History
 
-    def _build(self, n_out: int) -> nn.Module: ...
+    def _build(self, n_out: int) -> RecurrentRegressor: ...
 
     def _device(self) -> str: ...
 

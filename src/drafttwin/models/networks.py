@@ -93,6 +93,14 @@ class SKConv1d(nn.Module):
         return (v, attention) if return_attention else v
 
 
+def recurrent_stack(cell: str, n_in: int, hidden: int, layers: int, dropout: float) -> nn.Module:
+    """A batch-first GRU or LSTM (``cell``) of ``layers`` layers; ``dropout`` acts between
+    layers only, so a single layer has none."""
+    rnn_cls = {"gru": nn.GRU, "lstm": nn.LSTM}[cell]
+    return rnn_cls(n_in, hidden, num_layers=layers, batch_first=True,
+                   dropout=dropout if layers > 1 else 0.0)  # fmt: skip
+
+
 class RecurrentRegressor(nn.Module):
     """GRU or LSTM over a window, last hidden state -> dropout -> linear head.
 
@@ -113,14 +121,7 @@ class RecurrentRegressor(nn.Module):
         skip: bool = True,
     ) -> None:
         super().__init__()
-        rnn_cls = {"gru": nn.GRU, "lstm": nn.LSTM}[cell]
-        self.rnn = rnn_cls(
-            n_features,
-            hidden,
-            num_layers=layers,
-            batch_first=True,
-            dropout=dropout if layers > 1 else 0.0,
-        )
+        self.rnn = recurrent_stack(cell, n_features, hidden, layers, dropout)
         self.drop = nn.Dropout(dropout)
         self.head = nn.Linear(hidden, n_outputs)
         self.n_outputs = n_outputs
@@ -160,22 +161,12 @@ class ResidualNet(nn.Module):
         dropout: float = 0.2,
         skip: bool = True,
     ) -> None:
-        super().__init__()
         if not (use_sknet or use_lstm):
             raise ValueError("ResidualNet needs SKNet, LSTM or both")
+        super().__init__()
         self.sknet = SKConv1d(n_channels, sk_channels) if use_sknet else None
         width = sk_channels if use_sknet else n_channels
-        self.lstm = (
-            nn.LSTM(
-                width,
-                hidden,
-                num_layers=layers,
-                batch_first=True,
-                dropout=dropout if layers > 1 else 0.0,
-            )
-            if use_lstm
-            else None
-        )
+        self.lstm = recurrent_stack("lstm", width, hidden, layers, dropout) if use_lstm else None
         feat = hidden if use_lstm else 2 * width
         self.drop = nn.Dropout(dropout)
         self.head = nn.Linear(feat + n_extra, n_outputs)

@@ -87,59 +87,15 @@ class Profile:
         return asdict(self)
 
 
-PROFILES: dict[str, Profile] = {
-    "quick": Profile(
-        name="quick",
-        window=20,
-        data_hidden=48,
-        data_layers=2,
-        residual_hidden=48,
-        residual_layers=2,
-        sk_channels=24,
-        dropout=0.1,
-        lr=2e-3,
-        batch_size=64,
-        epochs=30,
-        patience=5,
-        val_fraction=0.2,
-        clip_norm=1.0,
-        folds=3,
-        skip=True,
-    ),
-    "standard": Profile(
-        name="standard",
-        window=30,
-        data_hidden=128,
-        data_layers=2,
-        residual_hidden=128,
-        residual_layers=2,
-        sk_channels=48,
-        dropout=0.2,
-        lr=1e-3,
-        batch_size=32,
-        epochs=150,
-        patience=15,
-        val_fraction=0.2,
-        clip_norm=1.0,
-        folds=5,
-        skip=True,
-    ),
-    "paper": Profile(
-        name="paper",
-        window=20,
-        data_hidden=128,
-        data_layers=3,
-        residual_hidden=256,
-        residual_layers=3,
-        sk_channels=48,
-        dropout=0.2,
-        lr=1e-3,
-        batch_size=10,
-        epochs=500,
-        patience=None,
-        val_fraction=0.2,
-        clip_norm=None,
-        folds=5,
-        skip=False,
-    ),
-}
+# One row per profile, in the field order of Profile: name, window, data-driven model hidden and
+# layers, residual model hidden and layers, sk_channels, dropout, lr, batch_size, epochs,
+# patience, val_fraction, clip_norm, folds, skip (so the profiles compare column by column).
+# fmt: off
+_ROWS = (
+    #       name        win data    resid.  sk  drop lr    batch epoch pat.  val  clip  fold skip
+    Profile("quick",    20, 48, 2,  48, 2,  24, 0.1, 2e-3, 64,   30,   5,    0.2, 1.0,  3,   True),
+    Profile("standard", 30, 128, 2, 128, 2, 48, 0.2, 1e-3, 32,   150,  15,   0.2, 1.0,  5,   True),
+    Profile("paper",    20, 128, 3, 256, 3, 48, 0.2, 1e-3, 10,   500,  None, 0.2, None, 5,   False),
+)
+# fmt: on
+PROFILES: dict[str, Profile] = {p.name: p for p in _ROWS}

@@ -120,7 +120,9 @@ def _task(overrides: dict[str, Any]) -> Task:
     return base.replace(**fields) if fields else base
 
 
-def _data_model(template: Any, data: dict[str, Any], training: dict[str, Any]) -> GRUModel:
+def _data_model(
+    template: Any, data: dict[str, Any], training: dict[str, Any]
+) -> GRUModel | LSTMModel:
     if template is not None and not isinstance(template, GRUModel | LSTMModel):
         raise ConfigError(
             f"data_model must be an unfitted GRUModel or LSTMModel, got {type(template).__name__}",

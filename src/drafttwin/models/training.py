@@ -16,7 +16,7 @@ import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, TypedDict
 
 import numpy as np
 import torch
@@ -99,6 +99,18 @@ class Training:
         return dataclasses.replace(self, **changes)
 
 
+class HistoryDict(TypedDict):
+    """:class:`History` as plain data (JSON)."""
+
+    train_loss: list[float]
+    val_loss: list[float]
+    best_epoch: int
+    stopped_early: bool
+    seconds: float
+    n_train: int
+    n_val: int
+
+
 @dataclass
 class History:
     """Loss per epoch (MSE in scaled units) and what the loop did.
@@ -120,7 +132,7 @@ class History:
         epochs = len(self.train_loss)
         return self.n_train * epochs / self.seconds if self.seconds > 0 else float("nan")
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self) -> HistoryDict:
         return {
             "train_loss": list(self.train_loss),
             "val_loss": list(self.val_loss),
@@ -132,8 +144,8 @@ class History:
         }
 
     @classmethod
-    def from_dict(cls, data: dict[str, object]) -> History:
-        return cls(**data)  # type: ignore[arg-type]
+    def from_dict(cls, data: HistoryDict) -> History:
+        return cls(**data)
 
 
 def resolve_device(name: str) -> torch.device:
@@ -166,7 +178,8 @@ def compute_context(device: torch.device) -> Iterator[None]:
         torch.are_deterministic_algorithms_enabled(),
         torch.is_deterministic_algorithms_warn_only_enabled(),
     )
-    fill = torch.utils.deterministic.fill_uninitialized_memory
+    # torch sets this module attribute at import time; its stubs do not declare it
+    fill = torch.utils.deterministic.fill_uninitialized_memory  # type: ignore[attr-defined]
     torch.use_deterministic_algorithms(True, warn_only=device.type != "cpu")
     # filling every new tensor with NaN only helps debugging and costs ~15 % on conv nets
     torch.utils.deterministic.fill_uninitialized_memory = False  # type: ignore[attr-defined]
@@ -437,6 +450,8 @@ def debias_head(
     out = predict_network(net, x, extra=extra, device=device)
     shift = np.mean(np.asarray(target, np.float64) - out, axis=0)
     head = net.head
+    if not isinstance(head, nn.Linear):
+        raise TypeError(f"{type(net).__name__} has no linear output layer 'head' to re-fit")
     with torch.no_grad():
-        head.bias += torch.as_tensor(shift, dtype=head.bias.dtype, device=head.bias.device)
+        head.bias.add_(torch.as_tensor(shift, dtype=head.bias.dtype, device=head.bias.device))
     return shift

@@ -21,7 +21,7 @@ import pandas as pd
 from drafttwin._constants import ROLLERS, __version__
 from drafttwin._io import atomic_path
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.errors import DataError
+from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain, simulate
 from drafttwin.plant.config import PlantConfig
 from drafttwin.plant.effects import disturbances, true_train
@@ -124,7 +124,16 @@ class Plant:
         streams = {name: np.random.default_rng(s) for name, s in
                    zip(STREAMS, np.random.SeedSequence(seed).spawn(len(STREAMS)), strict=True)}  # fmt: skip
         plant_train, draws = true_train(self.train, self.config, streams["mismatch"])
-        nominal_hz = self.train.spec.motor.supply_hz
+        motor = self.train.spec.motor
+        if motor is None:
+            raise ConfigError(
+                "the plant runs its scenarios through the motor's supply, but the train has no "
+                "motor",
+                source=self.train.source,
+                where="[motor]",
+                fix="add a [motor] to the train",
+            )
+        nominal_hz = motor.supply_hz
         setpoint = scen.setpoint(duration_s, nominal_hz)
         settle = 0.0 if scen.from_rest else SETTLE_S
         dist = disturbances(plant_train, self.config, setpoint, -settle, duration_s, streams)

@@ -8,7 +8,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from drafttwin.errors import ConfigError
+from drafttwin.errors import unknown_choice
 from drafttwin.mechanics import Signal
 
 ACCEL_TIME_S = 8.0  # assumption: VFD acceleration time (drawframe logs record it [d11])
@@ -71,8 +71,4 @@ def get_scenario(name: str) -> Scenario:
     try:
         return SCENARIOS[name]
     except KeyError:
-        raise ConfigError(
-            f"unknown scenario '{name}'",
-            where="--scenario",
-            fix=f"use one of: {', '.join(SCENARIOS)}",
-        ) from None
+        raise unknown_choice(f"unknown scenario '{name}'", SCENARIOS, where="--scenario") from None

@@ -46,7 +46,8 @@ def inject_defects(rpm: np.ndarray, rate_hz: float, cfg: Sensors, rng_missing: n
     n, k = rpm.shape
     out = rpm.copy()
     single_rng, burst_rng = rng_missing.spawn(2)  # separate streams: shorter runs are a prefix
-    row_dropped = single_rng.random(n) < cfg.missing_rate
+    # size as a shape tuple: the same draws as size=n, and typed as an array (n is untyped)
+    row_dropped = single_rng.random((n,)) < cfg.missing_rate
     if cfg.burst_rate_per_min > 0:
         mean_gap = 60.0 * rate_hz / cfg.burst_rate_per_min  # samples between burst starts
         pos = 0.0

@@ -11,7 +11,7 @@ import numpy as np
 from drafttwin._constants import ROLLERS
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, with_unit
-from drafttwin.report.html import Cell, Raw, figure, join, para, section, table, tag
+from drafttwin.report.html import Cell, Raw, Row, figure, join, para, section, table, tag
 from drafttwin.report.overview import is_plant
 from drafttwin.report.tables import compared_models, metric_unit, paper_table2
 
@@ -82,7 +82,7 @@ def _paper_table2_cells(model: str) -> list:
 def table2_html(results: Mapping[str, Any]) -> Raw:
     """Table 2 analogue with the paper's published values interleaved."""
     main, extra = compared_models(results)
-    head = [
+    head: list[Row] = [
         [
             Cell("model", header=True, rowspan=2, cls="name"),
             Cell("source", header=True, rowspan=2, cls="name"),
@@ -131,7 +131,7 @@ def metrics_html(results: Mapping[str, Any]) -> Raw:
     """The honest metrics per roller and model; best value per roller highlighted."""
     main, extra = compared_models(results)
     unit = metric_unit(results)
-    head = [
+    head: list[Row] = [
         [
             Cell("model", header=True, cls="name"),
             *[with_unit(h, unit) if k in UNIT_HEADERS else h for k, h, _, _ in HONEST],

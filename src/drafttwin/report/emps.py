@@ -25,6 +25,7 @@ import pandas as pd  # noqa: E402
 
 from drafttwin._io import atomic_path, write_text_atomic  # noqa: E402
 from drafttwin.benchmarks.emps.run import PREDICTION_START, PUBLISHED, EmpsResult  # noqa: E402
+from drafttwin.report.figures import COLORS  # noqa: E402
 
 LABELS = {
     "mechanistic": "physics only",
@@ -33,14 +34,6 @@ LABELS = {
     "lstm": "LSTM (black box)",
     "parallel": "parallel hybrid",
     "md-s-l": "MD-S-L",
-}
-COLORS = {
-    "mechanistic": "#d62728",
-    "persistence": "#7f7f7f",
-    "gru": "#1f77b4",
-    "lstm": "#17becf",
-    "parallel": "#ff7f0e",
-    "md-s-l": "#2ca02c",
 }
 HEADER = ("model", "task", "test RMSE mm (mean ± std)", "min–max", "runs", "fit %",
           "published mm")  # fmt: skip
@@ -56,7 +49,7 @@ def _num(x: float, digits: int = 2) -> str:
 
 def table_rows(results: dict[str, Any]) -> list[tuple[str, ...]]:
     """The benchmark table as text cells (see :data:`HEADER`)."""
-    rows = []
+    rows: list[tuple[str, ...]] = []
     for r in results["rows"]:
         spread = f"± {_num(r['rmse_mm_std'])}" if r["runs"] > 1 else ""
         pub = r.get("published_rmse_mm")

@@ -14,6 +14,8 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 from scipy.signal import welch  # noqa: E402
 
@@ -35,11 +37,20 @@ COLORS = {
 }
 
 
-def _png(fig) -> bytes:
+def _png(fig: Figure) -> bytes:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110, bbox_inches="tight")
     plt.close(fig)
     return buf.getvalue()
+
+
+def _png_with_legend_on_top(fig: Figure, legend_from: Axes, top: float = 0.965) -> bytes:
+    """The figure as PNG with one row of legend above the axes (the entries of
+    ``legend_from``); the axes fill the figure up to ``top`` (a fraction of its height)."""
+    handles, labels = legend_from.get_legend_handles_labels()
+    fig.tight_layout(rect=(0, 0, 1, top))
+    fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
+    return _png(fig)
 
 
 def _log_axis_plain(axis) -> None:
@@ -113,12 +124,9 @@ def predictions(
             ax.ticklabel_format(axis="y", useOffset=False)
             if j == 0:
                 ax.set_title("test part" if col == 0 else f"zoom {zoom_s[0]:.1f}-{zoom_s[1]:.1f} s")
-    handles, labels = axes[0, 1].get_legend_handles_labels()
     axes[-1, 0].set_xlabel("time (s)")
     axes[-1, 1].set_xlabel("time (s)")
-    fig.tight_layout(rect=(0, 0, 1, 0.965))
-    fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
-    return _png(fig)
+    return _png_with_legend_on_top(fig, axes[0, 1])
 
 
 def residuals(
@@ -137,12 +145,9 @@ def residuals(
                 axes[j, 1].semilogy(f[1:], p[1:], lw=0.8, color=COLORS.get(name), label=name)
         axes[j, 0].set_ylabel(with_unit(f"{roller} residual", unit))
         axes[j, 1].set_ylabel(with_unit("PSD", f"{unit}²/Hz" if unit else ""))
-    handles, labels = axes[0, 0].get_legend_handles_labels()
     axes[-1, 0].set_xlabel("time (s)")
     axes[-1, 1].set_xlabel("frequency (Hz)")
-    fig.tight_layout(rect=(0, 0, 1, 0.965))
-    fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
-    return _png(fig)
+    return _png_with_legend_on_top(fig, axes[0, 0])
 
 
 def ablation_spread(
@@ -210,7 +215,4 @@ def rmse_overview(
         ax.set_ylim(-0.6, len(models) - 0.4)
         ax.set_title(roller)
         ax.set_xlabel(with_unit("RMSE", unit))
-    handles, labels = axes[0].get_legend_handles_labels()
-    fig.tight_layout(rect=(0, 0, 1, 0.9))
-    fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
-    return _png(fig)
+    return _png_with_legend_on_top(fig, axes[0], top=0.9)

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TypeGuard
 
 DASH = "—"
 
 
-def is_num(x: Any) -> bool:
+def is_num(x: Any) -> TypeGuard[float]:
     """True for a finite real number (not bool, not None, not NaN)."""
     return isinstance(x, int | float) and not isinstance(x, bool) and math.isfinite(x)
 

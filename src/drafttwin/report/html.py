@@ -78,6 +78,10 @@ class Cell:
 
 
 CellLike = Cell | Content
+Row = Sequence[CellLike]
+"""A table row: its cells."""
+BodyRow = Row | tuple[str, Row]
+"""A body row, or ``(row_class, cells)``."""
 
 
 def _cell(c: CellLike, header: bool) -> str:
@@ -87,8 +91,8 @@ def _cell(c: CellLike, header: bool) -> str:
 
 
 def table(
-    head: Sequence[Sequence[CellLike]],
-    body: Sequence[Sequence[CellLike] | tuple[str, Sequence[CellLike]]],
+    head: Sequence[Row],
+    body: Sequence[BodyRow],
     *,
     id: str | None = None,
     cls: str | None = None,

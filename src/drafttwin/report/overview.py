@@ -12,6 +12,7 @@ from drafttwin.report.fmt import DASH, is_num, seconds
 from drafttwin.report.html import (
     Cell,
     Raw,
+    Row,
     bullets,
     join,
     kv_table,
@@ -155,7 +156,7 @@ def _roller_table(counts: Mapping[str, Any]) -> Raw:
                 walk(f"{prefix} · {k}" if prefix else str(k), v)
 
     walk("", counts)
-    head = [[Cell("item", header=True, cls="name"), *ROLLERS]]
+    head: list[Row] = [[Cell("item", header=True, cls="name"), *ROLLERS]]
     return table(head, body, id="preprocessing")
 
 
@@ -166,7 +167,7 @@ def _timing_tables(timings: Mapping[str, Any]) -> Raw:
         rest = total - sum(v for v in stages.values() if is_num(v))
         if rest > 0.005 * total:
             stages["other (bookkeeping, report)"] = rest
-    body = []
+    body: list[Row] = []
     for name, s in stages.items():
         share = s / total if is_num(total) and total > 0 and is_num(s) else float("nan")
         bar = (
@@ -182,7 +183,9 @@ def _timing_tables(timings: Mapping[str, Any]) -> Raw:
                 bar,
             ]
         )
-    head = [[Cell("stage", header=True, cls="name"), "wall time", "share", Cell("", header=True)]]
+    head: list[Row] = [
+        [Cell("stage", header=True, cls="name"), "wall time", "share", Cell("", header=True)]
+    ]
     parts: list[Raw | str] = [
         para(f"Total wall time {seconds(total)}."),
         table(head, body, id="timings"),

@@ -15,6 +15,7 @@ from drafttwin.report.fmt import DASH, is_num, num, sig
 from drafttwin.report.html import (
     Cell,
     Raw,
+    Row,
     bullets,
     figure,
     join,
@@ -43,12 +44,12 @@ def _grid_matrix(rows: list[Mapping[str, Any]], net: str) -> Raw:
             key = (lr, h, nl)
             cells.append(Cell(sig(losses.get(key), 3), cls="best" if key == best else None))
         body.append(cells)
-    head = [[Cell(net.upper(), header=True, cls="name"), *[f"lr {lr:g}" for lr in lrs]]]
+    head: list[Row] = [[Cell(net.upper(), header=True, cls="name"), *[f"lr {lr:g}" for lr in lrs]]]
     return table(head, body, id=f"grid-{net}")
 
 
 def _best_configs(grid: Mapping[str, Any]) -> Raw:
-    body = []
+    body: list[Row] = []
     for net in ("lstm", "gru"):
         ours = grid.get("best", {}).get(net, {})
         theirs = paper.FIG7_BEST.get(net, {})
@@ -63,7 +64,7 @@ def _best_configs(grid: Mapping[str, Any]) -> Raw:
                 Cell("yes" if same else "no", cls="yes" if same else "no"),
             ]
         )
-    head = [
+    head: list[Row] = [
         [
             Cell("network", header=True, rowspan=2, cls="name"),
             Cell("ours (best of the grid)", header=True, colspan=4),
@@ -120,7 +121,7 @@ def _table3_html(abl: Mapping[str, Any]) -> Raw:
     variants = list(abl["variants"])
     acc = {v: np.asarray(abl["accuracy"][v], dtype=float) for v in variants}
     summ = abl["summary"]
-    head = [
+    head: list[Row] = [
         [
             Cell("test", header=True, rowspan=2),
             Cell("seed", header=True, rowspan=2),
@@ -137,7 +138,11 @@ def _table3_html(abl: Mapping[str, Any]) -> Raw:
                 *[num(acc[v][i, j], 4) for j in range(len(ROLLERS)) for v in variants],
             ]
         )
-    best = {r: max(variants, key=lambda v, r=r: summ[v][r]["mean"]) for r in ROLLERS}
+
+    def best_variant(roller: str) -> str:
+        return max(variants, key=lambda v: summ[v][roller]["mean"])
+
+    best = {r: best_variant(r) for r in ROLLERS}
     for title, key in (("ours: mean", "mean"), ("ours: std", "std"), ("ours: min", "min"),
                        ("ours: max", "max")):  # fmt: skip
         cells: list = [Cell(title, colspan=2, cls="name")]
@@ -184,7 +189,7 @@ def _differences_html(abl: Mapping[str, Any]) -> Raw:
         if with_p:
             row.append(sig(d.get("welch_p"), 2))
         body.append([*row, num(pa - pb, 3)])
-    head = [[Cell("pair (a − b)", header=True, cls="name"), Cell("roller", header=True, cls="name"),
+    head: list[Row] = [[Cell("pair (a − b)", header=True, cls="name"), Cell("roller", header=True, cls="name"),
              "mean difference (points)", "spread (points)", "difference larger than spread",
              *(["Welch t-test p"] if with_p else []), "paper: mean difference"]]  # fmt: skip
     return table(head, body, id="differences")
@@ -252,7 +257,7 @@ def agreement_section(results: Mapping[str, Any]) -> Raw:
         ]
         for c in agreement.claims(results)
     ]
-    head = [
+    head: list[Row] = [
         [
             Cell("claim", header=True, cls="wrap"),
             Cell("paper (real FA320A)", header=True),

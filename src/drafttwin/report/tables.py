@@ -7,7 +7,7 @@ Every function takes the study's ``results`` dictionary (schema in
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 import numpy as np
@@ -57,6 +57,18 @@ def compared_models(results: Mapping[str, Any]) -> tuple[list[str], list[str]]:
     return list(comp["models"]), list(comp.get("extra", []))
 
 
+def comparison_metrics(
+    results: Mapping[str, Any],
+) -> Iterator[tuple[str, str, bool, Mapping[str, Any]]]:
+    """(model, roller, is an extra variant, its metrics) over the comparison, models in the
+    study's order (extra variants last), rollers front to back."""
+    main, extra = compared_models(results)
+    metrics = results["comparison"]["metrics"]
+    for model in main + extra:
+        for roller in ROLLERS:
+            yield model, roller, model in extra, metrics[model][roller]
+
+
 def paper_table2(model: str, roller: str) -> tuple[float, float]:
     """The paper's (max, mean) relative error in % for a model and roller; NaN if absent."""
     row = paper.TABLE2.get(model)
@@ -68,40 +80,32 @@ def paper_table2(model: str, roller: str) -> tuple[float, float]:
 
 def table2(results: Mapping[str, Any]) -> pd.DataFrame:
     """Table 2 analogue: max / mean relative error per model and roller, ours and the paper's."""
-    main, extra = compared_models(results)
-    metrics = results["comparison"]["metrics"]
     rows = []
-    for model in main + extra:
-        for roller in ROLLERS:
-            m = metrics[model][roller]
-            p_max, p_mean = paper_table2(model, roller)
-            rows.append(
-                {
-                    "model": model,
-                    "roller": roller,
-                    "extra": model in extra,
-                    "max_rel_err_pct": as_float(m["max_rel_err_pct"]),
-                    "mean_rel_err_pct": as_float(m["mean_rel_err_pct"]),
-                    "paper_max_rel_err_pct": p_max,
-                    "paper_mean_rel_err_pct": p_mean,
-                }
-            )
+    for model, roller, extra, m in comparison_metrics(results):
+        p_max, p_mean = paper_table2(model, roller)
+        rows.append(
+            {
+                "model": model,
+                "roller": roller,
+                "extra": extra,
+                "max_rel_err_pct": as_float(m["max_rel_err_pct"]),
+                "mean_rel_err_pct": as_float(m["mean_rel_err_pct"]),
+                "paper_max_rel_err_pct": p_max,
+                "paper_mean_rel_err_pct": p_mean,
+            }
+        )
     return pd.DataFrame(rows)
 
 
 def metrics_table(results: Mapping[str, Any]) -> pd.DataFrame:
     """All honest and paper metrics, one row per model and roller."""
-    main, extra = compared_models(results)
-    metrics = results["comparison"]["metrics"]
     rows = []
-    for model in main + extra:
-        for roller in ROLLERS:
-            m = metrics[model][roller]
-            row: dict[str, Any] = {"model": model, "roller": roller, "extra": model in extra,
-                                   "unit": m.get("unit", "")}  # fmt: skip
-            row.update({c: as_float(m.get(c)) for c in METRIC_COLUMNS})
-            row["rel_note"] = m.get("rel_note") or ""
-            rows.append(row)
+    for model, roller, extra, m in comparison_metrics(results):
+        row: dict[str, Any] = {"model": model, "roller": roller, "extra": extra,
+                               "unit": m.get("unit", "")}  # fmt: skip
+        row.update({c: as_float(m.get(c)) for c in METRIC_COLUMNS})
+        row["rel_note"] = m.get("rel_note") or ""
+        rows.append(row)
     frame = pd.DataFrame(rows)
     for c in COUNT_COLUMNS:
         frame[c] = frame[c].astype("Int64")
