@@ -106,6 +106,19 @@ def pairs(text: str | None, option: str) -> dict[str, str]:
 
 
 @dataclass(frozen=True)
+class ChannelOptions:
+    """The channel options as typed on the command line (an option group)."""
+
+    outputs: OutputsOpt = None
+    inputs: InputsOpt = None
+    units: UnitsOpt = None
+    time_column: TimeColumnOpt = None
+
+    def parse(self) -> Channels:
+        return Channels.parse(self.outputs, self.inputs, self.time_column, self.units)
+
+
+@dataclass(frozen=True)
 class Channels:
     """The channel options as given on the command line."""
 

@@ -12,7 +12,8 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
-from drafttwin.cli._data import Channels, InputsOpt, OutputsOpt, TimeColumnOpt, UnitsOpt
+from drafttwin.cli._data import ChannelOptions
+from drafttwin.cli._groups import with_group
 from drafttwin.cli.app import app, console
 from drafttwin.data.io import read_measurements
 from drafttwin.data.preprocess import preprocess
@@ -157,6 +158,7 @@ def _print_summary(s: dict[str, Any]) -> None:
 
 
 @app.command("inspect")
+@with_group("channel_options", ChannelOptions)
 def inspect_cmd(
     file: Annotated[
         str,
@@ -165,10 +167,7 @@ def inspect_cmd(
             "experiments, or 'default' (the embedded FA320A data)."
         ),
     ],  # fmt: skip
-    outputs: OutputsOpt = None,
-    inputs: InputsOpt = None,
-    units: UnitsOpt = None,
-    time_column: TimeColumnOpt = None,
+    channel_options: ChannelOptions,
     columns: Annotated[
         str | None,
         typer.Option(help="Map file columns to channels / time / motor: v1=front,v2=second,..."),
@@ -215,7 +214,7 @@ def inspect_cmd(
 
         series = load_default()
     else:
-        channels = Channels.parse(outputs, inputs, time_column, units)
+        channels = channel_options.parse()
         with_units = [n for n in (channels.units or {}) if n not in (channels.outputs or ())]
         series = read_measurements(
             [Path(p.strip()) for p in file.split(",") if p.strip()],
@@ -224,7 +223,7 @@ def inspect_cmd(
             setpoints=True,
             units=channels.units,
             columns=parse_pairs(columns, "--columns"),
-            time_column=time_column,
+            time_column=channels.time_column,
             expected_rate_hz=rate,
             rate_tolerance=rate_tolerance,
             check_units=unit_check,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import pandas as pd
@@ -187,7 +187,9 @@ def _follow(train, path: Path, dt: float | None, settle: float | None) -> pd.Dat
         )
     series = read_measurements(path, outputs=(), inputs=names, check_units=False)
     channels = [m.channel for m in train.output_channels()]
-    kwargs = {k: v for k, v in (("dt_s", dt), ("settle_s", settle)) if v is not None}
+    kwargs: dict[str, Any] = {
+        k: v for k, v in (("dt_s", dt), ("settle_s", settle)) if v is not None
+    }
     parts = []
     for k, record in enumerate(series.records()):
         values = simulate_channels(train, record.time_s, inputs=record.inputs,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -13,24 +14,22 @@ from rich.table import Table
 
 from drafttwin.cli._common import write_frame
 from drafttwin.cli._data import (
+    ChannelOptions,
     Channels,
     DataOpt,
     InitOpt,
-    InputsOpt,
     MechanisticOpt,
-    OutputsOpt,
     TaskOpt,
     TestDataOpt,
-    TimeColumnOpt,
-    UnitsOpt,
 )
+from drafttwin.cli._groups import with_group
 from drafttwin.cli.app import app, console, err_console
 from drafttwin.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries
     from drafttwin.evaluation.protocol import Evaluation
-    from drafttwin.models import BaseModel
+    from drafttwin.models import BaseModel, MechanisticModel
 
 ModelFileOpt = Annotated[
     Path, typer.Option("--model", help="A model file written by 'fit'.", dir_okay=False)
@@ -149,7 +148,36 @@ def _selection_lines(selection: dict[str, Any]) -> list[str]:
     return lines
 
 
+@dataclass(frozen=True)
+class SourceOptions:
+    """Where the data and the physics come from, and the task (fit, predict, evaluate)."""
+
+    data: DataOpt = "default"
+    test_data: TestDataOpt = None
+    mechanistic: MechanisticOpt = None
+    task: TaskOpt = None
+    init_samples: InitOpt = None
+
+    def refuse_fraction_with_test_data(self, train_fraction: float | None) -> None:
+        if self.test_data is not None and train_fraction is not None:
+            raise ConfigError("--train-fraction splits --data, but --test-data is given",
+                              where="--train-fraction",
+                              fix="with --test-data every row of --data trains: drop "
+                              "--train-fraction")  # fmt: skip
+
+    def spec(self) -> str:
+        """predict / evaluate: --test-data replaces --data."""
+        if self.test_data is None:
+            return self.data
+        if self.data != "default":
+            raise ConfigError("--test-data replaces --data here; both were given",
+                              where="--data / --test-data", fix="give one of them")  # fmt: skip
+        return self.test_data
+
+
 @app.command()
+@with_group("channels", ChannelOptions)
+@with_group("source", SourceOptions)
 def fit(
     model: Annotated[
         str,
@@ -161,15 +189,8 @@ def fit(
     out: Annotated[
         Path, typer.Option(help="Model file to write (weights, scalers, config).", dir_okay=False)
     ],
-    data: DataOpt = "default",
-    test_data: TestDataOpt = None,
-    outputs: OutputsOpt = None,
-    inputs: InputsOpt = None,
-    time_column: TimeColumnOpt = None,
-    units: UnitsOpt = None,
-    mechanistic: MechanisticOpt = None,
-    task: TaskOpt = None,
-    init_samples: InitOpt = None,
+    source: SourceOptions,
+    channels: ChannelOptions,
     profile: Annotated[
         str | None,
         typer.Option(
@@ -200,24 +221,21 @@ def fit(
     --test-data records are given: these are scored at once and the metrics printed."""
     from drafttwin.evaluation import protocol
 
-    if test_data is not None and train_fraction is not None:
-        raise ConfigError("--train-fraction splits --data, but --test-data is given",
-                          where="--train-fraction",
-                          fix="with --test-data every row of --data trains: drop --train-fraction")  # fmt: skip
-    channels = Channels.parse(outputs, inputs, time_column, units)
-    estimator = _new_model(model, profile, task, init_samples, horizon, channels, seed, quiet,
-                           epochs)  # fmt: skip
-    source = _source(mechanistic, estimator, channels.outputs)
-    needs = () if source is None else source.required_inputs()
-    series = channels.read(data, needs)
-    test = None if test_data is None else channels.read(test_data, needs)
+    source.refuse_fraction_with_test_data(train_fraction)
+    parsed = channels.parse()
+    estimator = _new_model(model, profile, source.task, source.init_samples, horizon, parsed,
+                           seed, quiet, epochs)  # fmt: skip
+    physics = _source(source.mechanistic, estimator, parsed.outputs)
+    needs = () if physics is None else physics.required_inputs()
+    series = parsed.read(source.data, needs)
+    test = None if source.test_data is None else parsed.read(source.test_data, needs)
     fraction = None if test is not None else (train_fraction or 0.7)
-    test_source = source
-    if test is not None and source is not None:
-        source, test_source = source.split_records(series.n_records, test.n_records)
+    test_physics = physics
+    if test is not None and physics is not None:
+        physics, test_physics = physics.split_records(series.n_records, test.n_records)
     part = protocol.fit(estimator, series, train_fraction=fraction, test=test,
-                        mechanistic=source)  # fmt: skip
-    estimator.provenance_["data"] = data
+                        mechanistic=physics)  # fmt: skip
+    estimator.provenance_["data"] = source.data
     estimator.save(out)
     pre = part.summary["preprocessing"]["train"]
     filled, smoothed = sum(pre["filled"].values()), sum(pre["outliers"].values())
@@ -227,7 +245,7 @@ def fit(
         f"({filled} samples filled, {smoothed} outliers smoothed); wrote {escape(str(out))}"
     )
     if test is not None:  # separate test records: score them now (else: drafttwin evaluate)
-        _report(protocol.evaluate(estimator, part, mechanistic=test_source), as_json)
+        _report(protocol.evaluate(estimator, part, mechanistic=test_physics), as_json)
         return
     if as_json:
         typer.echo(json.dumps({"model": estimator.name, "selection": estimator.selection_,
@@ -237,59 +255,48 @@ def fit(
         console.print(line)
 
 
+def _fitted(
+    model_file: Path, source: SourceOptions, channels: ChannelOptions
+) -> tuple[BaseModel, MechanisticModel | None, MeasurementSeries]:
+    """A model file, its physics and the data of predict / evaluate, checked against it."""
+    from drafttwin.models import load_model
+
+    estimator = load_model(model_file)
+    _check_task(estimator, source.task, source.init_samples)
+    parsed = channels.parse().for_model(estimator)
+    physics = _source(source.mechanistic, estimator, parsed.outputs)
+    spec = source.spec()
+    series = parsed.read(spec, () if physics is None else physics.required_inputs())
+    _check_rate(estimator, series, spec)
+    return estimator, physics, series
+
+
 @app.command()
+@with_group("channels", ChannelOptions)
+@with_group("source", SourceOptions)
 def predict(
     model: ModelFileOpt,
     out: Annotated[Path, typer.Option(help="Predictions, .csv or .parquet.", dir_okay=False)],
-    data: DataOpt = "default",
-    test_data: TestDataOpt = None,
-    outputs: OutputsOpt = None,
-    inputs: InputsOpt = None,
-    time_column: TimeColumnOpt = None,
-    units: UnitsOpt = None,
-    mechanistic: MechanisticOpt = None,
-    task: TaskOpt = None,
-    init_samples: InitOpt = None,
+    source: SourceOptions,
+    channels: ChannelOptions,
 ) -> None:
     """Predict every sample of a data set (time + one column per output channel). One-step
     prediction uses earlier samples only; a simulation runs free over each record from its
     first --init-samples measured samples. --test-data replaces --data."""
-    from drafttwin.models import load_model
-
-    estimator = load_model(model)
-    _check_task(estimator, task, init_samples)
-    channels = Channels.parse(outputs, inputs, time_column, units).for_model(estimator)
-    source = _source(mechanistic, estimator, channels.outputs)
-    spec = _data_spec(data, test_data)
-    series = channels.read(spec, () if source is None else source.required_inputs())
-    _check_rate(estimator, series, spec)
-    frame = estimator.predict(series, source)
+    estimator, physics, series = _fitted(model, source, channels)
+    frame = estimator.predict(series, physics)
     write_frame(frame, out)
     console.print(f"wrote {len(frame)} predictions of {', '.join(estimator.channels_)} to "
                   f"{escape(str(out))}")  # fmt: skip
 
 
-def _data_spec(data: str, test_data: str | None) -> str:
-    if test_data is None:
-        return data
-    if data != "default":
-        raise ConfigError("--test-data replaces --data here; both were given",
-                          where="--data / --test-data", fix="give one of them")  # fmt: skip
-    return test_data
-
-
 @app.command()
+@with_group("channels", ChannelOptions)
+@with_group("source", SourceOptions)
 def evaluate(
     model: ModelFileOpt,
-    data: DataOpt = "default",
-    test_data: TestDataOpt = None,
-    outputs: OutputsOpt = None,
-    inputs: InputsOpt = None,
-    time_column: TimeColumnOpt = None,
-    units: UnitsOpt = None,
-    mechanistic: MechanisticOpt = None,
-    task: TaskOpt = None,
-    init_samples: InitOpt = None,
+    source: SourceOptions,
+    channels: ChannelOptions,
     train_fraction: FractionOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -297,23 +304,14 @@ def evaluate(
     or on separate --test-data records (replacing --data): the paper's relative errors and
     honest metrics (RMSE, NRMSE, skill against persistence, noise floor) per channel."""
     from drafttwin.evaluation import protocol
-    from drafttwin.models import load_model
 
-    estimator = load_model(model)
-    _check_task(estimator, task, init_samples)
-    if test_data is not None and train_fraction is not None:
-        raise ConfigError("--train-fraction splits --data, but --test-data is given",
-                          where="--train-fraction", fix="drop --train-fraction")  # fmt: skip
-    channels = Channels.parse(outputs, inputs, time_column, units).for_model(estimator)
-    source = _source(mechanistic, estimator, channels.outputs)
-    spec = _data_spec(data, test_data)
-    series = channels.read(spec, () if source is None else source.required_inputs())
-    _check_rate(estimator, series, spec)
-    if test_data is not None:
-        result = protocol.evaluate(estimator, test=series, mechanistic=source)
+    source.refuse_fraction_with_test_data(train_fraction)
+    estimator, physics, series = _fitted(model, source, channels)
+    if source.test_data is not None:
+        result = protocol.evaluate(estimator, test=series, mechanistic=physics)
     else:
         result = protocol.evaluate(estimator, series, train_fraction=train_fraction,
-                                   mechanistic=source)  # fmt: skip
+                                   mechanistic=physics)  # fmt: skip
     _report(result, as_json)
 
 

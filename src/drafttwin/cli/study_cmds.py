@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from drafttwin.cli._groups import with_group
 from drafttwin.cli.app import app, console, err_console
+
+if TYPE_CHECKING:
+    from drafttwin.data.series import MeasurementSeries
+    from drafttwin.experiments.study import Study
 
 ProfileOpt = Annotated[
     str, typer.Option(help="quick (minutes on a laptop CPU) | standard | paper (GPU recommended).")
@@ -51,43 +57,36 @@ class _Display:
         return tick
 
 
-def _study(
-    profile: str,
-    out: Path,
-    data: str,
-    executor: str,
-    address: str | None,
-    workers: int | None,
-    quiet: bool,
-):
-    from drafttwin.cli._data import Channels
-    from drafttwin.experiments.study import Study
+@dataclass(frozen=True)
+class StudyOptions:
+    """What both study commands take (an option group)."""
 
-    series = Channels().read(data)
-    display = _Display(quiet)
-    study = Study(
-        profile,
-        out_dir=out,
-        executor=executor,
-        address=address,
-        workers=workers,
-        stage=display.stage,
-    )
-    study.data_name = data
-    return study, series, display
+    profile: ProfileOpt = "quick"
+    data: StudyDataOpt = "default"
+    executor: ExecOpt = "local"
+    address: AddrOpt = None
+    workers: WorkersOpt = None
+    quiet: QuietOpt = False
+
+    def study(self, out: Path) -> tuple[Study, MeasurementSeries, _Display]:
+        from drafttwin.cli._data import Channels
+        from drafttwin.experiments.study import Study
+
+        series = Channels().read(self.data)
+        display = _Display(self.quiet)
+        study = Study(self.profile, out_dir=out, executor=self.executor, address=self.address,
+                      workers=self.workers, stage=display.stage)  # fmt: skip
+        study.data_name = self.data
+        return study, series, display
 
 
 @app.command()
+@with_group("options", StudyOptions)
 def reproduce(
-    profile: ProfileOpt = "quick",
+    options: StudyOptions,
     out: Annotated[
         Path, typer.Option(help="Output folder (report.html, results.json, CSV tables).")
     ] = Path("drafttwin-study"),
-    data: StudyDataOpt = "default",
-    executor: ExecOpt = "local",
-    address: AddrOpt = None,
-    workers: WorkersOpt = None,
-    quiet: QuietOpt = False,
 ) -> None:
     """Run the paper's whole study and write a self-contained HTML report.
 
@@ -98,35 +97,32 @@ def reproduce(
     from drafttwin.report import write_study
 
     t0 = time.perf_counter()
-    study, series, display = _study(profile, out, data, executor, address, workers, quiet)
+    study, series, display = options.study(out)
     with display.progress:
         results, predictions = study.run(series)
     files = write_study(out, results, predictions)
     console.print(
-        f"study '{profile}' done in {time.perf_counter() - t0:.0f} s; report: {files['report']}"
+        f"study '{options.profile}' done in {time.perf_counter() - t0:.0f} s; report: "
+        f"{files['report']}"
     )
     for name, path in files.items():
         console.print(f"  {name:12s} {path}")
 
 
 @app.command("grid-search")
+@with_group("options", StudyOptions)
 def grid_search(
-    profile: ProfileOpt = "quick",
+    options: StudyOptions,
     out: Annotated[Path, typer.Option(help="Output folder (grid.json and the task cache).")] = Path(
         "drafttwin-study"
     ),
-    data: StudyDataOpt = "default",
-    executor: ExecOpt = "local",
-    address: AddrOpt = None,
-    workers: WorkersOpt = None,
-    quiet: QuietOpt = False,
 ) -> None:
     """The paper's grid search only: lr x hidden x layers for LSTM and GRU (Fig. 7)."""
     import json
 
     from drafttwin._io import write_text_atomic
 
-    study, series, display = _study(profile, out, data, executor, address, workers, quiet)
+    study, series, display = options.study(out)
     with display.progress:
         study.prepare_data(series)
         grid = study.grid()

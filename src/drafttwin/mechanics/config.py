@@ -184,50 +184,36 @@ def _check_graph(spec: TrainSpec, source: str) -> None:
         )
 
 
+def _input_problem(item: InputChannel, spec: TrainSpec) -> tuple[str, str] | None:
+    """``(problem, fix)`` for the first rule an [[input]] table breaks, else ``None``."""
+    nodes = [n.name for n in spec.inertia]
+    motor = spec.motor.node if spec.motor is not None else None
+    torque, supply = item.drives == "torque", item.drives == "supply_hz"
+    rules = (
+        (item.gain == 0.0, "field 'gain' is 0, so the channel would have no effect",
+         "give the scale from the channel's unit to Hz or N m (physical value = gain * "
+         "channel + offset)"),
+        (torque and item.node is None, "field 'node' is missing: a torque input acts on a node",
+         f'add node = "..." naming one of: {", ".join(nodes)}'),
+        (torque and item.node is not None and item.node not in nodes,
+         f"field 'node' names unknown node '{item.node}'",
+         f"use one of the declared inertias: {', '.join(nodes)}"),
+        (supply and motor is None, "drives 'supply_hz', but the train has no [motor]",
+         'add a [motor] whose VFD this channel sets, or use drives = "torque" with a node'),
+        (supply and motor is not None and item.node not in (None, motor),
+         f"field 'node' names '{item.node}', but a supply input drives the motor on node "
+         f"'{motor}'", "remove 'node' (a supply_hz input always drives the motor)"),
+    )  # fmt: skip
+    return next(((problem, fix) for broken, problem, fix in rules if broken), None)
+
+
 def _check_inputs(spec: TrainSpec, source: str) -> None:
     """Each [[input]] drives something that exists: the motor's supply or a known node."""
-    nodes = ", ".join(n.name for n in spec.inertia)
     for item in spec.input:
-        where = f"input '{item.channel}'"
-        if item.gain == 0.0:
-            raise ConfigError(
-                "field 'gain' is 0, so the channel would have no effect",
-                source=source,
-                where=where,
-                fix="give the scale from the channel's unit to Hz or N m "
-                "(physical value = gain * channel + offset)",
-            )
-        if item.drives == "torque":
-            if item.node is None:
-                raise ConfigError(
-                    "field 'node' is missing: a torque input acts on a node",
-                    source=source,
-                    where=where,
-                    fix=f'add node = "..." naming one of: {nodes}',
-                )
-            if item.node not in {n.name for n in spec.inertia}:
-                raise ConfigError(
-                    f"field 'node' names unknown node '{item.node}'",
-                    source=source,
-                    where=where,
-                    fix=f"use one of the declared inertias: {nodes}",
-                )
-        elif spec.motor is None:
-            raise ConfigError(
-                "drives 'supply_hz', but the train has no [motor]",
-                source=source,
-                where=where,
-                fix='add a [motor] whose VFD this channel sets, or use drives = "torque" '
-                "with a node",
-            )
-        elif item.node is not None and item.node != spec.motor.node:
-            raise ConfigError(
-                f"field 'node' names '{item.node}', but a supply input drives the motor "
-                f"on node '{spec.motor.node}'",
-                source=source,
-                where=where,
-                fix="remove 'node' (a supply_hz input always drives the motor)",
-            )
+        found = _input_problem(item, spec)
+        if found is not None:
+            raise ConfigError(found[0], source=source, where=f"input '{item.channel}'",
+                              fix=found[1])  # fmt: skip
     supplies = [i.channel for i in spec.input if i.drives == "supply_hz"]
     if len(supplies) > 1:
         raise ConfigError(
