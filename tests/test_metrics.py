@@ -26,6 +26,7 @@ def test_relative_errors_by_hand() -> None:
     assert m.mean_rel_err_pct == pytest.approx(2.0 / 3.0)
     assert m.accuracy_pct == pytest.approx(100 - 2.0 / 3.0)
     assert m.rmse == pytest.approx(math.sqrt((1 + 4 + 0) / 3))
+    assert m.bias == pytest.approx((1 - 2 + 0) / 3)  # mean error, prediction minus measurement
     std = np.std([100, 200, 400])
     assert m.nrmse == pytest.approx(math.sqrt(5 / 3) / std)
     assert m.n_scored == 3 and m.n_nan_pred == 0 and m.n_rel_excluded == 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import tempfile
 from collections.abc import Iterator
@@ -36,3 +37,9 @@ def write_text_atomic(target: str | Path, text: str) -> None:
     """Write ``text`` to ``target`` atomically (UTF-8)."""
     with atomic_path(target) as tmp:
         tmp.write_text(text, encoding="utf-8")
+
+
+def json_number(value: float) -> float | None:
+    """``value`` as a float, or ``None`` when it is NaN or infinite (JSON has neither)."""
+    x = float(value)
+    return x if math.isfinite(x) else None

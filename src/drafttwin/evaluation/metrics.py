@@ -5,6 +5,8 @@ ones everywhere.
 For each output channel, on the *scored* samples (measurement and prediction both finite;
 finite measurements without a prediction are counted in ``n_nan_pred``):
 
+* ``bias``: the mean error (prediction minus measurement) in the channel's unit: what
+  calibrated physics should bring to zero;
 * ``rmse`` in the channel's unit; ``nrmse`` = RMSE / std(y) (population std of the scored
   measurements);
 * ``skill`` = 1 - RMSE / RMSE_persistence, both RMSEs on the samples where the model, the
@@ -33,7 +35,6 @@ samples gets NaN metrics and ``n_scored = 0``.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from typing import NamedTuple
@@ -42,6 +43,7 @@ import numpy as np
 import pandas as pd
 
 from drafttwin._constants import ROLLERS
+from drafttwin._io import json_number
 from drafttwin.errors import ConfigError, DataError
 
 DEFAULT_REL_FLOOR = 0.01
@@ -61,18 +63,13 @@ NOTE_ALL_LOW = "every scored sample lies below the threshold: no relative error 
 UnitsArg = str | Mapping[str, str] | Sequence[str] | None
 
 
-def json_number(value: float) -> float | None:
-    """``value`` as a float, or ``None`` when it is NaN or infinite (JSON has neither)."""
-    x = float(value)
-    return x if math.isfinite(x) else None
-
-
 @dataclass(frozen=True)
 class ChannelMetrics:
     """Metrics of one output channel.
 
-    Relative errors and accuracy in %; ``rel_threshold``, ``rmse``, ``rmse_persistence`` and
-    ``noise_floor`` in the channel's ``unit`` (``""`` when undeclared); ``nrmse`` and
+    Relative errors and accuracy in %; ``rel_threshold``, ``bias`` (the mean error, prediction
+    minus measurement), ``rmse``, ``rmse_persistence`` and ``noise_floor`` in the channel's
+    ``unit`` (``""`` when undeclared); ``nrmse`` and
     ``skill`` are dimensionless. NaN where a metric cannot be computed; ``rel_note`` is
     ``None``, or why the relative errors are omitted.
     """
@@ -87,6 +84,7 @@ class ChannelMetrics:
     rel_threshold: float
     n_rel_excluded: int
     rel_note: str | None
+    bias: float
     rmse: float
     nrmse: float
     rmse_persistence: float
@@ -234,6 +232,7 @@ def _channel_metrics(
         rel_threshold=rel.threshold,
         n_rel_excluded=rel.n_excluded,
         rel_note=rel.note,
+        bias=float(err.mean()) if err.size else float("nan"),
         rmse=rmse,
         nrmse=_ratio(rmse, float(ys.std()) if ys.size else float("nan")),
         rmse_persistence=rmse_p,

@@ -1,0 +1,243 @@
+"""``calibrate``: estimate a drive train's uncertain parameters from measured records.
+
+Stages:
+
+1. **Screening** at the nominal values: each parameter's effect on the block means (its
+   Jacobian column, in noise units). Parameters the data do not see are "not from this data"
+   and stay nominal; parameters whose effects are parallel are "only in combination" and move
+   together as one factor (for mean roller speeds: the friction loads, through their total
+   torque at the motor).
+2. **Output-error fit** of the free factors (least squares on block means), then a refit on
+   residuals prewhitened with an AR model (generalised least squares), so that the standard
+   errors allow for the coloured fluctuation the physics leaves out.
+3. **Identifiability**: while the free set's collinearity index exceeds 10 or an estimate's
+   relative standard error exceeds 10 %, the least determined entry goes back to nominal
+   ("not separable in this data") and the rest is refitted.
+
+The result holds the calibrated train, each parameter's nominal value, estimate, standard
+error and verdict, and the fit's bias and RMSE per channel before and after.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from drafttwin._io import json_number
+from drafttwin.calibration import fit as F
+from drafttwin.calibration import identify as I
+from drafttwin.calibration.parameters import Parameter, nominal_values, select, with_factors
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.errors import DataError
+from drafttwin.mechanics import DriveTrain
+
+Progress = Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One parameter's outcome. ``factor`` is estimate / nominal; ``verdict`` one of
+    ``identified``, ``only in combination``, ``not separable in this data``, ``not from this
+    data``."""
+
+    name: str
+    unit: str
+    nominal: float
+    estimate: float
+    std_error: float
+    factor: float
+    factor_se: float
+    identifiable: bool
+    verdict: str
+    combined_with: tuple[str, ...] = ()
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "unit": self.unit,
+            "nominal": self.nominal,
+            "estimate": self.estimate,
+            "std_error": json_number(self.std_error),
+            "identifiable": self.identifiable,
+            "verdict": self.verdict,
+            "factor": self.factor,
+            "factor_std_error": json_number(self.factor_se),
+            "combined_with": list(self.combined_with),
+        }
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """What :func:`calibrate` found; ``train`` is the calibrated drive train."""
+
+    train: DriveTrain
+    estimates: list[Estimate]
+    channels: tuple[str, ...]
+    units: dict[str, str]
+    bias_before: dict[str, float]
+    bias_after: dict[str, float]
+    rmse_before: dict[str, float]
+    rmse_after: dict[str, float]
+    collinearity: float
+    block_s: float
+    records: int
+    evaluations: int
+    wall_s: float
+    model: str
+    notes: list[str] = field(default_factory=list)
+
+    @staticmethod
+    def _overall(per_channel: dict[str, float]) -> float:
+        return float(np.sqrt(np.mean(np.square(list(per_channel.values())))))
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe: parameters, the fit's RMSE before and after (overall and per channel),
+        the bias per channel, and how the fit was made."""
+        return {
+            "parameters": [e.to_dict() for e in self.estimates],
+            "rmse_before": self._overall(self.rmse_before),
+            "rmse_after": self._overall(self.rmse_after),
+            "channels": {
+                c: {
+                    "unit": self.units.get(c, ""),
+                    "rmse_before": self.rmse_before[c],
+                    "rmse_after": self.rmse_after[c],
+                    "bias_before": self.bias_before[c],
+                    "bias_after": self.bias_after[c],
+                }
+                for c in self.channels
+            },  # fmt: skip
+            "collinearity_index": json_number(self.collinearity),
+            "block_s": self.block_s,
+            "records": self.records,
+            "model": self.model,
+            "simulations": self.evaluations,
+            "wall_s": self.wall_s,
+            "notes": list(self.notes),
+        }
+
+
+def calibrate(
+    train: DriveTrain,
+    data: MeasurementSeries,
+    params: Sequence[str] | None = None,
+    *,
+    block_s: float = 0.1,
+    model: Callable[[DriveTrain], DriveTrain] | None = None,
+    model_name: str = "full",
+    progress: Progress | None = None,
+) -> Calibration:
+    """Estimate ``params`` (dotted names; ``None``: the default set) of ``train`` from the
+    measured records ``data`` (outputs the train maps, inputs it follows). ``model`` turns a
+    train into the one simulated in the loop (e.g. :func:`drafttwin.mechanics.reduce`)."""
+    start = time.perf_counter()
+    say = progress or (lambda _msg: None)
+    chosen = select(train, params)
+    missing = [c for c in data.channels if c not in {m.channel for m in train.output_channels()}]
+    if missing:
+        raise DataError(f"the drive train gives no output channel(s) {missing}",
+                        fix="calibrate on the channels the train maps ([[output]] tables)")  # fmt: skip
+    blocks = F.blocks(data, block_s)
+    singles = [[i] for i in range(len(chosen))]
+    say(f"screening {len(chosen)} parameters at their nominal values")
+    screen = F.Objective(train, blocks, chosen, singles, transform=model)
+    jac0 = F.jacobian(screen, np.ones(len(chosen)))
+    free, verdicts = _screen(jac0, len(chosen))
+    x, jac, se, gamma, objective = _fit_and_prune(train, blocks, chosen, free, verdicts, model, say)
+    factors = objective.factors(x) if free else np.ones(len(chosen))
+    calibrated = with_factors(train, chosen, factors)
+    estimates = _estimates(train, chosen, objective.groups, x, se, verdicts)
+    before = F.simulate_blocks(model(train) if model else train, blocks)
+    after = F.simulate_blocks(model(calibrated) if model else calibrated, blocks)
+    return Calibration(
+        train=calibrated, estimates=estimates, channels=blocks.channels, units=blocks.units,
+        bias_before=_bias(before, blocks), bias_after=_bias(after, blocks),
+        rmse_before=_rmse(before, blocks), rmse_after=_rmse(after, blocks),
+        collinearity=gamma, block_s=block_s, records=data.n_records,
+        evaluations=screen.evaluations + objective.evaluations,
+        wall_s=time.perf_counter() - start, model=model_name,
+    )  # fmt: skip
+
+
+def _screen(jac: np.ndarray, n: int) -> tuple[list[list[int]], dict[int, str]]:
+    """Free entries (groups of parameters moved together) and the verdicts of the rest: a
+    group is free when moving its members together changes the fit by at least
+    MIN_SENSITIVITY noise units."""
+    sens = I.sensitivities(jac)
+    touched = [i for i in range(n) if sens[i] > 1e-3 * I.MIN_SENSITIVITY]
+    free, verdicts = [], {i: "not from this data" for i in range(n) if i not in touched}
+    for group in I.combine(jac, touched) if touched else []:
+        if np.linalg.norm(jac[:, group].sum(axis=1)) >= I.MIN_SENSITIVITY:
+            free.append(group)
+        else:
+            verdicts.update({i: "not from this data" for i in group})
+    return free, verdicts
+
+
+def _fit_and_prune(train, blocks, chosen, free, verdicts, model, say):
+    """Fit, prewhiten, refit; drop the least determined free entry while the set is not
+    identifiable; returns the final factors, Jacobian, standard errors, collinearity and the
+    objective they belong to."""
+    x = np.ones(len(free))
+    while True:
+        plain = F.Objective(train, blocks, chosen, free, transform=model)
+        say(f"fitting {len(free)} free factor(s)")
+        x = F.fit(plain, x)
+        resid = (plain.blocks(x) - blocks.measured) / blocks.noise
+        whitened = F.Objective(train, blocks, chosen, free, transform=model,
+                               whiten=I.ar_whitener(resid, blocks.record_rows))  # fmt: skip
+        whitened._cache.update(plain._cache)  # same simulations, other weighting
+        x = F.fit(whitened, x)
+        jac = F.jacobian(whitened, x)
+        se = I.standard_errors(jac, whitened.residuals(x))
+        gamma = I.collinearity(jac)
+        if not free:
+            return x, jac, se, gamma, whitened
+        rel = se / np.maximum(np.abs(x), 1e-12)
+        worst = int(np.argmax(rel))
+        if rel[worst] <= I.MAX_RELATIVE_SE and gamma <= I.MAX_COLLINEARITY:
+            whitened.evaluations += plain.evaluations
+            return x, jac, se, gamma, whitened
+        for i in free[worst]:
+            verdicts[i] = "not separable in this data"
+        say(f"{', '.join(chosen[i].name for i in free[worst])}: relative SE {rel[worst]:.0%}, "
+            f"collinearity {gamma:.3g}: back to nominal")  # fmt: skip
+        free = [g for k, g in enumerate(free) if k != worst]
+        x = np.delete(x, worst)
+
+
+def _estimates(train, chosen: Sequence[Parameter], groups, x, se, verdicts) -> list[Estimate]:
+    nominal = nominal_values(train, chosen)
+    factor = np.ones(len(chosen))
+    factor_se = np.full(len(chosen), np.nan)
+    partners: dict[int, tuple[str, ...]] = {}
+    for k, members in enumerate(groups):
+        factor[members], factor_se[members] = x[k], se[k]
+        for i in members:
+            partners[i] = tuple(chosen[j].name for j in members if j != i)
+            verdicts.setdefault(i, "only in combination" if len(members) > 1 else "identified")
+    out = []
+    for i, p in enumerate(chosen):
+        verdict = verdicts[i]
+        out.append(Estimate(
+            name=p.name, unit=p.unit, nominal=nominal[i], estimate=nominal[i] * factor[i],
+            std_error=abs(nominal[i]) * factor_se[i], factor=float(factor[i]),
+            factor_se=float(factor_se[i]), identifiable=verdict == "identified",
+            verdict=verdict, combined_with=partners.get(i, ()),
+        ))  # fmt: skip
+    return out
+
+
+def _bias(sim: np.ndarray, blocks: F.Blocks) -> dict[str, float]:
+    err = sim - blocks.measured
+    return {c: float(np.nanmean(err[:, j])) for j, c in enumerate(blocks.channels)}
+
+
+def _rmse(sim: np.ndarray, blocks: F.Blocks) -> dict[str, float]:
+    err = sim - blocks.measured
+    return {c: float(np.sqrt(np.nanmean(err[:, j] ** 2)))
+            for j, c in enumerate(blocks.channels)}  # fmt: skip

@@ -1,0 +1,169 @@
+"""Output-error least squares of drive-train parameters on block means of measured speeds.
+
+The simulation is driven by the records' inputs only (set-points, torque inputs) and compared
+with the measurement's block means (``block_s``, 0.1 s by default): block means keep what the
+parameters change (mean speeds, start-up and speed-change transients) and attenuate the
+fluctuation lines (mesh, chain polygon, eccentricity) whose phase a simulation cannot follow
+over minutes. Several records share one parameter set; each record starts by the simulation's
+own start rule (from rest, or the steady state of its first inputs).
+
+Residuals are weighted per channel by the measurement's noise and fitted with SciPy's
+``least_squares`` (trust-region reflective, bounds, finite-difference Jacobian with a relative
+step large enough to stay above the simulator's round-off).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TypeAlias
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from drafttwin.calibration.parameters import Parameter, with_factors
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.errors import DataError
+from drafttwin.mechanics import DriveTrain, simulate_channels
+
+Vector: TypeAlias = Sequence[float] | np.ndarray
+"""A parameter vector: the free factors."""
+
+BOUNDS = (0.2, 5.0)
+"""Factor bounds: a parameter may move from a fifth to five times its nominal value."""
+DIFF_STEP = 1e-3
+"""Relative finite-difference step: the simulator's round-off (angle states of ~1e4 rad) makes
+the default step of ~1.5e-8 useless for weak parameters."""
+
+
+@dataclass(frozen=True)
+class Blocks:
+    """The measured records as block means: what the fit compares with (the output channels,
+    and the motor speed when the records carry it)."""
+
+    series: MeasurementSeries
+    channels: tuple[str, ...]
+    units: dict[str, str]
+    block: int  # samples per block
+    measured: np.ndarray  # (n_blocks_total, channels), NaN = not enough samples
+    record_rows: list[tuple[int, int]]  # block rows of each record
+    noise: np.ndarray  # (channels,) per-block noise scale, in the channels' units
+
+    @property
+    def n(self) -> int:
+        return int(np.isfinite(self.measured).sum())
+
+
+def block_means(values: np.ndarray, block: int) -> np.ndarray:
+    """Means over consecutive blocks of ``block`` rows (a trailing part block dropped); a
+    block with fewer than half its samples measured is NaN."""
+    n = values.shape[0] // block
+    cut = values[: n * block].reshape(n, block, -1)
+    finite = np.isfinite(cut)
+    count = finite.sum(axis=1)
+    total = np.where(finite, cut, 0.0).sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = total / count
+    out[count < (block + 1) // 2] = np.nan
+    return out
+
+
+def _columns(series: MeasurementSeries, with_motor: bool) -> tuple[tuple[str, ...], np.ndarray]:
+    names, values = tuple(series.channels), series.values
+    if with_motor and series.motor_rpm is not None and "motor" not in names:
+        names, values = (*names, "motor"), np.column_stack([values, series.motor_rpm])
+    return names, values
+
+
+def blocks(series: MeasurementSeries, block_s: float, with_motor: bool = True) -> Blocks:
+    """Block means of every record (and of the motor speed, when recorded and
+    ``with_motor``); the noise scale from their block-to-block changes."""
+    rate = series.sample_rate_hz
+    block = max(1, int(round(block_s * rate)))
+    names, _ = _columns(series, with_motor)
+    parts, rows, start = [], [], 0
+    for record in series.records():
+        means = block_means(_columns(record, with_motor)[1], block)
+        if len(means) < 3:
+            raise DataError(
+                f"a record of {len(record)} samples gives {len(means)} blocks of {block_s:g} s",
+                fix="use longer records or a shorter --block",
+            )
+        parts.append(means)
+        rows.append((start, start + len(means)))
+        start += len(means)
+    measured = np.vstack(parts)
+    steps = np.vstack([np.diff(p, axis=0) for p in parts])
+    # half the median absolute step (x 1.4826 for a normal scale): the noise between blocks,
+    # robust to the transients a start-up puts into the steps
+    noise = 1.4826 * np.nanmedian(np.abs(steps), axis=0) / np.sqrt(2.0)
+    floor = 1e-6 * np.maximum(np.nanmax(np.abs(measured), axis=0), 1.0)
+    units = {c: ("rpm" if c == "motor" else series.unit(c)) for c in names}
+    return Blocks(series, names, units, block, measured, rows, np.maximum(noise, floor))
+
+
+def simulate_blocks(train: DriveTrain, data: Blocks) -> np.ndarray:
+    """The train's block means on every record, ``(n_blocks_total, channels)``."""
+    parts = []
+    for record in data.series.records():
+        sim = simulate_channels(train, record.time_s, inputs=record.inputs,
+                                channels=data.channels, units=data.units)  # fmt: skip
+        parts.append(block_means(sim, data.block))
+    return np.vstack(parts)
+
+
+@dataclass
+class Objective:
+    """Weighted residuals of a parameter vector, with a cache (the optimiser and the
+    identifiability analysis evaluate the same points more than once)."""
+
+    train: DriveTrain
+    data: Blocks
+    params: Sequence[Parameter]
+    groups: list[list[int]]  # free entries: each a list of parameter indices moved together
+    transform: Callable[[DriveTrain], DriveTrain] | None = None
+    whiten: Callable[[np.ndarray], np.ndarray] | None = None
+    evaluations: int = 0
+    _cache: dict[tuple[float, ...], np.ndarray] = field(default_factory=dict)
+
+    def factors(self, x: Vector) -> np.ndarray:
+        """Per-parameter factors from the free vector (parameters not free stay at 1)."""
+        f = np.ones(len(self.params))
+        for value, members in zip(x, self.groups, strict=True):
+            f[members] = value
+        return f
+
+    def blocks(self, x: Vector) -> np.ndarray:
+        key = tuple(round(float(v), 12) for v in x)
+        if key not in self._cache:
+            train = with_factors(self.train, self.params, self.factors(x))
+            model = self.transform(train) if self.transform is not None else train
+            self._cache[key] = simulate_blocks(model, self.data)
+            self.evaluations += 1
+        return self._cache[key]
+
+    def residuals(self, x: Vector) -> np.ndarray:
+        """(simulated − measured) / noise on the measured blocks, whitened when asked."""
+        r = (self.blocks(x) - self.data.measured) / self.data.noise
+        if self.whiten is not None:
+            r = self.whiten(r)
+        return r[np.isfinite(self.data.measured)]
+
+
+def fit(objective: Objective, x0: Vector, max_nfev: int = 60) -> np.ndarray:
+    """Least-squares factors of the free entries (bounded, trust-region reflective)."""
+    if not objective.groups:
+        return np.zeros(0)
+    res = least_squares(objective.residuals, np.asarray(x0, float), bounds=BOUNDS,
+                        diff_step=DIFF_STEP, x_scale=1.0, method="trf", max_nfev=max_nfev)  # fmt: skip
+    return np.asarray(res.x)
+
+
+def jacobian(objective: Objective, x: Vector) -> np.ndarray:
+    """The residuals' Jacobian at ``x`` by the optimiser's own finite differences (one
+    iteration of ``least_squares`` that may not move: it returns the Jacobian it used)."""
+    if not objective.groups:
+        return np.zeros((int(np.isfinite(objective.data.measured).sum()), 0))
+    res = least_squares(objective.residuals, np.asarray(x, float), bounds=BOUNDS,
+                        diff_step=DIFF_STEP, x_scale=1.0, method="trf", max_nfev=1)  # fmt: skip
+    return np.asarray(res.jac)

@@ -1,0 +1,127 @@
+"""What the data can tell: sensitivity, collinearity, combinations, honest standard errors.
+
+* **Sensitivity**: the norm of a parameter's Jacobian column, in units of the measurement
+  noise; below :data:`MIN_SENSITIVITY` the data do not see the parameter at all.
+* **Combinations**: parameters whose columns are (nearly) parallel act on the data as one
+  (for mean roller speeds: every friction load only through the total torque at the motor);
+  they are fitted as one factor and reported as "only in combination".
+* **Collinearity index** (Brun, Reichert, Künsch 2001): gamma = 1 / sqrt(lambda_min) of the
+  unit-norm columns' cross-product; above :data:`MAX_COLLINEARITY` the set cannot be
+  separated.
+* **Standard errors** from the Jacobian by SVD, after prewhitening the residuals with an
+  autoregressive model per record and channel: fluctuations the physics leaves out (drafting
+  force, supply wander) make residuals coloured, and white-noise errors would then be too
+  small by the square root of the correlation length.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy.linalg import solve_toeplitz
+from scipy.signal import lfilter
+
+MIN_SENSITIVITY = 3.0
+"""A parameter whose whole effect on the fit (column norm, in noise units) is below this is
+not seen by the data."""
+COMBINED_COSINE = 0.995
+"""Columns this parallel (|cos|) are one combination for the data."""
+MAX_COLLINEARITY = 10.0
+"""Collinearity index above which a set of parameters is not separable (a conservative
+choice; Brun et al. call about 20 the limit)."""
+MAX_RELATIVE_SE = 0.10
+"""An estimate with a larger relative standard error is not identified."""
+AR_ORDER = 10
+
+
+def sensitivities(jac: np.ndarray) -> np.ndarray:
+    return np.linalg.norm(jac, axis=0)
+
+
+def combine(jac: np.ndarray, candidates: Sequence[int]) -> list[list[int]]:
+    """Groups of candidate columns that are nearly parallel (single-linkage on |cos|)."""
+    cols = jac[:, candidates]
+    unit = cols / np.maximum(np.linalg.norm(cols, axis=0), 1e-300)
+    cos = np.abs(unit.T @ unit)
+    parent = list(range(len(candidates)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in range(len(candidates)):
+        for j in range(i + 1, len(candidates)):
+            if cos[i, j] > COMBINED_COSINE:
+                parent[root(j)] = root(i)
+    groups: dict[int, list[int]] = {}
+    for i, c in enumerate(candidates):
+        groups.setdefault(root(i), []).append(c)
+    return list(groups.values())
+
+
+def collinearity(jac: np.ndarray) -> float:
+    """Brun's collinearity index of the columns (inf for a zero or dependent column)."""
+    if jac.shape[1] < 2:
+        return 1.0
+    norms = np.linalg.norm(jac, axis=0)
+    if (norms == 0).any():
+        return float("inf")
+    s = np.linalg.svd(jac / norms, compute_uv=False)
+    return float(1.0 / s[-1]) if s[-1] > 0 else float("inf")
+
+
+def standard_errors(jac: np.ndarray, residuals: np.ndarray) -> np.ndarray:
+    """sqrt(diag(s^2 (J^T J)^-1)) by SVD, s^2 = SSR / (N - p)."""
+    n, p = jac.shape
+    if p == 0:
+        return np.zeros(0)
+    u, s, vt = np.linalg.svd(jac, full_matrices=False)
+    dof = max(n - p, 1)
+    s2 = float(residuals @ residuals) / dof
+    inv = np.where(s > s[0] * 1e-12, 1.0 / np.maximum(s, 1e-300), np.inf)
+    return np.sqrt(s2 * np.sum((vt.T * inv) ** 2, axis=1))
+
+
+def ar_whitener(
+    residual_blocks: np.ndarray, record_rows: Sequence[tuple[int, int]], order: int = AR_ORDER
+):
+    """A function that whitens a ``(blocks, channels)`` residual array with the AR(p) model
+    fitted (Yule-Walker) to ``residual_blocks`` per channel over all records; each record is
+    filtered on its own. NaN blocks are treated as zero residuals (they are not scored)."""
+    coeffs = []
+    for j in range(residual_blocks.shape[1]):
+        segments = [residual_blocks[a:b, j] for a, b in record_rows]
+        coeffs.append(_yule_walker(segments, order))
+
+    def whiten(r: np.ndarray) -> np.ndarray:
+        out = np.empty_like(r)
+        for j, a_coef in enumerate(coeffs):
+            for a, b in record_rows:
+                x = np.nan_to_num(r[a:b, j])
+                out[a:b, j] = lfilter(np.r_[1.0, -a_coef], [1.0], x)
+        return np.where(np.isfinite(r), out, np.nan)
+
+    return whiten
+
+
+def _yule_walker(segments: Sequence[np.ndarray], order: int) -> np.ndarray:
+    """AR coefficients ``a`` (x_t = sum a_i x_{t-i} + e_t) from the pooled autocovariances."""
+    xs = [np.nan_to_num(s - np.nanmean(s)) for s in segments if len(s) > order + 2]
+    if not xs:
+        return np.zeros(0)
+    p = min(order, min(len(x) for x in xs) // 4)
+    if p < 1:
+        return np.zeros(0)
+    acov = np.zeros(p + 1)
+    total = sum(len(x) for x in xs)
+    for x in xs:
+        for k in range(p + 1):
+            acov[k] += float(x[k:] @ x[: len(x) - k])
+    acov /= total
+    if acov[0] <= 0:
+        return np.zeros(0)
+    coef = solve_toeplitz(acov[:p], acov[1 : p + 1])
+    return np.asarray(coef) if np.all(np.isfinite(coef)) else np.zeros(0)

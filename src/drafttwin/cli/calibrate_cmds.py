@@ -1,0 +1,135 @@
+"""``drafttwin calibrate``: the drive train's uncertain parameters from measured records."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+from rich.markup import escape
+from rich.table import Table
+
+from drafttwin.cli._common import load_train
+from drafttwin.cli._data import ChannelOptions
+from drafttwin.cli._groups import with_group
+from drafttwin.cli.app import app, console, err_console
+from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
+from drafttwin.errors import ConfigError
+
+if TYPE_CHECKING:
+    from drafttwin.calibration import Calibration
+
+
+@app.command()
+@with_group("channels", ChannelOptions)
+def calibrate(
+    out: Annotated[
+        Path,
+        typer.Option(
+            dir_okay=False,
+            help="The calibrated drive train, .toml (usable with "
+            "--config and --mechanistic config:FILE); the report goes beside it as "
+            ".json.",
+        ),
+    ],  # fmt: skip
+    data: Annotated[
+        str,
+        typer.Option(
+            help="Measured records, comma-separated (steady, start-up and speed-change "
+            "records together identify the most); 'default' for the embedded data."
+        ),
+    ],  # fmt: skip
+    channels: ChannelOptions,
+    preset: PresetOpt = None,
+    config: ConfigOpt = None,
+    params: Annotated[
+        str | None,
+        typer.Option(
+            help="Parameters to estimate, dotted names as in the plant's sidecar "
+            "(roller.front.friction_coefficient, belt.main_belt.axial_rigidity_n, "
+            "motor.breakdown_torque_ratio, motor.rated_slip, bearing.<node>, ...). "
+            "Default: all a drawing does not give."
+        ),
+    ] = None,  # fmt: skip
+    block: Annotated[
+        float, typer.Option(min=0.001, help="Block length, s: the fit compares block means.")
+    ] = 0.1,
+    full_model: Annotated[
+        bool,
+        typer.Option(
+            "--full-model/--reduced-model",
+            help="Simulate the full drive train in the fit (slow) instead of the "
+            "reduced one (stiff couplings rigid, where available).",
+        ),
+    ] = False,  # fmt: skip
+    as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
+    quiet: Annotated[bool, typer.Option(help="No progress messages.")] = False,
+) -> None:
+    """Estimate the physical parameters of a drive train from measured speeds, with standard
+    errors and an identifiability verdict per parameter, and write the calibrated train.
+
+    Output-error least squares on block means of the records (the simulation follows each
+    record's set-points); parameters the data do not see, or cannot separate, are reported so
+    and stay nominal; parameters that act only together are fitted as one factor.
+    """
+    from drafttwin._io import write_text_atomic
+    from drafttwin.calibration import calibrate as run
+    from drafttwin.calibration.io import write_train
+
+    if out.suffix.lower() != ".toml":
+        raise ConfigError(f"unsupported output file type '{out.suffix or '(none)'}'",
+                          source=out, where="--out", fix="name it *.toml")  # fmt: skip
+    train = load_train(preset, config)
+    parsed = channels.parse()
+    needs = tuple(c.channel for c in train.spec.input)
+    series = parsed.read(data, needs)
+    model, name = _model(full_model)
+    names = None if params is None else [p.strip() for p in params.split(",") if p.strip()]
+    say = None if (quiet or as_json) else (lambda msg: err_console.print(escape(msg)))
+    result = run(train, series, names, block_s=block, model=model, model_name=name,
+                 progress=say)  # fmt: skip
+    report = {**result.to_dict(), "data": data, "drive_train": train.spec.train.name}
+    write_train(result.train, out, f"calibrated by drafttwin calibrate on {data}")
+    write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=2, allow_nan=False))
+    if as_json:
+        typer.echo(json.dumps(report, indent=2, allow_nan=False))
+        return
+    _print(result)
+    console.print(f"wrote {escape(str(out))} and {escape(str(out.with_suffix('.json')))}")
+
+
+def _model(full: bool):
+    from drafttwin import mechanics
+
+    reduce = getattr(mechanics, "reduce", None)
+    if full or reduce is None:
+        return None, "full"
+    return reduce, "reduced"
+
+
+def _print(result: Calibration) -> None:
+    table = Table(title="calibrated parameters")
+    for col in ("parameter", "nominal", "estimate", "± SE", "factor", "verdict"):
+        table.add_column(col, justify="left" if col in ("parameter", "verdict") else "right")
+    for e in result.estimates:
+        if e.verdict == "not from this data":
+            continue
+        se = "-" if e.std_error != e.std_error else f"{e.std_error:.4g}"
+        table.add_row(escape(e.name), f"{e.nominal:.5g}", f"{e.estimate:.5g}", se,
+                      f"{e.factor:.4f}", e.verdict)  # fmt: skip
+    console.print(table)
+    unseen = [e.name for e in result.estimates if e.verdict == "not from this data"]
+    if unseen:
+        console.print(f"not from this data (left nominal): {escape(', '.join(unseen))}")
+    fit = Table(title=f"fit on {result.block_s:g} s block means, {result.records} record(s)")
+    for col in ("channel", "unit", "bias before", "bias after", "RMSE before", "RMSE after"):
+        fit.add_column(col, justify="left" if col in ("channel", "unit") else "right")
+    for c in result.channels:
+        fit.add_row(escape(c), result.units.get(c, ""), f"{result.bias_before[c]:.4g}",
+                    f"{result.bias_after[c]:.4g}", f"{result.rmse_before[c]:.4g}",
+                    f"{result.rmse_after[c]:.4g}")  # fmt: skip
+    console.print(fit)
+    console.print(f"collinearity index of the free set {result.collinearity:.3g}; "
+                  f"{result.evaluations} simulations ({result.model} model), "
+                  f"{result.wall_s:.0f} s")  # fmt: skip
