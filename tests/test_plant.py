@@ -154,3 +154,63 @@ def test_unknown_scenario_refused_and_nothing_written(tmp_path):
     result = CliRunner().invoke(app, ["generate", "--scenario", "warp", "--out", str(out)])
     assert result.exit_code == 2 and "unknown scenario" in result.output
     assert list(tmp_path.iterdir()) == []
+
+
+def _generate(tmp_path, name, *extra):
+    out = tmp_path / name
+    result = CliRunner().invoke(
+        app, ["generate", "--duration", "2", "--quiet", "--out", str(out), *extra]
+    )
+    return out, result
+
+
+def test_two_records_of_one_machine_share_its_parameters_not_its_noise(tmp_path):
+    a, ra = _generate(tmp_path, "a.csv", "--seed", "1", "--machine-seed", "7")
+    b, rb = _generate(tmp_path, "b.csv", "--seed", "2", "--machine-seed", "7")
+    c, rc = _generate(tmp_path, "c.csv", "--seed", "3", "--machine", str(a.with_suffix(".json")))
+    d, rd = _generate(tmp_path, "d.csv", "--seed", "1")
+    assert all(r.exit_code == 0 for r in (ra, rb, rc, rd)), (ra.output, rc.output)
+    info = {
+        k: json.loads(p.with_suffix(".json").read_text())
+        for k, p in zip("abcd", (a, b, c, d), strict=True)
+    }
+    for k in "bc":
+        assert info[k]["true_train"] == info["a"]["true_train"]
+        assert info[k]["mismatch_draws"] == info["a"]["mismatch_draws"]
+    assert info["d"]["mismatch_draws"] != info["a"]["mismatch_draws"]  # machine seed 1 != 7
+    assert info["a"]["machine"]["seed"] == info["c"]["machine"]["seed"] == 7
+    ya, yb = (pd.read_csv(p)["front"].to_numpy() for p in (a, b))
+    assert not np.array_equal(ya, yb)  # other recording: other noise and drafting force
+    # the default machine is the recording's own seed: what older versions generated
+    e, re_ = _generate(tmp_path, "e.csv", "--seed", "1", "--machine-seed", "1")
+    assert re_.exit_code == 0 and e.read_bytes() == d.read_bytes()
+
+
+def test_machine_of_another_drive_train_refused_and_nothing_written(tmp_path):
+    a, _ = _generate(tmp_path, "a.csv", "--seed", "1")
+    sidecar = json.loads(a.with_suffix(".json").read_text())
+    sidecar["true_train"]["roller"] = sidecar["true_train"]["roller"][:3]
+    sidecar["true_train"]["output"] = [o for o in sidecar["true_train"].get("output", [])
+                                       if o.get("name") != "back"]  # fmt: skip
+    bad = tmp_path / "other.json"
+    bad.write_text(json.dumps(sidecar))
+    out, result = _generate(tmp_path, "x.csv", "--machine", str(bad))
+    assert result.exit_code == 2 and "--machine" in result.output, result.output
+    assert not out.exists()
+    out, result = _generate(tmp_path, "y.csv", "--machine", str(tmp_path / "missing.json"))
+    assert result.exit_code == 2 and "no such file" in result.output and not out.exists()
+    out, result = _generate(tmp_path, "z.csv", "--machine", str(a.with_suffix(".json")),
+                            "--machine-seed", "3")  # fmt: skip
+    assert result.exit_code == 2 and "both" in result.output and not out.exists()
+
+
+def test_motor_speed_is_measured_by_its_own_encoder():
+    rec = Plant().run(3.0, seed=4)
+    motor = rec.series.motor_rpm
+    assert motor is not None
+    ok = ~np.isnan(motor)
+    np.testing.assert_array_equal(ok, ~rec.missing[:, 0])  # same logger rows dropped
+    step = quantisation_step_rpm(PlantConfig().sensors, 100.0)
+    err = motor[ok] - rec.true_motor_rpm[ok]
+    # whole counts (one step) plus the window jitter (2 us at 24 rev/s: ~0.5 step)
+    assert np.abs(err).max() < 3 * step and err.std() < step and abs(err.mean()) < 0.1 * step

@@ -12,6 +12,7 @@ from rich.table import Table
 from drafttwin.cli._common import check_output_suffix, load_train
 from drafttwin.cli.app import app, console, progress_bar
 from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
+from drafttwin.errors import ConfigError
 
 
 @app.command()
@@ -21,7 +22,24 @@ def generate(
     config: ConfigOpt = None,
     duration: Annotated[float, typer.Option(help="Recorded machine time, s.", min=0)] = 60.0,
     rate: Annotated[float, typer.Option(help="Sample rate, Hz.", min=0)] = 100.0,
-    seed: Annotated[int, typer.Option(help="Seed: same seed, byte-identical files.")] = 0,
+    seed: Annotated[
+        int, typer.Option(help="Seed of the recording: same seeds, byte-identical files.")
+    ] = 0,
+    machine_seed: Annotated[
+        int | None,
+        typer.Option(
+            help="Seed of the machine (its true parameters). Two runs with the same "
+            "--machine-seed and different --seed are two records of one machine. "
+            "Default: the recording's --seed."
+        ),
+    ] = None,  # fmt: skip
+    machine: Annotated[
+        Path | None,
+        typer.Option(
+            dir_okay=False,
+            help="Record the machine of an earlier run: the .json sidecar it wrote.",
+        ),
+    ] = None,  # fmt: skip
     scenario: Annotated[
         str, typer.Option(help="steady | startup | speed-change (see docs/plant.md).")
     ] = "steady",
@@ -30,21 +48,32 @@ def generate(
     """Run the plant emulator: measured roller speeds with the machine's real imperfections.
 
     Writes OUT (time, front, second, third, back in rpm, gaps as empty cells, and the VFD
-    set-point supply_hz), OUT's .truth file (true speeds, where samples were dropped or
-    spiked) and OUT's .json sidecar (seed, true parameters, effects).
+    set-point supply_hz and the motor speed motor in rpm), OUT's .truth file (true speeds,
+    where samples were dropped or spiked) and OUT's .json sidecar (seeds, the machine's true
+    parameters, effects).
     """
-    from drafttwin.plant import Plant
+    from drafttwin.plant import Machine, Plant
     from drafttwin.plant.scenarios import get_scenario
 
     check_output_suffix(out)
     get_scenario(scenario)
+    if machine is not None and machine_seed is not None:
+        raise ConfigError("--machine and --machine-seed both name the machine",
+                          where="--machine", fix="give one of them")  # fmt: skip
     plant = Plant(load_train(preset, config))
+    if machine is not None:
+        chosen = Machine.load(machine, plant.train)
+    else:
+        chosen = Machine.draw(
+            plant.train, plant.config, seed if machine_seed is None else machine_seed
+        )
     with progress_bar("plant (machine s)", duration, quiet=quiet) as bar:
         task = bar.task_ids[0]
-        rec = plant.run(duration, rate, seed=seed, scenario=scenario,
+        rec = plant.run(duration, rate, seed=seed, scenario=scenario, machine=chosen,
                         progress=lambda s: bar.advance(task, s))  # fmt: skip
     paths = rec.write(out)
-    table = Table(title=f"plant, scenario '{scenario}', seed {seed}: {duration:g} s at {rate:g} Hz")
+    table = Table(title=f"plant, scenario '{scenario}', seed {seed}, machine "
+                  f"{chosen.source}: {duration:g} s at {rate:g} Hz")  # fmt: skip
     for col in ("roller", "mean rpm", "true std %", "missing", "spikes", "noise rms rpm"):
         table.add_column(col, justify="right" if col != "roller" else "left")
     for j, name in enumerate(rec.series.channels):

@@ -24,11 +24,16 @@ from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain, simulate
 from drafttwin.plant.config import PlantConfig
-from drafttwin.plant.effects import disturbances, true_train
+from drafttwin.plant.effects import disturbances
+from drafttwin.plant.machine import Machine
 from drafttwin.plant.scenarios import get_scenario
 from drafttwin.plant.sensors import encoder_rpm, inject_defects, quantisation_step_rpm
 
-STREAMS = ("mismatch", "supply", "drafting", "runout", "encoder", "missing", "outlier")
+STREAMS = (
+    "mismatch", "supply", "drafting", "runout", "encoder", "missing", "outlier", "motor_encoder",
+)  # fmt: skip
+"""One random stream per effect, spawned from the seed in this order: a stream added at the
+end leaves the earlier ones (and so the files older versions wrote) unchanged."""
 SETTLE_S = 1.0
 
 
@@ -118,12 +123,20 @@ class Plant:
         seed: int = 0,
         scenario: str = "steady",
         progress: Callable[[float], None] | None = None,
+        machine: Machine | None = None,
     ) -> PlantRecording:
-        """Run the plant for ``duration_s`` seconds, sampled at ``rate_hz``."""
+        """Run the plant for ``duration_s`` seconds, sampled at ``rate_hz``.
+
+        ``seed`` draws the recording (noise, drafting force, supply jitter, data-path
+        defects, thermal state is the config's); ``machine`` is the machine recorded (its
+        true parameters; default: the one :meth:`machine` draws from ``seed``), so two
+        recordings of one machine share ``machine`` and differ in ``seed``.
+        """
         scen = get_scenario(scenario)
-        streams = {name: np.random.default_rng(s) for name, s in
-                   zip(STREAMS, np.random.SeedSequence(seed).spawn(len(STREAMS)), strict=True)}  # fmt: skip
-        plant_train, draws = true_train(self.train, self.config, streams["mismatch"])
+        streams = _streams(seed)
+        if machine is None:
+            machine = Machine.draw(self.train, self.config, seed)
+        plant_train, draws = machine.train, machine.draws
         motor = self.train.spec.motor
         if motor is None:
             raise ConfigError(
@@ -148,6 +161,10 @@ class Plant:
         sensors = self.config.sensors
         counted = encoder_rpm(true_rpm, 1.0 / rate_hz, sensors, streams["encoder"])
         measured = inject_defects(counted, rate_hz, sensors, streams["missing"], streams["outlier"])
+        # the motor's own encoder (or the VFD's speed feedback), on the same logger rows
+        motor_counted = encoder_rpm(res.motor_rpm[:, None], 1.0 / rate_hz, sensors,
+                                    streams["motor_encoder"])[:, 0]  # fmt: skip
+        motor_measured = np.where(measured.missing[:, 0], np.nan, motor_counted)
         info = {
             "generator": f"drafttwin {__version__} plant emulator",
             "seed": seed,
@@ -158,6 +175,7 @@ class Plant:
             "plant_config": self.config.model_dump(mode="json"),
             "true_train": plant_train.to_dict(),
             "mismatch_draws": draws,
+            "machine": machine.describe(),
             "quantisation_step_rpm": quantisation_step_rpm(sensors, rate_hz),
             "injected": {
                 "missing_rows": int(measured.missing[:, 0].sum()),
@@ -169,11 +187,17 @@ class Plant:
             values=measured.rpm,
             inputs={"supply_hz": setpoint.at(res.time_s)},
             truth=true_rpm,
+            motor_rpm=motor_measured,
             metadata={"source": "drafttwin plant", "seed": seed, "scenario": scenario},
         )
         return PlantRecording(
             series, true_rpm, res.motor_rpm, measured.missing, measured.outlier, info
         )
+
+
+def _streams(seed: int) -> dict[str, np.random.Generator]:
+    children = np.random.SeedSequence(seed).spawn(len(STREAMS))
+    return {name: np.random.default_rng(c) for name, c in zip(STREAMS, children, strict=True)}
 
 
 def attach_truth(series: MeasurementSeries, path: str | Path) -> MeasurementSeries:

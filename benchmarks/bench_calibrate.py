@@ -1,0 +1,153 @@
+"""Calibration on the plant: estimates against the true machine, and the physics before/after.
+
+    python benchmarks/bench_calibrate.py [--machines 3] [--train-s 20] [--test-s 60] [--full-model]
+
+For each machine (machine seeds 101, 102, ...) the plant records three runs of that one
+machine: a start-up and a steady run (``--train-s`` each; the calibration data) and a speed
+change (``--test-s``; the test record), each with its own recording seed. ``drafttwin
+calibrate``'s library call estimates the default parameter set on the calibration data, with
+the reduced model in the loop unless ``--full-model`` (or when this checkout has none).
+
+Reported per machine: every identified parameter's estimate, standard error and the plant's
+true value (the sidecar's mismatch draw; for ``motor.rated_slip`` the rotor-resistance factor
+of the thermal drift at the middle of the calibration records), and whether it lies within 3
+standard errors; the nominal and calibrated physics' bias and RMSE per roller on the test
+record (full model, following the record's set-points, against the measured speeds); the
+nominal physics' RMSE over the first 5 s of the start-up record; the calibration's wall time.
+Writes benchmarks/results/calibrate.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, os.path.dirname(__file__))
+
+import drafttwin as dt  # noqa: E402
+from _machine import write_results  # noqa: E402
+from drafttwin import ROLLERS  # noqa: E402
+from drafttwin.calibration import calibrate  # noqa: E402
+from drafttwin.mechanics import DriveTrain, simulate_channels  # noqa: E402
+from drafttwin.plant import Machine, Plant, PlantConfig  # noqa: E402
+
+
+def thermal_factor(cfg: PlantConfig, t_s: float) -> float:
+    """The plant's rotor-resistance factor ``t_s`` seconds into a recording."""
+    th = cfg.thermal
+    warm = th.warmup_kelvin * (1 - math.exp(-(t_s + th.elapsed_at_start_s) / th.time_constant_s))
+    return 1.0 + th.resistance_per_kelvin * warm
+
+
+def truth(machine: Machine, cfg: PlantConfig, mid_s: float) -> dict[str, float]:
+    """True factor (true / nominal) of every parameter the plant draws or drifts."""
+    out = {name: 1.0 + u for name, u in machine.draws.items()}
+    out["motor.breakdown_torque_ratio"] = 1.0 + machine.draws["motor.breakdown_torque_ratio"]
+    out["motor.rated_slip"] = thermal_factor(cfg, mid_s)
+    return out
+
+
+def errors(train: DriveTrain, record: dt.MeasurementSeries) -> tuple[np.ndarray, np.ndarray]:
+    """Bias and RMSE per roller of the train's simulation against the measured speeds, rpm."""
+    sim = simulate_channels(train, record.time_s, inputs=record.inputs, channels=ROLLERS)
+    err = sim - record.values
+    return np.nanmean(err, axis=0), np.sqrt(np.nanmean(err**2, axis=0))
+
+
+def one_machine(seed: int, args: argparse.Namespace, folder: Path, model) -> dict[str, Any]:
+    plant = Plant()
+    machine = Machine.draw(plant.train, plant.config, seed)
+    runs = {"startup": (1, args.train_s), "steady": (2, args.train_s),
+            "speed-change": (3, args.test_s)}  # fmt: skip
+    paths = {}
+    for scenario, (rec_seed, duration) in runs.items():
+        rec = plant.run(duration, 100.0, seed=rec_seed, scenario=scenario, machine=machine)
+        paths[scenario] = rec.write(folder / f"m{seed}_{scenario}.parquet")[0]
+    data = dt.read_measurements([paths["startup"], paths["steady"]])
+    test = dt.read_measurements(paths["speed-change"])
+    start = time.perf_counter()
+    cal = calibrate(plant.train, data, model=model, model_name="reduced" if model else "full")
+    wall = time.perf_counter() - start
+    true = truth(machine, plant.config, 0.5 * args.train_s)
+    params = []
+    for e in cal.estimates:
+        if e.verdict in ("identified", "only in combination"):
+            t = true.get(e.name, float("nan"))
+            params.append({"name": e.name, "verdict": e.verdict, "factor": e.factor,
+                           "factor_se": e.factor_se, "true_factor": t,
+                           "within_3se": bool(abs(e.factor - t) <= 3 * e.factor_se)})  # fmt: skip
+    bias0, rmse0 = errors(plant.train, test)
+    bias1, rmse1 = errors(cal.train, test)
+    startup = dt.read_measurements(paths["startup"])
+    first = startup.time_s <= 5.0
+    sim = simulate_channels(plant.train, startup.time_s, inputs=startup.inputs, channels=ROLLERS)
+    startup_rmse = np.sqrt(np.nanmean((sim[first] - startup.values[first]) ** 2, axis=0))
+    steady_speed = np.nanmean(test.values[: len(test) // 4], axis=0)
+    return {"machine_seed": seed, "parameters": params, "wall_s": wall,
+            "simulations": cal.evaluations,
+            "test_bias_nominal": bias0.tolist(), "test_bias_calibrated": bias1.tolist(),
+            "test_rmse_nominal": rmse0.tolist(), "test_rmse_calibrated": rmse1.tolist(),
+            "startup_rmse_first_5s": startup_rmse.tolist(),
+            "startup_rmse_share_of_steady": (startup_rmse / steady_speed).tolist()}  # fmt: skip
+
+
+def report(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    figures: list[dict[str, Any]] = []
+    for row in rows:
+        k = row["machine_seed"]
+        print(f"\nmachine seed {k}: {row['simulations']} simulations, {row['wall_s']:.0f} s")
+        print(f"  {'parameter':<42} {'verdict':<20} {'estimate':>9} {'± SE':>8} "
+              f"{'true':>8}  within 3 SE")  # fmt: skip
+        for p in row["parameters"]:
+            print(f"  {p['name']:<42} {p['verdict']:<20} {p['factor']:>9.4f} "
+                  f"{p['factor_se']:>8.4f} {p['true_factor']:>8.4f}  {p['within_3se']}")  # fmt: skip
+        print(f"  {'roller':<8} {'bias nominal':>13} {'bias calibrated':>16} "
+              f"{'RMSE nominal':>13} {'RMSE calibrated':>16}  (rpm, test record)")  # fmt: skip
+        for j, r in enumerate(ROLLERS):
+            print(f"  {r:<8} {row['test_bias_nominal'][j]:>13.3f} "
+                  f"{row['test_bias_calibrated'][j]:>16.3f} {row['test_rmse_nominal'][j]:>13.3f} "
+                  f"{row['test_rmse_calibrated'][j]:>16.3f}")  # fmt: skip
+        share = max(row["startup_rmse_share_of_steady"])
+        print(f"  nominal physics on the start-up's first 5 s: RMSE up to {share:.2%} of steady")
+        figures += [
+            {"figure": f"machine {k}: calibration wall time", "value": row["wall_s"], "unit": "s"},
+            {"figure": f"machine {k}: identified parameters",
+             "value": sum(p["verdict"] == "identified" for p in row["parameters"]), "unit": ""},
+            {"figure": f"machine {k}: start-up first 5 s physics RMSE, share of steady speed",
+             "value": share, "unit": "1"},
+        ]  # fmt: skip
+        for key in ("test_bias_nominal", "test_bias_calibrated",
+                    "test_rmse_nominal", "test_rmse_calibrated"):  # fmt: skip
+            figures.append({"figure": f"machine {k}: {key.replace('_', ' ')} per roller",
+                            "value": dict(zip(ROLLERS, row[key], strict=True)), "unit": "rpm"})  # fmt: skip
+        figures.append({"figure": f"machine {k}: parameters", "value": row["parameters"],
+                        "unit": "factor of nominal"})  # fmt: skip
+    return figures
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--machines", type=int, default=3)
+    parser.add_argument("--train-s", type=float, default=20.0)
+    parser.add_argument("--test-s", type=float, default=60.0)
+    parser.add_argument("--full-model", action="store_true")
+    args = parser.parse_args()
+    from drafttwin import mechanics
+
+    model = None if args.full_model else getattr(mechanics, "reduce", None)
+    with tempfile.TemporaryDirectory() as tmp:
+        rows = [one_machine(101 + k, args, Path(tmp), model) for k in range(args.machines)]
+    figures = report(rows)
+    print(f"wrote {write_results('calibrate', figures)}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,164 @@
+"""Calibration: parameter registry, identifiability arithmetic, recovery of known parameters,
+the calibrated train as TOML, and the CLI's refusals."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin.calibration import calibrate, parameters, select, with_factors
+from drafttwin.calibration import identify as I
+from drafttwin.calibration.fit import block_means
+from drafttwin.calibration.io import write_train
+from drafttwin.cli import app
+from drafttwin.data.io import read_measurements
+from drafttwin.errors import ConfigError
+from drafttwin.mechanics import DriveTrain, simulate_channels
+
+BELT = Path(__file__).resolve().parents[1] / "docs" / "examples" / "belt_drive.toml"
+CHANNELS = {"outputs": ["y"], "inputs": ["u"], "units": {"y": "rad/s", "u": "V"},
+            "time_column": "t"}  # fmt: skip
+TRUE = {"motor.rated_slip": 1.08, "bearing.flywheel": 1.25}
+
+
+@pytest.fixture(scope="module")
+def belt() -> DriveTrain:
+    return DriveTrain.from_toml(BELT)
+
+
+def _record(train: DriveTrain, seed: int, duration_s: float = 8.0) -> pd.DataFrame:
+    """The belt drive's speed under a stepped set-point, with logger noise (0.02 rad/s)."""
+    rng = np.random.default_rng(seed)
+    t = np.round(np.arange(1, int(duration_s * 100) + 1) * 0.01, 10)
+    levels = rng.uniform(4.0, 9.0, size=int(duration_s // 2) + 1)
+    u = levels[(t // 2).astype(int)]
+    y = simulate_channels(train, t, inputs={"u": u})[:, 0]
+    return pd.DataFrame({"t": t, "u": u, "y": y + 0.02 * rng.standard_normal(len(t))})
+
+
+@pytest.fixture(scope="module")
+def records(belt, tmp_path_factory) -> Path:
+    names = list(TRUE)
+    true_train = with_factors(belt, select(belt, names), [TRUE[n] for n in names])
+    folder = tmp_path_factory.mktemp("belt")
+    frame = pd.concat([_record(true_train, s).assign(record=s) for s in (1, 2)])
+    frame.to_csv(folder / "train.csv", index=False)
+    return folder / "train.csv"
+
+
+def test_registry_names_match_the_plant_sidecar(belt):
+    from drafttwin.plant.config import PlantConfig
+    from drafttwin.plant.effects import true_train
+
+    fa = DriveTrain.preset("fa320a")
+    _, draws = true_train(fa, PlantConfig(), np.random.default_rng(0))
+    assert set(draws) <= set(parameters(fa))  # every drawn parameter can be calibrated
+    with pytest.raises(ConfigError, match="unknown parameter"):
+        select(belt, ["roller.front.friction_coefficient"])
+
+
+def test_factors_move_the_declared_values_and_only_those(belt):
+    chosen = select(belt, ["motor.rated_slip", "bearing.flywheel", "belt.v_belt.axial_rigidity_n"])
+    moved = with_factors(belt, chosen, [1.1, 2.0, 0.5]).to_dict()
+    raw = belt.to_dict()
+    assert moved["belt"][0]["axial_rigidity_n"] == pytest.approx(
+        0.5 * raw["belt"][0]["axial_rigidity_n"]
+    )
+    slip = lambda m: 1 - m["rated_rpm"] / (120 * m["rated_supply_hz"] / m["poles"])  # noqa: E731
+    assert slip(moved["motor"]) == pytest.approx(1.1 * slip(raw["motor"]))
+    flywheel = [b for b in moved["bearing"] if b["node"] == "flywheel"]
+    assert flywheel[0]["coulomb_torque_nm"] == pytest.approx(
+        2 * raw["bearing"][1]["coulomb_torque_nm"]
+    )
+    assert moved["inertia"] == raw["inertia"]
+
+
+def test_standard_errors_equal_the_textbook_formula():
+    rng = np.random.default_rng(0)
+    jac = rng.standard_normal((200, 3))
+    res = rng.standard_normal(200)
+    cov = np.linalg.inv(jac.T @ jac) * (res @ res) / (200 - 3)
+    np.testing.assert_allclose(I.standard_errors(jac, res), np.sqrt(np.diag(cov)), rtol=1e-10)
+
+
+def test_parallel_columns_are_one_combination_and_collinearity_sees_it():
+    rng = np.random.default_rng(1)
+    a, b = rng.standard_normal((2, 300))
+    jac = np.column_stack([a, 3 * a + 1e-4 * b, b])
+    assert sorted(map(sorted, I.combine(jac, [0, 1, 2]))) == [[0, 1], [2]]
+    assert I.collinearity(jac) > 100 and I.collinearity(jac[:, [0, 2]]) < 2
+
+
+def test_whitening_removes_the_colour_of_an_ar_process():
+    rng = np.random.default_rng(2)
+    e = rng.standard_normal(4000)
+    x = np.zeros_like(e)
+    for k in range(1, len(e)):
+        x[k] = 0.9 * x[k - 1] + e[k]
+    white = I.ar_whitener(x[:, None], [(0, len(x))])(x[:, None])[:, 0]
+    lag1 = lambda v: np.corrcoef(v[1:], v[:-1])[0, 1]  # noqa: E731
+    assert lag1(x) > 0.85 and abs(lag1(white[20:])) < 0.05
+
+
+def test_block_means_drop_sparse_blocks():
+    v = np.arange(10.0)[:, None]
+    v[5:9] = np.nan
+    out = block_means(v, 5)
+    np.testing.assert_allclose(out[:, 0], [2.0, np.nan])
+
+
+def test_known_parameters_recovered_within_three_standard_errors(belt, records):
+    data = read_measurements(records, **CHANNELS)
+    names = [*TRUE, "belt.v_belt.damping_ratio"]
+    cal = calibrate(belt, data, names)
+    by = {e.name: e for e in cal.estimates}
+    for name, factor in TRUE.items():
+        e = by[name]
+        assert e.verdict == "identified", (name, e)
+        assert abs(e.factor - factor) <= 3 * e.factor_se, (name, e.factor, e.factor_se)
+        assert e.factor_se < 0.02
+    assert by["belt.v_belt.damping_ratio"].verdict == "not from this data"
+    assert by["belt.v_belt.damping_ratio"].factor == 1.0  # left at nominal
+    assert cal.rmse_after["y"] < 0.5 * cal.rmse_before["y"]
+    assert abs(cal.bias_after["y"]) < 0.01 < abs(cal.bias_before["y"])
+
+
+def test_calibrated_train_round_trips_through_toml(belt, tmp_path):
+    chosen = select(belt, list(TRUE))
+    moved = with_factors(belt, chosen, [1.08, 1.25])
+    path = write_train(moved, tmp_path / "cal.toml", "calibrated\non test data")
+    assert path.read_text().startswith("# calibrated\n# on test data\n")
+    assert DriveTrain.from_toml(path).to_dict() == moved.to_dict()
+
+
+def test_cli_writes_train_and_report_and_refuses_bad_requests(records, tmp_path):
+    runner = CliRunner()
+    common = ["calibrate", "--config", str(BELT), "--data", str(records), "--outputs", "y",
+              "--inputs", "u", "--units", "y=rad/s,u=V", "--time-column", "t"]  # fmt: skip
+    out = tmp_path / "cal.toml"
+    result = runner.invoke(app, [*common, "--params", "motor.rated_slip,bearing.flywheel",
+                                 "--out", str(out), "--json"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.output)
+    assert {"parameters", "rmse_before", "rmse_after"} <= set(report)
+    assert {"name", "nominal", "estimate", "std_error", "identifiable"} <= set(
+        report["parameters"][0]
+    )
+    assert report["rmse_after"] < report["rmse_before"]
+    assert json.loads(out.with_suffix(".json").read_text())["parameters"] == report["parameters"]
+    calibrated = DriveTrain.from_toml(out)
+    slip = next(p for p in report["parameters"] if p["name"] == "motor.rated_slip")
+    m = calibrated.to_dict()["motor"]
+    assert 1 - m["rated_rpm"] / (120 * m["rated_supply_hz"] / m["poles"]) == pytest.approx(
+        slip["estimate"]
+    )
+    bad = tmp_path / "bad.toml"
+    result = runner.invoke(app, [*common, "--params", "roller.front.friction_coefficient",
+                                 "--out", str(bad)])  # fmt: skip
+    assert result.exit_code == 2 and "unknown parameter" in result.output
+    assert "Traceback" not in result.output and not bad.exists()
+    result = runner.invoke(app, [*common, "--out", str(tmp_path / "cal.txt")])
+    assert result.exit_code == 2 and "toml" in result.output
