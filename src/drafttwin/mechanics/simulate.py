@@ -22,7 +22,7 @@ from scipy.integrate import solve_ivp
 from drafttwin._constants import ROLLERS
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import kernel as K
-from drafttwin.mechanics import reduce as R
+from drafttwin.mechanics import reduced as R
 from drafttwin.mechanics.assembly import (
     DriveTrain,
     chain_mean_radius_m,
@@ -158,7 +158,7 @@ def _chain_angle_for_feed(c: ChainDrive, theta_driver: float, stretch: float) ->
 
 def _integrator(train: DriveTrain, y_full: np.ndarray) -> tuple[Any, np.ndarray, tuple]:
     """Kernel, start state and its table arguments: the full train's, or the reduced
-    train's (:mod:`drafttwin.mechanics.reduce`) when it carries a reduction."""
+    train's (:mod:`drafttwin.mechanics.reduced`) when it carries a reduction."""
     if train.reduction is None:
         return K.integrate, y_full, train.tables().args()
     y, args = R.reduced_start(train, y_full)
