@@ -85,9 +85,10 @@ class Reduction:
 
     def summary(self) -> str:
         """One line: super-nodes, rigid couplings, highest remaining mode and default step."""
+        belt = " (in the belts, which stay compliant)" if self.highest_hz > self.cutoff_hz else ""
         return (f"reduced train: {self.n_super} super-node(s), {len(self.rigid)} rigid "
                 f"coupling(s) above {self.cutoff_hz:g} Hz, highest remaining mode "
-                f"{self.highest_hz:.1f} Hz, step {self.dt_s:.2e} s")  # fmt: skip
+                f"{self.highest_hz:.1f} Hz{belt}, step {self.dt_s:.2e} s")  # fmt: skip
 
 
 # ---- which couplings go rigid ------------------------------------------------------------
