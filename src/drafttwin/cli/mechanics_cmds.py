@@ -128,6 +128,20 @@ def simulate(
         Path | None,
         typer.Option(help="Write time + the output channels to .csv or .parquet."),
     ] = None,
+    reduced: Annotated[
+        bool,
+        typer.Option(
+            "--reduced",
+            help="Simulate the reduced drive train: couplings whose modes lie above "
+            "--cutoff-hz made rigid and their inertias merged (belts stay compliant, with "
+            "creep), at a much larger step (default: from the highest remaining mode). "
+            "About 100x faster; block means agree with the full model to about 1e-5.",
+        ),
+    ] = False,  # fmt: skip
+    cutoff_hz: Annotated[
+        float | None,
+        typer.Option(help="Cut-off of --reduced, Hz (default 200; implies --reduced)."),
+    ] = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Simulate the drive train (numba RK4) and summarise its output channels (the rollers
@@ -136,6 +150,12 @@ def simulate(
     Values are means over each output interval, as an encoder reports them.
     """
     train = load_train(preset, config)
+    if reduced or cutoff_hz is not None:
+        from drafttwin.mechanics import DEFAULT_CUTOFF_HZ, reduce
+
+        train = reduce(train, DEFAULT_CUTOFF_HZ if cutoff_hz is None else cutoff_hz)
+        assert train.reduction is not None
+        console.print(train.reduction.summary())
     if out is not None:
         check_output_suffix(out)
     if setpoints is not None:

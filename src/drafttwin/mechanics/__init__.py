@@ -7,6 +7,7 @@ Public API::
     op = operating_point(train)                  # steady state from torque balance
     res = simulate(train, duration_s=10.0)       # numba RK4, interval-mean speeds
     res.to_frame()                               # time, front, second, third, back, motor
+    fast = simulate(reduce(train), 10.0)         # stiff couplings rigid: ~100x faster
     y = simulate_channels(train, time_s, inputs={"supply_hz": hz})   # recorded set-points
 """
 
@@ -22,6 +23,7 @@ from drafttwin.mechanics.kinematics import (
     kinematics,
     operating_point,
 )
+from drafttwin.mechanics.reduced import DEFAULT_CUTOFF_HZ, Reduction, reduce
 from drafttwin.mechanics.simulate import (
     STOPPED_SUPPLY_HZ,
     SimulationResult,
@@ -31,6 +33,7 @@ from drafttwin.mechanics.simulate import (
 )
 
 __all__ = [
+    "DEFAULT_CUTOFF_HZ",
     "PRESETS",
     "STOPPED_SUPPLY_HZ",
     "DriveTrain",
@@ -39,6 +42,7 @@ __all__ = [
     "OperatingPoint",
     "OutputChannel",
     "OutputMap",
+    "Reduction",
     "Signal",
     "SimulationResult",
     "TrainSpec",
@@ -47,6 +51,7 @@ __all__ = [
     "eigenfrequencies_hz",
     "kinematics",
     "operating_point",
+    "reduce",
     "simulate",
     "simulate_channels",
     "simulate_on_grid",

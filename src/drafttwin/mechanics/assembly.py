@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 from collections import deque
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,6 +30,9 @@ from drafttwin.mechanics.components import (
     Shaft,
 )
 from drafttwin.mechanics.config import TrainSpec, load_toml, preset_path, spec_from_dict
+
+if TYPE_CHECKING:
+    from drafttwin.mechanics.reduced import Reduction
 
 Coupling = Belt | ChainDrive | GearMesh | Shaft
 
@@ -149,6 +152,8 @@ class DriveTrain:
     supply_hz: Signal | None = None
     rotor_resistance: Signal | None = None
     torques: tuple[tuple[str, Signal], ...] = field(default=())
+    reduction: Reduction | None = None
+    """Set by :func:`drafttwin.mechanics.reduce`: simulate with stiff couplings rigid."""
 
     # ---- construction -------------------------------------------------------------------
     @classmethod
@@ -171,17 +176,16 @@ class DriveTrain:
 
     def with_supply_schedule(self, signal: Signal) -> DriveTrain:
         """Supply (VFD set-point) frequency in Hz over time, replacing ``motor.supply_hz``."""
-        return DriveTrain(self.spec, self.source, signal, self.rotor_resistance, self.torques)
+        return replace(self, supply_hz=signal)
 
     def with_rotor_resistance(self, signal: Signal) -> DriveTrain:
         """Rotor-resistance factor over time (1 = nominal); slip at a given torque scales with it."""
-        return DriveTrain(self.spec, self.source, self.supply_hz, signal, self.torques)
+        return replace(self, rotor_resistance=signal)
 
     def with_torque(self, node: str, signal: Signal) -> DriveTrain:
         """Add an external torque (N m, positive drives the node) on ``node``."""
         self.node_index(node)
-        return DriveTrain(self.spec, self.source, self.supply_hz, self.rotor_resistance,
-                          (*self.torques, (node, signal)))  # fmt: skip
+        return replace(self, torques=(*self.torques, (node, signal)))
 
     # ---- measured channels --------------------------------------------------------------
     def input_channels(self) -> tuple[InputChannel, ...]:

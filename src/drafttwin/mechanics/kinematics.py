@@ -99,12 +99,13 @@ def kinematics(train: DriveTrain, motor_rpm: float | None = None) -> Kinematics:
     )
 
 
-def stiffness_matrix(train: DriveTrain) -> np.ndarray:
-    """Torsional stiffness matrix (N m/rad) of the linearised train at mean stiffnesses."""
+def coupling_stiffness(train: DriveTrain) -> list[tuple[str, str, np.ndarray, float]]:
+    """Each coupling's kind, name, lever vector ``v`` (m, or 1 for a shaft; ``v . theta`` is
+    its deflection) and mean linear stiffness ``k`` (N/m, or N m/rad for a shaft)."""
     n = len(train.node_names)
-    k_mat = np.zeros((n, n))
+    rows = []
     idx = train.node_index
-    for _, c in train.spec.couplings():
+    for kind, c in train.spec.couplings():
         if isinstance(c, Shaft):
             a, b, ra, rb, k = idx(c.a), idx(c.b), 1.0, 1.0, c.stiffness_nm_per_rad
         elif isinstance(c, Belt):
@@ -125,6 +126,15 @@ def stiffness_matrix(train: DriveTrain) -> np.ndarray:
             (ra, rb), k = gear_base_radii_m(c), c.mesh_stiffness_n_per_m
         v = np.zeros(n)
         v[a], v[b] = ra, -rb
+        rows.append((kind, c.name, v, k))
+    return rows
+
+
+def stiffness_matrix(train: DriveTrain) -> np.ndarray:
+    """Torsional stiffness matrix (N m/rad) of the linearised train at mean stiffnesses."""
+    n = len(train.node_names)
+    k_mat = np.zeros((n, n))
+    for _, _, v, k in coupling_stiffness(train):
         k_mat += k * np.outer(v, v)
     return k_mat
 
@@ -249,6 +259,7 @@ __all__ = [
     "OperatingPoint",
     "RollerKinematics",
     "chain_pitch_radius_m",
+    "coupling_stiffness",
     "eigenfrequencies_hz",
     "kinematics",
     "operating_point",

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -21,6 +22,7 @@ from scipy.integrate import solve_ivp
 from drafttwin._constants import ROLLERS
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import kernel as K
+from drafttwin.mechanics import reduced as R
 from drafttwin.mechanics.assembly import (
     DriveTrain,
     chain_mean_radius_m,
@@ -154,6 +156,15 @@ def _chain_angle_for_feed(c: ChainDrive, theta_driver: float, stretch: float) ->
     return theta
 
 
+def _integrator(train: DriveTrain, y_full: np.ndarray) -> tuple[Any, np.ndarray, tuple]:
+    """Kernel, start state and its table arguments: the full train's, or the reduced
+    train's (:mod:`drafttwin.mechanics.reduced`) when it carries a reduction."""
+    if train.reduction is None:
+        return K.integrate, y_full, train.tables().args()
+    y, args = R.reduced_start(train, y_full)
+    return R.integrate, y, args
+
+
 def _grid(rate_hz: float, dt_s: float) -> tuple[int, float]:
     steps = max(1, math.ceil(1.0 / (rate_hz * dt_s) - 1e-9))
     return steps, 1.0 / (rate_hz * steps)
@@ -187,7 +198,8 @@ def simulate(
 
     solver = train.spec.solver
     rate = solver.output_rate_hz if output_rate_hz is None else output_rate_hz
-    steps, dt = _grid(rate, solver.dt_s if dt_s is None else dt_s)
+    default_dt = solver.dt_s if train.reduction is None else train.reduction.dt_s
+    steps, dt = _grid(rate, default_dt if dt_s is None else dt_s)
     settle = solver.settle_s if settle_s is None else settle_s
     n_out = int(round(duration_s * rate))
     if n_out < 1:
@@ -196,25 +208,25 @@ def simulate(
             where="--duration",
             fix="simulate for at least one output interval",
         )
-    args = train.tables().args()
     t0 = t_start_s - settle
-    y = _start_state(train, t0, from_rest)
+    integrate, y, args = _integrator(train, _start_state(train, t0, from_rest))
     start = _time.perf_counter()
-    K.integrate(y.copy(), t0, dt, 1, 1, *args)  # compile / load from cache outside the timing
+    integrate(y.copy(), t0, dt, 1, 1, *args)  # compile / load from cache outside the timing
     compile_s = _time.perf_counter() - start
     start = _time.perf_counter()
     if settle > 0:
         n_settle = max(1, int(round(settle * rate)))
-        K.integrate(y, t0, dt, n_settle, steps, *args)
+        integrate(y, t0, dt, n_settle, steps, *args)
         t0 += n_settle / rate
     y[-K.N_ENERGY :] = 0.0
-    theta0 = y[: len(train.node_names)].copy()
+    theta0 = y[: len(train.node_names)] if train.reduction is None else R.expand_angles(y, args)
+    theta0 = theta0.copy()
     chunk = max(1, int(rate * 0.25))
     thetas, omegas, energies = [], [], []
     done = 0
     while done < n_out:
         m = min(chunk, n_out - done)
-        th, om, en = K.integrate(y, t0 + done / rate, dt, m, steps, *args)
+        th, om, en = integrate(y, t0 + done / rate, dt, m, steps, *args)
         thetas.append(th)
         omegas.append(om)
         energies.append(en)
