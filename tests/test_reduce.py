@@ -72,7 +72,8 @@ def test_startup_and_speed_change_error_against_full_model(train, full):
     err = _blocks(red.roller_rpm()) - _blocks(full.roller_rpm())
     rmse = np.sqrt((err**2).mean(axis=0)) / steady
     assert np.all(rmse < 1e-4), rmse
-    assert red.wall_s < full.wall_s / 5  # measured about 60x
+    # the speed comes from the step (timings are benchmarks/bench_reduce.py's business)
+    assert red.dt_s >= 25 * full.dt_s
 
 
 def test_halving_the_reduced_step_changes_much_less_than_the_error(train, full):
