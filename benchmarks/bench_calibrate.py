@@ -1,10 +1,10 @@
 """Calibration on the plant: estimates against the true machine, and the physics before/after.
 
-    python benchmarks/bench_calibrate.py [--machines 3] [--train-s 20] [--test-s 60] [--full-model]
+    python benchmarks/bench_calibrate.py [--machines 3] [--train-s 30] [--test-s 120] [--full-model]
 
 For each machine (machine seeds 101, 102, ...) the plant records three runs of that one
 machine: a start-up and a steady run (``--train-s`` each; the calibration data) and a speed
-change (``--test-s``; the test record), each with its own recording seed. ``drafttwin
+change (``--test-s``; the test record), each with its own recording seed (10 K + 1, 2, 3). ``drafttwin
 calibrate``'s library call estimates the default parameter set on the calibration data, with
 the reduced model in the loop unless ``--full-model`` (or when this checkout has none).
 
@@ -65,8 +65,9 @@ def errors(train: DriveTrain, record: dt.MeasurementSeries) -> tuple[np.ndarray,
 def one_machine(seed: int, args: argparse.Namespace, folder: Path, model) -> dict[str, Any]:
     plant = Plant()
     machine = Machine.draw(plant.train, plant.config, seed)
-    runs = {"startup": (1, args.train_s), "steady": (2, args.train_s),
-            "speed-change": (3, args.test_s)}  # fmt: skip
+    # every record its own recording seed: the machines do not share their disturbances
+    runs = {"startup": (10 * seed + 1, args.train_s), "steady": (10 * seed + 2, args.train_s),
+            "speed-change": (10 * seed + 3, args.test_s)}  # fmt: skip
     paths = {}
     for scenario, (rec_seed, duration) in runs.items():
         rec = plant.run(duration, 100.0, seed=rec_seed, scenario=scenario, machine=machine)
@@ -136,8 +137,8 @@ def report(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--machines", type=int, default=3)
-    parser.add_argument("--train-s", type=float, default=20.0)
-    parser.add_argument("--test-s", type=float, default=60.0)
+    parser.add_argument("--train-s", type=float, default=30.0)
+    parser.add_argument("--test-s", type=float, default=120.0)
     parser.add_argument("--full-model", action="store_true")
     args = parser.parse_args()
     from drafttwin import mechanics

@@ -42,7 +42,8 @@ Progress = Callable[[str], None]
 class Estimate:
     """One parameter's outcome. ``factor`` is estimate / nominal; ``verdict`` one of
     ``identified``, ``only in combination``, ``not separable in this data``, ``not from this
-    data``."""
+    data``, ``at its bound`` (the fit pushed it to a fifth or five times nominal: the data ask
+    for something the model does not have; not identified)."""
 
     name: str
     unit: str
@@ -223,6 +224,8 @@ def _estimates(train, chosen: Sequence[Parameter], groups, x, se, verdicts) -> l
     out = []
     for i, p in enumerate(chosen):
         verdict = verdicts[i]
+        if verdict != "not from this data" and min(abs(factor[i] - b) for b in F.BOUNDS) < 1e-6:
+            verdict = "at its bound"  # the data push it out of the plausible range: a model error
         out.append(Estimate(
             name=p.name, unit=p.unit, nominal=nominal[i], estimate=nominal[i] * factor[i],
             std_error=abs(nominal[i]) * factor_se[i], factor=float(factor[i]),
