@@ -6,7 +6,7 @@ For each machine (machine seeds 101, 102, ...) the plant records three runs of t
 machine: a start-up and a steady run (``--train-s`` each; the calibration data) and a speed
 change (``--test-s``; the test record), each with its own recording seed (10 K + 1, 2, 3). ``drafttwin
 calibrate``'s library call estimates the default parameter set on the calibration data, with
-the reduced model in the loop unless ``--full-model`` (or when this checkout has none).
+the reduced model in the loop unless ``--full-model``.
 
 Reported per machine: every identified parameter's estimate, standard error and the plant's
 true value (the sidecar's mismatch draw; for ``motor.rated_slip`` the rotor-resistance factor
@@ -141,9 +141,9 @@ def main() -> None:
     parser.add_argument("--test-s", type=float, default=120.0)
     parser.add_argument("--full-model", action="store_true")
     args = parser.parse_args()
-    from drafttwin import mechanics
+    from drafttwin.mechanics import reduce
 
-    model = None if args.full_model else getattr(mechanics, "reduce", None)
+    model = None if args.full_model else reduce
     with tempfile.TemporaryDirectory() as tmp:
         rows = [one_machine(101 + k, args, Path(tmp), model) for k in range(args.machines)]
     figures = report(rows)

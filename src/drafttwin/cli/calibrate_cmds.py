@@ -59,8 +59,8 @@ def calibrate(
         bool,
         typer.Option(
             "--full-model/--reduced-model",
-            help="Simulate the full drive train in the fit (slow) instead of the "
-            "reduced one (stiff couplings rigid, where available).",
+            help="Simulate the full drive train in the fit (minutes to hours) instead of "
+            "the reduced one (couplings above 200 Hz rigid, belts compliant; docs/mechanics.md).",
         ),
     ] = False,  # fmt: skip
     as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
@@ -100,12 +100,9 @@ def calibrate(
 
 
 def _model(full: bool):
-    from drafttwin import mechanics
+    from drafttwin.mechanics import reduce
 
-    reduce = getattr(mechanics, "reduce", None)
-    if full or reduce is None:
-        return None, "full"
-    return reduce, "reduced"
+    return (None, "full") if full else (reduce, "reduced")
 
 
 def _print(result: Calibration) -> None:
