@@ -29,7 +29,8 @@ from drafttwin.plant import Plant  # noqa: E402
 
 def baseline_table() -> list[dict]:
     series = load_default()
-    truth = series.metadata["true_rpm"]
+    truth = series.truth
+    assert truth is not None  # the embedded data carry the true speeds
     clean, _ = preprocess(series)
     mech = simulate_on_grid(DriveTrain.preset("fa320a"), series.time_s)
     ok = ~np.isnan(series.values) & ~series.metadata["outlier_mask"]

@@ -154,3 +154,14 @@ def test_channel_tables_in_a_file_are_checked(tmp_path):
     assert (u.channel, u.gain, u.hold) == ("u", 5.0, "zoh")
     assert [(o.channel, o.node, o.unit) for o in train.output_channels()] == [
         ("v", "front_roller", "m/min")]  # fmt: skip
+
+
+def test_drafting_zone_must_join_two_declared_rollers(tmp_path):
+    text = PRESET_TEXT.replace('feeding = "back"', 'feeding = "third"', 1)
+    msg = _refused(tmp_path, text)
+    assert "drafting_zone 'break'" in msg and "same roller" in msg
+    raw = DriveTrain.preset("fa320a").to_dict()
+    raw["roller"] = [r for r in raw["roller"] if r["name"] != "back"]
+    raw["output"] = [o for o in raw.get("output", []) if o.get("node") != "back"]
+    with pytest.raises(ConfigError, match="roller 'back', which is not declared"):
+        DriveTrain.from_dict(raw)

@@ -67,6 +67,12 @@ def test_operating_point_matches_hand_torque_balance():
     for b in train.spec.bearing:
         node = train.node_index(b.node)
         torque += (b.coulomb_torque_nm + b.viscous_nms * w[node]) * ratios[node]
+    rollers = {r.name: r for r in train.spec.roller}
+    assert train.spec.drafting_zone  # the preset's sliver load: F (v_delivering - v_feeding)
+    for z in train.spec.drafting_zone:
+        fast, slow = rollers[z.delivering], rollers[z.feeding]
+        v = [r.diameter_mm / 2000 * ratios[train.node_index(r.node)] for r in (fast, slow)]
+        torque += z.force_n * (v[0] - v[1])
     # belt creep costs a little extra power: within its size (< 0.1 %)
     assert op.motor_torque_nm == pytest.approx(torque, rel=1e-3)
     m = train.spec.motor

@@ -5,10 +5,10 @@ supply jitter) through the scenario's VFD schedule and records the set-point as 
 the mechanistic model gets only that column and its nominal parameters.
 
 Measured with seed 3 (front roller, rpm): start-up, first 5 s: constant operating point
-1486.8, following the set-point 1.19; speed change (-15 %), second half: 245.0 and 1.62.
-Seeds 0, 1, 7, 11 give 0.97-1.34 (start-up) and 1.24-1.60 (speed change). The remaining
-error is the plant's steady offset, about 1-1.4 rpm with the model faster (unmodelled
-drafting force, drawn friction, creep and breakdown torque, thermal slip drift).
+1416.1, following the set-point 0.75; speed change (-15 %), second half: 233.8 and 1.12.
+Seeds 0, 1, 7, 11 give 0.56-0.81 (start-up) and 0.92-1.13 (speed change). The remaining
+error is the plant's steady offset, 0.14-0.64 rpm with the model faster (drawn friction,
+creep and breakdown torque, thermal slip drift; the preset has the mean drafting force).
 """
 
 import math

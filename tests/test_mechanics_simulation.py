@@ -220,3 +220,22 @@ def test_train_without_motor_has_no_operating_point():
     train = DriveTrain.from_dict(_carriage())
     with pytest.raises(Exception, match="no torque-balance operating point"):
         operating_point(train)
+
+
+def test_drafting_zone_draws_force_times_speed_difference(steady):
+    """The zones' power is F (v_delivering - v_feeding) from the simulated surface speeds:
+    what the roller-load power gains over the same train without zones."""
+    raw = fa320a_dict()
+    zones = raw.pop("drafting_zone")
+    bare = simulate(DriveTrain.from_dict(raw), duration_s=2.0, output_rate_hz=1000.0, settle_s=1.0)
+    rollers = {r["name"]: r for r in raw["roller"]}
+    surface = {r: steady.roller_rpm((r,)).mean() * math.pi / 30 * rollers[r]["diameter_mm"] / 2000
+               for r in ROLLERS}  # fmt: skip
+    want = sum(z["force_n"] * (surface[z["delivering"]] - surface[z["feeding"]]) for z in zones)
+    # friction power is Coulomb (torque x speed): the lighter bare train runs a little faster
+    faster = bare.roller_rpm().mean(axis=0) / steady.roller_rpm().mean(axis=0)
+    assert np.ptp(faster) < 1e-5 and faster[0] > 1.0
+    got = steady.mean_power_w()["roller_loads"] - bare.mean_power_w()["roller_loads"] / faster[0]
+    assert want > 5.0  # tens of watts: the FA320A's sliver load
+    assert got == pytest.approx(want, rel=1e-4), (got, want)
+    assert bare.mean_power_w()["motor"] < steady.mean_power_w()["motor"]

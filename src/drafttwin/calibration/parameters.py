@@ -3,7 +3,8 @@
 Each parameter is a field (or a few fields moved together) of one component in a drive
 train's declaration, named as the plant emulator's sidecar names its ``mismatch_draws``:
 
-* ``roller.<name>.friction_coefficient``, ``bearing.<node>`` (Coulomb and viscous friction
+* ``roller.<name>.friction_coefficient``, ``drafting_zone.<name>.force_n`` (the sliver's
+  drafting force), ``bearing.<node>`` (Coulomb and viscous friction
   together, as a factor on the declared values),
 * ``belt.<name>.axial_rigidity_n`` (creep), ``belt.<name>.damping_ratio``,
 * ``chain.<name>.span_stiffness_n_per_m``, ``gear.<name>.mesh_stiffness_n_per_m``,
@@ -92,6 +93,7 @@ def _set_rated_slip(raw: Raw, slip: float) -> None:
 _TABLES: tuple[tuple[str, str, str, str, bool], ...] = (
     # kind, name key, field, unit, in the default set
     ("roller", "name", "friction_coefficient", "", True),
+    ("drafting_zone", "name", "force_n", "N", True),
     ("belt", "name", "axial_rigidity_n", "N", True),
     ("belt", "name", "damping_ratio", "", True),
     ("chain", "name", "span_stiffness_n_per_m", "N/m", True),

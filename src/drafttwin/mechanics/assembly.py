@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
@@ -25,8 +25,10 @@ from drafttwin.mechanics.components import (
     BearingFriction,
     Belt,
     ChainDrive,
+    DraftingZone,
     GearMesh,
     InputChannel,
+    Roller,
     Shaft,
 )
 from drafttwin.mechanics.config import TrainSpec, load_toml, preset_path, spec_from_dict
@@ -269,6 +271,11 @@ class DriveTrain:
         return ratios
 
     # ---- numeric tables -----------------------------------------------------------------
+    def _drafting_rows(self, idx: Callable[[str], int]) -> list[tuple[int, DragRow]]:
+        rollers: dict[str, Roller] = {r.name: r for r in self.spec.roller}
+        return [(idx(node), row) for z in self.spec.drafting_zone
+                for node, row in _zone_rows(z, rollers)]  # fmt: skip
+
     def _effective_mass(self, a: int, b: int, ra: float, rb: float) -> float:
         ja, jb = self.inertias[a], self.inertias[b]
         return ja * jb / (ja * rb * rb + jb * ra * ra)
@@ -363,6 +370,7 @@ class DriveTrain:
 
         drags = [(idx(r.node), (r.friction_coefficient * 2 * r.top_load_per_side_n * r.diameter_mm * 5e-4,
                                 r.friction_speed_eps_rad_s, 0.0, 0.0)) for r in self.spec.roller]  # fmt: skip
+        drags += self._drafting_rows(idx)
         drags += [(idx(b.node), _bearing_row(b)) for b in self.spec.bearing]
         drag_i = np.array([[n] for n, _ in drags], dtype=np.int64).reshape(-1, 1)
         drag_f = np.array([row for _, row in drags], dtype=np.float64).reshape(-1, 4)
@@ -383,5 +391,20 @@ class DriveTrain:
                       torque_i, torque_f, sig_i, sig_f, sig_v)  # fmt: skip
 
 
-def _bearing_row(b: BearingFriction) -> tuple[float, float, float, float]:
+DragRow = tuple[float, float, float, float]  # coulomb torque, speed eps, viscous, kind
+
+
+def _zone_rows(zone: DraftingZone, rollers: Mapping[str, Roller]) -> list[tuple[str, DragRow]]:
+    """Two load rows: the force (N) at the delivering roller's radius brakes it, at the feeding
+    roller's radius it drives it (a negative Coulomb torque)."""
+    out: list[tuple[str, DragRow]] = []
+    for name, sign in ((zone.delivering, 1.0), (zone.feeding, -1.0)):
+        r = rollers[name]
+        out.append(
+            (r.node, (sign * zone.force_n * r.diameter_mm * 5e-4, zone.speed_eps_rad_s, 0.0, 0.0))
+        )
+    return out
+
+
+def _bearing_row(b: BearingFriction) -> DragRow:
     return (b.coulomb_torque_nm, b.speed_eps_rad_s, b.viscous_nms, 1.0)

@@ -2,7 +2,7 @@
 
 In the style of Modelica.Mechanics.Rotational: inertias are the nodes; couplings (belt, chain,
 gear mesh, shaft torsion) connect two nodes by name; sources and sinks (motor, roller friction
-load, bearing friction, external torque) act on one node. Every field carries its unit in its
+load, drafting force, bearing friction, external torque) act on one node. Every field carries its unit in its
 name. These classes hold and check parameters (a coupling also names the two nodes it joins
 and its nominal speed ratio); :mod:`drafttwin.mechanics.assembly` turns them into the numeric
 tables the integrator uses.
@@ -190,6 +190,21 @@ class Roller(Component):
     friction_speed_eps_rad_s: Positive = 0.5
 
 
+class DraftingZone(Component):
+    """A drafting zone: the sliver between two roller pairs is drawn with ``force_n`` (N).
+
+    The force pulls back the delivering (faster) roller and drives the feeding one, each at
+    its radius, regularised near zero speed like the roller friction (no force at
+    standstill). The power ``force * (v_delivering - v_feeding)`` goes into drafting.
+    """
+
+    name: str
+    delivering: RollerName
+    feeding: RollerName
+    force_n: NonNegative
+    speed_eps_rad_s: Positive = 0.5
+
+
 class BearingFriction(Component):
     """Bearing losses on a node: Coulomb torque (tanh-regularised) plus viscous drag."""
 
@@ -265,6 +280,7 @@ LIST_KINDS = {
     "inertia": Inertia,
     **COUPLING_KINDS,
     "roller": Roller,
+    "drafting_zone": DraftingZone,
     "bearing": BearingFriction,
     "torque": TorqueSeries,
     "input": InputChannel,

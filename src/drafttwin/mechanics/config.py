@@ -21,6 +21,7 @@ from drafttwin.mechanics.components import (
     BearingFriction,
     Belt,
     ChainDrive,
+    DraftingZone,
     GearMesh,
     InductionMotor,
     Inertia,
@@ -49,6 +50,7 @@ class TrainSpec(BaseModel):
     gear: list[GearMesh] = []
     shaft: list[Shaft] = []
     roller: list[Roller] = []
+    drafting_zone: list[DraftingZone] = []
     bearing: list[BearingFriction] = []
     torque: list[TorqueSeries] = []
     input: list[InputChannel] = []
@@ -173,6 +175,7 @@ def _check_graph(spec: TrainSpec, source: str) -> None:
             where="[[roller]]",
             fix="declare each of front, second, third, back once",
         )
+    _check_drafting_zones(spec, source)
     root = find(spec.root_node)
     loose = [n for n in names if find(n) != root]
     if loose:
@@ -182,6 +185,21 @@ def _check_graph(spec: TrainSpec, source: str) -> None:
             where="drive train",
             fix="connect them with a belt, chain, gear or shaft, or remove them",
         )
+
+
+def _check_drafting_zones(spec: TrainSpec, source: str) -> None:
+    """Each zone joins two different declared rollers."""
+    rollers = [r.name for r in spec.roller]
+    for z in spec.drafting_zone:
+        where = f"drafting_zone '{z.name}'"
+        for field in ("delivering", "feeding"):
+            if getattr(z, field) not in rollers:
+                raise ConfigError(f"field '{field}' names roller '{getattr(z, field)}', which is "
+                                  "not declared", source=source, where=where,
+                                  fix=f"use one of the declared rollers: {', '.join(rollers)}")  # fmt: skip
+        if z.delivering == z.feeding:
+            raise ConfigError("delivering and feeding are the same roller", source=source,
+                              where=where, fix="a zone lies between two roller pairs")  # fmt: skip
 
 
 def _input_problem(item: InputChannel, spec: TrainSpec) -> tuple[str, str] | None:

@@ -33,6 +33,9 @@ def true_train(
 ) -> tuple[DriveTrain, dict[str, float]]:
     """The plant's drive train and the relative deviations drawn for it."""
     raw = nominal.to_dict()
+    # the plant draws the drafting force itself (a colored process, DraftingForce), so the
+    # train's own mean drafting zones would count it twice
+    raw.pop("drafting_zone", None)
     mm = cfg.mismatch
     draws: dict[str, float] = {}
 
