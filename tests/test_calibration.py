@@ -162,3 +162,28 @@ def test_cli_writes_train_and_report_and_refuses_bad_requests(records, tmp_path)
     assert "Traceback" not in result.output and not bad.exists()
     result = runner.invoke(app, [*common, "--out", str(tmp_path / "cal.txt")])
     assert result.exit_code == 2 and "toml" in result.output
+
+
+def test_supply_wander_cancels_from_the_scored_errors():
+    """With a recorded motor speed, a common relative wander of motor and rollers (the VFD's
+    frequency) leaves no scored error on the rollers; a roller's own error stays."""
+    from drafttwin.calibration.fit import Blocks, motor_gains
+    from drafttwin.mechanics import kinematics
+
+    fa = DriveTrain.preset("fa320a")
+    channels = ("front", "back", "motor")
+    gains = motor_gains(fa, channels, {c: "rpm" for c in channels})
+    kin = kinematics(fa)
+    np.testing.assert_allclose(
+        gains[:2], [kin.rollers[r].rpm / kin.motor_rpm for r in ("front", "back")], rtol=1e-12
+    )
+    assert gains[2] == 0.0
+    speed = np.array([kin.rollers["front"].rpm, kin.rollers["back"].rpm, kin.motor_rpm])
+    wander = 1.0 + 1e-3 * np.sin(np.arange(50) / 5.0)
+    measured = speed[None, :] * wander[:, None]
+    data = Blocks(None, channels, {}, 10, measured, [(0, 50)], np.ones(3), gains)  # type: ignore[arg-type]
+    simulated = np.tile(speed, (50, 1))
+    err = data.errors(simulated)
+    assert np.abs(err[:, :2]).max() < 1e-9 and np.abs(err[:, 2]).max() > 1.0
+    simulated[:, 1] += 0.5  # the back roller's own error is kept
+    np.testing.assert_allclose(data.errors(simulated)[:, 1], 0.5, atol=1e-9)

@@ -127,3 +127,20 @@ def test_every_profile_builds_valid_models(name):
             paper.residual_layers,
         ) == (128, 3, 256, 3)
         assert (paper.batch_size, paper.epochs, paper.lr, paper.dropout) == (10, 500, 1e-3, 0.2)
+
+
+def test_calibration_stage_compares_nominal_and_calibrated_physics(study_run):
+    _, results, _, files, _ = study_run
+    cal = results["calibration"]
+    assert cal["models"] == ["mechanistic", "parallel", "md-s-l"]
+    report = cal["report"]
+    assert report["rmse_after"] < report["rmse_before"]  # fitted on the training part
+    nominal, calibrated = cal["metrics"]["nominal"], cal["metrics"]["calibrated"]
+    assert nominal["parallel"] == results["comparison"]["metrics"]["parallel"]
+    for model in cal["models"]:
+        assert set(calibrated[model]) == set(ROLLERS)
+    # the calibrated physics is another prediction, scored on the same test samples
+    for r in ROLLERS:
+        assert calibrated["mechanistic"][r]["n_scored"] == nominal["mechanistic"][r]["n_scored"]
+        assert calibrated["mechanistic"][r]["rmse"] != nominal["mechanistic"][r]["rmse"]
+    assert 'id="calibration"' in files["report"].read_text()

@@ -142,7 +142,7 @@ def calibrate(
     if missing:
         raise DataError(f"the drive train gives no output channel(s) {missing}",
                         fix="calibrate on the channels the train maps ([[output]] tables)")  # fmt: skip
-    blocks = F.blocks(data, block_s)
+    blocks = F.blocks(data, block_s, train=train)
     singles = [[i] for i in range(len(chosen))]
     say(f"screening {len(chosen)} parameters at their nominal values")
     screen = F.Objective(train, blocks, chosen, singles, transform=model)
@@ -188,7 +188,7 @@ def _fit_and_prune(train, blocks, chosen, free, verdicts, model, say):
         plain = F.Objective(train, blocks, chosen, free, transform=model)
         say(f"fitting {len(free)} free factor(s)")
         x = F.fit(plain, x)
-        resid = (plain.blocks(x) - blocks.measured) / blocks.noise
+        resid = blocks.errors(plain.blocks(x))
         whitened = F.Objective(train, blocks, chosen, free, transform=model,
                                whiten=I.ar_whitener(resid, blocks.record_rows))  # fmt: skip
         whitened._cache.update(plain._cache)  # same simulations, other weighting

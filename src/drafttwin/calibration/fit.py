@@ -15,7 +15,7 @@ step large enough to stay above the simulator's round-off).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TypeAlias
 
 import numpy as np
@@ -24,7 +24,7 @@ from scipy.optimize import least_squares
 from drafttwin.calibration.parameters import Parameter, with_factors
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
-from drafttwin.mechanics import DriveTrain, simulate_channels
+from drafttwin.mechanics import DriveTrain, convert_rpm, simulate_channels
 
 Vector: TypeAlias = Sequence[float] | np.ndarray
 """A parameter vector: the free factors."""
@@ -47,11 +47,26 @@ class Blocks:
     block: int  # samples per block
     measured: np.ndarray  # (n_blocks_total, channels), NaN = not enough samples
     record_rows: list[tuple[int, int]]  # block rows of each record
-    noise: np.ndarray  # (channels,) per-block noise scale, in the channels' units
+    noise: np.ndarray  # (channels,) per-block noise scale of the scored errors
+    motor_gain: np.ndarray | None = None  # (channels,) channel speed per motor rpm, see errors
 
     @property
     def n(self) -> int:
         return int(np.isfinite(self.measured).sum())
+
+    def errors(self, simulated: np.ndarray) -> np.ndarray:
+        """Scored errors in noise units. With a recorded motor speed, each output's error is
+        taken relative to the motor's (``e_j - g_j e_motor``, ``g_j`` its nominal speed per
+        motor rpm): the supply frequency's wander moves the motor and every roller alike and
+        cancels, which leaves what the drive train between them (belt creep) does."""
+        return _differential(simulated - self.measured, self) / self.noise
+
+
+def _differential(err: np.ndarray, data: Blocks) -> np.ndarray:
+    if data.motor_gain is None:
+        return err
+    motor = err[:, data.channels.index("motor")]
+    return err - data.motor_gain[None, :] * motor[:, None]
 
 
 def block_means(values: np.ndarray, block: int) -> np.ndarray:
@@ -75,9 +90,27 @@ def _columns(series: MeasurementSeries, with_motor: bool) -> tuple[tuple[str, ..
     return names, values
 
 
-def blocks(series: MeasurementSeries, block_s: float, with_motor: bool = True) -> Blocks:
+def motor_gains(train: DriveTrain, channels: Sequence[str], units: dict[str, str]) -> np.ndarray:
+    """Each channel's nominal speed per motor rpm, in its unit (the motor's own gain is 0, so
+    its error stays as it is)."""
+    maps = {m.channel: m for m in train.output_channels()}
+    ratios = train.speed_ratios
+    gains = np.zeros(len(channels))
+    for j, c in enumerate(channels):
+        if c != "motor" and c in maps:
+            m = maps[c]
+            gains[j] = float(convert_rpm(ratios[train.node_index(m.node)], units.get(c, m.unit),
+                                         m.diameter_mm))  # fmt: skip
+    return gains
+
+
+def blocks(
+    series: MeasurementSeries, block_s: float, with_motor: bool = True,
+    train: DriveTrain | None = None,
+) -> Blocks:  # fmt: skip
     """Block means of every record (and of the motor speed, when recorded and
-    ``with_motor``); the noise scale from their block-to-block changes."""
+    ``with_motor``); the noise scale from the block-to-block changes of the scored errors
+    (relative to the motor's, when ``train`` is given and the motor speed recorded)."""
     rate = series.sample_rate_hz
     block = max(1, int(round(block_s * rate)))
     names, _ = _columns(series, with_motor)
@@ -93,13 +126,16 @@ def blocks(series: MeasurementSeries, block_s: float, with_motor: bool = True) -
         rows.append((start, start + len(means)))
         start += len(means)
     measured = np.vstack(parts)
-    steps = np.vstack([np.diff(p, axis=0) for p in parts])
+    units = {c: ("rpm" if c == "motor" else series.unit(c)) for c in names}
+    gains = motor_gains(train, names, units) if train is not None and "motor" in names else None
+    draft = Blocks(series, names, units, block, measured, rows, np.ones(len(names)), gains)
+    scored = _differential(measured, draft)  # the measurement through the scoring transform
+    steps = np.vstack([np.diff(scored[a:b], axis=0) for a, b in rows])
     # half the median absolute step (x 1.4826 for a normal scale): the noise between blocks,
     # robust to the transients a start-up puts into the steps
     noise = 1.4826 * np.nanmedian(np.abs(steps), axis=0) / np.sqrt(2.0)
     floor = 1e-6 * np.maximum(np.nanmax(np.abs(measured), axis=0), 1.0)
-    units = {c: ("rpm" if c == "motor" else series.unit(c)) for c in names}
-    return Blocks(series, names, units, block, measured, rows, np.maximum(noise, floor))
+    return replace(draft, noise=np.maximum(noise, floor))
 
 
 def simulate_blocks(train: DriveTrain, data: Blocks) -> np.ndarray:
@@ -144,7 +180,7 @@ class Objective:
 
     def residuals(self, x: Vector) -> np.ndarray:
         """(simulated − measured) / noise on the measured blocks, whitened when asked."""
-        r = (self.blocks(x) - self.data.measured) / self.data.noise
+        r = self.data.errors(self.blocks(x))
         if self.whiten is not None:
             r = self.whiten(r)
         return r[np.isfinite(self.data.measured)]

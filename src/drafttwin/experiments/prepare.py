@@ -4,14 +4,19 @@
   (:mod:`drafttwin.evaluation.protocol`): training part preprocessed as in the paper, test
   part cleaned causally, measured non-outlier test samples scored;
 * the mechanistic prediction on the same grid, following the record's set-points (simulated
-  once, cached by grid, set-points and preset).
+  once, cached by grid, set-points and preset);
+* the same with the preset calibrated on the training part (``drafttwin calibrate``, reduced
+  model in the loop; cached likewise), so the study can compare hybrids on nominal and on
+  calibrated physics.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,10 +41,11 @@ class PreparedData:
     mech: np.ndarray  # (n, 4) rpm
     true: np.ndarray | None  # (n, 4) rpm, plant truth
     n_train: int
+    mech_calibrated: np.ndarray | None = None  # (n, 4) rpm, calibrated on the training part
 
     @property
     def digest(self) -> str:
-        extra = () if self.true is None else (self.true,)
+        extra = tuple(a for a in (self.true, self.mech_calibrated) if a is not None)
         return data_hash(self.time_s, self.inputs, self.target, self.mech, *extra,
                          np.array([self.n_train]))  # fmt: skip
 
@@ -60,6 +66,8 @@ class PreparedData:
                   "mech": self.mech, "n_train": np.array(self.n_train)}  # fmt: skip
         if self.true is not None:
             arrays["true"] = self.true
+        if self.mech_calibrated is not None:
+            arrays["mech_calibrated"] = self.mech_calibrated
         path.parent.mkdir(parents=True, exist_ok=True)
         np.savez(path, allow_pickle=False, **arrays)  # numbers only
         return path
@@ -67,26 +75,63 @@ class PreparedData:
     @classmethod
     def load(cls, path: str | Path) -> PreparedData:
         with np.load(path) as z:
-            return cls(z["time_s"], z["inputs"], z["target"], z["mech"],
-                       z.get("true"), int(z["n_train"]))  # fmt: skip
+            return cls(z["time_s"], z["inputs"], z["target"], z["mech"], z.get("true"),
+                       int(z["n_train"]), z.get("mech_calibrated"))  # fmt: skip
+
+    def physics(self, which: str) -> np.ndarray:
+        """The mechanistic prediction: ``nominal`` or ``calibrated``."""
+        if which == "calibrated":
+            if self.mech_calibrated is None:
+                raise ValueError("these prepared data hold no calibrated physics")
+            return self.mech_calibrated
+        return self.mech
+
+
+def _key(series: MeasurementSeries, preset: str, *extra: bytes) -> str:
+    """Cache key of a simulation: grid, set-points, preset file and anything else given."""
+    from drafttwin.mechanics.config import preset_path
+
+    parts = [series.time_s.tobytes(), preset_path(preset).read_bytes(), *extra]
+    parts += [k.encode() + v.tobytes() for k, v in sorted(series.inputs.items())]
+    return hashlib.sha256(b"|".join(parts)).hexdigest()[:20]
 
 
 def _mechanistic(series: MeasurementSeries, preset: str, cache_dir: Path) -> np.ndarray:
     """The preset simulated on the series' grid, following its set-points (cached by grid,
     set-points and preset file)."""
-    from drafttwin.mechanics.config import preset_path
     from drafttwin.models import MechanisticModel
 
-    parts = [series.time_s.tobytes(), preset_path(preset).read_bytes()]
-    parts += [k.encode() + v.tobytes() for k, v in sorted(series.inputs.items())]
-    key = hashlib.sha256(b"|".join(parts)).hexdigest()[:20]
-    cache = cache_dir / f"mechanistic-{preset}-{key}.npy"
+    cache = cache_dir / f"mechanistic-{preset}-{_key(series, preset)}.npy"
     if cache.is_file():
         return np.load(cache)
     mech = MechanisticModel.from_preset(preset).predict(series)
     cache.parent.mkdir(parents=True, exist_ok=True)
     np.save(cache, mech)
     return mech
+
+
+def _calibrated(
+    series: MeasurementSeries, train: MeasurementSeries, preset: str, cache_dir: Path
+) -> tuple[np.ndarray, dict[str, Any]]:
+    """The preset calibrated on ``train`` (the preprocessed training part) and simulated on
+    the whole series' grid, with the calibration's report (cached by grid, set-points,
+    preset and training values)."""
+    from drafttwin.calibration import calibrate
+    from drafttwin.mechanics import DriveTrain, reduce
+    from drafttwin.models import MechanisticModel
+
+    key = _key(series, preset, b"calibrated", train.values.tobytes())
+    cache = cache_dir / f"calibrated-{preset}-{key}"
+    sim_path, report_path = cache.with_suffix(".npy"), cache.with_suffix(".json")
+    if sim_path.is_file() and report_path.is_file():
+        return np.load(sim_path), json.loads(report_path.read_text(encoding="utf-8"))
+    result = calibrate(DriveTrain.preset(preset), train, model=reduce, model_name="reduced")
+    sim = MechanisticModel.from_train(result.train).predict(series)
+    report = result.to_dict()
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    np.save(sim_path, sim)
+    report_path.write_text(json.dumps(report, allow_nan=False), encoding="utf-8")
+    return sim, report
 
 
 def prepare(
@@ -96,9 +141,11 @@ def prepare(
     preset: str,
     cache_dir: Path,
     duration_s: float | None = None,
+    calibrate: bool = True,
 ) -> tuple[PreparedData, dict]:
-    """Split, preprocess, clean (the evaluation protocol), simulate; returns the data and a
-    summary for the report."""
+    """Split, preprocess, clean (the evaluation protocol), simulate (and calibrate the physics
+    on the training part); returns the data and a summary for the report (with the
+    calibration's report under ``calibration``)."""
     if duration_s is not None:
         series = series.slice(0, int(np.searchsorted(series.time_s, series.time_s[0] + duration_s)))
     part = protocol.split(series, train_fraction=train_fraction)
@@ -114,6 +161,10 @@ def prepare(
         true=series.truth,
         n_train=n_train,
     )
+    calibration = None
+    if calibrate:
+        assert part.train is not None
+        data.mech_calibrated, calibration = _calibrated(series, part.train, preset, cache_dir)
     summary = {
         "rows": n,
         "rate_hz": series.sample_rate_hz,
@@ -123,5 +174,6 @@ def prepare(
         "train_fraction": train_fraction,
         "scoring": SCORING,
         "preprocessing": part.summary["preprocessing"],
+        "calibration": calibration,
     }
     return data, summary

@@ -34,6 +34,8 @@ from drafttwin.models.registry import get_profile
 COMPARISON = ("mechanistic", "persistence", "gru", "parallel", "md-s-l")
 EXTRA = ("md-s-l+d",)
 ABLATION = ("md-s-l", "md-l", "md-s")
+ON_CALIBRATED = ("parallel", "md-s-l")
+"""The hybrids fitted again on the calibrated physics: does better physics make them better?"""
 Stage = Callable[[str, int], Callable[[int, dict, bool], None]]
 
 
@@ -130,9 +132,10 @@ class Study:
         return self._run("data model", tasks.data_model, configs)
 
     def hybrids(self, stage: str, models: list[str], seeds: list[tuple[int, int]], hyper: dict,
-                dms: dict[int, dict], save: bool) -> list[dict]:  # fmt: skip
+                dms: dict[int, dict], save: bool, physics: str = "nominal") -> list[dict]:  # fmt: skip
+        on = {} if physics == "nominal" else {"physics": physics}  # nominal keys stay as before
         configs = [{**self._scored(), "model": m, "seed": s, "hyper": hyper, "save_predictions": save,
-                    "data_model_seed": ds, "_data_model": dms[ds]}
+                    "data_model_seed": ds, "_data_model": dms[ds], **on}
                    for m in models for s, ds in seeds]  # fmt: skip
         return self._run(stage, tasks.hybrid, configs)
 
@@ -140,6 +143,7 @@ class Study:
     def run(self, series) -> tuple[dict[str, Any], pd.DataFrame]:
         t_start = time.perf_counter()
         summary = self.prepare_data(series)
+        cal_report = summary.pop("calibration")
         grid = self.grid()
         data_hyper, res_hyper = self._hyper(grid["best"])
         n_tests = self.profile.ablation_tests
@@ -150,6 +154,8 @@ class Study:
         )
         pairs = [(k, 0 if self.profile.shared_data_model else k) for k in range(n_tests)]
         abl = self.hybrids("ablation", list(ABLATION), pairs, res_hyper, dms, False)
+        on_cal = self.hybrids("calibrated physics", list(ON_CALIBRATED), [(0, 0)], res_hyper,
+                              dms, False, physics="calibrated")  # fmt: skip
         preds = self._predictions(dms[0], comp)
         results = {
             "drafttwin_version": __version__,
@@ -172,6 +178,7 @@ class Study:
             "grid": grid,
             "comparison": self._comparison(dms[0], comp, preds),
             "ablation": self._ablation(abl, n_tests),
+            "calibration": self._calibration(cal_report, comp, on_cal),
             "timings": {},
             "machine": machine(),
         }
@@ -198,6 +205,20 @@ class Study:
         for name, r in zip(["parallel", "md-s-l", *EXTRA], comp, strict=True):
             metrics[name] = r["metrics"]
         return {"models": list(COMPARISON), "extra": list(EXTRA), "metrics": metrics}
+
+    def _calibration(self, report: dict, comp: list[dict], on_cal: list[dict]) -> dict[str, Any]:
+        """Nominal against calibrated physics, alone and under each hybrid (same seeds)."""
+        nominal = dict(zip(["parallel", "md-s-l", *EXTRA], comp, strict=True))
+        mech = make_model("mechanistic")
+        metrics = {
+            "nominal": {"mechanistic": tasks.score(self.data, self.data.mech, mech),
+                        **{m: nominal[m]["metrics"] for m in ON_CALIBRATED}},
+            "calibrated": {"mechanistic": tasks.score(self.data, self.data.physics("calibrated"), mech),
+                           **{m: r["metrics"] for m, r in zip(ON_CALIBRATED, on_cal, strict=True)}},
+        }  # fmt: skip
+        return {"models": ["mechanistic", *ON_CALIBRATED], "report": report, "metrics": metrics,
+                "note": "calibrated on the training part only (drafttwin calibrate, default "
+                        "parameters, reduced model); the same seeds on both physics"}  # fmt: skip
 
     def _ablation(self, abl: list[dict], n_tests: int) -> dict[str, Any]:
         acc = {v: [[abl[i * n_tests + k]["metrics"][r]["accuracy_pct"] for r in ROLLERS]

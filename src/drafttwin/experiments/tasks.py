@@ -123,7 +123,8 @@ class _SharedDataMDSL(MDSL):
 
 
 def hybrid(config: dict[str, Any]) -> dict[str, Any]:
-    """Fit one residual hybrid (parallel, md-s-l, md-l, md-s, md-s-l+d) and score it."""
+    """Fit one residual hybrid (parallel, md-s-l, md-l, md-s, md-s-l+d) on the nominal or,
+    with ``config["physics"] == "calibrated"``, the calibrated physics, and score it."""
     data = _setup(config)
     model = make_model(config["model"], config["model_profile"], seed=config["seed"], quiet=True,
                        **config["hyper"])  # fmt: skip
@@ -133,9 +134,10 @@ def hybrid(config: dict[str, Any]) -> dict[str, Any]:
         shared.shared_ = (dm["gru_path"], dm["oof_path"], dm["blocks"])
         model = shared
     train = data.series().slice(0, data.n_train)
+    mech = data.physics(config.get("physics", "nominal"))
     t0 = time.perf_counter()
-    model.fit(train, MechanisticModel(data.mech[: data.n_train]))
-    pred = model.predict_values(data.series(), MechanisticModel(data.mech))
+    model.fit(train, MechanisticModel(mech[: data.n_train]))
+    pred = model.predict_values(data.series(), MechanisticModel(mech))
     result = {"metrics": score(data, pred, model), "epochs": len(_history(model).train_loss),
               "wall_s": time.perf_counter() - t0}  # fmt: skip
     if config.get("save_predictions"):

@@ -19,6 +19,7 @@ from drafttwin.report import figures, paper, tables
 from drafttwin.report.comparison import comparison_section, figures_section
 from drafttwin.report.html import join, page, tag
 from drafttwin.report.overview import TITLE, header, run_section
+from drafttwin.report.physics import calibration_section
 from drafttwin.report.studies import ablation_section, agreement_section, grid_section
 
 TOC = [
@@ -27,6 +28,7 @@ TOC = [
     ("predictions", "Predictions and residuals (Fig. 8)"),
     ("grid", "Grid search (Fig. 7)"),
     ("ablation", "Ablation (Table 3)"),
+    ("calibration", "Calibrated physics"),
     ("agreement", "Agreement with the paper"),
 ]
 CSV_FLOAT = "%.10g"
@@ -106,12 +108,13 @@ def render_html(results: Mapping[str, Any], predictions: pd.DataFrame) -> str:
     zoom = zoom_window(predictions["time"].to_numpy(dtype=np.float64))
     body = join(
         [
-            header(results, TOC),
+            header(results, [t for t in TOC if t[0] != "calibration" or "calibration" in results]),
             run_section(results),
             comparison_section(results, figs),
             figures_section(figs, plotted, zoom),
             grid_section(results, figs),
             ablation_section(results, figs),
+            calibration_section(results),
             agreement_section(results),
             tag(
                 "footer",
