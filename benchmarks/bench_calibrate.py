@@ -1,6 +1,6 @@
 """Calibration on the plant: estimates against the true machine, and the physics before/after.
 
-    python benchmarks/bench_calibrate.py [--machines 3] [--train-s 30] [--test-s 120] [--full-model]
+    python benchmarks/bench_calibrate.py [--machines 3] [--train-s 60] [--test-s 120] [--full-model]
 
 For each machine (machine seeds 101, 102, ...) the plant records three runs of that one
 machine: a start-up and a steady run (``--train-s`` each; the calibration data) and a speed
@@ -78,9 +78,11 @@ def one_machine(seed: int, args: argparse.Namespace, folder: Path, model) -> dic
     cal = calibrate(plant.train, data, model=model, model_name="reduced" if model else "full")
     wall = time.perf_counter() - start
     true = truth(machine, plant.config, 0.5 * args.train_s)
-    params = []
+    params, others = [], {}
     for e in cal.estimates:
-        if e.verdict in ("identified", "only in combination"):
+        if e.verdict not in ("identified", "only in combination"):
+            others[e.name] = e.verdict
+        else:
             t = true.get(e.name, float("nan"))
             params.append({"name": e.name, "verdict": e.verdict, "factor": e.factor,
                            "factor_se": e.factor_se, "true_factor": t,
@@ -92,7 +94,7 @@ def one_machine(seed: int, args: argparse.Namespace, folder: Path, model) -> dic
     sim = simulate_channels(plant.train, startup.time_s, inputs=startup.inputs, channels=ROLLERS)
     startup_rmse = np.sqrt(np.nanmean((sim[first] - startup.values[first]) ** 2, axis=0))
     steady_speed = np.nanmean(test.values[: len(test) // 4], axis=0)
-    return {"machine_seed": seed, "parameters": params, "wall_s": wall,
+    return {"machine_seed": seed, "parameters": params, "others": others, "wall_s": wall,
             "simulations": cal.evaluations,
             "test_bias_nominal": bias0.tolist(), "test_bias_calibrated": bias1.tolist(),
             "test_rmse_nominal": rmse0.tolist(), "test_rmse_calibrated": rmse1.tolist(),
@@ -110,6 +112,9 @@ def report(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         for p in row["parameters"]:
             print(f"  {p['name']:<42} {p['verdict']:<20} {p['factor']:>9.4f} "
                   f"{p['factor_se']:>8.4f} {p['true_factor']:>8.4f}  {p['within_3se']}")  # fmt: skip
+        for verdict in sorted(set(row["others"].values())):
+            names = [n for n, v in row["others"].items() if v == verdict]
+            print(f"  {verdict}: {', '.join(names)}")
         print(f"  {'roller':<8} {'bias nominal':>13} {'bias calibrated':>16} "
               f"{'RMSE nominal':>13} {'RMSE calibrated':>16}  (rpm, test record)")  # fmt: skip
         for j, r in enumerate(ROLLERS):
@@ -137,7 +142,7 @@ def report(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--machines", type=int, default=3)
-    parser.add_argument("--train-s", type=float, default=30.0)
+    parser.add_argument("--train-s", type=float, default=60.0)
     parser.add_argument("--test-s", type=float, default=120.0)
     parser.add_argument("--full-model", action="store_true")
     args = parser.parse_args()
