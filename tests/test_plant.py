@@ -1,6 +1,7 @@
 """Plant emulator: reproducibility, the shipped data set, sensors, defects, scenarios."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -214,3 +215,10 @@ def test_motor_speed_is_measured_by_its_own_encoder():
     err = motor[ok] - rec.true_motor_rpm[ok]
     # whole counts (one step) plus the window jitter (2 us at 24 rev/s: ~0.5 step)
     assert np.abs(err).max() < 3 * step and err.std() < step and abs(err.mean()) < 0.1 * step
+
+
+def test_a_train_that_is_no_drawing_frame_is_refused_clearly(tmp_path):
+    belt = Path(__file__).resolve().parents[1] / "docs" / "examples" / "belt_drive.toml"
+    out, result = _generate(tmp_path, "belt.csv", "--config", str(belt))
+    assert result.exit_code == 2 and "no rollers" in result.output, result.output
+    assert "Traceback" not in result.output and not out.exists()

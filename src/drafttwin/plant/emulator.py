@@ -115,6 +115,18 @@ class Plant:
     def __init__(self, train: DriveTrain | None = None, config: PlantConfig | None = None) -> None:
         self.train = train if train is not None else DriveTrain.preset("fa320a")
         self.config = config if config is not None else PlantConfig()
+        declared = {r.name for r in self.train.spec.roller}
+        if not set(ROLLERS) <= declared:
+            raise ConfigError(
+                "the plant emulator plays a drawing frame's drafting section (sliver drafted "
+                "between roller pairs, roller encoders); this train declares "
+                + (f"the rollers {', '.join(sorted(declared))}" if declared else "no rollers")
+                + f", not {', '.join(ROLLERS)}",
+                source=self.train.source,
+                where="[[roller]]",
+                fix="generate with --preset fa320a or a drafting train with these four rollers; "
+                "for another machine record its data, or simulate it (drafttwin simulate)",
+            )
 
     def run(
         self,
