@@ -12,7 +12,8 @@ Reported per machine: every identified parameter's estimate, standard error and 
 true value (the sidecar's mismatch draw; for ``motor.rated_slip`` the rotor-resistance factor
 of the thermal drift at the middle of the calibration records), and whether it lies within 3
 standard errors; the nominal and calibrated physics' bias and RMSE per roller on the test
-record (full model, following the record's set-points, against the measured speeds); the
+record (full model, following the record's set-points, scored as ``drafttwin evaluate`` scores:
+the measured samples that are not outliers); the
 nominal physics' RMSE over the first 5 s of the start-up record; the calibration's wall time.
 Writes benchmarks/results/calibrate.json.
 """
@@ -55,11 +56,17 @@ def truth(machine: Machine, cfg: PlantConfig, mid_s: float) -> dict[str, float]:
     return out
 
 
-def errors(train: DriveTrain, record: dt.MeasurementSeries) -> tuple[np.ndarray, np.ndarray]:
-    """Bias and RMSE per roller of the train's simulation against the measured speeds, rpm."""
-    sim = simulate_channels(train, record.time_s, inputs=record.inputs, channels=ROLLERS)
-    err = sim - record.values
-    return np.nanmean(err, axis=0), np.sqrt(np.nanmean(err**2, axis=0))
+def errors(
+    train: DriveTrain, calibration: dt.MeasurementSeries, test: dt.MeasurementSeries
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bias and RMSE per roller of the train's simulation on the test record, scored as
+    ``drafttwin evaluate`` scores (measured samples the outlier rule does not flag), rpm."""
+    physics = dt.MechanisticModel.from_train(train)
+    model = dt.make_model("mechanistic")
+    part = dt.fit(model, calibration, test=test, mechanistic=physics)
+    metrics = dt.evaluate(model, part, mechanistic=physics).metrics
+    return (np.array([metrics[r].bias for r in ROLLERS]),
+            np.array([metrics[r].rmse for r in ROLLERS]))  # fmt: skip
 
 
 def one_machine(seed: int, args: argparse.Namespace, folder: Path, model) -> dict[str, Any]:
@@ -87,8 +94,8 @@ def one_machine(seed: int, args: argparse.Namespace, folder: Path, model) -> dic
             params.append({"name": e.name, "verdict": e.verdict, "factor": e.factor,
                            "factor_se": e.factor_se, "true_factor": t,
                            "within_3se": bool(abs(e.factor - t) <= 3 * e.factor_se)})  # fmt: skip
-    bias0, rmse0 = errors(plant.train, test)
-    bias1, rmse1 = errors(cal.train, test)
+    bias0, rmse0 = errors(plant.train, data, test)
+    bias1, rmse1 = errors(cal.train, data, test)
     startup = dt.read_measurements(paths["startup"])
     first = startup.time_s <= 5.0
     sim = simulate_channels(plant.train, startup.time_s, inputs=startup.inputs, channels=ROLLERS)

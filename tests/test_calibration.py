@@ -15,6 +15,7 @@ from drafttwin.calibration.fit import block_means
 from drafttwin.calibration.io import write_train
 from drafttwin.cli import app
 from drafttwin.data.io import read_measurements
+from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import DriveTrain, simulate_channels
 
@@ -155,6 +156,13 @@ def test_cli_writes_train_and_report_and_refuses_bad_requests(records, tmp_path)
     assert 1 - m["rated_rpm"] / (120 * m["rated_supply_hz"] / m["poles"]) == pytest.approx(
         slip["estimate"]
     )
+    result = runner.invoke(app, [*common, "--params", "motor.rated_slip", "--lines", "--json",
+                                 "--out", str(tmp_path / "lines.toml")])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    lines = json.loads(result.output)["lines"]
+    assert set(lines["share_held_out"]) == {"y"} and lines["lines"][0]["name"].startswith(
+        ("motor", "flywheel")
+    )
     bad = tmp_path / "bad.toml"
     result = runner.invoke(app, [*common, "--params", "roller.front.friction_coefficient",
                                  "--out", str(bad)])  # fmt: skip
@@ -187,3 +195,48 @@ def test_supply_wander_cancels_from_the_scored_errors():
     assert np.abs(err[:, :2]).max() < 1e-9 and np.abs(err[:, 2]).max() > 1.0
     simulated[:, 1] += 0.5  # the back roller's own error is kept
     np.testing.assert_allclose(data.errors(simulated)[:, 1], 0.5, atol=1e-9)
+
+
+def test_known_lines_merge_terms_of_one_frequency():
+    from drafttwin.calibration.lines import known_lines
+
+    fa = DriveTrain.preset("fa320a")
+    names = [line.name for line in known_lines(fa)]
+    # the front roller turns with its drive (a shaft), the rear shaft at half the main shaft's
+    # speed (25/50 chain): speed data cannot tell these apart
+    assert "front_drive x1 = front_roller x1" in names
+    assert "main_shaft x1 = rear_shaft x2" in names
+    assert any(n.startswith("mesh A-B") for n in names)
+
+
+def test_known_line_recovered_from_angles_and_causal():
+    """A once-per-revolution ripple of the back roller (0.3 rpm) in the measurement: the fit
+    finds it on the held-out part, and the angle at a sample uses earlier samples only."""
+    from drafttwin.calibration.lines import fit_lines, node_angles
+    from drafttwin.mechanics import reduce, simulate_nodes_on_grid
+
+    fa = reduce(DriveTrain.preset("fa320a"))
+    t = np.round(np.arange(1, 1501) * 0.01, 10)
+    supply = {"supply_hz": np.full(len(t), 48.47)}
+    sim = simulate_nodes_on_grid(fa, t, supply)
+    y = sim.roller_rpm()
+    back = fa.node_index("back_roller")
+    angle = np.cumsum(sim.node_rpm[:, back]) * 0.01 / 60.0 - 0.5 * sim.node_rpm[:, back] * 0.01 / 60
+    rng = np.random.default_rng(4)
+    y = y + 0.05 * rng.standard_normal(y.shape)
+    y[:, 3] += 0.3 * np.sin(2 * np.pi * angle + 1.0)
+    series = MeasurementSeries(t, y, inputs=supply)
+    fit = fit_lines(DriveTrain.preset("fa320a"), series, fa)
+    assert fit.share_held_out["back"] > 0.9 and abs(fit.share_held_out["front"]) < 0.05
+    top = fit.to_dict(top=1)["lines"][0]
+    assert top["name"].startswith("back_drive x1") and top["amplitude"]["back"] == pytest.approx(
+        0.3, rel=0.05
+    )
+    changed = y.copy()
+    changed[700:, :] += 50.0  # a different future must not move the angles before it
+    later = node_angles(
+        DriveTrain.preset("fa320a"), MeasurementSeries(t, changed, inputs=supply), sim
+    )
+    np.testing.assert_array_equal(
+        later[:701], node_angles(DriveTrain.preset("fa320a"), series, sim)[:701]
+    )

@@ -31,6 +31,7 @@ from drafttwin._io import json_number
 from drafttwin.calibration import fit as F
 from drafttwin.calibration import identify as I
 from drafttwin.calibration.parameters import Parameter, nominal_values, select, with_factors
+from drafttwin.data.preprocess import preprocess
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
 from drafttwin.mechanics import DriveTrain
@@ -90,6 +91,7 @@ class Calibration:
     wall_s: float
     model: str
     notes: list[str] = field(default_factory=list)
+    lines: dict[str, Any] | None = None  # known-frequency terms (calibrate(lines=True))
 
     @staticmethod
     def _overall(per_channel: dict[str, float]) -> float:
@@ -119,6 +121,7 @@ class Calibration:
             "simulations": self.evaluations,
             "wall_s": self.wall_s,
             "notes": list(self.notes),
+            **({"lines": self.lines} if self.lines is not None else {}),
         }
 
 
@@ -131,10 +134,13 @@ def calibrate(
     model: Callable[[DriveTrain], DriveTrain] | None = None,
     model_name: str = "full",
     progress: Progress | None = None,
+    lines: bool = False,
 ) -> Calibration:
     """Estimate ``params`` (dotted names; ``None``: the default set) of ``train`` from the
     measured records ``data`` (outputs the train maps, inputs it follows). ``model`` turns a
-    train into the one simulated in the loop (e.g. :func:`drafttwin.mechanics.reduce`)."""
+    train into the one simulated in the loop (e.g. :func:`drafttwin.mechanics.reduce`).
+    ``lines``: also fit the known-frequency terms to the calibrated physics' residual
+    (:mod:`drafttwin.calibration.lines`)."""
     start = time.perf_counter()
     say = progress or (lambda _msg: None)
     chosen = select(train, params)
@@ -142,6 +148,7 @@ def calibrate(
     if missing:
         raise DataError(f"the drive train gives no output channel(s) {missing}",
                         fix="calibrate on the channels the train maps ([[output]] tables)")  # fmt: skip
+    data, _ = preprocess(data)  # gaps and spikes as everywhere in drafttwin: a spike is 100 sigma
     blocks = F.blocks(data, block_s, train=train)
     singles = [[i] for i in range(len(chosen))]
     say(f"screening {len(chosen)} parameters at their nominal values")
@@ -161,7 +168,17 @@ def calibrate(
         collinearity=gamma, block_s=block_s, records=data.n_records,
         evaluations=screen.evaluations + objective.evaluations,
         wall_s=time.perf_counter() - start, model=model_name,
+        lines=_lines(train, data, model(calibrated) if model else calibrated, say) if lines else None,
     )  # fmt: skip
+
+
+def _lines(
+    train: DriveTrain, data: MeasurementSeries, physics: DriveTrain, say: Progress
+) -> dict[str, Any]:
+    from drafttwin.calibration.lines import fit_lines
+
+    say("fitting the known-frequency terms to the calibrated physics' residual")
+    return fit_lines(train, data, physics).to_dict()
 
 
 def _screen(jac: np.ndarray, n: int) -> tuple[list[list[int]], dict[int, str]]:

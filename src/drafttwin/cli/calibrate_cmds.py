@@ -63,6 +63,16 @@ def calibrate(
             "the reduced one (couplings above 200 Hz rigid, belts compliant; docs/mechanics.md).",
         ),
     ] = False,  # fmt: skip
+    lines: Annotated[
+        bool,
+        typer.Option(
+            "--lines",
+            help="Also fit the known-frequency terms (once and twice per revolution of every "
+            "shaft, gear meshes, chain tooth pass; angles from the measured speeds) to the "
+            "calibrated physics' residual, and report the share of its fluctuation they "
+            "explain on each record's held-out last 30 % and the largest terms.",
+        ),
+    ] = False,  # fmt: skip
     as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
     quiet: Annotated[bool, typer.Option(help="No progress messages.")] = False,
 ) -> None:
@@ -88,7 +98,7 @@ def calibrate(
     names = None if params is None else [p.strip() for p in params.split(",") if p.strip()]
     say = None if (quiet or as_json) else (lambda msg: err_console.print(escape(msg)))
     result = run(train, series, names, block_s=block, model=model, model_name=name,
-                 progress=say)  # fmt: skip
+                 progress=say, lines=lines)  # fmt: skip
     report = {**result.to_dict(), "data": data, "drive_train": train.spec.train.name}
     write_train(result.train, out, f"calibrated by drafttwin calibrate on {data}")
     write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=2, allow_nan=False))
@@ -127,6 +137,26 @@ def _print(result: Calibration) -> None:
                     f"{result.bias_after[c]:.4g}", f"{result.rmse_before[c]:.4g}",
                     f"{result.rmse_after[c]:.4g}")  # fmt: skip
     console.print(fit)
+    if result.lines is not None:
+        _print_lines(result.lines)
     console.print(f"collinearity index of the free set {result.collinearity:.3g}; "
                   f"{result.evaluations} simulations ({result.model} model), "
                   f"{result.wall_s:.0f} s")  # fmt: skip
+
+
+def _print_lines(lines: dict) -> None:
+    share = Table(title="known-frequency terms: share of the physics residual's fluctuation "
+                  "they explain")  # fmt: skip
+    for col in ("channel", "fitted part", "held-out 30 %"):
+        share.add_column(col, justify="left" if col == "channel" else "right")
+    for c, v in lines["share_held_out"].items():
+        share.add_row(escape(c), f"{lines['share_fit'][c]:.1%}", f"{v:.1%}")
+    console.print(share)
+    top = Table(title="largest terms (amplitude per channel)")
+    channels = list(lines["share_held_out"])
+    for col in ("term", "Hz", *channels):
+        top.add_column(escape(col), justify="left" if col == "term" else "right")
+    for t in lines["lines"][:5]:
+        top.add_row(escape(t["name"]), f"{t['frequency_hz']:.2f}",
+                    *(f"{t['amplitude'][c]:.3g}" for c in channels))  # fmt: skip
+    console.print(top)

@@ -15,7 +15,12 @@ from drafttwin.mechanics.assembly import DriveTrain, Signal
 from drafttwin.mechanics.channels import OutputMap, convert_rpm
 from drafttwin.mechanics.components import InputChannel, OutputChannel
 from drafttwin.mechanics.config import PRESETS, TrainSpec
-from drafttwin.mechanics.grid import drive_from_inputs, simulate_channels, simulate_on_grid
+from drafttwin.mechanics.grid import (
+    drive_from_inputs,
+    simulate_channels,
+    simulate_nodes_on_grid,
+    simulate_on_grid,
+)
 from drafttwin.mechanics.kinematics import (
     Kinematics,
     OperatingPoint,
@@ -54,6 +59,7 @@ __all__ = [
     "reduce",
     "simulate",
     "simulate_channels",
+    "simulate_nodes_on_grid",
     "simulate_on_grid",
     "simulate_reference",
     "starts_at_rest",

@@ -216,4 +216,19 @@ def simulate_on_grid(
     return _simulate_grid(driven, time_s, **simulate_kwargs).roller_rpm()
 
 
-__all__ = ["drive_from_inputs", "grid_step_s", "simulate_channels", "simulate_on_grid"]
+def simulate_nodes_on_grid(
+    train: DriveTrain,
+    time_s: np.ndarray,
+    inputs: InputColumns | None = None,
+    **simulate_kwargs: Any,
+) -> SimulationResult:
+    """The whole simulation result (every node's interval-mean speed) on a measurement grid,
+    with the inputs and start rule of :func:`simulate_channels`."""
+    time_s = np.asarray(time_s, dtype=np.float64)
+    return _simulate_grid(drive_from_inputs(train, time_s, inputs), time_s, **simulate_kwargs)
+
+
+__all__ = [
+    "drive_from_inputs", "grid_step_s", "simulate_channels", "simulate_nodes_on_grid",
+    "simulate_on_grid",
+]  # fmt: skip
