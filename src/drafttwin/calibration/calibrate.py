@@ -1,6 +1,6 @@
 """``calibrate``: estimate a drive train's uncertain parameters from measured records.
 
-Stages:
+Stages (on the records cleaned as everywhere in drafttwin: gaps filled, spikes smoothed):
 
 1. **Screening** at the nominal values: each parameter's effect on the block means (its
    Jacobian column, in noise units). Parameters the data do not see are "not from this data"
@@ -15,7 +15,9 @@ Stages:
    ("not separable in this data") and the rest is refitted.
 
 The result holds the calibrated train, each parameter's nominal value, estimate, standard
-error and verdict, and the fit's bias and RMSE per channel before and after.
+error and verdict, and the fit's bias and RMSE per channel before and after; optionally the
+known-frequency terms fitted to the calibrated physics' residual
+(:mod:`drafttwin.calibration.lines`).
 """
 
 from __future__ import annotations
@@ -160,7 +162,8 @@ def calibrate(
     calibrated = with_factors(train, chosen, factors)
     estimates = _estimates(train, chosen, objective.groups, x, se, verdicts)
     before = F.simulate_blocks(model(train) if model else train, blocks)
-    after = F.simulate_blocks(model(calibrated) if model else calibrated, blocks)
+    final = model(calibrated) if model else calibrated  # the train as simulated in the loop
+    after = F.simulate_blocks(final, blocks)
     return Calibration(
         train=calibrated, estimates=estimates, channels=blocks.channels, units=blocks.units,
         bias_before=_bias(before, blocks), bias_after=_bias(after, blocks),
@@ -168,7 +171,7 @@ def calibrate(
         collinearity=gamma, block_s=block_s, records=data.n_records,
         evaluations=screen.evaluations + objective.evaluations,
         wall_s=time.perf_counter() - start, model=model_name,
-        lines=_lines(train, data, model(calibrated) if model else calibrated, say) if lines else None,
+        lines=_lines(train, data, final, say) if lines else None,
     )  # fmt: skip
 
 
