@@ -205,7 +205,8 @@ def _read_file(source: Path, spec: ChannelSpec, opts: _Options) -> MeasurementSe
         rpm = [n for n in (*plan.outputs, *plan.inputs) if is_rpm(plan.units[n])]
         if rpm:
             check_rpm(np.column_stack([data[n] for n in rpm]), rpm, source,
-                      nominal_rpm=opts.nominal_rpm, diameters_mm=opts.diameters_mm)  # fmt: skip
+                      nominal_rpm=opts.nominal_rpm, diameters_mm=opts.diameters_mm,
+                      row_label=row_label)  # fmt: skip
     bounds, ids = [(0, len(frame))], None
     if plan.record:
         bounds, ids = record_bounds(frame[plan.record], plan.record, source, row_label)

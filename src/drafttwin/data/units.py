@@ -10,7 +10,7 @@ range, sign, front faster than back, ratio to nominal speeds) run on channels in
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -119,6 +119,7 @@ def check_units(
     nominal_rpm: dict[str, float] | None = None,
     diameters_mm: dict[str, float] | None = None,
     plausible: tuple[float, float] = PLAUSIBLE_RPM,
+    row_label: Callable[[int], str] = lambda i: f"row {i + 1}",
 ) -> dict[str, float]:
     """Refuse speeds in rpm that look like another unit; return the running medians (rpm).
 
@@ -128,6 +129,8 @@ def check_units(
     (delivery) roller slower than the back roller (drafting makes the front fastest, so the
     columns are swapped); and, when nominal speeds are given, a median whose ratio to the
     nominal speed matches a unit factor (rad/s, rev/s, deg/s, or m/min with known diameters).
+    Per sample (:func:`check_samples`): no speed beyond what any roller can reach, and no
+    sample running backwards by more than the noise of a stop.
     """
     for j, name in enumerate(names):
         running = _nonzero(rpm[:, j])
@@ -149,7 +152,48 @@ def check_units(
     for r, nominal in (nominal_rpm or {}).items():
         if r in medians and np.isfinite(medians[r]) and nominal > 0:
             _compare_nominal(r, medians[r], nominal, (diameters_mm or {}).get(r), source)
+    check_samples(rpm, names, medians, source, row_label, plausible)
     return medians
+
+
+SPEED_CEILING_FACTOR = 10.0
+"""A sample above this many times the plausible maximum is no speed at all (a bit error)."""
+REVERSE_TOLERANCE = (10.0, 0.05)
+"""A sample may run backwards by at most max(10 rpm, 5 % of the running median): torsional
+swing at a stop (the plant's start-ups reach -0.6 rpm); a drawing frame cannot run its
+rollers backwards further than that."""
+
+
+def check_samples(
+    rpm: np.ndarray,
+    names: Sequence[str],
+    medians: dict[str, float],
+    source: str | Path,
+    row_label: Callable[[int], str],
+    plausible: tuple[float, float] = PLAUSIBLE_RPM,
+) -> None:
+    """Refuse single samples that no drafting roller can produce (named by row)."""
+    ceiling = SPEED_CEILING_FACTOR * plausible[1]
+    for j, name in enumerate(names):
+        x = rpm[:, j]
+        med = medians.get(name, float("nan"))
+        floor = -max(REVERSE_TOLERANCE[0], REVERSE_TOLERANCE[1] * (med if med == med else 0.0))
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero((x > ceiling) | (x < floor))
+        if bad.shape[0]:
+            i = int(bad[0])
+            high = x[i] > ceiling
+            limit = f"above {ceiling:g} rpm" if high else f"below {floor:.4g} rpm (backwards)"
+            skip = "the speeds are not in rpm" if high else "the machine really reverses"
+            raise DataError(
+                f"sample {x[i]:.6g} rpm is {limit}, which no drafting roller reaches "
+                f"({bad.shape[0]} such sample(s))",
+                source=source,
+                where=f"column '{name}', {row_label(i)}",
+                fix="remove or blank the corrupted samples (an empty cell is read as missing "
+                f"and filled by the preprocessing); if {skip}, skip this check "
+                "(check_units=False / --no-unit-check)",
+            )
 
 
 def _refuse_negative(name: str, med: float, source: str | Path) -> None:

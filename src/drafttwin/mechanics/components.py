@@ -18,8 +18,21 @@ from typing import Annotated, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
+# Physical ranges: every number is finite (``allow_inf_nan=False`` below) and inside a range
+# wide enough for any drive train of a textile machine, narrow enough to refuse typos (1e30).
+Positive = Annotated[float, Field(gt=0, le=1e12)]
+NonNegative = Annotated[float, Field(ge=0, le=1e12)]
+InertiaKgm2 = Annotated[float, Field(gt=0, le=1e4)]
+PowerW = Annotated[float, Field(gt=0, le=1e7)]
+SpeedRpm = Annotated[float, Field(gt=0, le=1e5)]
+SupplyHz = Annotated[float, Field(gt=0, le=1000)]
+LengthMm = Annotated[float, Field(gt=0, le=1e4)]
+Micrometres = Annotated[float, Field(ge=0, le=1e4)]
+AngleDeg = Annotated[float, Field(ge=-3600, le=3600)]
+ForceN = Annotated[float, Field(ge=0, le=1e6)]
+TorqueNm = Annotated[float, Field(ge=-1e6, le=1e6)]
+TimeS = Annotated[float, Field(ge=-1e7, le=1e7)]
+SpeedEps = Annotated[float, Field(gt=0, le=100)]
 DampingRatio = Annotated[float, Field(ge=0, le=2)]
 Teeth = Annotated[int, Field(ge=6, le=400)]
 RollerName = Literal["front", "second", "third", "back"]
@@ -29,14 +42,15 @@ OUTPUT_UNITS: tuple[str, ...] = get_args(OutputUnit)
 
 
 class Component(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True, strict=False)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
+    """Strict: a TOML ``true`` or ``"50"`` is not a number; ``inf`` and ``nan`` are refused."""
 
 
 class Inertia(Component):
     """A rigid rotating body (a node of the train)."""
 
     name: str = Field(min_length=1)
-    inertia_kgm2: Positive
+    inertia_kgm2: InertiaKgm2
     note: str = ""
 
 
@@ -50,11 +64,11 @@ class InductionMotor(Component):
     """
 
     node: str
-    rated_power_w: Positive
-    rated_rpm: Positive
+    rated_power_w: PowerW
+    rated_rpm: SpeedRpm
     poles: Annotated[int, Field(ge=2, le=24, multiple_of=2)]
-    rated_supply_hz: Positive = 50.0
-    supply_hz: Positive = 50.0
+    rated_supply_hz: SupplyHz = 50.0
+    supply_hz: SupplyHz = 50.0
     breakdown_torque_ratio: Annotated[float, Field(gt=1.0, le=6.0)] = 2.8
     torque_lag_s: Annotated[float, Field(gt=0, le=1.0)] = 0.01
     torque_ripple: Annotated[float, Field(ge=0, le=0.2)] = 0.0
@@ -91,8 +105,8 @@ class Belt(_Transmission):
     so the driven rim runs ``(1 - eps)`` slower than the driver rim.
     """
 
-    driver_diameter_mm: Positive
-    driven_diameter_mm: Positive
+    driver_diameter_mm: LengthMm
+    driven_diameter_mm: LengthMm
     span_stiffness_n_per_m: Positive
     axial_rigidity_n: Positive
     damping_ratio: DampingRatio = 0.05
@@ -122,9 +136,9 @@ class ChainDrive(_ToothedTransmission):
     each span carries ``max(0, pretension +/- k (x_driver - x_driven) +/- c d/dt(...))``.
     """
 
-    pitch_mm: Positive = 12.7
+    pitch_mm: LengthMm = 12.7
     span_stiffness_n_per_m: Positive
-    pretension_n: NonNegative = 150.0
+    pretension_n: ForceN = 150.0
     damping_ratio: DampingRatio = 0.05
 
 
@@ -138,20 +152,20 @@ class GearMesh(_ToothedTransmission):
     to ``harmonics`` Fourier terms; its mean is ``mesh_stiffness_n_per_m``.
     """
 
-    module_mm: Positive = 2.0
+    module_mm: LengthMm = 2.0
     pressure_angle_deg: Annotated[float, Field(gt=10, lt=35)] = 20.0
     mesh_stiffness_n_per_m: Positive = 3.0e8
     contact_ratio: Annotated[float, Field(ge=1.0, le=2.0)] = 1.6
     stiffness_ratio: Annotated[float, Field(ge=1.0, le=3.0)] = 1.7
     harmonics: Annotated[int, Field(ge=0, le=12)] = 5
-    backlash_um: NonNegative = 0.0
+    backlash_um: Micrometres = 0.0
     """Total backlash 2b along the line of action; DIN 3967 context gives about 0.04 * module."""
     damping_ratio: DampingRatio = 0.05
-    driver_eccentricity_um: NonNegative = 0.0
-    driven_eccentricity_um: NonNegative = 0.0
-    driver_eccentricity_phase_deg: float = 0.0
-    driven_eccentricity_phase_deg: float = 0.0
-    transmission_error_um: NonNegative = 0.0
+    driver_eccentricity_um: Micrometres = 0.0
+    driven_eccentricity_um: Micrometres = 0.0
+    driver_eccentricity_phase_deg: AngleDeg = 0.0
+    driven_eccentricity_phase_deg: AngleDeg = 0.0
+    transmission_error_um: Micrometres = 0.0
     """Amplitude of the tooth-mesh-frequency transmission error."""
 
 
@@ -184,10 +198,10 @@ class Roller(Component):
 
     name: RollerName
     node: str
-    diameter_mm: Positive
-    top_load_per_side_n: NonNegative
+    diameter_mm: LengthMm
+    top_load_per_side_n: ForceN
     friction_coefficient: Annotated[float, Field(ge=0, le=1)] = 0.1
-    friction_speed_eps_rad_s: Positive = 0.5
+    friction_speed_eps_rad_s: SpeedEps = 0.5
 
 
 class DraftingZone(Component):
@@ -201,17 +215,17 @@ class DraftingZone(Component):
     name: str
     delivering: RollerName
     feeding: RollerName
-    force_n: NonNegative
-    speed_eps_rad_s: Positive = 0.5
+    force_n: ForceN
+    speed_eps_rad_s: SpeedEps = 0.5
 
 
 class BearingFriction(Component):
     """Bearing losses on a node: Coulomb torque (tanh-regularised) plus viscous drag."""
 
     node: str
-    coulomb_torque_nm: NonNegative = 0.0
-    viscous_nms: NonNegative = 0.0
-    speed_eps_rad_s: Positive = 0.5
+    coulomb_torque_nm: Annotated[float, Field(ge=0, le=1e6)] = 0.0
+    viscous_nms: Annotated[float, Field(ge=0, le=1e6)] = 0.0
+    speed_eps_rad_s: SpeedEps = 0.5
 
 
 class TorqueSeries(Component):
@@ -219,8 +233,8 @@ class TorqueSeries(Component):
 
     name: str
     node: str
-    times_s: list[float] = Field(min_length=2)
-    torque_nm: list[float] = Field(min_length=2)
+    times_s: list[TimeS] = Field(min_length=2)
+    torque_nm: list[TorqueNm] = Field(min_length=2)
 
     @model_validator(mode="after")
     def _same_length_increasing(self) -> TorqueSeries:
@@ -265,9 +279,9 @@ class OutputChannel(Component):
 class Solver(Component):
     """Integrator settings: fixed-step RK4, interval-mean output."""
 
-    dt_s: Annotated[float, Field(gt=0, le=1e-3)] = 2.0e-5
+    dt_s: Annotated[float, Field(ge=1e-7, le=1e-3)] = 2.0e-5
     output_rate_hz: Annotated[float, Field(gt=0, le=100_000)] = 1000.0
-    settle_s: NonNegative = 1.0
+    settle_s: Annotated[float, Field(ge=0, le=3600)] = 1.0
 
 
 class TrainInfo(Component):

@@ -12,12 +12,12 @@ from typing import Annotated
 from pydantic import BaseModel, ConfigDict, Field
 
 Frac = Annotated[float, Field(ge=0, le=1)]
-NonNeg = Annotated[float, Field(ge=0)]
-Pos = Annotated[float, Field(gt=0)]
+NonNeg = Annotated[float, Field(ge=0, le=1e9)]
+Pos = Annotated[float, Field(gt=0, le=1e9)]
 
 
 class _Cfg(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, strict=True, allow_inf_nan=False)
 
 
 class Mismatch(_Cfg):
@@ -79,14 +79,22 @@ class Supply(_Cfg):
 class Sensors(_Cfg):
     """Encoders counting pulses over each sample window, plus the data path's defects."""
 
-    pulses_per_rev: Annotated[int, Field(ge=1)] = 2500  # 500-2500 ppr [d21], assumption
+    pulses_per_rev: Annotated[int, Field(ge=1, le=1_000_000)] = (
+        2500  # 500-2500 ppr [d21], assumption
+    )
     quadrature: Annotated[int, Field(ge=1, le=4)] = 4  # x4 decoding [d21]
     clock_jitter_s: NonNeg = 2e-6  # assumption: sample-window length jitter
     missing_rate: Frac = 0.002  # assumption: single dropped samples (network, [paper 3.2])
     burst_rate_per_min: NonNeg = 1.0  # assumption: bursts of dropped samples per minute
-    burst_length: tuple[int, int] = (5, 50)  # assumption: samples per burst (min, max)
+    burst_length: Annotated[tuple[int, int], Field(strict=False)] = (
+        5,
+        50,
+    )  # assumption: samples per burst (min, max)
     outlier_rate: Frac = 0.0005  # assumption: spikes (bit errors), per sample and roller
-    outlier_size: tuple[float, float] = (0.15, 0.40)  # assumption: relative size, > 10 %
+    outlier_size: Annotated[tuple[float, float], Field(strict=False)] = (
+        0.15,
+        0.40,
+    )  # assumption: relative size, > 10 %
 
 
 class PlantConfig(_Cfg):
