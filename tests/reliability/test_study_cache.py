@@ -8,6 +8,7 @@ epoch each); each case damages one file in a copy of it and reruns the study in 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -22,6 +23,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
@@ -54,14 +56,14 @@ FILE_KINDS: dict[str, Callable[[Path], Path]] = {
 
 
 def _flip(data: bytes) -> bytes:
-    i = len(data) // 2
+    i = len(data) * 7 // 8  # in an array, a row of the scored test part
     return data[:i] + bytes([data[i] ^ 0xFF]) + data[i + 1 :]
 
 
 def _tamper(data: bytes) -> bytes:
     """Change one number so the JSON still parses."""
     text = data.decode()
-    match = re.search(r": (-?\d+\.\d+)", text)
+    match = re.search(r'"rmse\w*": (-?\d+\.\d+)', text)  # a result, not the configuration
     assert match, "no number to tamper with"
     changed = str(float(match.group(1)) + 1.0)
     return (text[: match.start(1)] + changed + text[match.end(1) :]).encode()
@@ -84,9 +86,9 @@ CASES = [(kind, damage) for kind in FILE_KINDS for damage in DAMAGES
          if damage != "number-tampered" or kind.endswith("-json")]  # fmt: skip
 
 
-def _numbers(results: dict[str, Any]) -> str:
-    """The study's results without timings: what must not change when a cache entry is
-    recomputed (NaN-safe text)."""
+def _numbers(results: dict[str, Any], predictions: pd.DataFrame) -> str:
+    """The study's results without timings, and a hash of its predictions: what must not
+    change when a cache entry is recomputed (NaN-safe text)."""
 
     def strip(x: Any) -> Any:
         if isinstance(x, dict):
@@ -96,14 +98,15 @@ def _numbers(results: dict[str, Any]) -> str:
             return [strip(v) for v in x]
         return x
 
-    return json.dumps(strip(results), sort_keys=True, default=str)
+    digest = hashlib.sha256(predictions.to_numpy().tobytes()).hexdigest()
+    return json.dumps(strip(results), sort_keys=True, default=str) + digest
 
 
 def _run(out: Path, cached: list[bool] | None = None) -> str:
     def stage(name: str, total: int) -> Callable[[int, dict, bool], None]:
         return lambda i, r, c: cached.append(c) if cached is not None else None
 
-    return _numbers(Study(SMALL, out_dir=out, workers=1, stage=stage).run(SERIES)[0])
+    return _numbers(*Study(SMALL, out_dir=out, workers=1, stage=stage).run(SERIES))
 
 
 SERIES = load_default()

@@ -117,7 +117,8 @@ class ResultStore:
         return Path(rel).as_posix() if not rel.startswith("..") else str(path.absolute())
 
     def __len__(self) -> int:
-        return sum(1 for _ in self.root.glob("*.json"))
+        # not the hidden temporary files of writes in progress (``.<name>.XXXX.json``)
+        return sum(1 for p in self.root.glob("*.json") if not p.name.startswith("."))
 
 
 FORMAT = "drafttwin-result-2"
