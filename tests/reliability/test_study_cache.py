@@ -82,8 +82,16 @@ DAMAGES: dict[str, Callable[[Path], None]] = {
     "sidecar-deleted": lambda p: integrity.sidecar(p).unlink(),
     "sidecar-altered": lambda p: _rewrite(lambda d: b"0" + d[1:])(integrity.sidecar(p)),
 }
-CASES = [(kind, damage) for kind in FILE_KINDS for damage in DAMAGES
-         if damage != "number-tampered" or kind.endswith("-json")]  # fmt: skip
+PHYSICS = ("mechanistic-npy", "calibrated-npy", "calibrated-json")
+"""Kinds whose recomputation simulates the drive train (seconds each): one rerun per damage
+kind damages all three, and each must be reported by name."""
+
+
+def _applies(kind: str, damage: str) -> bool:
+    return damage != "number-tampered" or kind.endswith("-json")
+
+
+CASES = [(k, d) for k in FILE_KINDS for d in DAMAGES if k not in PHYSICS and _applies(k, d)]
 
 
 def _numbers(results: dict[str, Any], predictions: pd.DataFrame) -> str:
@@ -144,25 +152,48 @@ def test_every_cache_file_has_a_sidecar_and_the_study_holds_every_kind(pristine)
     assert doc["artifacts"] and all(not Path(p).is_absolute() for p in doc["artifacts"])
 
 
+def _damage_and_rerun(out: Path, expected: str, kinds: list[str], damage: str,
+                      capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Damage one file of each kind, rerun: each is reported by name in one line, set aside,
+    recomputed, the numbers are the same; a second rerun reuses everything silently."""
+    targets = [FILE_KINDS[kind](out / "cache") for kind in kinds]
+    for target in targets:
+        DAMAGES[damage](target)
+    capfd.readouterr()
+    assert _run(out) == expected  # recomputed, the same numbers
+    err = capfd.readouterr().err
+    assert "Traceback" not in err
+    reported = [line for line in err.splitlines() if "is damaged" in line]
+    assert len(reported) == len(targets), err  # one line per damaged file, naming it
+    for target in targets:
+        assert [x for x in reported if x.startswith(f"cache entry {target} is damaged (")], err
+    for target in targets:
+        assert integrity.problem(target) is None  # written again, checked
+        if damage != "sidecar-deleted":
+            assert target.with_name(target.name + ".damaged").is_file()  # kept for inspection
+    cached: list[bool] = []
+    assert _run(out, cached) == expected and all(cached)  # and now reused, silently
+    assert "damaged" not in capfd.readouterr().err
+
+
 @pytest.mark.parametrize(("kind", "damage"), CASES, ids=[f"{k}-{d}" for k, d in CASES])
 def test_a_damaged_cache_file_is_reported_discarded_and_recomputed(
     study: tuple[Path, str], kind: str, damage: str, capfd: pytest.CaptureFixture[str]
 ) -> None:
-    out, expected = study
-    target = FILE_KINDS[kind](out / "cache")
-    DAMAGES[damage](target)
-    capfd.readouterr()
-    assert _run(out) == expected  # recomputed, the same numbers
-    err = capfd.readouterr().err
-    lines = [line for line in err.splitlines() if "is damaged" in line]
-    assert lines == [f"cache entry {target} is damaged ({lines[0].split('(', 1)[1]}"], err
-    assert "Traceback" not in err
-    assert integrity.problem(target) is None  # written again, checked
-    if damage != "sidecar-deleted":
-        assert target.with_name(target.name + ".damaged").is_file()  # kept for inspection
-    cached: list[bool] = []
-    assert _run(out, cached) == expected and all(cached)  # and now reused, silently
-    assert "damaged" not in capfd.readouterr().err
+    _damage_and_rerun(*study, [kind], damage, capfd)
+
+
+@pytest.mark.parametrize("damage", list(DAMAGES))
+def test_damaged_physics_caches_are_reported_discarded_and_recomputed(
+    study: tuple[Path, str], damage: str, capfd: pytest.CaptureFixture[str]
+) -> None:
+    kinds = [kind for kind in PHYSICS if _applies(kind, damage)]
+    _damage_and_rerun(*study, kinds, damage, capfd)
+
+
+def test_every_damaged_artifact_of_one_result_is_reported(study, capfd) -> None:
+    """The data model's GRU, out-of-fold and predictions all damaged: all three named."""
+    _damage_and_rerun(*study, ["gru-model", "oof-npy", "pred-npy"], "truncated-by-one-byte", capfd)
 
 
 def test_a_result_tampered_and_resealed_is_caught_by_its_self_hash(study, capfd) -> None:

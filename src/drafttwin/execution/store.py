@@ -82,14 +82,17 @@ class ResultStore:
         doc = integrity.read_checked(path, lambda p: _load_doc(p, public(config)))
         if doc is None:
             return None
+        damaged = 0
         for rel, digest in doc["artifacts"].items():
             artifact = self.base / rel
             reason = integrity.problem(artifact, expected=digest)
             if reason is not None:  # the result is only as good as the files it names
                 integrity.discard(artifact, reason)
-                for p in (path, integrity.sidecar(path)):
-                    p.unlink(missing_ok=True)
-                return None
+                damaged += 1
+        if damaged:
+            for p in (path, integrity.sidecar(path)):
+                p.unlink(missing_ok=True)
+            return None
         result: dict[str, Any] = doc["result"]
         for k, v in result.items():
             if k.endswith(PATH_SUFFIX) and isinstance(v, str):
