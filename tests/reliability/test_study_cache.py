@@ -257,11 +257,18 @@ def test_a_stale_lock_of_a_killed_run_is_taken_over_with_a_note(tmp_path, capfd)
     holder = _hold_lock(tmp_path)
     holder.send_signal(signal.SIGKILL)
     holder.wait()
+    (tmp_path / "cache").mkdir()
+    unfinished = tmp_path / "cache" / ".mechanistic-x.npy.a1b2c3d4.npy"  # a killed write
+    unfinished.write_bytes(b"partial")
+    keep = tmp_path / "cache" / ".hidden-user-file"
+    keep.write_text("not ours")
     capfd.readouterr()
     with study_lock(tmp_path) as lock:
         assert json.loads(lock.read_text())["pid"] == os.getpid()
         err = capfd.readouterr().err
         assert f"taking over the stale lock {lock} (pid {holder.pid}" in err
+        assert "removed 1 unfinished temporary file" in err
+        assert not unfinished.exists() and keep.exists()
         assert len(err.strip().splitlines()) == 1
         # a live holder (this process, through another descriptor) refuses a second one
         with pytest.raises(StudyLocked), study_lock(tmp_path):

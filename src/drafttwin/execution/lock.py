@@ -12,6 +12,7 @@ import contextlib
 import datetime as _dt
 import json
 import os
+import re
 import socket
 import sys
 from collections.abc import Iterator
@@ -21,6 +22,8 @@ from typing import Any
 from drafttwin.errors import DrafttwinError
 
 LOCK_NAME = ".lock"
+_TEMPORARY = re.compile(r"^\.(?P<name>.+)\.[a-z0-9_]{8}(?P<suffix>\.[^.]*)?$")
+"""Names of :func:`drafttwin._io.atomic_path`'s temporary files: ``.<name>.<8 random><suffix>``."""
 
 
 class StudyLocked(DrafttwinError):
@@ -34,6 +37,19 @@ def _owner(lock_path: Path) -> dict[str, Any]:
     except (OSError, ValueError):
         return {}
     return owner if isinstance(owner, dict) else {}
+
+
+def _remove_temporaries(study_dir: Path) -> int:
+    """Delete the temporary files that a killed run left mid-write (never used: a file is
+    renamed into place only when complete). Only called while holding a lock taken over from a
+    dead owner, so no live writer owns them. Returns how many were removed."""
+    removed = 0
+    for path in study_dir.rglob(".*"):
+        match = _TEMPORARY.match(path.name)
+        if match and path.is_file() and match["name"].endswith(match["suffix"] or ""):
+            path.unlink(missing_ok=True)
+            removed += 1
+    return removed
 
 
 def _alive(pid: object) -> bool:
@@ -76,8 +92,10 @@ def study_lock(study_dir: str | Path) -> Iterator[Path]:
         if previous and previous.get("pid") != os.getpid():
             # the flock was free, so its owner has ended without removing the file
             state = "not running" if not _alive(previous.get("pid")) else "no longer holding it"
+            removed = _remove_temporaries(study_dir)
+            left = f"; removed {removed} unfinished temporary file(s)" if removed else ""
             print(f"note: taking over the stale lock {lock_path} (pid {previous.get('pid')} "
-                  f"on {previous.get('host')}, {state})", file=sys.stderr)  # fmt: skip
+                  f"on {previous.get('host')}, {state}){left}", file=sys.stderr)  # fmt: skip
         me = {"pid": os.getpid(), "host": socket.gethostname(),
               "started_utc": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")}  # fmt: skip
         os.ftruncate(fd, 0)
