@@ -1,13 +1,20 @@
-"""Atomic file writing: write to a temporary file beside the target, then rename."""
+"""Atomic file writing: write to a temporary file beside the target, flush it to disk, then
+rename, so a reader (or a rerun after a crash or power cut) sees the old file or the whole new
+one, never a part."""
 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    import numpy as np
 
 
 @contextlib.contextmanager
@@ -27,10 +34,34 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
     os.chmod(tmp_path, 0o666 & ~umask)  # mkstemp makes 0600; give the file normal permissions
     try:
         yield tmp_path
+        _fsync_file(tmp_path)  # the data reach the disk before the name points at them
         os.replace(tmp_path, target)
+        _fsync_dir(target.parent)  # ... and the rename itself survives a power cut
     finally:
         if tmp_path.exists():
             tmp_path.unlink()
+
+
+def _fsync_file(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Flush a directory entry where the platform allows it (not on Windows)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:  # some file systems cannot sync a directory; the rename still happened
+        pass
+    finally:
+        os.close(fd)
 
 
 def write_text_atomic(target: str | Path, text: str) -> None:
@@ -43,3 +74,35 @@ def json_number(value: float) -> float | None:
     """``value`` as a float, or ``None`` when it is NaN or infinite (JSON has neither)."""
     x = float(value)
     return x if math.isfinite(x) else None
+
+
+def write_bytes_atomic(target: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``target`` atomically."""
+    with atomic_path(target) as tmp:
+        tmp.write_bytes(data)
+
+
+def save_npy_atomic(target: str | Path, array: np.ndarray) -> None:
+    """``np.save`` to ``target`` atomically (numbers only: no pickled objects). Written through
+    a file object, so NumPy does not append ``.npy`` to the temporary name."""
+    import numpy as np
+
+    with atomic_path(target) as tmp, tmp.open("wb") as f:
+        np.save(f, np.asarray(array), allow_pickle=False)
+
+
+def savez_atomic(target: str | Path, /, **arrays: Any) -> None:
+    """``np.savez`` to ``target`` atomically (numbers only: no pickled objects)."""
+    import numpy as np
+
+    with atomic_path(target) as tmp, tmp.open("wb") as f:
+        np.savez(f, allow_pickle=False, **arrays)
+
+
+def sha256_file(path: str | Path, chunk_bytes: int = 1 << 20) -> str:
+    """SHA-256 of a file's bytes (hex), read in chunks so memory stays flat."""
+    h = hashlib.sha256()
+    with Path(path).open("rb") as f:
+        while chunk := f.read(chunk_bytes):
+            h.update(chunk)
+    return h.hexdigest()

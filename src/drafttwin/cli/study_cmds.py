@@ -94,13 +94,14 @@ def reproduce(
 
     Finished fits are kept in OUT/cache: a rerun resumes.
     """
+    from drafttwin.execution.lock import study_lock
     from drafttwin.report import write_study
 
     t0 = time.perf_counter()
     study, series, display = options.study(out)
-    with display.progress:
+    with study_lock(out), display.progress:  # one run at a time per --out
         results, predictions = study.run(series)
-    files = write_study(out, results, predictions)
+        files = write_study(out, results, predictions)
     console.print(
         f"study '{options.profile}' done in {time.perf_counter() - t0:.0f} s; report: "
         f"{files['report']}"
@@ -121,12 +122,13 @@ def grid_search(
     import json
 
     from drafttwin._io import write_text_atomic
+    from drafttwin.execution.lock import study_lock
 
     study, series, display = options.study(out)
-    with display.progress:
+    with study_lock(out), display.progress:  # one run at a time per --out
         study.prepare_data(series)
         grid = study.grid()
-    write_text_atomic(out / "grid.json", json.dumps(grid, indent=2) + "\n")
+        write_text_atomic(out / "grid.json", json.dumps(grid, indent=2) + "\n")
     for net in ("lstm", "gru"):
         b = grid["best"][net]
         console.print(f"{net.upper()}: best lr {b['lr']:g}, hidden {b['hidden']}, layers {b['layers']} "

@@ -59,8 +59,9 @@ def run_tasks(
     results: dict[int, dict[str, Any]] = {}
     todo = []
     for i, key in enumerate(keys):
-        if store is not None and store.has(key):
-            results[i] = store.get(key)
+        cached = store.fetch(key, configs[i]) if store is not None else None
+        if cached is not None:  # found and checked; a damaged entry is recomputed
+            results[i] = cached
             if on_result:
                 on_result(i, results[i], True)
         else:

@@ -1,19 +1,24 @@
 """Results of sweep tasks, written once each, keyed by task configuration and data hash.
 
-A rerun of an interrupted sweep finds finished tasks here and skips them; a task's result is
-written atomically, so an interruption never leaves a half-written result behind.
+A rerun of an interrupted sweep finds finished tasks here and skips them. A task's result is
+written atomically with a ``.sha256`` sidecar, and holds its configuration, the hashes of the
+artifacts it names (result fields ending in ``_path``, stored relative to the store's base
+folder so a moved study folder still works) and a hash of its own content. A result is used
+only when all of these check out; otherwise it is reported, discarded and recomputed.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from drafttwin._io import write_text_atomic
+from drafttwin._io import sha256_file
+from drafttwin.execution import integrity
 
 
 def canonical_json(obj: Any) -> str:
@@ -53,26 +58,93 @@ def task_key(config: dict[str, Any], data_digest: str) -> str:
 
 
 class ResultStore:
-    """A folder of ``<key>.json`` files, one per finished task."""
+    """A folder of ``<key>.json`` files, one per finished task.
 
-    def __init__(self, root: str | Path) -> None:
+    Args:
+        root: the folder of result files.
+        base: the folder that artifact paths are stored relative to (the study folder);
+            default ``root``.
+    """
+
+    def __init__(self, root: str | Path, base: str | Path | None = None) -> None:
         self.root = Path(root)
         self.root.mkdir(parents=True, exist_ok=True)
+        self.base = Path(base) if base is not None else self.root
 
     def _path(self, key: str) -> Path:
         return self.root / f"{key}.json"
 
-    def has(self, key: str) -> bool:
-        return self._path(key).is_file()
-
-    def get(self, key: str) -> dict[str, Any]:
-        return json.loads(self._path(key).read_text(encoding="utf-8"))["result"]
+    def fetch(self, key: str, config: dict[str, Any]) -> dict[str, Any] | None:
+        """The stored result of the task ``key`` with ``config``, artifact paths resolved
+        against :attr:`base`; ``None`` when there is none or it is damaged (then it is
+        reported and discarded, and the caller recomputes it)."""
+        path = self._path(key)
+        doc = integrity.read_checked(path, lambda p: _load_doc(p, public(config)))
+        if doc is None:
+            return None
+        damaged = 0
+        for rel, digest in doc["artifacts"].items():
+            artifact = self.base / rel
+            reason = integrity.problem(artifact, expected=digest)
+            if reason is not None:  # the result is only as good as the files it names
+                integrity.discard(artifact, reason)
+                damaged += 1
+        if damaged:
+            for p in (path, integrity.sidecar(path)):
+                p.unlink(missing_ok=True)
+            return None
+        result: dict[str, Any] = doc["result"]
+        for k, v in result.items():
+            if k.endswith(PATH_SUFFIX) and isinstance(v, str):
+                result[k] = str(self.base / v)
+        return result
 
     def put(self, key: str, config: dict[str, Any], result: dict[str, Any]) -> None:
-        if self.has(key):  # written once: a finished task is never overwritten
+        """Store ``result`` (written once: a valid stored result is never overwritten)."""
+        path = self._path(key)
+        if path.is_file() and integrity.problem(path) is None:
             return
-        doc = {"config": public(config), "result": result}
-        write_text_atomic(self._path(key), json.dumps(doc, default=json_default, sort_keys=True))
+        stored, artifacts = dict(result), {}
+        for k, v in result.items():
+            if k.endswith(PATH_SUFFIX) and isinstance(v, str):
+                stored[k] = self._relative(Path(v))
+                artifacts[stored[k]] = integrity.recorded_hash(v) or sha256_file(v)
+        body = {"format": FORMAT, "config": public(config), "result": stored,
+                "artifacts": artifacts}  # fmt: skip
+        doc = json.loads(json.dumps(body, default=json_default))  # as it will read back
+        doc["sha256"] = _content_hash(doc)
+        integrity.write_text_sealed(path, json.dumps(doc, sort_keys=True))
+
+    def _relative(self, path: Path) -> str:
+        rel = os.path.relpath(os.path.abspath(path), os.path.abspath(self.base))
+        return Path(rel).as_posix() if not rel.startswith("..") else str(path.absolute())
 
     def __len__(self) -> int:
-        return sum(1 for _ in self.root.glob("*.json"))
+        # not the hidden temporary files of writes in progress (``.<name>.XXXX.json``)
+        return sum(1 for p in self.root.glob("*.json") if not p.name.startswith("."))
+
+
+FORMAT = "drafttwin-result-2"
+"""Names the stored document's layout (config, result, artifacts, sha256)."""
+PATH_SUFFIX = "_path"
+"""Result fields whose value is an artifact file."""
+
+
+def _content_hash(doc: dict[str, Any]) -> str:
+    """Hash of a stored document's canonical content, without its own ``sha256`` field."""
+    body = {k: v for k, v in doc.items() if k != "sha256"}
+    return hashlib.sha256(canonical_json(body).encode()).hexdigest()
+
+
+def _load_doc(path: Path, config: dict[str, Any]) -> dict[str, Any]:
+    """A stored document, checked: layout, self-hash, and the configuration asked for."""
+    doc = json.loads(path.read_text(encoding="utf-8"))
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ValueError("not a result document of this drafttwin version")
+    if doc.get("sha256") != _content_hash(doc):
+        raise ValueError("content does not match its self-hash")
+    if canonical_json(doc["config"]) != canonical_json(config):
+        raise ValueError("holds another task's configuration")
+    if not isinstance(doc["result"], dict) or not isinstance(doc["artifacts"], dict):
+        raise ValueError("result or artifact list is not a mapping")
+    return doc

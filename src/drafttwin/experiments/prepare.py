@@ -23,6 +23,7 @@ import numpy as np
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.evaluation import protocol
 from drafttwin.evaluation.protocol import Split
+from drafttwin.execution import integrity
 from drafttwin.execution.store import data_hash
 
 SCORING = (
@@ -68,15 +69,28 @@ class PreparedData:
             arrays["true"] = self.true
         if self.mech_calibrated is not None:
             arrays["mech_calibrated"] = self.mech_calibrated
-        path.parent.mkdir(parents=True, exist_ok=True)
-        np.savez(path, allow_pickle=False, **arrays)  # numbers only
+        integrity.savez_sealed(path, **arrays)  # numbers only, atomic, with its sidecar
         return path
 
     @classmethod
     def load(cls, path: str | Path) -> PreparedData:
-        with np.load(path) as z:
-            return cls(z["time_s"], z["inputs"], z["target"], z["mech"], z.get("true"),
+        """Read what :meth:`save` wrote; raises ``ValueError`` when the arrays disagree."""
+        with np.load(path, allow_pickle=False) as z:
+            data = cls(z["time_s"], z["inputs"], z["target"], z["mech"], z.get("true"),
                        int(z["n_train"]), z.get("mech_calibrated"))  # fmt: skip
+        rows = len(data.time_s)
+        arrays = (data.inputs, data.target, data.mech, data.true, data.mech_calibrated)
+        if any(a is not None and a.shape != (rows, 4) for a in arrays) or not (
+            0 < data.n_train < rows
+        ):
+            raise ValueError("prepared data arrays of inconsistent shapes")
+        return data
+
+    @classmethod
+    def load_checked(cls, path: str | Path) -> PreparedData | None:
+        """:meth:`load` when the file matches its sidecar; ``None`` (reported and discarded)
+        when it is missing or damaged."""
+        return integrity.read_checked(path, cls.load)
 
     def physics(self, which: str) -> np.ndarray:
         """The mechanistic prediction: ``nominal`` or ``calibrated``."""
@@ -102,12 +116,20 @@ def _mechanistic(series: MeasurementSeries, preset: str, cache_dir: Path) -> np.
     from drafttwin.models import MechanisticModel
 
     cache = cache_dir / f"mechanistic-{preset}-{_key(series, preset)}.npy"
-    if cache.is_file():
-        return np.load(cache)
+    cached = integrity.read_checked(cache, lambda p: integrity.load_array(p, series.values.shape))
+    if cached is not None:
+        return cached
     mech = MechanisticModel.from_preset(preset).predict(series)
-    cache.parent.mkdir(parents=True, exist_ok=True)
-    np.save(cache, mech)
+    integrity.save_npy_sealed(cache, mech)
     return mech
+
+
+def _load_report(path: Path) -> dict[str, Any]:
+    """A calibration report written by :func:`_calibrated` (a JSON object)."""
+    report = json.loads(path.read_text(encoding="utf-8"))
+    if not isinstance(report, dict):
+        raise ValueError("not a JSON object")
+    return report
 
 
 def _calibrated(
@@ -123,14 +145,17 @@ def _calibrated(
     key = _key(series, preset, b"calibrated", train.values.tobytes())
     cache = cache_dir / f"calibrated-{preset}-{key}"
     sim_path, report_path = cache.with_suffix(".npy"), cache.with_suffix(".json")
-    if sim_path.is_file() and report_path.is_file():
-        return np.load(sim_path), json.loads(report_path.read_text(encoding="utf-8"))
+    cached_sim = integrity.read_checked(
+        sim_path, lambda p: integrity.load_array(p, series.values.shape)
+    )
+    cached_report = integrity.read_checked(report_path, _load_report)
+    if cached_sim is not None and cached_report is not None:
+        return cached_sim, cached_report
     result = calibrate(DriveTrain.preset(preset), train, model=reduce, model_name="reduced")
     sim = MechanisticModel.from_train(result.train).predict(series)
     report = result.to_dict()
-    cache_dir.mkdir(parents=True, exist_ok=True)
-    np.save(sim_path, sim)
-    report_path.write_text(json.dumps(report, allow_nan=False), encoding="utf-8")
+    integrity.save_npy_sealed(sim_path, sim)
+    integrity.write_text_sealed(report_path, json.dumps(report, allow_nan=False))
     return sim, report
 
 

@@ -27,7 +27,7 @@ from drafttwin.execution.executor import run_tasks
 from drafttwin.execution.store import ResultStore
 from drafttwin.experiments import tasks
 from drafttwin.experiments.plan import StudyProfile, get_study_profile, grid_configs
-from drafttwin.experiments.prepare import prepare
+from drafttwin.experiments.prepare import PreparedData, prepare
 from drafttwin.models import make_model, persistence_forecast
 from drafttwin.models.registry import get_profile
 
@@ -56,7 +56,7 @@ class Study:
         self.profile = profile if isinstance(profile, StudyProfile) else get_study_profile(profile)
         self.out = Path(out_dir)
         self.cache = self.out / "cache"
-        self.store = ResultStore(self.cache / "results")
+        self.store = ResultStore(self.cache / "results", base=self.out)  # artifacts relative to out
         self.exec_args: ExecutorSettings = {
             "executor": executor,
             "address": address,
@@ -111,7 +111,10 @@ class Study:
         t0 = time.perf_counter()
         self.data, summary = prepare(series, train_fraction=0.7, preset=self.preset, cache_dir=self.cache,
                                      duration_s=self.profile.data_duration_s)  # fmt: skip
-        self.data_path = self.data.save(self.cache / f"data-{self.data.digest[:16]}.npz")
+        self.data_path = self.cache / f"data-{self.data.digest[:16]}.npz"
+        saved = PreparedData.load_checked(self.data_path)
+        if saved is None or saved.digest != self.data.digest:
+            self.data.save(self.data_path)
         self.timings["data"] = time.perf_counter() - t0
         return summary
 

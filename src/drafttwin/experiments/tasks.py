@@ -9,15 +9,18 @@ Workers use one PyTorch thread each, so parallel tasks do not oversubscribe the 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import torch
 
 from drafttwin._constants import ROLLERS
 from drafttwin.data.series import MeasurementSeries
+from drafttwin.errors import DrafttwinError
 from drafttwin.evaluation import protocol
+from drafttwin.execution import integrity
 from drafttwin.execution.store import task_key
 from drafttwin.experiments.prepare import PreparedData
 from drafttwin.models import BaseModel, MechanisticModel, make_model
@@ -26,10 +29,23 @@ from drafttwin.models.mdsl import MDSL
 from drafttwin.models.task import input_matrix
 from drafttwin.models.training import FitProgress, History
 
+T = TypeVar("T")
+
 
 def _setup(config: dict[str, Any]) -> PreparedData:
     torch.set_num_threads(1)
-    return PreparedData.load(config["_data"])
+    return _checked(config["_data"], PreparedData.load)
+
+
+def _checked(path: str | Path, loader: Callable[[Path], T]) -> T:
+    """A cache file the study wrote this run or checked when it reused the task that wrote
+    it; damaged since then (it is reported and discarded), the task fails: a rerun
+    recomputes it."""
+    value = integrity.read_checked(path, loader)
+    if value is None:
+        raise DrafttwinError("a cache file was damaged during the run", source=path,
+                             fix="run the same command again: it is recomputed")  # fmt: skip
+    return value
 
 
 def _artifact(config: dict[str, Any], data: PreparedData, suffix: str) -> Path:
@@ -97,12 +113,14 @@ def data_model(config: dict[str, Any]) -> dict[str, Any]:
     gru.channels_, gru.units_ = ROLLERS, {r: "rpm" for r in ROLLERS}
     gru.mechanistic_spec_, gru.selection_, gru.provenance_ = None, {}, {}
     gru.sample_rate_hz_ = train.sample_rate_hz
-    gru_path = gru.save(_artifact(config, data, ".gru.dtm"))
+    gru_path = _artifact(config, data, ".gru.dtm")
+    with integrity.sealed_path(gru_path) as tmp:
+        gru.save(tmp)
     oof_path = _artifact(config, data, ".oof.npy")
-    np.save(oof_path, oof)
+    integrity.save_npy_sealed(oof_path, oof)
     pred = gru.predict_values(data.series())
     pred_path = _artifact(config, data, ".pred.npy")
-    np.save(pred_path, pred)
+    integrity.save_npy_sealed(pred_path, pred)
     return {"gru_path": str(gru_path), "oof_path": str(oof_path), "pred_path": str(pred_path),
             "blocks": [list(b) for b in mdsl.crossfit_blocks_], "metrics": score(data, pred, gru),
             "epochs": len(gru.history_.train_loss), "wall_s": time.perf_counter() - t0}  # fmt: skip
@@ -116,9 +134,9 @@ class _SharedDataMDSL(MDSL):
 
     def _fit_data(self, y: np.ndarray, *_: object) -> np.ndarray:
         gru_path, oof_path, blocks = self.shared_
-        self.data_model_ = GRUModel.load(gru_path)
+        self.data_model_ = _checked(gru_path, GRUModel.load)
         self.crossfit_blocks_ = [(int(a), int(b)) for a, b in blocks]
-        self.crossfit_pred_ = np.load(oof_path)
+        self.crossfit_pred_ = _checked(oof_path, lambda p: integrity.load_array(p, y.shape))
         return self.crossfit_pred_
 
 
@@ -142,6 +160,6 @@ def hybrid(config: dict[str, Any]) -> dict[str, Any]:
               "wall_s": time.perf_counter() - t0}  # fmt: skip
     if config.get("save_predictions"):
         path = _artifact(config, data, ".pred.npy")
-        np.save(path, pred)
+        integrity.save_npy_sealed(path, pred)
         result["pred_path"] = str(path)
     return result
