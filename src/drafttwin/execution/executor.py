@@ -152,7 +152,8 @@ def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
     """Cancel pending tasks and end the workers now: ``shutdown`` alone would wait for (or,
     with ``wait=False``, abandon) the running ones."""
     processes = list((pool._processes or {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
+    manager: threading.Thread | None = getattr(pool, "_executor_manager_thread", None)
+    pool.shutdown(wait=False, cancel_futures=True)  # forgets the manager thread
     for p in processes:
         p.terminate()
     deadline = time.monotonic() + STOP_TIMEOUT_S
@@ -164,7 +165,6 @@ def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
     # the pool's manager thread ends when it sees the dead workers; once it has, nothing is
     # left to wake up, and Python 3.11's exit hook writing to its wake-up pipe anyway can
     # race with the pipe's closing ("Bad file descriptor", a stray traceback on stderr)
-    manager: threading.Thread | None = getattr(pool, "_executor_manager_thread", None)
     if manager is not None:
         manager.join(STOP_TIMEOUT_S)
         if not manager.is_alive():
