@@ -166,7 +166,7 @@ def _assert_exit(how: str, rc: int, err: Path) -> None:
     # a second Ctrl-C while the process exits ends it by SIGINT itself (a shell shows 130)
     assert rc == EXIT[name] or (how.endswith("x2") and rc == -signal.SIGINT), (rc, lines)
     assert len(lines) == 1, lines
-    assert f"interrupted by {name}" in lines[0] and "rerun to resume" in lines[0]
+    assert "interrupted" in lines[0] and "results are kept" in lines[0], lines
 
 
 @pytest.mark.parametrize(
@@ -181,7 +181,7 @@ def test_signalled_study_leaves_no_worker_behind(how, reference, tmp_path):
     _assert_exit(how, rc, err)
 
 
-@pytest.mark.parametrize("how", ["SIGKILL", "SIGTERM"])
+@pytest.mark.parametrize("how", ["SIGKILL", pytest.param("SIGTERM", marks=pytest.mark.slow)])
 def test_rerun_after_a_kill_gives_the_numbers_of_an_uninterrupted_run(how, reference, tmp_path):
     out = tmp_path / "study"
     proc, _ = _start(reference[1], out)
@@ -198,7 +198,7 @@ def test_rerun_after_a_kill_gives_the_numbers_of_an_uninterrupted_run(how, refer
 def test_signalled_ray_study_leaves_no_ray_process_behind(how, reference, tmp_path):
     pytest.importorskip("ray")
     proc, err = _start(reference[1], tmp_path / "study", "--executor", "ray")
-    procs = _wait_for_workers(proc, "default_worker", 1)
+    procs = _wait_for_workers(proc, "ray::", 3)  # two agents and a worker (process titles)
     time.sleep(1.0)  # the raylet starts its agents and further workers meanwhile
     procs |= _descendants(proc.pid)
     rc, outlived_s = _interrupt(proc, how, procs)

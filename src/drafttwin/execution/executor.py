@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import concurrent.futures as cf
 import contextlib
+import logging
 import multiprocessing as mp
 import os
 import signal
@@ -23,7 +24,12 @@ from typing import Any
 
 from drafttwin.errors import DrafttwinError
 from drafttwin.execution import ray_guard
-from drafttwin.execution.interrupt import restore_handler, spawn_without_sigint, worker_init
+from drafttwin.execution.interrupt import (
+    restore_handler,
+    signals_deferred,
+    spawn_without_sigint,
+    worker_init,
+)
 from drafttwin.execution.store import ResultStore, task_key
 
 Task = Callable[[dict[str, Any]], dict[str, Any]]
@@ -34,6 +40,7 @@ EXECUTORS = ("local", "ray")
 WORKERS_PER_CPU = 4
 ADDRESS_TIMEOUT_S = 3.0
 """How long ``--address`` gets to accept a connection when the options are checked."""
+RAY_POLL_S = 0.5
 STOP_TIMEOUT_S = 5.0
 """How long stopped workers get to exit after SIGTERM before they are killed."""
 
@@ -184,7 +191,8 @@ def _run_ray(fn: Task, todo: Pending, finish: Finish, workers: int, address: str
         pending = {remote.remote(config): i for i, config in todo}
         try:
             while pending:
-                done, _ = ray.wait(list(pending), num_returns=1)
+                with signals_deferred():  # returns every RAY_POLL_S to let a signal through
+                    done, _ = ray.wait(list(pending), num_returns=1, timeout=RAY_POLL_S)
                 for ref in done:
                     finish(pending.pop(ref), ray.get(ref))
         except BaseException:  # an error, Ctrl-C or SIGTERM: stop the tasks still running
@@ -215,10 +223,11 @@ def _import_ray() -> Any:
 def _init_ray(ray: Any, workers: int, address: str | None) -> None:
     if not address:
         ray.init(num_cpus=workers, ignore_reinit_error=True, log_to_driver=False,
-                 include_dashboard=False)  # fmt: skip
+                 include_dashboard=False, logging_level=logging.ERROR)  # fmt: skip
         return
     try:
-        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
+        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False,
+                 logging_level=logging.ERROR)  # fmt: skip
     except (ConnectionError, TimeoutError, ValueError) as exc:
         raise DrafttwinError(
             f"no Ray cluster at '{address}' ({str(exc).splitlines()[0][:120]})",

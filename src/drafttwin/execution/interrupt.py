@@ -82,12 +82,41 @@ def spawn_without_sigint() -> Iterator[None]:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
-def _stop_now(signum: int, frame: FrameType | None = None) -> None:
-    """The second Ctrl-C: kill the worker processes and leave without any cleanup."""
+def _stop_now(signum: int, frame: FrameType | None = None, *, say: bool = False) -> None:
+    """The second Ctrl-C: kill the worker processes and leave without any cleanup (a private
+    Ray instance is ended by its guard, ``ray_guard.py``)."""
+    if say:
+        with contextlib.suppress(OSError):
+            os.write(2, b"interrupted twice: stopped at once, finished results are kept\n")
     for child in mp.active_children():
         with contextlib.suppress(OSError):
             child.kill()
     os._exit(128 + signum)
+
+
+class _Stopping:
+    """What the handler of :func:`stop_on_signals` knows: the first signal, the message note,
+    and whether a foreign call is running that an exception must not cross."""
+
+    def __init__(self, note: str) -> None:
+        self.note = note
+        self.signum = 0
+        self.deferring = 0
+        self.pending = False
+
+    def handler(self, signum: int, frame: FrameType | None) -> None:
+        if self.signum and signum == signal.SIGINT:
+            _stop_now(signum, say=True)
+        if self.signum:  # already stopping: let the cleanup finish
+            return
+        self.signum = signum
+        if self.deferring:
+            self.pending = True  # raised when the foreign call returns
+            return
+        raise Interrupted(signum, self.note)
+
+
+_active: list[_Stopping] = []
 
 
 @contextlib.contextmanager
@@ -101,24 +130,36 @@ def stop_on_signals(note: str = "") -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    seen: list[int] = []
-
-    def handler(signum: int, frame: FrameType | None) -> None:
-        if seen and signum == signal.SIGINT:
-            _stop_now(signum)
-        if seen:  # already stopping: let the cleanup finish
-            return
-        seen.append(signum)
-        raise Interrupted(signum, note)
-
-    previous: dict[int, Any] = {s: signal.signal(s, handler) for s in _STOP_SIGNALS}
+    state = _Stopping(note)
+    previous: dict[int, Any] = {s: signal.signal(s, state.handler) for s in _STOP_SIGNALS}
+    _active.append(state)
     try:
         yield
     finally:
+        _active.remove(state)
         for s, h in previous.items():
             # once interrupted the process is on its way out: a second Ctrl-C while it
             # reports and exits ends it at once, without a KeyboardInterrupt traceback
-            signal.signal(s, _stop_now if seen and s == signal.SIGINT else h)
+            signal.signal(s, _stop_now if state.signum and s == signal.SIGINT else h)
+
+
+@contextlib.contextmanager
+def signals_deferred() -> Iterator[None]:
+    """Around a call into foreign code that an exception raised by a signal handler must not
+    cross (Ray's Cython ``ray.wait`` fails with a SystemError): a signal that arrives meanwhile
+    raises :class:`Interrupted` when the call has returned."""
+    state = _active[-1] if _active else None
+    if state is None:
+        yield
+        return
+    state.deferring += 1
+    try:
+        yield
+    finally:
+        state.deferring -= 1
+    if state.pending and not state.deferring:
+        state.pending = False
+        raise Interrupted(state.signum, state.note)
 
 
 def restore_handler(signum: int, handler: Any) -> None:
