@@ -12,6 +12,7 @@ exit 2 before any data are read or prepared.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -70,10 +71,8 @@ def _alive(procs: dict[int, str]) -> dict[int, str]:
 
 def _kill_all(procs: dict[int, str]) -> None:
     for pid in _alive(procs):
-        try:
+        with contextlib.suppress(OSError):
             os.kill(pid, signal.SIGKILL)
-        except OSError:
-            pass
 
 
 # ---- the study ------------------------------------------------------------------------------
