@@ -38,6 +38,9 @@ class _UserErrorsExit2(typer.core.TyperGroup):
                 f"[bold red]error:[/] {escape(exc.message)}", highlight=False, soft_wrap=True
             )
             raise typer.Exit(exc.exit_code) from None
+        except KeyboardInterrupt:  # Ctrl-C outside a study's own handling: no traceback
+            err_console.print("interrupted", highlight=False)
+            raise typer.Exit(130) from None
 
 
 app = typer.Typer(

@@ -29,7 +29,8 @@ AddrOpt = Annotated[
 StudyDataOpt = Annotated[str, typer.Option(help="'default' or a CSV/Parquet measurement file.")]
 QuietOpt = Annotated[bool, typer.Option(help="No progress display.")]
 WorkersOpt = Annotated[
-    int | None, typer.Option(help="Parallel tasks (default: CPU cores, at most 8).", min=1)
+    int | None,
+    typer.Option(help="Parallel tasks (default: CPU cores, at most 8; at most 4 per core)."),
 ]
 
 
@@ -57,6 +58,10 @@ class _Display:
         return tick
 
 
+def _resume_note(out: Path) -> str:
+    return f"finished results are kept in {out}, rerun to resume"
+
+
 @dataclass(frozen=True)
 class StudyOptions:
     """What both study commands take (an option group)."""
@@ -70,8 +75,10 @@ class StudyOptions:
 
     def study(self, out: Path) -> tuple[Study, MeasurementSeries, _Display]:
         from drafttwin.cli._data import Channels
+        from drafttwin.execution import check_executor
         from drafttwin.experiments.study import Study
 
+        check_executor(self.executor, self.workers, self.address)  # before the data are read
         series = Channels().read(self.data)
         display = _Display(self.quiet)
         study = Study(self.profile, out_dir=out, executor=self.executor, address=self.address,
@@ -94,12 +101,14 @@ def reproduce(
 
     Finished fits are kept in OUT/cache: a rerun resumes.
     """
+    from drafttwin.execution.interrupt import stop_on_signals
     from drafttwin.execution.lock import study_lock
     from drafttwin.report import write_study
 
     t0 = time.perf_counter()
     study, series, display = options.study(out)
-    with study_lock(out), display.progress:  # one run at a time per --out
+    # one run at a time per --out; a signal stops the run cleanly and leaves it resumable
+    with study_lock(out), stop_on_signals(_resume_note(out)), display.progress:
         results, predictions = study.run(series)
         files = write_study(out, results, predictions)
     console.print(
@@ -122,10 +131,11 @@ def grid_search(
     import json
 
     from drafttwin._io import write_text_atomic
+    from drafttwin.execution.interrupt import stop_on_signals
     from drafttwin.execution.lock import study_lock
 
     study, series, display = options.study(out)
-    with study_lock(out), display.progress:  # one run at a time per --out
+    with study_lock(out), stop_on_signals(_resume_note(out)), display.progress:
         study.prepare_data(series)
         grid = study.grid()
         write_text_atomic(out / "grid.json", json.dumps(grid, indent=2) + "\n")

@@ -2,7 +2,7 @@
 executors (in this process, a local process pool, or Ray) shared by the study and the
 benchmarks."""
 
-from drafttwin.execution.executor import EXECUTORS, run_tasks
+from drafttwin.execution.executor import EXECUTORS, check_executor, run_tasks
 from drafttwin.execution.store import ResultStore, data_hash, task_key
 
-__all__ = ["EXECUTORS", "ResultStore", "data_hash", "run_tasks", "task_key"]
+__all__ = ["EXECUTORS", "check_executor", "ResultStore", "data_hash", "run_tasks", "task_key"]

@@ -9,12 +9,27 @@ processes) and deterministic given its configuration (seeds belong in the config
 from __future__ import annotations
 
 import concurrent.futures as cf
+import contextlib
+import logging
 import multiprocessing as mp
 import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from drafttwin.errors import DrafttwinError
+from drafttwin.execution import ray_guard
+from drafttwin.execution.interrupt import (
+    restore_handler,
+    signals_deferred,
+    spawn_without_sigint,
+    worker_init,
+)
 from drafttwin.execution.store import ResultStore, task_key
 
 Task = Callable[[dict[str, Any]], dict[str, Any]]
@@ -22,10 +37,57 @@ Pending = list[tuple[int, dict[str, Any]]]
 """(index, configuration) of each task still to run."""
 Finish = Callable[[int, dict[str, Any]], None]
 EXECUTORS = ("local", "ray")
+WORKERS_PER_CPU = 4
+ADDRESS_TIMEOUT_S = 3.0
+"""How long ``--address`` gets to accept a connection when the options are checked."""
+RAY_POLL_S = 0.5
+STOP_TIMEOUT_S = 5.0
+"""How long stopped workers get to exit after SIGTERM before they are killed."""
 
 
 def _default_workers() -> int:
     return max(1, min(os.cpu_count() or 1, 8))
+
+
+def max_workers() -> int:
+    """The most parallel tasks accepted: more processes than this only cost memory."""
+    return WORKERS_PER_CPU * (os.cpu_count() or 1)
+
+
+def check_executor(executor: str, workers: int | None = None, address: str | None = None) -> None:
+    """Refuse bad ``--executor``, ``--workers`` and ``--address`` values (call it before any
+    expensive work: these are otherwise found only when the first tasks start)."""
+    if executor not in EXECUTORS:
+        raise DrafttwinError(f"unknown executor '{executor}'", where="--executor",
+                             fix=f"use one of: {', '.join(EXECUTORS)}")  # fmt: skip
+    if workers is not None and not 1 <= workers <= max_workers():
+        raise DrafttwinError(
+            f"{workers} parallel tasks is outside 1..{max_workers()} ({WORKERS_PER_CPU} per CPU "
+            f"core of this machine)", where="--workers", fix=f"use --workers 1..{max_workers()}",
+        )  # fmt: skip
+    if address is not None and executor != "ray":
+        raise DrafttwinError(f"an address is for the Ray executor, not '{executor}'",
+                             where="--address", fix="add --executor ray or drop --address")  # fmt: skip
+    if executor == "ray":
+        _import_ray()
+        if address is not None:
+            _check_address(address)
+
+
+def _check_address(address: str) -> None:
+    """'auto' or [ray://]HOST:PORT with a server listening there."""
+    if address == "auto":
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535 or " " in host:
+        raise DrafttwinError(f"'{address}' is not a Ray address", where="--address",
+                             fix="give HOST:PORT (e.g. 10.0.0.5:6379), ray://HOST:PORT or auto")  # fmt: skip
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=ADDRESS_TIMEOUT_S).close()
+    except OSError as exc:
+        raise DrafttwinError(f"no Ray cluster answers at '{address}' ({exc.strerror or exc})",
+                             where="--address",
+                             fix="start one with 'ray start --head' or give its HOST:PORT") from None  # fmt: skip
 
 
 def run_tasks(
@@ -49,12 +111,7 @@ def run_tasks(
             with ``workers`` CPUs: Ray 2.60 removed the old serial ``local_mode``).
         on_result: called as ``on_result(index, result, cached)`` when a task finishes.
     """
-    if executor not in EXECUTORS:
-        raise DrafttwinError(
-            f"unknown executor '{executor}'",
-            where="--executor",
-            fix=f"use one of: {', '.join(EXECUTORS)}",
-        )
+    check_executor(executor, workers, address)
     keys = [task_key(c, data_digest) for c in configs]
     results: dict[int, dict[str, Any]] = {}
     todo = []
@@ -86,14 +143,73 @@ def _run_local(fn: Task, todo: Pending, finish: Finish, workers: int, address: s
             finish(i, fn(config))
         return
     # spawn: worker processes must not inherit PyTorch/numba thread pools through fork
-    ctx = mp.get_context("spawn")
-    with cf.ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=ctx) as pool:
-        futures = {pool.submit(fn, config): i for i, config in todo}
+    pool = cf.ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=mp.get_context("spawn"),
+                                  initializer=worker_init, initargs=(os.getpid(),))  # fmt: skip
+    try:
+        with spawn_without_sigint():  # Python 3.11 spawns the workers in submit()
+            futures = {pool.submit(fn, config): i for i, config in todo}
         for fut in cf.as_completed(futures):
             finish(futures[fut], fut.result())
+    except BaseException:  # an error, Ctrl-C or SIGTERM: finished results are already stored
+        _stop_pool(pool)
+        raise
+    pool.shutdown(wait=True)
+
+
+def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
+    """Cancel pending tasks and end the workers now: ``shutdown`` alone would wait for (or,
+    with ``wait=False``, abandon) the running ones."""
+    processes = list((pool._processes or {}).values())
+    manager: threading.Thread | None = getattr(pool, "_executor_manager_thread", None)
+    pool.shutdown(wait=False, cancel_futures=True)  # forgets the manager thread
+    for p in processes:
+        p.terminate()
+    deadline = time.monotonic() + STOP_TIMEOUT_S
+    for p in processes:
+        p.join(max(0.0, deadline - time.monotonic()))
+        if p.is_alive():
+            p.kill()
+            p.join(1.0)
+    # the pool's manager thread ends when it sees the dead workers; once it has, nothing is
+    # left to wake up, and Python 3.11's exit hook writing to its wake-up pipe anyway can
+    # race with the pipe's closing ("Bad file descriptor", a stray traceback on stderr)
+    if manager is not None:
+        manager.join(STOP_TIMEOUT_S)
+        if not manager.is_alive():
+            getattr(cf.process, "_threads_wakeups", {}).pop(manager, None)
 
 
 def _run_ray(fn: Task, todo: Pending, finish: Finish, workers: int, address: str | None) -> None:
+    ray = _import_ray()
+    started = not ray.is_initialized()
+    guard = _start_guard() if started and not address else None
+    sigterm = signal.getsignal(signal.SIGTERM)
+    try:
+        if started:
+            _init_ray(ray, workers, address)
+        restore_handler(signal.SIGTERM, sigterm)  # ray.init installs its own
+        remote = ray.remote(fn)
+        pending = {remote.remote(config): i for i, config in todo}
+        try:
+            while pending:
+                with signals_deferred():  # returns every RAY_POLL_S to let a signal through
+                    done, _ = ray.wait(list(pending), num_returns=1, timeout=RAY_POLL_S)
+                for ref in done:
+                    finish(pending.pop(ref), ray.get(ref))
+        except BaseException:  # an error, Ctrl-C or SIGTERM: stop the tasks still running
+            for ref in pending:
+                with contextlib.suppress(Exception):
+                    ray.cancel(ref, force=True)
+            raise
+    finally:
+        if started:
+            ray.shutdown()
+        if guard is not None:
+            guard.terminate()
+            guard.wait()
+
+
+def _import_ray() -> Any:
     try:
         import ray
     except ImportError:
@@ -102,20 +218,29 @@ def _run_ray(fn: Task, todo: Pending, finish: Finish, workers: int, address: str
             where="--executor ray",
             fix="pip install 'drafttwin[ray]' (or use --executor local)",
         ) from None
-    started = not ray.is_initialized()
-    if started:
-        if address:
-            ray.init(address=address, ignore_reinit_error=True, log_to_driver=False)
-        else:
-            ray.init(num_cpus=workers, ignore_reinit_error=True, log_to_driver=False,
-                     include_dashboard=False)  # fmt: skip
+    return ray
+
+
+def _init_ray(ray: Any, workers: int, address: str | None) -> None:
+    if not address:
+        ray.init(num_cpus=workers, ignore_reinit_error=True, log_to_driver=False,
+                 include_dashboard=False, logging_level=logging.ERROR)  # fmt: skip
+        return
     try:
-        remote = ray.remote(fn)
-        pending = {remote.remote(config): i for i, config in todo}
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
-                finish(pending.pop(ref), ray.get(ref))
-    finally:
-        if started:
-            ray.shutdown()
+        ray.init(address=address, ignore_reinit_error=True, log_to_driver=False,
+                 logging_level=logging.ERROR)  # fmt: skip
+    except (ConnectionError, TimeoutError, ValueError) as exc:
+        raise DrafttwinError(
+            f"no Ray cluster at '{address}' ({str(exc).splitlines()[0][:120]})",
+            where="--address",
+            fix="start one with 'ray start --head' or give its HOST:PORT",
+        ) from None
+
+
+def _start_guard() -> subprocess.Popen[bytes]:
+    """The process that kills the private Ray instance if this one dies (``ray_guard.py``)."""
+    return subprocess.Popen(
+        [sys.executable, "-I", ray_guard.__file__, str(os.getpid())],
+        stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        start_new_session=True,  # a Ctrl-C in the terminal must not reach it
+    )  # fmt: skip
