@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from drafttwin.cli._bounds import bounded
+from drafttwin.cli._oserrors import input_paths
 from drafttwin.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -20,6 +22,7 @@ DataOpt = Annotated[
         "--data",
         help="'default' (the embedded FA320A plant data) or CSV/Parquet file(s), comma-separated "
         "(separate experiments: no model window crosses from one to the next).",
+        callback=input_paths("--data"),
     ),
 ]
 TestDataOpt = Annotated[
@@ -28,6 +31,7 @@ TestDataOpt = Annotated[
         "--test-data",
         help="Separate test record(s), comma-separated: scored whole instead of the "
         "chronological split.",
+        callback=input_paths("--test-data"),
     ),
 ]
 OutputsOpt = Annotated[
@@ -76,7 +80,8 @@ TaskOpt = Annotated[
 ]
 InitOpt = Annotated[
     int | None,
-    typer.Option("--init-samples", min=1, help="Simulation: measured samples at the start "
+    typer.Option("--init-samples", callback=bounded("--init-samples"),
+                 help="Simulation: measured samples at the start "
                  "of each record the free run may use (default: the model's window)."),
 ]  # fmt: skip
 

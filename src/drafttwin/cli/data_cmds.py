@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -12,9 +11,11 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
+from drafttwin.cli._bounds import bounded
 from drafttwin.cli._data import ChannelOptions
 from drafttwin.cli._groups import with_group
-from drafttwin.cli.app import app, console
+from drafttwin.cli._oserrors import input_paths
+from drafttwin.cli.app import app, console, print_json
 from drafttwin.data.io import read_measurements
 from drafttwin.data.preprocess import preprocess
 from drafttwin.data.series import MeasurementSeries
@@ -164,7 +165,8 @@ def inspect_cmd(
         str,
         typer.Argument(
             help="Measurement file(s) (.csv, .parquet), comma-separated for several "
-            "experiments, or 'default' (the embedded FA320A data)."
+            "experiments, or 'default' (the embedded FA320A data).",
+            callback=input_paths("FILE"),
         ),
     ],  # fmt: skip
     channel_options: ChannelOptions,
@@ -174,11 +176,12 @@ def inspect_cmd(
     ] = None,
     rate: Annotated[
         float | None,
-        typer.Option(min=1e-9, help="Expected sample rate in Hz; refuse others."),
+        typer.Option(help="Expected sample rate in Hz; refuse others.", callback=bounded("--rate")),
     ] = None,
     rate_tolerance: Annotated[
         float,
-        typer.Option(min=0.0, max=0.49, help="Allowed time-step jitter, fraction of a step."),
+        typer.Option(help="Allowed time-step jitter, fraction of a step.",
+                     callback=bounded("--rate-tolerance")),
     ] = 0.01,
     nominal: Annotated[
         str | None,
@@ -194,7 +197,7 @@ def inspect_cmd(
     threshold: Annotated[
         float,
         typer.Option(
-            min=0.0,
+            callback=bounded("--threshold"),
             help="Outlier threshold (0.10 = 10 % of the value, or of the "
             "channel's spread for signals near or through zero).",
         ),
@@ -231,6 +234,6 @@ def inspect_cmd(
         )
     summary = summarize(series, outlier_threshold=threshold)
     if as_json:
-        typer.echo(json.dumps(summary, indent=2, allow_nan=False))
+        print_json(summary)
     else:
         _print_summary(summary)
