@@ -40,3 +40,23 @@ def check_rk4_steps(duration_s: float, dt_s: float, *, settle_s: float = 0.0,
             "duration",
         )
     return int(math.ceil(steps))
+
+
+#: most output samples (rows) one run may produce (1e8 rows: about 6 GB of CSV)
+MAX_OUTPUT_SAMPLES = 1e8
+
+
+def check_samples(duration_s: float, rate_hz: float, *, where: str = "duration, rate") -> int:
+    """The number of output samples of a run; refuse more than :data:`MAX_OUTPUT_SAMPLES`."""
+    check_time(duration_s, "duration", allow_zero=True)
+    if not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ConfigError(f"{rate_hz!r} Hz: must be finite and > 0", where=where)
+    samples = duration_s * rate_hz
+    if samples > MAX_OUTPUT_SAMPLES:
+        raise ConfigError(
+            f"{duration_s:g} s at {rate_hz:g} Hz is {samples:.3g} samples, more than the "
+            f"{MAX_OUTPUT_SAMPLES:.0e} a run may write",
+            where=where,
+            fix="a shorter duration or a lower rate (or several runs)",
+        )
+    return int(round(samples))

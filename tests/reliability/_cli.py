@@ -36,20 +36,34 @@ BASE: dict[str, list[str]] = {
     "calibrate": ["calibrate", "--data", "default", "--out", "{tmp}/cal.toml", "--quiet"],
     "reproduce": ["reproduce", "--out", "{tmp}/study", "--quiet"],
     "grid-search": ["grid-search", "--out", "{tmp}/grid", "--quiet"],
-    "benchmark emps": ["benchmark", "emps", "--data-dir", "{tmp}/no-emps", "--quiet",
-                       "--out", "{tmp}/emps"],  # fmt: skip
+    "benchmark emps": [
+        "benchmark",
+        "emps",
+        "--data-dir",
+        "{tmp}/no-emps",
+        "--quiet",
+        "--out",
+        "{tmp}/emps",
+    ],  # fmt: skip
 }
 
 #: every numeric option of every command, with whether 0 and -1 are in its range
 NUMERIC_OPTIONS: dict[str, list[str]] = {
     "kinematics": ["--motor-rpm"],
     "simulate": ["--duration", "--rate", "--dt", "--settle", "--cutoff-hz"],
-    "inspect": ["--rate", "--rate-tolerance", "--threshold"],
+    "inspect": ["--rate-tolerance", "--rate", "--threshold"],
     "generate": ["--duration", "--rate", "--seed", "--machine-seed"],
-    "fit": ["--init-samples", "--train-fraction", "--seed", "--horizon", "--epochs"],
-    "predict": ["--init-samples"],
-    "evaluate": ["--init-samples", "--train-fraction"],
-    "calibrate": ["--block"],
+    "fit": [
+        "--init-samples",
+        "--rate-tolerance",
+        "--train-fraction",
+        "--seed",
+        "--horizon",
+        "--epochs",
+    ],
+    "predict": ["--init-samples", "--rate-tolerance"],
+    "evaluate": ["--init-samples", "--rate-tolerance", "--train-fraction"],
+    "calibrate": ["--rate-tolerance", "--block"],
     "reproduce": ["--workers"],
     "grid-search": ["--workers"],
     "benchmark emps": ["--seeds", "--workers", "--epochs", "--max-samples"],
@@ -70,6 +84,40 @@ def numeric_cases() -> list[tuple[str, str, str]]:
                     continue
                 out.append((command, option, label))
     return out
+
+
+#: numbers inside each option's own range that together ask for work that would never end
+#: (or a file of tens of gigabytes): refused at once by :mod:`drafttwin._limits`
+ENDLESS: dict[str, list[str]] = {
+    "simulate --dt 1e-12": ["simulate", "--dt", "1e-12", "--duration", "10", "--quiet"],
+    "simulate --duration 1e6": ["simulate", "--duration", "1e6", "--quiet"],
+    "simulate --rate 1e6 --duration 1e5": [
+        "simulate",
+        "--rate",
+        "1e6",
+        "--duration",
+        "1e5",
+        "--quiet",
+    ],  # fmt: skip
+    "generate --duration 1e6": [
+        "generate",
+        "--duration",
+        "1e6",
+        "--quiet",
+        "--out",
+        "{tmp}/g.csv",
+    ],  # fmt: skip
+    "generate --rate 1e6 --duration 1e5": [
+        "generate",
+        "--rate",
+        "1e6",
+        "--duration",
+        "1e5",
+        "--quiet",
+        "--out",
+        "{tmp}/g.csv",
+    ],  # fmt: skip
+}
 
 
 def argv_for(command: str, option: str, label: str, tmp: Path, model: Path) -> list[str]:
@@ -129,7 +177,9 @@ def run_cli(
     cwd: Path | None = None,
 ) -> Outcome:
     """``drafttwin ARGV`` in a fresh interpreter (``src``: the source tree to import)."""
-    env = dict(os.environ, COLUMNS="100", NUMBA_DISABLE_JIT=os.environ.get("NUMBA_DISABLE_JIT", "0"))
+    env = dict(
+        os.environ, COLUMNS="100", NUMBA_DISABLE_JIT=os.environ.get("NUMBA_DISABLE_JIT", "0")
+    )
     if src is not None:
         env["PYTHONPATH"] = str(src)
     cmd = [sys.executable, "-c", "from drafttwin.cli import main; main()", *argv]

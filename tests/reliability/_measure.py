@@ -20,7 +20,7 @@ import tempfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from tests.reliability._cli import IO_CASES, OLD, argv_for, numeric_cases, run_cli
+from tests.reliability._cli import ENDLESS, IO_CASES, OLD, argv_for, numeric_cases, run_cli
 
 
 def _model(src: Path | None, folder: Path) -> Path:
@@ -37,6 +37,12 @@ def _numeric(case: tuple[str, str, str], src: Path | None, model: Path, timeout:
         out = run_cli(argv_for(command, option, label, Path(tmp), model), src=src,
                       timeout_s=timeout)  # fmt: skip
     return out.kind
+
+
+def _endless(name: str, src: Path | None, timeout: float) -> str:
+    with tempfile.TemporaryDirectory() as tmp:
+        argv = [a.format(tmp=tmp) for a in ENDLESS[name]]
+        return run_cli(argv, src=src, timeout_s=timeout).kind
 
 
 def _io(index: int, src: Path | None, model: Path, timeout: float) -> str:
@@ -63,20 +69,31 @@ def main() -> None:
     parser.add_argument("src", nargs="?", type=Path)
     parser.add_argument("--timeout", type=float, default=30.0)
     parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--only", choices=("numeric", "endless", "io"))
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as folder:
         model = _model(args.src, Path(folder))
-        cases = numeric_cases()
+        cases = numeric_cases() if args.only in (None, "numeric") else []
         with ThreadPoolExecutor(args.jobs) as pool:
             kinds = list(pool.map(lambda c: _numeric(c, args.src, model, args.timeout), cases))
         for (command, option, label), kind in zip(cases, kinds, strict=True):
             print(f"{kind:12s} {command} {option} {label}", flush=True)
-        io_kinds = [_io(i, args.src, model, args.timeout) for i in range(len(IO_CASES))]
-    for case, kind in zip(IO_CASES, io_kinds, strict=True):
-        print(f"{kind:12s} {case.name}")
-    for name, group in (("numeric", kinds), ("I/O", io_kinds), ("all", kinds + io_kinds)):
+        endless = list(ENDLESS) if args.only in (None, "endless") else []
+        with ThreadPoolExecutor(args.jobs) as pool:
+            endless_kinds = list(pool.map(lambda n: _endless(n, args.src, args.timeout), endless))
+        for name, kind in zip(endless, endless_kinds, strict=True):
+            print(f"{kind:12s} {name}", flush=True)
+        io_cases = range(len(IO_CASES)) if args.only in (None, "io") else range(0)
+        io_kinds = [_io(i, args.src, model, args.timeout) for i in io_cases]
+    for i, kind in zip(io_cases, io_kinds, strict=True):
+        print(f"{kind:12s} {IO_CASES[i].name}")
+    groups = (("numeric", kinds), ("endless", endless_kinds), ("I/O", io_kinds),
+              ("all", kinds + endless_kinds + io_kinds))  # fmt: skip
+    for name, group in groups:
         counts = collections.Counter(group)
-        print(f"{name}: {len(group)} cases: " + ", ".join(f"{k} {v}" for k, v in counts.most_common()))
+        print(
+            f"{name}: {len(group)} cases: " + ", ".join(f"{k} {v}" for k, v in counts.most_common())
+        )
 
 
 if __name__ == "__main__":

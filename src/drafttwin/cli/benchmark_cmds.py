@@ -37,9 +37,9 @@ def emps(
         int, typer.Option(help="Seeds per trained model.", callback=bounded("--seeds"))
     ] = 3,
     profile: Annotated[str, typer.Option(help="quick | standard | paper.")] = "quick",
-    out: Annotated[
-        Path, typer.Option(help="Output folder.", callback=output_dir("--out"))
-    ] = Path("emps_out"),
+    out: Annotated[Path, typer.Option(help="Output folder.", callback=output_dir("--out"))] = Path(
+        "emps_out"
+    ),
     models: Annotated[
         str, typer.Option(help="Comma-separated subset of the models.")
     ] = "mechanistic,persistence,gru,lstm,parallel,md-s-l",

@@ -56,8 +56,9 @@ def calibrate(
     ] = None,  # fmt: skip
     block: Annotated[
         float,
-        typer.Option(help="Block length, s: the fit compares block means.",
-                     callback=bounded("--block")),
+        typer.Option(
+            help="Block length, s: the fit compares block means.", callback=bounded("--block")
+        ),
     ] = 0.1,
     full_model: Annotated[
         bool,

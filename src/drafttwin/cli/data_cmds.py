@@ -170,30 +170,14 @@ def inspect_cmd(
         ),
     ],  # fmt: skip
     channel_options: ChannelOptions,
-    columns: Annotated[
-        str | None,
-        typer.Option(help="Map file columns to channels / time / motor: v1=front,v2=second,..."),
-    ] = None,
     rate: Annotated[
         float | None,
         typer.Option(help="Expected sample rate in Hz; refuse others.", callback=bounded("--rate")),
     ] = None,
-    rate_tolerance: Annotated[
-        float,
-        typer.Option(help="Allowed time-step jitter, fraction of a step.",
-                     callback=bounded("--rate-tolerance")),
-    ] = 0.01,
     nominal: Annotated[
         str | None,
         typer.Option(help="Nominal speeds in rpm (front=1815,...) to detect unit mix-ups."),
     ] = None,
-    unit_check: Annotated[
-        bool,
-        typer.Option(
-            "--unit-check/--no-unit-check",
-            help="Run the plausibility checks on the channels in rpm.",
-        ),
-    ] = True,  # fmt: skip
     threshold: Annotated[
         float,
         typer.Option(
@@ -225,11 +209,11 @@ def inspect_cmd(
             inputs=tuple(dict.fromkeys((*(channels.inputs or ()), *with_units))),
             setpoints=True,
             units=channels.units,
-            columns=parse_pairs(columns, "--columns"),
+            columns=channels.columns,
             time_column=channels.time_column,
             expected_rate_hz=rate,
-            rate_tolerance=rate_tolerance,
-            check_units=unit_check,
+            rate_tolerance=channels.rate_tolerance,
+            check_units=channels.check_units,
             nominal_rpm=parse_numbers(nominal, "--nominal"),
         )
     summary = summarize(series, outlier_threshold=threshold)

@@ -10,7 +10,7 @@ import pandas as pd
 import typer
 from rich.table import Table
 
-from drafttwin._limits import check_rk4_steps
+from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import check_output_suffix, load_train, write_frame
 from drafttwin.cli._oserrors import input_path, output_file
@@ -21,8 +21,12 @@ PresetOpt = Annotated[
 ]
 ConfigOpt = Annotated[
     Path | None,
-    typer.Option("--config", help="Drive-train TOML file (see docs/mechanics.md).", dir_okay=False,
-                 callback=input_path("--config")),
+    typer.Option(
+        "--config",
+        help="Drive-train TOML file (see docs/mechanics.md).",
+        dir_okay=False,
+        callback=input_path("--config"),
+    ),
 ]
 
 
@@ -32,8 +36,10 @@ def kinematics(
     config: ConfigOpt = None,
     motor_rpm: Annotated[
         float | None,
-        typer.Option(help="Motor speed, rpm (default: the motor's rated speed).",
-                     callback=bounded("--motor-rpm")),
+        typer.Option(
+            help="Motor speed, rpm (default: the motor's rated speed).",
+            callback=bounded("--motor-rpm"),
+        ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
@@ -124,8 +130,10 @@ def simulate(
     ] = None,
     settle: Annotated[
         float | None,
-        typer.Option(help="Settling time before recording, s (default from config).",
-                     callback=bounded("--settle")),
+        typer.Option(
+            help="Settling time before recording, s (default from config).",
+            callback=bounded("--settle"),
+        ),
     ] = None,
     setpoints: Annotated[
         Path | None,
@@ -141,8 +149,10 @@ def simulate(
     ] = None,  # fmt: skip
     out: Annotated[
         Path | None,
-        typer.Option(help="Write time + the output channels to .csv or .parquet.",
-                     callback=output_file("--out")),
+        typer.Option(
+            help="Write time + the output channels to .csv or .parquet.",
+            callback=output_file("--out"),
+        ),
     ] = None,
     reduced: Annotated[
         bool,
@@ -157,8 +167,10 @@ def simulate(
     ] = False,  # fmt: skip
     cutoff_hz: Annotated[
         float | None,
-        typer.Option(help="Cut-off of --reduced, Hz (default 200; implies --reduced).",
-                     callback=bounded("--cutoff-hz")),
+        typer.Option(
+            help="Cut-off of --reduced, Hz (default 200; implies --reduced).",
+            callback=bounded("--cutoff-hz"),
+        ),
     ] = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
@@ -168,7 +180,9 @@ def simulate(
     Values are means over each output interval, as an encoder reports them.
     """
     train = load_train(preset, config)
-    if dt is not None:  # refuse a run that would never end before anything starts
+    if setpoints is None:  # refuse a run that would never end before anything starts
+        check_samples(duration, rate, where="--duration, --rate")
+    if dt is not None:
         check_rk4_steps(duration, dt, settle_s=settle or 0.0, where="--dt")
     if reduced or cutoff_hz is not None:
         from drafttwin.mechanics import DEFAULT_CUTOFF_HZ, reduce

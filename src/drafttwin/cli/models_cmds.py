@@ -34,8 +34,12 @@ if TYPE_CHECKING:
 
 ModelFileOpt = Annotated[
     Path,
-    typer.Option("--model", help="A model file written by 'fit'.", dir_okay=False,
-                 callback=input_path("--model")),
+    typer.Option(
+        "--model",
+        help="A model file written by 'fit'.",
+        dir_okay=False,
+        callback=input_path("--model"),
+    ),
 ]
 FractionOpt = Annotated[
     float | None,
@@ -190,8 +194,9 @@ def fit(
     ],  # fmt: skip
     out: Annotated[
         Path,
-        typer.Option(help="Model file to write (weights, scalers, config).",
-                     callback=output_file("--out")),
+        typer.Option(
+            help="Model file to write (weights, scalers, config).", callback=output_file("--out")
+        ),
     ],
     source: SourceOptions,
     channels: ChannelOptions,
@@ -285,8 +290,7 @@ def predict(
     model: ModelFileOpt,
     out: Annotated[
         Path,
-        typer.Option(help="Predictions, .csv or .parquet.",
-                     callback=output_file("--out")),
+        typer.Option(help="Predictions, .csv or .parquet.", callback=output_file("--out")),
     ],
     source: SourceOptions,
     channels: ChannelOptions,

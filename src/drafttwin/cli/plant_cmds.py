@@ -9,6 +9,7 @@ import numpy as np
 import typer
 from rich.table import Table
 
+from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import check_output_suffix, load_train
 from drafttwin.cli._oserrors import input_path, output_file
@@ -28,11 +29,15 @@ def generate(
     duration: Annotated[
         float, typer.Option(help="Recorded machine time, s.", callback=bounded("--duration"))
     ] = 60.0,
-    rate: Annotated[float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))] = 100.0,
+    rate: Annotated[
+        float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))
+    ] = 100.0,
     seed: Annotated[
         int,
-        typer.Option(help="Seed of the recording: same seeds, byte-identical files.",
-                     callback=bounded("--seed")),
+        typer.Option(
+            help="Seed of the recording: same seeds, byte-identical files.",
+            callback=bounded("--seed"),
+        ),
     ] = 0,
     machine_seed: Annotated[
         int | None,
@@ -72,6 +77,9 @@ def generate(
         raise ConfigError("--machine and --machine-seed both name the machine",
                           where="--machine", fix="give one of them")  # fmt: skip
     plant = Plant(load_train(preset, config))
+    # refuse a run that would never end (or write tens of GB) before anything starts
+    check_samples(duration, rate, where="--duration, --rate")
+    check_rk4_steps(duration, plant.train.spec.solver.dt_s, where="--duration")
     if machine is not None:
         chosen = Machine.load(machine, plant.train)
     else:

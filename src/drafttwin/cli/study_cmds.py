@@ -30,14 +30,16 @@ AddrOpt = Annotated[
 ]
 StudyDataOpt = Annotated[
     str,
-    typer.Option(help="'default' or a CSV/Parquet measurement file.",
-                 callback=input_paths("--data")),
+    typer.Option(
+        help="'default' or a CSV/Parquet measurement file.", callback=input_paths("--data")
+    ),
 ]
 QuietOpt = Annotated[bool, typer.Option(help="No progress display.")]
 WorkersOpt = Annotated[
     int | None,
-    typer.Option(help="Parallel tasks (default: CPU cores, at most 8).",
-                 callback=bounded("--workers")),
+    typer.Option(
+        help="Parallel tasks (default: CPU cores, at most 8).", callback=bounded("--workers")
+    ),
 ]
 
 
@@ -94,8 +96,10 @@ def reproduce(
     options: StudyOptions,
     out: Annotated[
         Path,
-        typer.Option(help="Output folder (report.html, results.json, CSV tables).",
-                     callback=output_dir("--out")),
+        typer.Option(
+            help="Output folder (report.html, results.json, CSV tables).",
+            callback=output_dir("--out"),
+        ),
     ] = Path("drafttwin-study"),
 ) -> None:
     """Run the paper's whole study and write a self-contained HTML report.
@@ -125,8 +129,9 @@ def grid_search(
     options: StudyOptions,
     out: Annotated[
         Path,
-        typer.Option(help="Output folder (grid.json and the task cache).",
-                     callback=output_dir("--out")),
+        typer.Option(
+            help="Output folder (grid.json and the task cache).", callback=output_dir("--out")
+        ),
     ] = Path("drafttwin-study"),
 ) -> None:
     """The paper's grid search only: lr x hidden x layers for LSTM and GRU (Fig. 7)."""

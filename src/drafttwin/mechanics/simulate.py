@@ -20,7 +20,7 @@ import pandas as pd
 from scipy.integrate import solve_ivp
 
 from drafttwin._constants import ROLLERS
-from drafttwin._limits import check_rk4_steps, check_time
+from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
@@ -202,7 +202,7 @@ def simulate(
     default_dt = solver.dt_s if train.reduction is None else train.reduction.dt_s
     settle = solver.settle_s if settle_s is None else settle_s
     # a run that would never end (dt 1e-12 s, an infinite duration) is refused at once
-    check_time(rate, "output rate (--rate)")
+    check_samples(duration_s, rate, where="duration, output rate (--duration, --rate)")
     check_rk4_steps(duration_s, default_dt if dt_s is None else dt_s, settle_s=settle,
                     where="the RK4 step (--dt, solver dt_s)")  # fmt: skip
     steps, dt = _grid(rate, default_dt if dt_s is None else dt_s)

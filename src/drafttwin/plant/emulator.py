@@ -98,9 +98,7 @@ class PlantRecording:
                 frame.to_parquet(tmp_truth, index=False)
             else:
                 frame.to_csv(tmp_truth, index=False, float_format="%.17g")
-            tmp_sidecar.write_text(
-                dumps_strict(info, sort_keys=True) + "\n", encoding="utf-8"
-            )
+            tmp_sidecar.write_text(dumps_strict(info, sort_keys=True) + "\n", encoding="utf-8")
         return [path, truth, sidecar]
 
 

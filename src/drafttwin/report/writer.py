@@ -174,9 +174,7 @@ def write_study(
     results["timings"]["stages"]["report"] = time.perf_counter() - t0
     with atomic_path(out_dir / "predictions.csv") as tmp:
         predictions.to_csv(tmp, index=False, float_format="%.6f")
-    write_text_atomic(
-        out_dir / "results.json", dumps_strict(results) + "\n"
-    )
+    write_text_atomic(out_dir / "results.json", dumps_strict(results) + "\n")
     return {
         **files,
         "predictions": out_dir / "predictions.csv",
