@@ -327,6 +327,12 @@ def _io_cases() -> list[IoCase]:
         fill(disk)
         return ["generate", "--duration", "2", "--quiet", "--out", str(old)], old
 
+    def full_fit(tmp: Path, model: Path, st: contextlib.ExitStack) -> tuple[list[str], Path]:
+        disk = _full(tmp, st)
+        old = _old(disk / "m.pt")
+        fill(disk)
+        return ["fit", "--model", "persistence", "--quiet", "--out", str(old)], old
+
     def fsize(tmp: Path, model: Path, st: contextlib.ExitStack) -> tuple[list[str], Path]:
         old = _old(tmp / "big" / "x.csv")
         return ["simulate", "--duration", "1", "--rate", "4000", "--quiet", "--out",
@@ -369,6 +375,7 @@ def _io_cases() -> list[IoCase]:
         IoCase("fit --out on a read-only file system",
                lambda t, m, st: (["fit", "--model", "persistence", "--quiet", "--out",
                                   str(_ro(t, st) / "m.pt")], None)),
+        IoCase("fit --out on a full disk (old file kept)", full_fit),
         IoCase("fit --out is a directory",
                lambda t, m, st: (["fit", "--model", "persistence", "--quiet", "--out", str(t)],
                                  None)),
