@@ -27,7 +27,7 @@ def main() -> None:
     # error, instead of SIGXFSZ killing the process with a half-written file
     if hasattr(signal, "SIGXFSZ"):
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    app()
+    app(prog_name="drafttwin")
 
 
 __all__ = ["app", "main"]

@@ -25,6 +25,7 @@ ConfigOpt = Annotated[
         "--config",
         help="Drive-train TOML file (see docs/mechanics.md).",
         dir_okay=False,
+        readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
         callback=input_path("--config"),
     ),
 ]
@@ -140,6 +141,7 @@ def simulate(
         typer.Option(
             "--setpoints",
             dir_okay=False,
+            readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
             help="Follow the input columns of a recorded file (those the train's "
             "[[input]] tables map, e.g. supply_hz or u) on its time grid, record by "
             "record, and write the output channels: a simulator output file for "

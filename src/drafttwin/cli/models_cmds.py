@@ -38,6 +38,7 @@ ModelFileOpt = Annotated[
         "--model",
         help="A model file written by 'fit'.",
         dir_okay=False,
+        readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
         callback=input_path("--model"),
     ),
 ]

@@ -52,6 +52,7 @@ def generate(
         Path | None,
         typer.Option(
             dir_okay=False,
+            readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
             help="Record the machine of an earlier run: the .json sidecar it wrote.",
             callback=input_path("--machine"),
         ),
