@@ -111,7 +111,7 @@ def names(text: str | None, option: str) -> tuple[str, ...] | None:
     return out
 
 
-def pairs(text: str | None, option: str) -> dict[str, str]:
+def pairs(text: str | None, option: str, example: str = "y=m,u=V") -> dict[str, str]:
     """``'y=m,u=V'`` -> ``{'y': 'm', 'u': 'V'}``."""
     out: dict[str, str] = {}
     for item in (text or "").split(","):
@@ -120,7 +120,7 @@ def pairs(text: str | None, option: str) -> dict[str, str]:
         key, sep, value = item.partition("=")
         if not sep or not key.strip() or not value.strip():
             raise ConfigError(f"'{item}' is not NAME=VALUE", where=option,
-                              fix=f"write {option} y=m,u=V")  # fmt: skip
+                              fix=f"write {option} {example}")  # fmt: skip
         out[key.strip()] = value.strip()
     return out
 
@@ -139,7 +139,7 @@ class ChannelOptions:
 
     def parse(self) -> Channels:
         parsed = Channels.parse(self.outputs, self.inputs, self.time_column, self.units)
-        return replace(parsed, columns=pairs(self.columns, "--columns") or None,
+        return replace(parsed, columns=pairs(self.columns, "--columns", "v1=front,v2=second") or None,
                        check_units=self.unit_check, rate_tolerance=self.rate_tolerance)  # fmt: skip
 
 
