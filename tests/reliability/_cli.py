@@ -191,6 +191,35 @@ def run_cli(
     return Outcome(res.returncode, res.stdout, res.stderr)
 
 
+_BATCH = """
+import json, sys
+from typer.testing import CliRunner
+from drafttwin.cli import app
+out = []
+for argv in json.loads(sys.argv[1]):
+    r = CliRunner().invoke(app, argv)
+    err = r.stderr
+    if r.exception is not None and not isinstance(r.exception, SystemExit):
+        import traceback
+        err += "".join(traceback.format_exception(r.exception))
+    out.append([r.exit_code, r.stdout, err])
+print(json.dumps(out))
+"""
+
+
+def run_batch(argvs: list[list[str]], *, preexec: Callable[[], None] | None,
+              timeout_s: float = 180.0) -> list[Outcome]:  # fmt: skip
+    """Several command lines in one fresh interpreter (made by ``preexec``: a file-size
+    limit, no permission override), each run as by ``drafttwin ARGV``: one start-up for all."""
+    import json
+
+    res = subprocess.run([sys.executable, "-c", _BATCH, json.dumps(argvs)], capture_output=True,
+                         text=True, timeout=timeout_s, preexec_fn=preexec, check=False)  # fmt: skip
+    if res.returncode != 0:
+        raise RuntimeError(f"the batch failed:\n{res.stderr}")
+    return [Outcome(code, out, err) for code, out, err in json.loads(res.stdout)]
+
+
 def _text(data: bytes | str | None) -> str:
     if isinstance(data, bytes):
         return data.decode(errors="replace")

@@ -11,14 +11,18 @@ the file-size limit and the dropped permission override (these are per process).
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import re
 import subprocess
+from dataclasses import dataclass
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 import pytest
 import typer
+import typer.testing
 from typer.testing import CliRunner
 
 from drafttwin._json import dumps_strict
@@ -40,15 +44,22 @@ from ._cli import (
     can_drop_root_override,
     leftovers,
     numeric_cases,
-    run_cli,
+    run_batch,
     without_root_override,
 )
 
 CLI_SRC = Path(__file__).resolve().parents[2] / "src" / "drafttwin" / "cli"
 
 
+@functools.cache
+def _command(typer_app: typer.Typer) -> object:
+    return typer.main.get_command(typer_app)
+
+
 def invoke(argv: list[str]) -> Outcome:
-    res = CliRunner().invoke(app, argv)
+    # the click command is built once (0.1 s each time otherwise, x 200 cases)
+    with mock.patch.object(typer.testing, "_get_command", _command):
+        res = CliRunner().invoke(app, argv)
     if res.exception is not None and not isinstance(res.exception, SystemExit):
         raise res.exception  # a traceback: show it
     return Outcome(res.exit_code, res.stdout, res.stderr)
@@ -187,32 +198,77 @@ def test_no_cli_module_calls_json_dumps_directly() -> None:
 # -- files and folders ----------------------------------------------------------------------
 
 
-@pytest.fixture
-def scratch(tmp_path: Path):  # noqa: ANN201
-    yield tmp_path
-    subprocess.run(["chmod", "-R", "u+rwx", str(tmp_path)], check=False)
+IN_PROCESS = [c for c in IO_CASES if c.preexec is None]
+OWN_PROCESS = [c for c in IO_CASES if c.preexec is not None]
 
 
-@pytest.mark.parametrize("case", IO_CASES, ids=[c.name for c in IO_CASES])
-def test_an_io_failure_is_one_message_and_leaves_nothing_half_written(
-    case: IoCase, scratch: Path
-) -> None:
-    if case.preexec is without_root_override and not can_drop_root_override():
-        pytest.skip("needs root (to drop the permission override) for a real EACCES")
+@dataclass
+class Ran:
+    """One I/O case run: how it ended, the watched file's text after, files left behind."""
+
+    out: Outcome
+    kept: str | None
+    left: list[Path]
+    folder: Path
+
+
+def _after(out: Outcome, folder: Path, watched: Path | None) -> Ran:
+    kept = watched.read_text() if watched is not None and watched.is_file() else None
+    left = [p for p in leftovers(folder) if p.name != "filler.bin"]
+    return Ran(out, kept, left, folder)
+
+
+@pytest.fixture(scope="module")
+def own_process_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Ran]:
+    """The cases that need a process of their own (a file-size limit, no permission
+    override): one subprocess per condition runs all of its cases (one start-up each)."""
+    runs: dict[str, Ran] = {}
+    folders = []
     with contextlib.ExitStack() as stack:
-        argv, watched = case.setup(scratch, scratch / "model.pt", stack)
-        if case.preexec is None:
-            out = invoke(argv)
-        else:
-            out = run_cli(argv, preexec=case.preexec, timeout_s=120)
-        kept = watched.read_text() if watched is not None and watched.is_file() else None
-        left = [p for p in leftovers(scratch) if p.name != "filler.bin"]
-    assert left == []  # no temporary file left behind
+        groups: dict[object, list] = {}
+        for case in OWN_PROCESS:
+            if case.preexec is without_root_override and not can_drop_root_override():
+                continue
+            folder = tmp_path_factory.mktemp("io")
+            folders.append(folder)
+            argv, watched = case.setup(folder, folder / "model.pt", stack)
+            groups.setdefault(case.preexec, []).append((case, folder, argv, watched))
+        for preexec, items in groups.items():
+            outs = run_batch([argv for _, _, argv, _ in items], preexec=preexec)  # type: ignore[arg-type]
+            for (case, folder, _, watched), out in zip(items, outs, strict=True):
+                runs[case.name] = _after(out, folder, watched)
+    yield runs
+    for folder in folders:
+        subprocess.run(["chmod", "-R", "u+rwx", str(folder)], check=False)
+
+
+def _check(case: IoCase, ran: Ran) -> None:
+    assert ran.left == []  # no temporary file left behind
     if case.expect == "written":
-        assert out.exit_code == 0, out.stderr
-        assert kept is not None and kept.startswith("time,")
+        assert ran.out.exit_code == 0, ran.out.stderr
+        assert ran.kept is not None and ran.kept.startswith("time,")
         return
-    assert out.kind == "clean", out.stderr
-    assert str(scratch) in out.stderr  # the path is named (and the option, where one named it)
-    if watched is not None:
-        assert kept == OLD  # the old file is intact
+    assert ran.out.kind == "clean", ran.out.stderr
+    assert str(ran.folder) in ran.out.stderr  # the path is named (and its option, if any)
+    assert ran.kept in (None, OLD)  # an old file is intact
+
+
+@pytest.mark.parametrize("case", IN_PROCESS, ids=[c.name for c in IN_PROCESS])
+def test_an_io_failure_is_one_message_and_leaves_nothing_half_written(
+    case: IoCase, tmp_path: Path
+) -> None:
+    with contextlib.ExitStack() as stack:
+        argv, watched = case.setup(tmp_path, tmp_path / "model.pt", stack)
+        ran = _after(invoke(argv), tmp_path, watched)
+    if watched is not None and case.expect == "clean":
+        assert ran.kept == OLD or not watched.exists()
+    _check(case, ran)
+
+
+@pytest.mark.parametrize("case", OWN_PROCESS, ids=[c.name for c in OWN_PROCESS])
+def test_a_permission_or_size_limit_failure_is_one_message(
+    case: IoCase, own_process_runs: dict[str, Ran]
+) -> None:
+    if case.name not in own_process_runs:
+        pytest.skip("needs root (to drop the permission override) for a real EACCES")
+    _check(case, own_process_runs[case.name])
