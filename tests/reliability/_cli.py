@@ -317,7 +317,7 @@ def _sim(out: Path) -> list[str]:
     return ["simulate", "--duration", "0.5", "--quiet", "--out", str(out)]
 
 
-def _old(path: Path) -> Path:
+def old_file(path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(OLD)
     return path
@@ -346,24 +346,24 @@ def _no_write(folder: Path) -> Path:
 def _io_cases() -> list[IoCase]:
     def full_sim(tmp: Path, model: Path, st: contextlib.ExitStack) -> tuple[list[str], Path]:
         disk = _full(tmp, st)
-        old = _old(disk / "x.csv")
+        old = old_file(disk / "x.csv")
         fill(disk)
         return _sim(old), old
 
     def full_gen(tmp: Path, model: Path, st: contextlib.ExitStack) -> tuple[list[str], Path]:
         disk = _full(tmp, st)
-        old = _old(disk / "g.csv")
+        old = old_file(disk / "g.csv")
         fill(disk)
         return ["generate", "--duration", "2", "--quiet", "--out", str(old)], old
 
     def full_fit(tmp: Path, model: Path, st: contextlib.ExitStack) -> tuple[list[str], Path]:
         disk = _full(tmp, st)
-        old = _old(disk / "m.pt")
+        old = old_file(disk / "m.pt")
         fill(disk)
         return ["fit", "--model", "persistence", "--quiet", "--out", str(old)], old
 
     def fsize(tmp: Path, model: Path, st: contextlib.ExitStack) -> tuple[list[str], Path]:
-        old = _old(tmp / "big" / "x.csv")
+        old = old_file(tmp / "big" / "x.csv")
         return ["simulate", "--duration", "1", "--rate", "4000", "--quiet", "--out",
                 str(old)], old  # fmt: skip
 
@@ -373,7 +373,7 @@ def _io_cases() -> list[IoCase]:
         IoCase("simulate --out is a directory",
                lambda t, m, st: (_sim(t), None)),
         IoCase("simulate --out's parent is a file",
-               lambda t, m, st: (_sim(_old(t / "f.txt") / "x.csv"), t / "f.txt")),
+               lambda t, m, st: (_sim(old_file(t / "f.txt") / "x.csv"), t / "f.txt")),
         IoCase("simulate --out on a full disk (old file kept)", full_sim),
         IoCase("simulate --out past the file-size limit (ulimit -f)", fsize,
                preexec=file_size_limit(16 * 1024)),
@@ -384,7 +384,7 @@ def _io_cases() -> list[IoCase]:
                lambda t, m, st: (_sim(t / "a" / "b" / "x.csv"), t / "a" / "b" / "x.csv"),
                expect="written"),
         IoCase("simulate --config unreadable",
-               lambda t, m, st: (["simulate", "--config", str(_unreadable(_old(t / "c.toml"))),
+               lambda t, m, st: (["simulate", "--config", str(_unreadable(old_file(t / "c.toml"))),
                                   "--duration", "0.1"], None),
                preexec=without_root_override),
         IoCase("simulate --config is a directory",
@@ -397,7 +397,7 @@ def _io_cases() -> list[IoCase]:
                lambda t, m, st: (["generate", "--duration", "0.5", "--quiet", "--out", str(t)],
                                  None)),
         IoCase("inspect an unreadable file",
-               lambda t, m, st: (["inspect", str(_unreadable(_old(t / "d.csv")))], None),
+               lambda t, m, st: (["inspect", str(_unreadable(old_file(t / "d.csv")))], None),
                preexec=without_root_override),
         IoCase("inspect a directory",
                lambda t, m, st: (["inspect", str(t)], None)),
@@ -411,13 +411,13 @@ def _io_cases() -> list[IoCase]:
         IoCase("fit --data unreadable",
                lambda t, m, st: (["fit", "--model", "persistence", "--quiet", "--out",
                                   str(t / "m.pt"), "--data",
-                                  str(_unreadable(_old(t / "d.csv")))], None),
+                                  str(_unreadable(old_file(t / "d.csv")))], None),
                preexec=without_root_override),
         IoCase("fit --data is a directory",
                lambda t, m, st: (["fit", "--model", "persistence", "--quiet", "--out",
                                   str(t / "m.pt"), "--data", str(t)], None)),
         IoCase("predict --model unreadable",
-               lambda t, m, st: (["predict", "--model", str(_unreadable(_old(t / "m.pt"))),
+               lambda t, m, st: (["predict", "--model", str(_unreadable(old_file(t / "m.pt"))),
                                   "--out", str(t / "p.csv")], None),
                preexec=without_root_override),
         IoCase("predict --out is a directory",
@@ -429,10 +429,10 @@ def _io_cases() -> list[IoCase]:
                lambda t, m, st: (["calibrate", "--data", "default", "--quiet", "--out",
                                   str(_no_write(t / "cal.toml"))], None)),
         IoCase("reproduce --out is a file",
-               lambda t, m, st: (["reproduce", "--quiet", "--out", str(_old(t / "s"))],
+               lambda t, m, st: (["reproduce", "--quiet", "--out", str(old_file(t / "s"))],
                                  t / "s")),
         IoCase("grid-search --out is a file",
-               lambda t, m, st: (["grid-search", "--quiet", "--out", str(_old(t / "g"))],
+               lambda t, m, st: (["grid-search", "--quiet", "--out", str(old_file(t / "g"))],
                                  t / "g")),
         IoCase("reproduce --out on a read-only file system",
                lambda t, m, st: (["reproduce", "--quiet", "--out", str(_ro(t, st) / "s")],

@@ -44,7 +44,9 @@ from ._cli import (
     can_drop_root_override,
     leftovers,
     numeric_cases,
+    old_file,
     run_batch,
+    tmpfs,
     without_root_override,
 )
 
@@ -272,3 +274,18 @@ def test_a_permission_or_size_limit_failure_is_one_message(
     if case.name not in own_process_runs:
         pytest.skip("needs root (to drop the permission override) for a real EACCES")
     _check(case, own_process_runs[case.name])
+
+
+def test_files_written_together_are_all_kept_old_when_one_does_not_fit(tmp_path: Path) -> None:
+    # calibrate's train and report: a full disk half-way leaves both old files, no temp files
+    from drafttwin._io import write_texts_atomic
+    from drafttwin.cli._oserrors import describe
+
+    with tmpfs(tmp_path / "disk", size="64k") as disk:
+        toml, report = old_file(disk / "c.toml"), old_file(disk / "c.json")
+        with pytest.raises(OSError) as err:
+            write_texts_atomic({toml: "new\n", report: "x" * 200_000})
+        assert toml.read_text() == OLD and report.read_text() == OLD
+        assert leftovers(disk) == []
+        assert err.value.filename == str(report)  # named by the target, not the temp file
+        assert "no space left" in describe(err.value).message

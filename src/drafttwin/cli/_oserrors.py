@@ -32,6 +32,8 @@ _REASONS: dict[int, tuple[str, str]] = {
     errno.EISDIR: ("is a folder, a file is expected", "name a file (inside that folder)"),
     errno.ENOTDIR: ("a part of this path is a file, not a folder", "choose a path whose "
                     "parents are folders"),
+    errno.EEXIST: ("a file is in the way of a folder on this path", "choose a path whose "
+                   "parents are folders"),
     errno.ENOENT: ("no such file or folder", "check the path"),
     errno.ENAMETOOLONG: ("file name too long", "choose a shorter path"),
     errno.ELOOP: ("too many symbolic links", "check the links on this path"),

@@ -64,7 +64,7 @@ class _UserErrorsExit2(typer.core.TyperGroup):
 
 
 def _range_hint(exc: Exception) -> str:
-    """'; --seed must be >= 0 and <= ...' for a bad value of a bounded numeric option."""
+    """' (--seed must be >= 0 and <= ...)' for a bad value of a bounded numeric option."""
     from drafttwin.cli._bounds import range_of
 
     opts = getattr(getattr(exc, "param", None), "opts", None) or [""]
