@@ -22,11 +22,18 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; rename it onto ``target`` on success.
 
     On any exception the temporary file is removed and ``target`` is left untouched, so a
-    failed command never leaves a half-written file behind.
+    failed command never leaves a half-written file behind (a full disk half-way through
+    included). Missing parent folders are created. An OSError about the temporary file (disk
+    full, file too large, permission) is raised again about ``target``, the name the user
+    gave.
     """
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix, dir=target.parent)
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix,
+                                   dir=target.parent)  # fmt: skip
+    except OSError as exc:
+        raise _about(exc, target) from exc
     os.close(fd)
     tmp_path = Path(tmp)
     umask = os.umask(0)
@@ -37,9 +44,29 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
         _fsync_file(tmp_path)  # the data reach the disk before the name points at them
         os.replace(tmp_path, target)
         _fsync_dir(target.parent)  # ... and the rename itself survives a power cut
+    except OSError as exc:
+        if exc.filename in (None, str(tmp_path), tmp_path):
+            raise _about(exc, target) from exc
+        raise
     finally:
-        if tmp_path.exists():
-            tmp_path.unlink()
+        with contextlib.suppress(OSError):  # never hide the error that got us here
+            tmp_path.unlink(missing_ok=True)
+
+
+def _about(exc: OSError, target: Path) -> OSError:
+    """The same error (same errno, hence the same OSError subclass) about ``target``."""
+    if exc.errno is None:
+        return OSError(f"{target}: {exc}")
+    return OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(target))
+
+
+def write_texts_atomic(files: dict[Path, str]) -> None:
+    """Write several text files (UTF-8) that belong together: all are written to temporary
+    files first and renamed only when every one was written, so a failure (a full disk)
+    leaves all the old files as they were."""
+    with contextlib.ExitStack() as stack:
+        for target, text in files.items():
+            stack.enter_context(atomic_path(target)).write_text(text, encoding="utf-8")
 
 
 def _fsync_file(path: Path) -> None:

@@ -1,7 +1,8 @@
 """The ``drafttwin`` command line.
 
-User errors (:class:`drafttwin.errors.DrafttwinError`) print one message and exit with code 2,
-handled by the command group in :mod:`drafttwin.cli.app`; usage errors exit with click's 2.
+User errors (:class:`drafttwin.errors.DrafttwinError`), I/O errors (:mod:`drafttwin.cli._oserrors`)
+and bad option values (:mod:`drafttwin.cli._bounds`) print one message and exit with code 2,
+handled by the command group in :mod:`drafttwin.cli.app`.
 """
 
 from __future__ import annotations
@@ -20,7 +21,13 @@ from drafttwin.cli import benchmark_cmds  # noqa: E402,F401  isort: skip
 
 def main() -> None:
     """Console-script entry point."""
-    app()
+    import signal
+
+    # past a file-size limit (ulimit -f) a write then fails with EFBIG, reported as an
+    # error, instead of SIGXFSZ killing the process with a half-written file
+    if hasattr(signal, "SIGXFSZ"):
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    app(prog_name="drafttwin")
 
 
 __all__ = ["app", "main"]

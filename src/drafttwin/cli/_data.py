@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from drafttwin.cli._bounds import bounded
+from drafttwin.cli._oserrors import input_paths
 from drafttwin.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -20,6 +22,7 @@ DataOpt = Annotated[
         "--data",
         help="'default' (the embedded FA320A plant data) or CSV/Parquet file(s), comma-separated "
         "(separate experiments: no model window crosses from one to the next).",
+        callback=input_paths("--data"),
     ),
 ]
 TestDataOpt = Annotated[
@@ -28,6 +31,7 @@ TestDataOpt = Annotated[
         "--test-data",
         help="Separate test record(s), comma-separated: scored whole instead of the "
         "chronological split.",
+        callback=input_paths("--test-data"),
     ),
 ]
 OutputsOpt = Annotated[
@@ -74,9 +78,25 @@ TaskOpt = Annotated[
         "--init-samples measured samples).",
     ),
 ]
+ColumnsOpt = Annotated[
+    str | None,
+    typer.Option("--columns", help="Map file columns to channels / time / motor: "
+                 "v1=front,v2=second,..."),
+]  # fmt: skip
+UnitCheckOpt = Annotated[
+    bool,
+    typer.Option("--unit-check/--no-unit-check",
+                 help="Run the plausibility checks on the channels in rpm."),
+]  # fmt: skip
+RateToleranceOpt = Annotated[
+    float,
+    typer.Option("--rate-tolerance", callback=bounded("--rate-tolerance"),
+                 help="Allowed time-step jitter, fraction of a step."),
+]  # fmt: skip
 InitOpt = Annotated[
     int | None,
-    typer.Option("--init-samples", min=1, help="Simulation: measured samples at the start "
+    typer.Option("--init-samples", callback=bounded("--init-samples"),
+                 help="Simulation: measured samples at the start "
                  "of each record the free run may use (default: the model's window)."),
 ]  # fmt: skip
 
@@ -91,7 +111,7 @@ def names(text: str | None, option: str) -> tuple[str, ...] | None:
     return out
 
 
-def pairs(text: str | None, option: str) -> dict[str, str]:
+def pairs(text: str | None, option: str, example: str = "y=m,u=V") -> dict[str, str]:
     """``'y=m,u=V'`` -> ``{'y': 'm', 'u': 'V'}``."""
     out: dict[str, str] = {}
     for item in (text or "").split(","):
@@ -100,7 +120,7 @@ def pairs(text: str | None, option: str) -> dict[str, str]:
         key, sep, value = item.partition("=")
         if not sep or not key.strip() or not value.strip():
             raise ConfigError(f"'{item}' is not NAME=VALUE", where=option,
-                              fix=f"write {option} y=m,u=V")  # fmt: skip
+                              fix=f"write {option} {example}")  # fmt: skip
         out[key.strip()] = value.strip()
     return out
 
@@ -113,9 +133,14 @@ class ChannelOptions:
     inputs: InputsOpt = None
     units: UnitsOpt = None
     time_column: TimeColumnOpt = None
+    columns: ColumnsOpt = None
+    unit_check: UnitCheckOpt = True
+    rate_tolerance: RateToleranceOpt = 0.01
 
     def parse(self) -> Channels:
-        return Channels.parse(self.outputs, self.inputs, self.time_column, self.units)
+        parsed = Channels.parse(self.outputs, self.inputs, self.time_column, self.units)
+        return replace(parsed, columns=pairs(self.columns, "--columns", "v1=front,v2=second") or None,
+                       check_units=self.unit_check, rate_tolerance=self.rate_tolerance)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -126,6 +151,9 @@ class Channels:
     inputs: tuple[str, ...] | None = None
     time_column: str | None = None
     units: dict[str, str] | None = None
+    columns: dict[str, str] | None = None  # file column -> channel / time / motor
+    check_units: bool = True
+    rate_tolerance: float = 0.01
 
     @classmethod
     def parse(
@@ -156,12 +184,13 @@ class Channels:
             )
         units = {k: v for k, v in model.units_.items() if v} | dict(self.units or {})
         inputs = tuple(dict.fromkeys((*model.task.inputs, *(self.inputs or ()))))
-        return Channels(tuple(model.channels_), inputs, self.time_column, units)
+        return replace(self, outputs=tuple(model.channels_), inputs=inputs, units=units)
 
     def read(self, spec: str, extra_inputs: tuple[str, ...] = ()) -> MeasurementSeries:
         """The series named by ``--data``/``--test-data``: ``default`` or file(s)."""
         if spec == "default":
-            if self.outputs not in (None, _rollers()) or self.inputs or self.time_column:
+            if (self.outputs not in (None, _rollers()) or self.inputs or self.time_column
+                    or self.columns):  # fmt: skip
                 raise ConfigError(
                     "the embedded default data have the FA320A rollers and supply_hz only",
                     where="--data default",
@@ -179,13 +208,15 @@ class Channels:
         inputs = tuple(dict.fromkeys((*(self.inputs or ()), *extra_inputs, *with_units)))
         kwargs: dict[str, Any] = {"outputs": self.outputs, "units": self.units,
                                   "time_column": self.time_column, "inputs": inputs,
-                                  "setpoints": True}  # fmt: skip
+                                  "setpoints": True, "columns": self.columns,
+                                  "check_units": self.check_units,
+                                  "rate_tolerance": self.rate_tolerance}  # fmt: skip
         parts = [attach_truth(read_measurements(p, **kwargs), p) for p in paths]
         if len(parts) == 1:
             return parts[0]
         from drafttwin.data.records import join_files
 
-        return join_files(parts, paths, rate_tolerance=0.01)
+        return join_files(parts, paths, rate_tolerance=self.rate_tolerance)
 
 
 def _rollers() -> tuple[str, ...]:

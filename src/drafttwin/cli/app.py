@@ -7,7 +7,9 @@ register their commands on it; ``cli/__init__.py`` imports them all.
 from __future__ import annotations
 
 import contextlib
+import errno
 from collections.abc import Iterator
+from typing import Any
 
 import typer
 from rich.console import Console
@@ -23,24 +25,54 @@ from rich.progress import (
 err_console = Console(stderr=True)
 
 
+def print_error(message: str) -> None:
+    """``error: MESSAGE`` on stderr (the one message of a refused command)."""
+    from rich.markup import escape
+
+    err_console.print(f"[bold red]error:[/] {escape(message)}", highlight=False, soft_wrap=True)
+
+
 class _UserErrorsExit2(typer.core.TyperGroup):
-    """Print a user error (:class:`DrafttwinError`) as one message and exit with its code."""
+    """Print a user error as one message and exit with code 2: a :class:`DrafttwinError`,
+    an OSError (permission, disk full, read-only, a folder for a file, ...: named by path and
+    option, see :mod:`drafttwin.cli._oserrors`) and a bad option value or usage (one line
+    instead of click's box)."""
 
     def invoke(self, ctx):  # a typer (vendored click) Context
+        from typer._click.exceptions import ClickException, NoArgsIsHelpError
+
+        from drafttwin.cli._oserrors import describe, forget_paths
         from drafttwin.errors import DrafttwinError
 
+        forget_paths()  # the options of an earlier command run in this process
         try:
             return super().invoke(ctx)
         except DrafttwinError as exc:
-            from rich.markup import escape
-
-            err_console.print(
-                f"[bold red]error:[/] {escape(exc.message)}", highlight=False, soft_wrap=True
-            )
+            print_error(exc.message)
             raise typer.Exit(exc.exit_code) from None
         except KeyboardInterrupt:  # Ctrl-C outside a study's own handling: no traceback
             err_console.print("interrupted", highlight=False)
             raise typer.Exit(130) from None
+        except NoArgsIsHelpError:
+            raise
+        except ClickException as exc:  # a bad value, a missing option, an unknown command
+            where = getattr(getattr(exc, "ctx", None), "command_path", None) or ctx.command_path
+            print_error(f"{exc.format_message()}{_range_hint(exc)}\n  fix: see '{where} --help'")
+            raise typer.Exit(2) from None
+        except OSError as exc:
+            if exc.errno == errno.EPIPE:  # stdout closed by a pager or `head`: not an error
+                raise
+            print_error(describe(exc).message)
+            raise typer.Exit(2) from None
+
+
+def _range_hint(exc: Exception) -> str:
+    """' (--seed must be >= 0 and <= ...)' for a bad value of a bounded numeric option."""
+    from drafttwin.cli._bounds import range_of
+
+    opts = getattr(getattr(exc, "param", None), "opts", None) or [""]
+    text = range_of(opts[0])
+    return f" ({opts[0]} {text})" if text else ""
 
 
 app = typer.Typer(
@@ -75,3 +107,10 @@ def progress_bar(description: str, total: float, *, quiet: bool = False) -> Iter
     with progress:
         progress.add_task(description, total=total)
         yield progress
+
+
+def print_json(obj: Any) -> None:
+    """Print ``obj`` as strict JSON on stdout (NaN and infinities as null)."""
+    from drafttwin._json import dumps_strict
+
+    typer.echo(dumps_strict(obj))

@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from drafttwin.cli.app import app, console, progress_bar
+from drafttwin.cli._bounds import bounded
+from drafttwin.cli._oserrors import input_path, output_dir
+from drafttwin.cli.app import app, console, print_json, progress_bar
 
 benchmark_app = typer.Typer(
     help="Validation benchmarks on real measured data (see docs/emps.md).",
@@ -28,27 +29,36 @@ def emps(
         Path | None,
         typer.Option(
             help="Folder with DATA_EMPS.mat and DATA_EMPS_PULSES.mat (default: "
-            "$DRAFTTWIN_EMPS_DIR)."
+            "$DRAFTTWIN_EMPS_DIR).",
+            callback=input_path("--data-dir"),
         ),
     ] = None,
-    seeds: Annotated[int, typer.Option(help="Seeds per trained model.", min=1)] = 3,
+    seeds: Annotated[
+        int, typer.Option(help="Seeds per trained model.", callback=bounded("--seeds"))
+    ] = 3,
     profile: Annotated[str, typer.Option(help="quick | standard | paper.")] = "quick",
-    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("emps_out"),
+    out: Annotated[Path, typer.Option(help="Output folder.", callback=output_dir("--out"))] = Path(
+        "emps_out"
+    ),
     models: Annotated[
         str, typer.Option(help="Comma-separated subset of the models.")
     ] = "mechanistic,persistence,gru,lstm,parallel,md-s-l",
     tasks: Annotated[str, typer.Option(help="simulation,prediction or one of them.")] = (
         "simulation,prediction"
     ),
-    workers: Annotated[int, typer.Option(help="Parallel processes.", min=1)] = 1,
+    workers: Annotated[
+        int, typer.Option(help="Parallel processes.", callback=bounded("--workers"))
+    ] = 1,
     epochs: Annotated[
-        int | None, typer.Option(help="Override the profile's epoch budget.", min=1)
+        int | None,
+        typer.Option(help="Override the profile's epoch budget.", callback=bounded("--epochs")),
     ] = None,
     max_samples: Annotated[
         int | None,
         typer.Option(
             help="Use only the first N samples of each record (smoke tests; not the "
-            "official protocol)."
+            "official protocol).",
+            callback=bounded("--max-samples"),
         ),
     ] = None,
     train_metrics: Annotated[
@@ -82,7 +92,7 @@ def emps(
         result = run_benchmark(config, progress=lambda _r: bar.advance(task, 1))
     paths = write_outputs(result, out)
     if as_json:
-        typer.echo(json.dumps(result.results["rows"], indent=2))
+        print_json(result.results["rows"])
         return
     table = Table(title=f"EMPS test record, profile {profile}, {seeds} seed(s)")
     for col in HEADER:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
 
@@ -10,10 +9,12 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
+from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import load_train
 from drafttwin.cli._data import ChannelOptions
 from drafttwin.cli._groups import with_group
-from drafttwin.cli.app import app, console, err_console
+from drafttwin.cli._oserrors import input_paths, output_file
+from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 from drafttwin.errors import ConfigError
 
@@ -27,17 +28,18 @@ def calibrate(
     out: Annotated[
         Path,
         typer.Option(
-            dir_okay=False,
             help="The calibrated drive train, .toml (usable with "
             "--config and --mechanistic config:FILE); the report goes beside it as "
             ".json.",
+            callback=output_file("--out"),
         ),
     ],  # fmt: skip
     data: Annotated[
         str,
         typer.Option(
             help="Measured records, comma-separated (steady, start-up and speed-change "
-            "records together identify the most); 'default' for the embedded data."
+            "records together identify the most); 'default' for the embedded data.",
+            callback=input_paths("--data"),
         ),
     ],  # fmt: skip
     channels: ChannelOptions,
@@ -53,7 +55,10 @@ def calibrate(
         ),
     ] = None,  # fmt: skip
     block: Annotated[
-        float, typer.Option(min=0.001, help="Block length, s: the fit compares block means.")
+        float,
+        typer.Option(
+            help="Block length, s: the fit compares block means.", callback=bounded("--block")
+        ),
     ] = 0.1,
     full_model: Annotated[
         bool,
@@ -83,9 +88,10 @@ def calibrate(
     record's set-points); parameters the data do not see, or cannot separate, are reported so
     and stay nominal; parameters that act only together are fitted as one factor.
     """
-    from drafttwin._io import write_text_atomic
+    from drafttwin._io import write_texts_atomic
+    from drafttwin._json import dumps_strict
     from drafttwin.calibration import calibrate as run
-    from drafttwin.calibration.io import write_train
+    from drafttwin.calibration.io import train_toml
 
     if out.suffix.lower() != ".toml":
         raise ConfigError(f"unsupported output file type '{out.suffix or '(none)'}'",
@@ -100,10 +106,13 @@ def calibrate(
     result = run(train, series, names, block_s=block, model=model, model_name=name,
                  progress=say, lines=lines)  # fmt: skip
     report = {**result.to_dict(), "data": data, "drive_train": train.spec.train.name}
-    write_train(result.train, out, f"calibrated by drafttwin calibrate on {data}")
-    write_text_atomic(out.with_suffix(".json"), json.dumps(report, indent=2, allow_nan=False))
+    # the train and its report are renamed into place together, or neither is
+    write_texts_atomic({
+        out: train_toml(result.train, f"calibrated by drafttwin calibrate on {data}"),
+        out.with_suffix(".json"): dumps_strict(report),
+    })  # fmt: skip
     if as_json:
-        typer.echo(json.dumps(report, indent=2, allow_nan=False))
+        print_json(report)
         return
     _print(result)
     console.print(f"wrote {escape(str(out))} and {escape(str(out.with_suffix('.json')))}")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -12,9 +11,11 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
+from drafttwin.cli._bounds import bounded
 from drafttwin.cli._data import ChannelOptions
 from drafttwin.cli._groups import with_group
-from drafttwin.cli.app import app, console
+from drafttwin.cli._oserrors import input_paths
+from drafttwin.cli.app import app, console, print_json
 from drafttwin.data.io import read_measurements
 from drafttwin.data.preprocess import preprocess
 from drafttwin.data.series import MeasurementSeries
@@ -164,37 +165,23 @@ def inspect_cmd(
         str,
         typer.Argument(
             help="Measurement file(s) (.csv, .parquet), comma-separated for several "
-            "experiments, or 'default' (the embedded FA320A data)."
+            "experiments, or 'default' (the embedded FA320A data).",
+            callback=input_paths("FILE"),
         ),
     ],  # fmt: skip
     channel_options: ChannelOptions,
-    columns: Annotated[
-        str | None,
-        typer.Option(help="Map file columns to channels / time / motor: v1=front,v2=second,..."),
-    ] = None,
     rate: Annotated[
         float | None,
-        typer.Option(min=1e-9, help="Expected sample rate in Hz; refuse others."),
+        typer.Option(help="Expected sample rate in Hz; refuse others.", callback=bounded("--rate")),
     ] = None,
-    rate_tolerance: Annotated[
-        float,
-        typer.Option(min=0.0, max=0.49, help="Allowed time-step jitter, fraction of a step."),
-    ] = 0.01,
     nominal: Annotated[
         str | None,
         typer.Option(help="Nominal speeds in rpm (front=1815,...) to detect unit mix-ups."),
     ] = None,
-    unit_check: Annotated[
-        bool,
-        typer.Option(
-            "--unit-check/--no-unit-check",
-            help="Run the plausibility checks on the channels in rpm.",
-        ),
-    ] = True,  # fmt: skip
     threshold: Annotated[
         float,
         typer.Option(
-            min=0.0,
+            callback=bounded("--threshold"),
             help="Outlier threshold (0.10 = 10 % of the value, or of the "
             "channel's spread for signals near or through zero).",
         ),
@@ -222,15 +209,15 @@ def inspect_cmd(
             inputs=tuple(dict.fromkeys((*(channels.inputs or ()), *with_units))),
             setpoints=True,
             units=channels.units,
-            columns=parse_pairs(columns, "--columns"),
+            columns=channels.columns,
             time_column=channels.time_column,
             expected_rate_hz=rate,
-            rate_tolerance=rate_tolerance,
-            check_units=unit_check,
+            rate_tolerance=channels.rate_tolerance,
+            check_units=channels.check_units,
             nominal_rpm=parse_numbers(nominal, "--nominal"),
         )
     summary = summarize(series, outlier_threshold=threshold)
     if as_json:
-        typer.echo(json.dumps(summary, indent=2, allow_nan=False))
+        print_json(summary)
     else:
         _print_summary(summary)

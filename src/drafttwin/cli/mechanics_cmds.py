@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -11,15 +10,24 @@ import pandas as pd
 import typer
 from rich.table import Table
 
+from drafttwin._limits import check_rk4_steps, check_samples
+from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import check_output_suffix, load_train, write_frame
-from drafttwin.cli.app import app, console, progress_bar
+from drafttwin.cli._oserrors import input_path, output_file
+from drafttwin.cli.app import app, console, print_json, progress_bar
 
 PresetOpt = Annotated[
     str | None, typer.Option("--preset", help="Built-in drive train (default: fa320a).")
 ]
 ConfigOpt = Annotated[
     Path | None,
-    typer.Option("--config", help="Drive-train TOML file (see docs/mechanics.md).", dir_okay=False),
+    typer.Option(
+        "--config",
+        help="Drive-train TOML file (see docs/mechanics.md).",
+        dir_okay=False,
+        readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
+        callback=input_path("--config"),
+    ),
 ]
 
 
@@ -28,7 +36,11 @@ def kinematics(
     preset: PresetOpt = None,
     config: ConfigOpt = None,
     motor_rpm: Annotated[
-        float | None, typer.Option(help="Motor speed, rpm (default: the motor's rated speed).")
+        float | None,
+        typer.Option(
+            help="Motor speed, rpm (default: the motor's rated speed).",
+            callback=bounded("--motor-rpm"),
+        ),
     ] = None,
     as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
 ) -> None:
@@ -42,7 +54,7 @@ def kinematics(
     train = load_train(preset, config)
     kin = compute(train, motor_rpm)
     if train.spec.motor is None:  # driven by external torques only: no running state
-        typer.echo(json.dumps(kin.to_dict(), indent=2))
+        print_json(kin.to_dict())
         return
     op = operating_point(train)
     if as_json:
@@ -55,7 +67,7 @@ def kinematics(
             "roller_rpm": op.roller_rpm,
             "belt_creep": op.belt_creep,
         }
-        typer.echo(json.dumps(out, indent=2))
+        print_json(out)
         return
     if kin.rollers:
         _roller_table(train, kin, op)
@@ -107,26 +119,42 @@ def _output_table(train, op) -> None:
 def simulate(
     preset: PresetOpt = None,
     config: ConfigOpt = None,
-    duration: Annotated[float, typer.Option(help="Recorded machine time, s.", min=0)] = 10.0,
-    rate: Annotated[float, typer.Option(help="Output rate, Hz (interval means).", min=0)] = 1000.0,
-    dt: Annotated[float | None, typer.Option(help="RK4 step, s (default from config).")] = None,
+    duration: Annotated[
+        float, typer.Option(help="Recorded machine time, s.", callback=bounded("--duration"))
+    ] = 10.0,
+    rate: Annotated[
+        float, typer.Option(help="Output rate, Hz (interval means).", callback=bounded("--rate"))
+    ] = 1000.0,
+    dt: Annotated[
+        float | None,
+        typer.Option(help="RK4 step, s (default from config).", callback=bounded("--dt")),
+    ] = None,
     settle: Annotated[
-        float | None, typer.Option(help="Settling time before recording, s (default from config).")
+        float | None,
+        typer.Option(
+            help="Settling time before recording, s (default from config).",
+            callback=bounded("--settle"),
+        ),
     ] = None,
     setpoints: Annotated[
         Path | None,
         typer.Option(
             "--setpoints",
             dir_okay=False,
+            readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
             help="Follow the input columns of a recorded file (those the train's "
             "[[input]] tables map, e.g. supply_hz or u) on its time grid, record by "
             "record, and write the output channels: a simulator output file for "
             "--mechanistic. --duration and --rate then come from the file.",
+            callback=input_path("--setpoints"),
         ),
     ] = None,  # fmt: skip
     out: Annotated[
         Path | None,
-        typer.Option(help="Write time + the output channels to .csv or .parquet."),
+        typer.Option(
+            help="Write time + the output channels to .csv or .parquet.",
+            callback=output_file("--out"),
+        ),
     ] = None,
     reduced: Annotated[
         bool,
@@ -141,7 +169,10 @@ def simulate(
     ] = False,  # fmt: skip
     cutoff_hz: Annotated[
         float | None,
-        typer.Option(help="Cut-off of --reduced, Hz (default 200; implies --reduced)."),
+        typer.Option(
+            help="Cut-off of --reduced, Hz (default 200; implies --reduced).",
+            callback=bounded("--cutoff-hz"),
+        ),
     ] = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
@@ -151,6 +182,10 @@ def simulate(
     Values are means over each output interval, as an encoder reports them.
     """
     train = load_train(preset, config)
+    if setpoints is None:  # refuse a run that would never end before anything starts
+        check_samples(duration, rate, where="--duration, --rate")
+    if dt is not None:
+        check_rk4_steps(duration, dt, settle_s=settle or 0.0, where="--dt")
     if reduced or cutoff_hz is not None:
         from drafttwin.mechanics import DEFAULT_CUTOFF_HZ, reduce
 

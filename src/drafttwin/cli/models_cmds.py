@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
@@ -12,6 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
+from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import write_frame
 from drafttwin.cli._data import (
     ChannelOptions,
@@ -23,7 +23,8 @@ from drafttwin.cli._data import (
     TestDataOpt,
 )
 from drafttwin.cli._groups import with_group
-from drafttwin.cli.app import app, console, err_console
+from drafttwin.cli._oserrors import input_path, output_file
+from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
@@ -32,7 +33,14 @@ if TYPE_CHECKING:
     from drafttwin.models import BaseModel, MechanisticModel
 
 ModelFileOpt = Annotated[
-    Path, typer.Option("--model", help="A model file written by 'fit'.", dir_okay=False)
+    Path,
+    typer.Option(
+        "--model",
+        help="A model file written by 'fit'.",
+        dir_okay=False,
+        readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
+        callback=input_path("--model"),
+    ),
 ]
 FractionOpt = Annotated[
     float | None,
@@ -40,8 +48,7 @@ FractionOpt = Annotated[
         help="Chronological share of --data that trains; the rest is the test part (default "
         "0.7 for fit, the model's own for evaluate; 1 on fit: all of it, no test part). Not "
         "with --test-data.",
-        min=0.05,
-        max=1.0,
+        callback=bounded("--train-fraction"),
     ),
 ]
 JsonOpt = Annotated[
@@ -187,7 +194,10 @@ def fit(
         ),
     ],  # fmt: skip
     out: Annotated[
-        Path, typer.Option(help="Model file to write (weights, scalers, config).", dir_okay=False)
+        Path,
+        typer.Option(
+            help="Model file to write (weights, scalers, config).", callback=output_file("--out")
+        ),
     ],
     source: SourceOptions,
     channels: ChannelOptions,
@@ -201,14 +211,17 @@ def fit(
     seed: Annotated[
         int | None,
         typer.Option(
-            min=0, help="Seed of the networks (default 0): same seed, same numbers on CPU."
+            help="Seed of the networks (default 0): same seed, same numbers on CPU.",
+            callback=bounded("--seed"),
         ),
     ] = None,  # fmt: skip
-    horizon: Annotated[int, typer.Option(help="Predict t+h-1 from data up to t-1.", min=1)] = 1,
+    horizon: Annotated[
+        int, typer.Option(help="Predict t+h-1 from data up to t-1.", callback=bounded("--horizon"))
+    ] = 1,
     epochs: Annotated[
         int | None,
         typer.Option(
-            min=1,
+            callback=bounded("--epochs"),
             help="Most training epochs per network (default: the profile's); "
             "a small number gives a quick first look.",
         ),
@@ -248,8 +261,8 @@ def fit(
         _report(protocol.evaluate(estimator, part, mechanistic=test_physics), as_json)
         return
     if as_json:
-        typer.echo(json.dumps({"model": estimator.name, "selection": estimator.selection_,
-                               "split": part.summary}, indent=2, allow_nan=False))  # fmt: skip
+        print_json({"model": estimator.name, "selection": estimator.selection_,
+                    "split": part.summary})  # fmt: skip
         return
     for line in _selection_lines(estimator.selection_):
         console.print(line)
@@ -276,7 +289,10 @@ def _fitted(
 @with_group("source", SourceOptions)
 def predict(
     model: ModelFileOpt,
-    out: Annotated[Path, typer.Option(help="Predictions, .csv or .parquet.", dir_okay=False)],
+    out: Annotated[
+        Path,
+        typer.Option(help="Predictions, .csv or .parquet.", callback=output_file("--out")),
+    ],
     source: SourceOptions,
     channels: ChannelOptions,
 ) -> None:
@@ -317,7 +333,7 @@ def evaluate(
 
 def _report(result: Evaluation, as_json: bool) -> None:
     if as_json:
-        typer.echo(json.dumps(result.to_dict(), indent=2, allow_nan=False))
+        print_json(result.to_dict())
         return
     rows = result.split.get("test_rows")
     console.print(_metrics_table(result.metrics, f"{result.model} ({result.task}) on "

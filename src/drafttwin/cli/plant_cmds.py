@@ -9,7 +9,10 @@ import numpy as np
 import typer
 from rich.table import Table
 
+from drafttwin._limits import check_rk4_steps, check_samples
+from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import check_output_suffix, load_train
+from drafttwin.cli._oserrors import input_path, output_file
 from drafttwin.cli.app import app, console, progress_bar
 from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 from drafttwin.errors import ConfigError
@@ -17,27 +20,41 @@ from drafttwin.errors import ConfigError
 
 @app.command()
 def generate(
-    out: Annotated[Path, typer.Option(help="Measured data file, .csv or .parquet.")],
+    out: Annotated[
+        Path,
+        typer.Option(help="Measured data file, .csv or .parquet.", callback=output_file("--out")),
+    ],
     preset: PresetOpt = None,
     config: ConfigOpt = None,
-    duration: Annotated[float, typer.Option(help="Recorded machine time, s.", min=0)] = 60.0,
-    rate: Annotated[float, typer.Option(help="Sample rate, Hz.", min=0)] = 100.0,
+    duration: Annotated[
+        float, typer.Option(help="Recorded machine time, s.", callback=bounded("--duration"))
+    ] = 60.0,
+    rate: Annotated[
+        float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))
+    ] = 100.0,
     seed: Annotated[
-        int, typer.Option(help="Seed of the recording: same seeds, byte-identical files.")
+        int,
+        typer.Option(
+            help="Seed of the recording: same seeds, byte-identical files.",
+            callback=bounded("--seed"),
+        ),
     ] = 0,
     machine_seed: Annotated[
         int | None,
         typer.Option(
             help="Seed of the machine (its true parameters). Two runs with the same "
             "--machine-seed and different --seed are two records of one machine. "
-            "Default: the recording's --seed."
+            "Default: the recording's --seed.",
+            callback=bounded("--machine-seed"),
         ),
     ] = None,  # fmt: skip
     machine: Annotated[
         Path | None,
         typer.Option(
             dir_okay=False,
+            readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
             help="Record the machine of an earlier run: the .json sidecar it wrote.",
+            callback=input_path("--machine"),
         ),
     ] = None,  # fmt: skip
     scenario: Annotated[
@@ -61,6 +78,9 @@ def generate(
         raise ConfigError("--machine and --machine-seed both name the machine",
                           where="--machine", fix="give one of them")  # fmt: skip
     plant = Plant(load_train(preset, config))
+    # refuse a run that would never end (or write tens of GB) before anything starts
+    check_samples(duration, rate, where="--duration, --rate")
+    check_rk4_steps(duration, plant.train.spec.solver.dt_s, where="--duration")
     if machine is not None:
         chosen = Machine.load(machine, plant.train)
     else:

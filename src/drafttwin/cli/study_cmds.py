@@ -9,7 +9,9 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from drafttwin.cli._bounds import bounded
 from drafttwin.cli._groups import with_group
+from drafttwin.cli._oserrors import input_paths, output_dir
 from drafttwin.cli.app import app, console, err_console
 
 if TYPE_CHECKING:
@@ -26,11 +28,19 @@ AddrOpt = Annotated[
         help="Ray cluster address (HOST:PORT or 'auto'); none: a private local Ray instance."
     ),
 ]
-StudyDataOpt = Annotated[str, typer.Option(help="'default' or a CSV/Parquet measurement file.")]
+StudyDataOpt = Annotated[
+    str,
+    typer.Option(
+        help="'default' or a CSV/Parquet measurement file.", callback=input_paths("--data")
+    ),
+]
 QuietOpt = Annotated[bool, typer.Option(help="No progress display.")]
 WorkersOpt = Annotated[
     int | None,
-    typer.Option(help="Parallel tasks (default: CPU cores, at most 8; at most 4 per core)."),
+    typer.Option(
+        help="Parallel tasks (default: CPU cores, at most 8; at most 4 per core).",
+        callback=bounded("--workers"),
+    ),
 ]
 
 
@@ -92,7 +102,11 @@ class StudyOptions:
 def reproduce(
     options: StudyOptions,
     out: Annotated[
-        Path, typer.Option(help="Output folder (report.html, results.json, CSV tables).")
+        Path,
+        typer.Option(
+            help="Output folder (report.html, results.json, CSV tables).",
+            callback=output_dir("--out"),
+        ),
     ] = Path("drafttwin-study"),
 ) -> None:
     """Run the paper's whole study and write a self-contained HTML report.
@@ -123,14 +137,16 @@ def reproduce(
 @with_group("options", StudyOptions)
 def grid_search(
     options: StudyOptions,
-    out: Annotated[Path, typer.Option(help="Output folder (grid.json and the task cache).")] = Path(
-        "drafttwin-study"
-    ),
+    out: Annotated[
+        Path,
+        typer.Option(
+            help="Output folder (grid.json and the task cache).", callback=output_dir("--out")
+        ),
+    ] = Path("drafttwin-study"),
 ) -> None:
     """The paper's grid search only: lr x hidden x layers for LSTM and GRU (Fig. 7)."""
-    import json
-
     from drafttwin._io import write_text_atomic
+    from drafttwin._json import dumps_strict
     from drafttwin.execution.interrupt import stop_on_signals
     from drafttwin.execution.lock import study_lock
 
@@ -138,7 +154,7 @@ def grid_search(
     with study_lock(out), stop_on_signals(_resume_note(out)), display.progress:
         study.prepare_data(series)
         grid = study.grid()
-        write_text_atomic(out / "grid.json", json.dumps(grid, indent=2) + "\n")
+        write_text_atomic(out / "grid.json", dumps_strict(grid) + "\n")
     for net in ("lstm", "gru"):
         b = grid["best"][net]
         console.print(f"{net.upper()}: best lr {b['lr']:g}, hidden {b['hidden']}, layers {b['layers']} "

@@ -20,6 +20,7 @@ import pandas as pd
 from scipy.integrate import solve_ivp
 
 from drafttwin._constants import ROLLERS
+from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
@@ -199,8 +200,12 @@ def simulate(
     solver = train.spec.solver
     rate = solver.output_rate_hz if output_rate_hz is None else output_rate_hz
     default_dt = solver.dt_s if train.reduction is None else train.reduction.dt_s
-    steps, dt = _grid(rate, default_dt if dt_s is None else dt_s)
     settle = solver.settle_s if settle_s is None else settle_s
+    # a run that would never end (dt 1e-12 s, an infinite duration) is refused at once
+    check_samples(duration_s, rate, where="duration, output rate (--duration, --rate)")
+    check_rk4_steps(duration_s, default_dt if dt_s is None else dt_s, settle_s=settle,
+                    where="the RK4 step (--dt, solver dt_s)")  # fmt: skip
+    steps, dt = _grid(rate, default_dt if dt_s is None else dt_s)
     n_out = int(round(duration_s * rate))
     if n_out < 1:
         raise ConfigError(

@@ -276,8 +276,10 @@ class BaseModel(abc.ABC):
             "tensors": {k: v.detach().cpu().contiguous() for k, v in tensors.items()},
         }
         path = Path(path)
-        with atomic_path(path) as tmp:
-            torch.save(payload, tmp)
+        # through a Python file object: a full disk raises OSError (named by path in the CLI),
+        # not torch's RuntimeError from its own writer
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:  # noqa: PTH123
+            torch.save(payload, fh)
         return path
 
     @classmethod

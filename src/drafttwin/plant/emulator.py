@@ -20,6 +20,7 @@ import pandas as pd
 
 from drafttwin._constants import ROLLERS, __version__
 from drafttwin._io import atomic_path
+from drafttwin._json import dumps_strict
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain, simulate
@@ -97,9 +98,7 @@ class PlantRecording:
                 frame.to_parquet(tmp_truth, index=False)
             else:
                 frame.to_csv(tmp_truth, index=False, float_format="%.17g")
-            tmp_sidecar.write_text(
-                json.dumps(info, indent=2, sort_keys=True) + "\n", encoding="utf-8"
-            )
+            tmp_sidecar.write_text(dumps_strict(info, sort_keys=True) + "\n", encoding="utf-8")
         return [path, truth, sidecar]
 
 

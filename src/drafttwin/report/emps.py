@@ -11,7 +11,6 @@ from __future__ import annotations
 import base64
 import html
 import io
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -24,6 +23,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from drafttwin._io import atomic_path, write_text_atomic  # noqa: E402
+from drafttwin._json import dumps_strict  # noqa: E402
 from drafttwin.benchmarks.emps.run import PREDICTION_START, PUBLISHED, EmpsResult  # noqa: E402
 from drafttwin.report.figures import COLORS  # noqa: E402
 
@@ -146,7 +146,7 @@ def write_outputs(result: EmpsResult, out_dir: str | Path) -> list[Path]:
     out = Path(out_dir)
     paths = [out / "emps_report.html", out / "emps_results.json", out / "emps_predictions.csv"]
     write_text_atomic(paths[0], report_html(result))
-    write_text_atomic(paths[1], json.dumps(result.results, indent=2, allow_nan=True) + "\n")
+    write_text_atomic(paths[1], dumps_strict(result.results) + "\n")
     frame = pd.DataFrame({"time": result.test_time_s, "qm_measured": result.test_qm_m})
     for (task, name), pred in sorted(result.traces.items()):
         frame[f"{name}_{task}"] = pred

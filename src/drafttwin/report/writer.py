@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import json
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -14,7 +13,7 @@ import pandas as pd
 
 from drafttwin._constants import ROLLERS
 from drafttwin._io import atomic_path, write_text_atomic
-from drafttwin.execution.store import json_default
+from drafttwin._json import dumps_strict
 from drafttwin.report import figures, paper, tables
 from drafttwin.report.comparison import comparison_section, figures_section
 from drafttwin.report.html import join, page, tag
@@ -175,9 +174,7 @@ def write_study(
     results["timings"]["stages"]["report"] = time.perf_counter() - t0
     with atomic_path(out_dir / "predictions.csv") as tmp:
         predictions.to_csv(tmp, index=False, float_format="%.6f")
-    write_text_atomic(
-        out_dir / "results.json", json.dumps(results, indent=2, default=json_default) + "\n"
-    )
+    write_text_atomic(out_dir / "results.json", dumps_strict(results) + "\n")
     return {
         **files,
         "predictions": out_dir / "predictions.csv",

@@ -1,0 +1,151 @@
+"""One error path for I/O: an OSError becomes one message naming the path, the option it
+came from and the fix (exit code 2), whatever the command and wherever it was raised.
+
+Path options register themselves while the command line is parsed (:func:`input_path`,
+:func:`output_file`, :func:`output_dir` are their typer callbacks), so a failure deep in a
+writer can still say "--out". Output paths are also checked at once, before any work: an
+existing folder given for a file, a file where a folder is needed (as the target or as one
+of its parents), a folder that cannot be written (read-only file system, no permission).
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+from pathlib import Path
+
+from drafttwin.errors import ConfigError, DrafttwinError
+
+_OPTIONS: dict[Path, str] = {}  # path as given (absolute) -> the option that named it
+
+_REASONS: dict[int, tuple[str, str]] = {
+    errno.EACCES: ("permission denied", "make it accessible to you (chmod, chown) or choose "
+                   "another path"),
+    errno.EPERM: ("operation not permitted", "choose another path"),
+    errno.EROFS: ("read-only file system", "write to a folder on a writable file system"),
+    errno.ENOSPC: ("no space left on device; nothing was written",
+                   "free space on that disk or write elsewhere"),
+    errno.EDQUOT: ("disk quota exceeded; nothing was written",
+                   "free space within your quota or write elsewhere"),
+    errno.EFBIG: ("file too large (the file-size limit, ulimit -f, or the file system's); "
+                  "nothing was written", "raise the limit (ulimit -f) or write elsewhere"),
+    errno.EISDIR: ("is a folder, a file is expected", "name a file (inside that folder)"),
+    errno.ENOTDIR: ("a part of this path is a file, not a folder", "choose a path whose "
+                    "parents are folders"),
+    errno.EEXIST: ("a file is in the way of a folder on this path", "choose a path whose "
+                   "parents are folders"),
+    errno.ENOENT: ("no such file or folder", "check the path"),
+    errno.ENAMETOOLONG: ("file name too long", "choose a shorter path"),
+    errno.ELOOP: ("too many symbolic links", "check the links on this path"),
+}  # fmt: skip
+
+
+def remember(path: str | Path, option: str) -> None:
+    """Note that ``option`` named ``path`` (for messages about it later)."""
+    _OPTIONS[Path(os.path.abspath(path))] = option
+
+
+def forget_paths() -> None:
+    """Forget the paths remembered so far (a new command starts)."""
+    _OPTIONS.clear()
+
+
+def option_of(path: str | Path) -> str | None:
+    """The option that named ``path``, a file beside it (a temporary file) or a file under it
+    (a missing or unusable parent folder); ``None`` when none did."""
+    p = Path(os.path.abspath(path))
+    if p in _OPTIONS:
+        return _OPTIONS[p]
+    for known, option in _OPTIONS.items():
+        if p == known.parent or p in known.parents or known in p.parents:
+            return option
+    return None
+
+
+def describe(exc: OSError) -> DrafttwinError:
+    """The user error for ``exc``: path, option, reason, fix."""
+    path = exc.filename if exc.filename is not None else exc.filename2
+    reason, fix = _REASONS.get(exc.errno or -1, (None, None))
+    if reason is None:
+        reason = exc.strerror or str(exc) or type(exc).__name__
+        fix = "check the path and the disk"
+    if path is None:
+        return ConfigError(reason, fix=fix)
+    return ConfigError(reason, source=path, where=option_of(path), fix=fix)
+
+
+# -- typer callbacks of path options -----------------------------------------------------
+
+
+def input_path(option: str):  # noqa: ANN201  (typer reads the callback's signature)
+    """Callback of an input file option: remember it (the reading reports errors)."""
+
+    def callback(value: Path | None) -> Path | None:
+        if value is not None:
+            remember(value, option)
+        return value
+
+    return callback
+
+
+def input_paths(option: str):  # noqa: ANN201
+    """Callback of a comma-separated list of input files (``--data a.csv,b.csv``)."""
+
+    def callback(value: str | None) -> str | None:
+        for part in (value or "").split(","):
+            if part.strip() and part.strip() != "default":
+                remember(part.strip(), option)
+        return value
+
+    return callback
+
+
+def output_file(option: str):  # noqa: ANN201
+    """Callback of an output file option: refuse a folder, a file as parent, an unwritable
+    folder, now rather than after the work."""
+
+    def callback(value: Path | None) -> Path | None:
+        if value is not None:
+            remember(value, option)
+            check_output(value, option, folder=False)
+        return value
+
+    return callback
+
+
+def output_dir(option: str):  # noqa: ANN201
+    """Callback of an output folder option (created when missing)."""
+
+    def callback(value: Path | None) -> Path | None:
+        if value is not None:
+            remember(value, option)
+            check_output(value, option, folder=True)
+        return value
+
+    return callback
+
+
+def check_output(path: Path, option: str, *, folder: bool) -> None:
+    """Refuse an output path that cannot be written, naming it and ``option``."""
+    if path.exists():
+        if folder and not path.is_dir():
+            raise ConfigError("is a file, a folder is expected", source=path, where=option,
+                              fix="name a folder (it is created when missing)")  # fmt: skip
+        if not folder and path.is_dir():
+            raise ConfigError("is a folder, a file is expected", source=path, where=option,
+                              fix=f"name a file inside it, e.g. {path / 'out'}{path.suffix}")  # fmt: skip
+    parent = Path(os.path.abspath(path)).parent
+    while not parent.exists():
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ConfigError(f"{parent} is a file, not a folder", source=path, where=option,
+                          fix="choose a path whose parents are folders")  # fmt: skip
+    target = path if folder and path.is_dir() else parent
+    if not os.access(target, os.W_OK | os.X_OK):
+        why = "read-only file system" if _read_only(target) else "permission denied"
+        raise ConfigError(f"cannot write in {target} ({why})", source=path, where=option,
+                          fix="choose a folder you can write to")  # fmt: skip
+
+
+def _read_only(folder: Path) -> bool:
+    return bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
