@@ -9,6 +9,7 @@ written with ``torch.save`` holding only tensors and JSON-able primitives, and r
 from __future__ import annotations
 
 import abc
+import copy
 import inspect
 import json
 from collections.abc import Mapping
@@ -24,15 +25,15 @@ from drafttwin._constants import __version__
 from drafttwin._io import atomic_path
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError, DrafttwinError, ModelFileError
+from drafttwin.models import modelfile as mf
 from drafttwin.models import params as P
 from drafttwin.models.mechanistic import MechanisticModel, as_mechanistic, describe_spec
 from drafttwin.models.task import Task, blank_after_init, init_rows, input_matrix
 from drafttwin.models.training import FitProgress
 
-FORMAT_NAME = "drafttwin-model"
-FORMAT_VERSION = 2
-"""Bumped whenever the layout of a model file changes incompatibly (2: settings objects,
-named channels with units, records, data-chosen options)."""
+FORMAT_NAME = mf.FORMAT_NAME
+FORMAT_VERSION = mf.FORMAT_VERSION
+read_model_file = mf.read_model_file
 
 MODEL_CLASSES: dict[str, type[BaseModel]] = {}
 """Estimator classes by class name (filled automatically), used to load model files."""
@@ -256,15 +257,7 @@ class BaseModel(abc.ABC):
         drafttwin version, format version); written atomically. Returns the path."""
         self._check_fitted()
         state, tensors = self._get_state()
-        state = {
-            "channels": list(self.channels_),
-            "units": dict(self.units_),
-            "mechanistic": self.mechanistic_spec_,
-            "sample_rate_hz": self.sample_rate_hz_,
-            "selection": self.selection_,
-            "provenance": self.provenance_,
-            **state,
-        }
+        state = {**self._common_state(), **state}
         payload = {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,
@@ -275,6 +268,7 @@ class BaseModel(abc.ABC):
             "state_json": json.dumps(state, allow_nan=True),
             "tensors": {k: v.detach().cpu().contiguous() for k, v in tensors.items()},
         }
+        payload["checksum"] = mf.checksum(payload)
         path = Path(path)
         with atomic_path(path) as tmp:
             torch.save(payload, tmp)
@@ -282,76 +276,73 @@ class BaseModel(abc.ABC):
 
     @classmethod
     def load(cls, path: str | Path) -> Self:
-        """Read a model file written by :meth:`save`. Raises :class:`ModelFileError` for a file
-        that is missing, not a drafttwin model, corrupt, of another format version, holds
-        invalid hyperparameters, or a model of a different class than ``cls``."""
+        """Read a model file written by :meth:`save`, every field checked as construction
+        checks it (:mod:`drafttwin.models.modelfile`). Raises :class:`ModelFileError`, naming
+        the field, for a file that is missing, not a drafttwin model, corrupt, of another
+        format version, holds invalid hyperparameters or state, or a model of a different
+        class than ``cls``. A training device this machine lacks falls back to the CPU with a
+        :class:`~drafttwin.models.modelfile.DeviceFallbackWarning`."""
         path = Path(path)
         payload = read_model_file(path)
-        klass = MODEL_CLASSES.get(str(payload["model_class"]))
+        klass = MODEL_CLASSES.get(payload["model_class"])
         if klass is None or not issubclass(klass, cls):
             raise ModelFileError(
                 f"the file holds a {payload['model_class']}, not a {cls.__name__}",
                 source=path,
                 fix="load it with drafttwin.load_model(path)",
             )
-        try:
-            params = P.decode_params(json.loads(payload["params_json"]), MODEL_CLASSES)
-            model = klass(**params)
+        stored_params = mf.json_field(path, payload, "params_json")
+        mf.fall_back_to_cpu(path, stored_params)
+        mf.check_keys(path, "params", stored_params, klass.param_names())
+        invalid = P.first_invalid(stored_params)
+        if invalid is not None:
+            name, rule = invalid
+            raise mf.refuse(path, f"params.{name}", f"{name}={stored_params[name]!r} is invalid: "
+                            f"{name} must be {rule}")  # fmt: skip
+        with mf.reading(path, "params"):
+            model = klass(**P.decode_params(copy.deepcopy(stored_params), MODEL_CLASSES))
             model._check_params()
-            state = json.loads(payload["state_json"])
-            model.channels_ = tuple(state.pop("channels"))
-            model.units_ = dict(state.pop("units"))
-            model.mechanistic_spec_ = state.pop("mechanistic")
-            model.sample_rate_hz_ = state.pop("sample_rate_hz", None)
-            model.selection_ = dict(state.pop("selection", {}))
-            model.provenance_ = dict(state.pop("provenance", {}))
-            model._set_state(state, payload["tensors"])
-        except (TypeError, KeyError, ValueError, RuntimeError, DrafttwinError) as exc:
-            detail = exc.message if isinstance(exc, DrafttwinError) else str(exc)
-            raise ModelFileError(
-                f"the model file is damaged or inconsistent ({type(exc).__name__}: {detail})",
-                source=path,
-                fix="re-fit and save the model again",
-            ) from exc
+        mf.check_round_trip(path, "params", stored_params, P.encode_params(model.get_params()))
+        stored_state = mf.json_field(path, payload, "state_json")
+        mf.check_common_state(path, stored_state)
+        model._restore(path, copy.deepcopy(stored_state), payload["tensors"])
+        outputs = model.task.outputs
+        if outputs is not None and tuple(outputs) != model.channels_:
+            raise mf.refuse(path, "params.task.outputs", f"{list(outputs)} differ from the "
+                            f"channels the model was fitted on, {list(model.channels_)}")  # fmt: skip
+        if payload["model_name"] != model.name:
+            raise mf.refuse(path, "model_name", f"{payload['model_name']!r} does not name a "
+                            f"{klass.__name__} ({model.name!r})")  # fmt: skip
+        state, tensors = model._get_state()
+        common = {k: stored_state[k] for k in mf.COMMON_STATE}
+        own = {k: v for k, v in stored_state.items() if k not in mf.COMMON_STATE}
+        mf.check_round_trip(path, "state", own, json.loads(json.dumps(state)))
+        mf.check_round_trip(path, "state", common, model._common_state())
+        mf.check_tensor_round_trip(path, payload["tensors"], tensors)
+        mf.check_checksum(path, payload)
         return model
 
+    def _restore(self, path: Path, state: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
+        """Take the fitted state of a checked model file."""
+        self.channels_ = tuple(state.pop("channels"))
+        self.units_ = dict(state.pop("units"))
+        self.mechanistic_spec_ = state.pop("mechanistic")
+        self.sample_rate_hz_ = state.pop("sample_rate_hz")
+        self.selection_ = dict(state.pop("selection"))
+        self.provenance_ = dict(state.pop("provenance"))
+        with mf.reading(path, "state"):
+            self._set_state(state, tensors)
 
-_REQUIRED = ("format_version", "model_class", "params_json", "state_json", "tensors")
-
-
-def read_model_file(path: Path) -> dict[str, Any]:
-    """The raw payload of a model file, checked for format and version."""
-    if not path.is_file():
-        raise ModelFileError("file not found", source=path, fix="check the model path")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for foreign or truncated files
-        raise ModelFileError(
-            f"not a readable drafttwin model file ({type(exc).__name__})",
-            source=path,
-            fix="pass a file written by drafttwin (model.save / drafttwin fit); it may be "
-            "truncated or another program's file",
-        ) from exc
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT_NAME:
-        raise ModelFileError(
-            "not a drafttwin model (no drafttwin format marker)",
-            source=path,
-            fix="pass a file written by drafttwin (model.save / drafttwin fit)",
-        )
-    if payload.get("format_version") != FORMAT_VERSION:
-        raise ModelFileError(
-            f"model format version {payload.get('format_version')!r} (written by drafttwin "
-            f"{payload.get('drafttwin_version', '?')}); this drafttwin "
-            f"({__version__}) reads version {FORMAT_VERSION}",
-            source=path,
-            fix="re-fit the model with this drafttwin version, or use the version that wrote it",
-        )
-    missing = [k for k in _REQUIRED if k not in payload]
-    if missing:
-        raise ModelFileError(
-            f"the model file lacks {missing}", source=path, fix="re-fit and save the model again"
-        )
-    return payload
+    def _common_state(self) -> dict[str, Any]:
+        """The state every model file holds, as :meth:`save` writes it."""
+        return {
+            "channels": list(self.channels_),
+            "units": dict(self.units_),
+            "mechanistic": self.mechanistic_spec_,
+            "sample_rate_hz": self.sample_rate_hz_,
+            "selection": self.selection_,
+            "provenance": self.provenance_,
+        }
 
 
 def pack_module(prefix: str, module: nn.Module) -> dict[str, torch.Tensor]:
@@ -363,5 +354,11 @@ def unpack_module(prefix: str, tensors: dict[str, torch.Tensor], module: nn.Modu
     """Load the ``prefix.*`` tensors into ``module`` (strict) and set eval mode."""
     head = f"{prefix}."
     state = {k[len(head) :]: v for k, v in tensors.items() if k.startswith(head)}
+    for name, wanted in module.state_dict().items():  # one clear line, not torch's list
+        if name not in state:
+            raise ValueError(f"tensor {head}{name} is missing")
+        if tuple(state[name].shape) != tuple(wanted.shape):
+            raise ValueError(f"tensor {head}{name} has shape {tuple(state[name].shape)}, the "
+                             f"hyperparameters give {tuple(wanted.shape)}")  # fmt: skip
     module.load_state_dict(state, strict=True)
     module.eval()
