@@ -9,6 +9,7 @@ bytes) and says what a clean outcome is: ``refuse`` (a ModelFileError naming the
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import pickle
@@ -53,10 +54,8 @@ def _reseal(payload: Payload) -> None:
     (a crafted file carries a matching checksum; a stale one is a case of its own)."""
     from drafttwin.models.modelfile import checksum
 
-    try:
+    with contextlib.suppress(Exception):  # a payload too broken to hash: load refuses it
         payload["checksum"] = checksum(payload)
-    except Exception:  # noqa: BLE001  (a payload too broken to hash: the load refuses it)
-        pass
 
 
 # ----- editing helpers ------------------------------------------------------------------------
@@ -123,7 +122,9 @@ def _flip_weight_bit(good: bytes) -> bytes:
     import zipfile
 
     info = max(zipfile.ZipFile(io.BytesIO(good)).infolist(), key=lambda i: i.file_size)
-    name_len, extra_len = struct.unpack("<HH", good[info.header_offset + 26 : info.header_offset + 30])
+    name_len, extra_len = struct.unpack(
+        "<HH", good[info.header_offset + 26 : info.header_offset + 30]
+    )
     at = info.header_offset + 30 + name_len + extra_len + info.file_size // 2
     return good[:at] + bytes([good[at] ^ 0x10]) + good[at + 1 :]
 

@@ -52,18 +52,30 @@ JUNK: dict[str, tuple[str, Callable[[int], bytes], str]] = {
     # name: (suffix, content of about n bytes, words of the refusal)
     "random binary named .csv": (".csv", _random, "binary content"),
     "zero bytes named .csv": (".csv", lambda n: b"\x00" * n, "binary content"),
-    "gzip file named .csv": (".csv", lambda n: gzip.compress(CSV_TEXT.encode()) + _random(n),
-                             "gzip"),  # fmt: skip
+    "gzip file named .csv": (
+        ".csv",
+        lambda n: gzip.compress(CSV_TEXT.encode()) + _random(n),
+        "gzip",
+    ),  # fmt: skip
     "zip archive named .csv": (".csv", lambda n: _zip_bytes() + _random(n), "zip archive"),
     "parquet file named .csv": (".csv", lambda n: _parquet_bytes() + _random(n), "Parquet"),
-    "control characters named .csv": (".csv", lambda n: b"\x01\x02abc\x03" * (n // 6),
-                                      "binary content"),  # fmt: skip
+    "control characters named .csv": (
+        ".csv",
+        lambda n: b"\x01\x02abc\x03" * (n // 6),
+        "binary content",
+    ),  # fmt: skip
     "one endless line named .csv": (".csv", lambda n: b"1815," * (n // 5), "no line break"),
     "empty .csv": (".csv", lambda n: b"", "file is empty"),
-    "text named .parquet": (".parquet", lambda n: CSV_TEXT.encode() * (n // len(CSV_TEXT) + 1),
-                            "no PAR1 marker at its start"),  # fmt: skip
-    "parquet with its end cut off": (".parquet", lambda n: _parquet_bytes()[:-10],
-                                     "no PAR1 marker at its end"),  # fmt: skip
+    "text named .parquet": (
+        ".parquet",
+        lambda n: CSV_TEXT.encode() * (n // len(CSV_TEXT) + 1),
+        "no PAR1 marker at its start",
+    ),  # fmt: skip
+    "parquet with its end cut off": (
+        ".parquet",
+        lambda n: _parquet_bytes()[:-10],
+        "no PAR1 marker at its end",
+    ),  # fmt: skip
     "random binary named .parquet": (".parquet", _random, "cannot be read as Parquet"),
 }
 """Every kind of junk data file: what it is, how to make one, what the refusal says."""

@@ -53,8 +53,10 @@ class MinMaxScaler:
             raise ValueError("a scaler holds exactly the fields min and max")
         for key in ("min", "max"):
             values = state[key]
-            if not isinstance(values, list) or not values or not all(
-                isinstance(x, int | float) and not isinstance(x, bool) for x in values
+            if (
+                not isinstance(values, list)
+                or not values
+                or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in values)
             ):
                 raise ValueError(f"scaler {key} is not a non-empty list of numbers")
         scaler = cls()

@@ -216,7 +216,7 @@ def fall_back_to_cpu(path: Path, params: dict[str, Any]) -> None:
 
     for training in _training_settings(params):
         device = training.get("device")
-        if not _valid_device(device):
+        if not isinstance(device, str) or not _valid_device(device):
             continue  # not a device drafttwin trains on: Training() refuses it by name
         if not device_available(device):
             warnings.warn(

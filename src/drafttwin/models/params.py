@@ -16,7 +16,6 @@ from drafttwin.errors import ConfigError
 from drafttwin.models.task import Task
 from drafttwin.models.training import Training
 
-
 MAX_WINDOW = 1_000_000
 """Longest input window, samples (a model file asking for more is damaged, not ambitious)."""
 MAX_WIDTH = 4096
@@ -44,8 +43,10 @@ CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "layers": (_int_at_least(1, MAX_LAYERS), f"an integer in [1, {MAX_LAYERS}]"),
     "folds": (_int_at_least(2, 1000), "an integer in [2, 1000]"),
     "seed": (_int_at_least(0), f"an integer in [0, {MAX_SEED}]"),
-    "sk_channels": (lambda v: _int_at_least(3, MAX_WIDTH)(v) and v % 3 == 0,
-                    f"a multiple of 3 in [3, {MAX_WIDTH}]"),  # fmt: skip
+    "sk_channels": (
+        lambda v: _int_at_least(3, MAX_WIDTH)(v) and v % 3 == 0,
+        f"a multiple of 3 in [3, {MAX_WIDTH}]",
+    ),  # fmt: skip
     "dropout": (_fraction, "in [0, 1)"),
     "skip": (_optional_bool, "None (the default for the task), True or False"),
     "accumulate": (_optional_bool, "None (chosen on validation data), True or False"),

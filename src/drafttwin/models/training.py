@@ -149,14 +149,17 @@ class History:
         """The inverse of :meth:`to_dict`; ``ValueError`` for a field of the wrong kind (a
         model file is untrusted input)."""
         if not isinstance(data, dict) or set(data) != set(HistoryDict.__annotations__):
-            raise ValueError(f"a training history holds the fields {sorted(HistoryDict.__annotations__)}")
+            raise ValueError(
+                f"a training history holds the fields {sorted(HistoryDict.__annotations__)}"
+            )
+        raw: dict[str, Any] = dict(data)
         for key in ("train_loss", "val_loss"):
-            if not isinstance(data[key], list) or not all(_is_number(x) for x in data[key]):
+            if not isinstance(raw[key], list) or not all(_is_number(x) for x in raw[key]):
                 raise ValueError(f"history {key} is not a list of numbers")
         for key in ("best_epoch", "n_train", "n_val"):
-            if not _is_int(data[key]) or data[key] < 0:
+            if not _is_int(raw[key]) or raw[key] < 0:
                 raise ValueError(f"history {key} is not an integer >= 0")
-        if not isinstance(data["stopped_early"], bool) or not _is_real(data["seconds"]):
+        if not isinstance(raw["stopped_early"], bool) or not _is_real(raw["seconds"]):
             raise ValueError("history stopped_early or seconds is of the wrong kind")
         return cls(**data)
 
