@@ -121,7 +121,8 @@ def _flip_weight_bit(good: bytes) -> bytes:
     import struct
     import zipfile
 
-    info = max(zipfile.ZipFile(io.BytesIO(good)).infolist(), key=lambda i: i.file_size)
+    storages = [i for i in zipfile.ZipFile(io.BytesIO(good)).infolist() if "/data/" in i.filename]
+    info = max(storages, key=lambda i: i.file_size)
     name_len, extra_len = struct.unpack(
         "<HH", good[info.header_offset + 26 : info.header_offset + 30]
     )

@@ -186,7 +186,7 @@ def simulate(
         console.print(f"wrote {out}")
 
 
-SIMULATE_CHUNK_S = 60.0
+SIMULATE_CHUNK_S = 10.0
 """Machine time per piece of a ``simulate`` run: memory holds one piece, whatever the
 duration (docs/mechanics.md gives the measured peak)."""
 

@@ -285,7 +285,10 @@ class BaseModel(abc.ABC):
         path = Path(path)
         payload = read_model_file(path)
         klass = MODEL_CLASSES.get(payload["model_class"])
-        if klass is None or not issubclass(klass, cls):
+        if klass is None:
+            raise mf.refuse(path, "model_class", f"{_short(payload['model_class'])} is not a "
+                            "drafttwin model class")  # fmt: skip
+        if not issubclass(klass, cls):
             raise ModelFileError(
                 f"the file holds a {payload['model_class']}, not a {cls.__name__}",
                 source=path,
@@ -299,10 +302,18 @@ class BaseModel(abc.ABC):
             name, rule = invalid
             raise mf.refuse(path, f"params.{name}", f"{name}={stored_params[name]!r} is invalid: "
                             f"{name} must be {rule}")  # fmt: skip
+        decoded = {}
+        for key, value in copy.deepcopy(stored_params).items():
+            with mf.reading(path, f"params.{key}"):
+                decoded[key] = P.decode(value, MODEL_CLASSES)
         with mf.reading(path, "params"):
-            model = klass(**P.decode_params(copy.deepcopy(stored_params), MODEL_CLASSES))
+            model = klass(**decoded)
             model._check_params()
         mf.check_round_trip(path, "params", stored_params, P.encode_params(model.get_params()))
+        if payload["model_name"] != model.name:
+            raise mf.refuse(path, "model_class", f"{klass.__name__} does not match the "
+                            f"field model_name {_short(payload['model_name'])} (a "
+                            f"{klass.__name__} is named {model.name!r})")  # fmt: skip
         stored_state = mf.json_field(path, payload, "state_json")
         mf.check_common_state(path, stored_state)
         model._restore(path, copy.deepcopy(stored_state), payload["tensors"])
@@ -310,9 +321,6 @@ class BaseModel(abc.ABC):
         if outputs is not None and tuple(outputs) != model.channels_:
             raise mf.refuse(path, "params.task.outputs", f"{list(outputs)} differ from the "
                             f"channels the model was fitted on, {list(model.channels_)}")  # fmt: skip
-        if payload["model_name"] != model.name:
-            raise mf.refuse(path, "model_name", f"{payload['model_name']!r} does not name a "
-                            f"{klass.__name__} ({model.name!r})")  # fmt: skip
         state, tensors = model._get_state()
         common = {k: stored_state[k] for k in mf.COMMON_STATE}
         own = {k: v for k, v in stored_state.items() if k not in mf.COMMON_STATE}
@@ -345,6 +353,11 @@ class BaseModel(abc.ABC):
         }
 
 
+def _short(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def pack_module(prefix: str, module: nn.Module) -> dict[str, torch.Tensor]:
     """A module's state dict with ``prefix.`` prepended to the keys."""
     return {f"{prefix}.{k}": v for k, v in module.state_dict().items()}
@@ -354,11 +367,15 @@ def unpack_module(prefix: str, tensors: dict[str, torch.Tensor], module: nn.Modu
     """Load the ``prefix.*`` tensors into ``module`` (strict) and set eval mode."""
     head = f"{prefix}."
     state = {k[len(head) :]: v for k, v in tensors.items() if k.startswith(head)}
-    for name, wanted in module.state_dict().items():  # one clear line, not torch's list
+    expected = module.state_dict()
+    for name in state:
+        if name not in expected:
+            raise mf.TensorMismatch(head + name, "is unknown (not written by drafttwin)")
+    for name, wanted in expected.items():  # one clear line each, not torch's list
         if name not in state:
-            raise ValueError(f"tensor {head}{name} is missing")
+            raise mf.TensorMismatch(head + name, "is missing")
         if tuple(state[name].shape) != tuple(wanted.shape):
-            raise ValueError(f"tensor {head}{name} has shape {tuple(state[name].shape)}, the "
-                             f"hyperparameters give {tuple(wanted.shape)}")  # fmt: skip
+            raise mf.TensorMismatch(head + name, f"has shape {tuple(state[name].shape)}, the "
+                                    f"model needs {tuple(wanted.shape)}")  # fmt: skip
     module.load_state_dict(state, strict=True)
     module.eval()

@@ -64,6 +64,18 @@ MECHANISTIC_KINDS = ("preset", "train", "file", "table", "array", "callable", "s
 REFIT = "re-fit the model and save it again (drafttwin fit); the file was damaged or edited"
 
 
+class TensorMismatch(ValueError):
+    """A stored tensor that does not fit the network the hyperparameters build."""
+
+    def __init__(self, name: str, problem: str) -> None:
+        super().__init__(f"tensor {name} {problem}")
+        self.name, self.problem = name, problem
+
+
+SHAPE_HINT = (" (the weights do not fit the hyperparameters hidden, layers, window, "
+              "task inputs or the state's channels)")  # fmt: skip
+
+
 class DeviceFallbackWarning(UserWarning):
     """A model file names a compute device this machine lacks; the model runs on the CPU."""
 
@@ -81,6 +93,9 @@ def reading(path: Path, field: str) -> Iterator[None]:
         yield
     except ModelFileError:
         raise
+    except TensorMismatch as exc:
+        raise refuse(path, f"tensors[{exc.name!r}]", "is damaged or inconsistent: it "
+                     + exc.problem + SHAPE_HINT) from exc  # fmt: skip
     except KeyError as exc:
         raise refuse(path, field, f"the model file is damaged or inconsistent: {exc} is missing"
                      ) from exc  # fmt: skip
@@ -124,6 +139,7 @@ def read_model_file(path: Path) -> dict[str, Any]:
             f"{payload.get('drafttwin_version', '?')}); this drafttwin "
             f"({__version__}) reads version {FORMAT_VERSION}",
             source=path,
+            where="field format_version",
             fix="re-fit the model with this drafttwin version, or use the version that wrote it",
         )
     check_keys(path, "", {k: v for k, v in payload.items() if k not in OPTIONAL_FIELDS},
@@ -355,7 +371,7 @@ def check_tensor_round_trip(
             raise refuse(path, f"tensors[{name!r}]", "is missing")
         if tuple(stored[name].shape) != tuple(value.shape):
             raise refuse(path, f"tensors[{name!r}]", f"has shape {tuple(stored[name].shape)}, "
-                         f"the hyperparameters give {tuple(value.shape)}")  # fmt: skip
+                         f"the model needs {tuple(value.shape)}{SHAPE_HINT}")  # fmt: skip
 
 
 __all__ = [
