@@ -286,7 +286,7 @@ class BaseModel(abc.ABC):
         payload = read_model_file(path)
         klass = MODEL_CLASSES.get(payload["model_class"])
         if klass is None:
-            raise mf.refuse(path, "model_class", f"{_short(payload['model_class'])} is not a "
+            raise mf.refuse(path, "model_class", f"{mf.short(payload['model_class'])} is not a "
                             "drafttwin model class")  # fmt: skip
         if not issubclass(klass, cls):
             raise ModelFileError(
@@ -312,7 +312,7 @@ class BaseModel(abc.ABC):
         mf.check_round_trip(path, "params", stored_params, P.encode_params(model.get_params()))
         if payload["model_name"] != model.name:
             raise mf.refuse(path, "model_class", f"{klass.__name__} does not match the "
-                            f"field model_name {_short(payload['model_name'])} (a "
+                            f"field model_name {mf.short(payload['model_name'])} (a "
                             f"{klass.__name__} is named {model.name!r})")  # fmt: skip
         stored_state = mf.json_field(path, payload, "state_json")
         mf.check_common_state(path, stored_state)
@@ -351,11 +351,6 @@ class BaseModel(abc.ABC):
             "selection": self.selection_,
             "provenance": self.provenance_,
         }
-
-
-def _short(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 60 else text[:57] + "..."
 
 
 def pack_module(prefix: str, module: nn.Module) -> dict[str, torch.Tensor]:

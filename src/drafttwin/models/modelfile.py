@@ -286,7 +286,7 @@ def check_mechanistic_spec(path: Path, spec: Any) -> None:
     if spec is None:
         return
     if not isinstance(spec, dict) or spec.get("kind") not in MECHANISTIC_KINDS:
-        raise refuse(path, field, f"{_short(spec)} is not a mechanistic source drafttwin "
+        raise refuse(path, field, f"{short(spec)} is not a mechanistic source drafttwin "
                      f"records (kinds: {', '.join(MECHANISTIC_KINDS)})")  # fmt: skip
     kind = spec["kind"]
     allowed = {"preset": ("name",), "train": ("name", "source", "spec"),
@@ -305,7 +305,8 @@ def check_mechanistic_spec(path: Path, spec: Any) -> None:
             MechanisticModel.from_spec(spec)  # a preset must exist; a train is validated
 
 
-def _short(value: Any) -> str:
+def short(value: Any) -> str:
+    """``repr(value)`` cut to 60 characters (a message names a damaged value, not all of it)."""
     text = repr(value)
     return text if len(text) <= 60 else text[:57] + "..."
 
@@ -344,7 +345,7 @@ def first_difference(stored: Any, rebuilt: Any, where: str) -> tuple[str, str] |
         return None
     if _same_scalar(stored, rebuilt):
         return None
-    return where, f"{_short(stored)} is not valid here (it reads back as {_short(rebuilt)})"
+    return where, f"{short(stored)} is not valid here (it reads back as {short(rebuilt)})"
 
 
 def _same_scalar(a: Any, b: Any) -> bool:
