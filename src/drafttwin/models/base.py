@@ -294,40 +294,11 @@ class BaseModel(abc.ABC):
                 source=path,
                 fix="load it with drafttwin.load_model(path)",
             )
-        stored_params = mf.json_field(path, payload, "params_json")
-        mf.fall_back_to_cpu(path, stored_params)
-        mf.check_keys(path, "params", stored_params, klass.param_names())
-        invalid = P.first_invalid(stored_params)
-        if invalid is not None:
-            name, rule = invalid
-            raise mf.refuse(path, f"params.{name}", f"{name}={stored_params[name]!r} is invalid: "
-                            f"{name} must be {rule}")  # fmt: skip
-        decoded = {}
-        for key, value in copy.deepcopy(stored_params).items():
-            with mf.reading(path, f"params.{key}"):
-                decoded[key] = P.decode(value, MODEL_CLASSES)
-        with mf.reading(path, "params"):
-            model = klass(**decoded)
-            model._check_params()
-        mf.check_round_trip(path, "params", stored_params, P.encode_params(model.get_params()))
-        if payload["model_name"] != model.name:
-            raise mf.refuse(path, "model_class", f"{klass.__name__} does not match the "
-                            f"field model_name {mf.short(payload['model_name'])} (a "
-                            f"{klass.__name__} is named {model.name!r})")  # fmt: skip
+        model = mf.construct(path, payload, klass, MODEL_CLASSES)
         stored_state = mf.json_field(path, payload, "state_json")
         mf.check_common_state(path, stored_state)
         model._restore(path, copy.deepcopy(stored_state), payload["tensors"])
-        outputs = model.task.outputs
-        if outputs is not None and tuple(outputs) != model.channels_:
-            raise mf.refuse(path, "params.task.outputs", f"{list(outputs)} differ from the "
-                            f"channels the model was fitted on, {list(model.channels_)}")  # fmt: skip
-        state, tensors = model._get_state()
-        common = {k: stored_state[k] for k in mf.COMMON_STATE}
-        own = {k: v for k, v in stored_state.items() if k not in mf.COMMON_STATE}
-        mf.check_round_trip(path, "state", own, json.loads(json.dumps(state)))
-        mf.check_round_trip(path, "state", common, model._common_state())
-        mf.check_tensor_round_trip(path, payload["tensors"], tensors)
-        mf.check_checksum(path, payload)
+        mf.check_restored(path, payload, stored_state, model)
         return model
 
     def _restore(self, path: Path, state: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:

@@ -22,6 +22,7 @@ with a :class:`DeviceFallbackWarning`.
 from __future__ import annotations
 
 import contextlib
+import copy
 import hashlib
 import json
 import math
@@ -313,6 +314,52 @@ def short(value: Any) -> str:
 
 def _is_real(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+# ----- the model -----------------------------------------------------------------------
+def construct(path: Path, payload: Mapping[str, Any], klass: type, classes: Mapping[str, type]):
+    """The estimator the stored hyperparameters build, through its constructor and checks
+    (as a new model), after the device fallback; they must read back exactly as stored."""
+    from drafttwin.models import params as P
+
+    stored = json_field(path, payload, "params_json")
+    fall_back_to_cpu(path, stored)
+    check_keys(path, "params", stored, klass.param_names())  # type: ignore[attr-defined]
+    invalid = P.first_invalid(stored)
+    if invalid is not None:
+        name, rule = invalid
+        raise refuse(path, f"params.{name}", f"{name}={stored[name]!r} is invalid: {name} must "
+                     f"be {rule}")  # fmt: skip
+    decoded = {}
+    for key, value in copy.deepcopy(stored).items():
+        with reading(path, f"params.{key}"):
+            decoded[key] = P.decode(value, classes)
+    with reading(path, "params"):
+        model = klass(**decoded)
+        model._check_params()
+    check_round_trip(path, "params", stored, P.encode_params(model.get_params()))
+    if payload["model_name"] != model.name:
+        raise refuse(path, "model_class", f"{klass.__name__} does not match the field "
+                     f"model_name {short(payload['model_name'])} (a {klass.__name__} is named "
+                     f"{model.name!r})")  # fmt: skip
+    return model
+
+
+def check_restored(path: Path, payload: Mapping[str, Any], stored_state: dict[str, Any],
+                   model: Any) -> None:  # fmt: skip
+    """After the model took its state: outputs agree with the channels, state and tensors
+    read back as stored, and the checksum matches."""
+    outputs = model.task.outputs
+    if outputs is not None and tuple(outputs) != model.channels_:
+        raise refuse(path, "params.task.outputs", f"{list(outputs)} differ from the channels "
+                     f"the model was fitted on, {list(model.channels_)}")  # fmt: skip
+    state, tensors = model._get_state()
+    common = {k: stored_state[k] for k in COMMON_STATE}
+    own = {k: v for k, v in stored_state.items() if k not in COMMON_STATE}
+    check_round_trip(path, "state", own, json.loads(json.dumps(state)))
+    check_round_trip(path, "state", common, model._common_state())
+    check_tensor_round_trip(path, payload["tensors"], tensors)
+    check_checksum(path, payload)
 
 
 # ----- round trip ---------------------------------------------------------------------------
