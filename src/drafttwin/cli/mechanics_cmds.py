@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -10,10 +11,12 @@ import pandas as pd
 import typer
 from rich.table import Table
 
+from drafttwin._constants import ROLLERS
 from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import check_output_suffix, load_train, write_frame
 from drafttwin.cli._oserrors import input_path, output_file
+from drafttwin.cli._stream import FrameStream, RunningStats, frame_stream
 from drafttwin.cli.app import app, console, print_json, progress_bar
 
 PresetOpt = Annotated[
@@ -123,8 +126,13 @@ def simulate(
         float, typer.Option(help="Recorded machine time, s.", callback=bounded("--duration"))
     ] = 10.0,
     rate: Annotated[
-        float, typer.Option(help="Output rate, Hz (interval means).", callback=bounded("--rate"))
-    ] = 1000.0,
+        float | None,
+        typer.Option(
+            help="Output rate, Hz (interval means; default: the drive train's "
+            "[solver] output_rate_hz).",
+            callback=bounded("--rate"),
+        ),
+    ] = None,  # fmt: skip
     dt: Annotated[
         float | None,
         typer.Option(help="RK4 step, s (default from config).", callback=bounded("--dt")),
@@ -183,7 +191,8 @@ def simulate(
     """
     train = load_train(preset, config)
     if setpoints is None:  # refuse a run that would never end before anything starts
-        check_samples(duration, rate, where="--duration, --rate")
+        out_rate = train.spec.solver.output_rate_hz if rate is None else rate
+        check_samples(duration, out_rate, where="--duration, --rate")
     if dt is not None:
         check_rk4_steps(duration, dt, settle_s=settle or 0.0, where="--dt")
     if reduced or cutoff_hz is not None:
@@ -194,38 +203,61 @@ def simulate(
         console.print(train.reduction.summary())
     if out is not None:
         check_output_suffix(out)
+    stats = RunningStats()
     if setpoints is not None:
         frame = _follow(train, setpoints, dt, settle)
-        label = f"{setpoints} ({len(frame)} rows)"
-        wall = None
+        if out is not None:
+            write_frame(frame, out)
+        stats.add(frame)
+        _summary(stats, f"{setpoints} ({len(frame)} rows)")
     else:
-        frame, wall, label = _run(train, duration, rate, dt, settle, quiet)
-    if out is not None:
-        write_frame(frame, out)
-    _summary(frame, label)
-    if wall is not None:
+        with contextlib.ExitStack() as stack:
+            sink = None if out is None else stack.enter_context(frame_stream(out))
+            wall, label = _run(train, duration, rate, dt, settle, quiet, stats, sink)
+        _summary(stats, label)
         console.print(wall)
     if out is not None:
         console.print(f"wrote {out}")
 
 
-def _run(train, duration: float, rate: float, dt: float | None, settle: float | None,
-         quiet: bool):  # fmt: skip
-    from drafttwin.mechanics import simulate as run
+SIMULATE_CHUNK_S = 10.0
+"""Machine time per piece of a ``simulate`` run: memory holds one piece, whatever the
+duration (docs/mechanics.md gives the measured peak)."""
+
+
+def _run(train, duration: float, rate: float | None, dt: float | None, settle: float | None,
+         quiet: bool, stats: RunningStats, sink: FrameStream | None) -> tuple[str, str]:  # fmt: skip
+    """Simulate in pieces, each summarised and (with --out) written before the next."""
+    from drafttwin.mechanics import simulate_chunks
 
     with progress_bar("simulating (machine s)", duration, quiet=quiet) as bar:
         task = bar.task_ids[0]
-        res = run(train, duration, output_rate_hz=rate, dt_s=dt, settle_s=settle,
-                  progress=lambda s: bar.advance(task, s))  # fmt: skip
-    frame = res.to_frame()
-    if not res.rollers:  # a train of your own: its output channels
-        frame = pd.DataFrame({"time": res.time_s, **{
-            m.channel: m.from_rpm(res.node_rpm[:, train.node_index(m.node)])
+        stream = simulate_chunks(train, duration, chunk_s=SIMULATE_CHUNK_S, output_rate_hz=rate,
+                                 dt_s=dt, settle_s=settle,
+                                 progress=lambda s: bar.advance(task, s))  # fmt: skip
+        for piece in stream:
+            frame = _piece_frame(train, stream, piece)
+            stats.add(frame)
+            if sink is not None:
+                sink.write(frame)
+    compiled = f" (+{stream.compile_s:.1f} s kernel compilation)" if stream.compile_s > 0.5 else ""
+    wall = (f"wall time {stream.wall_s:.2f} s{compiled}, real-time factor "
+            f"{duration / stream.wall_s:.1f}x")  # fmt: skip
+    return wall, f"{duration:g} s at {stream.rate_hz:g} Hz (dt {stream.dt_s:.2e} s)"
+
+
+def _piece_frame(train, stream, piece) -> pd.DataFrame:
+    """``time`` and the rollers and motor (FA320A), or a train's own output channels."""
+    if not stream.rollers:  # a train of your own: its output channels
+        return pd.DataFrame({"time": piece.time_s, **{
+            m.channel: m.from_rpm(piece.node_rpm[:, train.node_index(m.node)])
             for m in train.output_channels()}})  # fmt: skip
-    compiled = f" (+{res.compile_s:.1f} s kernel compilation)" if res.compile_s > 0.5 else ""
-    wall = (f"wall time {res.wall_s:.2f} s{compiled}, real-time factor "
-            f"{duration / res.wall_s:.1f}x")  # fmt: skip
-    return frame, wall, f"{duration:g} s at {rate:g} Hz (dt {res.dt_s:.2e} s)"
+    cols = {"time": piece.time_s}
+    for r in ROLLERS:
+        if r in stream.rollers:
+            cols[r] = piece.node_rpm[:, stream.rollers[r]]
+    cols["motor"] = piece.node_rpm[:, stream.motor_node]
+    return pd.DataFrame(cols)
 
 
 def _follow(train, path: Path, dt: float | None, settle: float | None) -> pd.DataFrame:
@@ -257,16 +289,12 @@ def _follow(train, path: Path, dt: float | None, settle: float | None) -> pd.Dat
     return pd.concat(parts, ignore_index=True)
 
 
-def _summary(frame: pd.DataFrame, label: str) -> None:
+def _summary(stats: RunningStats, label: str) -> None:
     table = Table(title=f"simulated: {label}")
     for col in ("channel", "mean", "std %", "peak-to-peak %"):
         table.add_column(col, justify="right" if col != "channel" else "left")
-    for name in frame.columns:
-        if name in ("time", "record"):
-            continue
-        x = frame[name].to_numpy()
-        mean = float(np.mean(x))
+    for name, mean, std, ptp in stats.rows():
         scale = abs(mean) if mean else 1.0
-        table.add_row(name, f"{mean:.4g}", f"{np.std(x) / scale * 100:.4f}",
-                      f"{np.ptp(x) / scale * 100:.4f}")  # fmt: skip
+        table.add_row(name, f"{mean:.4g}", f"{std / scale * 100:.4f}",
+                      f"{ptp / scale * 100:.4f}")  # fmt: skip
     console.print(table)

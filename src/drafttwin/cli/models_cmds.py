@@ -272,9 +272,21 @@ def _fitted(
     model_file: Path, source: SourceOptions, channels: ChannelOptions
 ) -> tuple[BaseModel, MechanisticModel | None, MeasurementSeries]:
     """A model file, its physics and the data of predict / evaluate, checked against it."""
-    from drafttwin.models import load_model
+    import warnings
 
-    estimator = load_model(model_file)
+    from drafttwin.models import load_model
+    from drafttwin.models.modelfile import DeviceFallbackWarning
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DeviceFallbackWarning)
+        estimator = load_model(model_file)
+    for warning in caught:  # one line each (e.g. a model saved for cuda, run on the cpu)
+        if issubclass(warning.category, DeviceFallbackWarning):
+            err_console.print(f"[yellow]warning:[/] {escape(str(warning.message))}",
+                              highlight=False, soft_wrap=True)  # fmt: skip
+        else:
+            warnings.warn_explicit(warning.message, warning.category, warning.filename,
+                                   warning.lineno)  # fmt: skip
     _check_task(estimator, source.task, source.init_samples)
     parsed = channels.parse().for_model(estimator)
     physics = _source(source.mechanistic, estimator, parsed.outputs)

@@ -35,6 +35,7 @@ from drafttwin.data.records import (
     record_on_grid,
 )
 from drafttwin.data.series import MeasurementSeries
+from drafttwin.data.sniff import sniff
 from drafttwin.data.units import check_units as check_rpm
 from drafttwin.data.units import is_rpm
 from drafttwin.errors import ConfigError, DataError
@@ -187,6 +188,7 @@ class _Options:
 def _read_file(source: Path, spec: ChannelSpec, opts: _Options) -> MeasurementSeries:
     """One file: its columns, time, values and records, validated."""
     fmt = v.check_file(source)
+    sniff(source, fmt)  # junk is refused from its first bytes, before it is read whole
     raw = _read_csv(source) if fmt == "csv" else _read_parquet(source)
     frame, row_label = raw.frame, raw.row_label
     v.check_has_rows(len(frame), source)

@@ -47,9 +47,27 @@ class MinMaxScaler:
 
     @classmethod
     def from_dict(cls, state: dict[str, Any]) -> MinMaxScaler:
+        """The inverse of :meth:`to_dict`; ``ValueError`` unless ``min`` and ``max`` are lists
+        of finite numbers of one length with ``max >= min`` (a model file is untrusted)."""
+        if not isinstance(state, dict) or set(state) != {"min", "max"}:
+            raise ValueError("a scaler holds exactly the fields min and max")
+        for key in ("min", "max"):
+            values = state[key]
+            if (
+                not isinstance(values, list)
+                or not values
+                or not all(isinstance(x, int | float) and not isinstance(x, bool) for x in values)
+            ):
+                raise ValueError(f"scaler {key} is not a non-empty list of numbers")
         scaler = cls()
         scaler.min_ = np.asarray(state["min"], dtype=np.float64)
         scaler.max_ = np.asarray(state["max"], dtype=np.float64)
+        if scaler.min_.shape != scaler.max_.shape:
+            raise ValueError("scaler min and max differ in length")
+        if not (np.isfinite(scaler.min_).all() and np.isfinite(scaler.max_).all()):
+            raise ValueError("scaler min or max is not finite")
+        if (scaler.max_ < scaler.min_).any():
+            raise ValueError("scaler max is below its min (the range must be >= 0)")
         span = scaler.max_ - scaler.min_
         scaler.scale_ = np.where(span > 0, span, 1.0)
         return scaler

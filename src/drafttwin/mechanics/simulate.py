@@ -11,7 +11,7 @@ precedes it (inputs held at their first values), so the recorded data start in s
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,7 +21,7 @@ from scipy.integrate import solve_ivp
 
 from drafttwin._constants import ROLLERS
 from drafttwin._limits import check_rk4_steps, check_samples
-from drafttwin.errors import ConfigError
+from drafttwin.errors import ConfigError, DrafttwinError
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
 from drafttwin.mechanics.assembly import (
@@ -171,6 +171,161 @@ def _grid(rate_hz: float, dt_s: float) -> tuple[int, float]:
     return steps, 1.0 / (rate_hz * steps)
 
 
+class NonFiniteSimulationError(DrafttwinError):
+    """A simulation produced NaN or an infinite value (an unstable step, implausible
+    parameters): it stops at the first such output, naming the node and the time."""
+
+
+@dataclass(frozen=True)
+class SimulationPiece:
+    """Consecutive output rows ``start_row .. start_row + len(time_s) - 1`` of a simulation
+    (the fields as in :class:`SimulationResult`)."""
+
+    start_row: int
+    time_s: np.ndarray
+    node_rpm: np.ndarray
+    point_rpm: np.ndarray
+    energy_j: np.ndarray
+
+
+BLOCK_S = 0.25
+"""Machine time per kernel call, s. Calls always cut the record at multiples of this from its
+start, whatever the pieces a caller asks for, so chunked and whole runs are bit-identical
+(the kernel's time stamps are ``t0 + k * dt`` from each call's own start)."""
+
+
+class SimulationStream:
+    """A simulation delivered in pieces of about ``chunk_s`` of machine time, the full state
+    carried from one piece to the next: concatenated, the pieces are bit-identical to
+    :func:`simulate`'s arrays, while memory stays flat in the duration. See
+    :func:`simulate_chunks` for the arguments; iterate to run it. ``node_names``,
+    ``rollers``, ``motor_node``, ``dt_s``, ``n_rows`` describe the output; ``compile_s`` and
+    ``wall_s`` are filled as it runs."""
+
+    def __init__(self, train: DriveTrain, duration_s: float, *, chunk_s: float,
+                 output_rate_hz: float | None, dt_s: float | None, settle_s: float | None,
+                 t_start_s: float, from_rest: bool,
+                 progress: Callable[[float], None] | None) -> None:  # fmt: skip
+        solver = train.spec.solver
+        self.train = train
+        self.rate_hz = solver.output_rate_hz if output_rate_hz is None else output_rate_hz
+        default_dt = solver.dt_s if train.reduction is None else train.reduction.dt_s
+        self.settle_s = solver.settle_s if settle_s is None else settle_s
+        # a run that would never end (dt 1e-12 s, an infinite duration) is refused at once
+        check_samples(duration_s, self.rate_hz, where="duration, output rate (--duration, --rate)")
+        check_rk4_steps(duration_s, default_dt if dt_s is None else dt_s,
+                        settle_s=self.settle_s, where="the RK4 step (--dt, solver dt_s)")  # fmt: skip
+        self.steps, self.dt_s = _grid(self.rate_hz, default_dt if dt_s is None else dt_s)
+        self.n_rows = int(round(duration_s * self.rate_hz))
+        if self.n_rows < 1:
+            raise ConfigError(
+                f"duration {duration_s} s is shorter than one output interval at {self.rate_hz} Hz",
+                where="--duration",
+                fix="simulate for at least one output interval",
+            )
+        if not chunk_s > 0:
+            raise ConfigError(f"chunk_s={chunk_s} is not > 0", fix="pieces of e.g. 60 s")
+        whole = not math.isfinite(chunk_s) or chunk_s * self.rate_hz >= self.n_rows
+        self.piece_rows = self.n_rows if whole else max(1, int(round(chunk_s * self.rate_hz)))
+        self.t_start_s, self.from_rest, self.progress = t_start_s, from_rest, progress
+        self.node_names = train.node_names
+        self.rollers = dict(train.roller_nodes)
+        self.motor_node = train.node_index(train.spec.root_node)
+        self.compile_s = self.wall_s = 0.0
+
+    def __iter__(self) -> Iterator[SimulationPiece]:
+        import time as _time
+
+        train, rate, dt, steps = self.train, self.rate_hz, self.dt_s, self.steps
+        t0 = self.t_start_s - self.settle_s
+        integrate, y, args = _integrator(train, _start_state(train, t0, self.from_rest))
+        start = _time.perf_counter()
+        integrate(y.copy(), t0, dt, 1, 1, *args)  # compile / load from cache outside the timing
+        self.compile_s = _time.perf_counter() - start
+        start = _time.perf_counter()
+        if self.settle_s > 0:
+            n_settle = max(1, int(round(self.settle_s * rate)))
+            settled = integrate(y, t0, dt, n_settle, steps, *args)
+            self._check_finite(settled, t0, 0, settling=True)
+            t0 += n_settle / rate
+        y[-K.N_ENERGY :] = 0.0
+        theta = y[: len(train.node_names)] if train.reduction is None else R.expand_angles(y, args)
+        last_theta = theta.copy()
+        block = max(1, int(rate * BLOCK_S))
+        pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        emitted = done = 0
+        while done < self.n_rows:
+            m = min(block, self.n_rows - done)
+            out = integrate(y, t0 + done / rate, dt, m, steps, *args)
+            self._check_finite(out, t0, done, settling=False)
+            pending.append(out)
+            done += m
+            while done - emitted >= self.piece_rows or (done == self.n_rows > emitted):
+                rows = min(self.piece_rows, done - emitted)
+                piece, pending, last_theta = self._piece(pending, rows, emitted, t0, last_theta)
+                emitted += rows
+                self.wall_s = _time.perf_counter() - start
+                yield piece
+            if self.progress is not None:
+                self.progress(m / rate)
+        self.wall_s = _time.perf_counter() - start
+
+    def _piece(self, pending: list, rows: int, first: int, t0: float, last_theta: np.ndarray):
+        """The first ``rows`` pending outputs as a piece; the rest stay pending."""
+        th, om, en = (np.vstack([p[k] for p in pending]) for k in range(3))
+        rest = [(th[rows:], om[rows:], en[rows:])] if len(th) > rows else []
+        theta = np.vstack([last_theta[None, :], th[:rows]])
+        piece = SimulationPiece(
+            start_row=first,
+            time_s=t0 + np.arange(first + 1, first + rows + 1) / self.rate_hz,
+            node_rpm=np.diff(theta, axis=0) * self.rate_hz * RPM,
+            point_rpm=om[:rows] * RPM,
+            energy_j=en[:rows],
+        )
+        return piece, rest, th[rows - 1].copy()
+
+    def _check_finite(self, out: tuple, t0: float, first: int, *, settling: bool) -> None:
+        """Stop at the first non-finite output: the node (or energy flow) and the time."""
+        for values, names, what in ((out[0], self.node_names, "angle"),
+                                    (out[1], self.node_names, "speed"),
+                                    (out[2], ENERGY_NAMES, "energy")):  # fmt: skip
+            bad = ~np.isfinite(values)
+            if not bad.any():
+                continue
+            row, col = (int(i) for i in np.argwhere(bad)[0])
+            t = t0 + (first + row + 1) / self.rate_hz
+            when = f"while settling, at t = {t:.6g} s" if settling else f"at t = {t:.6g} s"
+            raise NonFiniteSimulationError(
+                f"the simulation produced {values[row, col]} {when}: {what} of "
+                f"{'energy flow' if what == 'energy' else 'node'} '{names[col]}'",
+                source=f"drive train {self.train.spec.train.name}",
+                fix=f"a smaller step (--dt; now {self.dt_s:.3g} s) keeps RK4 inside the "
+                "stability limit of the stiffest coupling; else check that component's "
+                "parameters",
+            )
+
+
+def simulate_chunks(
+    train: DriveTrain,
+    duration_s: float,
+    *,
+    chunk_s: float = 60.0,
+    output_rate_hz: float | None = None,
+    dt_s: float | None = None,
+    settle_s: float | None = None,
+    t_start_s: float = 0.0,
+    from_rest: bool = False,
+    progress: Callable[[float], None] | None = None,
+) -> SimulationStream:
+    """:func:`simulate` in pieces of ``chunk_s`` machine seconds (the last one shorter):
+    iterate the returned stream for :class:`SimulationPiece` s. Memory holds one piece, so a
+    run of hours takes no more than one of a minute; the pieces join bit-identically to one
+    long run. Raises :class:`NonFiniteSimulationError` at the first NaN or infinity."""
+    return SimulationStream(train, duration_s, chunk_s=chunk_s, output_rate_hz=output_rate_hz,
+                            dt_s=dt_s, settle_s=settle_s, t_start_s=t_start_s,
+                            from_rest=from_rest, progress=progress)  # fmt: skip
+
+
 def simulate(
     train: DriveTrain,
     duration_s: float,
@@ -194,63 +349,25 @@ def simulate(
             torque-balance operating point with static preloads. A train without a motor, or
             whose supply at the start is below :data:`STOPPED_SUPPLY_HZ`, always starts at rest.
         progress: called with the machine seconds completed since the last call.
-    """
-    import time as _time
 
-    solver = train.spec.solver
-    rate = solver.output_rate_hz if output_rate_hz is None else output_rate_hz
-    default_dt = solver.dt_s if train.reduction is None else train.reduction.dt_s
-    settle = solver.settle_s if settle_s is None else settle_s
-    # a run that would never end (dt 1e-12 s, an infinite duration) is refused at once
-    check_samples(duration_s, rate, where="duration, output rate (--duration, --rate)")
-    check_rk4_steps(duration_s, default_dt if dt_s is None else dt_s, settle_s=settle,
-                    where="the RK4 step (--dt, solver dt_s)")  # fmt: skip
-    steps, dt = _grid(rate, default_dt if dt_s is None else dt_s)
-    n_out = int(round(duration_s * rate))
-    if n_out < 1:
-        raise ConfigError(
-            f"duration {duration_s} s is shorter than one output interval at {rate} Hz",
-            where="--duration",
-            fix="simulate for at least one output interval",
-        )
-    t0 = t_start_s - settle
-    integrate, y, args = _integrator(train, _start_state(train, t0, from_rest))
-    start = _time.perf_counter()
-    integrate(y.copy(), t0, dt, 1, 1, *args)  # compile / load from cache outside the timing
-    compile_s = _time.perf_counter() - start
-    start = _time.perf_counter()
-    if settle > 0:
-        n_settle = max(1, int(round(settle * rate)))
-        integrate(y, t0, dt, n_settle, steps, *args)
-        t0 += n_settle / rate
-    y[-K.N_ENERGY :] = 0.0
-    theta0 = y[: len(train.node_names)] if train.reduction is None else R.expand_angles(y, args)
-    theta0 = theta0.copy()
-    chunk = max(1, int(rate * 0.25))
-    thetas, omegas, energies = [], [], []
-    done = 0
-    while done < n_out:
-        m = min(chunk, n_out - done)
-        th, om, en = integrate(y, t0 + done / rate, dt, m, steps, *args)
-        thetas.append(th)
-        omegas.append(om)
-        energies.append(en)
-        done += m
-        if progress is not None:
-            progress(m / rate)
-    wall = _time.perf_counter() - start
-    theta = np.vstack([theta0[None, :], *thetas])
+    Raises:
+        NonFiniteSimulationError: at the first NaN or infinite output (node and time named).
+    """
+    stream = simulate_chunks(train, duration_s, chunk_s=math.inf, output_rate_hz=output_rate_hz,
+                             dt_s=dt_s, settle_s=settle_s, t_start_s=t_start_s,
+                             from_rest=from_rest, progress=progress)  # fmt: skip
+    pieces = list(stream)
     return SimulationResult(
-        time_s=t0 + np.arange(1, n_out + 1) / rate,
-        node_rpm=np.diff(theta, axis=0) * rate * RPM,
-        point_rpm=np.vstack(omegas) * RPM,
-        energy_j=np.vstack(energies),
-        node_names=train.node_names,
-        rollers=dict(train.roller_nodes),
-        motor_node=train.node_index(train.spec.root_node),
-        dt_s=dt,
-        wall_s=wall,
-        compile_s=compile_s,
+        time_s=np.concatenate([p.time_s for p in pieces]),
+        node_rpm=np.vstack([p.node_rpm for p in pieces]),
+        point_rpm=np.vstack([p.point_rpm for p in pieces]),
+        energy_j=np.vstack([p.energy_j for p in pieces]),
+        node_names=stream.node_names,
+        rollers=stream.rollers,
+        motor_node=stream.motor_node,
+        dt_s=stream.dt_s,
+        wall_s=stream.wall_s,
+        compile_s=stream.compile_s,
     )
 
 

@@ -20,6 +20,7 @@ from drafttwin.models.datadriven import GRUModel, LSTMModel
 from drafttwin.models.hybrid import ParallelHybrid
 from drafttwin.models.mdsl import MDSL
 from drafttwin.models.mechanistic import MechanisticModel
+from drafttwin.models.modelfile import DeviceFallbackWarning
 from drafttwin.models.networks import RecurrentRegressor, ResidualNet, SKConv1d
 from drafttwin.models.online import OnlinePredictor
 from drafttwin.models.profiles import PROFILES, Profile
@@ -29,6 +30,7 @@ from drafttwin.models.training import FitProgress, History, Training, train_netw
 
 __all__ = [
     "FORMAT_VERSION",
+    "DeviceFallbackWarning",
     "MDSL",
     "MODEL_NAMES",
     "PROFILES",

@@ -9,6 +9,7 @@ written with ``torch.save`` holding only tensors and JSON-able primitives, and r
 from __future__ import annotations
 
 import abc
+import copy
 import inspect
 import json
 from collections.abc import Mapping
@@ -24,15 +25,15 @@ from drafttwin._constants import __version__
 from drafttwin._io import atomic_path
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError, DrafttwinError, ModelFileError
+from drafttwin.models import modelfile as mf
 from drafttwin.models import params as P
 from drafttwin.models.mechanistic import MechanisticModel, as_mechanistic, describe_spec
 from drafttwin.models.task import Task, blank_after_init, init_rows, input_matrix
 from drafttwin.models.training import FitProgress
 
-FORMAT_NAME = "drafttwin-model"
-FORMAT_VERSION = 2
-"""Bumped whenever the layout of a model file changes incompatibly (2: settings objects,
-named channels with units, records, data-chosen options)."""
+FORMAT_NAME = mf.FORMAT_NAME
+FORMAT_VERSION = mf.FORMAT_VERSION
+read_model_file = mf.read_model_file
 
 MODEL_CLASSES: dict[str, type[BaseModel]] = {}
 """Estimator classes by class name (filled automatically), used to load model files."""
@@ -256,15 +257,7 @@ class BaseModel(abc.ABC):
         drafttwin version, format version); written atomically. Returns the path."""
         self._check_fitted()
         state, tensors = self._get_state()
-        state = {
-            "channels": list(self.channels_),
-            "units": dict(self.units_),
-            "mechanistic": self.mechanistic_spec_,
-            "sample_rate_hz": self.sample_rate_hz_,
-            "selection": self.selection_,
-            "provenance": self.provenance_,
-            **state,
-        }
+        state = {**self._common_state(), **state}
         payload = {
             "format": FORMAT_NAME,
             "format_version": FORMAT_VERSION,
@@ -275,6 +268,7 @@ class BaseModel(abc.ABC):
             "state_json": json.dumps(state, allow_nan=True),
             "tensors": {k: v.detach().cpu().contiguous() for k, v in tensors.items()},
         }
+        payload["checksum"] = mf.checksum(payload)
         path = Path(path)
         # through a Python file object: a full disk raises OSError (named by path in the CLI),
         # not torch's RuntimeError from its own writer
@@ -284,76 +278,52 @@ class BaseModel(abc.ABC):
 
     @classmethod
     def load(cls, path: str | Path) -> Self:
-        """Read a model file written by :meth:`save`. Raises :class:`ModelFileError` for a file
-        that is missing, not a drafttwin model, corrupt, of another format version, holds
-        invalid hyperparameters, or a model of a different class than ``cls``."""
+        """Read a model file written by :meth:`save`, every field checked as construction
+        checks it (:mod:`drafttwin.models.modelfile`). Raises :class:`ModelFileError`, naming
+        the field, for a file that is missing, not a drafttwin model, corrupt, of another
+        format version, holds invalid hyperparameters or state, or a model of a different
+        class than ``cls``. A training device this machine lacks falls back to the CPU with a
+        :class:`~drafttwin.models.modelfile.DeviceFallbackWarning`."""
         path = Path(path)
         payload = read_model_file(path)
-        klass = MODEL_CLASSES.get(str(payload["model_class"]))
-        if klass is None or not issubclass(klass, cls):
+        klass = MODEL_CLASSES.get(payload["model_class"])
+        if klass is None:
+            raise mf.refuse(path, "model_class", f"{mf.short(payload['model_class'])} is not a "
+                            "drafttwin model class")  # fmt: skip
+        if not issubclass(klass, cls):
             raise ModelFileError(
                 f"the file holds a {payload['model_class']}, not a {cls.__name__}",
                 source=path,
                 fix="load it with drafttwin.load_model(path)",
             )
-        try:
-            params = P.decode_params(json.loads(payload["params_json"]), MODEL_CLASSES)
-            model = klass(**params)
-            model._check_params()
-            state = json.loads(payload["state_json"])
-            model.channels_ = tuple(state.pop("channels"))
-            model.units_ = dict(state.pop("units"))
-            model.mechanistic_spec_ = state.pop("mechanistic")
-            model.sample_rate_hz_ = state.pop("sample_rate_hz", None)
-            model.selection_ = dict(state.pop("selection", {}))
-            model.provenance_ = dict(state.pop("provenance", {}))
-            model._set_state(state, payload["tensors"])
-        except (TypeError, KeyError, ValueError, RuntimeError, DrafttwinError) as exc:
-            detail = exc.message if isinstance(exc, DrafttwinError) else str(exc)
-            raise ModelFileError(
-                f"the model file is damaged or inconsistent ({type(exc).__name__}: {detail})",
-                source=path,
-                fix="re-fit and save the model again",
-            ) from exc
+        model = mf.construct(path, payload, klass, MODEL_CLASSES)
+        stored_state = mf.json_field(path, payload, "state_json")
+        mf.check_common_state(path, stored_state)
+        model._restore(path, copy.deepcopy(stored_state), payload["tensors"])
+        mf.check_restored(path, payload, stored_state, model)
         return model
 
+    def _restore(self, path: Path, state: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
+        """Take the fitted state of a checked model file."""
+        self.channels_ = tuple(state.pop("channels"))
+        self.units_ = dict(state.pop("units"))
+        self.mechanistic_spec_ = state.pop("mechanistic")
+        self.sample_rate_hz_ = state.pop("sample_rate_hz")
+        self.selection_ = dict(state.pop("selection"))
+        self.provenance_ = dict(state.pop("provenance"))
+        with mf.reading(path, "state"):
+            self._set_state(state, tensors)
 
-_REQUIRED = ("format_version", "model_class", "params_json", "state_json", "tensors")
-
-
-def read_model_file(path: Path) -> dict[str, Any]:
-    """The raw payload of a model file, checked for format and version."""
-    if not path.is_file():
-        raise ModelFileError("file not found", source=path, fix="check the model path")
-    try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for foreign or truncated files
-        raise ModelFileError(
-            f"not a readable drafttwin model file ({type(exc).__name__})",
-            source=path,
-            fix="pass a file written by drafttwin (model.save / drafttwin fit); it may be "
-            "truncated or another program's file",
-        ) from exc
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT_NAME:
-        raise ModelFileError(
-            "not a drafttwin model (no drafttwin format marker)",
-            source=path,
-            fix="pass a file written by drafttwin (model.save / drafttwin fit)",
-        )
-    if payload.get("format_version") != FORMAT_VERSION:
-        raise ModelFileError(
-            f"model format version {payload.get('format_version')!r} (written by drafttwin "
-            f"{payload.get('drafttwin_version', '?')}); this drafttwin "
-            f"({__version__}) reads version {FORMAT_VERSION}",
-            source=path,
-            fix="re-fit the model with this drafttwin version, or use the version that wrote it",
-        )
-    missing = [k for k in _REQUIRED if k not in payload]
-    if missing:
-        raise ModelFileError(
-            f"the model file lacks {missing}", source=path, fix="re-fit and save the model again"
-        )
-    return payload
+    def _common_state(self) -> dict[str, Any]:
+        """The state every model file holds, as :meth:`save` writes it."""
+        return {
+            "channels": list(self.channels_),
+            "units": dict(self.units_),
+            "mechanistic": self.mechanistic_spec_,
+            "sample_rate_hz": self.sample_rate_hz_,
+            "selection": self.selection_,
+            "provenance": self.provenance_,
+        }
 
 
 def pack_module(prefix: str, module: nn.Module) -> dict[str, torch.Tensor]:
@@ -365,5 +335,15 @@ def unpack_module(prefix: str, tensors: dict[str, torch.Tensor], module: nn.Modu
     """Load the ``prefix.*`` tensors into ``module`` (strict) and set eval mode."""
     head = f"{prefix}."
     state = {k[len(head) :]: v for k, v in tensors.items() if k.startswith(head)}
+    expected = module.state_dict()
+    for name in state:
+        if name not in expected:
+            raise mf.TensorMismatch(head + name, "is unknown (not written by drafttwin)")
+    for name, wanted in expected.items():  # one clear line each, not torch's list
+        if name not in state:
+            raise mf.TensorMismatch(head + name, "is missing")
+        if tuple(state[name].shape) != tuple(wanted.shape):
+            raise mf.TensorMismatch(head + name, f"has shape {tuple(state[name].shape)}, the "
+                                    f"model needs {tuple(wanted.shape)}")  # fmt: skip
     module.load_state_dict(state, strict=True)
     module.eval()

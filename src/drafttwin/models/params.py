@@ -16,9 +16,21 @@ from drafttwin.errors import ConfigError
 from drafttwin.models.task import Task
 from drafttwin.models.training import Training
 
+MAX_WINDOW = 1_000_000
+"""Longest input window, samples (a model file asking for more is damaged, not ambitious)."""
+MAX_WIDTH = 4096
+"""Widest recurrent layer or SKNet: bounds the memory a model file can make ``load`` take."""
+MAX_LAYERS = 16
+"""Most stacked recurrent layers."""
+MAX_SEED = 2**63 - 1
 
-def _int_at_least(low: int) -> Callable[[Any], bool]:
-    return lambda v: isinstance(v, int) and not isinstance(v, bool) and v >= low
+
+def _int_at_least(low: int, high: int = MAX_SEED) -> Callable[[Any], bool]:
+    return lambda v: isinstance(v, int) and not isinstance(v, bool) and low <= v <= high
+
+
+def _fraction(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool) and 0 <= v < 1
 
 
 def _optional_bool(v: Any) -> bool:
@@ -26,13 +38,16 @@ def _optional_bool(v: Any) -> bool:
 
 
 CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
-    "window": (_int_at_least(1), "an integer >= 1 (samples)"),
-    "hidden": (_int_at_least(1), "an integer >= 1"),
-    "layers": (_int_at_least(1), "an integer >= 1"),
-    "folds": (_int_at_least(2), "an integer >= 2"),
-    "seed": (_int_at_least(0), "an integer >= 0"),
-    "sk_channels": (lambda v: _int_at_least(3)(v) and v % 3 == 0, "a multiple of 3"),
-    "dropout": (lambda v: isinstance(v, int | float) and 0 <= v < 1, "in [0, 1)"),
+    "window": (_int_at_least(1, MAX_WINDOW), f"an integer in [1, {MAX_WINDOW}] (samples)"),
+    "hidden": (_int_at_least(1, MAX_WIDTH), f"an integer in [1, {MAX_WIDTH}]"),
+    "layers": (_int_at_least(1, MAX_LAYERS), f"an integer in [1, {MAX_LAYERS}]"),
+    "folds": (_int_at_least(2, 1000), "an integer in [2, 1000]"),
+    "seed": (_int_at_least(0), f"an integer in [0, {MAX_SEED}]"),
+    "sk_channels": (
+        lambda v: _int_at_least(3, MAX_WIDTH)(v) and v % 3 == 0,
+        f"a multiple of 3 in [3, {MAX_WIDTH}]",
+    ),  # fmt: skip
+    "dropout": (_fraction, "in [0, 1)"),
     "skip": (_optional_bool, "None (the default for the task), True or False"),
     "accumulate": (_optional_bool, "None (chosen on validation data), True or False"),
     "quiet": (lambda v: isinstance(v, bool), "True or False"),
@@ -41,6 +56,16 @@ CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "training": (lambda v: isinstance(v, Training), "a drafttwin.models.Training"),
 }
 """Per-hyperparameter rule and its wording for the error message."""
+
+
+def first_invalid(params: Mapping[str, Any]) -> tuple[str, str] | None:
+    """``(name, rule)`` of the first plain hyperparameter (not a settings object, as stored in
+    a model file) that breaks its rule, else ``None``."""
+    for key, value in params.items():
+        rule = CHECKS.get(key)
+        if rule is not None and not isinstance(value, dict) and not rule[0](value):
+            return key, rule[1]
+    return None
 
 
 def check_params(owner: str, params: Mapping[str, Any]) -> None:

@@ -13,6 +13,7 @@ import contextlib
 import copy
 import dataclasses
 import math
+import re
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass, field
@@ -38,7 +39,7 @@ _TRAINING_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
     "val_fraction": (lambda v: _is_real(v) and 0 <= v < 1, "in [0, 1)"),
     "clip_norm": (lambda v: v is None or (_is_real(v) and 0 < v < math.inf), "None or > 0"),
     "stride": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
-    "device": (lambda v: _valid_device(v), '"auto", "cpu", "cuda" or "cuda:N"'),
+    "device": (lambda v: _valid_device(v), '"auto", "cpu", "cuda", "cuda:N" or "mps"'),
 }
 
 
@@ -46,18 +47,18 @@ def _is_int(v: Any) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
 
+def _is_number(v: Any) -> bool:  # NaN allowed: an epoch's loss may be undefined
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
 def _is_real(v: Any) -> bool:
     return isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _valid_device(v: Any) -> bool:
-    if v == "auto":
-        return True
-    try:
-        torch.device(v)
-    except (RuntimeError, TypeError):
-        return False
-    return True
+    """``auto``, ``cpu``, ``cuda``, ``cuda:N`` or ``mps`` (whether this machine has it is
+    checked where the model runs; a model file falls back to the CPU)."""
+    return isinstance(v, str) and re.fullmatch(r"auto|cpu|mps|cuda(:\d{1,3})?", v) is not None
 
 
 @dataclass(frozen=True)
@@ -145,6 +146,21 @@ class History:
 
     @classmethod
     def from_dict(cls, data: HistoryDict) -> History:
+        """The inverse of :meth:`to_dict`; ``ValueError`` for a field of the wrong kind (a
+        model file is untrusted input)."""
+        if not isinstance(data, dict) or set(data) != set(HistoryDict.__annotations__):
+            raise ValueError(
+                f"a training history holds the fields {sorted(HistoryDict.__annotations__)}"
+            )
+        raw: dict[str, Any] = dict(data)
+        for key in ("train_loss", "val_loss"):
+            if not isinstance(raw[key], list) or not all(_is_number(x) for x in raw[key]):
+                raise ValueError(f"history {key} is not a list of numbers")
+        for key in ("best_epoch", "n_train", "n_val"):
+            if not _is_int(raw[key]) or raw[key] < 0:
+                raise ValueError(f"history {key} is not an integer >= 0")
+        if not isinstance(raw["stopped_early"], bool) or not _is_real(raw["seconds"]):
+            raise ValueError("history stopped_early or seconds is of the wrong kind")
         return cls(**data)
 
 
