@@ -36,7 +36,7 @@ class DrafttwinError(Exception):
         head = ": ".join(part for part in (self.source, self.where) if part)
         text = f"{head}: {self.problem}" if head else self.problem
         if self.fix:
-            text += f"\n  fix: {self.fix}"
+            text += f"; fix: {self.fix}"
         return text
 
 

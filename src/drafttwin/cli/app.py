@@ -57,7 +57,7 @@ class _UserErrorsExit2(typer.core.TyperGroup):
             raise
         except ClickException as exc:  # a bad value, a missing option, an unknown command
             where = getattr(getattr(exc, "ctx", None), "command_path", None) or ctx.command_path
-            print_error(f"{exc.format_message()}{_range_hint(exc)}\n  fix: see '{where} --help'")
+            print_error(f"{exc.format_message()}{_range_hint(exc)}; fix: see '{where} --help'")
             raise typer.Exit(2) from None
         except OSError as exc:
             if exc.errno == errno.EPIPE:  # stdout closed by a pager or `head`: not an error
