@@ -45,7 +45,10 @@ def test_fit_predict_evaluate_round_trip(data_file, tmp_path):
     assert set(out["channels"]) == {"front", "second", "third", "back"}
     assert out["split"]["mode"] == "chronological" and out["split"]["train_rows"] == 1120
     for m in out["channels"].values():
-        assert m["n_scored"] > 300 and np.isfinite(m["rmse"]) and m["noise_floor"] > 0
+        assert m["n_scored"] > 300 and np.isfinite(m["rmse"])
+        # plant data: the floor lies below the encoders' own error, and no model beats it
+        assert 0 < m["rmse_floor"] < m["sensor_rmse"] and m["rmse"] > m["rmse_floor"]
+        assert m["true_error_ratio"] == pytest.approx(m["rmse_vs_true"] / m["sensor_rmse"])
         assert m["unit"] == "rpm" and m["rel_note"] is None
 
 
@@ -123,7 +126,11 @@ def test_metrics_table_names_units_for_any_channels():
 
     y = np.sin(np.linspace(0, 20, 400))
     one = render(evaluate(y, y + 0.01, channels=["position"], units="m"))
-    assert "RMSE m" in one and "noise floor m" in one and "position" in one
+    assert "RMSE m" in one and "floor" not in one and "position" in one  # no true values
+    true = evaluate(y, y + 0.01, channels=["position"], units="m", true_values=y + 0.001,
+                    floor_values=y + 0.002)  # fmt: skip
+    limits = render(true)
+    assert "floor m" in limits and "RMSE vs true m" in limits and "sensor error m" in limits
     assert "0.01" in one  # the RMSE, in m
     two = np.column_stack([y + 2, y + 5])
     mixed = render(evaluate(two, two, channels=["a", "b"], units={"a": "m", "b": "V"}))

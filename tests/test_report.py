@@ -65,7 +65,8 @@ def test_metric_ablation_and_grid_tables(report: tuple[dict, dict[str, Path]]) -
     metrics = _csv(paths, "metrics")
     assert len(metrics) == 6 * len(ROLLERS)
     for col in ("rmse", "nrmse", "skill", "mean_rel_err_pct", "max_rel_err_pct",
-                "accuracy_pct", "noise_floor", "rmse_vs_true", "rel_threshold"):  # fmt: skip
+                "accuracy_pct", "rmse_floor", "rmse_vs_true", "sensor_rmse", "true_error_ratio",
+                "rel_threshold"):  # fmt: skip
         assert metrics[col].notna().all(), col
     assert (metrics.unit == "rpm").all() and (metrics.n_rel_excluded == 0).all()
     t3 = _csv(paths, "table3")
@@ -188,7 +189,7 @@ def test_agreement_partly_and_ablation_spread() -> None:
 
 
 def test_report_without_truth_or_extra_variants(tmp_path: Path) -> None:
-    """Real data: no true speed (NaN noise floor), no extra variants, no findings."""
+    """Real data: no true speed (no floor, no sensor error), no extra variants, no findings."""
     results, predictions = build(n_test=300)
     results["comparison"]["extra"] = []
     results.pop("findings")
@@ -198,13 +199,15 @@ def test_report_without_truth_or_extra_variants(tmp_path: Path) -> None:
     results["data"]["plant_summary"] = []
     for model in results["comparison"]["metrics"].values():
         for m in model.values():
-            m["noise_floor"] = m["rmse_vs_true"] = None
+            for key in ("rmse_floor", "rmse_vs_true", "sensor_rmse", "true_error_ratio"):
+                m[key] = None
     predictions = predictions.drop(columns=[f"true_{r}" for r in ROLLERS])
     paths = write_report(tmp_path, results, predictions)
     text = paths["report"].read_text(encoding="utf-8")
-    assert "not a real FA320A" not in text and "noise floor unknown" in text
+    assert "not a real FA320A" not in text and "floor unknown: no true speed" in text
+    assert "encoder error (measured vs true)" not in text
     assert "Welch t-test" not in text and "as computed by the study" in text
-    assert np.isnan(pd.read_csv(paths["metrics"]).noise_floor).all()
+    assert np.isnan(pd.read_csv(paths["metrics"]).rmse_floor).all()
 
 
 def test_units_and_omitted_relative_errors_come_from_the_results(tmp_path: Path) -> None:

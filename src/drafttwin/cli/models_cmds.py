@@ -330,7 +330,10 @@ def evaluate(
 ) -> None:
     """Score a model on the test part of --data (the chronological split it was fitted with)
     or on separate --test-data records (replacing --data): the paper's relative errors and
-    honest metrics (RMSE, NRMSE, skill against persistence, noise floor) per channel."""
+    honest metrics (RMSE, NRMSE, skill against persistence) per channel. On plant data (true
+    speeds known): the floor (the lowest RMSE any predictor of the measured value can reach
+    in the task), the RMSE against the true speed beside the encoders' own error, and their
+    ratio (below 1: the model is a better speed sensor than the encoder)."""
     from drafttwin.evaluation import protocol
 
     source.refuse_fraction_with_test_data(train_fraction)
@@ -358,6 +361,20 @@ def _report(result: Evaluation, as_json: bool) -> None:
     console.print("skill = 1 - RMSE / RMSE(persistence); scored: measured samples not flagged "
                   "as outliers" + ("" if result.task == "prediction" else ", after each "
                                    "record's initialisation window"))  # fmt: skip
+    if any(np.isfinite(m.sensor_rmse) for m in result.metrics.values()):
+        console.print(FLOOR_NOTE[result.task == "prediction"])
+
+
+FLOOR_NOTE = {
+    True: "floor: the lowest RMSE any one-step predictor of the measured value can reach (an "
+    "oracle that knows the true value and every earlier measurement; the encoders' counting "
+    "error is partly foreseeable). sensor error: RMSE of measured vs true; vs true / sensor "
+    "< 1: the prediction estimates the true value better than the encoder measures it",
+    False: "floor: in a free run no measurement shows the sensor's error, so the floor is the "
+    "sensor error (RMSE of measured vs true); vs true / sensor < 1: the simulation estimates "
+    "the true value better than the encoder measures it",
+}
+"""The line under the table on data with true values, per task (one-step or free run)."""
 
 
 def _metrics_table(metrics: dict, title: str) -> Table:
@@ -373,11 +390,17 @@ def _metrics_table(metrics: dict, title: str) -> Table:
     table.add_column("channel")
     if shared is None:
         table.add_column("unit")
-    for c in ("max rel %", "mean rel %", "accuracy %", head("RMSE"), "NRMSE", "skill",
-              head("noise floor")):  # fmt: skip
+    truth = any(np.isfinite(m.sensor_rmse) for m in metrics.values())
+    heads = ["max rel %", "mean rel %", "accuracy %", head("RMSE"), "NRMSE", "skill"]
+    if truth:
+        heads += [head("floor"), head("RMSE vs true"), head("sensor error"), "vs true / sensor"]
+    for c in heads:
         table.add_column(c, justify="right")
     for r, m in metrics.items():
         cells = [f"{m.max_rel_err_pct:.4f}", f"{m.mean_rel_err_pct:.4f}", f"{m.accuracy_pct:.3f}",
-                 f"{m.rmse:.4g}", f"{m.nrmse:.3f}", f"{m.skill:.3f}", f"{m.noise_floor:.4g}"]  # fmt: skip
+                 f"{m.rmse:.4g}", f"{m.nrmse:.3f}", f"{m.skill:.3f}"]  # fmt: skip
+        if truth:
+            cells += [f"{m.rmse_floor:.4g}", f"{m.rmse_vs_true:.4g}", f"{m.sensor_rmse:.4g}",
+                      f"{m.true_error_ratio:.3f}"]  # fmt: skip
         table.add_row(escape(r), *([] if shared is not None else [m.unit]), *cells)
     return table
