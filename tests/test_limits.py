@@ -10,7 +10,7 @@ import pytest
 
 from drafttwin.datasets import load_default
 from drafttwin.errors import DataError
-from drafttwin.evaluation import accuracy_limits, floor_oracle
+from drafttwin.evaluation import accuracy_limits, evaluate, floor_oracle, floor_rows
 from drafttwin.evaluation.limits import lag1_autocorrelation
 from drafttwin.plant.config import Sensors
 from drafttwin.plant.sensors import encoder_rpm, quantisation_step_rpm
@@ -141,3 +141,23 @@ def test_premise_checked_and_bad_input_refused() -> None:
         floor_oracle(measured, true[:, :1])
     assert lim["counted"].to_dict()["channel"] == "counted"
     assert lim["white"].to_dict()["floor"] is None
+
+
+def test_floor_rows_name_the_best_model_and_any_model_below_its_floor() -> None:
+    rng = np.random.default_rng(9)
+    true = np.full((4_000, 2), 400.0)
+    measured = true + np.diff(0.2 * rng.standard_normal((4_001, 2)), axis=0)
+    oracle = floor_oracle(measured, true)
+    good = evaluate(measured, true, channels=("a", "b"), true_values=true, floor_values=oracle)
+    noisy = evaluate(measured, true + 0.3 * rng.standard_normal(true.shape), channels=("a", "b"),
+                     true_values=true, floor_values=oracle)  # fmt: skip
+    rows = floor_rows({"good": good, "noisy": {c: m.to_dict() for c, m in noisy.items()}})
+    assert [r["channel"] for r in rows] == ["a", "b"]
+    for r in rows:
+        assert r["best_model"] == "good" and r["below_floor"] == []
+        assert r["best_rmse"] == pytest.approx(good[r["channel"]].rmse)
+        assert r["floor"] == pytest.approx(good[r["channel"]].rmse_floor)
+        assert r["best_rmse"] > r["floor"]  # the true value alone does not reach the floor
+    cheat = evaluate(measured, measured, channels=("a", "b"), true_values=true, floor_values=oracle)
+    below = floor_rows({"good": good, "cheat": cheat})
+    assert all(r["below_floor"] == ["cheat"] and r["best_model"] == "cheat" for r in below)

@@ -232,3 +232,21 @@ def test_formatting_helpers() -> None:
     assert count_text(list(ROLLERS)) == "all four rollers"
     assert count_text([]) == "no roller"
     assert count_text(["front", "back"]) == "2 of 4 (front, back)"
+
+
+def test_limits_claim_names_the_floor_and_a_model_below_it() -> None:
+    """Every roller's best RMSE against its floor and the best estimate of the true speed
+    against the encoders' error, from the numbers; a model below its floor is called out."""
+    results, _ = build(n_test=300)
+    metrics = results["comparison"]["metrics"]
+    text = _claim(results, "floor").ours
+    for r in ROLLERS:
+        best = min(results["comparison"]["models"], key=lambda m: metrics[m][r]["rmse"])
+        m = metrics[best][r]
+        assert f"{r}: {agreement.label(best)} {m['rmse']:.3f} rpm" in text
+        assert f"{m['rmse'] / m['rmse_floor']:.2f} × the floor {m['rmse_floor']:.3f}" in text
+    assert "BELOW" not in text and "× the encoder's error" in text
+    metrics["gru"]["back"]["rmse"] = 0.5 * metrics["gru"]["back"]["rmse_floor"]
+    assert (
+        "(BELOW the floor: GRU (data-driven); the floor is wrong)" in _claim(results, "floor").ours
+    )

@@ -2,7 +2,7 @@
 on data with known true values (:mod:`drafttwin.evaluation.limits`), and the one split /
 preprocessing / scoring protocol (:mod:`drafttwin.evaluation.protocol`)."""
 
-from drafttwin.evaluation.limits import ChannelLimits, accuracy_limits, floor_oracle
+from drafttwin.evaluation.limits import ChannelLimits, accuracy_limits, floor_oracle, floor_rows
 from drafttwin.evaluation.metrics import ChannelMetrics, evaluate, json_number, metrics_frame
 
 __all__ = [
@@ -11,6 +11,7 @@ __all__ = [
     "accuracy_limits",
     "evaluate",
     "floor_oracle",
+    "floor_rows",
     "json_number",
     "metrics_frame",
 ]

@@ -29,8 +29,9 @@ gives the derivation and the figures measured on the default data set.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 
@@ -181,4 +182,35 @@ def accuracy_limits(
         ok = rows[:, j]
         out[c] = ChannelLimits(c, _rmse(y2[ok, j] - oracle[ok, j]),
                                _rmse(y2[ok, j] - m2[ok, j]), int(ok.sum()))  # fmt: skip
+    return out
+
+
+def floor_rows(metrics: Mapping[str, Mapping[str, Any]]) -> list[dict[str, Any]]:
+    """Per channel, the model with the lowest RMSE and its floor: ``[{"channel", "floor",
+    "best_model", "best_rmse", "below_floor"}]`` (JSON-safe: ``None`` where unknown).
+
+    ``metrics`` maps a model name to its per-channel metrics, as
+    :class:`~drafttwin.evaluation.metrics.ChannelMetrics` or their ``to_dict()`` rows. The
+    floor is the best model's own (on its scored samples); ``below_floor`` lists every model
+    whose RMSE is below its floor: empty unless the floor is wrong.
+    """
+
+    def get(row: Any, key: str) -> float:
+        value = row.get(key) if isinstance(row, Mapping) else getattr(row, key)
+        return float("nan") if value is None else float(value)
+
+    channels = list(dict.fromkeys(c for per in metrics.values() for c in per))
+    out = []
+    for c in channels:
+        rows = {m: per[c] for m, per in metrics.items() if c in per}
+        finite = {m: get(r, "rmse") for m, r in rows.items() if np.isfinite(get(r, "rmse"))}
+        best = min(finite, key=finite.__getitem__) if finite else None
+        below = [m for m, r in rows.items() if get(r, "rmse") < get(r, "rmse_floor")]
+        out.append({
+            "channel": c,
+            "floor": json_number(get(rows[best], "rmse_floor")) if best else None,
+            "best_model": best,
+            "best_rmse": json_number(finite[best]) if best else None,
+            "below_floor": below,
+        })  # fmt: skip
     return out

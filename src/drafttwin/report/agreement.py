@@ -141,8 +141,8 @@ def _limits_text(results: Mapping[str, Any], models: list[str], roller: str) -> 
     est = _best_of(results, models, roller, "rmse_vs_true")
     if est:
         ratio = _metric(results, est, roller, "true_error_ratio")
-        text += (f"; true speed best estimated by {label(est)}, "
-                 f"{num(_metric(results, est, roller, 'rmse_vs_true'), 3)} = {ratio:.2f} × "
+        vs_true = f"{num(_metric(results, est, roller, 'rmse_vs_true'), 3)} {unit}".strip()
+        text += (f"; true speed best estimated by {label(est)}, {vs_true} = {ratio:.2f} × "
                  "the encoder's error")  # fmt: skip
     return text
 
