@@ -161,3 +161,26 @@ def test_floor_rows_name_the_best_model_and_any_model_below_its_floor() -> None:
     cheat = evaluate(measured, measured, channels=("a", "b"), true_values=true, floor_values=oracle)
     below = floor_rows({"good": good, "cheat": cheat})
     assert all(r["below_floor"] == ["cheat"] and r["best_model"] == "cheat" for r in below)
+
+
+def test_protocol_floor_follows_the_task() -> None:
+    """Scored by the protocol on plant data: one-step prediction can foresee part of the
+    sensor's error; two steps ahead or in a free run nothing of it, so the floor is the
+    sensor's error. Persistence stays above the floor in every task."""
+    from drafttwin.evaluation import protocol
+    from drafttwin.models import make_model
+
+    data = load_default().slice(0, 6_000)
+    floors = {}
+    for name, kw in (("one-step", {}), ("two-step", {"horizon": 2}),
+                     ("free run", {"task": "simulation"})):  # fmt: skip
+        model = make_model("persistence", **kw)
+        part = protocol.fit(model, data, train_fraction=0.7)
+        ev = protocol.evaluate(model, part)
+        floors[name] = ev.metrics
+        for m in ev.metrics.values():
+            assert m.rmse > m.rmse_floor > 0 and m.sensor_rmse > 0
+    for c in data.channels:
+        one, two, free = (floors[k][c] for k in ("one-step", "two-step", "free run"))
+        assert one.rmse_floor == pytest.approx(one.sensor_rmse / math.sqrt(2), rel=0.05)
+        assert two.rmse_floor == two.sensor_rmse and free.rmse_floor == free.sensor_rmse

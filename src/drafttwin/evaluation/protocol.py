@@ -313,12 +313,15 @@ def score(part: Split, pred: np.ndarray, model: BaseModel, *, skip_rows: int = 0
 
 def _oracle(part: Split, model: BaseModel, truth: np.ndarray | None) -> np.ndarray | None:
     """The floor oracle's predictions of the test rows (None without true values): it knows
-    the true values and, in one-step prediction, every earlier scored measurement; a free run
-    sees no measurement, so its floor is the sensor's own error."""
+    the true values and, in one-step prediction, every earlier scored measurement. A free run
+    sees no measurement, and a prediction ``horizon`` >= 2 rows ahead sees only errors that
+    share no window boundary with the predicted one: nothing of the sensor's error can be
+    foreseen, so the floor is the sensor's own error."""
     if truth is None:
         return None
     test = part.test_part()
-    observed = np.zeros(truth.shape, bool) if model.task.simulation else None
+    blind = model.task.simulation or model.task.horizon > 1
+    observed = np.zeros(truth.shape, bool) if blind else None
     starts = [a for a, _ in test.record_bounds()]
     return floor_oracle(part.target, truth, observed=observed, record_starts=starts)
 
