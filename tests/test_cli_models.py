@@ -45,7 +45,10 @@ def test_fit_predict_evaluate_round_trip(data_file, tmp_path):
     assert set(out["channels"]) == {"front", "second", "third", "back"}
     assert out["split"]["mode"] == "chronological" and out["split"]["train_rows"] == 1120
     for m in out["channels"].values():
-        assert m["n_scored"] > 300 and np.isfinite(m["rmse"]) and m["noise_floor"] > 0
+        assert m["n_scored"] > 300 and np.isfinite(m["rmse"])
+        # plant data: the floor lies below the encoders' own error, and no model beats it
+        assert 0 < m["rmse_floor"] < m["sensor_rmse"] and m["rmse"] > m["rmse_floor"]
+        assert m["true_error_ratio"] == pytest.approx(m["rmse_vs_true"] / m["sensor_rmse"])
         assert m["unit"] == "rpm" and m["rel_note"] is None
 
 
@@ -54,6 +57,7 @@ def test_hybrid_with_mechanistic_preset(data_file, tmp_path):
     _ok(["fit", "--model", "parallel", "--data", str(data_file), "--out", str(model), "--quiet"])
     table = _ok(["evaluate", "--model", str(model), "--data", str(data_file)]).output
     assert "parallel" in table and "skill" in table
+    assert "accuracy limits" in table and "floor rpm" in table and "oracle that knows" in table
 
 
 def test_refusals_exit_2(data_file, tmp_path):
@@ -113,17 +117,23 @@ def test_data_with_other_rollers_or_rate_refused(data_file, tmp_path):
 def test_metrics_table_names_units_for_any_channels():
     from rich.console import Console
 
-    from drafttwin.cli.models_cmds import _metrics_table
+    from drafttwin.cli.models_cmds import _limits_table, _metrics_table
     from drafttwin.evaluation import evaluate
 
-    def render(metrics) -> str:
+    def render(metrics, limits: bool = False) -> str:
         console = Console(width=200, record=True)
-        console.print(_metrics_table(metrics, "t"))
+        console.print(_limits_table(metrics) if limits else _metrics_table(metrics, "t"))
         return console.export_text()
 
     y = np.sin(np.linspace(0, 20, 400))
     one = render(evaluate(y, y + 0.01, channels=["position"], units="m"))
-    assert "RMSE m" in one and "noise floor m" in one and "position" in one
+    assert "RMSE m" in one and "floor" not in one and "position" in one  # no true values
+    true = evaluate(y, y + 0.01, channels=["position"], units="m", true_values=y + 0.001,
+                    floor_values=y + 0.002)  # fmt: skip
+    limits = render(true, limits=True)
+    assert "floor m" in limits and "RMSE vs true m" in limits and "sensor error m" in limits
+    # RMSE vs true 0.009, sensor 0.001: ratio 9; floor 0.002: RMSE / floor 5
+    assert "0.009" in limits and "0.001" in limits and " 9.000 " in limits and " 5.000 " in limits
     assert "0.01" in one  # the RMSE, in m
     two = np.column_stack([y + 2, y + 5])
     mixed = render(evaluate(two, two, channels=["a", "b"], units={"a": "m", "b": "V"}))

@@ -33,7 +33,8 @@ def test_relative_errors_by_hand() -> None:
     assert m.rel_note is None
     # scale = 99th percentile of |y| (linear interpolation): 200 + 0.98 * 200 = 396
     assert m.rel_threshold == pytest.approx(0.01 * 396.0)
-    assert math.isnan(m.skill) and math.isnan(m.noise_floor)
+    assert math.isnan(m.skill) and math.isnan(m.sensor_rmse) and math.isnan(m.rmse_floor)
+    assert math.isnan(m.rmse_vs_true) and math.isnan(m.true_error_ratio)
 
 
 def test_undeclared_unit_is_empty() -> None:
@@ -159,12 +160,18 @@ def test_skill_against_persistence_by_hand() -> None:
     assert m.skill == pytest.approx(0.5)
 
 
-def test_noise_floor_by_hand() -> None:
-    y = np.array([100.0, 101, 99, np.nan])
-    true = np.array([100.0, 100, 100, 100])
-    m = _one(y, y, true_values=true)
-    assert m.noise_floor == pytest.approx(math.sqrt(2 / 3))
-    assert m.rmse == 0.0
+def test_limits_against_the_true_value_by_hand() -> None:
+    y = np.array([100.0, 101, 99, np.nan, 102])
+    true = np.array([100.0, 100, 100, 100, 100])
+    pred = np.array([100.5, 100.0, 100.0, 100.0, np.nan])  # the last one is not scored
+    oracle = np.array([100.0, 100.5, 100.0, 100.0, 101.0])
+    m = _one(y, pred, true_values=true, floor_values=oracle)
+    # on the three scored samples only (measured and predicted)
+    assert m.sensor_rmse == pytest.approx(math.sqrt(2 / 3))
+    assert m.rmse_vs_true == pytest.approx(math.sqrt(0.25 / 3))
+    assert m.true_error_ratio == pytest.approx(math.sqrt(0.25 / 2))
+    assert m.rmse_floor == pytest.approx(math.sqrt((0 + 0.25 + 1) / 3))
+    assert m.rmse == pytest.approx(math.sqrt((0.25 + 1 + 1) / 3))
 
 
 def test_many_channels_dict_and_frame() -> None:
@@ -209,7 +216,7 @@ def test_json_round_trip_without_nan() -> None:
     back = json.loads(text)["x"]
     m = out["x"]
     assert back["mean_rel_err_pct"] is None and back["skill"] is None
-    assert back["noise_floor"] is None and back["rel_note"] == NOTE_CROSSES_ZERO
+    assert back["rmse_floor"] is None and back["rel_note"] == NOTE_CROSSES_ZERO
     assert back["rmse"] == m.rmse and back["n_nan_pred"] == 10 and back["unit"] == "m"
     assert set(back) == set(m.to_dict())
     # a channel without scored samples is JSON-safe too

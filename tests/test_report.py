@@ -65,7 +65,8 @@ def test_metric_ablation_and_grid_tables(report: tuple[dict, dict[str, Path]]) -
     metrics = _csv(paths, "metrics")
     assert len(metrics) == 6 * len(ROLLERS)
     for col in ("rmse", "nrmse", "skill", "mean_rel_err_pct", "max_rel_err_pct",
-                "accuracy_pct", "noise_floor", "rmse_vs_true", "rel_threshold"):  # fmt: skip
+                "accuracy_pct", "rmse_floor", "rmse_vs_true", "sensor_rmse", "true_error_ratio",
+                "rel_threshold"):  # fmt: skip
         assert metrics[col].notna().all(), col
     assert (metrics.unit == "rpm").all() and (metrics.n_rel_excluded == 0).all()
     t3 = _csv(paths, "table3")
@@ -188,7 +189,7 @@ def test_agreement_partly_and_ablation_spread() -> None:
 
 
 def test_report_without_truth_or_extra_variants(tmp_path: Path) -> None:
-    """Real data: no true speed (NaN noise floor), no extra variants, no findings."""
+    """Real data: no true speed (no floor, no sensor error), no extra variants, no findings."""
     results, predictions = build(n_test=300)
     results["comparison"]["extra"] = []
     results.pop("findings")
@@ -198,13 +199,15 @@ def test_report_without_truth_or_extra_variants(tmp_path: Path) -> None:
     results["data"]["plant_summary"] = []
     for model in results["comparison"]["metrics"].values():
         for m in model.values():
-            m["noise_floor"] = m["rmse_vs_true"] = None
+            for key in ("rmse_floor", "rmse_vs_true", "sensor_rmse", "true_error_ratio"):
+                m[key] = None
     predictions = predictions.drop(columns=[f"true_{r}" for r in ROLLERS])
     paths = write_report(tmp_path, results, predictions)
     text = paths["report"].read_text(encoding="utf-8")
-    assert "not a real FA320A" not in text and "noise floor unknown" in text
+    assert "not a real FA320A" not in text and "floor unknown: no true speed" in text
+    assert "encoder error (measured vs true)" not in text
     assert "Welch t-test" not in text and "as computed by the study" in text
-    assert np.isnan(pd.read_csv(paths["metrics"]).noise_floor).all()
+    assert np.isnan(pd.read_csv(paths["metrics"]).rmse_floor).all()
 
 
 def test_units_and_omitted_relative_errors_come_from_the_results(tmp_path: Path) -> None:
@@ -229,3 +232,21 @@ def test_formatting_helpers() -> None:
     assert count_text(list(ROLLERS)) == "all four rollers"
     assert count_text([]) == "no roller"
     assert count_text(["front", "back"]) == "2 of 4 (front, back)"
+
+
+def test_limits_claim_names_the_floor_and_a_model_below_it() -> None:
+    """Every roller's best RMSE against its floor and the best estimate of the true speed
+    against the encoders' error, from the numbers; a model below its floor is called out."""
+    results, _ = build(n_test=300)
+    metrics = results["comparison"]["metrics"]
+    text = _claim(results, "floor").ours
+    for r in ROLLERS:
+        best = min(results["comparison"]["models"], key=lambda m: metrics[m][r]["rmse"])
+        m = metrics[best][r]
+        assert f"{r}: {agreement.label(best)} {m['rmse']:.3f} rpm" in text
+        assert f"{m['rmse'] / m['rmse_floor']:.2f} × the floor {m['rmse_floor']:.3f}" in text
+    assert "BELOW" not in text and "× the encoder's error" in text
+    metrics["gru"]["back"]["rmse"] = 0.5 * metrics["gru"]["back"]["rmse_floor"]
+    assert (
+        "(BELOW the floor: GRU (data-driven); the floor is wrong)" in _claim(results, "floor").ours
+    )

@@ -330,7 +330,11 @@ def evaluate(
 ) -> None:
     """Score a model on the test part of --data (the chronological split it was fitted with)
     or on separate --test-data records (replacing --data): the paper's relative errors and
-    honest metrics (RMSE, NRMSE, skill against persistence, noise floor) per channel."""
+    honest metrics (RMSE, NRMSE, skill against persistence) per channel.
+
+    On plant data (true speeds known), the accuracy limits too: the floor (the lowest RMSE any predictor of the measured value can reach
+    in the task), the RMSE against the true speed beside the encoders' own error, and their
+    ratio (below 1: the model is a better speed sensor than the encoder)."""
     from drafttwin.evaluation import protocol
 
     source.refuse_fraction_with_test_data(train_fraction)
@@ -358,13 +362,51 @@ def _report(result: Evaluation, as_json: bool) -> None:
     console.print("skill = 1 - RMSE / RMSE(persistence); scored: measured samples not flagged "
                   "as outliers" + ("" if result.task == "prediction" else ", after each "
                                    "record's initialisation window"))  # fmt: skip
+    if any(np.isfinite(m.sensor_rmse) for m in result.metrics.values()):
+        console.print(_limits_table(result.metrics))
+        console.print(FLOOR_NOTE[result.task == "prediction"])
+
+
+FLOOR_NOTE = {
+    True: "floor: the lowest RMSE any one-step predictor of the measured value can reach (an "
+    "oracle that knows the true value and every earlier measurement; the encoders' counting "
+    "error is partly foreseeable). sensor error: RMSE of measured vs true; vs true / sensor "
+    "< 1: the prediction estimates the true value better than the encoder measures it",
+    False: "floor: in a free run no measurement shows the sensor's error, so the floor is the "
+    "sensor error (RMSE of measured vs true); vs true / sensor < 1: the simulation estimates "
+    "the true value better than the encoder measures it",
+}
+"""The line under the table on data with true values, per task (one-step or free run)."""
+
+
+def _shared_unit(metrics: dict) -> str | None:
+    units = {m.unit for m in metrics.values()}
+    return units.pop() if len(units) == 1 else None
+
+
+def _limits_table(metrics: dict) -> Table:
+    """The accuracy limits per channel, beside the RMSE they bound (data with true values)."""
+    shared = _shared_unit(metrics)
+    table = Table(title="accuracy limits (true values known)")
+    table.add_column("channel")
+    if shared is None:
+        table.add_column("unit")
+    unit = f" {shared}" if shared else ""
+    for c in (f"RMSE{unit}", f"floor{unit}", "RMSE / floor", f"RMSE vs true{unit}",
+              f"sensor error{unit}", "vs true / sensor"):  # fmt: skip
+        table.add_column(c, justify="right")
+    for r, m in metrics.items():
+        over = m.rmse / m.rmse_floor if m.rmse_floor > 0 else float("nan")  # NaN: unknown
+        cells = [f"{m.rmse:.4g}", f"{m.rmse_floor:.4g}", f"{over:.3f}",
+                 f"{m.rmse_vs_true:.4g}", f"{m.sensor_rmse:.4g}", f"{m.true_error_ratio:.3f}"]  # fmt: skip
+        table.add_row(escape(r), *([] if shared is not None else [m.unit]), *cells)
+    return table
 
 
 def _metrics_table(metrics: dict, title: str) -> Table:
     """One row per channel; the unit in the headers when the channels share one, else in a
     column of its own."""
-    units = {m.unit for m in metrics.values()}
-    shared = units.pop() if len(units) == 1 else None
+    shared = _shared_unit(metrics)
 
     def head(label: str) -> str:
         return f"{label} {shared}" if shared else label
@@ -373,11 +415,10 @@ def _metrics_table(metrics: dict, title: str) -> Table:
     table.add_column("channel")
     if shared is None:
         table.add_column("unit")
-    for c in ("max rel %", "mean rel %", "accuracy %", head("RMSE"), "NRMSE", "skill",
-              head("noise floor")):  # fmt: skip
+    for c in ("max rel %", "mean rel %", "accuracy %", head("RMSE"), "NRMSE", "skill"):
         table.add_column(c, justify="right")
     for r, m in metrics.items():
         cells = [f"{m.max_rel_err_pct:.4f}", f"{m.mean_rel_err_pct:.4f}", f"{m.accuracy_pct:.3f}",
-                 f"{m.rmse:.4g}", f"{m.nrmse:.3f}", f"{m.skill:.3f}", f"{m.noise_floor:.4g}"]  # fmt: skip
+                 f"{m.rmse:.4g}", f"{m.nrmse:.3f}", f"{m.skill:.3f}"]  # fmt: skip
         table.add_row(escape(r), *([] if shared is not None else [m.unit]), *cells)
     return table

@@ -1,6 +1,17 @@
-"""Evaluation of predictions of any measured signal: per-channel metrics, and the one
-split / preprocessing / scoring protocol (:mod:`drafttwin.evaluation.protocol`)."""
+"""Evaluation of predictions of any measured signal: per-channel metrics, the accuracy limits
+on data with known true values (:mod:`drafttwin.evaluation.limits`), and the one split /
+preprocessing / scoring protocol (:mod:`drafttwin.evaluation.protocol`)."""
 
+from drafttwin.evaluation.limits import ChannelLimits, accuracy_limits, floor_oracle, floor_rows
 from drafttwin.evaluation.metrics import ChannelMetrics, evaluate, json_number, metrics_frame
 
-__all__ = ["ChannelMetrics", "evaluate", "json_number", "metrics_frame"]
+__all__ = [
+    "ChannelLimits",
+    "ChannelMetrics",
+    "accuracy_limits",
+    "evaluate",
+    "floor_oracle",
+    "floor_rows",
+    "json_number",
+    "metrics_frame",
+]

@@ -11,8 +11,14 @@ finite measurements without a prediction are counted in ``n_nan_pred``):
   measurements);
 * ``skill`` = 1 - RMSE / RMSE_persistence, both RMSEs on the samples where the model, the
   persistence forecast and the measurement are all finite;
-* ``noise_floor``: RMSE of the measurement against the true value (when known, e.g. from the
-  plant emulator), over the samples where both are finite;
+* against the true value, when known (the plant emulator's data), on the scored samples where
+  it is finite: ``rmse_vs_true`` (the prediction as an estimate of the true value),
+  ``sensor_rmse`` (the measurement's own error, measured vs true) and their ratio
+  ``true_error_ratio`` (below 1: the prediction estimates the true value better than the
+  sensor measures it);
+* ``rmse_floor``: the lowest RMSE any predictor of the measurement can reach on the same
+  samples, the RMSE of a floor oracle's predictions (:mod:`drafttwin.evaluation.limits`), when
+  given;
 * relative error ``100 * |y - yhat| / |y|`` in %: max, mean and "prediction accuracy"
   ``100 - mean``. A relative error is only meaningful away from zero, so:
 
@@ -29,7 +35,7 @@ finite measurements without a prediction are counted in ``n_nan_pred``):
     errors are omitted (NaN) and ``rel_note`` says why. Noise around zero during a stop stays
     inside the threshold and does not count as a crossing.
 
-RMSE, NRMSE, skill and noise floor are reported in every case. A channel without scored
+RMSE, NRMSE, skill and the limits are reported in every case. A channel without scored
 samples gets NaN metrics and ``n_scored = 0``.
 """
 
@@ -68,9 +74,9 @@ class ChannelMetrics:
     """Metrics of one output channel.
 
     Relative errors and accuracy in %; ``rel_threshold``, ``bias`` (the mean error, prediction
-    minus measurement), ``rmse``, ``rmse_persistence`` and ``noise_floor`` in the channel's
-    ``unit`` (``""`` when undeclared); ``nrmse`` and
-    ``skill`` are dimensionless. NaN where a metric cannot be computed; ``rel_note`` is
+    minus measurement), ``rmse``, ``rmse_persistence``, ``rmse_vs_true``, ``sensor_rmse`` and
+    ``rmse_floor`` in the channel's ``unit`` (``""`` when undeclared); ``nrmse``, ``skill``
+    and ``true_error_ratio`` are dimensionless. NaN where a metric cannot be computed; ``rel_note`` is
     ``None``, or why the relative errors are omitted.
     """
 
@@ -89,7 +95,10 @@ class ChannelMetrics:
     nrmse: float
     rmse_persistence: float
     skill: float
-    noise_floor: float
+    rmse_vs_true: float
+    sensor_rmse: float
+    true_error_ratio: float
+    rmse_floor: float
 
     def to_dict(self) -> dict[str, str | int | float | None]:
         """The fields as a JSON-safe dict: NaN and infinities become ``None``."""
@@ -204,6 +213,7 @@ def _channel_metrics(
     yhat: np.ndarray,
     pers: np.ndarray | None,
     true: np.ndarray | None,
+    oracle: np.ndarray | None,
     rel_floor: float,
 ) -> ChannelMetrics:
     measured = np.isfinite(y)
@@ -217,10 +227,11 @@ def _channel_metrics(
         common = scored & np.isfinite(pers)
         rmse_p = _rmse(pers[common] - y[common])
         skill = 1.0 - _ratio(_rmse(yhat[common] - y[common]), rmse_p)
+    vs_true, sensor = _against_truth(y, yhat, scored, true)
     floor = float("nan")
-    if true is not None:
-        both = measured & np.isfinite(true)
-        floor = _rmse(y[both] - true[both])
+    if oracle is not None:  # on the samples the model is scored on: a paired comparison
+        ok = scored & np.isfinite(oracle)
+        floor = _rmse(oracle[ok] - y[ok])
     return ChannelMetrics(
         channel=name,
         unit=unit,
@@ -237,8 +248,22 @@ def _channel_metrics(
         nrmse=_ratio(rmse, float(ys.std()) if ys.size else float("nan")),
         rmse_persistence=rmse_p,
         skill=skill,
-        noise_floor=floor,
+        rmse_vs_true=vs_true,
+        sensor_rmse=sensor,
+        true_error_ratio=_ratio(vs_true, sensor),
+        rmse_floor=floor,
     )
+
+
+def _against_truth(
+    y: np.ndarray, yhat: np.ndarray, scored: np.ndarray, true: np.ndarray | None
+) -> tuple[float, float]:
+    """RMSE of the prediction and of the measurement against the true value, on the scored
+    samples where the true value is known (NaN without any)."""
+    if true is None:
+        return float("nan"), float("nan")
+    ok = scored & np.isfinite(true)
+    return _rmse(yhat[ok] - true[ok]), _rmse(y[ok] - true[ok])
 
 
 def evaluate(
@@ -249,6 +274,7 @@ def evaluate(
     units: UnitsArg = None,
     persistence: np.ndarray | None = None,
     true_values: np.ndarray | None = None,
+    floor_values: np.ndarray | None = None,
     rel_floor: float = DEFAULT_REL_FLOOR,
 ) -> dict[str, ChannelMetrics]:
     """Metrics per output channel of predictions ``y_pred`` against measurements ``y_true``.
@@ -262,7 +288,9 @@ def evaluate(
             channel name; ``""`` where not given.
         persistence: the persistence forecast on the same rows (for skill); see
             :func:`drafttwin.models.persistence_forecast`.
-        true_values: the true values (for the noise floor), when known.
+        true_values: the true values (for ``rmse_vs_true`` and ``sensor_rmse``), when known.
+        floor_values: a floor oracle's predictions on the same rows (for ``rmse_floor``;
+            :func:`drafttwin.evaluation.limits.floor_oracle`), when known.
         rel_floor: samples with ``|y|`` below ``rel_floor`` times the channel's scale (99th
             percentile of ``|y|``) are left out of the relative errors; in ``[0, 1)``.
 
@@ -276,7 +304,8 @@ def evaluate(
                           fix="use a small fraction of the channel's scale, e.g. 0.01")  # fmt: skip
     unit_of = _units(units, names)
     y = _as_matrix(y_true, names, "y_true")
-    others = {"y_pred": y_pred, "persistence": persistence, "true_values": true_values}
+    others = {"y_pred": y_pred, "persistence": persistence, "true_values": true_values,
+              "floor_values": floor_values}  # fmt: skip
     arrays = {k: None if v is None else _as_matrix(v, names, k) for k, v in others.items()}
     for what, arr in arrays.items():
         if arr is not None and arr.shape[0] != y.shape[0]:
@@ -284,6 +313,7 @@ def evaluate(
                             fix=f"give {what} one row per measured sample, on the same rows "
                                 "as y_true")  # fmt: skip
     yhat, pers, true = arrays["y_pred"], arrays["persistence"], arrays["true_values"]
+    oracle = arrays["floor_values"]
     assert yhat is not None
     return {
         name: _channel_metrics(
@@ -293,6 +323,7 @@ def evaluate(
             yhat[:, j],
             None if pers is None else pers[:, j],
             None if true is None else true[:, j],
+            None if oracle is None else oracle[:, j],
             rel_floor,
         )
         for j, name in enumerate(names)

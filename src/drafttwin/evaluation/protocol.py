@@ -27,7 +27,8 @@ import pandas as pd
 from drafttwin.data.preprocess import outlier_scales, preprocess, reject_spikes_causal
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
-from drafttwin.evaluation.metrics import ChannelMetrics, json_number
+from drafttwin.evaluation.limits import floor_oracle
+from drafttwin.evaluation.metrics import ChannelMetrics
 from drafttwin.evaluation.metrics import evaluate as score_channels
 from drafttwin.models.base import BaseModel
 from drafttwin.models.baselines import PersistenceModel
@@ -194,8 +195,10 @@ def model_input(model: BaseModel, data: Split) -> tuple[MeasurementSeries, int]:
 class Evaluation:
     """What :func:`evaluate` measured: per-channel metrics and how they were obtained.
 
-    ``rmse_vs_true``: the prediction's RMSE against the true values, per channel, where the
-    data carry them (plant data): how close the twin is to the machine, not to its encoders.
+    Where the data carry the true values (plant data), the metrics hold the accuracy limits:
+    ``rmse_vs_true`` (how close the twin is to the machine, not to its encoders) beside
+    ``sensor_rmse`` (the encoders' own error), and ``rmse_floor`` (the lowest RMSE any
+    predictor of the measured value can reach in the task; :mod:`drafttwin.evaluation.limits`).
     """
 
     model: str
@@ -205,17 +208,10 @@ class Evaluation:
     scored_rows: int
     selection: dict[str, Any]
     split: dict[str, Any]
-    rmse_vs_true: dict[str, float | None] = field(default_factory=dict)
 
     def rows(self) -> dict[str, dict[str, Any]]:
-        """Per channel, the metrics (JSON-safe) and ``rmse_vs_true`` when known."""
-        out = {}
-        for c, m in self.metrics.items():
-            row = m.to_dict()
-            if c in self.rmse_vs_true:
-                row["rmse_vs_true"] = self.rmse_vs_true[c]
-            out[c] = row
-        return out
+        """Per channel, the metrics (JSON-safe)."""
+        return {c: m.to_dict() for c, m in self.metrics.items()}
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe (no NaN): metrics per channel, the task, options chosen on data."""
@@ -271,8 +267,8 @@ def evaluate(
 ) -> Evaluation:
     """Score a fitted model on the test part of ``data`` (chronological split, by default at
     the fraction the model was fitted with) or on the separate ``test`` records: the paper's
-    relative errors and RMSE, NRMSE, skill against persistence, and the noise floor and the
-    error against the true values when the data carry them. ``skip_rows``: rows at the start
+    relative errors and RMSE, NRMSE, skill against persistence, and where the data carry the
+    true values the error against them, the sensor's own error and the task's floor. ``skip_rows``: rows at the start
     of each test record left unscored (so that models with different warm-ups are scored on
     the same rows)."""
     part = prepare(model, data, test, train_fraction)
@@ -296,13 +292,8 @@ def score(part: Split, pred: np.ndarray, model: BaseModel, *, skip_rows: int = 0
     units = {c: test.unit(c) for c in test.channels}
     truth = test.truth
     metrics = score_channels(target, pred, channels=test.channels, units=units,
-                             persistence=pers, true_values=truth)  # fmt: skip
-    vs_true = {}
-    if truth is not None:
-        for j, c in enumerate(test.channels):
-            ok = np.isfinite(target[:, j]) & np.isfinite(pred[:, j]) & np.isfinite(truth[:, j])
-            err = pred[ok, j] - truth[ok, j]
-            vs_true[c] = json_number(float(np.sqrt(np.mean(err**2))) if err.size else np.nan)
+                             persistence=pers, true_values=truth,
+                             floor_values=_oracle(part, model, truth))  # fmt: skip
     frame = pd.DataFrame({"time": test.time_s})
     for j, name in enumerate(test.channels):
         frame[name] = pred[:, j]
@@ -317,8 +308,22 @@ def score(part: Split, pred: np.ndarray, model: BaseModel, *, skip_rows: int = 0
         scored_rows=int(np.isfinite(target).any(axis=1).sum()),
         selection=dict(getattr(model, "selection_", {})),
         split=part.summary,
-        rmse_vs_true=vs_true,
     )
+
+
+def _oracle(part: Split, model: BaseModel, truth: np.ndarray | None) -> np.ndarray | None:
+    """The floor oracle's predictions of the test rows (None without true values): it knows
+    the true values and, in one-step prediction, every earlier scored measurement. A free run
+    sees no measurement, and a prediction ``horizon`` >= 2 rows ahead sees only errors that
+    share no window boundary with the predicted one: nothing of the sensor's error can be
+    foreseen, so the floor is the sensor's own error."""
+    if truth is None:
+        return None
+    test = part.test_part()
+    blind = model.task.simulation or model.task.horizon > 1
+    observed = np.zeros(truth.shape, bool) if blind else None
+    starts = [a for a, _ in test.record_bounds()]
+    return floor_oracle(part.target, truth, observed=observed, record_starts=starts)
 
 
 def fit(

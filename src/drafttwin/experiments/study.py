@@ -279,7 +279,8 @@ def plant_summary(series) -> list[str]:
         "motor slip, VFD frequency jitter.",
         f"Measured by 2500-ppr quadrature encoders counting over each 10 ms window (0.6 rpm step), "
         f"with {inj.get('missing_rows', '?')} dropped rows and {sum(inj.get('outliers', {}).values())} "
-        "spikes injected; the true speeds are kept, so the noise floor is known.",
+        "spikes injected; the true speeds are kept, so the encoders' error and the one-step floor "
+        "are known.",
         "Left out: top-roller and fibre slip (they change sliver speed, not bottom-roller speed), "
         "cot wear, autoleveller action, any real machine's unknown unknowns.",
     ]

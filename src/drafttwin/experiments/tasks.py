@@ -62,15 +62,16 @@ def _history(model: BaseModel) -> History:
     return history
 
 
-METRIC_SCHEMA = "channel-metrics-2"
-"""Names the fields of :func:`score`'s rows (``rmse``, ``noise_floor``, ``rel_threshold``, ...);
+METRIC_SCHEMA = "channel-metrics-3"
+"""Names the fields of :func:`score`'s rows (``rmse``, ``rmse_floor``, ``rel_threshold``, ...);
 changes whenever they change, so the study does not reuse results scored differently."""
 
 
 def score(data: PreparedData, pred: np.ndarray, model: BaseModel) -> dict[str, dict[str, Any]]:
     """Per-roller metrics of ``model``'s predictions over the whole record, scored by the
-    evaluation protocol on the test part (JSON-safe: None where not computable), with
-    ``rmse_vs_true``: RMSE against the plant's true value, in the channel's unit."""
+    evaluation protocol on the test part (JSON-safe: None where not computable), with the
+    accuracy limits on plant data (``rmse_vs_true``, ``sensor_rmse``, ``true_error_ratio``,
+    ``rmse_floor``; :class:`drafttwin.evaluation.metrics.ChannelMetrics`)."""
     result = protocol.score(data.split(), pred[data.n_train :], model)
     rows = result.rows()
     for row in rows.values():

@@ -3,7 +3,8 @@
 The plant is the drive-train model with true parameters plus the effects the nominal
 mechanistic model leaves out (:mod:`drafttwin.plant.effects`), measured by encoders through
 a data path with defects (:mod:`drafttwin.plant.sensors`). The true speeds are kept beside
-the measured ones, so the noise floor of any prediction is known.
+the measured ones, so the sensor's error and the floor of any prediction are known
+(:mod:`drafttwin.evaluation.limits`).
 """
 
 from __future__ import annotations

@@ -113,27 +113,48 @@ def skill_claim(results: Mapping[str, Any], models: list[str]) -> Claim:
     )
 
 
-def noise_floor_claim(results: Mapping[str, Any], models: list[str]) -> Claim:
-    """How close the best model's RMSE per roller comes to the sensor-noise floor."""
-    parts = []
+def _best_of(results: Mapping[str, Any], models: list[str], roller: str, key: str) -> str:
+    """The model with the lowest finite ``key`` on ``roller``; '' if none."""
+    finite = {m: v for m in models if is_num(v := _metric(results, m, roller, key))}
+    return min(finite, key=finite.__getitem__) if finite else ""
+
+
+def _limits_text(results: Mapping[str, Any], models: list[str], roller: str) -> str:
+    """One roller's best one-step RMSE against its floor, and its best estimate of the true
+    speed against the encoders' error."""
     unit = metric_unit(results)
-    for r in ROLLERS:
-        floor = _metric(results, models[0], r, "noise_floor")
-        rmses = {m: _metric(results, m, r, "rmse") for m in models}
-        finite = {m: v for m, v in rmses.items() if is_num(v)}
-        if not finite:
-            continue
-        best = min(finite, key=finite.__getitem__)
-        ratio = (
-            f"{finite[best] / floor:.2f} × the noise floor"
-            if is_num(floor) and floor > 0
-            else "noise floor unknown"
-        )
-        parts.append(
-            f"{r}: {label(best)} {num(finite[best], 3)} {unit} = {ratio}".replace("  ", " ")
-        )
+    best = _best_of(results, models, roller, "rmse")
+    if not best:
+        return ""
+    rmse, floor = (
+        _metric(results, best, roller, "rmse"),
+        _metric(results, best, roller, "rmse_floor"),
+    )
+    text = f"{roller}: {label(best)} {num(rmse, 3)} {unit}".replace("  ", " ")
+    if not is_num(floor) or floor <= 0:
+        return text + " (floor unknown: no true speed)"
+    below = [label(m) for m in models if _metric(results, m, roller, "rmse")
+             < _metric(results, m, roller, "rmse_floor")]  # fmt: skip
+    text += f" = {rmse / floor:.2f} × the floor {num(floor, 3)}"
+    if below:  # the floor is then not a floor: say so, never hide it
+        text += f" (BELOW the floor: {', '.join(below)}; the floor is wrong)"
+    est = _best_of(results, models, roller, "rmse_vs_true")
+    if est:
+        ratio = _metric(results, est, roller, "true_error_ratio")
+        vs_true = f"{num(_metric(results, est, roller, 'rmse_vs_true'), 3)} {unit}".strip()
+        text += (f"; true speed best estimated by {label(est)}, {vs_true} = {ratio:.2f} × "
+                 "the encoder's error")  # fmt: skip
+    return text
+
+
+def limits_claim(results: Mapping[str, Any], models: list[str]) -> Claim:
+    """How close the best one-step RMSE per roller comes to the floor (the lowest RMSE any
+    predictor of the measured speed can reach), and how the best estimate of the true speed
+    compares with the encoders' own error."""
+    parts = [t for r in ROLLERS if (t := _limits_text(results, models, r))]
     return Claim(
-        "How close does the best RMSE come to the sensor-noise floor?",
+        "How close does the best RMSE come to the floor, and is the twin a better speed "
+        "sensor than the encoder?",
         "not reported",
         "; ".join(parts) or "no finite RMSE",
         NOT_IN_PAPER,
@@ -219,7 +240,7 @@ def claims(results: Mapping[str, Any]) -> list[Claim]:
     out += [beats(results, a, b) for a, b in pairs if a in models and b in models]
     if "persistence" in models:
         out.append(skill_claim(results, models))
-    out.append(noise_floor_claim(results, models))
+    out.append(limits_claim(results, models))
     out += [magnitude_claim(results, m) for m in ("mechanistic", "md-s-l") if m in models]
     variants = list(results.get("ablation", {}).get("variants", []))
     tests: list[tuple[str, str, str]] = [

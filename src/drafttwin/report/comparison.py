@@ -19,6 +19,7 @@ from drafttwin.report.tables import compared_models, metric_unit, paper_table2
 HONEST = (
     ("rmse", "RMSE", 3, True),
     ("rmse_vs_true", "RMSE vs true", 3, True),
+    ("true_error_ratio", "vs true / sensor error", 3, True),
     ("nrmse", "NRMSE", 3, True),
     ("skill", "skill vs persistence", 3, False),
     ("mean_rel_err_pct", "mean rel. err. (%)", 4, True),
@@ -26,6 +27,16 @@ HONEST = (
     ("accuracy_pct", "accuracy (%)", 4, False),
 )
 UNIT_HEADERS = ("rmse", "rmse_vs_true")
+LIMITS_TEXT = (
+    "Where the true speed is known, two limits say what the errors mean. The floor is the "
+    "lowest RMSE any one-step predictor of the measured speed can reach: an oracle that knows "
+    "the true speed and every earlier measurement. It lies below the encoders' own error "
+    "because consecutive sample windows share a boundary, whose counting error enters them "
+    "with opposite signs: part of the next error can be foreseen. No model can score below it. "
+    "RMSE vs true compares the prediction with the plant's true speed, not the measured one; "
+    "divided by the encoder error (measured vs true), below 1 means the model estimates the "
+    "true speed better than the encoder measures it."
+)
 
 
 def _value(results: Mapping[str, Any], model: str, roller: str, key: str) -> float:
@@ -99,9 +110,7 @@ def _honest_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) 
     ncol = len(HONEST) + 3
     for r in ROLLERS:
         body.append(("group", [Cell(f"{r} roller", colspan=ncol)]))
-        floor = _value(results, main[0], r, "noise_floor")
-        floor_cells: list = [Cell("noise floor (measured vs true speed)", cls="name")]
-        body.append(("floor", floor_cells + [num(floor, 3)] + [""] * (ncol - 2)))
+        body += _limit_rows(results, main[0], r, ncol)
         best = {key: _best(results, main, r, key, lower) for key, _, _, lower in HONEST}
         for model in main + extra:
             name = label(model) + (" (extra)" if model in extra else "")
@@ -113,6 +122,21 @@ def _honest_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) 
             cells += [str(n.get("n_scored", DASH)), str(n.get("n_nan_pred", DASH))]
             body.append(("extra" if model in extra else "", cells))
     return body
+
+
+def _limit_rows(results: Mapping[str, Any], model: str, roller: str, ncol: int) -> list:
+    """The accuracy limits of a roller (scored on ``model``'s rows), under the columns they
+    bound: the floor under RMSE, the encoders' own error under RMSE vs true."""
+    floor = _value(results, model, roller, "rmse_floor")
+    sensor = _value(results, model, roller, "sensor_rmse")
+    if not (is_num(floor) or is_num(sensor)):
+        return []
+    return [
+        ("floor", [Cell("floor: lowest RMSE any predictor can reach", cls="name"), num(floor, 3)]
+         + [""] * (ncol - 2)),
+        ("floor", [Cell("encoder error (measured vs true)", cls="name"), "", num(sensor, 3)]
+         + [""] * (ncol - 3)),
+    ]  # fmt: skip
 
 
 def _rel_notes(results: Mapping[str, Any]) -> list[str]:
@@ -158,10 +182,9 @@ def comparison_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) ->
         table2_html(results),
         tag("h3", "Honest metrics"),
         para(
-            "Relative errors look tiny because the speeds are large and nearly constant: skill says whether a model beats simply repeating the last "
-            "measurement, and the noise floor says how much of the error is sensor noise that "
-            "no model can predict. RMSE vs true compares the prediction with the plant's true "
-            "speed (not the measured one)."
+            "Relative errors look tiny because the speeds are large and nearly constant: skill "
+            "says whether a model beats simply repeating the last measurement. "
+            + (LIMITS_TEXT if is_plant(results) else "")
         ),
         metrics_html(results),
     ]
@@ -184,7 +207,8 @@ def comparison_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) ->
                 figs["rmse"],
                 "fig-rmse",
                 "RMSE per model and roller against the measured speed (filled dots) and "
-                "the plant's true speed (open dots); dashed line: the sensor-noise floor "
+                "the plant's true speed (open dots); dashed line: the floor of one-step "
+                "prediction of the measured speed; dotted line: the encoders' own error "
                 "(measured vs true). Log scale.",
                 "RMSE per model and roller",
             )

@@ -184,13 +184,15 @@ def ablation_spread(
 def rmse_overview(
     rmse: Mapping[str, Sequence[float]],
     rmse_true: Mapping[str, Sequence[float]],
-    noise_floor: Sequence[float],
+    floor: Sequence[float],
+    sensor: Sequence[float],
     unit: str = "",
 ) -> bytes:
     """RMSE per model and roller vs the measured (filled dot) and the true speed (open dot).
 
     ``rmse`` and ``rmse_true`` map a model name to its four per-roller values (in ``unit``);
-    ``noise_floor`` holds the four floors (NaN where unknown), drawn as a dashed line. Log
+    ``floor`` holds the four one-step floors of the measured speed (dashed line) and ``sensor``
+    the encoders' own errors, measured vs true (dotted line; NaN where unknown). Log
     scale, one panel per roller, models top to bottom in the given order.
     """
     models = list(rmse)
@@ -205,8 +207,10 @@ def rmse_overview(
             )
             t = rmse_true.get(m, [np.nan] * len(ROLLERS))[j]
             ax.plot([t], [y[k]], "o", mfc="white", mec=c, ms=7, label="vs true" if k == 0 else None)
-        if np.isfinite(noise_floor[j]):
-            ax.axvline(noise_floor[j], color="black", ls="--", lw=1, label="noise floor")
+        if np.isfinite(floor[j]):
+            ax.axvline(floor[j], color="black", ls="--", lw=1, label="floor (vs measured)")
+        if np.isfinite(sensor[j]):
+            ax.axvline(sensor[j], color="black", ls=":", lw=1, label="encoder error")
         ax.set_xscale("log")
         _log_axis_plain(ax.xaxis)
         ax.grid(axis="x", which="major", color="#e5e5e5", lw=0.6)

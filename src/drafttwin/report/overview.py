@@ -48,8 +48,13 @@ METRIC_RULES = (
     "are excluded and counted; a signal that crosses zero gets none); prediction accuracy = "
     "100 − mean relative error (the paper's Table 3 quantity). RMSE in {unit}; NRMSE = RMSE / "
     "std of the measured test speed; skill = 1 − RMSE / RMSE of persistence (ŷ(t) = y(t−1)): 0 "
-    "means no better than repeating the last measurement. Noise floor = RMSE of measured vs "
-    "true speed: no model can predict the measurement better than that. Each prediction uses "
+    "means no better than repeating the last measurement. Where the true speed is known: "
+    "sensor error = RMSE of measured vs true speed (the encoders' own error); RMSE vs true / "
+    "sensor error below 1 means the model estimates the true speed better than the encoder "
+    "measures it; floor = the lowest RMSE any one-step predictor of the measured speed can "
+    "reach (an oracle that knows the true speed and every earlier measurement: consecutive "
+    "windows share a boundary's counting error with opposite signs, so part of it can be "
+    "foreseen and the floor lies near 1/√2 of the sensor error). Each prediction uses "
     "measurements up to t−1 only; scalers and all fitted statistics come from the training part."
 )
 """The scoring rules; ``{unit}`` is the metrics' unit, ``{floor}`` the relative-error floor."""
@@ -62,11 +67,11 @@ def metric_rules(unit: str) -> str:
 
 def is_plant(results: Mapping[str, Any]) -> bool:
     """Whether the data come from the plant emulator: a plant summary, or a known true speed
-    (a finite noise floor), which only the emulator provides."""
+    (a finite sensor error), which only the emulator provides."""
     if results["data"].get("plant_summary"):
         return True
     metrics = results["comparison"]["metrics"].values()
-    return any(is_num(m.get("noise_floor")) for per in metrics for m in per.values())
+    return any(is_num(m.get("sensor_rmse")) for per in metrics for m in per.values())
 
 
 def _hyper_items(prof: Mapping[str, Any]) -> dict[str, Any]:

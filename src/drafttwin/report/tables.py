@@ -23,15 +23,18 @@ METRIC_COLUMNS = (
     "mean_rel_err_pct",
     "max_rel_err_pct",
     "accuracy_pct",
-    "noise_floor",
+    "rmse_floor",
     "rmse_vs_true",
+    "sensor_rmse",
+    "true_error_ratio",
     "rmse_persistence",
     "rel_threshold",
     "n_scored",
     "n_rel_excluded",
     "n_nan_pred",
 )
-"""Numeric columns of the metrics table; RMSEs, noise floor and threshold in ``unit``."""
+"""Numeric columns of the metrics table; RMSEs, floor, sensor error and threshold in
+``unit``."""
 COUNT_COLUMNS = ("n_scored", "n_rel_excluded", "n_nan_pred")
 
 

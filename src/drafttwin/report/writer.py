@@ -79,7 +79,8 @@ def _summary_figures(results: Mapping[str, Any]) -> dict[str, bytes]:
     def values(key: str) -> dict[str, list[float]]:
         return {m: [tables.as_float(metrics[m][r].get(key)) for r in ROLLERS] for m in main + extra}
 
-    floor = [tables.as_float(metrics[main[0]][r].get("noise_floor")) for r in ROLLERS]
+    limits = {k: [tables.as_float(metrics[main[0]][r].get(k)) for r in ROLLERS]
+              for k in ("rmse_floor", "sensor_rmse")}  # fmt: skip
     abl = results["ablation"]
     acc = {v: np.asarray(abl["accuracy"][v], dtype=float) for v in abl["variants"]}
     paper_means = {
@@ -92,7 +93,11 @@ def _summary_figures(results: Mapping[str, Any]) -> dict[str, bytes]:
     grid = {net: results["grid"][net] for net in ("lstm", "gru") if results["grid"].get(net)}
     return {
         "rmse": figures.rmse_overview(
-            values("rmse"), values("rmse_vs_true"), floor, unit=tables.metric_unit(results)
+            values("rmse"),
+            values("rmse_vs_true"),
+            limits["rmse_floor"],
+            limits["sensor_rmse"],
+            unit=tables.metric_unit(results),
         ),
         "grid": figures.grid_losses(grid),
         "ablation": figures.ablation_spread(acc, paper_means),
