@@ -134,6 +134,25 @@ def test_a_weak_member_of_a_combination_is_absorbed_by_the_strong_one():
     assert I.absorbed(jac, [2, 3]) == ([2, 3], [])
 
 
+def test_a_member_acting_against_its_combination_moves_inversely():
+    """Belt rigidity speeds the rollers up where every load slows them: in one combination
+    it must move as 1 / factor, or the members' effects would cancel."""
+    from types import SimpleNamespace
+
+    from drafttwin.calibration.calibrate import _screen
+    from drafttwin.calibration.fit import Objective
+
+    rng = np.random.default_rng(6)
+    a, b = rng.standard_normal((2, 300)) * 10
+    jac = np.column_stack([a, -0.5 * a, b])
+    chosen = [SimpleNamespace(name=n) for n in ("load", "belt", "other")]
+    free, verdicts, powers = _screen(jac, chosen, [])  # type: ignore[arg-type]
+    assert sorted(map(sorted, free)) == [[0, 1], [2]] and powers == {1: -1.0} and not verdicts
+    objective = Objective(None, None, [None] * 3, free, powers=powers)  # type: ignore[arg-type]
+    factors = objective.factors([2.0, 1.5] if free[0] == [0, 1] else [1.5, 2.0])
+    np.testing.assert_allclose(factors, [2.0, 0.5, 1.5])
+
+
 def test_wild_blocks_are_set_aside_and_channels_weighted_by_their_residual_scale():
     from drafttwin.calibration.fit import Blocks, reweighted
 

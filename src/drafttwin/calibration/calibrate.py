@@ -160,13 +160,13 @@ def calibrate(
     screen = F.Objective(train, blocks, chosen, singles, transform=model)
     jac0 = F.jacobian(screen, np.ones(len(chosen)))
     notes: list[str] = []
-    free, verdicts = _screen(jac0, chosen, notes)
+    free, verdicts, powers = _screen(jac0, chosen, notes)
     x, jac, se, gamma, objective, runs = _fit_and_prune(
-        train, blocks, chosen, free, verdicts, model, say, notes
+        train, blocks, chosen, free, verdicts, model, say, notes, powers
     )
     factors = objective.factors(x) if free else np.ones(len(chosen))
     calibrated = with_factors(train, chosen, factors)
-    estimates = _estimates(train, chosen, objective.groups, x, se, verdicts)
+    estimates = _estimates(train, chosen, objective, x, se, verdicts)
     before = F.simulate_blocks(model(train) if model else train, blocks)
     final = model(calibrated) if model else calibrated  # the train as simulated in the loop
     after = F.simulate_blocks(final, blocks)
@@ -192,17 +192,22 @@ def _lines(
 
 def _screen(
     jac: np.ndarray, chosen: Sequence[Parameter], notes: list[str]
-) -> tuple[list[list[int]], dict[int, str]]:
-    """Free entries (groups of parameters moved together) and the verdicts of the rest: a
-    group is free when moving its members together changes the fit by at least
-    MIN_SENSITIVITY noise units; a member acting as a small share of a stronger one stays
-    nominal (``identify.absorbed``)."""
+) -> tuple[list[list[int]], dict[int, str], dict[int, float]]:
+    """Free entries (groups of parameters moved together), the verdicts of the rest and the
+    members that act against their group (power -1: they move as 1 / factor): a group is
+    free when moving its members together changes the fit by at least MIN_SENSITIVITY noise
+    units; a member acting as a small share of a stronger one stays nominal
+    (``identify.absorbed``)."""
     n = len(chosen)
     sens = I.sensitivities(jac)
     touched = [i for i in range(n) if sens[i] > 1e-3 * I.MIN_SENSITIVITY]
     free, verdicts = [], {i: "not from this data" for i in range(n) if i not in touched}
+    powers: dict[int, float] = {}
     for group in I.combine(jac, touched) if touched else []:
-        if np.linalg.norm(jac[:, group].sum(axis=1)) < I.MIN_SENSITIVITY:
+        lead = group[int(np.argmax(sens[group]))]
+        against = {i: -1.0 for i in group if float(jac[:, i] @ jac[:, lead]) < 0}
+        signs = np.array([against.get(i, 1.0) for i in group])
+        if np.linalg.norm(jac[:, group] @ signs) < I.MIN_SENSITIVITY:
             verdicts.update({i: "not from this data" for i in group})
             continue
         kept, weak = I.absorbed(jac, group)
@@ -216,7 +221,8 @@ def _screen(
                          f"by {0.1 * share:.1%} at most): "
                          + ", ".join(chosen[i].name for i in weak))  # fmt: skip
         free.append(kept)
-    return free, verdicts
+        powers.update({i: p for i, p in against.items() if i in kept})
+    return free, verdicts, powers
 
 
 def _fit_and_prune(
@@ -228,6 +234,7 @@ def _fit_and_prune(
     model: Callable[[DriveTrain], DriveTrain] | None,
     say: Progress,
     notes: list[str],
+    powers: dict[int, float],
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, F.Objective, int]:
     """Fit (a robust pass, outliers set aside and channels reweighted, then least squares);
     standard errors by the sandwich formula under AR residuals; drop the least determined
@@ -236,11 +243,13 @@ def _fit_and_prune(
     x = np.ones(len(free))
     cache: dict[tuple[float, ...], np.ndarray] = {}  # simulations do not depend on weights
     while True:
-        robust = F.Objective(train, blocks, chosen, free, transform=model, _cache=cache)
+        robust = F.Objective(
+            train, blocks, chosen, free, transform=model, powers=powers, _cache=cache
+        )
         say(f"fitting {len(free)} free factor(s)")
         x = F.fit(robust, x, loss="soft_l1")
         data, wild = F.reweighted(blocks, blocks.errors(robust.blocks(x)))
-        plain = F.Objective(train, data, chosen, free, transform=model, _cache=cache)
+        plain = F.Objective(train, data, chosen, free, transform=model, powers=powers, _cache=cache)
         x = F.fit(plain, x)
         jac = F.jacobian(plain, x)
         mask = np.isfinite(data.measured)
@@ -261,13 +270,24 @@ def _fit_and_prune(
         x = np.delete(x, worst)
 
 
-def _estimates(train, chosen: Sequence[Parameter], groups, x, se, verdicts) -> list[Estimate]:
+def _estimates(
+    train: DriveTrain,
+    chosen: Sequence[Parameter],
+    objective: F.Objective,
+    x: np.ndarray,
+    se: np.ndarray,
+    verdicts: dict[int, str],
+) -> list[Estimate]:
+    groups = objective.groups
     nominal = nominal_values(train, chosen)
     factor = np.ones(len(chosen))
     factor_se = np.full(len(chosen), np.nan)
     partners: dict[int, tuple[str, ...]] = {}
     for k, members in enumerate(groups):
-        factor[members], factor_se[members] = x[k], se[k]
+        for i in members:  # x ** p and its standard error by the delta method
+            power = objective.powers.get(i, 1.0)
+            factor[i] = x[k] ** power
+            factor_se[i] = se[k] * abs(power) * x[k] ** (power - 1.0)
         for i in members:
             partners[i] = tuple(chosen[j].name for j in members if j != i)
             verdicts.setdefault(i, "only in combination" if len(members) > 1 else "identified")

@@ -162,6 +162,9 @@ class Objective:
     params: Sequence[Parameter]
     groups: list[list[int]]  # free entries: each a list of parameter indices moved together
     transform: Callable[[DriveTrain], DriveTrain] | None = None
+    # parameter index -> -1 for a member acting against its group (belt rigidity against the
+    # loads): it moves as 1 / x while the others move as x, so that their effects add
+    powers: dict[int, float] = field(default_factory=dict)
     whiten: Callable[[np.ndarray], np.ndarray] | None = None
     evaluations: int = 0
     _cache: dict[tuple[float, ...], np.ndarray] = field(default_factory=dict)
@@ -170,7 +173,8 @@ class Objective:
         """Per-parameter factors from the free vector (parameters not free stay at 1)."""
         f = np.ones(len(self.params))
         for value, members in zip(x, self.groups, strict=True):
-            f[members] = value
+            for m in members:
+                f[m] = float(value) ** self.powers.get(m, 1.0)
         return f
 
     def blocks(self, x: Vector) -> np.ndarray:
