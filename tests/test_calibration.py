@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from scipy.signal import lfilter
 from typer.testing import CliRunner
 
 from drafttwin.calibration import calibrate, parameters, select, with_factors
@@ -102,6 +103,68 @@ def test_whitening_removes_the_colour_of_an_ar_process():
     white = I.ar_whitener(x[:, None], [(0, len(x))])(x[:, None])[:, 0]
     lag1 = lambda v: np.corrcoef(v[1:], v[:-1])[0, 1]  # noqa: E731
     assert lag1(x) > 0.85 and abs(lag1(white[20:])) < 0.05
+
+
+def test_sandwich_errors_of_a_mean_match_the_long_run_variance_of_ar1_noise():
+    """The OLS mean of AR(1) noise x_k = a x_(k-1) + e_k has variance s2 / (1 - a)^2 / n for
+    large n (the long-run variance); the white-noise formula is too small by sqrt((1+a)/(1-a)).
+    Two records of one channel, each filtered on its own."""
+    rng = np.random.default_rng(3)
+    a, n = 0.8, 20000
+    x = np.concatenate([lfilter([1.0], [1.0, -a], rng.standard_normal(n)) for _ in range(2)])
+    jac, mask = np.ones((2 * n, 1)), np.ones((2 * n, 1), bool)
+    resid = x - x.mean()
+    se = I.sandwich_standard_errors(jac, resid, mask, [(0, n), (n, 2 * n)])[0]
+    expected = 1.0 / (1.0 - a) / np.sqrt(2 * n)
+    assert se == pytest.approx(expected, rel=0.08)
+    naive = I.standard_errors(jac, resid)[0]
+    assert se / naive == pytest.approx(np.sqrt((1 + a) / (1 - a)), rel=0.1)
+    # white residuals: the sandwich agrees with the textbook formula
+    white = rng.standard_normal(n)
+    both = [I.sandwich_standard_errors(np.ones((n, 1)), white, np.ones((n, 1), bool), [(0, n)]),
+            I.standard_errors(np.ones((n, 1)), white)]  # fmt: skip
+    assert both[0][0] == pytest.approx(both[1][0], rel=0.05)
+
+
+def test_a_weak_member_of_a_combination_is_absorbed_by_the_strong_one():
+    rng = np.random.default_rng(4)
+    a, b = rng.standard_normal((2, 300))
+    jac = np.column_stack([a, 0.05 * a, b, 0.5 * b])
+    assert I.absorbed(jac, [0, 1]) == ([0], [1])
+    assert I.absorbed(jac, [2, 3]) == ([2, 3], [])
+
+
+def test_a_member_acting_against_its_combination_moves_inversely():
+    """Belt rigidity speeds the rollers up where every load slows them: in one combination
+    it must move as 1 / factor, or the members' effects would cancel."""
+    from types import SimpleNamespace
+
+    from drafttwin.calibration.calibrate import _screen
+    from drafttwin.calibration.fit import Objective
+
+    rng = np.random.default_rng(6)
+    a, b = rng.standard_normal((2, 300)) * 10
+    jac = np.column_stack([a, -0.5 * a, b])
+    chosen = [SimpleNamespace(name=n) for n in ("load", "belt", "other")]
+    free, verdicts, powers = _screen(jac, chosen, [])  # type: ignore[arg-type]
+    assert sorted(map(sorted, free)) == [[0, 1], [2]] and powers == {1: -1.0} and not verdicts
+    objective = Objective(None, None, [None] * 3, free, powers=powers)  # type: ignore[arg-type]
+    factors = objective.factors([2.0, 1.5] if free[0] == [0, 1] else [1.5, 2.0])
+    np.testing.assert_allclose(factors, [2.0, 0.5, 1.5])
+
+
+def test_wild_blocks_are_set_aside_and_channels_weighted_by_their_residual_scale():
+    from drafttwin.calibration.fit import Blocks, reweighted
+
+    rng = np.random.default_rng(5)
+    errors = np.column_stack([rng.standard_normal(400), 7.0 * rng.standard_normal(400)])
+    errors[100, 0] = 600.0  # a spike the cleaning missed
+    data = Blocks(None, ("a", "b"), {}, 10, np.zeros((400, 2)), [(0, 400)], np.ones(2))  # type: ignore[arg-type]
+    out, wild = reweighted(data, errors)
+    assert wild == 1 and np.isnan(out.measured[100, 0]) and np.isfinite(out.measured).sum() == 799
+    kept = np.where(np.isfinite(out.measured), errors, np.nan)
+    np.testing.assert_allclose(np.sqrt(np.nanmean(kept**2, axis=0)), out.noise, rtol=1e-12)
+    assert out.noise[1] == pytest.approx(7.0, rel=0.1)
 
 
 def test_block_means_drop_sparse_blocks():

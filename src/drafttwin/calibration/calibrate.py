@@ -7,9 +7,12 @@ Stages (on the records cleaned as everywhere in drafttwin: gaps filled, spikes s
    and stay nominal; parameters whose effects are parallel are "only in combination" and move
    together as one factor (for mean roller speeds: the friction loads, through their total
    torque at the motor).
-2. **Output-error fit** of the free factors (least squares on block means), then a refit on
-   residuals prewhitened with an AR model (generalised least squares), so that the standard
-   errors allow for the coloured fluctuation the physics leaves out.
+2. **Output-error fit** of the free factors (least squares on block means): a robust first
+   pass, then blocks far off set aside and each channel weighted by its residual scale, and
+   a least-squares refit. Standard errors by the sandwich formula with an AR model of the
+   residuals, so that they allow for the coloured fluctuation the physics leaves out
+   (prewhitening the fit itself would weight the transients, where model and machine differ
+   most, over the steady levels).
 3. **Identifiability**: while the free set's collinearity index exceeds 10 or an estimate's
    relative standard error exceeds 10 %, the least determined entry goes back to nominal
    ("not separable in this data") and the rest is refitted.
@@ -156,11 +159,14 @@ def calibrate(
     say(f"screening {len(chosen)} parameters at their nominal values")
     screen = F.Objective(train, blocks, chosen, singles, transform=model)
     jac0 = F.jacobian(screen, np.ones(len(chosen)))
-    free, verdicts = _screen(jac0, len(chosen))
-    x, jac, se, gamma, objective = _fit_and_prune(train, blocks, chosen, free, verdicts, model, say)
+    notes: list[str] = []
+    free, verdicts, powers = _screen(jac0, chosen, notes)
+    x, jac, se, gamma, objective, runs = _fit_and_prune(
+        train, blocks, chosen, free, verdicts, model, say, notes, powers
+    )
     factors = objective.factors(x) if free else np.ones(len(chosen))
     calibrated = with_factors(train, chosen, factors)
-    estimates = _estimates(train, chosen, objective.groups, x, se, verdicts)
+    estimates = _estimates(train, chosen, objective, x, se, verdicts)
     before = F.simulate_blocks(model(train) if model else train, blocks)
     final = model(calibrated) if model else calibrated  # the train as simulated in the loop
     after = F.simulate_blocks(final, blocks)
@@ -169,8 +175,8 @@ def calibrate(
         bias_before=_bias(before, blocks), bias_after=_bias(after, blocks),
         rmse_before=_rmse(before, blocks), rmse_after=_rmse(after, blocks),
         collinearity=gamma, block_s=block_s, records=data.n_records,
-        evaluations=screen.evaluations + objective.evaluations,
-        wall_s=time.perf_counter() - start, model=model_name,
+        evaluations=screen.evaluations + runs, wall_s=time.perf_counter() - start,
+        model=model_name, notes=notes,
         lines=_lines(train, data, final, say) if lines else None,
     )  # fmt: skip
 
@@ -184,45 +190,78 @@ def _lines(
     return fit_lines(train, data, physics).to_dict()
 
 
-def _screen(jac: np.ndarray, n: int) -> tuple[list[list[int]], dict[int, str]]:
-    """Free entries (groups of parameters moved together) and the verdicts of the rest: a
-    group is free when moving its members together changes the fit by at least
-    MIN_SENSITIVITY noise units."""
+def _screen(
+    jac: np.ndarray, chosen: Sequence[Parameter], notes: list[str]
+) -> tuple[list[list[int]], dict[int, str], dict[int, float]]:
+    """Free entries (groups of parameters moved together), the verdicts of the rest and the
+    members that act against their group (power -1: they move as 1 / factor): a group is
+    free when moving its members together changes the fit by at least MIN_SENSITIVITY noise
+    units; a member acting as a small share of a stronger one stays nominal
+    (``identify.absorbed``)."""
+    n = len(chosen)
     sens = I.sensitivities(jac)
     touched = [i for i in range(n) if sens[i] > 1e-3 * I.MIN_SENSITIVITY]
     free, verdicts = [], {i: "not from this data" for i in range(n) if i not in touched}
+    powers: dict[int, float] = {}
     for group in I.combine(jac, touched) if touched else []:
-        if np.linalg.norm(jac[:, group].sum(axis=1)) >= I.MIN_SENSITIVITY:
-            free.append(group)
-        else:
+        lead = group[int(np.argmax(sens[group]))]
+        against = {i: -1.0 for i in group if float(jac[:, i] @ jac[:, lead]) < 0}
+        signs = np.array([against.get(i, 1.0) for i in group])
+        if np.linalg.norm(jac[:, group] @ signs) < I.MIN_SENSITIVITY:
             verdicts.update({i: "not from this data" for i in group})
-    return free, verdicts
+            continue
+        kept, weak = I.absorbed(jac, group)
+        for i in weak:
+            verdicts[i] = "not separable in this data"
+        if weak:
+            top = kept[int(np.argmax(sens[kept]))]
+            share = max(sens[i] for i in weak) / sens[top]
+            notes.append(f"left nominal, acting as {chosen[top].name} does with at most "
+                         f"{share:.0%} of its effect (a 10 % error in one moves that estimate "
+                         f"by {0.1 * share:.1%} at most): "
+                         + ", ".join(chosen[i].name for i in weak))  # fmt: skip
+        free.append(kept)
+        powers.update({i: p for i, p in against.items() if i in kept})
+    return free, verdicts, powers
 
 
-def _fit_and_prune(train, blocks, chosen, free, verdicts, model, say):
-    """Fit, prewhiten, refit; drop the least determined free entry while the set is not
-    identifiable; returns the final factors, Jacobian, standard errors, collinearity and the
-    objective they belong to."""
+def _fit_and_prune(
+    train: DriveTrain,
+    blocks: F.Blocks,
+    chosen: Sequence[Parameter],
+    free: list[list[int]],
+    verdicts: dict[int, str],
+    model: Callable[[DriveTrain], DriveTrain] | None,
+    say: Progress,
+    notes: list[str],
+    powers: dict[int, float],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, F.Objective, int]:
+    """Fit (a robust pass, outliers set aside and channels reweighted, then least squares);
+    standard errors by the sandwich formula under AR residuals; drop the least determined
+    free entry while the set is not identifiable. Returns the final factors, Jacobian,
+    standard errors, collinearity, the objective they belong to and the simulations run."""
     x = np.ones(len(free))
+    cache: dict[tuple[float, ...], np.ndarray] = {}  # simulations do not depend on weights
     while True:
-        plain = F.Objective(train, blocks, chosen, free, transform=model)
+        robust = F.Objective(
+            train, blocks, chosen, free, transform=model, powers=powers, _cache=cache
+        )
         say(f"fitting {len(free)} free factor(s)")
+        x = F.fit(robust, x, loss="soft_l1")
+        data, wild = F.reweighted(blocks, blocks.errors(robust.blocks(x)))
+        plain = F.Objective(train, data, chosen, free, transform=model, powers=powers, _cache=cache)
         x = F.fit(plain, x)
-        resid = blocks.errors(plain.blocks(x))
-        whitened = F.Objective(train, blocks, chosen, free, transform=model,
-                               whiten=I.ar_whitener(resid, blocks.record_rows))  # fmt: skip
-        whitened._cache.update(plain._cache)  # same simulations, other weighting
-        x = F.fit(whitened, x)
-        jac = F.jacobian(whitened, x)
-        se = I.standard_errors(jac, whitened.residuals(x))
+        jac = F.jacobian(plain, x)
+        mask = np.isfinite(data.measured)
+        se = I.sandwich_standard_errors(jac, plain.residuals(x), mask, data.record_rows)
         gamma = I.collinearity(jac)
-        if not free:
-            return x, jac, se, gamma, whitened
         rel = se / np.maximum(np.abs(x), 1e-12)
+        if not free or (rel.max() <= I.MAX_RELATIVE_SE and gamma <= I.MAX_COLLINEARITY):
+            if wild:
+                notes.append(f"{wild} block(s) set aside as outliers (over "
+                             f"{F.OUTLIER_SCALES:g} robust standard deviations off)")  # fmt: skip
+            return x, jac, se, gamma, plain, len(cache)
         worst = int(np.argmax(rel))
-        if rel[worst] <= I.MAX_RELATIVE_SE and gamma <= I.MAX_COLLINEARITY:
-            whitened.evaluations += plain.evaluations
-            return x, jac, se, gamma, whitened
         for i in free[worst]:
             verdicts[i] = "not separable in this data"
         say(f"{', '.join(chosen[i].name for i in free[worst])}: relative SE {rel[worst]:.0%}, "
@@ -231,13 +270,24 @@ def _fit_and_prune(train, blocks, chosen, free, verdicts, model, say):
         x = np.delete(x, worst)
 
 
-def _estimates(train, chosen: Sequence[Parameter], groups, x, se, verdicts) -> list[Estimate]:
+def _estimates(
+    train: DriveTrain,
+    chosen: Sequence[Parameter],
+    objective: F.Objective,
+    x: np.ndarray,
+    se: np.ndarray,
+    verdicts: dict[int, str],
+) -> list[Estimate]:
+    groups = objective.groups
     nominal = nominal_values(train, chosen)
     factor = np.ones(len(chosen))
     factor_se = np.full(len(chosen), np.nan)
     partners: dict[int, tuple[str, ...]] = {}
     for k, members in enumerate(groups):
-        factor[members], factor_se[members] = x[k], se[k]
+        for i in members:  # x ** p and its standard error by the delta method
+            power = objective.powers.get(i, 1.0)
+            factor[i] = x[k] ** power
+            factor_se[i] = se[k] * abs(power) * x[k] ** (power - 1.0)
         for i in members:
             partners[i] = tuple(chosen[j].name for j in members if j != i)
             verdicts.setdefault(i, "only in combination" if len(members) > 1 else "identified")

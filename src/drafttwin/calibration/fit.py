@@ -29,6 +29,10 @@ from drafttwin.mechanics import DriveTrain, convert_rpm, simulate_channels
 Vector: TypeAlias = Sequence[float] | np.ndarray
 """A parameter vector: the free factors."""
 
+ROBUST_SCALE = 3.0
+"""Residual (noise units) beyond which the robust first pass counts a block linearly."""
+OUTLIER_SCALES = 10.0
+"""A block this many robust standard deviations off its channel's median is set aside."""
 BOUNDS = (0.2, 5.0)
 """Factor bounds: a parameter may move from a fifth to five times its nominal value."""
 DIFF_STEP = 1e-3
@@ -158,6 +162,9 @@ class Objective:
     params: Sequence[Parameter]
     groups: list[list[int]]  # free entries: each a list of parameter indices moved together
     transform: Callable[[DriveTrain], DriveTrain] | None = None
+    # parameter index -> -1 for a member acting against its group (belt rigidity against the
+    # loads): it moves as 1 / x while the others move as x, so that their effects add
+    powers: dict[int, float] = field(default_factory=dict)
     whiten: Callable[[np.ndarray], np.ndarray] | None = None
     evaluations: int = 0
     _cache: dict[tuple[float, ...], np.ndarray] = field(default_factory=dict)
@@ -166,7 +173,8 @@ class Objective:
         """Per-parameter factors from the free vector (parameters not free stay at 1)."""
         f = np.ones(len(self.params))
         for value, members in zip(x, self.groups, strict=True):
-            f[members] = value
+            for m in members:
+                f[m] = float(value) ** self.powers.get(m, 1.0)
         return f
 
     def blocks(self, x: Vector) -> np.ndarray:
@@ -186,13 +194,35 @@ class Objective:
         return r[np.isfinite(self.data.measured)]
 
 
-def fit(objective: Objective, x0: Vector, max_nfev: int = 60) -> np.ndarray:
-    """Least-squares factors of the free entries (bounded, trust-region reflective)."""
+def fit(objective: Objective, x0: Vector, max_nfev: int = 60, loss: str = "linear") -> np.ndarray:
+    """Least-squares factors of the free entries (bounded, trust-region reflective);
+    ``loss="soft_l1"`` for a first pass that a few wild blocks cannot steer."""
     if not objective.groups:
         return np.zeros(0)
     res = least_squares(objective.residuals, np.asarray(x0, float), bounds=BOUNDS,
-                        diff_step=DIFF_STEP, x_scale=1.0, method="trf", max_nfev=max_nfev)  # fmt: skip
+                        diff_step=DIFF_STEP, x_scale=1.0, method="trf", max_nfev=max_nfev,
+                        loss=loss, f_scale=ROBUST_SCALE)  # fmt: skip
     return np.asarray(res.x)
+
+
+def reweighted(data: Blocks, errors: np.ndarray) -> tuple[Blocks, int]:
+    """The blocks with outliers set aside and each channel weighted by its residual scale.
+
+    ``errors`` are the scored errors (noise units) after a robust first fit. A block further
+    than :data:`OUTLIER_SCALES` robust standard deviations from its channel's median is set
+    aside (a spike the cleaning missed, e.g. two in a row: a 30 % spike is a hundred-sigma
+    residual). Each channel's noise scale is then multiplied by the RMS of its remaining
+    errors (feasible weighted least squares): the block-to-block noise misses the slow
+    wander a channel carries (the motor's supply frequency, the rollers' lines), which would
+    otherwise give one channel the weight of all. Returns the blocks and the number set aside."""
+    centre = np.nanmedian(errors, axis=0)
+    scale = 1.4826 * np.nanmedian(np.abs(errors - centre), axis=0)
+    wild = np.abs(errors - centre) > OUTLIER_SCALES * np.maximum(scale, 1e-12)
+    measured = np.where(wild, np.nan, data.measured)
+    kept = np.where(wild, np.nan, errors)
+    rms = np.sqrt(np.nanmean(kept**2, axis=0))
+    noise = data.noise * np.where(np.isfinite(rms) & (rms > 0), rms, 1.0)
+    return replace(data, measured=measured, noise=noise), int(wild.sum())
 
 
 def jacobian(objective: Objective, x: Vector) -> np.ndarray:

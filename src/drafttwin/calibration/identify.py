@@ -8,10 +8,13 @@
 * **Collinearity index** (Brun, Reichert, Künsch 2001): gamma = 1 / sqrt(lambda_min) of the
   unit-norm columns' cross-product; above :data:`MAX_COLLINEARITY` the set cannot be
   separated.
-* **Standard errors** from the Jacobian by SVD, after prewhitening the residuals with an
-  autoregressive model per record and channel: fluctuations the physics leaves out (drafting
-  force, supply wander) make residuals coloured, and white-noise errors would then be too
-  small by the square root of the correlation length.
+* **Absorbed members**: in a combination, a member whose effect is under
+  :data:`ABSORB_RATIO` of the strongest member's cannot be told from it, and a plausible error
+  in it moves the strongest one's estimate by that share at most: it stays nominal.
+* **Standard errors** of the least-squares estimate by the sandwich formula with an
+  autoregressive model of the residuals per record and channel: fluctuations the physics
+  leaves out (drafting force, supply wander) make residuals coloured, and white-noise errors
+  would then be too small by the square root of the correlation length.
 """
 
 from __future__ import annotations
@@ -27,12 +30,19 @@ MIN_SENSITIVITY = 3.0
 not seen by the data."""
 COMBINED_COSINE = 0.995
 """Columns this parallel (|cos|) are one combination for the data."""
-MAX_COLLINEARITY = 10.0
-"""Collinearity index above which a set of parameters is not separable (a conservative
-choice; Brun et al. call about 20 the limit)."""
+MAX_COLLINEARITY = 25.0
+"""Collinearity index above which a set of parameters is not separable (Brun et al. call about
+20 the limit). Chosen on validation machines (plant machine seeds 7-13, not the benchmark's
+101-103): motor slip, belt rigidity and the load combination have an index of 18-23 on a
+start-up and a steady record, and with the sandwich standard errors their estimates lay
+within 3 standard errors of the truth; at a limit of 10 the load went back to nominal and
+biased the other two by up to 36 standard errors."""
 MAX_RELATIVE_SE = 0.10
 """An estimate with a larger relative standard error is not identified."""
 AR_ORDER = 10
+ABSORB_RATIO = 0.1
+"""A combination's member whose column norm is under this share of the strongest member's is
+absorbed by it (left nominal)."""
 
 
 def sensitivities(jac: np.ndarray) -> np.ndarray:
@@ -62,6 +72,15 @@ def combine(jac: np.ndarray, candidates: Sequence[int]) -> list[list[int]]:
     return list(groups.values())
 
 
+def absorbed(jac: np.ndarray, group: Sequence[int]) -> tuple[list[int], list[int]]:
+    """Split a combination into the members that carry it and those it absorbs (column norm
+    under :data:`ABSORB_RATIO` of the strongest member's)."""
+    norms = np.linalg.norm(jac[:, list(group)], axis=0)
+    strong = norms >= ABSORB_RATIO * norms.max()
+    return ([g for g, k in zip(group, strong, strict=True) if k],
+            [g for g, k in zip(group, strong, strict=True) if not k])  # fmt: skip
+
+
 def collinearity(jac: np.ndarray) -> float:
     """Brun's collinearity index of the columns (inf for a zero or dependent column)."""
     if jac.shape[1] < 2:
@@ -83,6 +102,43 @@ def standard_errors(jac: np.ndarray, residuals: np.ndarray) -> np.ndarray:
     s2 = float(residuals @ residuals) / dof
     inv = np.where(s > s[0] * 1e-12, 1.0 / np.maximum(s, 1e-300), np.inf)
     return np.sqrt(s2 * np.sum((vt.T * inv) ** 2, axis=1))
+
+
+def sandwich_standard_errors(
+    jac: np.ndarray,
+    residuals: np.ndarray,
+    mask: np.ndarray,
+    record_rows: Sequence[tuple[int, int]],
+    order: int = AR_ORDER,
+) -> np.ndarray:
+    """Standard errors of an ordinary least-squares estimate under coloured residuals:
+    ``(J'J)^-1 J' S J (J'J)^-1`` with ``S`` the covariance of an AR(p) model fitted (Yule-Walker)
+    to the residuals of each channel, each record a series of its own.
+
+    ``jac`` and ``residuals`` hold the rows of the finite entries of a ``(blocks, channels)``
+    array, row-major, as ``mask`` marks them. With ``r = A^-1 e`` (``A`` the AR filter, ``e``
+    white with variance ``s2``), ``J' S J = s2 |A^-T J|^2``; ``A^-T`` is the AR synthesis filter
+    run backwards in time."""
+    n, p = jac.shape
+    if p == 0:
+        return np.zeros(0)
+    resid = np.zeros(mask.shape)
+    resid[mask] = residuals
+    cols = np.zeros((*mask.shape, p))
+    cols[mask] = jac
+    meat = np.zeros((p, p))
+    for j in range(mask.shape[1]):
+        a = _yule_walker([resid[lo:hi, j] for lo, hi in record_rows], order)
+        den = np.r_[1.0, -a]
+        white = [lfilter(den, [1.0], resid[lo:hi, j])[mask[lo:hi, j]] for lo, hi in record_rows]
+        e = np.concatenate(white)
+        s2 = float(e @ e) / max(len(e) - p, 1)
+        for lo, hi in record_rows:
+            g = lfilter([1.0], den, cols[lo:hi, j][::-1], axis=0)[::-1]
+            meat += s2 * (g.T @ g)
+    bread = np.linalg.pinv(jac.T @ jac)
+    cov = bread @ meat @ bread
+    return np.sqrt(np.maximum(np.diag(cov), 0.0))
 
 
 def ar_whitener(

@@ -138,6 +138,8 @@ def _print(result: Calibration) -> None:
     unseen = [e.name for e in result.estimates if e.verdict == "not from this data"]
     if unseen:
         console.print(f"not from this data (left nominal): {escape(', '.join(unseen))}")
+    for note in result.notes:
+        console.print(escape(note))
     fit = Table(title=f"fit on {result.block_s:g} s block means, {result.records} record(s)")
     for col in ("channel", "unit", "bias before", "bias after", "RMSE before", "RMSE after"):
         fit.add_column(col, justify="left" if col in ("channel", "unit") else "right")
