@@ -30,6 +30,16 @@ BASE: dict[str, list[str]] = {
     "simulate": ["simulate", "--duration", "0.1", "--quiet", "--out", "{tmp}/sim.csv"],
     "inspect": ["inspect", "default", "--json"],
     "generate": ["generate", "--duration", "0.5", "--quiet", "--out", "{tmp}/gen.csv"],
+    "generate-faults": [
+        "generate-faults",
+        "--cases",
+        "1",
+        "--duration",
+        "0.5",
+        "--quiet",
+        "--out",
+        "{tmp}/faults",
+    ],  # fmt: skip
     "fit": ["fit", "--model", "persistence", "--out", "{tmp}/fit.pt", "--quiet"],
     "predict": ["predict", "--model", "{model}", "--out", "{tmp}/pred.csv"],
     "evaluate": ["evaluate", "--model", "{model}", "--json"],
@@ -53,6 +63,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "simulate": ["--duration", "--rate", "--dt", "--settle", "--cutoff-hz"],
     "inspect": ["--rate-tolerance", "--rate", "--threshold"],
     "generate": ["--duration", "--rate", "--seed", "--machine-seed"],
+    "generate-faults": ["--cases", "--seed", "--duration", "--rate"],
     "fit": [
         "--init-samples",
         "--rate-tolerance",
