@@ -155,3 +155,73 @@ def test_end_to_end_on_plant_records():
     sensor = dx.diagnose(record(4, "back:gain:severity=0.005:onset=18").series)
     assert sensor.causes[0].name == "back:gain"
     assert sensor.to_dict()["causes"][0]["family"] == "sensor"
+
+
+@pytest.fixture(scope="module")
+def records(tmp_path_factory):
+    """A healthy plant record and the same record with the third encoder's gain drifting off
+    from 40 s (the plant's own sensor-fault function), as files."""
+    from dataclasses import replace
+
+    from drafttwin.plant import Plant
+    from drafttwin.plant.faults import FaultSpec, apply_sensor_faults
+
+    folder = tmp_path_factory.mktemp("dx")
+    rec = Plant().run(60.0, seed=21)
+    rec.write(folder / "healthy.parquet")
+    gain = FaultSpec.parse("third:gain:severity=0.003:onset=40:ramp=5")
+    rpm, motor, _ = apply_sensor_faults(rec.series.values, rec.series.motor_rpm,
+                                        rec.series.time_s, [gain], np.random.default_rng(0))  # fmt: skip
+    faulty = replace(rec, series=replace(rec.series, values=rpm, motor_rpm=motor))
+    faulty.write(folder / "gain.parquet")
+    return folder
+
+
+@pytest.mark.slow
+def test_cli_diagnose_names_the_encoder_and_writes_a_page(records):
+    import json
+    import shutil
+    import subprocess
+
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    page = records / "dx.html"
+    args = ["diagnose", "--model", "preset", "--data", str(records / "gain.parquet"),
+            "--healthy", str(records / "healthy.parquet"), "--json", "--report", str(page)]  # fmt: skip
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert 40 < out["alarm"]["time_s"] < 50 and out["alarm"]["test"] == "parity_third"
+    assert out["causes"][0]["element"] == "third" and out["causes"][0]["kind"] == "gain"
+    assert out["causes"][0]["interval"][0] <= 0.003 <= out["causes"][0]["interval"][1] * 1.1
+    browser = next((p for n in ("chromium", "chromium-browser", "google-chrome")
+                    if (p := shutil.which(n))), None)  # fmt: skip
+    if browser is None:
+        pytest.skip("no chromium binary found (.ci/run installs it)")
+    done = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu",
+                           f"--user-data-dir={records / 'profile'}", "--virtual-time-budget=5000",
+                           "--dump-dom", page.resolve().as_uri()],
+                          capture_output=True, text=True, timeout=90, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    dom = done.stdout
+    assert 'data-images-loaded="3"' in dom and 'data-images-total="3"' in dom
+    assert 'id="causes"' in dom and "third:gain" in dom
+
+
+def test_cli_diagnose_refuses_bad_input(records, tmp_path):
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    frame = pd.read_parquet(records / "healthy.parquet").drop(columns=["motor"])
+    frame.to_parquet(tmp_path / "nomotor.parquet")
+    for args, text in (
+        (["--data", str(tmp_path / "nomotor.parquet")], "no motor speed"),
+        (["--data", str(records / "healthy.parquet"), "--far-per-day", "-1"], "--far-per-day"),
+        (["--data", str(records / "healthy.parquet"), "--model", "preset:nope"], "nope"),
+    ):
+        res = CliRunner().invoke(app, ["diagnose", "--model", "preset", *args])
+        assert res.exit_code == 2 and text in res.output and "Traceback" not in res.output

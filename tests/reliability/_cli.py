@@ -40,6 +40,7 @@ BASE: dict[str, list[str]] = {
         "--out",
         "{tmp}/faults",
     ],  # fmt: skip
+    "diagnose": ["diagnose", "--model", "preset", "--data", "default", "--json"],
     "fit": ["fit", "--model", "persistence", "--out", "{tmp}/fit.pt", "--quiet"],
     "predict": ["predict", "--model", "{model}", "--out", "{tmp}/pred.csv"],
     "evaluate": ["evaluate", "--model", "{model}", "--json"],
@@ -64,6 +65,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "inspect": ["--rate-tolerance", "--rate", "--threshold"],
     "generate": ["--duration", "--rate", "--seed", "--machine-seed"],
     "generate-faults": ["--cases", "--seed", "--duration", "--rate"],
+    "diagnose": ["--far-per-day"],
     "fit": [
         "--init-samples",
         "--rate-tolerance",

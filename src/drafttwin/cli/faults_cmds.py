@@ -11,7 +11,7 @@ from rich.table import Table
 from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import load_train
-from drafttwin.cli._oserrors import output_dir
+from drafttwin.cli._oserrors import output_dir, output_file
 from drafttwin.cli.app import app, console, progress_bar
 from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 
@@ -75,3 +75,122 @@ def generate_faults(
         tmp.write_text(dumps_strict(manifest, sort_keys=True) + "\n", encoding="utf-8")
     console.print(table)
     console.print(f"wrote {cases} records and {out / 'cases.json'}")
+
+
+@app.command()
+def diagnose(
+    model: Annotated[
+        str,
+        typer.Option(
+            help="The twin's physics: a model file from 'drafttwin fit' (its drive train), or "
+            "preset, preset:NAME, config:FILE.toml.",
+        ),
+    ],
+    data: Annotated[
+        str, typer.Option(help="The record to diagnose (.csv/.parquet with a motor column).")
+    ],
+    healthy: Annotated[
+        str | None,
+        typer.Option(
+            help="Healthy records of the same machine (comma-separated) to set the thresholds. "
+            "Default: the record's own first half (assumed healthy: give --healthy to trust it).",
+        ),
+    ] = None,
+    far_per_day: Annotated[
+        float,
+        typer.Option(
+            help="False alarms allowed per 24 h of healthy running.",
+            callback=bounded("--far-per-day"),
+        ),
+    ] = 1.0,  # fmt: skip
+    as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    report: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write an HTML page (timeline, spectrum, drive train).",
+            callback=output_file("--report"),
+        ),
+    ] = None,  # fmt: skip
+) -> None:
+    """Detect, locate and size a machine or sensor fault in a record.
+
+    Residuals of the record against the physics (open loop, from the set-points) are watched
+    by CUSUM tests whose thresholds come from healthy data for the false-alarm rate asked;
+    after an alarm every candidate fault is simulated with the physics and ranked by how well
+    it explains the shift of the four rollers and the motor, with its severity and a 95 %
+    interval, and the group of candidates these sensors cannot tell apart.
+    """
+    from drafttwin._json import dumps_strict
+    from drafttwin.cli._data import Channels
+    from drafttwin.diagnosis.detect import FaultDetector
+    from drafttwin.diagnosis.diagnose import Diagnoser
+    from drafttwin.diagnosis.physics import physics_train
+    from drafttwin.diagnosis.residuals import record_features
+
+    train = physics_train(model)
+    series = Channels().read(data)
+    if healthy:
+        tuning = [Channels().read(p.strip()) for p in healthy.split(",") if p.strip()]
+        tuned_on = healthy
+    else:
+        cut = len(series) // 2
+        tuning = [_head(series, cut)]
+        tuned_on = f"the record's first {series.time_s[cut - 1] - series.time_s[0]:.0f} s (assumed healthy)"
+    detector = FaultDetector(far_per_day=far_per_day).fit(
+        [record_features(train, s) for s in tuning]
+    )
+    dx = Diagnoser(train, detector).diagnose(series)
+    info = {"data": data, "physics": model, "thresholds_from": tuned_on,
+            "detector": detector.describe()}  # fmt: skip
+    result = {**info, **dx.to_dict()}
+    if report is not None:
+        from drafttwin._io import atomic_path
+        from drafttwin.report.diagnosis import render_diagnosis
+
+        with atomic_path(report) as tmp:
+            tmp.write_text(render_diagnosis(dx, train, series, info), encoding="utf-8")
+    if as_json:
+        typer.echo(dumps_strict(result))
+        return
+    _print_diagnosis(result, report)
+
+
+def _head(series, n: int):  # noqa: ANN001, ANN202  (a MeasurementSeries)
+    from dataclasses import replace
+
+    return replace(series, time_s=series.time_s[:n], values=series.values[:n],
+                   inputs={k: v[:n] for k, v in series.inputs.items()},
+                   truth=None if series.truth is None else series.truth[:n],
+                   motor_rpm=None if series.motor_rpm is None else series.motor_rpm[:n],
+                   metadata={})  # fmt: skip
+
+
+def _print_diagnosis(result: dict, report: Path | None) -> None:
+    alarm = result["alarm"]
+    console.print(f"thresholds from {result['thresholds_from']}")
+    if alarm is None:
+        console.print("no alarm: the residuals stayed within the thresholds")
+    else:
+        console.print(f"[bold red]alarm[/] at {alarm['time_s']:.1f} s ({alarm['test']}), change "
+                      f"estimated at {alarm['onset_s']:.1f} s")  # fmt: skip
+        table = Table(title="ranked causes")
+        for col in (
+            "rank",
+            "cause",
+            "family",
+            "severity",
+            "95 % interval",
+            "p",
+            "same signature as",
+        ):
+            table.add_column(col)
+        for i, c in enumerate(result["causes"]):
+            table.add_row(str(i + 1), f"{c['element']}:{c['kind']}", c["family"],
+                          f"{c['severity']:.4g}", f"[{c['interval'][0]:.3g}, {c['interval'][1]:.3g}]",
+                          f"{c['probability']:.2f}", ", ".join(c["group"][:4])
+                          + (" ..." if len(c["group"]) > 4 else ""))  # fmt: skip
+        console.print(table)
+        if result["causes"]:
+            console.print(f"severity unit of the first: {result['causes'][0]['parameter']}")
+    if report is not None:
+        console.print(f"wrote {report}")

@@ -82,6 +82,8 @@ class Diagnoser:
             return dx
         base = det.baseline_at_alarm
         assert base is not None
+        after = np.arange(len(f.level)) > alarm.block
+        det.deviation[after] = f.level[after] - base  # evidence past the alarm, for the page
         # the shift after the alarm (a ramp has grown by then); the record up to the alarm
         # when too little follows it
         finite = np.isfinite(f.level).all(axis=1)
