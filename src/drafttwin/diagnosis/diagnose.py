@@ -70,13 +70,20 @@ class Diagnoser:
         self.signatures = SignatureModel(train)
 
     def diagnose(self, series: MeasurementSeries) -> Diagnosis:
+        """Detect, locate and size (with spectral evidence) in one record."""
         f = record_features(self.train, series, self.detector.block_s_)
+        dx = self.from_features(f)
+        if dx.alarm is not None:
+            dx.lines = line_evidence(self.train, series, dx.alarm.change_s, dx.alarm.time_s)
+        return dx
+
+    def from_features(self, f: BlockFeatures) -> Diagnosis:
+        """Detection and localisation from block features alone (no spectra)."""
         det = self.detector.run(f)
         dx = Diagnosis(f, det)
         alarm = det.first
         if alarm is None:
             return dx
-        dx.lines = line_evidence(self.train, series, alarm.change_s, alarm.time_s)
         if alarm.direction == 0:  # a sensor rule: the channel is named, nothing else
             dx.causes = [_sensor_cause(alarm, f)]
             return dx
@@ -92,8 +99,7 @@ class Diagnoser:
             window = (f.time_s > alarm.change_s) & (f.time_s <= alarm.time_s + POST_S) & finite
         if not window.any():
             return dx
-        dev = f.level[window] - base
-        dx.shift = dev.mean(axis=0)
+        dx.shift = (f.level[window] - base).mean(axis=0)
         phi = float(self.detector.phi_[0])
         inflation = (1 + phi) / (1 - phi)
         cov = self.detector.level_cov_ * inflation / int(window.sum())
