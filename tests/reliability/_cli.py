@@ -41,6 +41,7 @@ BASE: dict[str, list[str]] = {
         "{tmp}/faults",
     ],  # fmt: skip
     "diagnose": ["diagnose", "--model", "preset", "--data", "default", "--json"],
+    "benchmark faults": ["benchmark", "faults", "--quick", "--quiet", "--out", "{tmp}/bf"],
     "fit": ["fit", "--model", "persistence", "--out", "{tmp}/fit.pt", "--quiet"],
     "predict": ["predict", "--model", "{model}", "--out", "{tmp}/pred.csv"],
     "evaluate": ["evaluate", "--model", "{model}", "--json"],
@@ -66,6 +67,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "generate": ["--duration", "--rate", "--seed", "--machine-seed"],
     "generate-faults": ["--cases", "--seed", "--duration", "--rate"],
     "diagnose": ["--far-per-day"],
+    "benchmark faults": ["--seed", "--workers"],
     "fit": [
         "--init-samples",
         "--rate-tolerance",
