@@ -1,6 +1,6 @@
 """Cost of fault injection in the plant and of diagnosing a record.
 
-    python benchmarks/bench_faults.py [--duration 20]
+    python benchmarks/bench_faults.py [--duration 30]
 
 Wall time of the plant (100 Hz, one core, numba caches loaded) for ``--duration`` s of
 machine time: healthy, with an abrupt bearing fault, with a ramping one (new tables every
@@ -28,7 +28,7 @@ from drafttwin.plant.faults import FaultSpec  # noqa: E402
 
 CASES = {
     "healthy": [],
-    "bearing step": ["front_roller:bearing_friction:severity=5:onset=5"],
+    "bearing step": ["front_roller:bearing_friction:severity=5:onset=20"],
     "bearing ramp": ["front_roller:bearing_friction:severity=5:onset=2:ramp=15"],
     "gear crack": ["G-H:crack:severity=0.5:onset=5"],
 }
@@ -36,7 +36,7 @@ CASES = {
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--duration", type=float, default=20.0)
+    parser.add_argument("--duration", type=float, default=30.0)
     args = parser.parse_args()
     plant, train = Plant(), DriveTrain.preset("fa320a")
     plant.run(0.5, seed=0)  # load the numba caches
