@@ -67,7 +67,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "generate": ["--duration", "--rate", "--seed", "--machine-seed"],
     "generate-faults": ["--cases", "--seed", "--duration", "--rate"],
     "diagnose": ["--far-per-day"],
-    "benchmark faults": ["--seed", "--workers"],
+    "benchmark faults": ["--seed", "--workers", "--healthy-hours"],
     "fit": [
         "--init-samples",
         "--rate-tolerance",
