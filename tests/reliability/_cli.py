@@ -30,6 +30,18 @@ BASE: dict[str, list[str]] = {
     "simulate": ["simulate", "--duration", "0.1", "--quiet", "--out", "{tmp}/sim.csv"],
     "inspect": ["inspect", "default", "--json"],
     "generate": ["generate", "--duration", "0.5", "--quiet", "--out", "{tmp}/gen.csv"],
+    "generate-faults": [
+        "generate-faults",
+        "--cases",
+        "1",
+        "--duration",
+        "0.5",
+        "--quiet",
+        "--out",
+        "{tmp}/faults",
+    ],  # fmt: skip
+    "diagnose": ["diagnose", "--model", "preset", "--data", "default", "--json"],
+    "benchmark faults": ["benchmark", "faults", "--quick", "--quiet", "--out", "{tmp}/bf"],
     "fit": ["fit", "--model", "persistence", "--out", "{tmp}/fit.pt", "--quiet"],
     "predict": ["predict", "--model", "{model}", "--out", "{tmp}/pred.csv"],
     "evaluate": ["evaluate", "--model", "{model}", "--json"],
@@ -53,6 +65,9 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "simulate": ["--duration", "--rate", "--dt", "--settle", "--cutoff-hz"],
     "inspect": ["--rate-tolerance", "--rate", "--threshold"],
     "generate": ["--duration", "--rate", "--seed", "--machine-seed"],
+    "generate-faults": ["--cases", "--seed", "--duration", "--rate"],
+    "diagnose": ["--far-per-day"],
+    "benchmark faults": ["--seed", "--workers", "--healthy-hours"],
     "fit": [
         "--init-samples",
         "--rate-tolerance",

@@ -70,6 +70,9 @@ BOUNDS: dict[str, Bound] = {
     "--block": Bound(0.001, 3600, "s", low_inclusive=True),
     "--workers": Bound(1, 1024, low_inclusive=True),
     "--max-samples": Bound(1, 1e9, "samples", low_inclusive=True),
+    "--cases": Bound(1, 100000, "cases", low_inclusive=True),
+    "--far-per-day": Bound(0, 1e6, "alarms per 24 h"),
+    "--healthy-hours": Bound(0, 1000, "h"),
 }
 
 

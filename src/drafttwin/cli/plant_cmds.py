@@ -60,6 +60,15 @@ def generate(
     scenario: Annotated[
         str, typer.Option(help="steady | startup | speed-change (see docs/plant.md).")
     ] = "steady",
+    fault: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--fault",
+            help="Inject a fault: ELEMENT:KIND:severity=S:onset=T[:ramp=R] (T, R in s; "
+            "repeatable), e.g. E-F:wear:severity=60:onset=30 or front:gain:severity=0.01:onset=5. "
+            "Kinds and severity units: docs/faults.md; a wrong element or kind lists the valid ones.",
+        ),
+    ] = None,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Run the plant emulator: measured roller speeds with the machine's real imperfections.
@@ -70,6 +79,7 @@ def generate(
     parameters, effects).
     """
     from drafttwin.plant import Machine, Plant
+    from drafttwin.plant.faults import FaultSpec, check_faults
     from drafttwin.plant.scenarios import get_scenario
 
     check_output_suffix(out)
@@ -78,6 +88,7 @@ def generate(
         raise ConfigError("--machine and --machine-seed both name the machine",
                           where="--machine", fix="give one of them")  # fmt: skip
     plant = Plant(load_train(preset, config))
+    faults = check_faults([FaultSpec.parse(f) for f in fault or []], plant.train)
     # refuse a run that would never end (or write tens of GB) before anything starts
     check_samples(duration, rate, where="--duration, --rate")
     check_rk4_steps(duration, plant.train.spec.solver.dt_s, where="--duration")
@@ -90,7 +101,7 @@ def generate(
     with progress_bar("plant (machine s)", duration, quiet=quiet) as bar:
         task = bar.task_ids[0]
         rec = plant.run(duration, rate, seed=seed, scenario=scenario, machine=chosen,
-                        progress=lambda s: bar.advance(task, s))  # fmt: skip
+                        progress=lambda s: bar.advance(task, s), faults=faults)  # fmt: skip
     paths = rec.write(out)
     table = Table(title=f"plant, scenario '{scenario}', seed {seed}, machine "
                   f"{chosen.source}: {duration:g} s at {rate:g} Hz")  # fmt: skip
@@ -104,4 +115,8 @@ def generate(
                       str(int(rec.missing[:, j].sum())), str(int(rec.outlier[:, j].sum())),
                       f"{noise:.3f}")  # fmt: skip
     console.print(table)
+    for label in rec.info["faults"]:
+        console.print(f"fault {label['element']}:{label['kind']} severity {label['severity']:g} "
+                      f"({label['parameter']}) from {label['onset_s']:g} s, "
+                      f"{'ramp ' + format(label['ramp_s'], 'g') + ' s' if label['ramp_s'] else 'abrupt'}")  # fmt: skip
     console.print("wrote " + ", ".join(str(p) for p in paths))

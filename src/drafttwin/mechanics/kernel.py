@@ -32,10 +32,14 @@ BELT_RA, BELT_RB, BELT_K, BELT_C, BELT_INV_EA = range(5)
 # chain_f: teeth a, teeth b, pitch, pitch radius a, pitch radius b, span k, span c, pretension
 CH_ZA, CH_ZB, CH_P, CH_RA, CH_RB, CH_K, CH_C, CH_T0 = range(8)
 # gear_f: base radii, driver teeth, mean k, c, half backlash, eccentricities + phases, TE,
-# then NH_MAX cosine and NH_MAX sine coefficients of k(mesh phase) (gear_i[:, 2] = harmonics)
+# then NH_MAX cosine and NH_MAX sine coefficients of k(mesh phase) (gear_i[:, 2] = harmonics),
+# then a tooth fault on the driver gear (0 = none, the assembled default; see plant faults):
+# stiffness loss fraction while that tooth is in mesh, its angle, the driver angle it stays in mesh
 (G_RBA, G_RBB, G_ZA, G_K, G_C, G_B, G_EA, G_PA, G_EB, G_PB, G_TE) = range(11)
 G_COEF = 11
-GEAR_COLS = G_COEF + 2 * NH_MAX
+G_CRACK = G_COEF + 2 * NH_MAX
+G_CRACK_ANGLE, G_CRACK_SPAN = G_CRACK + 1, G_CRACK + 2
+GEAR_COLS = G_CRACK + 3
 # spring_f: k, c ; drag_f: coulomb torque, speed eps, viscous, kind (0 load, 1 bearing)
 DR_COUL, DR_EPS, DR_VISC, DR_KIND = range(4)
 
@@ -200,6 +204,12 @@ def _gear(k, y, dy, o_w, o_e, gear_i, gear_f):
     for h in range(nh):  # cos/sin of (h+1)*phase by rotation, one sin/cos call per mesh
         cn, sn = cn * c1 - sn * s1, sn * c1 + cn * s1
         stiff += gear_f[k, G_COEF + h] * cn + gear_f[k, G_COEF + NH_MAX + h] * sn
+    # a faulty tooth on the driver meshes once per driver revolution
+    if (
+        gear_f[k, G_CRACK] > 0.0
+        and (th_a - gear_f[k, G_CRACK_ANGLE]) % (2.0 * math.pi) < gear_f[k, G_CRACK_SPAN]
+    ):
+        stiff *= 1.0 - gear_f[k, G_CRACK]
     err = gear_f[k, G_TE] * s1
     err_rate = gear_f[k, G_TE] * c1 * gear_f[k, G_ZA] * w_a
     if gear_f[k, G_EA] > 0.0:

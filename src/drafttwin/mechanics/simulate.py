@@ -26,6 +26,7 @@ from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
 from drafttwin.mechanics.assembly import (
     DriveTrain,
+    Tables,
     chain_mean_radius_m,
     chain_pitch_radius_m,
     gear_base_radii_m,
@@ -205,8 +206,13 @@ class SimulationStream:
     def __init__(self, train: DriveTrain, duration_s: float, *, chunk_s: float,
                  output_rate_hz: float | None, dt_s: float | None, settle_s: float | None,
                  t_start_s: float, from_rest: bool,
-                 progress: Callable[[float], None] | None) -> None:  # fmt: skip
+                 progress: Callable[[float], None] | None,
+                 tables_at: Callable[[float], Tables] | None = None) -> None:  # fmt: skip
         solver = train.spec.solver
+        if tables_at is not None and train.reduction is not None:
+            raise ConfigError("time-varying parameters need the full train, not a reduced one",
+                              fix="simulate the train without reduce()")  # fmt: skip
+        self.tables_at = tables_at
         self.train = train
         self.rate_hz = solver.output_rate_hz if output_rate_hz is None else output_rate_hz
         default_dt = solver.dt_s if train.reduction is None else train.reduction.dt_s
@@ -239,6 +245,7 @@ class SimulationStream:
         train, rate, dt, steps = self.train, self.rate_hz, self.dt_s, self.steps
         t0 = self.t_start_s - self.settle_s
         integrate, y, args = _integrator(train, _start_state(train, t0, self.from_rest))
+        args = self._args_at(t0, args)
         start = _time.perf_counter()
         integrate(y.copy(), t0, dt, 1, 1, *args)  # compile / load from cache outside the timing
         self.compile_s = _time.perf_counter() - start
@@ -256,6 +263,7 @@ class SimulationStream:
         emitted = done = 0
         while done < self.n_rows:
             m = min(block, self.n_rows - done)
+            args = self._args_at(t0 + done / rate, args)
             out = integrate(y, t0 + done / rate, dt, m, steps, *args)
             self._check_finite(out, t0, done, settling=False)
             pending.append(out)
@@ -269,6 +277,17 @@ class SimulationStream:
             if self.progress is not None:
                 self.progress(m / rate)
         self.wall_s = _time.perf_counter() - start
+
+    def _args_at(self, t: float, args: tuple) -> tuple:
+        """The kernel's tables for the block starting at ``t``: the train's own, or those of
+        ``tables_at`` (parameters held constant over each block of :data:`BLOCK_S`)."""
+        if self.tables_at is None:
+            return args
+        new = self.tables_at(t).args()
+        if any(a.shape != b.shape for a, b in zip(new, args, strict=True)):
+            raise ConfigError("tables_at changed the shape of the train's tables",
+                              fix="vary parameter values only, not elements")  # fmt: skip
+        return new
 
     def _piece(self, pending: list, rows: int, first: int, t0: float, last_theta: np.ndarray):
         """The first ``rows`` pending outputs as a piece; the rest stay pending."""
@@ -316,6 +335,7 @@ def simulate_chunks(
     t_start_s: float = 0.0,
     from_rest: bool = False,
     progress: Callable[[float], None] | None = None,
+    tables_at: Callable[[float], Tables] | None = None,
 ) -> SimulationStream:
     """:func:`simulate` in pieces of ``chunk_s`` machine seconds (the last one shorter):
     iterate the returned stream for :class:`SimulationPiece` s. Memory holds one piece, so a
@@ -323,7 +343,8 @@ def simulate_chunks(
     long run. Raises :class:`NonFiniteSimulationError` at the first NaN or infinity."""
     return SimulationStream(train, duration_s, chunk_s=chunk_s, output_rate_hz=output_rate_hz,
                             dt_s=dt_s, settle_s=settle_s, t_start_s=t_start_s,
-                            from_rest=from_rest, progress=progress)  # fmt: skip
+                            from_rest=from_rest, progress=progress,
+                            tables_at=tables_at)  # fmt: skip
 
 
 def simulate(
@@ -336,6 +357,7 @@ def simulate(
     t_start_s: float = 0.0,
     from_rest: bool = False,
     progress: Callable[[float], None] | None = None,
+    tables_at: Callable[[float], Tables] | None = None,
 ) -> SimulationResult:
     """Integrate the train with fixed-step RK4 and return interval-mean speeds.
 
@@ -349,13 +371,17 @@ def simulate(
             torque-balance operating point with static preloads. A train without a motor, or
             whose supply at the start is below :data:`STOPPED_SUPPLY_HZ`, always starts at rest.
         progress: called with the machine seconds completed since the last call.
+        tables_at: time-varying parameters (e.g. a growing fault): called with the start
+            time of each kernel call (blocks of :data:`BLOCK_S`, and the settling run), it
+            returns the tables to integrate that block with (same shapes as the train's).
 
     Raises:
         NonFiniteSimulationError: at the first NaN or infinite output (node and time named).
     """
     stream = simulate_chunks(train, duration_s, chunk_s=math.inf, output_rate_hz=output_rate_hz,
                              dt_s=dt_s, settle_s=settle_s, t_start_s=t_start_s,
-                             from_rest=from_rest, progress=progress)  # fmt: skip
+                             from_rest=from_rest, progress=progress,
+                             tables_at=tables_at)  # fmt: skip
     pieces = list(stream)
     return SimulationResult(
         time_s=np.concatenate([p.time_s for p in pieces]),

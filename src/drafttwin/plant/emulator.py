@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -24,15 +24,25 @@ from drafttwin._io import atomic_path
 from drafttwin._json import dumps_strict
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
-from drafttwin.mechanics import DriveTrain, simulate
+from drafttwin.mechanics import DriveTrain, Signal, simulate
 from drafttwin.plant.config import PlantConfig
-from drafttwin.plant.effects import disturbances
+from drafttwin.plant.effects import FORCE_GRID_S, Disturbances, disturbances
+from drafttwin.plant.faults import (
+    FaultSchedule,
+    FaultSpec,
+    apply_sensor_faults,
+    block_seconds,
+    check_faults,
+    eccentricity_torques,
+    rotor_resistance_signal,
+)
 from drafttwin.plant.machine import Machine
 from drafttwin.plant.scenarios import get_scenario
 from drafttwin.plant.sensors import encoder_rpm, inject_defects, quantisation_step_rpm
 
 STREAMS = (
     "mismatch", "supply", "drafting", "runout", "encoder", "missing", "outlier", "motor_encoder",
+    "fault",
 )  # fmt: skip
 """One random stream per effect, spawned from the seed in this order: a stream added at the
 end leaves the earlier ones (and so the files older versions wrote) unchanged."""
@@ -136,13 +146,16 @@ class Plant:
         scenario: str = "steady",
         progress: Callable[[float], None] | None = None,
         machine: Machine | None = None,
+        faults: Sequence[FaultSpec] = (),
     ) -> PlantRecording:
         """Run the plant for ``duration_s`` seconds, sampled at ``rate_hz``.
 
         ``seed`` draws the recording (noise, drafting force, supply jitter, data-path
         defects, thermal state is the config's); ``machine`` is the machine recorded (its
         true parameters; default: the one :meth:`machine` draws from ``seed``), so two
-        recordings of one machine share ``machine`` and differ in ``seed``.
+        recordings of one machine share ``machine`` and differ in ``seed``. ``faults`` are
+        injected machine and sensor faults (:mod:`drafttwin.plant.faults`), labelled in
+        ``info["faults"]``; none leaves the run exactly as it was.
         """
         scen = get_scenario(scenario)
         streams = _streams(seed)
@@ -162,13 +175,12 @@ class Plant:
         setpoint = scen.setpoint(duration_s, nominal_hz)
         settle = 0.0 if scen.from_rest else SETTLE_S
         dist = disturbances(plant_train, self.config, setpoint, -settle, duration_s, streams)
-        driven = plant_train.with_supply_schedule(dist.supply_hz).with_rotor_resistance(
-            dist.rotor_resistance
-        )
-        for node, sig in dist.torques.items():
-            driven = driven.with_torque(node, sig)
+        faults = check_faults(faults, plant_train)
+        driven, schedule = _driven_train(plant_train, dist, faults, setpoint, -settle,
+                                         duration_s, streams["fault"])  # fmt: skip
         res = simulate(driven, duration_s, output_rate_hz=rate_hz, settle_s=settle,
-                       from_rest=scen.from_rest, progress=progress)  # fmt: skip
+                       from_rest=scen.from_rest, progress=progress,
+                       tables_at=schedule)  # fmt: skip
         true_rpm = res.roller_rpm()
         sensors = self.config.sensors
         counted = encoder_rpm(true_rpm, 1.0 / rate_hz, sensors, streams["encoder"])
@@ -177,6 +189,10 @@ class Plant:
         motor_counted = encoder_rpm(res.motor_rpm[:, None], 1.0 / rate_hz, sensors,
                                     streams["motor_encoder"])[:, 0]  # fmt: skip
         motor_measured = np.where(measured.missing[:, 0], np.nan, motor_counted)
+        if any(f.is_sensor for f in faults):
+            rpm, motor_measured, lost = apply_sensor_faults(
+                measured.rpm, motor_measured, res.time_s, faults, streams["fault"])  # fmt: skip
+            measured = replace(measured, rpm=rpm, missing=measured.missing | lost)
         info = {
             "generator": f"drafttwin {__version__} plant emulator",
             "seed": seed,
@@ -189,6 +205,7 @@ class Plant:
             "mismatch_draws": draws,
             "machine": machine.describe(),
             "quantisation_step_rpm": quantisation_step_rpm(sensors, rate_hz),
+            "faults": [f.label(block_seconds(rate_hz)) for f in faults],
             "injected": {
                 "missing_rows": int(measured.missing[:, 0].sum()),
                 "outliers": {r: int(measured.outlier[:, j].sum()) for j, r in enumerate(ROLLERS)},
@@ -205,6 +222,26 @@ class Plant:
         return PlantRecording(
             series, true_rpm, res.motor_rpm, measured.missing, measured.outlier, info
         )
+
+
+def _driven_train(train: DriveTrain, dist: Disturbances, faults: Sequence[FaultSpec],
+                  setpoint: Signal, t0: float, t1: float,
+                  rng: np.random.Generator) -> tuple[DriveTrain, FaultSchedule | None]:  # fmt: skip
+    """The true train with its inputs attached and the machine faults applied: time signals
+    for the rotor resistance and roller run-out, a table schedule for the rest."""
+    rotor = [f for f in faults if f.kind == "rotor_resistance"]
+    rotor_sig = (rotor_resistance_signal(dist.rotor_resistance, rotor, FORCE_GRID_S * 10)
+                 if rotor else dist.rotor_resistance)  # fmt: skip
+    driven = train.with_supply_schedule(dist.supply_hz).with_rotor_resistance(rotor_sig)
+    for node, sig in dist.torques.items():
+        driven = driven.with_torque(node, sig)
+    ecc = [f for f in faults if f.kind == "eccentricity"]
+    if ecc:
+        for node, sig in eccentricity_torques(train, ecc, setpoint, t0, t1, FORCE_GRID_S,
+                                              rng).items():  # fmt: skip
+            driven = driven.with_torque(node, sig)
+    schedule = FaultSchedule(driven, faults)
+    return driven, schedule if schedule.faults else None
 
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:

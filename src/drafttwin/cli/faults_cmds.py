@@ -1,0 +1,275 @@
+"""``drafttwin generate-faults``: seeded healthy and faulty plant records with labels."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich.table import Table
+
+from drafttwin._limits import check_rk4_steps, check_samples
+from drafttwin.cli._bounds import bounded
+from drafttwin.cli._common import load_train
+from drafttwin.cli._oserrors import output_dir, output_file
+from drafttwin.cli.app import app, console, progress_bar
+from drafttwin.cli.benchmark_cmds import benchmark_app
+from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
+
+
+@app.command("generate-faults")
+def generate_faults(
+    out: Annotated[
+        Path,
+        typer.Option(help="Folder for the records and cases.json.", callback=output_dir("--out")),
+    ],
+    cases: Annotated[
+        int, typer.Option(help="Number of records (one in 4 healthy).", callback=bounded("--cases"))
+    ] = 12,
+    seed: Annotated[
+        int,
+        typer.Option(
+            help="Seed of the whole set: same seed, same files.", callback=bounded("--seed")
+        ),
+    ] = 0,
+    duration: Annotated[
+        float, typer.Option(help="Machine time per record, s.", callback=bounded("--duration"))
+    ] = 60.0,
+    rate: Annotated[
+        float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))
+    ] = 100.0,
+    preset: PresetOpt = None,
+    config: ConfigOpt = None,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Write a seeded set of plant records: healthy ones and ones with one fault each.
+
+    Each case draws its own machine and recording seeds, a fault (every element and kind of
+    the train, including sensor faults) at a light, moderate or severe level, abrupt or as a
+    ramp over 30 % of the record, starting 30-50 % into it. Writes OUT/case_NNNN.parquet with
+    its .truth file and .json sidecar (labels under "faults") and OUT/cases.json listing all.
+    """
+    from drafttwin._io import atomic_path
+    from drafttwin._json import dumps_strict
+    from drafttwin.plant import Plant
+    from drafttwin.plant.fault_cases import draw_cases, run_case
+
+    plant = Plant(load_train(preset, config))
+    check_samples(duration, rate, where="--duration, --rate")
+    check_rk4_steps(duration * cases, plant.train.spec.solver.dt_s, where="--duration, --cases")
+    drawn = draw_cases(plant.train, cases, seed, duration)
+    table = Table(title=f"{cases} fault cases, seed {seed}, {duration:g} s each")
+    for col in ("case", "fault", "level", "onset s", "profile"):
+        table.add_column(col)
+    with progress_bar("plant (machine s)", duration * cases, quiet=quiet) as bar:
+        task = bar.task_ids[0]
+        for case in drawn:
+            rec = run_case(plant, case, duration, rate, progress=lambda s: bar.advance(task, s))
+            rec.write(out / f"{case.name}.parquet")
+            f = case.faults[0] if case.faults else None
+            table.add_row(case.name, f"{f.element}:{f.kind} {f.severity:g}" if f else "healthy",
+                          case.level or "", f"{f.onset_s:g}" if f else "",
+                          ("ramp" if f.ramp_s else "step") if f else "")  # fmt: skip
+    manifest = {"seed": seed, "duration_s": duration, "rate_hz": rate,
+                "cases": [{**c.describe(), "file": f"{c.name}.parquet"} for c in drawn]}  # fmt: skip
+    with atomic_path(out / "cases.json") as tmp:
+        tmp.write_text(dumps_strict(manifest, sort_keys=True) + "\n", encoding="utf-8")
+    console.print(table)
+    console.print(f"wrote {cases} records and {out / 'cases.json'}")
+
+
+@app.command()
+def diagnose(
+    model: Annotated[
+        str,
+        typer.Option(
+            help="The twin's physics: a model file from 'drafttwin fit' (its drive train), or "
+            "preset, preset:NAME, config:FILE.toml.",
+        ),
+    ],
+    data: Annotated[
+        str, typer.Option(help="The record to diagnose (.csv/.parquet with a motor column).")
+    ],
+    healthy: Annotated[
+        str | None,
+        typer.Option(
+            help="Healthy records of the same machine (comma-separated) to set the thresholds. "
+            "Default: the record's own first half (assumed healthy: give --healthy to trust it).",
+        ),
+    ] = None,
+    far_per_day: Annotated[
+        float,
+        typer.Option(
+            help="False alarms allowed per 24 h of healthy running.",
+            callback=bounded("--far-per-day"),
+        ),
+    ] = 1.0,  # fmt: skip
+    as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    report: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write an HTML page (timeline, spectrum, drive train).",
+            callback=output_file("--report"),
+        ),
+    ] = None,  # fmt: skip
+) -> None:
+    """Detect, locate and size a machine or sensor fault in a record.
+
+    Residuals of the record against the physics (open loop, from the set-points) are watched
+    by CUSUM tests whose thresholds come from healthy data for the false-alarm rate asked;
+    after an alarm every candidate fault is simulated with the physics and ranked by how well
+    it explains the shift of the four rollers and the motor, with its severity and a 95 %
+    interval, and the group of candidates these sensors cannot tell apart.
+    """
+    from drafttwin._json import dumps_strict
+    from drafttwin.cli._data import Channels
+    from drafttwin.diagnosis.detect import FaultDetector
+    from drafttwin.diagnosis.diagnose import Diagnoser
+    from drafttwin.diagnosis.physics import physics_train
+    from drafttwin.diagnosis.residuals import record_features
+
+    train = physics_train(model)
+    series = Channels().read(data)
+    if healthy:
+        tuning = [Channels().read(p.strip()) for p in healthy.split(",") if p.strip()]
+        tuned_on = healthy
+    else:
+        cut = len(series) // 2
+        tuning = [_head(series, cut)]
+        tuned_on = f"the record's first {series.time_s[cut - 1] - series.time_s[0]:.0f} s (assumed healthy)"
+    detector = FaultDetector(far_per_day=far_per_day).fit(
+        [record_features(train, s) for s in tuning]
+    )
+    dx = Diagnoser(train, detector).diagnose(series)
+    info = {"data": data, "physics": model, "thresholds_from": tuned_on,
+            "detector": detector.describe()}  # fmt: skip
+    result = {**info, **dx.to_dict()}
+    if report is not None:
+        from drafttwin._io import atomic_path
+        from drafttwin.report.diagnosis import render_diagnosis
+
+        with atomic_path(report) as tmp:
+            tmp.write_text(render_diagnosis(dx, train, series, info), encoding="utf-8")
+    if as_json:
+        typer.echo(dumps_strict(result))
+        return
+    _print_diagnosis(result, report)
+
+
+def _head(series, n: int):  # noqa: ANN001, ANN202  (a MeasurementSeries)
+    from dataclasses import replace
+
+    return replace(series, time_s=series.time_s[:n], values=series.values[:n],
+                   inputs={k: v[:n] for k, v in series.inputs.items()},
+                   truth=None if series.truth is None else series.truth[:n],
+                   motor_rpm=None if series.motor_rpm is None else series.motor_rpm[:n],
+                   metadata={})  # fmt: skip
+
+
+def _print_diagnosis(result: dict, report: Path | None) -> None:
+    alarm = result["alarm"]
+    console.print(f"thresholds from {result['thresholds_from']}")
+    if alarm is None:
+        console.print("no alarm: the residuals stayed within the thresholds")
+    else:
+        console.print(f"[bold red]alarm[/] at {alarm['time_s']:.1f} s ({alarm['test']}), change "
+                      f"estimated at {alarm['onset_s']:.1f} s")  # fmt: skip
+        table = Table(title="ranked causes")
+        for col in (
+            "rank",
+            "cause",
+            "family",
+            "severity",
+            "95 % interval",
+            "p",
+            "same signature as",
+        ):
+            table.add_column(col)
+        for i, c in enumerate(result["causes"]):
+            table.add_row(str(i + 1), f"{c['element']}:{c['kind']}", c["family"],
+                          f"{c['severity']:.4g}", f"[{c['interval'][0]:.3g}, {c['interval'][1]:.3g}]",
+                          f"{c['probability']:.2f}", ", ".join(c["group"][:4])
+                          + (" ..." if len(c["group"]) > 4 else ""))  # fmt: skip
+        console.print(table)
+        if result["causes"]:
+            console.print(f"severity unit of the first: {result['causes'][0]['parameter']}")
+    if report is not None:
+        console.print(f"wrote {report}")
+
+
+@benchmark_app.command("faults")
+def benchmark_faults(
+    out: Annotated[Path, typer.Option(help="Output folder.", callback=output_dir("--out"))] = Path(
+        "faults_out"
+    ),
+    quick: Annotated[
+        bool, typer.Option("--quick", help="A small subset (6 kinds, moderate, abrupt).")
+    ] = False,
+    seed: Annotated[
+        int,
+        typer.Option(
+            help="Seed of the plan (machines, recordings, onsets).", callback=bounded("--seed")
+        ),
+    ] = 0,  # fmt: skip
+    workers: Annotated[
+        int, typer.Option(help="Parallel processes.", callback=bounded("--workers"))
+    ] = 2,
+    healthy_hours: Annotated[
+        float | None,
+        typer.Option(
+            help="Healthy test running in hours (2-min records of their own machines); "
+            "default: the profile's (20 min full, 2 min quick). A <= 1 per 24 h claim "
+            "needs >= 72 h alarm-free.",
+            callback=bounded("--healthy-hours"),
+        ),
+    ] = None,  # fmt: skip
+    as_json: Annotated[bool, typer.Option("--json", help="Print the scores as JSON.")] = False,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Seeded faulty and healthy plant records, diagnosed and scored.
+
+    Every fault kind at three severities, abrupt and incipient, on machines of their own;
+    thresholds from a separate healthy tuning set; false alarms over healthy running of other
+    machines. Scores (detection per severity, delays, false alarms per 24 h, top-1/top-3
+    localisation, severity error, sensor faults blamed on the machine, confusion matrix) for
+    the twin's physics diagnosis and a fixed-threshold baseline on raw speeds. Writes
+    OUT/faults_results.json and OUT/faults_report.html.
+    """
+    import math
+    from dataclasses import replace
+
+    from drafttwin._io import atomic_path
+    from drafttwin._json import dumps_strict
+    from drafttwin.benchmarks.faults import run_benchmark
+    from drafttwin.benchmarks.faults.plan import PROFILES
+    from drafttwin.report.faults_bench import HEAD, render_benchmark, score_rows
+
+    profile = PROFILES["quick" if quick else "full"]
+    if healthy_hours is not None:
+        profile = replace(profile, healthy=(math.ceil(healthy_hours * 3600 / 120.0), 120.0))
+    with progress_bar(
+        f"fault benchmark ({profile.name}): plant records", 1, quiet=quiet or as_json
+    ) as bar:
+        task = bar.task_ids[0]
+
+        def advance(done: int, total: int) -> None:
+            bar.update(task, total=total, completed=done)
+
+        results = run_benchmark(profile, seed, workers, on_record=advance)
+    with atomic_path(out / "faults_results.json") as tmp:
+        tmp.write_text(dumps_strict(results, sort_keys=True) + "\n", encoding="utf-8")
+    with atomic_path(out / "faults_report.html") as tmp:
+        tmp.write_text(render_benchmark(results), encoding="utf-8")
+    if as_json:
+        typer.echo(dumps_strict(results["scores"]))
+        return
+    table = Table(title=f"fault benchmark ({profile.name}), {results['sets']['faults']} fault records, "
+                  f"{results['machine_seconds']['healthy'] / 3600:.2f} h healthy test running")  # fmt: skip
+    rows = score_rows(results["scores"])
+    table.add_column("score")
+    for row in rows:
+        table.add_column(row[0], justify="right")
+    for i, name in enumerate(HEAD[1:], start=1):  # one line per score, one column per method
+        table.add_row(name, *(row[i] for row in rows))
+    console.print(table)
+    console.print(f"wrote {out / 'faults_results.json'} and {out / 'faults_report.html'}")

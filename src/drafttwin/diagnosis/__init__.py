@@ -1,0 +1,1 @@
+"""Fault diagnosis on the twin's residuals: detection, localisation, severity."""

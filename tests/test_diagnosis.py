@@ -1,0 +1,227 @@
+"""Fault diagnosis: CUSUM thresholds, detection on residual features, sensor rules,
+model-based localisation, and one end-to-end run on plant records."""
+
+import numpy as np
+import pytest
+
+from drafttwin.diagnosis.detect import FaultDetector, siegmund_arl, threshold_for_arl
+from drafttwin.diagnosis.locate import SignatureModel, rank_causes
+from drafttwin.diagnosis.residuals import BlockFeatures, block_features
+from drafttwin.mechanics import DriveTrain, operating_point
+
+SIGMA = 1e-4  # relative level noise of a 1-s block (order of the plant's)
+
+
+def synthetic(seed, n=600, phi=0.8, shift=None, at=None, drift=0.0):
+    """AR(1) common-mode level noise plus small independent channel noise, 1-s blocks."""
+    rng = np.random.default_rng(seed)
+    e = rng.standard_normal(n) * SIGMA * np.sqrt(1 - phi**2)
+    common = np.zeros(n)
+    for i in range(1, n):
+        common[i] = phi * common[i - 1] + e[i]
+    level = common[:, None] * np.array([1, 1, 1, 1, 0.9]) + rng.standard_normal((n, 5)) * 1e-6
+    level += drift * np.linspace(0, 1, n)[:, None]
+    if shift is not None:
+        level[at:] += shift
+    return BlockFeatures(np.arange(1, n + 1, dtype=float), level, np.zeros((n, 5)),
+                         np.full((n, 5), 3.0), 1.0)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def detector():
+    return FaultDetector(far_per_day=1.0).fit([synthetic(s) for s in range(4)])
+
+
+def test_siegmund_threshold_gives_the_run_length_it_promises():
+    k, target = 0.5, 200.0
+    h = threshold_for_arl(target, k)
+    assert siegmund_arl(h, k) == pytest.approx(target)
+    rng = np.random.default_rng(0)
+    s, length, alive = np.zeros(4000), np.zeros(4000), np.ones(4000, bool)
+    for t in range(1, 5000):  # 4000 CUSUMs on i.i.d. N(0, 1) until each alarms
+        s = np.where(alive, np.maximum(0.0, s + rng.standard_normal(4000) - k), s)
+        hit = alive & (s > h)
+        length[hit], alive = t, alive & ~hit
+    assert not alive.any()
+    assert length.mean() == pytest.approx(target, rel=0.1)
+
+
+def test_healthy_running_and_slow_drift_raise_no_alarm(detector):
+    assert detector.run(synthetic(10, n=3000), stop_at_first=False).alarms == []
+    drift = synthetic(11, n=3000, drift=-8 * SIGMA)  # thermal slip: 8 sigma over 50 min
+    assert detector.run(drift, stop_at_first=False).alarms == []
+
+
+def test_a_step_is_detected_soon_after_it_and_not_before(detector):
+    shift = np.array([-1, -1, -1, -1, -0.8]) * 3 * SIGMA  # a load fault: all rollers alike
+    det = detector.run(synthetic(12, shift=shift, at=300))
+    a = det.first
+    assert a is not None and 300 < a.time_s <= 330
+    assert a.direction == -1 and 290 <= a.change_s <= a.time_s
+
+
+def test_one_encoder_off_trips_its_parity(detector):
+    shift = np.zeros(5)
+    shift[2] = 20 * SIGMA  # third roller's encoder reads 0.2 % high
+    a = detector.run(synthetic(13, shift=shift, at=300)).first
+    assert a is not None and a.test == "parity_third" and a.time_s <= 303
+
+
+def test_sensor_rules_name_the_channel(detector):
+    f = synthetic(14)
+    f.run[400, 1] = 4 * detector.run_limit_[1]
+    a = detector.run(f).first
+    assert a is not None and (a.test, a.direction, a.time_s) == ("stuck_second", 0, 401.0)
+    g = synthetic(15)
+    g.lost[200, 4] = 0.5
+    assert detector.run(g).first.test == "lost_motor"
+
+
+def test_block_features_telescope_and_find_dropouts():
+    rng = np.random.default_rng(1)
+    t = np.arange(1, 1001) * 0.01
+    yhat = np.tile([1800.0, 430.0, 420.0, 350.0, 1450.0], (1000, 1))
+    y = yhat * (1 + 2e-4) + rng.standard_normal(yhat.shape) * 0.3
+    y[::7, 1] = np.nan  # one channel loses every 7th sample
+    y[500, 0] *= 1.3  # a spike is left out
+    f = block_features(y, yhat, t, 1.0)
+    assert f.level.shape == (10, 5)
+    noise = 0.3 / yhat[0] / np.sqrt(100)  # i.i.d. sample noise averaged over a block
+    np.testing.assert_allclose(f.level, 2e-4, atol=float(5 * noise.max()))
+    assert abs(f.level[5, 0] - 2e-4) < 5 * noise[0]  # the 30 % spike did not count
+    np.testing.assert_allclose(f.lost[:, 1], 1 / 7, atol=0.02)
+    assert np.all(f.lost[:, [0, 2, 3, 4]] == 0)
+
+
+@pytest.fixture(scope="module")
+def signatures():
+    return SignatureModel(DriveTrain.preset("fa320a"))
+
+
+def test_signatures_follow_the_torque_balance(signatures):
+    sig = signatures.signature("front_roller", "bearing_friction", 5.0)
+    raw = DriveTrain.preset("fa320a").to_dict()
+    for b in raw["bearing"]:
+        if b["node"] == "front_roller":
+            b["coulomb_torque_nm"] *= 6.0
+            b["viscous_nms"] *= 6.0
+    a, b = operating_point(DriveTrain.preset("fa320a")), operating_point(DriveTrain.from_dict(raw))
+    assert sig[0] == pytest.approx(b.roller_rpm["front"] / a.roller_rpm["front"] - 1, rel=1e-9)
+    assert np.ptp(sig[:4]) < 1e-9 * abs(sig[0]) and 0 < sig[4] / sig[0] < 1  # belt creep share
+    rotor = signatures.signature("motor", "rotor_resistance", 0.2)
+    assert rotor[4] == pytest.approx(rotor[0], rel=1e-4) and rotor[0] < 0
+    belt = signatures.signature("main_belt", "belt_wear", 0.5)
+    assert abs(belt[4]) < 1e-3 * abs(belt[0]) and belt[0] < 0  # the motor does not see it
+    np.testing.assert_array_equal(signatures.signature("third", "gain", 0.01), [0, 0, 0.01, 0, 0])
+
+
+def test_ranking_finds_belt_and_sensor_and_reports_bearing_groups(signatures):
+    # common-mode noise (supply, drafting force) shared by all channels, as in the plant,
+    # for the mean of a 30-s window
+    cov = (3e-5) ** 2 * np.ones((5, 5)) + np.diag([1e-6**2] * 4 + [3e-6**2])
+    belt = rank_causes(signatures, signatures.signature("main_belt", "belt_wear", 0.4), cov)
+    assert belt[0].name == "main_belt:belt_wear"
+    assert belt[0].interval[0] <= 0.4 <= belt[0].interval[1]
+    gain = rank_causes(signatures, signatures.signature("third", "gain", -0.003), cov)
+    assert gain[0].name == "third:gain" and gain[0].family == "sensor"
+    assert gain[0].severity == pytest.approx(-0.003, rel=1e-3)
+    bear = rank_causes(
+        signatures, signatures.signature("third_roller", "bearing_friction", 20), cov
+    )
+    top = {bear[0].name, *bear[0].group}
+    assert "third_roller:bearing_friction" in top  # found, as a member of its group:
+    assert {"front_roller:bearing_friction", "second_roller:bearing_friction"} <= top
+    assert not any(n.startswith("motor:") for n in top)  # motor-side faults move it 1:1
+
+
+@pytest.mark.slow
+def test_end_to_end_on_plant_records():
+    from drafttwin.diagnosis.diagnose import Diagnoser
+    from drafttwin.diagnosis.residuals import record_features
+    from drafttwin.plant import Machine, Plant
+    from drafttwin.plant.faults import FaultSpec
+
+    plant, train = Plant(), DriveTrain.preset("fa320a")
+
+    def record(i, *faults):
+        m = Machine.draw(plant.train, plant.config, 50 + i)
+        return plant.run(30.0, seed=60 + i, machine=m, faults=[FaultSpec.parse(f) for f in faults])
+
+    det = FaultDetector().fit([record_features(train, record(i).series) for i in range(2)])
+    dx = Diagnoser(train, det)
+    found = dx.diagnose(record(3, "main_belt:belt_wear:severity=0.5:onset=18").series)
+    assert found.alarm is not None and 18 < found.alarm.time_s < 25
+    assert found.causes[0].name == "main_belt:belt_wear"
+    sensor = dx.diagnose(record(4, "back:gain:severity=0.005:onset=18").series)
+    assert sensor.causes[0].name == "back:gain"
+    assert sensor.to_dict()["causes"][0]["family"] == "sensor"
+
+
+@pytest.fixture(scope="module")
+def records(tmp_path_factory):
+    """A healthy plant record and the same record with the third encoder's gain drifting off
+    from 40 s (the plant's own sensor-fault function), as files."""
+    from dataclasses import replace
+
+    from drafttwin.plant import Plant
+    from drafttwin.plant.faults import FaultSpec, apply_sensor_faults
+
+    folder = tmp_path_factory.mktemp("dx")
+    rec = Plant().run(60.0, seed=21)
+    rec.write(folder / "healthy.parquet")
+    gain = FaultSpec.parse("third:gain:severity=0.003:onset=40:ramp=5")
+    rpm, motor, _ = apply_sensor_faults(rec.series.values, rec.series.motor_rpm,
+                                        rec.series.time_s, [gain], np.random.default_rng(0))  # fmt: skip
+    faulty = replace(rec, series=replace(rec.series, values=rpm, motor_rpm=motor))
+    faulty.write(folder / "gain.parquet")
+    return folder
+
+
+@pytest.mark.slow
+def test_cli_diagnose_names_the_encoder_and_writes_a_page(records):
+    import json
+    import shutil
+    import subprocess
+
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    page = records / "dx.html"
+    args = ["diagnose", "--model", "preset", "--data", str(records / "gain.parquet"),
+            "--healthy", str(records / "healthy.parquet"), "--json", "--report", str(page)]  # fmt: skip
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    out = json.loads(res.stdout)
+    assert 40 < out["alarm"]["time_s"] < 50 and out["alarm"]["test"] == "parity_third"
+    assert out["causes"][0]["element"] == "third" and out["causes"][0]["kind"] == "gain"
+    assert out["causes"][0]["interval"][0] <= 0.003 <= out["causes"][0]["interval"][1] * 1.1
+    browser = next((p for n in ("chromium", "chromium-browser", "google-chrome")
+                    if (p := shutil.which(n))), None)  # fmt: skip
+    if browser is None:
+        pytest.skip("no chromium binary found (.ci/run installs it)")
+    done = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu",
+                           f"--user-data-dir={records / 'profile'}", "--virtual-time-budget=5000",
+                           "--dump-dom", page.resolve().as_uri()],
+                          capture_output=True, text=True, timeout=90, check=False)  # fmt: skip
+    assert done.returncode == 0, done.stderr[-2000:]
+    dom = done.stdout
+    assert 'data-images-loaded="3"' in dom and 'data-images-total="3"' in dom
+    assert 'id="causes"' in dom and "third:gain" in dom
+
+
+def test_cli_diagnose_refuses_bad_input(records, tmp_path):
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    frame = pd.read_parquet(records / "healthy.parquet").drop(columns=["motor"])
+    frame.to_parquet(tmp_path / "nomotor.parquet")
+    for args, text in (
+        (["--data", str(tmp_path / "nomotor.parquet")], "no motor speed"),
+        (["--data", str(records / "healthy.parquet"), "--far-per-day", "-1"], "--far-per-day"),
+        (["--data", str(records / "healthy.parquet"), "--model", "preset:nope"], "nope"),
+    ):
+        res = CliRunner().invoke(app, ["diagnose", "--model", "preset", *args])
+        assert res.exit_code == 2 and text in res.output and "Traceback" not in res.output

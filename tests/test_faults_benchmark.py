@@ -1,0 +1,52 @@
+"""The fault benchmark on a tiny profile: plan, scores, page, CLI refusals."""
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin.benchmarks.faults.plan import ELEMENTS, PROFILES, Profile, plan
+from drafttwin.benchmarks.faults.score import poisson_upper
+from drafttwin.cli import app
+from drafttwin.plant.faults import KINDS
+
+
+def test_full_plan_covers_every_kind_three_severities_both_profiles():
+    tasks = plan(PROFILES["full"], seed=0)
+    faults = [t for t in tasks if t["set"] == "faults"]
+    assert set(ELEMENTS) == set(KINDS)
+    assert len(faults) >= 60
+    seen = {(t["faults"][0]["kind"], t["level"], t["profile"]) for t in faults}
+    assert seen == {(k, lv, p) for k in KINDS for lv in range(3) for p in ("step", "ramp")}
+    machines = [t["machine_seed"] for t in tasks]
+    assert len(set(machines)) == len(machines)  # tuning, faults and healthy share no machine
+    assert plan(PROFILES["full"], seed=0) == tasks  # seeded
+
+
+def test_poisson_bound_is_the_rule_of_three():
+    assert poisson_upper(0, 72.0) == pytest.approx(3.0 / 72 * 24, rel=0.01)  # ~1 per 24 h
+
+
+@pytest.mark.slow
+def test_tiny_benchmark_scores_and_page():
+    from drafttwin.benchmarks.faults import run_benchmark
+    from drafttwin.report.faults_bench import render_benchmark
+
+    tiny = Profile("tiny", ("belt_wear", "gain"), (2,), ("step",), 24.0, (17.0, 17.5), 5.0,
+                   (1, 30.0), (1, 20.0))  # fmt: skip
+    res = run_benchmark(tiny, seed=3, workers=1)
+    phys, raw = res["scores"]["physics"], res["scores"]["raw-threshold"]
+    assert res["sets"] == {"tuning": 1, "faults": 2, "healthy": 1}
+    assert phys["detection_pct"]["severe"] == 100.0  # belt -0.8 and a 2 % gain: plain to see
+    assert phys["localisation"]["top1_pct"] == 100.0
+    assert phys["localisation"]["sensor_blamed_on_machine"] == 0
+    assert phys["confusion"] == {"belt_wear": {"belt_wear": 1}, "gain": {"gain": 1}}
+    assert raw["localisation"] is None  # the baseline does not locate
+    json.dumps(res, allow_nan=True)
+    html = render_benchmark(res)
+    assert 'id="scores"' in html and 'id="confusion"' in html and "raw-threshold" in html
+
+
+def test_cli_refuses_bad_numbers(tmp_path):
+    res = CliRunner().invoke(app, ["benchmark", "faults", "--workers", "0", "--out", str(tmp_path)])
+    assert res.exit_code == 2 and "--workers" in res.output
