@@ -1,7 +1,7 @@
 """Accuracy limits on the default data set: the encoders' own error, the one-step floor, and
 two independent checks of the floor.
 
-    python benchmarks/bench_limits.py
+    python benchmarks/bench_limits.py [--models]
 
 On the test part of the default data set (the last 30 %, as the study scores it): the sensor
 error (RMSE of measured vs true), its lag-one autocorrelation, the floor oracle's RMSE
@@ -10,12 +10,19 @@ from the sensor settings (quantisation step q, C counts per revolution, r rev/s,
 s), a least-squares predictor of the sensor error from its last 32 values fitted on the first
 70 % (an independent estimate of what a predictor can reach), and persistence. Prints a table;
 writes benchmarks/results/limits.json.
+
+``--models`` also fits persistence, the GRU, the parallel hybrid and MD-S-L on the first 70 % of
+all 300 s (quick network sizes, 30 epochs, patience 5, seed 0; about 25 min on 2 shared cores)
+and scores them by the protocol: each model's one-step RMSE against its floor (none may be
+below it) and its RMSE against the true speed against the encoders' error;
+writes benchmarks/results/limits_models.json.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+import time
 
 import numpy as np
 
@@ -23,7 +30,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 from _machine import write_results  # noqa: E402
 from drafttwin.datasets import load_default  # noqa: E402
-from drafttwin.evaluation import accuracy_limits  # noqa: E402
+from drafttwin.evaluation import accuracy_limits, floor_rows, protocol  # noqa: E402
 from drafttwin.evaluation.limits import lag1_autocorrelation  # noqa: E402
 from drafttwin.plant.config import PlantConfig  # noqa: E402
 from drafttwin.plant.sensors import quantisation_step_rpm  # noqa: E402
@@ -42,6 +49,41 @@ def _fitted(e: np.ndarray, n_train: int) -> float:
     fit, test = ok & (rows < n_train), ok & (rows >= n_train)
     coef, *_ = np.linalg.lstsq(x[fit], e[fit], rcond=None)
     return float(np.sqrt(np.mean((e[test] - x[test] @ coef) ** 2)))
+
+
+def models_check() -> None:
+    """Every model's one-step RMSE against its floor on all 300 s of the default data."""
+    import torch
+
+    from drafttwin.models import MechanisticModel, make_model
+
+    torch.set_num_threads(1)
+    data = load_default()
+    physics = MechanisticModel.from_preset("fa320a")
+    metrics, figures = {}, []
+    for name in ("persistence", "gru", "parallel", "md-s-l"):
+        t0 = time.perf_counter()
+        kw = (
+            {} if name == "persistence" else {"epochs": 30, "patience": 5, "seed": 0, "quiet": True}
+        )
+        model = make_model(name, "quick", **kw)
+        mech = physics if model.needs_mechanistic else None
+        part = protocol.fit(model, data, train_fraction=TRAIN_FRACTION, mechanistic=mech)
+        metrics[name] = protocol.evaluate(model, part, mechanistic=mech).metrics
+        for c, m in metrics[name].items():
+            print(f"{name:12} {c:7} RMSE {m.rmse:.4f} floor {m.rmse_floor:.4f} "
+                  f"RMSE/floor {m.rmse / m.rmse_floor:.3f} vs true {m.rmse_vs_true:.4f} "
+                  f"sensor {m.sensor_rmse:.4f} vs true/sensor {m.true_error_ratio:.3f}")  # fmt: skip
+            for key in ("rmse", "rmse_floor", "rmse_vs_true", "sensor_rmse", "true_error_ratio"):
+                figures.append({"figure": f"all 300 s, {name}, {c}: {key}",
+                                "value": getattr(m, key),
+                                "unit": "" if key == "true_error_ratio" else "rpm"})  # fmt: skip
+        print(f"{name}: {time.perf_counter() - t0:.0f} s")
+    for row in floor_rows(metrics):
+        print(row)
+        figures.append({"figure": f"all 300 s, {row['channel']}: models below the floor",
+                        "value": len(row["below_floor"]), "unit": "count"})  # fmt: skip
+    print(f"wrote {write_results('limits_models', figures)}")
 
 
 def main() -> None:
@@ -88,3 +130,5 @@ def main() -> None:
 
 if __name__ == "__main__":
     main()
+    if "--models" in sys.argv[1:]:
+        models_check()

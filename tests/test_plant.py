@@ -72,7 +72,7 @@ def test_shipped_default_data_set_is_what_the_code_generates(default):
     )
 
 
-def test_encoder_quantisation_and_noise_floor(default):
+def test_encoder_quantisation_and_sensor_error(default):
     truth = default.truth
     ok = ~np.isnan(default.values) & ~default.metadata["outlier_mask"]
     step = quantisation_step_rpm(Sensors(), 100.0)
