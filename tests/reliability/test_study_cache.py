@@ -69,6 +69,11 @@ def _tamper(data: bytes) -> bytes:
     return (text[: match.start(1)] + changed + text[match.end(1) :]).encode()
 
 
+def _alter_first_digit(sidecar: bytes) -> bytes:
+    """Another first hex digit (a fixed one would leave a hash that starts with it unchanged)."""
+    return (b"1" if sidecar[:1] == b"0" else b"0") + sidecar[1:]
+
+
 def _rewrite(transform: Callable[[bytes], bytes]) -> Callable[[Path], None]:
     return lambda p: p.write_bytes(transform(p.read_bytes()))
 
@@ -80,7 +85,7 @@ DAMAGES: dict[str, Callable[[Path], None]] = {
     "replaced-with-garbage": _rewrite(lambda d: b"not a cache file\n" * 8),
     "number-tampered": _rewrite(_tamper),
     "sidecar-deleted": lambda p: integrity.sidecar(p).unlink(),
-    "sidecar-altered": lambda p: _rewrite(lambda d: b"0" + d[1:])(integrity.sidecar(p)),
+    "sidecar-altered": lambda p: _rewrite(_alter_first_digit)(integrity.sidecar(p)),
 }
 PHYSICS = ("mechanistic-npy", "calibrated-npy", "calibrated-json")
 """Kinds whose recomputation simulates the drive train (seconds each): one rerun per damage
