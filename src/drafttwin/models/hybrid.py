@@ -178,8 +178,14 @@ class _ResidualHybrid(_NeuralModel):
 
     def _fade(self, x: np.ndarray) -> np.ndarray:
         """Per window, the share of the correction kept: 1 inside the training range of every
-        scaled channel, falling linearly to 0 at FADE_WIDTH ranges outside it."""
-        beyond = np.fmax(x - 1.0, -x)
+        scaled channel, falling linearly to 0 at FADE_WIDTH ranges outside it. A channel that
+        was constant in training has no range to measure against (and taught the net nothing
+        about changes of it): it is left out."""
+        varying = np.concatenate([self.scalers_[k].max_ > self.scalers_[k].min_
+                                  for k in self._channels()])  # fmt: skip
+        if not varying.any():
+            return np.ones(len(x))
+        beyond = np.fmax(x[..., varying] - 1.0, -x[..., varying])
         excess = np.nanmax(np.where(np.isfinite(beyond), beyond, 0.0).reshape(len(x), -1), axis=1)
         return np.clip(1.0 - np.maximum(excess, 0.0) / FADE_WIDTH, 0.0, 1.0)
 

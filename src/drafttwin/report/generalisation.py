@@ -189,7 +189,7 @@ def structure_rows(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
         "model",
         "task",
         "chosen",
-        "validation scores (RMSE / persistence RMSE, mean over rollers)",
+        "validation scores (RMSE / physics RMSE, mean over rollers and both records)",
     ]
     rows = []
     for r in doc["structure_choice"]:
@@ -234,7 +234,7 @@ def report_html(doc: Mapping[str, Any]) -> str:
         f"{cfg['window']}, at most {cfg['epochs']} epochs. drafttwin "
         f"{html.escape(doc['drafttwin_version'])}, {doc['timings']['total_s']:.0f} s.</p>",
         f"<h2>Records</h2><ul>{records}</ul>",
-        "<h2>Hybrid structure chosen on the validation record</h2>",
+        "<h2>Hybrid structure chosen on the validation records</h2>",
         html_table(*structure_rows(doc)),
         "<h2>Checks</h2><ul>"
         + "".join(f"<li>{html.escape(s)}</li>" for s in check_lines(doc))

@@ -16,8 +16,9 @@ preset's VFD set-point for training; each scenario's test record is a separate r
 * ``little-data``: the training machine again at the preset's set-point (training records of
   10 ... 300 s are prefixes of the one training record).
 
-A separate validation record (steady at +15 % speed, never scored) chooses the hybrids'
-structure (:mod:`drafttwin.benchmarks.generalisation.run`).
+Two separate validation records, never scored, choose the hybrids' structure
+(:mod:`drafttwin.benchmarks.generalisation.run`): steady running at +15 % speed, and the
+plant's speed change run from +15 % (a transient at a set-point the scored records do not use).
 """
 
 from __future__ import annotations
@@ -81,8 +82,13 @@ TEST_RECORDS: dict[str, RecordSpec] = {
     )
 }
 TRAIN_RECORD = RecordSpec("train", record_seed=TRAIN_RECORD_SEED)
-VALIDATION_RECORD = RecordSpec("validation speed+15", speed_scale=1.15,
-                               record_seed=VALIDATION_RECORD_SEED)  # fmt: skip
+VALIDATION_RECORDS: dict[str, RecordSpec] = {
+    "validation": RecordSpec("validation: steady at +15 %", speed_scale=1.15,
+                             record_seed=VALIDATION_RECORD_SEED),
+    "validation-transient": RecordSpec("validation: speed change from +15 %",
+                                       plant_scenario="speed-change", speed_scale=1.15,
+                                       record_seed=VALIDATION_RECORD_SEED + 1),
+}  # fmt: skip
 
 
 def nominal_train(draft_gears: bool = False) -> DriveTrain:

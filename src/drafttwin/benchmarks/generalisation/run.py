@@ -155,12 +155,11 @@ comes from ``workers``."""
 def make_records(config: GeneralisationConfig, progress: Progress | None = None
                  ) -> dict[str, MeasurementSeries]:  # fmt: skip
     """The training, validation and test records (plant emulator runs)."""
-    specs = [(R.TRAIN_RECORD, config.train_s), (R.VALIDATION_RECORD, config.validation_s)]
-    specs += [(R.TEST_RECORDS[s], config.test_s) for s in config.scenarios]
+    specs = [("train", R.TRAIN_RECORD, config.train_s)]
+    specs += [(k, v, config.validation_s) for k, v in R.VALIDATION_RECORDS.items()]
+    specs += [(s, R.TEST_RECORDS[s], config.test_s) for s in config.scenarios]
     out = {}
-    for i, (spec, duration) in enumerate(specs):
-        key = "train" if spec is R.TRAIN_RECORD else (
-            "validation" if spec is R.VALIDATION_RECORD else spec.name)  # fmt: skip
+    for i, (key, spec, duration) in enumerate(specs):
         out[key] = R.make_record(spec, duration, config.rate_hz)
         if progress:
             progress("plant records", i + 1, len(specs))
@@ -233,32 +232,48 @@ def fit_configs(config: GeneralisationConfig, path: Path,
 
 def selection_configs(config: GeneralisationConfig, path: Path) -> list[dict[str, Any]]:
     """Item 2's choice: each hybrid in each task fitted (seed 0, full length) with each
-    structure, scored on the validation record without and with the fade."""
-    threads = TORCH_THREADS
-    return [{"task": task, "model": name, "train_s": config.train_s, "seed": 0,
-             "skip_rows": config.skip_rows, "_records": str(path), "_threads": threads,
-             "tests": [["validation", "nominal", "validation"]], "physics": "nominal",
-             "fade_variants": [False, True],
+    structure, scored on the validation records without and with the fade; the physics on
+    the same records is the yardstick."""
+    tests = [[k, "nominal", k] for k in R.VALIDATION_RECORDS]
+    base = {"train_s": config.train_s, "seed": 0, "skip_rows": config.skip_rows,
+            "_records": str(path), "_threads": TORCH_THREADS, "tests": tests,
+            "physics": "nominal"}  # fmt: skip
+    out = [
+        {
+            **base,
+            "task": task,
+            "model": "mechanistic",
+            "hyper": hyperparameters("mechanistic", task, config, 0),
+        }
+        for task in config.tasks
+    ]
+    out += [{**base, "task": task, "model": name, "fade_variants": [False, True],
              "hyper": hyperparameters(name, task, config, 0, {"structure": structure})}
             for task in config.tasks for name in HYBRIDS if name in config.models
             for structure in STRUCTURES]  # fmt: skip
+    return out
 
 
 def choose_structures(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
     """Per (hybrid, task), the structure and fade with the lowest validation score: the mean
-    over channels of RMSE over persistence's RMSE on the same rows. Candidates are tried
-    simplest first and a later one must be strictly better."""
+    over validation records and channels of the hybrid's RMSE over its physics' RMSE on the
+    same record (below 1: the hybrid improves on its physics). Candidates are tried simplest
+    first and a later one must be strictly better."""
     out: dict[tuple[str, str], dict[str, Any]] = {}
-    keys = sorted({(r["model"], r["task"]) for r in rows})
+    physics = {(r["task"], r["scenario"], r["channel"]): r["rmse"] for r in rows
+               if r["model"] == "mechanistic"}  # fmt: skip
+    keys = sorted({(r["model"], r["task"]) for r in rows if r["model"] != "mechanistic"})
     for model, task in keys:
         scores: list[dict[str, Any]] = []
         for structure in STRUCTURES:
             for fade in (False, True):
-                mine = [r for r in rows if (r["model"], r["task"], r["structure"], r["fade"])
-                        == (model, task, structure, fade)]  # fmt: skip
-                ratios = [r["rmse"] / r["rmse_persistence"] for r in mine
-                          if _finite(r["rmse"]) and _finite(r["rmse_persistence"])
-                          and r["rmse_persistence"] > 0]  # fmt: skip
+                mine = [r for r in rows if (r["model"], r["task"], r.get("structure"),
+                                            r.get("fade")) == (model, task, structure, fade)]  # fmt: skip
+                ratios = []
+                for r in mine:
+                    ref = physics.get((task, r["scenario"], r["channel"]))
+                    if ref is not None and _finite(r["rmse"]) and _finite(ref) and ref > 0:
+                        ratios.append(r["rmse"] / ref)
                 score = float(np.mean(ratios)) if len(ratios) == len(mine) and mine else np.inf
                 scores.append({"structure": structure, "fade": fade, "score": score})
         best = scores[0]
@@ -388,8 +403,7 @@ def _finite(x: Any) -> bool:
 
 
 def _describe(name: str, series: MeasurementSeries) -> dict[str, Any]:
-    spec = (R.TRAIN_RECORD if name == "train" else R.VALIDATION_RECORD if name == "validation"
-            else R.TEST_RECORDS[name])  # fmt: skip
+    spec = {"train": R.TRAIN_RECORD, **R.VALIDATION_RECORDS, **R.TEST_RECORDS}[name]
     return {"what": spec.describe(), "duration_s": series.duration_s, "rows": len(series),
             "mean_true_rpm": dict(zip(ROLLERS, np.nanmean(series.truth, axis=0).tolist(),
                                       strict=True)) if series.truth is not None else None}  # fmt: skip
