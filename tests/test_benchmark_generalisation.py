@@ -188,3 +188,15 @@ def test_bad_seeds_option_is_a_one_line_error() -> None:
     res = runner.invoke(app, ["benchmark", "generalisation", "--quick", "--seeds", "0"])
     assert res.exit_code == 2
     assert "Traceback" not in res.output
+
+
+def test_study_report_section_from_the_quick_run(quick_run) -> None:
+    from drafttwin.report.generalisation import physics_pays_section, study_summary
+
+    doc, _ = quick_run
+    summary = study_summary(doc)
+    assert "rows" not in summary  # the study keeps the summaries only
+    text = physics_pays_section({"generalisation": json.loads(json.dumps(summary))})
+    assert text.startswith('<section id="generalisation">')
+    assert all(s in text for s in R.SCENARIOS)
+    assert physics_pays_section({}) == ""

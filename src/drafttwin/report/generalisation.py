@@ -272,3 +272,44 @@ def write_outputs(doc: Mapping[str, Any], out_dir: str | Path) -> list[Path]:
     write_text_atomic(paths[0], report_html(doc))
     write_text_atomic(paths[1], dumps_strict(doc) + "\n")
     return paths
+
+
+def scenario_means(doc: Mapping[str, Any], task: str) -> tuple[list[str], list[list[str]]]:
+    """Per scenario, each model's RMSE averaged over the rollers (seed means), one task."""
+    groups: dict[tuple[str, str], list[float]] = {}
+    for r in doc["extrapolation"]:
+        if r["task"] == task and r["rmse"]["mean"] is not None:
+            groups.setdefault((r["scenario"], r["model"]), []).append(r["rmse"]["mean"])
+    models = [m for m in MODELS if any(k[1] == m for k in groups)]
+    rows = [[s, *(_num(sum(v) / len(v)) if (v := groups.get((s, m))) else "" for m in models)]
+            for s in SCENARIOS if any((s, m) in groups for m in models)]  # fmt: skip
+    return ["scenario", *(LABELS[m] for m in models)], rows
+
+
+def study_summary(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """What the study's results.json keeps of a benchmark run (the summaries, not the rows)."""
+    keys = ("config", "extrapolation", "checks", "structure_choice", "floors", "timings")
+    return {k: doc[k] for k in keys}
+
+
+def physics_pays_section(results: Mapping[str, Any]) -> str:
+    """The study report's "Where does the physics pay?" section (empty without results)."""
+    doc = results.get("generalisation")
+    if not doc:
+        return ""
+    cfg = doc["config"]
+    lines = "".join(f"<li>{html.escape(s)}</li>" for s in check_lines(doc))
+    return (
+        '<section id="generalisation"><h2>Where does the physics pay?</h2>'
+        "<p>The generalisation benchmark's quick subset (<code>drafttwin benchmark "
+        "generalisation --quick</code>): every learned model trained on "
+        f"{max(cfg['train_lengths_s']):g} s of steady running of one plant machine at one "
+        f"set-point (networks {cfg['layers']} x {cfg['hidden']}, {cfg['epochs']} epochs: a "
+        "smoke-test budget, far below the study's), then tested where its training never went. "
+        "Mean RMSE over the four rollers, rpm. The full benchmark's figures are in "
+        "docs/generalisation.md.</p>"
+        f"<h3>Free-run simulation</h3>{html_table(*scenario_means(doc, 'simulation'))}"
+        f"<h3>One-step prediction</h3>{html_table(*scenario_means(doc, 'prediction'))}"
+        f"<h3>Hybrid structure chosen on validation records</h3>{html_table(*structure_rows(doc))}"
+        f"<ul>{lines}</ul></section>"
+    )
