@@ -54,6 +54,17 @@ def headline(doc: dict[str, Any]) -> list[dict[str, Any]]:
     return out
 
 
+def run_label(cfg: dict[str, Any]) -> str:
+    """``full`` or ``quick`` when the run used that configuration; else what was changed."""
+    from dataclasses import asdict
+
+    from drafttwin.benchmarks.generalisation import FULL, QUICK
+
+    base = asdict(QUICK if cfg["name"] == "quick" else FULL)
+    changed = [k for k, v in base.items() if k != "workers" and json.dumps(v) != json.dumps(cfg[k])]
+    return cfg["name"] if not changed else f"reduced: {', '.join(changed)} changed"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("results", type=Path, help="generalisation_results.json")
@@ -62,7 +73,7 @@ def main() -> None:
     cfg = doc["config"]
     parts = [
         "<!-- written by benchmarks/bench_generalisation.py from the benchmark's JSON -->",
-        f"# Generalisation benchmark: measured figures ({cfg['name']} run)",
+        f"# Generalisation benchmark: measured figures ({run_label(cfg)})",
         f"{cfg['seeds']} seed(s), training lengths {cfg['train_lengths_s']} s, test records "
         f"{cfg['test_s']:g} s, network {cfg['layers']} x {cfg['hidden']}, window {cfg['window']}, "
         f"at most {cfg['epochs']} epochs (patience {cfg['patience']}), stride {cfg['stride']}, "

@@ -153,7 +153,8 @@ def generalisation(
     Tasks prediction (one step) and simulation (free run from the set-point with a short
     measured start); models mechanistic, persistence, gru, parallel, md-s-l. The hybrids'
     structure (absolute or relative to the physics' speed, correction faded outside the
-    training range or not) is chosen on a separate validation record (+15 % speed). Writes
+    training range or not) is chosen on two validation records at +15 % speed (steady, and a
+    speed change), against the physics. Writes
     OUT/generalisation_report.html and OUT/generalisation_results.json (docs/generalisation.md).
     """
     from drafttwin.benchmarks.generalisation import get_config, run_benchmark

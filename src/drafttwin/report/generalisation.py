@@ -39,6 +39,10 @@ LABELS = {
 TASKS = ("prediction", "simulation")
 
 
+def _color(model: str) -> str | None:
+    return "#e377c2" if model == "mechanistic (calibrated)" else COLORS.get(model)
+
+
 def _num(x: Any, digits: int = 3) -> str:
     if x is None or not isinstance(x, int | float) or not math.isfinite(x):
         return "n/a"
@@ -117,7 +121,7 @@ def learning_png(doc: Mapping[str, Any]) -> bytes:
                 pts = sorted((r["train_s"], r["rmse"]) for r in mine if r["model"] == model)
                 if not pts:
                     continue
-                color = COLORS.get(model.split(" ")[0])
+                color = _color(model)
                 if model in ("mechanistic", "persistence", "mechanistic (calibrated)"):
                     ax.axhline(pts[-1][1]["mean"], color=color, ls="--", lw=1, label=LABELS[model])
                     continue
@@ -153,7 +157,7 @@ def extrapolation_png(doc: Mapping[str, Any]) -> bytes:
             if vals:
                 xs.append(i + (k - len(models) / 2 + 0.5) * width)
                 ys.append(sum(vals) / len(vals))
-        ax.bar(xs, ys, width, color=COLORS.get(model.split(" ")[0]), label=LABELS[model])
+        ax.bar(xs, ys, width, color=_color(model), label=LABELS[model])
     ax.set_xticks(range(len(SCENARIOS)), SCENARIOS, rotation=20)
     ax.set_yscale("log")
     ax.set_ylabel("free-run RMSE, rpm (mean over rollers)")
