@@ -106,3 +106,83 @@ def emps(
         "one-step-ahead and not comparable with them."
     )
     console.print("wrote " + ", ".join(str(p) for p in paths))
+
+
+@benchmark_app.command("generalisation")
+def generalisation(
+    quick: Annotated[
+        bool,
+        typer.Option(
+            "--quick",
+            help="A small subset (short records, tiny networks, 1 seed, 2 training lengths) "
+            "that runs in about a minute: a smoke test, not the benchmark's figures.",
+        ),
+    ] = False,
+    seeds: Annotated[
+        int | None,
+        typer.Option(
+            help="Seeds per learned model (default: 3, quick 1).", callback=bounded("--seeds")
+        ),  # fmt: skip
+    ] = None,
+    workers: Annotated[
+        int, typer.Option(help="Parallel processes for the fits.", callback=bounded("--workers"))
+    ] = 1,
+    out: Annotated[Path, typer.Option(help="Output folder.", callback=output_dir("--out"))] = Path(
+        "generalisation_out"
+    ),
+    cache: Annotated[
+        bool,
+        typer.Option(
+            help="Keep the plant records and finished fits in OUT/cache and reuse "
+            "them on a rerun of the same configuration."
+        ),  # fmt: skip
+    ] = True,
+    as_json: Annotated[
+        bool,
+        typer.Option("--json", help='Print {"rows": [...], "floors": [...]} (strict JSON).'),
+    ] = False,
+    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+) -> None:
+    """Where does the physics pay? Models trained on steady running of one machine at one
+    set-point, tested where their training never went.
+
+    Scenarios: speed+10, speed-10, speed+25, speed-25 (other set-points), speed-change,
+    start-up, stop, draft-gears (other draft change gears: the physics gets the new gear set,
+    the learned models only the data), other-machine (another machine of the type; nominal and
+    calibrated physics), little-data (learning curves: 10, 30, 90, 300 s of training, 3 seeds).
+    Tasks prediction (one step) and simulation (free run from the set-point with a short
+    measured start); models mechanistic, persistence, gru, parallel, md-s-l. The hybrids'
+    structure (absolute or relative to the physics' speed, correction faded outside the
+    training range or not) is chosen on two validation records at +15 % speed (steady, and a
+    speed change), against the physics. Writes
+    OUT/generalisation_report.html and OUT/generalisation_results.json (docs/generalisation.md).
+    """
+    from drafttwin.benchmarks.generalisation import get_config, run_benchmark
+    from drafttwin.report.generalisation import check_lines, extrapolation_rows, write_outputs
+
+    changes: dict[str, int] = {"workers": workers}
+    if seeds is not None:
+        changes["seeds"] = seeds
+    config = get_config(quick, **changes)
+    config.check()
+    with progress_bar("plant records", 1, quiet=quiet or as_json) as bar:
+        task = bar.task_ids[0]
+
+        def report(stage: str, done: int, total: int) -> None:
+            bar.update(task, description=stage, completed=done, total=total)
+
+        doc = run_benchmark(config, report, cache_dir=(out / "cache") if cache else None)
+    paths = write_outputs(doc, out)
+    if as_json:
+        print_json(doc)
+        return
+    head, rows = extrapolation_rows(doc, "simulation")
+    table = Table(title=f"free-run RMSE, rpm ({config.name}, {config.seeds} seed(s))")
+    for col in head:
+        table.add_column(col, justify="left" if col in ("scenario", "roller") else "right")
+    for cells in rows:
+        table.add_row(*cells)
+    console.print(table)
+    for line in check_lines(doc):
+        console.print(line)
+    console.print("wrote " + ", ".join(str(p) for p in paths))

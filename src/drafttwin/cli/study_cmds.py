@@ -68,6 +68,21 @@ class _Display:
         return tick
 
 
+def _physics_pays(out: Path, display: _Display) -> dict:
+    """The generalisation benchmark's quick subset, summarised for the study report."""
+    from drafttwin.benchmarks.generalisation import get_config, run_benchmark
+    from drafttwin.report.generalisation import study_summary
+
+    task = display.progress.add_task("where the physics pays (quick benchmark)", total=1)
+
+    def tick(stage: str, done: int, total: int) -> None:
+        display.progress.update(task, description=f"where the physics pays: {stage}",
+                                completed=done, total=total)  # fmt: skip
+
+    doc = run_benchmark(get_config(True), tick, cache_dir=out / "cache" / "generalisation")
+    return study_summary(doc)
+
+
 def _resume_note(out: Path) -> str:
     return f"finished results are kept in {out}, rerun to resume"
 
@@ -108,6 +123,13 @@ def reproduce(
             callback=output_dir("--out"),
         ),
     ] = Path("drafttwin-study"),
+    generalisation: Annotated[
+        bool,
+        typer.Option(
+            help="Add the section 'Where does the physics pay?' from the generalisation "
+            "benchmark's quick subset (about 20 s of CPU; kept in OUT/cache/generalisation).",
+        ),
+    ] = True,
 ) -> None:
     """Run the paper's whole study and write a self-contained HTML report.
 
@@ -124,6 +146,8 @@ def reproduce(
     # one run at a time per --out; a signal stops the run cleanly and leaves it resumable
     with study_lock(out), stop_on_signals(_resume_note(out)), display.progress:
         results, predictions = study.run(series)
+        if generalisation:
+            results["generalisation"] = _physics_pays(out, display)
         files = write_study(out, results, predictions)
     console.print(
         f"study '{options.profile}' done in {time.perf_counter() - t0:.0f} s; report: "

@@ -13,6 +13,18 @@ so the windows hold the inputs and the simulated outputs instead: ``[yhat_m, dyh
 ``T-W+1 .. T``. The target is the residual's level ``e_m(T)`` or its per-sample change summed
 from the last measured residual; :mod:`drafttwin.models.accumulation` chooses between them on
 validation data unless ``accumulate`` is set.
+
+Structure outside the training range (``structure``, ``fade``): with ``structure="relative"``
+every speed-like channel the residual net sees or predicts (residuals, the physics' output and
+its changes, the data-driven model's changes) is divided by the physics' own speed (floored at
+:data:`LEVEL_FLOOR` of its typical training value, so a standstill does not divide by zero)
+and the inputs by their training mean: the net learns the residual as a fraction of the
+physics' speed, which is what carries over to another set-point or gear set. With
+``fade=True`` the correction is scaled down linearly as the net's scaled inputs leave the
+training range (to nothing at :data:`FADE_WIDTH` training ranges beyond it): outside what it
+was trained on, the hybrid falls back on its physics. Which of these to use is chosen on a
+validation record (``drafttwin benchmark generalisation``); the defaults keep the plain
+structure.
 """
 
 from __future__ import annotations
@@ -48,6 +60,13 @@ from drafttwin.models.windows import (
 )
 
 VARIANTS = ("md-s-l", "md-l", "md-s")
+STRUCTURES = ("absolute", "relative")
+"""How the residual net sees speeds: as they are, or relative to the physics' speed."""
+LEVEL_FLOOR = 0.05
+"""Relative structure: the physics' speed is floored at this share of its median training
+magnitude before dividing by it (start-up and stop pass through zero)."""
+FADE_WIDTH = 1.0
+"""Fade: the correction reaches zero this many training ranges outside the training range."""
 """MD-S-L (SKNet + LSTM), MD-L (no SKNet), MD-S (no LSTM)."""
 
 Groups = dict[str, np.ndarray]
@@ -59,6 +78,8 @@ class _ResidualHybrid(_NeuralModel):
 
     needs_mechanistic = True
     accumulate: bool | None
+    structure: str
+    fade: bool
 
     @property
     def use_sknet(self) -> bool:
@@ -109,6 +130,9 @@ class _ResidualHybrid(_NeuralModel):
         else:
             self._refuse_for_task("accumulate", "one-step prediction sees measured residuals")
         check_windows(self.task, window=self.window)
+        if self.structure not in STRUCTURES:
+            raise ConfigError(f"unknown structure {self.structure!r}",
+                              fix=f"use one of {', '.join(STRUCTURES)}")  # fmt: skip
 
     def _channels(self) -> tuple[str, ...]:
         """Window channel groups in order (the ``em`` group first in prediction mode)."""
@@ -119,21 +143,51 @@ class _ResidualHybrid(_NeuralModel):
         self, y: np.ndarray, mech: np.ndarray, data: np.ndarray | None, u: np.ndarray,
         starts: tuple[int, ...],
     ) -> Groups:  # fmt: skip
+        level = self._level(mech)  # 1 in the absolute structure
         if not self.task.simulation:
-            groups = self._groups(y, mech, data)
+            groups = {k: v / level for k, v in self._groups(y, mech, data).items()}
         else:
-            em = y - mech
+            em = (y - mech) / level
             dem = np.full_like(em, np.nan)
             dem[1:] = em[1:] - em[:-1]
             dem[[s for s in starts if 0 < s < len(em)]] = np.nan
-            groups = {"em": em, "dem": dem, "ym": mech, "dym": increments(mech, starts)}
+            groups = {"em": em, "dem": dem, "ym": mech / level,
+                      "dym": increments(mech, starts) / level}  # fmt: skip
             if data is not None:
-                groups["dyd"] = increments(data, starts)
+                groups["dyd"] = increments(data, starts) / level
                 if self._extra_group() is not None:
-                    groups["dis"] = data - mech
+                    groups["dis"] = (data - mech) / level
         if u.shape[1]:
-            groups["u"] = u
+            groups["u"] = u / self.input_ref_ if self.structure == "relative" else u
         return groups
+
+    def _level(self, mech: np.ndarray) -> np.ndarray | float:
+        """What speed-like channels are divided by: the physics' speed (relative structure)."""
+        if self.structure != "relative":
+            return 1.0
+        return np.maximum(np.abs(mech), self.level_floor_)
+
+    def _fit_structure(self, mech: np.ndarray, u: np.ndarray) -> None:
+        """The relative structure's references, from the training part."""
+        typical = np.nanmedian(np.abs(mech), axis=0)
+        self.level_floor_ = LEVEL_FLOOR * np.where(
+            np.isfinite(typical) & (typical > 0), typical, 1.0
+        )
+        ref = np.nanmean(np.abs(u), axis=0) if u.shape[1] else np.zeros(0)
+        self.input_ref_ = np.where(np.isfinite(ref) & (ref > 0), ref, 1.0)
+
+    def _fade(self, x: np.ndarray) -> np.ndarray:
+        """Per window, the share of the correction kept: 1 inside the training range of every
+        scaled channel, falling linearly to 0 at FADE_WIDTH ranges outside it. A channel that
+        was constant in training has no range to measure against (and taught the net nothing
+        about changes of it): it is left out."""
+        varying = np.concatenate([self.scalers_[k].max_ > self.scalers_[k].min_
+                                  for k in self._channels()])  # fmt: skip
+        if not varying.any():
+            return np.ones(len(x))
+        beyond = np.fmax(x[..., varying] - 1.0, -x[..., varying])
+        excess = np.nanmax(np.where(np.isfinite(beyond), beyond, 0.0).reshape(len(x), -1), axis=1)
+        return np.clip(1.0 - np.maximum(excess, 0.0) / FADE_WIDTH, 0.0, 1.0)
 
     def _new_net(self, n_out: int) -> ResidualNet:
         widths = {g: (len(self.task.inputs) if g == "u" else n_out) for g in self._channels()}
@@ -169,6 +223,7 @@ class _ResidualHybrid(_NeuralModel):
         assert mech is not None
         y, starts = series.values, series.record_starts
         u = input_matrix(series, self.task.inputs)
+        self._fit_structure(mech, u)
         data = self._fit_data(y, u, starts, progress)
         groups = self._all_groups(y, mech, data, u, starts)
         self.scalers_ = {k: fit_scaler(v, f"{k} channels") for k, v in groups.items()}
@@ -254,20 +309,22 @@ class _ResidualHybrid(_NeuralModel):
         accumulate = self.task.simulation and self.accumulate_
         key = "dem" if accumulate else "em"
         pred = np.full(y.shape, np.nan)
+        keep = np.ones(len(y))
         if ok.any():
             e = predict_network(self.net_, x[ok], extra=None if extra is None else extra[ok],
                                 device=self._device())  # fmt: skip
             pred[rows[ok]] = self.scalers_[key].inverse_transform(e)
-        if not self.task.simulation:
-            return mech + pred
-        init = self._init_rows()
-        anchors = causal_ffill(y - mech, starts)  # measured only in the init rows
-        for a, b in series.record_bounds():
-            if accumulate and b - a > init:
-                seg = np.arange(a + init, b)
-                pred[seg] = acc.accumulate_runs(pred[seg], seg, anchors, starts)
-            pred[a : min(b, a + init)] = np.nan
-        return mech + pred
+            if self.fade:
+                keep[rows[ok]] = self._fade(x[ok])
+        if self.task.simulation:
+            init = self._init_rows()
+            anchors = causal_ffill(groups["em"], starts)  # measured only in the init rows
+            for a, b in series.record_bounds():
+                if accumulate and b - a > init:
+                    seg = np.arange(a + init, b)
+                    pred[seg] = acc.accumulate_runs(pred[seg], seg, anchors, starts)
+                pred[a : min(b, a + init)] = np.nan
+        return mech + pred * self._level(mech) * keep[:, None]
 
     # --- persistence ------------------------------------------------------------------
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
@@ -277,6 +334,9 @@ class _ResidualHybrid(_NeuralModel):
         }
         if self.task.simulation:
             state["accumulate"] = bool(self.accumulate_)
+        if self.structure == "relative":
+            state["relative"] = {"level_floor": self.level_floor_.tolist(),
+                                 "input_ref": self.input_ref_.tolist()}  # fmt: skip
         return state, pack_module("net", self.net_)
 
     def _set_state(self, state: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
@@ -284,9 +344,24 @@ class _ResidualHybrid(_NeuralModel):
         self.history_ = History.from_dict(state["history"])
         if self.task.simulation:
             self.accumulate_ = bool(state["accumulate"])
+        if self.structure == "relative":
+            self.level_floor_, self.input_ref_ = _relative_state(state, len(self.channels_),
+                                                                 len(self.task.inputs))  # fmt: skip
         net = self._new_net(len(self.channels_))
         unpack_module("net", tensors, net)
         self.net_ = net
+
+
+def _relative_state(state: dict[str, Any], n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray]:
+    """The relative structure's references from a model file (checked: finite, positive,
+    one per channel / input)."""
+    rel = state["relative"]
+    floor = np.asarray(rel["level_floor"], dtype=np.float64)
+    ref = np.asarray(rel["input_ref"], dtype=np.float64)
+    for what, arr, n in (("level_floor", floor, n_out), ("input_ref", ref, n_in)):
+        if arr.shape != (n,) or not (np.isfinite(arr).all() and (arr > 0).all()):
+            raise ValueError(f"relative.{what} must hold {n} finite positive numbers")
+    return floor, ref
 
 
 def _finite(x: np.ndarray, target: np.ndarray, extra: np.ndarray | None) -> np.ndarray:
@@ -304,6 +379,10 @@ class ParallelHybrid(_ResidualHybrid):
             its level (False); ``None`` (default): both are trained and the one with the
             smaller free-run error on the validation part of the training data is kept
             (``selection_`` says which, with the scores). Must stay ``None`` in prediction.
+        structure: ``"absolute"`` (speeds as they are) or ``"relative"`` (residual and speeds
+            as fractions of the physics' speed, inputs over their training mean); see the
+            module docstring.
+        fade: scale the correction down outside the training range (back to the physics).
         task / training / seed / quiet: as :class:`~drafttwin.models.GRUModel`.
     """
 
@@ -315,6 +394,8 @@ class ParallelHybrid(_ResidualHybrid):
         dropout: float = 0.1,
         skip: bool | None = None,
         accumulate: bool | None = None,
+        structure: str = "absolute",
+        fade: bool = False,
         task: Task = Task(),
         training: Training = Training(),
         seed: int = 0,

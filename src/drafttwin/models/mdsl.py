@@ -43,7 +43,8 @@ class MDSL(_ResidualHybrid):
         use_disagreement: add ``yhat_d(T) - yhat_m(T)`` as an input (reported as ``+d``).
         window: residual window, samples. hidden / layers: LSTM residual-model size.
         sk_channels: SKNet width (a multiple of 3; the residual channels are lifted to it).
-        dropout / skip / accumulate: as :class:`~drafttwin.models.ParallelHybrid`.
+        dropout / skip / accumulate / structure / fade: as
+            :class:`~drafttwin.models.ParallelHybrid`.
         folds: contiguous blocks for cross-fitting the data-driven model.
         data_model: the data-driven model's settings, as an unfitted
             :class:`~drafttwin.models.GRUModel` or :class:`~drafttwin.models.LSTMModel`
@@ -70,6 +71,8 @@ class MDSL(_ResidualHybrid):
         dropout: float = 0.1,
         skip: bool | None = None,
         accumulate: bool | None = None,
+        structure: str = "absolute",
+        fade: bool = False,
         folds: int = 3,
         data_model: _RecurrentModel | None = None,
         task: Task = Task(),

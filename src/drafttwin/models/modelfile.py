@@ -324,7 +324,9 @@ def construct(path: Path, payload: Mapping[str, Any], klass: type, classes: Mapp
 
     stored = json_field(path, payload, "params_json")
     fall_back_to_cpu(path, stored)
-    check_keys(path, "params", stored, klass.param_names())  # type: ignore[attr-defined]
+    names = klass.param_names()  # type: ignore[attr-defined]
+    stored.update({k: v for k, v in P.ADDED_LATER.items() if k in names and k not in stored})
+    check_keys(path, "params", stored, names)
     invalid = P.first_invalid(stored)
     if invalid is not None:
         name, rule = invalid

@@ -50,12 +50,19 @@ CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "dropout": (_fraction, "in [0, 1)"),
     "skip": (_optional_bool, "None (the default for the task), True or False"),
     "accumulate": (_optional_bool, "None (chosen on validation data), True or False"),
+    "structure": (lambda v: v in ("absolute", "relative"), '"absolute" or "relative"'),
+    "fade": (lambda v: isinstance(v, bool), "True or False"),
     "quiet": (lambda v: isinstance(v, bool), "True or False"),
     "use_disagreement": (lambda v: isinstance(v, bool), "True or False"),
     "task": (lambda v: isinstance(v, Task), "a drafttwin.models.Task"),
     "training": (lambda v: isinstance(v, Training), "a drafttwin.models.Training"),
 }
 """Per-hyperparameter rule and its wording for the error message."""
+
+
+ADDED_LATER: dict[str, Any] = {"structure": "absolute", "fade": False}
+"""Hyperparameters added after model files were first written, with the value that keeps the
+older behaviour: a file without them is read with these."""
 
 
 def first_invalid(params: Mapping[str, Any]) -> tuple[str, str] | None:

@@ -47,6 +47,13 @@ def _speed_change(duration: float, f: float) -> tuple[list[float], list[float]]:
     return [0.0, t0, t0 + ramp, max(duration, t0 + ramp + 1)], [f, f, 0.85 * f, 0.85 * f]
 
 
+def _stop(duration: float, f: float) -> tuple[list[float], list[float]]:
+    t0 = 0.5 * duration
+    # the VFD ramps down over its deceleration time (taken equal to the acceleration time)
+    end = t0 + ACCEL_TIME_S
+    return [0.0, t0, end, max(duration, end + 1)], [f, f, 0.0, 0.0]
+
+
 SCENARIOS: dict[str, Scenario] = {
     s.name: s
     for s in (
@@ -62,6 +69,12 @@ SCENARIOS: dict[str, Scenario] = {
             "steady, then the delivery speed is lowered by 15 % at half time",
             False,
             _speed_change,
+        ),
+        Scenario(
+            "stop",
+            f"steady, then stopped at half time: VFD ramp set-point -> 0 in {ACCEL_TIME_S:g} s",
+            False,
+            _stop,
         ),
     )
 }

@@ -16,7 +16,8 @@ from drafttwin._io import atomic_path, write_text_atomic
 from drafttwin._json import dumps_strict
 from drafttwin.report import figures, paper, tables
 from drafttwin.report.comparison import comparison_section, figures_section
-from drafttwin.report.html import join, page, tag
+from drafttwin.report.generalisation import physics_pays_section
+from drafttwin.report.html import Raw, join, page, tag
 from drafttwin.report.overview import TITLE, header, run_section
 from drafttwin.report.physics import calibration_section
 from drafttwin.report.studies import ablation_section, agreement_section, grid_section
@@ -29,6 +30,7 @@ TOC = [
     ("ablation", "Ablation (Table 3)"),
     ("calibration", "Calibrated physics"),
     ("agreement", "Agreement with the paper"),
+    ("generalisation", "Where does the physics pay?"),
 ]
 CSV_FLOAT = "%.10g"
 
@@ -112,7 +114,14 @@ def render_html(results: Mapping[str, Any], predictions: pd.DataFrame) -> str:
     zoom = zoom_window(predictions["time"].to_numpy(dtype=np.float64))
     body = join(
         [
-            header(results, [t for t in TOC if t[0] != "calibration" or "calibration" in results]),
+            header(
+                results,
+                [
+                    t
+                    for t in TOC
+                    if t[0] not in ("calibration", "generalisation") or t[0] in results
+                ],
+            ),  # fmt: skip
             run_section(results),
             comparison_section(results, figs),
             figures_section(figs, plotted, zoom),
@@ -120,6 +129,7 @@ def render_html(results: Mapping[str, Any], predictions: pd.DataFrame) -> str:
             ablation_section(results, figs),
             calibration_section(results),
             agreement_section(results),
+            Raw(physics_pays_section(results)),
             tag(
                 "footer",
                 f"Written by drafttwin {results.get('drafttwin_version', '')} from the "

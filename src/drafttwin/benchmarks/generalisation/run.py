@@ -1,0 +1,409 @@
+"""``drafttwin benchmark generalisation``: where does the physics pay?
+
+Each learned model is trained on steady running of one machine at the preset's set-point and
+tested on plant records its training never saw (:mod:`.records`), in both tasks (one-step
+prediction; free-run simulation from the set-point with a short measured start). The
+physics is simulated per record from the set-point it follows (and the gear set the record
+was made with); the learned models see the set-point as an input and the data.
+
+:func:`run_benchmark` returns the JSON document: ``rows`` (one per scenario, task, model,
+training length, seed and channel), ``floors`` (:mod:`.floors`), and the summaries
+(:mod:`.summary`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drafttwin._constants import ROLLERS, __version__
+from drafttwin._io import sha256_file
+from drafttwin._json import dumps_strict
+from drafttwin.benchmarks.generalisation import records as R
+from drafttwin.benchmarks.generalisation.fits import (
+    INPUT,
+    floor_inputs,
+    load_records,
+    run_fit,
+    save_records,
+)
+from drafttwin.benchmarks.generalisation.floors import oracle_floor
+from drafttwin.benchmarks.generalisation.summary import summarise
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.errors import ConfigError
+from drafttwin.execution import integrity
+from drafttwin.execution.executor import run_tasks
+from drafttwin.execution.store import ResultStore
+from drafttwin.models.hybrid import STRUCTURES
+
+MODELS = ("mechanistic", "persistence", "gru", "parallel", "md-s-l")
+"""The CLI's model names; ``mechanistic`` is the physics alone."""
+LEARNED = ("gru", "parallel", "md-s-l")
+HYBRIDS = ("parallel", "md-s-l")
+TASKS = ("prediction", "simulation")
+CALIBRATED_SCENARIOS = ("other-machine",)
+"""Where the physics calibrated on the training record is scored beside the nominal one."""
+
+Progress = Callable[[str, int, int], None]
+"""``progress(stage, done, total)``."""
+
+
+@dataclass(frozen=True)
+class GeneralisationConfig:
+    """What :func:`run_benchmark` runs.
+
+    Attributes:
+        name: ``full`` or ``quick`` (a subset sized for the test suite).
+        seeds: seeds (0 .. seeds-1) per learned model and training length.
+        train_lengths_s: learning-curve training lengths (prefixes of the training record);
+            the longest also trains the models scored on every other scenario.
+        test_s / validation_s: length of each test record / of the validation record.
+        rate_hz: sample rate of every record.
+        window, hidden, layers, folds, epochs, patience, stride: network settings (the
+            data-driven and the residual models alike; MD-S-L's GRU has the GRU's size).
+        calibrate_s: seconds of the training record the physics is calibrated on.
+        calibrate_params: the parameters calibrated (``None``: calibration's default set).
+        workers: parallel processes for the fits.
+    """
+
+    name: str = "full"
+    seeds: int = 3
+    train_lengths_s: tuple[float, ...] = (10.0, 30.0, 90.0, 300.0)
+    test_s: float = 20.0
+    validation_s: float = 20.0
+    rate_hz: float = 100.0
+    window: int = 20
+    hidden: int = 32
+    layers: int = 1
+    folds: int = 3
+    epochs: int = 15
+    patience: int | None = 3
+    stride: int = 4
+    calibrate_s: float = 60.0
+    calibrate_params: tuple[str, ...] | None = None
+    workers: int = 1
+    models: tuple[str, ...] = MODELS
+    tasks: tuple[str, ...] = TASKS
+    scenarios: tuple[str, ...] = field(default=R.SCENARIOS)
+
+    @property
+    def train_s(self) -> float:
+        return max(self.train_lengths_s)
+
+    @property
+    def skip_rows(self) -> int:
+        """Rows at the start of each test record left unscored for every model: the free
+        run's measured start plus one window (so every model is scored on the same rows)."""
+        return 2 * self.window
+
+    def check(self) -> None:
+        """Refuse settings that cannot run (ConfigError naming the option)."""
+        if self.seeds < 1 or self.workers < 1:
+            raise ConfigError("seeds and workers must be >= 1", where="--seeds/--workers")
+        min_s = 4 * (self.folds + 1) * (2 * self.window + 1) / self.rate_hz
+        if min(self.train_lengths_s) < min_s:
+            raise ConfigError(f"training lengths must be at least {min_s:g} s",
+                              where="train_lengths_s", fix="use longer training records")  # fmt: skip
+
+
+QUICK = GeneralisationConfig(
+    name="quick", seeds=1, train_lengths_s=(3.0, 6.0), test_s=3.0, validation_s=3.0,
+    window=10, hidden=8, layers=1, folds=2, epochs=2, patience=None, stride=2, calibrate_s=3.0,
+    calibrate_params=("motor.rated_slip", "drafting_zone.main.force_n",
+                      "roller.front.friction_coefficient"),
+)  # fmt: skip
+FULL = GeneralisationConfig()
+
+
+def get_config(quick: bool, **changes: Any) -> GeneralisationConfig:
+    """The quick or full configuration with ``changes`` applied."""
+    return replace(QUICK if quick else FULL, **changes)
+
+
+def hyperparameters(name: str, task: str, config: GeneralisationConfig, seed: int,
+                    extra: dict[str, Any] | None = None) -> dict[str, Any]:  # fmt: skip
+    """Options of model ``name`` for :func:`~drafttwin.models.make_model` (profile quick,
+    overridden by the benchmark's network settings)."""
+    wanted: dict[str, Any] = {"task": task, "outputs": ROLLERS}
+    if task == "simulation":
+        wanted["init_samples"] = config.window
+    if name not in LEARNED:
+        return wanted
+    wanted |= {"inputs": (INPUT,), "window": config.window, "hidden": config.hidden,
+               "layers": config.layers, "seed": seed, "quiet": True, "device": "cpu",
+               "epochs": config.epochs, "patience": config.patience, "stride": config.stride}  # fmt: skip
+    if name == "md-s-l":
+        wanted |= {"data_window": config.window, "data_hidden": config.hidden,
+                   "data_layers": config.layers, "folds": config.folds}  # fmt: skip
+    return wanted | (extra or {})
+
+
+TORCH_THREADS = 1
+"""Threads per fit: these networks are small, so a second intra-op thread only spins (measured
+on 2 cores: a 1 x 8 GRU step costs 0.14 ms of CPU on one thread, 4 ms on two); parallelism
+comes from ``workers``."""
+
+
+def make_records(config: GeneralisationConfig, progress: Progress | None = None
+                 ) -> dict[str, MeasurementSeries]:  # fmt: skip
+    """The training, validation and test records (plant emulator runs)."""
+    specs = [("train", R.TRAIN_RECORD, config.train_s)]
+    specs += [(k, v, config.validation_s) for k, v in R.VALIDATION_RECORDS.items()]
+    specs += [(s, R.TEST_RECORDS[s], config.test_s) for s in config.scenarios]
+    out = {}
+    for i, (key, spec, duration) in enumerate(specs):
+        out[key] = R.make_record(spec, duration, config.rate_hz)
+        if progress:
+            progress("plant records", i + 1, len(specs))
+    return out
+
+
+def make_physics(config: GeneralisationConfig, records: dict[str, MeasurementSeries],
+                 progress: Progress | None = None) -> tuple[dict[str, dict[str, np.ndarray]], dict]:  # fmt: skip
+    """The nominal physics of every record (its gear set, its set-points) and the physics
+    calibrated on the first ``calibrate_s`` of the training record where it is scored."""
+    from drafttwin.calibration import calibrate
+    from drafttwin.mechanics import reduce
+    from drafttwin.models import MechanisticModel
+
+    physics: dict[str, dict[str, np.ndarray]] = {}
+    gears = {name: R.TEST_RECORDS[name].draft_gears if name in R.TEST_RECORDS else False
+             for name in records}  # fmt: skip
+    for i, (name, series) in enumerate(records.items()):
+        train = R.nominal_train(gears[name])
+        physics[name] = {"nominal": MechanisticModel.from_train(train).predict(series)}
+        if progress:
+            progress("physics", i + 1, len(records) + 1)
+    start = time.perf_counter()
+    calib_rows = int(round(config.calibrate_s * config.rate_hz))
+    result = calibrate(R.nominal_train(), records["train"].slice(0, calib_rows),
+                       config.calibrate_params, model=reduce, model_name="reduced")  # fmt: skip
+    calibrated = MechanisticModel.from_train(result.train)
+    for name in ("train", *(s for s in CALIBRATED_SCENARIOS if s in records)):
+        physics[name]["calibrated"] = calibrated.predict(records[name])
+    info = {"calibrated_on_s": config.calibrate_s, "wall_s": time.perf_counter() - start,
+            "rmse_before": result.rmse_before, "rmse_after": result.rmse_after,
+            "parameters": [e.name for e in result.estimates]}  # fmt: skip
+    if progress:
+        progress("physics", len(records) + 1, len(records) + 1)
+    return physics, info
+
+
+def fit_configs(config: GeneralisationConfig, path: Path,
+                structures: dict[tuple[str, str], dict[str, Any]] | None = None) -> list[dict[str, Any]]:  # fmt: skip
+    """One task per (task, model, training length, seed); the longest training length is
+    scored on every scenario, the shorter ones on the little-data test record only."""
+    structures = structures or {}
+    threads = TORCH_THREADS
+    others = [s for s in config.scenarios if s != "little-data"]
+    out = []
+    for task in config.tasks:
+        for name in config.models:
+            learned = name in LEARNED
+            lengths = config.train_lengths_s if learned else (config.train_s,)
+            for train_s in lengths:
+                for seed in range(config.seeds) if learned else [0]:
+                    tests: list[list[str]] = []
+                    if "little-data" in config.scenarios:
+                        tests.append(["little-data", "nominal", "little-data"])
+                    if train_s == config.train_s:
+                        tests += [[s, "nominal", s] for s in others]
+                    extra = structures.get((name, task))
+                    base = {"task": task, "model": name, "train_s": train_s, "seed": seed,
+                            "skip_rows": config.skip_rows, "_records": str(path),
+                            "_threads": threads, "tests": tests, "physics": "nominal",
+                            "hyper": hyperparameters(name, task, config, seed, extra)}  # fmt: skip
+                    out.append(base)
+                    if name == "mechanistic":
+                        cal = [[s, "calibrated", s] for s in CALIBRATED_SCENARIOS
+                               if s in config.scenarios]  # fmt: skip
+                        if cal:
+                            out.append({**base, "tests": cal, "physics": "calibrated"})
+    return out
+
+
+def selection_configs(config: GeneralisationConfig, path: Path) -> list[dict[str, Any]]:
+    """Item 2's choice: each hybrid in each task fitted (seed 0, full length) with each
+    structure, scored on the validation records without and with the fade; the physics on
+    the same records is the yardstick."""
+    tests = [[k, "nominal", k] for k in R.VALIDATION_RECORDS]
+    base = {"train_s": config.train_s, "seed": 0, "skip_rows": config.skip_rows,
+            "_records": str(path), "_threads": TORCH_THREADS, "tests": tests,
+            "physics": "nominal"}  # fmt: skip
+    out = [
+        {
+            **base,
+            "task": task,
+            "model": "mechanistic",
+            "hyper": hyperparameters("mechanistic", task, config, 0),
+        }
+        for task in config.tasks
+    ]
+    out += [{**base, "task": task, "model": name, "fade_variants": [False, True],
+             "hyper": hyperparameters(name, task, config, 0, {"structure": structure})}
+            for task in config.tasks for name in HYBRIDS if name in config.models
+            for structure in STRUCTURES]  # fmt: skip
+    return out
+
+
+def choose_structures(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
+    """Per (hybrid, task), the structure and fade with the lowest validation score: the mean
+    over validation records and channels of the hybrid's RMSE over its physics' RMSE on the
+    same record (below 1: the hybrid improves on its physics). Candidates are tried simplest
+    first and a later one must be strictly better."""
+    out: dict[tuple[str, str], dict[str, Any]] = {}
+    physics = {(r["task"], r["scenario"], r["channel"]): r["rmse"] for r in rows
+               if r["model"] == "mechanistic"}  # fmt: skip
+    keys = sorted({(r["model"], r["task"]) for r in rows if r["model"] != "mechanistic"})
+    for model, task in keys:
+        scores: list[dict[str, Any]] = []
+        for structure in STRUCTURES:
+            for fade in (False, True):
+                mine = [r for r in rows if (r["model"], r["task"], r.get("structure"),
+                                            r.get("fade")) == (model, task, structure, fade)]  # fmt: skip
+                ratios = []
+                for r in mine:
+                    ref = physics.get((task, r["scenario"], r["channel"]))
+                    if ref is not None and _finite(r["rmse"]) and _finite(ref) and ref > 0:
+                        ratios.append(r["rmse"] / ref)
+                score = float(np.mean(ratios)) if len(ratios) == len(mine) and mine else np.inf
+                scores.append({"structure": structure, "fade": fade, "score": score})
+        best = scores[0]
+        for cand in scores[1:]:
+            if cand["score"] < best["score"]:
+                best = cand
+        out[(model, task)] = {"structure": best["structure"], "fade": best["fade"],
+                              "scores": scores}  # fmt: skip
+    return out
+
+
+def floors(
+    config: GeneralisationConfig, path: Path, rows: list[dict[str, Any]]
+) -> list[dict[str, Any]]:
+    """Per channel: the oracle floor on the little-data test record (steady, the training
+    set-point) and the best one-step RMSE any run scored there (every seed counts)."""
+    if "little-data" not in config.scenarios or "prediction" not in config.tasks:
+        return []
+    measured, true = floor_inputs(path, "little-data", config.skip_rows)
+    values = oracle_floor(measured, true)
+    out = []
+    for j, channel in enumerate(ROLLERS):
+        runs = [r for r in rows if r["scenario"] == "little-data" and r["task"] == "prediction"
+                and r["channel"] == channel and _finite(r["rmse"])]  # fmt: skip
+        best = min(runs, key=lambda r: r["rmse"]) if runs else None
+        out.append({"channel": channel, "floor": float(values[j]),
+                    "best_model": None if best is None else best["model"],
+                    "best_rmse": None if best is None else float(best["rmse"]),
+                    "best_train_s": None if best is None else best["train_s"],
+                    "best_seed": None if best is None else best["seed"],
+                    "floor_kind": "oracle: true speed known, sensor error regressed on its "
+                    "10 previous values (first half of the record fits, second half scores)"})  # fmt: skip
+    return out
+
+
+def _records_key(config: GeneralisationConfig) -> str:
+    """What the records and physics depend on (a cached file is reused only for the same)."""
+    from drafttwin.mechanics.config import preset_path
+
+    keep = {k: v for k, v in asdict(config).items() if k in (
+        "train_lengths_s", "test_s", "validation_s", "rate_hz", "calibrate_s", "calibrate_params",
+        "scenarios")}  # fmt: skip
+    text = json.dumps(keep, sort_keys=True) + __version__ + str(R.DRAFT_GEARS)
+    digest = hashlib.sha256(text.encode() + preset_path("fa320a").read_bytes())
+    return digest.hexdigest()[:16]
+
+
+def prepare_records(config: GeneralisationConfig, folder: Path,
+                    progress: Progress | None = None) -> tuple[Path, dict[str, Any]]:  # fmt: skip
+    """The records and their physics in ``folder`` (reused when a checked file of the same
+    configuration is there), and what the benchmark reports about them."""
+    path = folder / f"records-{_records_key(config)}.npz"
+    about = folder / f"{path.stem}.json"
+    info = integrity.read_checked(about, lambda p: json.loads(p.read_text(encoding="utf-8")))
+    if info is not None and integrity.read_checked(path, load_records) is not None:
+        return path, info
+    records = make_records(config, progress)
+    physics, calibration = make_physics(config, records, progress)
+    save_records(path, records, physics, sealed=True)
+    info = {"records": {name: _describe(name, s) for name, s in records.items()},
+            "calibration": calibration}  # fmt: skip
+    integrity.write_text_sealed(about, dumps_strict(info))
+    return path, info
+
+
+def run_benchmark(config: GeneralisationConfig, progress: Progress | None = None,
+                  cache_dir: Path | None = None) -> dict[str, Any]:  # fmt: skip
+    """Run the benchmark; ``progress(stage, done, total)`` reports each step. With
+    ``cache_dir``, the records and every finished fit are kept there (checked when read
+    back), so a rerun of the same configuration reuses them."""
+    config.check()
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="drafttwin-gen-") as tmp:
+        folder = Path(cache_dir) if cache_dir is not None else Path(tmp)
+        folder.mkdir(parents=True, exist_ok=True)
+        path, info = prepare_records(config, folder, progress)
+        timings = {"records_and_physics_s": time.perf_counter() - t0}
+        store = ResultStore(folder / "fits") if cache_dir is not None else None
+        digest = sha256_file(path)
+        t1 = time.perf_counter()
+        selected = _fits(selection_configs(config, path), config, "structure choice", progress,
+                         store, digest)  # fmt: skip
+        chosen = choose_structures([row for r in selected for row in r["rows"]])
+        timings["structure_choice_s"] = time.perf_counter() - t1
+        t1 = time.perf_counter()
+        extra = {k: {"structure": v["structure"], "fade": v["fade"]} for k, v in chosen.items()}
+        results = _fits(fit_configs(config, path, extra), config, "model fits", progress,
+                        store, digest)  # fmt: skip
+        timings["fits_s"] = time.perf_counter() - t1
+        rows = [row for r in results for row in r["rows"]]
+        floor_rows = floors(config, path, rows)
+    timings["total_s"] = time.perf_counter() - t0
+    doc: dict[str, Any] = {
+        "rows": rows,
+        "floors": floor_rows,
+        "benchmark": "generalisation",
+        "drafttwin_version": __version__,
+        "config": asdict(config),
+        "records": info["records"],
+        "calibration": info["calibration"],
+        "structure_choice": [{"model": m, "task": t, **v} for (m, t), v in chosen.items()],
+        "fits": [
+            {k: r[k] for k in ("model", "task", "train_s", "seed", "fit_s", "selection")}
+            for r in results
+        ],  # fmt: skip
+        "timings": timings,
+    }
+    doc |= summarise(rows, config.train_s)
+    return doc
+
+
+def _fits(configs: list[dict[str, Any]], config: GeneralisationConfig, stage: str,
+          progress: Progress | None, store: ResultStore | None, digest: str) -> list[dict[str, Any]]:  # fmt: skip
+    count = [0]
+
+    def done(i: int, result: dict[str, Any], cached: bool) -> None:
+        count[0] += 1
+        if progress:
+            progress(stage, count[0], len(configs))
+
+    return run_tasks(run_fit, configs, workers=config.workers, on_result=done, store=store,
+                     data_digest=digest)  # fmt: skip
+
+
+def _finite(x: Any) -> bool:
+    return x is not None and bool(np.isfinite(x))
+
+
+def _describe(name: str, series: MeasurementSeries) -> dict[str, Any]:
+    spec = {"train": R.TRAIN_RECORD, **R.VALIDATION_RECORDS, **R.TEST_RECORDS}[name]
+    return {"what": spec.describe(), "duration_s": series.duration_s, "rows": len(series),
+            "mean_true_rpm": dict(zip(ROLLERS, np.nanmean(series.truth, axis=0).tolist(),
+                                      strict=True)) if series.truth is not None else None}  # fmt: skip

@@ -1,0 +1,319 @@
+"""The generalisation benchmark's report: text tables, the learning-curve and extrapolation
+figures and a self-contained HTML page.
+
+:func:`write_outputs` writes, atomically, ``generalisation_report.html`` (tables and PNG
+figures embedded as base64) and ``generalisation_results.json`` (everything
+:func:`drafttwin.benchmarks.generalisation.run_benchmark` measured) into the output folder.
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import io
+import math
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from drafttwin._constants import ROLLERS  # noqa: E402
+from drafttwin._io import write_text_atomic  # noqa: E402
+from drafttwin._json import dumps_strict  # noqa: E402
+from drafttwin.benchmarks.generalisation.records import SCENARIOS  # noqa: E402
+from drafttwin.report.figures import COLORS  # noqa: E402
+
+MODELS = ("mechanistic", "mechanistic (calibrated)", "persistence", "gru", "parallel", "md-s-l")
+LABELS = {
+    "mechanistic": "physics",
+    "mechanistic (calibrated)": "physics, calibrated",
+    "persistence": "persistence",
+    "gru": "GRU",
+    "parallel": "parallel hybrid",
+    "md-s-l": "MD-S-L",
+}
+TASKS = ("prediction", "simulation")
+
+
+def _color(model: str) -> str | None:
+    return "#e377c2" if model == "mechanistic (calibrated)" else COLORS.get(model)
+
+
+def _num(x: Any, digits: int = 3) -> str:
+    if x is None or not isinstance(x, int | float) or not math.isfinite(x):
+        return "n/a"
+    return f"{x:.{digits}g}" if abs(x) < 1e4 else f"{x:.3g}"
+
+
+def _cell(stats: Mapping[str, Any] | None) -> str:
+    if not stats or stats.get("mean") is None:
+        return ""
+    if stats.get("n", 1) > 1:
+        return f"{_num(stats['mean'])} ± {_num(stats['std'], 2)}"
+    return _num(stats["mean"])
+
+
+def extrapolation_rows(doc: Mapping[str, Any], task: str) -> tuple[list[str], list[list[str]]]:
+    """The extrapolation table of ``task``: one row per scenario and roller, RMSE (rpm, mean
+    ± std over seeds) per model at the full training length."""
+    table = {(r["scenario"], r["model"], r["channel"]): r["rmse"] for r in doc["extrapolation"]
+             if r["task"] == task}  # fmt: skip
+    models = [m for m in MODELS if any(k[1] == m for k in table)]
+    head = ["scenario", "roller", *(LABELS[m] for m in models)]
+    rows = []
+    for scenario in SCENARIOS:
+        for channel in ROLLERS:
+            if any((scenario, m, channel) in table for m in models):
+                rows.append([scenario, channel,
+                             *(_cell(table.get((scenario, m, channel))) for m in models)])  # fmt: skip
+    return head, rows
+
+
+def ratio_rows(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    """Hybrid RMSE / GRU RMSE (same seed) at the full training length, mean ± std."""
+    train_s = max(doc["config"]["train_lengths_s"])
+    table = {(r["scenario"], r["task"], r["model"], r["channel"]): r["ratio_to_gru"]
+             for r in doc["hybrid_vs_gru"] if r["train_s"] == train_s}  # fmt: skip
+    head = ["scenario", "task", "roller", "parallel / GRU", "MD-S-L / GRU"]
+    rows = []
+    for scenario in SCENARIOS:
+        for task in TASKS:
+            for channel in ROLLERS:
+                cells = [
+                    _cell(table.get((scenario, task, m, channel))) for m in ("parallel", "md-s-l")
+                ]
+                if any(cells):
+                    rows.append([scenario, task, channel, *cells])
+    return head, rows
+
+
+def learning_rows(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    """The learning curves as numbers: RMSE (mean ± std over seeds) per training length."""
+    lengths = sorted({r["train_s"] for r in doc["learning_curves"]})
+    head = ["task", "model", "roller", *(f"{n:g} s" for n in lengths)]
+    table = {(r["task"], r["model"], r["channel"], r["train_s"]): r["rmse"]
+             for r in doc["learning_curves"]}  # fmt: skip
+    rows = []
+    for task in TASKS:
+        for model in MODELS:
+            for channel in ROLLERS:
+                cells = [_cell(table.get((task, model, channel, n))) for n in lengths]
+                if any(cells):
+                    rows.append([task, LABELS[model], channel, *cells])
+    return head, rows
+
+
+def learning_png(doc: Mapping[str, Any]) -> bytes:
+    """RMSE against training length per task and roller (mean, bars: min-max over seeds);
+    the physics and persistence, which do not learn, as horizontal lines."""
+    curves = doc["learning_curves"]
+    fig, axes = plt.subplots(2, 4, figsize=(15, 7), squeeze=False)
+    for i, task in enumerate(TASKS):
+        for j, channel in enumerate(ROLLERS):
+            ax = axes[i][j]
+            mine = [r for r in curves if r["task"] == task and r["channel"] == channel
+                    and r["rmse"]["mean"] is not None]  # fmt: skip
+            for model in MODELS:
+                pts = sorted((r["train_s"], r["rmse"]) for r in mine if r["model"] == model)
+                if not pts:
+                    continue
+                color = _color(model)
+                if model in ("mechanistic", "persistence", "mechanistic (calibrated)"):
+                    ax.axhline(pts[-1][1]["mean"], color=color, ls="--", lw=1, label=LABELS[model])
+                    continue
+                x = [p[0] for p in pts]
+                y = [p[1]["mean"] for p in pts]
+                lo = [p[1]["mean"] - p[1]["min"] for p in pts]
+                hi = [p[1]["max"] - p[1]["mean"] for p in pts]
+                ax.errorbar(x, y, yerr=[lo, hi], marker="o", capsize=3, color=color,
+                            label=LABELS[model])  # fmt: skip
+            ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_title(f"{channel} roller, {task}", fontsize=10)
+            ax.grid(alpha=0.3, which="both")
+            if i == 1:
+                ax.set_xlabel("training length, s")
+            if j == 0:
+                ax.set_ylabel("test RMSE, rpm")
+    axes[0][0].legend(fontsize=8)
+    return _png(fig)
+
+
+def extrapolation_png(doc: Mapping[str, Any]) -> bytes:
+    """Free-run RMSE per scenario (mean over rollers of each seed's mean), per model."""
+    rows = [r for r in doc["extrapolation"] if r["task"] == "simulation"]
+    fig, ax = plt.subplots(figsize=(14, 4.5))
+    models = [m for m in MODELS if any(r["model"] == m for r in rows)]
+    width = 0.8 / max(1, len(models))
+    for k, model in enumerate(models):
+        xs, ys = [], []
+        for i, scenario in enumerate(SCENARIOS):
+            vals = [r["rmse"]["mean"] for r in rows if r["model"] == model
+                    and r["scenario"] == scenario and r["rmse"]["mean"] is not None]  # fmt: skip
+            if vals:
+                xs.append(i + (k - len(models) / 2 + 0.5) * width)
+                ys.append(sum(vals) / len(vals))
+        ax.bar(xs, ys, width, color=_color(model), label=LABELS[model])
+    ax.set_xticks(range(len(SCENARIOS)), SCENARIOS, rotation=20)
+    ax.set_yscale("log")
+    ax.set_ylabel("free-run RMSE, rpm (mean over rollers)")
+    ax.grid(alpha=0.3, axis="y", which="both")
+    ax.legend(fontsize=8, ncol=3)
+    return _png(fig)
+
+
+def _png(fig: Any) -> bytes:
+    buf = io.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=80)
+    plt.close(fig)
+    return buf.getvalue()
+
+
+def html_table(head: list[str], rows: list[list[str]]) -> str:
+    th = "".join(f"<th>{html.escape(h)}</th>" for h in head)
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>"
+                   for r in rows)  # fmt: skip
+    return f"<table><thead><tr>{th}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _img(png: bytes, alt: str) -> str:
+    data = base64.b64encode(png).decode("ascii")
+    return (
+        f'<img alt="{html.escape(alt)}" src="data:image/png;base64,{data}" style="max-width:100%">'
+    )
+
+
+def structure_rows(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    head = [
+        "model",
+        "task",
+        "chosen",
+        "validation scores (RMSE / physics RMSE, mean over rollers and both records)",
+    ]
+    rows = []
+    for r in doc["structure_choice"]:
+        scores = "; ".join(f"{s['structure']}{' + fade' if s['fade'] else ''} {_num(s['score'])}"
+                           for s in r["scores"])  # fmt: skip
+        rows.append([r["model"], r["task"], r["structure"] + (" + fade" if r["fade"] else ""),
+                     scores])  # fmt: skip
+    return head, rows
+
+
+def check_lines(doc: Mapping[str, Any]) -> list[str]:
+    """The issue's test, one line per scenario."""
+    out = []
+    for c in doc["checks"]:
+        failed = [ch for ch, v in c["channels"].items()
+                  if not (v["physics_beats_gru"] and v["a_hybrid_beats_gru"])]  # fmt: skip
+        verdict = "holds" if c["holds"] else f"does not hold on {', '.join(failed)}"
+        out.append(f"{c['scenario']}, free run: physics and a hybrid below the GRU on every "
+                   f"roller: {verdict}")  # fmt: skip
+    return out
+
+
+def floor_rows(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
+    head = ["roller", "floor, rpm", "best one-step RMSE, rpm", "best model", "below the floor?"]
+    rows = [[f["channel"], _num(f["floor"]), _num(f["best_rmse"]), str(f["best_model"]),
+             "YES (the floor is wrong)" if (f["best_rmse"] or math.inf) < f["floor"] else "no"]
+            for f in doc["floors"]]  # fmt: skip
+    return head, rows
+
+
+def report_html(doc: Mapping[str, Any]) -> str:
+    """The self-contained report page."""
+    cfg = doc["config"]
+    records = "".join(f"<li><b>{html.escape(k)}</b>: {html.escape(v['what'])}, "
+                      f"{v['duration_s']:.0f} s</li>" for k, v in doc["records"].items())  # fmt: skip
+    parts = [
+        f"<h1>Where does the physics pay? Generalisation benchmark ({html.escape(cfg['name'])})</h1>",
+        "<p>Every learned model is trained on steady running of one machine at the FA320A "
+        "preset's set-point and tested on plant records its training never saw. RMSE in rpm "
+        f"against the measured speeds, scored from row {2 * cfg['window']} of each record; "
+        f"{cfg['seeds']} seed(s); network {cfg['layers']} x {cfg['hidden']}, window "
+        f"{cfg['window']}, at most {cfg['epochs']} epochs. drafttwin "
+        f"{html.escape(doc['drafttwin_version'])}, {doc['timings']['total_s']:.0f} s.</p>",
+        f"<h2>Records</h2><ul>{records}</ul>",
+        "<h2>Hybrid structure chosen on the validation records</h2>",
+        html_table(*structure_rows(doc)),
+        "<h2>Checks</h2><ul>"
+        + "".join(f"<li>{html.escape(s)}</li>" for s in check_lines(doc))
+        + "</ul>",
+        "<h2>Free-run RMSE per scenario</h2>",
+        _img(extrapolation_png(doc), "extrapolation"),
+    ]
+    for task in TASKS:
+        parts += [
+            f"<h2>Extrapolation table: {task}</h2>",
+            html_table(*extrapolation_rows(doc, task)),
+        ]
+    parts += ["<h2>Hybrid / GRU (same seed)</h2>", html_table(*ratio_rows(doc)),
+              "<h2>Learning curves (little-data test record)</h2>",
+              _img(learning_png(doc), "learning curves"), html_table(*learning_rows(doc)),
+              "<h2>One-step floor</h2><p>Oracle floor: the true speed known, the encoder error "
+              "regressed on its previous 10 values; no predictor of the measured value can "
+              "do better. The best one-step RMSE of any run on the same record beside it.</p>",
+              html_table(*floor_rows(doc)),
+              "<p>Method and findings: docs/generalisation.md.</p>"]  # fmt: skip
+    return f"""<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>drafttwin generalisation benchmark</title>
+<style>body{{font-family:sans-serif;max-width:1200px;margin:2em auto;color:#222}}
+table{{border-collapse:collapse;margin-bottom:1em}}td,th{{border:1px solid #bbb;padding:3px 7px;
+text-align:right}}td:first-child,th:first-child{{text-align:left}}</style></head><body>
+{"".join(parts)}
+</body></html>
+"""
+
+
+def write_outputs(doc: Mapping[str, Any], out_dir: str | Path) -> list[Path]:
+    """Write the report and the results JSON; returns the paths."""
+    out = Path(out_dir)
+    paths = [out / "generalisation_report.html", out / "generalisation_results.json"]
+    write_text_atomic(paths[0], report_html(doc))
+    write_text_atomic(paths[1], dumps_strict(doc) + "\n")
+    return paths
+
+
+def scenario_means(doc: Mapping[str, Any], task: str) -> tuple[list[str], list[list[str]]]:
+    """Per scenario, each model's RMSE averaged over the rollers (seed means), one task."""
+    groups: dict[tuple[str, str], list[float]] = {}
+    for r in doc["extrapolation"]:
+        if r["task"] == task and r["rmse"]["mean"] is not None:
+            groups.setdefault((r["scenario"], r["model"]), []).append(r["rmse"]["mean"])
+    models = [m for m in MODELS if any(k[1] == m for k in groups)]
+    rows = [[s, *(_num(sum(v) / len(v)) if (v := groups.get((s, m))) else "" for m in models)]
+            for s in SCENARIOS if any((s, m) in groups for m in models)]  # fmt: skip
+    return ["scenario", *(LABELS[m] for m in models)], rows
+
+
+def study_summary(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """What the study's results.json keeps of a benchmark run (the summaries, not the rows)."""
+    keys = ("config", "extrapolation", "checks", "structure_choice", "floors", "timings")
+    return {k: doc[k] for k in keys}
+
+
+def physics_pays_section(results: Mapping[str, Any]) -> str:
+    """The study report's "Where does the physics pay?" section (empty without results)."""
+    doc = results.get("generalisation")
+    if not doc:
+        return ""
+    cfg = doc["config"]
+    lines = "".join(f"<li>{html.escape(s)}</li>" for s in check_lines(doc))
+    return (
+        '<section id="generalisation"><h2>Where does the physics pay?</h2>'
+        "<p>The generalisation benchmark's quick subset (<code>drafttwin benchmark "
+        "generalisation --quick</code>): every learned model trained on "
+        f"{max(cfg['train_lengths_s']):g} s of steady running of one plant machine at one "
+        f"set-point (networks {cfg['layers']} x {cfg['hidden']}, {cfg['epochs']} epochs: a "
+        "smoke-test budget, far below the study's), then tested where its training never went. "
+        "Mean RMSE over the four rollers, rpm. The full benchmark's figures are in "
+        "docs/generalisation.md.</p>"
+        f"<h3>Free-run simulation</h3>{html_table(*scenario_means(doc, 'simulation'))}"
+        f"<h3>One-step prediction</h3>{html_table(*scenario_means(doc, 'prediction'))}"
+        f"<h3>Hybrid structure chosen on validation records</h3>{html_table(*structure_rows(doc))}"
+        f"<ul>{lines}</ul></section>"
+    )
