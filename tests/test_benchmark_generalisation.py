@@ -13,7 +13,6 @@ from typer.testing import CliRunner
 
 from drafttwin._constants import ROLLERS
 from drafttwin.benchmarks.generalisation import records as R
-from drafttwin.benchmarks.generalisation.floors import oracle_floor
 from drafttwin.benchmarks.generalisation.run import MODELS, TASKS
 from drafttwin.cli import app
 from drafttwin.mechanics import kinematics
@@ -23,25 +22,6 @@ from drafttwin.models.hybrid import FADE_WIDTH
 from ._synthetic import TINY, make_series, mechanistic, one_thread
 
 runner = CliRunner()
-
-
-# ---- the floor ------------------------------------------------------------------------------
-def test_oracle_floor_of_white_noise_is_its_std() -> None:
-    rng = np.random.default_rng(0)
-    e = rng.normal(0.0, 0.3, (20000, 2))
-    floor = oracle_floor(e + 100.0, np.full_like(e, 100.0))
-    assert floor == pytest.approx([0.3, 0.3], rel=0.03)
-
-
-def test_oracle_floor_of_counting_error_matches_theory() -> None:
-    """e_t = q_t - q_{t-1} (window-boundary quantisation, q ~ U(0, 1)): the best linear
-    predictor from p = 10 lags leaves variance sigma_q^2 (p + 2) / (p + 1)."""
-    rng = np.random.default_rng(1)
-    q = rng.uniform(0.0, 1.0, 40001)
-    e = (q[1:] - q[:-1])[:, None]
-    floor = oracle_floor(e, np.zeros_like(e))[0]
-    assert floor == pytest.approx(math.sqrt(12 / 11 / 12), rel=0.03)
-    assert floor < float(np.std(e))  # part of the counting error is predictable
 
 
 # ---- the records ----------------------------------------------------------------------------
@@ -179,6 +159,7 @@ def test_quick_benchmark_values_are_finite_and_sane(quick_run) -> None:
     assert max(pers) < 10.0
     for f in doc["floors"]:
         assert 0 < f["floor"] < f["best_rmse"], f  # nothing scores below a floor
+        assert f["below_floor"] == [], f
     chosen = {(c["model"], c["task"]) for c in doc["structure_choice"]}
     assert chosen == {(m, t) for m in ("parallel", "md-s-l") for t in TASKS}
     assert {c["scenario"] for c in doc["checks"]} == {"draft-gears", "speed+25", "speed-25"}

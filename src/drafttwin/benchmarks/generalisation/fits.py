@@ -109,21 +109,10 @@ def _fit_and_score(cfg: dict[str, Any]) -> dict[str, Any]:
                     "train_s": cfg["train_s"], "seed": cfg["seed"], "channel": channel,
                     "rmse": json_number(m.rmse), "skill": json_number(m.skill),
                     "rmse_persistence": json_number(m.rmse_persistence),
-                    "rmse_vs_true": ev.rmse_vs_true.get(channel), "physics": test_kind,
+                    "rmse_vs_true": json_number(m.rmse_vs_true),
+                    "rmse_floor": json_number(m.rmse_floor), "physics": test_kind,
                     "n_scored": m.n_scored, "n_nan_pred": m.n_nan_pred, **structure,
                 })  # fmt: skip
     return {"rows": rows, "fit_s": fit_s, "selection": dict(model.selection_),
             "model": cfg["model"], "task": cfg["task"], "train_s": cfg["train_s"],
             "seed": cfg["seed"]}  # fmt: skip
-
-
-def floor_inputs(path: str | Path, record: str, skip_rows: int) -> tuple[np.ndarray, np.ndarray]:
-    """The scored measured values and true speeds of ``record`` as the benchmark scores them
-    (the protocol's target: measured, not an outlier; the first ``skip_rows`` left out)."""
-    from drafttwin.evaluation.protocol import cleaning_stats, test_split
-
-    records, _ = load_records(path)
-    series = records[record]
-    part = test_split(series, cleaning_stats(records["train"]))
-    assert series.truth is not None
-    return part.target[skip_rows:], series.truth[skip_rows:]

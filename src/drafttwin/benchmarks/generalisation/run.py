@@ -30,12 +30,10 @@ from drafttwin._json import dumps_strict
 from drafttwin.benchmarks.generalisation import records as R
 from drafttwin.benchmarks.generalisation.fits import (
     INPUT,
-    floor_inputs,
     load_records,
     run_fit,
     save_records,
 )
-from drafttwin.benchmarks.generalisation.floors import oracle_floor
 from drafttwin.benchmarks.generalisation.summary import summarise
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError
@@ -288,24 +286,28 @@ def choose_structures(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[
 def floors(
     config: GeneralisationConfig, path: Path, rows: list[dict[str, Any]]
 ) -> list[dict[str, Any]]:
-    """Per channel: the oracle floor on the little-data test record (steady, the training
-    set-point) and the best one-step RMSE any run scored there (every seed counts)."""
+    """Per channel: the best one-step RMSE any run scored on the little-data test record
+    (steady, the training set-point; every seed counts) and its floor, the project's one-step
+    floor oracle on that run's scored samples (:mod:`drafttwin.evaluation.limits`), with every
+    run that scored below its own floor (none, unless the floor is wrong)."""
     if "little-data" not in config.scenarios or "prediction" not in config.tasks:
         return []
-    measured, true = floor_inputs(path, "little-data", config.skip_rows)
-    values = oracle_floor(measured, true)
     out = []
-    for j, channel in enumerate(ROLLERS):
+    for channel in ROLLERS:
         runs = [r for r in rows if r["scenario"] == "little-data" and r["task"] == "prediction"
                 and r["channel"] == channel and _finite(r["rmse"])]  # fmt: skip
         best = min(runs, key=lambda r: r["rmse"]) if runs else None
-        out.append({"channel": channel, "floor": float(values[j]),
+        below = sorted({f"{r['model']}@{r['train_s']}s/seed{r['seed']}" for r in runs
+                        if _finite(r.get("rmse_floor")) and r["rmse"] < r["rmse_floor"]})  # fmt: skip
+        out.append({"channel": channel,
+                    "floor": None if best is None else best.get("rmse_floor"),
                     "best_model": None if best is None else best["model"],
                     "best_rmse": None if best is None else float(best["rmse"]),
                     "best_train_s": None if best is None else best["train_s"],
                     "best_seed": None if best is None else best["seed"],
-                    "floor_kind": "oracle: true speed known, sensor error regressed on its "
-                    "10 previous values (first half of the record fits, second half scores)"})  # fmt: skip
+                    "below_floor": below,
+                    "floor_kind": "one-step floor oracle (evaluation.limits): true speed and "
+                    "every earlier measurement known, on the best run's scored samples"})  # fmt: skip
     return out
 
 
