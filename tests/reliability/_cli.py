@@ -42,6 +42,14 @@ BASE: dict[str, list[str]] = {
     ],  # fmt: skip
     "diagnose": ["diagnose", "--model", "preset", "--data", "default", "--json"],
     "benchmark faults": ["benchmark", "faults", "--quick", "--quiet", "--out", "{tmp}/bf"],
+    "benchmark generalisation": [
+        "benchmark",
+        "generalisation",
+        "--quick",
+        "--quiet",
+        "--out",
+        "{tmp}/bg",
+    ],  # fmt: skip
     "fit": ["fit", "--model", "persistence", "--out", "{tmp}/fit.pt", "--quiet"],
     "predict": ["predict", "--model", "{model}", "--out", "{tmp}/pred.csv"],
     "evaluate": ["evaluate", "--model", "{model}", "--json"],
@@ -68,6 +76,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "generate-faults": ["--cases", "--seed", "--duration", "--rate"],
     "diagnose": ["--far-per-day"],
     "benchmark faults": ["--seed", "--workers", "--healthy-hours"],
+    "benchmark generalisation": ["--seeds", "--workers"],
     "fit": [
         "--init-samples",
         "--rate-tolerance",
