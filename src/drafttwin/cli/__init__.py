@@ -17,6 +17,7 @@ from drafttwin.cli import models_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import calibrate_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import study_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import benchmark_cmds  # noqa: E402,F401  isort: skip
+from drafttwin.cli import twin_cmds  # noqa: E402,F401  isort: skip
 
 
 def main() -> None:

@@ -70,6 +70,13 @@ BOUNDS: dict[str, Bound] = {
     "--block": Bound(0.001, 3600, "s", low_inclusive=True),
     "--workers": Bound(1, 1024, low_inclusive=True),
     "--max-samples": Bound(1, 1e9, "samples", low_inclusive=True),
+    "--commit-ms": Bound(1, 60_000, "ms", low_inclusive=True),
+    "--retention-hours": Bound(0, 1e6, "h"),
+    "--silent": Bound(0.05, 3600, "s", low_inclusive=True),
+    "--from": Bound(0, 1e11, "s", low_inclusive=True),
+    "--to": Bound(0, 1e11, "s", low_inclusive=True),
+    "--machines": Bound(1, 10_000, "machines", low_inclusive=True),
+    "--ramp": Bound(0, 1e4, "Hz/s"),
 }
 
 
