@@ -7,10 +7,12 @@ For each sample (in time order, see :class:`Reorder`):
    a spike becomes missing and the models hold the last value.
 2. **Physics**: the drive train (reduced by default) stepped one interval with the supply
    ramping from the last set-point sample to this one (:class:`~drafttwin.mechanics.stepper.LiveStepper`).
-3. **Twin**: the model's prediction for this sample, made one horizon earlier from earlier
-   samples only; then the sample is observed by the one incremental predictor
-   (:class:`~drafttwin.models.OnlinePredictor`) and the next forecast is made, its physics from
-   a look-ahead step with the set-point held (undone before the next real step).
+3. **Twin**: the model's prediction for this sample from earlier samples only and this
+   sample's physics (the set-point arrives with the sample, so the physics at its time is
+   known), through the one incremental predictor (:class:`~drafttwin.models.OnlinePredictor`);
+   then the sample is observed. Horizons above one need the physics ``h`` samples ahead before
+   their set-points arrive: a look-ahead step with the set-point held (undone before the next
+   real step) stands in for it.
 
 Missing samples between two received ones are observed as missing (NaN) so the predictor's
 history keeps its time grid; a gap longer than ``max_fill_s`` restarts physics and predictor.
@@ -243,10 +245,16 @@ class MachineTwin:
         self._physics[ts_us] = m
         if self._fresh:  # near standstill 10 % of the last value is nothing: floor it
             self.filter, self._fresh = SpikeFilter(len(self.channels), floor=0.5 * np.abs(m)), False
-        twin = self._forecast.pop(ts_us, np.full(len(self.channels), np.nan))
+        if self.horizon == 1:  # this sample's set-point is known now: exact physics at t
+            twin = self.predictor.forecast(ts_us / 1e6)
+        else:
+            twin = self._forecast.pop(ts_us, np.full(len(self.channels), np.nan))
         clean = self.filter(np.asarray(values, dtype=np.float64))
         self.predictor.observe(ts_us / 1e6, clean)
-        self._look_ahead(ts_us, setpoint)
+        if self.horizon > 1:
+            self._look_ahead(ts_us, setpoint)
+        else:
+            self._physics.pop(ts_us - self.period_us, None)
         self.n_rows += 1
         y = np.asarray(values, dtype=np.float64)
         return SampleRow(self.name, ts_us, seq, setpoint, y, m, twin, y - twin)
