@@ -165,6 +165,9 @@ def twin_run(
     start = time.monotonic()
     try:
         asyncio.run(_serve(service, bind, token, duration, max_samples))
+    except OSError as exc:
+        raise ConfigError(f"cannot serve the page on {http} ({exc.strerror or exc})",
+                          where="--http", fix="choose a free port") from None  # fmt: skip
     except KeyboardInterrupt:
         err_console.print("interrupted: committing what was received")
     finally:
@@ -185,7 +188,10 @@ async def _serve(service, bind, token, duration, max_samples) -> None:  # noqa: 
         return
     from drafttwin.twin.web import serve_with
 
-    await serve_with(service, bind, token, duration, max_samples)
+    def started(_: object) -> None:
+        err_console.print(f"page on http://{bind[0]}:{bind[1]}/")
+
+    await serve_with(service, bind, token, duration, max_samples, started)
 
 
 def _print_status(status: dict) -> None:
@@ -329,10 +335,10 @@ def plant_serve(
         from drafttwin.twin.plantserver import parse_opcua_url, serve_opcua
 
         parse_opcua_url(opcua)
-        where = f"OPC UA {opcua}, nodes ns=2;s=NAME.sample"
 
         def ready() -> None:
-            err_console.print(f"serving {', '.join(names)} on {where} (Ctrl-C stops)")
+            err_console.print(f"serving {', '.join(names)} on OPC UA {opcua}, nodes "
+                              "ns=2;s=NAME.sample (Ctrl-C stops)")  # fmt: skip
 
         try:
             counts = asyncio.run(serve_opcua(opcua, names, ready=ready, **opts))
@@ -342,10 +348,19 @@ def plant_serve(
             raise ConfigError(f"cannot serve on {opcua} ({exc.strerror or exc})", where="--opcua",
                               fix="choose a free port") from None  # fmt: skip
     else:
-        from drafttwin.twin.mqtt import serve_mqtt
+        from drafttwin.twin.mqtt import parse_hostport, serve_mqtt
+
+        parse_hostport(str(mqtt), "--mqtt")
+
+        def said(where: str) -> None:
+            err_console.print(f"serving {', '.join(names)} on {where}, topics "
+                              "drafttwin/NAME/sample (Ctrl-C stops)")  # fmt: skip
 
         try:
-            counts = asyncio.run(serve_mqtt(str(mqtt), names, **opts))
+            counts = asyncio.run(serve_mqtt(str(mqtt), names, ready=said, **opts))
         except KeyboardInterrupt:
             return
+        except OSError as exc:
+            raise ConfigError(f"cannot reach or start a broker at {mqtt} ({exc.strerror or exc})",
+                              where="--mqtt", fix="choose a free port or a running broker") from None  # fmt: skip
     console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in counts.items()))

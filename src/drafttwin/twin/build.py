@@ -63,8 +63,7 @@ def build_service(
             if path not in models:
                 models[path] = load_twin_model(path)
             model = models[path]
-            if tuple(model.channels_) != m.channels:
-                m = replace(m, channels=tuple(model.channels_))
+            m = replace(m, channels=tuple(model.channels_), model=path)
             twin = MachineTwin(name, model, m.rate_hz, physics=physics)
             twin.warm_up()
             st = MachineState(twin, m, spec)

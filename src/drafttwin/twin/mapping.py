@@ -87,6 +87,7 @@ class MachineMap:
             values = [get(c) for c in self.channels]
         except (KeyError, IndexError, TypeError):
             return None
+        values = [math.nan if v is None else v for v in values]  # null: a dropped measurement
         if not all(_is_number(v) for v in (seq, t, sp, *values)):
             return None
         seq_f, t_f, sp_f = float(seq), float(t), float(sp)

@@ -59,6 +59,7 @@ class TwinService:
         self.rows = 0
         self.subscribers: list[Callable[[str, list[SampleRow], list[EventRow]], None]] = []
         self.metrics: Any = None  # drafttwin.twin.web.Metrics when the page runs
+        self.event_hooks: list[Callable[[EventRow], None]] = []
         self.started = time.monotonic()
         self._stop = asyncio.Event()
 
@@ -82,6 +83,9 @@ class TwinService:
         for ev in events:
             self._event(st, ev)
         if not rows:
+            if events:
+                for push in self.subscribers:
+                    push(st.twin.name, [], events)
             return
         for row in rows:
             st.recent.append(row)
@@ -113,6 +117,8 @@ class TwinService:
 
     def _event(self, st: MachineState, ev: EventRow) -> None:
         st.alarms.append(ev)
+        for hook in self.event_hooks:
+            hook(ev)
         if self.writer is not None:
             self.writer.put(ev)
 
