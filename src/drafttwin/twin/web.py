@@ -22,6 +22,8 @@ import time
 from importlib import resources
 from typing import Any
 
+from fastapi import WebSocket  # at module level: FastAPI resolves the handler's annotation here
+
 from drafttwin._json import to_strict
 from drafttwin.twin.service import TwinService
 from drafttwin.twin.store import EventRow, SampleRow
@@ -117,7 +119,7 @@ def _given(headers: Any, query: Any, cookies: Any) -> str | None:
 
 def create_app(service: TwinService, token: str | None = None) -> Any:
     """The FastAPI app of ``service`` (a token, if given, guards every route)."""
-    from fastapi import FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect
+    from fastapi import FastAPI, HTTPException, Request, WebSocketDisconnect
     from fastapi.responses import HTMLResponse, Response
     from starlette.middleware.base import BaseHTTPMiddleware
 

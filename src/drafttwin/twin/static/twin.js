@@ -15,7 +15,9 @@ function el(tag, attrs, text) {
 function fmt(x, d) { return x === null || x === undefined ? "–" : Number(x).toFixed(d); }
 
 async function api(path) {
-  const r = await fetch(path + q);
+  const url = new URL(path, location.href);
+  if (token) url.searchParams.set("token", token);
+  const r = await fetch(url);
   if (!r.ok) throw new Error(path + ": " + r.status);
   return r.json();
 }

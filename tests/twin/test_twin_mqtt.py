@@ -1,0 +1,100 @@
+"""A live machine over MQTT: 'plant serve --mqtt' starts the embedded amqtt broker and
+publishes; the twin subscribes; a set-point published on the machine's topic changes the
+plant and the twin follows. Hostile payloads on the same topic are counted and dropped."""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from drafttwin.twin.build import build_service
+
+from ._twin import cli, env, free_port
+
+pytestmark = pytest.mark.timeout(150)
+
+HOSTILE = [
+    b"not json",
+    b"[1, 2, 3]",
+    b'{"seq": "1", "time": 1.0, "front": 1, "second": 1, "third": 1, "back": 1, "supply_hz": 48}',
+    b'{"seq": 1, "time": NaN, "front": 1, "second": 1, "third": 1, "back": 1, "supply_hz": 48}',
+    b'{"seq": 1, "time": 1e300, "front": 1, "second": 1, "third": 1, "back": 1, "supply_hz": 48}',
+    b'{"seq": 1, "time": 2.0, "front": 1e30, "second": 1, "third": 1, "back": 1, "supply_hz": 48}',
+    b'{"seq": 1, "time": 2.0, "front": true, "second": 1, "third": 1, "back": 1, "supply_hz": 48}',
+    b'{"seq": 1}',
+    b"[" * 100_000 + b"]" * 100_000,  # deep nesting, and over the size limit
+    b'{"a": "' + b"x" * 1_000_000 + b'"}',  # 1 MB
+]
+
+
+def _publish(port: int, topic: str, payloads: list[bytes]) -> None:
+    import paho.mqtt.client as mqtt
+
+    client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+    client.connect("127.0.0.1", port, 30)
+    client.loop_start()
+    for p in payloads:
+        client.publish(topic, p, qos=1).wait_for_publish(10)
+    client.loop_stop()
+    client.disconnect()
+
+
+def test_mqtt_machine_setpoint_and_hostile_payloads(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    port = free_port()
+    proc = subprocess.Popen(cli("plant", "serve", "--mqtt", f"127.0.0.1:{port}", "--duration",
+                                "60", "--ramp", "50"), env=env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert proc.stderr is not None
+        line = proc.stderr.readline()
+        assert "serving fa320a on MQTT" in line, line + proc.stderr.read()
+        _, model = twin_files
+        service = build_service(model, [f"mqtt://127.0.0.1:{port}"], commit_ms=100)
+        seen: list[tuple[float, object]] = []
+        service.subscribers.append(
+            lambda name, rows, ev: seen.extend((time.monotonic(), r) for r in rows)
+        )
+        marks: dict[str, float] = {}
+
+        async def drive() -> None:
+            while len(seen) < 150:
+                await asyncio.sleep(0.05)
+            await asyncio.to_thread(_publish, port, "drafttwin/fa320a/sample", HOSTILE * 20)
+            marks["before"] = len(seen)
+            marks["written"] = time.monotonic()
+            await asyncio.to_thread(_publish, port, "drafttwin/fa320a/setpoint", [b"40.0"])
+            await asyncio.sleep(2.5)
+            service.stop()
+
+        async def main() -> None:
+            await asyncio.gather(service.run(duration_s=90), drive())
+
+        asyncio.run(main())
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    rows = [r for _, r in seen]
+    times = np.array([t for t, _ in seen])
+    setpoint = np.array([r.setpoint for r in rows])
+    front = np.array([r.measured[0] for r in rows])
+    twin = np.array([r.twin[0] for r in rows])
+    reached = np.flatnonzero(setpoint == 40.0)
+    assert reached.size, "the twin never saw the new set-point"
+    assert times[reached[0]] - marks["written"] < 1.0
+    before = slice(marks["before"] - 100, marks["before"])
+    after = slice(reached[0] + 50, reached[0] + 100)
+    assert np.nanmean(front[after]) / np.nanmean(front[before]) == pytest.approx(
+        40 / 48.47, rel=0.01
+    )
+    assert np.nanmean(twin[after]) == pytest.approx(np.nanmean(front[after]), rel=0.01)
+    status = service.status()["machines"]["fa320a"]
+    assert status["dropped"] == len(HOSTILE) * 20  # every hostile payload counted, none used
+    seq = np.array([r.seq for r in rows if r.seq >= 0])
+    assert (np.diff(seq) == 1).all()  # the machine's own samples all arrived, in order
