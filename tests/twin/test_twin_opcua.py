@@ -40,6 +40,11 @@ async def _write_setpoint(url: str, hz: float) -> None:
         await client.get_node("ns=2;s=fa320a.supply_setpoint_hz").write_value(hz)
 
 
+async def _write(url: str, hz: float) -> None:
+    """Write from another thread with its own client loop, as an operator's tool would."""
+    await asyncio.wait_for(asyncio.to_thread(asyncio.run, _write_setpoint(url, hz)), 30)
+
+
 def test_the_twin_follows_a_new_setpoint_within_a_second(
     served: tuple[str, subprocess.Popen[str]], twin_files: tuple[Path, Path], tmp_path: Path
 ) -> None:
@@ -53,12 +58,17 @@ def test_the_twin_follows_a_new_setpoint_within_a_second(
     marks: dict[str, float] = {}
 
     async def drive() -> None:
+        start = time.monotonic()
         while len(seen) < 150:  # 1.5 s of live samples first
+            assert time.monotonic() - start < 60, "no live samples from the OPC UA server"
             await asyncio.sleep(0.05)
         marks["before"] = len(seen)
         marks["written"] = time.monotonic()
-        await _write_setpoint(url, 40.0)
-        await asyncio.sleep(2.5)
+        await _write(url, 40.0)
+        await asyncio.sleep(1.5)
+        for hostile in (float("nan"), -5.0, 500.0):  # refused by the plant, set back
+            await _write(url, hostile)
+        await asyncio.sleep(1.0)
         service.stop()
 
     async def main() -> None:
@@ -86,6 +96,8 @@ def test_the_twin_follows_a_new_setpoint_within_a_second(
     )
     assert np.nanmean(twin[after]) == pytest.approx(np.nanmean(front[after]), rel=0.01)
     assert np.nanmean(physics[after]) == pytest.approx(np.nanmean(front[after]), rel=0.02)
+    # the hostile set-points were refused: the plant kept running at 40 Hz
+    assert (setpoint[reached[0] :] == 40.0).all()
     # every sample of the machine arrived once and in order
     seq = np.array([r.seq for r in rows if r.seq >= 0])
     assert (np.diff(seq) == 1).all()

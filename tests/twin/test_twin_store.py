@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import signal
 import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -128,3 +129,23 @@ def test_kill_9_loses_nothing_committed_and_a_restart_duplicates_nothing(
     np.testing.assert_array_equal(np.round(final["time"].to_numpy() * 1e6).astype(np.int64),
                                   plant["ts_us"].to_numpy())  # fmt: skip
     np.testing.assert_array_equal(final["front"].to_numpy(), plant["front"].to_numpy())
+
+
+def test_query_while_a_twin_holds_the_store_says_so(tmp_path: Path) -> None:
+    store = TwinStore(tmp_path)
+    store.register_machine("m1", CHANNELS, "x", "test")
+    store.close()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys, duckdb; con = duckdb.connect(sys.argv[1]); "
+         "print('open', flush=True); sys.stdin.read()", str(store_path(tmp_path))],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "open"
+        res = run_cli("twin", "query", "--store", str(tmp_path), timeout=60)
+    finally:
+        holder.kill()
+        holder.wait(timeout=30)
+    assert res.returncode == 2
+    assert "the store is in use by a running twin" in res.stderr
+    assert "Traceback" not in res.stderr

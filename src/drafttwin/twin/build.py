@@ -7,8 +7,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from drafttwin.errors import ConfigError
+from drafttwin.mechanics import DriveTrain
 from drafttwin.models.base import BaseModel
-from drafttwin.twin.live import MachineTwin
+from drafttwin.twin.live import MachineTwin, physics_train
 from drafttwin.twin.mapping import MachineMap, read_mapping
 from drafttwin.twin.service import MachineState, TwinService
 from drafttwin.twin.sources import ReplaySource, Source, parse_source
@@ -57,6 +58,7 @@ def build_service(
             maps[m.name] = (m, src.spec)
     store = None if store_dir is None else TwinStore(store_dir)
     states: dict[str, MachineState] = {}
+    trains: dict[Path, DriveTrain] = {}
     try:
         for name, (m, spec) in maps.items():
             path = m.model or model_path
@@ -64,7 +66,9 @@ def build_service(
                 models[path] = load_twin_model(path)
             model = models[path]
             m = replace(m, channels=tuple(model.channels_), model=path)
-            twin = MachineTwin(name, model, m.rate_hz, physics=physics)
+            if path not in trains:
+                trains[path] = physics_train(model, physics)
+            twin = MachineTwin(name, model, m.rate_hz, physics=physics, train=trains[path])
             twin.warm_up()
             st = MachineState(twin, m, spec)
             if store is not None:

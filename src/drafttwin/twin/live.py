@@ -116,7 +116,7 @@ class Reorder:
         return row
 
 
-def _physics_train(model: BaseModel, physics: str) -> DriveTrain:
+def physics_train(model: BaseModel, physics: str) -> DriveTrain:
     """The drive train the model's mechanistic source names (a preset or a stored train)."""
     spec = getattr(model, "mechanistic_spec_", None) or {"kind": "preset", "name": "fa320a"}
     if spec.get("kind") == "preset":
@@ -137,20 +137,23 @@ class MachineTwin:
     Args:
         name: the machine's name.
         model: a fitted model (task ``prediction``, no exogenous inputs).
+        train: the drive train to step (default: :func:`physics_train` of the model).
         rate_hz: the machine's sample rate, Hz.
         physics: ``reduced`` (default, fast) or ``full``.
         max_fill_s: longest gap observed as missing samples; a longer one restarts.
     """
 
     def __init__(self, name: str, model: BaseModel, rate_hz: float, *,
-                 physics: str = "reduced", max_fill_s: float = 2.0) -> None:  # fmt: skip
+                 physics: str = "reduced", max_fill_s: float = 2.0,
+                 train: DriveTrain | None = None) -> None:  # fmt: skip
         if physics not in ("reduced", "full"):
             raise ConfigError(f"physics {physics!r}", fix="use reduced or full")
         self.name, self.model, self.rate_hz = name, model, float(rate_hz)
         self.channels: tuple[str, ...] = tuple(model.channels_)
         self.period_us = int(round(1e6 / self.rate_hz))
         self.max_fill = int(max_fill_s * self.rate_hz)
-        self.train = _physics_train(model, physics)
+        # machines sharing a model share its (immutable) train: reducing it takes a while
+        self.train = train if train is not None else physics_train(model, physics)
         maps = {m.channel: m for m in self.train.output_channels()}
         missing = [c for c in self.channels if c not in maps]
         if missing:
@@ -275,4 +278,4 @@ class MachineTwin:
             del self._physics[old]
 
 
-__all__ = ["MachineTwin", "Reorder", "SpikeFilter"]
+__all__ = ["MachineTwin", "Reorder", "SpikeFilter", "physics_train"]

@@ -207,8 +207,8 @@ async def _publish(client: Any, plants: dict, pending: dict[str, float], rate_hz
     while k < end:
         k += 1
         delay = start + k / rate_hz - time.monotonic()
-        if delay > 0:
-            await asyncio.sleep(delay)
+        # always yield: a loop behind schedule must still let the others run
+        await asyncio.sleep(max(delay, 0.0))
         for name, plant in plants.items():
             if name in pending:
                 with contextlib.suppress(ConfigError):

@@ -120,8 +120,8 @@ async def _tick(machines: list[ServedMachine], rate_hz: float, t0: float, durati
     while k < end:
         k += 1
         delay = start + k / rate_hz - time.monotonic()
-        if delay > 0:
-            await asyncio.sleep(delay)
+        # always yield: a loop behind schedule must still let the others run
+        await asyncio.sleep(max(delay, 0.0))
         for m in machines:
             await _apply_setpoint(m)
             s = m.plant.step()

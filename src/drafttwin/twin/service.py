@@ -10,7 +10,6 @@ released; the others run on.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
 import time
 from collections import deque
@@ -155,9 +154,8 @@ class TwinService:
             self._stop.set()
             for t in [*tasks, watch]:
                 t.cancel()
-            for t in [*tasks, watch]:
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await t
+            # a client library stuck in its own clean-up must not hold the twin's shutdown
+            await asyncio.wait([*tasks, watch], timeout=5.0)
             for st in self.states.values():
                 self._out(st, st.twin.flush(), None)
 

@@ -101,8 +101,8 @@ class ReplaySource(Source):
             if math.isfinite(self.speed):
                 due = start_wall + (self.ts_us[i] - t0) / 1e6 / self.speed
                 delay = due - time.monotonic()
-                if delay > 0:
-                    await asyncio.sleep(delay)
+                # always yield: a loop behind schedule must still let the others run
+                await asyncio.sleep(max(delay, 0.0))
             elif i % 50 == 0:
                 await asyncio.sleep(0)  # let the other machines and the page run
             emit(Sample(name, int(self.ts_us[i]), i, self.values[i], float(self.setpoints[i])))
