@@ -5,6 +5,7 @@ plant and the twin follows. Hostile payloads on the same topic are counted and d
 from __future__ import annotations
 
 import asyncio
+import json
 import subprocess
 import time
 from pathlib import Path
@@ -98,3 +99,34 @@ def test_mqtt_machine_setpoint_and_hostile_payloads(
     assert status["dropped"] == len(HOSTILE) * 20  # every hostile payload counted, none used
     seq = np.array([r.seq for r in rows if r.seq >= 0])
     assert (np.diff(seq) == 1).all()  # the machine's own samples all arrived, in order
+
+
+def test_a_flood_is_counted_and_dropped_with_flat_memory() -> None:
+    """The network thread queues at most MAX_BACKLOG samples for a busy loop; the rest are
+    counted, not queued (no callback, no payload kept)."""
+    from types import SimpleNamespace
+
+    from drafttwin.twin.mapping import MachineMap
+    from drafttwin.twin.mqtt import MAX_BACKLOG, MqttSource
+    from drafttwin.twin.service import MachineState, TwinService
+
+    m = MachineMap("df-01", ("front", "second", "third", "back"))
+    src = MqttSource("127.0.0.1", 1, (m,))
+    emitted: list[object] = []
+    service = TwinService({"df-01": MachineState(None, m, "test")}, [src])  # type: ignore[arg-type]
+    loop = asyncio.new_event_loop()
+    try:
+        src.bind(loop, emitted.append, service.report)
+        payload = json.dumps({"seq": 1, "time": 1.0, "front": 1.0, "second": 2.0, "third": 3.0,
+                              "back": 4.0, "motor": 5.0, "supply_hz": 48.0}).encode()  # fmt: skip
+        msg = SimpleNamespace(topic=m.topic, payload=payload)
+        flood = MAX_BACKLOG + 30_000
+        for _ in range(flood):  # the loop is busy (not running): nothing is handled meanwhile
+            src.on_message(None, None, msg)
+        assert len(loop._ready) == MAX_BACKLOG  # type: ignore[attr-defined]
+        loop.run_until_complete(asyncio.sleep(0))
+    finally:
+        loop.close()
+    assert len(emitted) == MAX_BACKLOG
+    assert service.states["df-01"].dropped == 30_000
+    assert len(service.states["df-01"].alarms) <= 32  # one event per 1000 drops, not 30 000

@@ -92,6 +92,7 @@ def test_foreign_files_and_channel_changes_are_refused(tmp_path: Path) -> None:
         read_history(tmp_path / "nowhere")
 
 
+@pytest.mark.slow  # two CLI start-ups and a live replay: about 30 s
 def test_kill_9_loses_nothing_committed_and_a_restart_duplicates_nothing(
     tmp_path: Path, twin_files: tuple[Path, Path]
 ) -> None:

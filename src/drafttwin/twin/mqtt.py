@@ -61,29 +61,41 @@ class MqttSource(Source):
         self.queued = 0  # written by the network thread only
         self.handled = 0  # written by the event loop only
 
+    def bind(self, loop: asyncio.AbstractEventLoop, emit: Emit, report: Report) -> None:
+        """Hand samples to ``emit`` / drops to ``report`` on ``loop`` (from the network thread)."""
+        self._loop, self._emit, self._report = loop, emit, report
+        self.flooded: dict[str, int] = {}  # dropped in the network thread, per machine
+        self._flood_reported: dict[str, int] = {}
+
+    def _deliver(self, item: Sample | tuple[str, str]) -> None:
+        self.handled += 1
+        if isinstance(item, Sample):
+            self._emit(item)
+        else:
+            self._report(item[0], "dropped", item[1])
+        for name, n in list(self.flooded.items()):  # drops of a flood, counted here at once
+            new = n - self._flood_reported.get(name, 0)
+            if new:
+                self._report(name, "dropped", f"flood: {new} samples over the backlog limit", new)
+                self._flood_reported[name] = n
+
+    def on_message(self, client: Any, userdata: Any, msg: Any) -> None:
+        """paho's callback (network thread): check, then queue for the loop, or count a drop."""
+        m = self.by_topic.get(msg.topic)
+        if m is None:
+            return
+        if self.queued - self.handled >= MAX_BACKLOG:
+            self.flooded[m.name] = self.flooded.get(m.name, 0) + 1  # no callback: memory flat
+            return
+        self.queued += 1
+        self._loop.call_soon_threadsafe(self._deliver, _parse(m, msg.payload))
+
     async def run(self, emit: Emit, report: Report) -> None:
         import paho.mqtt.client as mqtt
 
         loop = asyncio.get_running_loop()
+        self.bind(loop, emit, report)
         lost = asyncio.Event()
-
-        def deliver(item: Sample | tuple[str, str]) -> None:
-            self.handled += 1
-            if isinstance(item, Sample):
-                emit(item)
-            else:
-                report(item[0], "dropped", item[1])
-
-        def on_message(client: Any, userdata: Any, msg: Any) -> None:
-            m = self.by_topic.get(msg.topic)
-            if m is None:
-                return
-            if self.queued - self.handled >= MAX_BACKLOG:
-                item: Sample | tuple[str, str] = (m.name, "flood: backlog full")
-            else:
-                item = _parse(m, msg.payload)
-            self.queued += 1
-            loop.call_soon_threadsafe(deliver, item)
 
         def on_disconnect(*_: Any) -> None:
             loop.call_soon_threadsafe(lost.set)
@@ -91,7 +103,7 @@ class MqttSource(Source):
         attempt = 0
         while True:
             client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv311)
-            client.on_message = on_message
+            client.on_message = self.on_message
             client.on_disconnect = on_disconnect
             lost.clear()
             try:

@@ -99,18 +99,18 @@ class TwinService:
             if self.metrics is not None:
                 self.metrics.observe(st.twin.name, len(rows), lat)
 
-    def report(self, machine: str, kind: str, detail: str) -> None:
-        """A source's state change or a dropped payload."""
+    def report(self, machine: str, kind: str, detail: str, count: int = 1) -> None:
+        """A source's state change, or ``count`` dropped payloads."""
         st = self.states.get(machine)
         if st is None:
             return
         if kind.startswith("source-"):
             st.state = kind.removeprefix("source-")
         if kind == "dropped":
-            st.dropped += 1
+            before, st.dropped = st.dropped, st.dropped + count
             if self.metrics is not None:
-                self.metrics.dropped(machine)
-            if st.dropped > 100 and st.dropped % 1000:
+                self.metrics.dropped(machine, count)
+            if before >= 100 and before // 1000 == st.dropped // 1000:
                 return  # a flood: counted, one event per 1000
         self._event(st, EventRow(machine, kind, int(time.time() * 1e6), detail[:500]))
 

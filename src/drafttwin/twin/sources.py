@@ -47,7 +47,7 @@ class Sample:
 
 
 Emit = Callable[[Sample], None]
-Report = Callable[[str, str, str], None]  # machine, kind, detail: state changes, drops
+Report = Callable[..., None]  # (machine, kind, detail[, count]): state changes, drops
 
 
 class Source:

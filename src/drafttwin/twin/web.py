@@ -58,8 +58,8 @@ class Metrics:
         self.samples.labels(machine).inc(rows)
         self.latency.observe(latency_s)
 
-    def dropped(self, machine: str) -> None:
-        self.drops.labels(machine).inc()
+    def dropped(self, machine: str, count: int = 1) -> None:
+        self.drops.labels(machine).inc(count)
 
     def event(self, ev: EventRow) -> None:
         self.alarms.labels(ev.machine, ev.kind).inc()
