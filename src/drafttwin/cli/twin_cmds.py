@@ -315,6 +315,14 @@ def plant_serve(
             help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
         ),
     ] = None,  # fmt: skip
+    cert: Annotated[
+        Path | None,
+        typer.Option(
+            help="OPC UA: Basic256Sha256 SignAndEncrypt with the certificates in this "
+            "folder ('drafttwin twin certs'); only trusted clients.",
+            callback=input_path("--cert"),
+        ),
+    ] = None,  # fmt: skip
 ) -> None:
     """Run the plant emulator in real time as live machines: roller and motor speeds every
     sample, a writable supply set-point (write it and the plant changes speed)."""
@@ -341,7 +349,7 @@ def plant_serve(
                               "ns=2;s=NAME.sample (Ctrl-C stops)")  # fmt: skip
 
         try:
-            counts = asyncio.run(serve_opcua(opcua, names, ready=ready, **opts))
+            counts = asyncio.run(serve_opcua(opcua, names, ready=ready, cert_dir=cert, **opts))
         except KeyboardInterrupt:
             return
         except OSError as exc:
@@ -350,6 +358,9 @@ def plant_serve(
     else:
         from drafttwin.twin.mqtt import parse_hostport, serve_mqtt
 
+        if cert is not None:
+            raise ConfigError("--cert secures OPC UA; MQTT TLS is not implemented", where="--cert",
+                              fix="use --opcua with --cert, or keep MQTT on 127.0.0.1")  # fmt: skip
         parse_hostport(str(mqtt), "--mqtt")
 
         def said(where: str) -> None:
@@ -364,3 +375,20 @@ def plant_serve(
             raise ConfigError(f"cannot reach or start a broker at {mqtt} ({exc.strerror or exc})",
                               where="--mqtt", fix="choose a free port or a running broker") from None  # fmt: skip
     console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in counts.items()))
+
+
+@twin_app.command("certs")
+def twin_certs(
+    out: Annotated[
+        Path,
+        typer.Option(help="Folder for the keys and certificates.", callback=output_dir("--out")),
+    ],  # fmt: skip
+    host: Annotated[str, typer.Option(help="Host name in the certificates.")] = "127.0.0.1",
+) -> None:
+    """Make self-signed OPC UA certificates (365 days) for 'plant serve --cert' and the twin's
+    source 'opcua:URL?cert=DIR'. Existing valid ones are kept."""
+    _need_twin_extra()
+    from drafttwin.twin.security import make_certificates
+
+    paths = asyncio.run(make_certificates(out, host))
+    console.print("wrote " + ", ".join(str(p) for p in paths) + f" and {out / 'trusted'}")

@@ -22,6 +22,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 from drafttwin.errors import ConfigError
@@ -81,6 +82,7 @@ async def serve_opcua(
     scalar_nodes: bool = True,
     on_sample: Callable[[str, LiveSample], None] | None = None,
     ready: Callable[[], None] | None = None,
+    cert_dir: Path | None = None,
 ) -> dict[str, int]:
     """Serve ``names`` live plants at ``url`` until ``duration_s`` (or cancelled); returns
     the samples published per machine."""
@@ -91,7 +93,12 @@ async def serve_opcua(
     await server.init()
     server.set_endpoint(f"opc.tcp://{host}:{port}/")
     server.set_server_name("drafttwin plant")
-    server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+    if cert_dir is None:
+        server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+    else:
+        from drafttwin.twin.security import secure_server
+
+        await secure_server(server, cert_dir)
     idx = await server.register_namespace(NAMESPACE)
     if idx != 2:
         raise RuntimeError(f"namespace index {idx}, expected 2")

@@ -115,10 +115,10 @@ class OpcUaSource(Source):
     mapping's ``fields``), with queue sizes that keep every sample (docs/twin.md)."""
 
     def __init__(self, url: str, machines: tuple[MachineMap, ...], publish_ms: float = 10.0,
-                 security: str | None = None) -> None:  # fmt: skip
+                 cert_dir: Path | None = None) -> None:  # fmt: skip
         self.spec, self.url, self.machines = f"opcua:{url}", url, machines
         self.publish_ms = publish_ms
-        self.security = security
+        self.cert_dir = cert_dir
         self.silence_s = 5.0
         self.client: Any = None
 
@@ -131,8 +131,10 @@ class OpcUaSource(Source):
         while True:
             client = Client(self.url, timeout=2.0, watchdog_intervall=1.0)
             try:
-                if self.security:
-                    await client.set_security_string(self.security)
+                if self.cert_dir is not None:
+                    from drafttwin.twin.security import secure_client
+
+                    await secure_client(client, self.cert_dir)
                 async with client:
                     self.client = client
                     # server queues of 100 s at 100 Hz (asyncua's cap, 10 000; a spec server
@@ -191,12 +193,17 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
         return ReplaySource(Path(path), machine, speed)
     if kind == "opcua":
         url = rest.split("?", 1)[0]
-        opts = _query(rest.partition("?")[2], text, {"machine", "publish_ms"})
+        opts = _query(rest.partition("?")[2], text, {"machine", "publish_ms", "cert"})
         if not url.startswith("opc.tcp://"):
             raise ConfigError(f"bad OPC UA address {url!r}", where="--source",
                               fix="write opcua:opc.tcp://HOST:PORT")  # fmt: skip
         machines = mapped or (default.renamed(opts.get("machine", default.name)),)
-        return OpcUaSource(url, machines, float(opts.get("publish_ms", 10)))
+        cert = Path(opts["cert"]) if "cert" in opts else None
+        if cert is not None:
+            from drafttwin.twin.security import _need
+
+            _need(cert, "client_key.pem", "client_cert.der", "server_cert.der")
+        return OpcUaSource(url, machines, float(opts.get("publish_ms", 10)), cert)
     if kind == "mqtt":
         from drafttwin.twin.mqtt import MqttSource
 
