@@ -25,6 +25,7 @@ def _received(model: Path, source: str, seconds: float) -> tuple[int, str]:
     return st.received, st.state
 
 
+@pytest.mark.slow  # a server and three client connections: about 20 s
 def test_secured_server_serves_only_trusted_clients(
     twin_files: tuple[Path, Path], tmp_path: Path
 ) -> None:
@@ -41,9 +42,9 @@ def test_secured_server_serves_only_trusted_clients(
         assert proc.stderr is not None
         line = proc.stderr.readline()
         assert "serving fa320a" in line, line + proc.stderr.read()
-        trusted = _received(model, f"opcua:{url}?cert={certs}", 4.0)
-        plain = _received(model, f"opcua:{url}", 3.0)
-        foreign = _received(model, f"opcua:{url}?cert={stranger}", 3.0)
+        trusted = _received(model, f"opcua:{url}?cert={certs}", 3.0)
+        plain = _received(model, f"opcua:{url}", 2.0)
+        foreign = _received(model, f"opcua:{url}?cert={stranger}", 2.0)
     finally:
         proc.kill()
         proc.wait(timeout=30)

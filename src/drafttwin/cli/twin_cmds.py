@@ -137,6 +137,7 @@ def twin_run(
         ),
     ] = None,  # fmt: skip
     verbose: Annotated[bool, typer.Option(help="A line per store commit.")] = False,
+    quiet: Annotated[bool, typer.Option(help="No status line every 10 s on stderr.")] = False,
     as_json: Annotated[
         bool, typer.Option("--json", help="Print the final status as JSON.")
     ] = False,
@@ -164,7 +165,7 @@ def twin_run(
                             physics=physics, silent_s=silent, on_commit=on_commit)  # fmt: skip
     start = time.monotonic()
     try:
-        asyncio.run(_serve(service, bind, token, duration, max_samples))
+        asyncio.run(_serve(service, bind, token, duration, max_samples, quiet))
     except OSError as exc:
         raise ConfigError(f"cannot serve the page on {http} ({exc.strerror or exc})",
                           where="--http", fix="choose a free port") from None  # fmt: skip
@@ -182,16 +183,36 @@ def twin_run(
     _print_status(status)
 
 
-async def _serve(service, bind, token, duration, max_samples) -> None:  # noqa: ANN001
-    if bind is None:
-        await service.run(duration_s=duration, max_rows=max_samples)
-        return
-    from drafttwin.twin.web import serve_with
+async def _serve(service, bind, token, duration, max_samples, quiet) -> None:  # noqa: ANN001
+    ticker = None if quiet else asyncio.create_task(_status_lines(service))
+    try:
+        if bind is None:
+            await service.run(duration_s=duration, max_rows=max_samples)
+            return
+        from drafttwin.twin.web import serve_with
 
-    def started(_: object) -> None:
-        err_console.print(f"page on http://{bind[0]}:{bind[1]}/")
+        def started(_: object) -> None:
+            err_console.print(f"page on http://{bind[0]}:{bind[1]}/")
 
-    await serve_with(service, bind, token, duration, max_samples, started)
+        await serve_with(service, bind, token, duration, max_samples, started)
+    finally:
+        if ticker is not None:
+            ticker.cancel()
+
+
+async def _status_lines(service) -> None:  # noqa: ANN001
+    """One line every 10 s: samples, p99 latency, machines by state (a live run has no end
+    to show a progress bar against)."""
+    while True:
+        await asyncio.sleep(10.0)
+        status = service.status()
+        states: dict[str, int] = {}
+        for m in status["machines"].values():
+            states[m["state"]] = states.get(m["state"], 0) + 1
+        p99 = status["latency_ms"]["p99"]
+        err_console.print(f"{status['rows']} samples, p99 {'-' if p99 is None else f'{p99:.1f}'} "
+                          "ms, machines " + ", ".join(f"{v} {k}" for k, v in states.items()),
+                          highlight=False)  # fmt: skip
 
 
 def _print_status(status: dict) -> None:
