@@ -65,7 +65,7 @@ function tiles() {
 
 function chart(title, series, width) {
   const opts = { title: "", width, height: 200, scales: { x: { time: false } },
-                 series: [{ label: "t (s)" }, ...series], axes: [{}, { size: 60 }] };
+                 series: [{ label: "s before newest" }, ...series], axes: [{}, { size: 60 }] };
   return new uPlot(opts, [[], ...series.map(() => [])], null);
 }
 
@@ -84,7 +84,7 @@ function build() {
                         { label: "twin", stroke: "#d9480f", width: 2 }], width);
     card.append(h, u.root);
     main.append(card);
-    state.charts.push({ u, draw: () => u.setData([b.t, b.measured[j], b.physics[j], b.twin[j]]) });
+    state.charts.push({ u, draw: x => u.setData([x, b.measured[j], b.physics[j], b.twin[j]]) });
   });
   const card = el("div", { class: "card" });
   card.append(el("h2", {}, "residuals: measured − twin (rpm)"));
@@ -92,7 +92,7 @@ function build() {
   const u = chart("residual", b.channels.map((c, j) => ({ label: c, stroke: colours[j % 4] })), width);
   card.append(u.root);
   main.append(card);
-  state.charts.push({ u, draw: () => u.setData([b.t, ...b.residual]) });
+  state.charts.push({ u, draw: x => u.setData([x, ...b.residual]) });
   const al = el("div", { class: "card" });
   al.append(el("h2", {}, "alarms and events"), el("div", { id: "alarms" }));
   main.append(al);
@@ -103,7 +103,10 @@ function build() {
 function draw() {
   const b = state.machines[state.selected];
   if (!b) return;
-  state.charts.forEach(c => c.draw());
+  // x: seconds before the newest sample (epoch or replay times alike read as "0 = now")
+  const newest = b.t.length ? b.t[b.t.length - 1] : 0;
+  const x = b.t.map(v => v - newest);
+  state.charts.forEach(c => c.draw(x));
   if (b.last) {
     b.channels.forEach((c, j) => {
       const v = document.getElementById("value-" + c);
