@@ -79,6 +79,10 @@ class MqttSource(Source):
                 self._report(name, "dropped", f"flood: {new} samples over the backlog limit", new)
                 self._flood_reported[name] = n
 
+    def _subscribe(self, client: Any, *_: Any) -> None:
+        for topic in self.by_topic:
+            client.subscribe(topic, qos=0)
+
     def on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         """paho's callback (network thread): check, then queue for the loop, or count a drop."""
         m = self.by_topic.get(msg.topic)
@@ -105,12 +109,17 @@ class MqttSource(Source):
             client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv311)
             client.on_message = self.on_message
             client.on_disconnect = on_disconnect
+            client.on_connect = self._subscribe  # on every (re)connect, once acknowledged
             lost.clear()
             try:
                 await asyncio.to_thread(client.connect, self.host, self.port, 30)
-                for topic in self.by_topic:
-                    client.subscribe(topic, qos=0)
                 client.loop_start()
+                for _ in range(100):  # live once the broker acknowledged, else reconnect
+                    if client.is_connected():
+                        break
+                    await asyncio.sleep(0.05)
+                else:
+                    raise OSError("no MQTT acknowledgement from the broker")
                 self._set("live", report)
                 attempt = 0
                 await lost.wait()
@@ -195,6 +204,17 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
     client.max_queued_messages_set(100_000)  # a stalled broker must not grow memory forever
     await asyncio.to_thread(client.connect, host, port, 30)
     client.loop_start()
+    for _ in range(100):  # a TCP listener that is no MQTT broker never acknowledges
+        if client.is_connected():
+            break
+        await asyncio.sleep(0.05)
+    else:
+        client.loop_stop()
+        if broker is not None:
+            await broker.shutdown()
+        raise ConfigError(f"{host}:{port} accepts connections but no MQTT broker answers there",
+                          where="--mqtt", fix="give the address of an MQTT broker, or a free "
+                          "local port to start the embedded one")  # fmt: skip
     for n in names:
         client.subscribe(setpoint_topic(n), qos=1)
     if ready is not None:
