@@ -130,3 +130,40 @@ def test_reorder_releases_in_time_order() -> None:
     out += [p.ts_us for p in r.flush()]
     assert out == [0, 10, 20, 30, 60, 70, 80]
     assert (r.duplicate, r.late) == (1, 1)
+
+
+def test_machines_of_one_tick_share_one_network_pass_with_the_same_result(replayed) -> None:  # noqa: ANN001
+    """The service forecasts all machines of a tick in one batched pass: the same rows as each
+    machine alone, up to float32 rounding of the batch."""
+    import asyncio
+
+    from drafttwin.twin.mapping import MachineMap
+    from drafttwin.twin.service import MachineState, TwinService
+    from drafttwin.twin.sources import Sample
+
+    series, model, _, rows = replayed
+    names = ["a", "b", "c"]
+    states = {n: MachineState(MachineTwin(n, model, 100.0), MachineMap(n, CHANNELS), "test")
+              for n in names}  # fmt: skip
+    service = TwinService(states, [])
+    got: dict[str, list] = {n: [] for n in names}
+    service.subscribers.append(lambda name, out, ev: got[name].extend(out))
+    calls = []
+    real = service._finish
+    service._finish = lambda rnd: (calls.append(len(rnd)), real(rnd))  # type: ignore[method-assign]
+    ts = np.round(series.time_s * 1e6).astype(np.int64)
+    sp = series.inputs["supply_hz"]
+
+    async def feed() -> None:
+        for i in range(len(ts)):
+            for n in names:
+                service.on_sample(Sample(n, int(ts[i]), i, series.values[i], float(sp[i])))
+            await asyncio.sleep(0)
+
+    asyncio.run(feed())
+    assert max(calls) == 3  # three machines per network pass
+    for n in names:
+        assert [r.ts_us for r in got[n]] == [r.ts_us for r in rows]
+        np.testing.assert_array_equal([r.physics for r in got[n]], [r.physics for r in rows])
+        np.testing.assert_allclose([r.twin for r in got[n]], [r.twin for r in rows], atol=1e-3,
+                                   equal_nan=True)  # fmt: skip

@@ -23,6 +23,7 @@ from __future__ import annotations
 import heapq
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -131,6 +132,19 @@ def physics_train(model: BaseModel, physics: str) -> DriveTrain:
     return reduce(train) if physics == "reduced" else train
 
 
+@dataclass
+class Begun:
+    """A row between its physics step and its forecast (see :meth:`MachineTwin.receive_deferred`)."""
+
+    twin: MachineTwin
+    predictor: OnlinePredictor
+    ts_us: int
+    seq: int
+    values: np.ndarray
+    setpoint: float
+    physics: np.ndarray
+
+
 class MachineTwin:
     """The live hybrid of one machine.
 
@@ -213,16 +227,34 @@ class MachineTwin:
             rows += self._release(p)
         return rows
 
+    def receive_deferred(self, ts_us: int, seq: int, values: np.ndarray, setpoint: float,
+                         received: float = 0.0) -> tuple[list[SampleRow], Begun | None]:  # fmt: skip
+        """:meth:`receive`, but the last released row stops before its forecast: the caller
+        forecasts many machines' rows in one network pass (:func:`forecast_many`) and ends each
+        with :meth:`end`. Only for one-step models (else nothing is deferred)."""
+        released = self.reorder.push(Pending(ts_us, seq, values, setpoint, received))
+        rows: list[SampleRow] = []
+        for p in released[:-1]:
+            rows += self._release(p)
+        if not released:
+            return rows, None
+        more, begun = self._release(released[-1], defer=self.horizon == 1)
+        return rows + more, begun
+
+    def end(self, begun: Begun, twin: np.ndarray) -> SampleRow:
+        """Finish a deferred row with its forecast."""
+        return self._end(begun, twin)
+
     def flush(self) -> list[SampleRow]:
         rows = []
         for p in self.reorder.flush():
             rows += self._release(p)
         return rows
 
-    def _release(self, p: Pending) -> list[SampleRow]:
+    def _release(self, p: Pending, defer: bool = False) -> Any:
         setpoint = p.setpoint if math.isfinite(p.setpoint) else self.last_setpoint
         if not math.isfinite(setpoint):
-            return []  # nothing to drive the physics yet: wait for a set-point
+            return ([], None) if defer else []  # nothing drives the physics yet: wait
         last = None if self.stepper is None else self.last_us
         gap = 0 if last is None else int(round((p.ts_us - last) / self.period_us)) - 1
         if last is None or gap > self.max_fill or gap < 0:
@@ -238,29 +270,41 @@ class MachineTwin:
                 sp = start + (setpoint - start) * k / (gap + 1)
                 nan = np.full(len(self.channels), np.nan)
                 rows.append(self._one(last + k * self.period_us, -1, nan, sp))
+        if defer:
+            return rows, self._begin(p.ts_us, p.seq, p.values, setpoint)
         rows.append(self._one(p.ts_us, p.seq, p.values, setpoint))
         return rows
 
     def _one(self, ts_us: int, seq: int, values: np.ndarray, setpoint: float) -> SampleRow:
+        begun = self._begin(ts_us, seq, values, setpoint)
+        if self.horizon == 1:  # this sample's set-point is known now: exact physics at t
+            assert self.predictor is not None
+            twin = self.predictor.forecast(ts_us / 1e6)
+        else:
+            twin = self._forecast.pop(ts_us, np.full(len(self.channels), np.nan))
+        return self._end(begun, twin)
+
+    def _begin(self, ts_us: int, seq: int, values: np.ndarray, setpoint: float) -> Begun:
+        """Physics to this sample; the forecast comes next, then :meth:`_end`."""
         assert self.stepper is not None and self.predictor is not None
         m = self._to_channels(self.stepper.step(setpoint, (ts_us - self.last_us) / 1e6))
         self.last_setpoint, self.last_us = setpoint, ts_us
         self._physics[ts_us] = m
         if self._fresh:  # near standstill 10 % of the last value is nothing: floor it
             self.filter, self._fresh = SpikeFilter(len(self.channels), floor=0.5 * np.abs(m)), False
-        if self.horizon == 1:  # this sample's set-point is known now: exact physics at t
-            twin = self.predictor.forecast(ts_us / 1e6)
-        else:
-            twin = self._forecast.pop(ts_us, np.full(len(self.channels), np.nan))
-        clean = self.filter(np.asarray(values, dtype=np.float64))
-        self.predictor.observe(ts_us / 1e6, clean)
+        return Begun(self, self.predictor, ts_us, seq, np.asarray(values, dtype=np.float64),
+                     setpoint, m)  # fmt: skip
+
+    def _end(self, b: Begun, twin: np.ndarray) -> SampleRow:
+        assert self.predictor is not None
+        self.predictor.observe(b.ts_us / 1e6, self.filter(b.values))
         if self.horizon > 1:
-            self._look_ahead(ts_us, setpoint)
+            self._look_ahead(b.ts_us, b.setpoint)
         else:
-            self._physics.pop(ts_us - self.period_us, None)
+            self._physics.pop(b.ts_us - self.period_us, None)
         self.n_rows += 1
-        y = np.asarray(values, dtype=np.float64)
-        return SampleRow(self.name, ts_us, seq, setpoint, y, m, twin, y - twin)
+        return SampleRow(self.name, b.ts_us, b.seq, b.setpoint, b.values, b.physics, twin,
+                         b.values - twin)  # fmt: skip
 
     def _look_ahead(self, ts_us: int, setpoint: float) -> None:
         """Physics for the next ``horizon`` samples (set-point held) and the forecast of the
@@ -278,4 +322,4 @@ class MachineTwin:
             del self._physics[old]
 
 
-__all__ = ["MachineTwin", "Reorder", "SpikeFilter", "physics_train"]
+__all__ = ["Begun", "MachineTwin", "Reorder", "SpikeFilter", "physics_train"]

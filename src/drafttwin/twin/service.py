@@ -19,7 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from drafttwin.twin.live import MachineTwin
+from drafttwin.models.online import forecast_many
+from drafttwin.twin.live import Begun, MachineTwin
 from drafttwin.twin.mapping import MachineMap
 from drafttwin.twin.sources import Sample, Source
 from drafttwin.twin.store import EventRow, SampleRow, StoreWriter
@@ -61,21 +62,55 @@ class TwinService:
         self.event_hooks: list[Callable[[EventRow], None]] = []
         self.started = time.monotonic()
         self._stop = asyncio.Event()
+        self._batch: list[Sample] = []
+        self._scheduled = False
 
     # ---- samples in ---------------------------------------------------------------------
     def on_sample(self, s: Sample) -> None:
-        st = self.states.get(s.machine)
-        if st is None:
+        """Queue a sample; the samples that arrive in one turn of the event loop (one OPC UA
+        publish, one tick of the machines) are processed together, one network pass for all
+        machines that share a model (:func:`~drafttwin.models.online.forecast_many`)."""
+        self._batch.append(s)
+        if self._scheduled:
             return
-        st.received += 1
-        st.last_wall = time.monotonic()
-        if st.state != "live":
-            st.state = "live"
-        if st.resume_after_us is not None and s.ts_us <= st.resume_after_us:
-            st.skipped += 1  # stored before a restart: not again
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:  # called outside a loop (a script): at once
+            self._run_batch()
             return
-        rows = st.twin.receive(s.ts_us, s.seq, s.values, s.setpoint, s.received)
-        self._out(st, rows, s.received)
+        self._scheduled = True
+        loop.call_soon(self._run_batch)
+
+    def _run_batch(self) -> None:
+        self._scheduled = False
+        batch, self._batch = self._batch, []
+        rnd: list[tuple[MachineState, Begun, float]] = []
+        for s in batch:
+            st = self.states.get(s.machine)
+            if st is None:
+                continue
+            st.received += 1
+            st.last_wall = time.monotonic()
+            if st.state != "live":
+                st.state = "live"
+            if st.resume_after_us is not None and s.ts_us <= st.resume_after_us:
+                st.skipped += 1  # stored before a restart: not again
+                continue
+            if any(r[0] is st for r in rnd):  # a second sample of a machine: finish the first
+                self._finish(rnd)
+                rnd = []
+            rows, begun = st.twin.receive_deferred(s.ts_us, s.seq, s.values, s.setpoint, s.received)
+            self._out(st, rows, s.received)
+            if begun is not None:
+                rnd.append((st, begun, s.received))
+        self._finish(rnd)
+
+    def _finish(self, rnd: list[tuple[MachineState, Begun, float]]) -> None:
+        if not rnd:
+            return
+        twins = forecast_many([b.predictor for _, b, _ in rnd], [b.ts_us / 1e6 for _, b, _ in rnd])
+        for (st, b, received), twin in zip(rnd, twins, strict=True):
+            self._out(st, [st.twin.end(b, twin)], received)
 
     def _out(self, st: MachineState, rows: list[SampleRow], received: float | None) -> None:
         events, st.twin.events = st.twin.events, []
@@ -156,6 +191,7 @@ class TwinService:
                 t.cancel()
             # a client library stuck in its own clean-up must not hold the twin's shutdown
             await asyncio.wait([*tasks, watch], timeout=5.0)
+            self._run_batch()
             for st in self.states.values():
                 self._out(st, st.twin.flush(), None)
 
