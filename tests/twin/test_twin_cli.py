@@ -115,3 +115,15 @@ def test_bad_query_and_serve_options_are_refused(tmp_path: Path) -> None:
     _one_line_error(_run("plant", "serve", "--mqtt", "127.0.0.1"), "--mqtt", "bad MQTT address")
     _one_line_error(_run("plant", "serve", "--opcua", "opc.tcp://127.0.0.1:4840", "--physics", "x"),
                     "--physics")  # fmt: skip
+
+
+def test_retention_keeps_the_newest_hours(twin_files: tuple[Path, Path], tmp_path: Path) -> None:
+    record, model = twin_files
+    store = tmp_path / "store"
+    res = _run("twin", "run", "--model", str(model), "--source", f"replay:{record}?speed=max",
+               "--store", str(store), "--retention-hours", str(2.0 / 3600), "--quiet")  # fmt: skip
+    assert res.exit_code == 0, res.stderr
+    res = _run("twin", "query", "--store", str(store), "--json")
+    (m,) = json.loads(res.stdout)["machines"]
+    assert m["samples"] == 201  # the last 2 s at 100 Hz, both ends included
+    assert m["last_s"] == pytest.approx(6.0)

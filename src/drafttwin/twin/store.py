@@ -252,6 +252,8 @@ class StoreWriter:
                     self.store.apply_retention(self.retention_s)
                     last_retention = time.monotonic()
             self._flush()
+            if self.retention_s is not None:  # and once more at the end of a run
+                self.store.apply_retention(self.retention_s)
         except BaseException as exc:  # noqa: BLE001  surfaced by close() in the main thread
             self.error = exc
 
