@@ -130,3 +130,37 @@ def test_a_flood_is_counted_and_dropped_with_flat_memory() -> None:
     assert len(emitted) == MAX_BACKLOG
     assert service.states["df-01"].dropped == 30_000
     assert len(service.states["df-01"].alarms) <= 32  # one event per 1000 drops, not 30 000
+
+
+@pytest.mark.slow  # a broker with argon2 logins and two twins: about 20 s
+def test_mqtt_with_a_user_admits_only_that_user(twin_files: tuple[Path, Path]) -> None:
+    _, model = twin_files
+    port = free_port()
+    secret = {**env(), "DRAFTTWIN_MQTT_PASSWORD": "s3cret-pass-for-the-test"}
+    proc = subprocess.Popen(cli("plant", "serve", "--mqtt", f"127.0.0.1:{port}", "--mqtt-user",
+                                "twin", "--duration", "60", "--physics", "reduced"), env=secret,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert proc.stderr is not None
+        line = proc.stderr.readline()
+        assert "serving fa320a on MQTT" in line, line + proc.stderr.read()
+        results = {}
+        for name, url, password in (("user", f"mqtt://twin@127.0.0.1:{port}", secret["DRAFTTWIN_MQTT_PASSWORD"]),
+                                    ("wrong", f"mqtt://twin@127.0.0.1:{port}", "wrong-password"),
+                                    ("anonymous", f"mqtt://127.0.0.1:{port}", None)):  # fmt: skip
+            with pytest.MonkeyPatch.context() as mp:
+                if password is not None:
+                    mp.setenv("DRAFTTWIN_MQTT_PASSWORD", password)
+                service = build_service(model, [url])
+            asyncio.run(service.run(duration_s=3.0))
+            st = service.states["fa320a"]
+            results[name] = (st.received > 50, st.state)
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert results["user"] == (True, "live")
+    for refused in ("wrong", "anonymous"):  # still trying (first attempt or a reconnect)
+        assert results[refused][0] is False and results[refused][1] in (
+            "connecting",
+            "reconnecting",
+        )

@@ -336,6 +336,13 @@ def plant_serve(
             help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
         ),
     ] = None,  # fmt: skip
+    mqtt_user: Annotated[
+        str | None,
+        typer.Option(
+            help="MQTT: connect as this user (password in "
+            "DRAFTTWIN_MQTT_PASSWORD); the embedded broker admits only it."
+        ),
+    ] = None,  # fmt: skip
     cert: Annotated[
         Path | None,
         typer.Option(
@@ -389,7 +396,8 @@ def plant_serve(
                               "drafttwin/NAME/sample (Ctrl-C stops)")  # fmt: skip
 
         try:
-            counts = asyncio.run(serve_mqtt(str(mqtt), names, ready=said, **opts))
+            counts = asyncio.run(serve_mqtt(str(mqtt), names, ready=said, username=mqtt_user,
+                                            password=_mqtt_password(mqtt_user), **opts))  # fmt: skip
         except KeyboardInterrupt:
             return
         except OSError as exc:
@@ -413,3 +421,15 @@ def twin_certs(
 
     paths = asyncio.run(make_certificates(out, host))
     console.print("wrote " + ", ".join(str(p) for p in paths) + f" and {out / 'trusted'}")
+
+
+def _mqtt_password(user: str | None) -> str | None:
+    import os
+
+    if user is None:
+        return None
+    password = os.environ.get("DRAFTTWIN_MQTT_PASSWORD")
+    if not password:
+        raise ConfigError(f"no password for MQTT user {user!r}", where="--mqtt-user",
+                          fix="set DRAFTTWIN_MQTT_PASSWORD (kept out of the command line)")  # fmt: skip
+    return password

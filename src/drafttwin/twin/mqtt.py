@@ -23,6 +23,7 @@ import json
 import math
 import socket
 import time
+from pathlib import Path
 from typing import Any
 
 from drafttwin.errors import ConfigError
@@ -50,7 +51,8 @@ def setpoint_topic(machine: str) -> str:
 class MqttSource(Source):
     """Subscribe to each machine's topic (QoS 0) on a broker; reconnect with backoff."""
 
-    def __init__(self, host: str, port: int, machines: tuple[MachineMap, ...]) -> None:
+    def __init__(self, host: str, port: int, machines: tuple[MachineMap, ...],
+                 username: str | None = None, password: str | None = None) -> None:  # fmt: skip
         self.spec, self.host, self.port, self.machines = (
             f"mqtt://{host}:{port}",
             host,
@@ -58,6 +60,7 @@ class MqttSource(Source):
             machines,
         )
         self.by_topic = {m.topic: m for m in machines}
+        self.username, self.password = username, password
         self.queued = 0  # written by the network thread only
         self.handled = 0  # written by the event loop only
 
@@ -110,6 +113,8 @@ class MqttSource(Source):
             client.on_message = self.on_message
             client.on_disconnect = on_disconnect
             client.on_connect = self._subscribe  # on every (re)connect, once acknowledged
+            if self.username is not None:
+                client.username_pw_set(self.username, self.password)
             lost.clear()
             try:
                 await asyncio.to_thread(client.connect, self.host, self.port, 30)
@@ -156,15 +161,29 @@ def broker_answers(host: str, port: int) -> bool:
     return False
 
 
-async def start_broker(host: str, port: int) -> Any:
-    """An embedded amqtt broker on ``host:port`` (anonymous, no $SYS topics); ``shutdown()``
-    it when done."""
+async def start_broker(host: str, port: int, users: dict[str, str] | None = None) -> Any:
+    """An embedded amqtt broker on ``host:port`` (no $SYS topics); ``shutdown()`` it when
+    done. With ``users`` (name -> password) only they may connect (argon2-hashed password file
+    in a private temporary folder), else anyone on the address."""
+    import tempfile
+
     from amqtt.broker import Broker
 
-    config = {
-        "listeners": {"default": {"type": "tcp", "bind": f"{host}:{port}"}},
-        "plugins": {"amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}},
+    auth: dict[str, Any] = {
+        "amqtt.plugins.authentication.AnonymousAuthPlugin": {"allow_anonymous": True}
     }
+    if users:
+        from pwdlib import PasswordHash
+        from pwdlib.hashers.argon2 import Argon2Hasher
+
+        hasher = PasswordHash((Argon2Hasher(),))
+        folder = Path(tempfile.mkdtemp(prefix="drafttwin-mqtt-"))  # mode 0700
+        path = folder / "passwords"
+        path.write_text(
+            "".join(f"{u}:{hasher.hash(p)}\n" for u, p in users.items()), encoding="utf-8"
+        )
+        auth = {"amqtt.plugins.authentication.FileAuthPlugin": {"password_file": str(path)}}
+    config = {"listeners": {"default": {"type": "tcp", "bind": f"{host}:{port}"}}, "plugins": auth}
     broker = Broker(config)
     await broker.start()
     return broker
@@ -173,8 +192,8 @@ async def start_broker(host: str, port: int) -> Any:
 # ---- the live plant as a publisher ----------------------------------------------------------
 async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: float = 100.0,
                      physics: str = "full", ramp_hz_per_s: float = 10.0,
-                     duration_s: float | None = None,
-                     ready: Any = None) -> dict[str, int]:  # fmt: skip
+                     duration_s: float | None = None, ready: Any = None,
+                     username: str | None = None, password: str | None = None) -> dict[str, int]:  # fmt: skip
     """Publish ``names`` live plants to the broker at ``address`` (started here when none
     answers on a local address); set-points arrive on ``drafttwin/NAME/setpoint``."""
     import paho.mqtt.client as mqtt
@@ -187,7 +206,9 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
         if host not in ("127.0.0.1", "localhost"):
             raise ConfigError(f"no MQTT broker answers at {host}:{port}", where="--mqtt",
                               fix="start one there, or use 127.0.0.1 to start the embedded one")  # fmt: skip
-        broker = await start_broker(host, port)
+        broker = await start_broker(
+            host, port, None if username is None else {username: password or ""}
+        )
     plants = {n: LivePlant(seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s)
               for k, n in enumerate(names)}  # fmt: skip
     pending: dict[str, float] = {}
@@ -202,6 +223,8 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv311)
     client.on_message = on_message
     client.max_queued_messages_set(100_000)  # a stalled broker must not grow memory forever
+    if username is not None:
+        client.username_pw_set(username, password)
     await asyncio.to_thread(client.connect, host, port, 30)
     client.loop_start()
     for _ in range(100):  # a TCP listener that is no MQTT broker never acknowledges

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -210,10 +211,15 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
         parts = urlsplit(text)
         opts = _query(parts.query, text, {"machine"})
         machines = mapped or (default.renamed(opts.get("machine", default.name)),)
-        return MqttSource(parts.hostname or "127.0.0.1", parts.port or 1883, machines)
+        password = os.environ.get("DRAFTTWIN_MQTT_PASSWORD") if parts.username else None
+        if parts.username and not password:
+            raise ConfigError(f"no password for MQTT user {parts.username!r}", where="--source",
+                              fix="set DRAFTTWIN_MQTT_PASSWORD (kept out of the command line)")  # fmt: skip
+        return MqttSource(parts.hostname or "127.0.0.1", parts.port or 1883, machines,
+                          parts.username, password)  # fmt: skip
     raise ConfigError(f"unknown source {text!r}", where="--source",
                       fix="use replay:FILE?speed=10, opcua:opc.tcp://HOST:PORT or "
-                      "mqtt://HOST:PORT")  # fmt: skip
+                      "mqtt://[USER@]HOST:PORT")  # fmt: skip
 
 
 def _query(query: str, text: str, allowed: set[str]) -> dict[str, str]:
