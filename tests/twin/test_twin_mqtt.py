@@ -164,3 +164,33 @@ def test_mqtt_with_a_user_admits_only_that_user(twin_files: tuple[Path, Path]) -
             "connecting",
             "reconnecting",
         )
+
+
+@pytest.mark.slow  # a TLS broker and two twins: about 15 s
+def test_mqtt_over_tls_with_the_generated_certificate(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    from drafttwin.twin.security import make_certificates
+
+    _, model = twin_files
+    certs = tmp_path / "certs"
+    asyncio.run(make_certificates(certs))
+    port = free_port()
+    proc = subprocess.Popen(cli("plant", "serve", "--mqtt", f"127.0.0.1:{port}", "--cert", str(certs),
+                                "--duration", "60", "--physics", "reduced"), env=env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        assert proc.stderr is not None
+        line = proc.stderr.readline()
+        assert "serving fa320a on MQTT" in line, line + proc.stderr.read()
+        results = {}
+        for name, url in (("tls", f"mqtts://127.0.0.1:{port}?cert={certs}"),
+                          ("plain", f"mqtt://127.0.0.1:{port}")):  # fmt: skip
+            service = build_service(model, [url])
+            asyncio.run(service.run(duration_s=3.0))
+            results[name] = service.states["fa320a"].received
+    finally:
+        proc.kill()
+        proc.wait(timeout=30)
+    assert results["tls"] > 50
+    assert results["plain"] == 0  # a client without TLS gets nothing from the TLS listener

@@ -386,9 +386,6 @@ def plant_serve(
     else:
         from drafttwin.twin.mqtt import parse_hostport, serve_mqtt
 
-        if cert is not None:
-            raise ConfigError("--cert secures OPC UA; MQTT TLS is not implemented", where="--cert",
-                              fix="use --opcua with --cert, or keep MQTT on 127.0.0.1")  # fmt: skip
         parse_hostport(str(mqtt), "--mqtt")
 
         def said(where: str) -> None:
@@ -397,7 +394,8 @@ def plant_serve(
 
         try:
             counts = asyncio.run(serve_mqtt(str(mqtt), names, ready=said, username=mqtt_user,
-                                            password=_mqtt_password(mqtt_user), **opts))  # fmt: skip
+                                            password=_mqtt_password(mqtt_user), cert_dir=cert,
+                                            **opts))  # fmt: skip
         except KeyboardInterrupt:
             return
         except OSError as exc:

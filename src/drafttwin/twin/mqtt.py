@@ -52,7 +52,8 @@ class MqttSource(Source):
     """Subscribe to each machine's topic (QoS 0) on a broker; reconnect with backoff."""
 
     def __init__(self, host: str, port: int, machines: tuple[MachineMap, ...],
-                 username: str | None = None, password: str | None = None) -> None:  # fmt: skip
+                 username: str | None = None, password: str | None = None,
+                 ca_file: Path | None = None) -> None:  # fmt: skip
         self.spec, self.host, self.port, self.machines = (
             f"mqtt://{host}:{port}",
             host,
@@ -61,6 +62,7 @@ class MqttSource(Source):
         )
         self.by_topic = {m.topic: m for m in machines}
         self.username, self.password = username, password
+        self.ca_file = ca_file  # TLS, trusting exactly this certificate
         self.queued = 0  # written by the network thread only
         self.handled = 0  # written by the event loop only
 
@@ -115,6 +117,8 @@ class MqttSource(Source):
             client.on_connect = self._subscribe  # on every (re)connect, once acknowledged
             if self.username is not None:
                 client.username_pw_set(self.username, self.password)
+            if self.ca_file is not None:
+                client.tls_set(ca_certs=str(self.ca_file))
             lost.clear()
             try:
                 await asyncio.to_thread(client.connect, self.host, self.port, 30)
@@ -161,7 +165,8 @@ def broker_answers(host: str, port: int) -> bool:
     return False
 
 
-async def start_broker(host: str, port: int, users: dict[str, str] | None = None) -> Any:
+async def start_broker(host: str, port: int, users: dict[str, str] | None = None,
+                       cert_dir: Path | None = None) -> Any:  # fmt: skip
     """An embedded amqtt broker on ``host:port`` (no $SYS topics); ``shutdown()`` it when
     done. With ``users`` (name -> password) only they may connect (argon2-hashed password file
     in a private temporary folder), else anyone on the address."""
@@ -183,7 +188,11 @@ async def start_broker(host: str, port: int, users: dict[str, str] | None = None
             "".join(f"{u}:{hasher.hash(p)}\n" for u, p in users.items()), encoding="utf-8"
         )
         auth = {"amqtt.plugins.authentication.FileAuthPlugin": {"password_file": str(path)}}
-    config = {"listeners": {"default": {"type": "tcp", "bind": f"{host}:{port}"}}, "plugins": auth}
+    listener: dict[str, Any] = {"type": "tcp", "bind": f"{host}:{port}"}
+    if cert_dir is not None:  # TLS with the certificate 'drafttwin twin certs' made
+        listener.update(ssl=True, certfile=str(cert_dir / "mqtt_cert.pem"),
+                        keyfile=str(cert_dir / "mqtt_key.pem"))  # fmt: skip
+    config = {"listeners": {"default": listener}, "plugins": auth}
     broker = Broker(config)
     await broker.start()
     return broker
@@ -193,7 +202,8 @@ async def start_broker(host: str, port: int, users: dict[str, str] | None = None
 async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: float = 100.0,
                      physics: str = "full", ramp_hz_per_s: float = 10.0,
                      duration_s: float | None = None, ready: Any = None,
-                     username: str | None = None, password: str | None = None) -> dict[str, int]:  # fmt: skip
+                     username: str | None = None, password: str | None = None,
+                     cert_dir: Path | None = None) -> dict[str, int]:  # fmt: skip
     """Publish ``names`` live plants to the broker at ``address`` (started here when none
     answers on a local address); set-points arrive on ``drafttwin/NAME/setpoint``."""
     import paho.mqtt.client as mqtt
@@ -206,9 +216,8 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
         if host not in ("127.0.0.1", "localhost"):
             raise ConfigError(f"no MQTT broker answers at {host}:{port}", where="--mqtt",
                               fix="start one there, or use 127.0.0.1 to start the embedded one")  # fmt: skip
-        broker = await start_broker(
-            host, port, None if username is None else {username: password or ""}
-        )
+        users = None if username is None else {username: password or ""}
+        broker = await start_broker(host, port, users, cert_dir)
     plants = {n: LivePlant(seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s)
               for k, n in enumerate(names)}  # fmt: skip
     pending: dict[str, float] = {}
@@ -225,6 +234,8 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
     client.max_queued_messages_set(100_000)  # a stalled broker must not grow memory forever
     if username is not None:
         client.username_pw_set(username, password)
+    if cert_dir is not None:
+        client.tls_set(ca_certs=str(cert_dir / "mqtt_cert.pem"))
     await asyncio.to_thread(client.connect, host, port, 30)
     client.loop_start()
     for _ in range(100):  # a TCP listener that is no MQTT broker never acknowledges

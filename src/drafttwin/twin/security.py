@@ -41,7 +41,43 @@ async def make_certificates(folder: Path, host: str = "127.0.0.1") -> list[Path]
         )  # fmt: skip
     (folder / "trusted").mkdir(exist_ok=True)
     shutil.copyfile(folder / "client_cert.der", folder / "trusted" / "client_cert.der")
-    return [folder / f for f in FILES]
+    _mqtt_tls_certificate(folder, host)
+    return [folder / f for f in (*FILES, "mqtt_cert.pem", "mqtt_key.pem")]
+
+
+def _mqtt_tls_certificate(folder: Path, host: str) -> None:
+    """A self-signed TLS certificate (PEM, 365 days) for the MQTT broker at ``host``; clients
+    trust exactly it (``tls_set(ca_certs=mqtt_cert.pem)``)."""
+    import datetime as dt
+    import ipaddress
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+    from cryptography.x509.oid import NameOID
+
+    from drafttwin._io import write_bytes_atomic
+
+    key = ec.generate_private_key(ec.SECP256R1())
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, host)])
+    try:
+        alt: x509.GeneralName = x509.IPAddress(ipaddress.ip_address(host))
+    except ValueError:
+        alt = x509.DNSName(host)
+    now = dt.datetime.now(dt.UTC)
+    cert = (
+        x509.CertificateBuilder().subject_name(name).issuer_name(name)
+        .public_key(key.public_key()).serial_number(x509.random_serial_number())
+        .not_valid_before(now - dt.timedelta(days=1)).not_valid_after(now + dt.timedelta(days=365))
+        .add_extension(x509.SubjectAlternativeName([alt]), critical=False)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
+        .sign(key, hashes.SHA256())
+    )  # fmt: skip
+    write_bytes_atomic(folder / "mqtt_cert.pem", cert.public_bytes(serialization.Encoding.PEM))
+    pem = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
+                            serialization.NoEncryption())  # fmt: skip
+    write_bytes_atomic(folder / "mqtt_key.pem", pem)
+    (folder / "mqtt_key.pem").chmod(0o600)
 
 
 def _need(folder: Path, *names: str) -> None:

@@ -205,18 +205,27 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
 
             _need(cert, "client_key.pem", "client_cert.der", "server_cert.der")
         return OpcUaSource(url, machines, float(opts.get("publish_ms", 10)), cert)
-    if kind == "mqtt":
+    if kind in ("mqtt", "mqtts"):
         from drafttwin.twin.mqtt import MqttSource
 
         parts = urlsplit(text)
-        opts = _query(parts.query, text, {"machine"})
+        opts = _query(parts.query, text, {"machine", "cert"})
+        ca = None
+        if kind == "mqtts":
+            if "cert" not in opts:
+                raise ConfigError("mqtts needs the broker's certificate", where="--source",
+                                  fix="write mqtts://HOST:PORT?cert=DIR (drafttwin twin certs)")  # fmt: skip
+            ca = Path(opts["cert"]) / "mqtt_cert.pem"
+            if not ca.is_file():
+                raise DataError("file not found", source=ca, where="--source",
+                                fix=f"make it with: drafttwin twin certs --out {opts['cert']}")  # fmt: skip
         machines = mapped or (default.renamed(opts.get("machine", default.name)),)
         password = os.environ.get("DRAFTTWIN_MQTT_PASSWORD") if parts.username else None
         if parts.username and not password:
             raise ConfigError(f"no password for MQTT user {parts.username!r}", where="--source",
                               fix="set DRAFTTWIN_MQTT_PASSWORD (kept out of the command line)")  # fmt: skip
         return MqttSource(parts.hostname or "127.0.0.1", parts.port or 1883, machines,
-                          parts.username, password)  # fmt: skip
+                          parts.username, password, ca)  # fmt: skip
     raise ConfigError(f"unknown source {text!r}", where="--source",
                       fix="use replay:FILE?speed=10, opcua:opc.tcp://HOST:PORT or "
                       "mqtt://[USER@]HOST:PORT")  # fmt: skip
