@@ -346,8 +346,8 @@ def plant_serve(
     cert: Annotated[
         Path | None,
         typer.Option(
-            help="OPC UA: Basic256Sha256 SignAndEncrypt with the certificates in this "
-            "folder ('drafttwin twin certs'); only trusted clients.",
+            help="Security with the certificates in this folder ('drafttwin twin certs'): OPC UA "
+            "Basic256Sha256 SignAndEncrypt, trusted clients only; MQTT over TLS.",
             callback=input_path("--cert"),
         ),
     ] = None,  # fmt: skip
