@@ -65,6 +65,9 @@ BASE: dict[str, list[str]] = {
         "--out",
         "{tmp}/emps",
     ],  # fmt: skip
+    "twin run": ["twin", "run", "--model", "{model}", "--source", "replay:{tmp}/none.csv"],
+    "twin query": ["twin", "query", "--store", "{tmp}/store"],
+    "plant serve": ["plant", "serve", "--opcua", "opc.tcp://127.0.0.1:1", "--duration", "0.1"],
 }
 
 #: every numeric option of every command, with whether 0 and -1 are in its range
@@ -91,10 +94,14 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "reproduce": ["--workers"],
     "grid-search": ["--workers"],
     "benchmark emps": ["--seeds", "--workers", "--epochs", "--max-samples"],
+    "twin run": ["--commit-ms", "--retention-hours", "--silent", "--duration", "--max-samples"],
+    "twin query": ["--from", "--to"],
+    "plant serve": ["--machines", "--seed", "--rate", "--ramp", "--duration"],
 }
 
 #: values inside the range of options that may be zero (these are not hostile there)
-ZERO_OK = {"--settle", "--rate-tolerance", "--threshold", "--seed", "--machine-seed"}
+ZERO_OK = {"--settle", "--rate-tolerance", "--threshold", "--seed", "--machine-seed", "--from",
+           "--to"}  # fmt: skip
 
 
 def numeric_cases() -> list[tuple[str, str, str]]:

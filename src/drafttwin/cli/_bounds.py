@@ -73,6 +73,13 @@ BOUNDS: dict[str, Bound] = {
     "--cases": Bound(1, 100000, "cases", low_inclusive=True),
     "--far-per-day": Bound(0, 1e6, "alarms per 24 h"),
     "--healthy-hours": Bound(0, 1000, "h"),
+    "--commit-ms": Bound(1, 60_000, "ms", low_inclusive=True),
+    "--retention-hours": Bound(0, 1e6, "h"),
+    "--silent": Bound(0.05, 3600, "s", low_inclusive=True),
+    "--from": Bound(0, 1e11, "s", low_inclusive=True),
+    "--to": Bound(0, 1e11, "s", low_inclusive=True),
+    "--machines": Bound(1, 10_000, "machines", low_inclusive=True),
+    "--ramp": Bound(0, 1e4, "Hz/s"),
 }
 
 

@@ -1,0 +1,433 @@
+"""``drafttwin twin run | query`` and ``drafttwin plant serve``: the live twin (docs/twin.md)."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+from rich.table import Table
+
+from drafttwin.cli._bounds import bounded
+from drafttwin.cli._oserrors import input_path, output_dir, output_file
+from drafttwin.cli.app import app, console, err_console, print_json
+from drafttwin.errors import ConfigError
+
+twin_app = typer.Typer(
+    help="The live twin: machines over OPC UA / MQTT or a replayed file, the hybrid per "
+    "sample, a crash-safe history, a page (see docs/twin.md).",
+    no_args_is_help=True,
+)
+app.add_typer(twin_app, name="twin")
+plant_app = typer.Typer(
+    help="The plant emulator as a live machine (see docs/twin.md).", no_args_is_help=True
+)
+app.add_typer(plant_app, name="plant")
+
+
+def _need_twin_extra() -> None:
+    import logging
+
+    # asyncua and amqtt log every reconnect and closed channel; the twin reports them itself
+    for name in ("asyncua", "amqtt", "transitions"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    try:
+        import asyncua  # noqa: F401
+        import duckdb  # noqa: F401
+    except ImportError as exc:
+        raise ConfigError(f"the live twin needs the 'twin' extra ({exc.name} is missing)",
+                          fix="pip install 'drafttwin[twin]'") from None  # fmt: skip
+
+
+def parse_bind(text: str, token: str | None) -> tuple[str, int]:
+    """``HOST:PORT`` for the page; anything but 127.0.0.1 / localhost needs a token."""
+    host, _, port_text = text.rpartition(":")
+    try:
+        port = int(port_text)
+    except ValueError:
+        port = -1
+    if not host or not 0 <= port <= 65535:
+        raise ConfigError(f"bad address {text!r}", where="--http",
+                          fix="write HOST:PORT, e.g. 127.0.0.1:8050")  # fmt: skip
+    if host not in ("127.0.0.1", "localhost", "::1") and not token:
+        raise ConfigError(f"refusing to serve the page on {host} without a token", where="--http",
+                          fix="bind 127.0.0.1, or pass --token (or DRAFTTWIN_TOKEN) so every "
+                          "request must carry it")  # fmt: skip
+    if token is not None and len(token) < 16:
+        raise ConfigError("the token is shorter than 16 characters", where="--token",
+                          fix="use a long random token, e.g. python -c 'import secrets; "
+                          "print(secrets.token_urlsafe())'")  # fmt: skip
+    return host, port
+
+
+@twin_app.command("run")
+def twin_run(
+    model: Annotated[
+        Path,
+        typer.Option(
+            help="Model file (.dtm) for the machines (a mapping may name others).",
+            callback=input_path("--model"),
+        ),
+    ],  # fmt: skip
+    source: Annotated[
+        list[str],
+        typer.Option(
+            help="replay:FILE?speed=10&machine=NAME | opcua:opc.tcp://HOST:PORT | "
+            "mqtt://HOST:PORT; repeat for several sources."
+        ),
+    ],  # fmt: skip
+    mapping: Annotated[
+        Path | None,
+        typer.Option(
+            help="Mapping TOML: machines, their nodes/topics, fields, models.",
+            callback=input_path("--mapping"),
+        ),
+    ] = None,  # fmt: skip
+    store: Annotated[
+        Path | None,
+        typer.Option(
+            help="Store folder (DuckDB): every sample, prediction, residual, event.",
+            callback=output_dir("--store"),
+        ),
+    ] = None,  # fmt: skip
+    commit_ms: Annotated[
+        float,
+        typer.Option(
+            help="Commit interval, ms: a crash loses at most this much.",
+            callback=bounded("--commit-ms"),
+        ),
+    ] = 200.0,  # fmt: skip
+    retention_hours: Annotated[
+        float | None,
+        typer.Option(
+            help="Keep this many hours per machine (default: all).",
+            callback=bounded("--retention-hours"),
+        ),
+    ] = None,  # fmt: skip
+    http: Annotated[
+        str | None, typer.Option(help="Serve the page, REST API and /metrics on HOST:PORT.")
+    ] = None,
+    token: Annotated[
+        str | None,
+        typer.Option(
+            envvar="DRAFTTWIN_TOKEN",
+            help="Token every request must carry (required off 127.0.0.1).",
+        ),
+    ] = None,  # fmt: skip
+    physics: Annotated[str, typer.Option(help="reduced (fast) | full drive train.")] = "reduced",
+    silent: Annotated[
+        float,
+        typer.Option(
+            help="A machine silent this long (s) is marked as a gap.", callback=bounded("--silent")
+        ),
+    ] = 2.0,  # fmt: skip
+    duration: Annotated[
+        float | None,
+        typer.Option(
+            help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
+        ),
+    ] = None,  # fmt: skip
+    max_samples: Annotated[
+        int | None,
+        typer.Option(
+            help="Stop after this many processed samples.", callback=bounded("--max-samples")
+        ),
+    ] = None,  # fmt: skip
+    verbose: Annotated[bool, typer.Option(help="A line per store commit.")] = False,
+    quiet: Annotated[bool, typer.Option(help="No status line every 10 s on stderr.")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print the final status as JSON.")
+    ] = False,
+) -> None:
+    """Run the live twin: per sample, the paper's causal cleaning, the physics following the
+    set-point, the model through one incremental predictor; store and serve the result.
+    Stops when every source ended (a replay), after --duration or --max-samples, or on Ctrl-C."""
+    _need_twin_extra()
+    import torch
+
+    from drafttwin.twin.build import build_service
+
+    torch.set_num_threads(1)  # one window per sample: threads cost more than they give
+    if physics not in ("reduced", "full"):
+        raise ConfigError(f"unknown physics {physics!r}", where="--physics",
+                          fix="use reduced or full")  # fmt: skip
+    bind = None if http is None else parse_bind(http, token)
+
+    def on_commit(rows: int, last_ts_us: int) -> None:
+        if verbose:
+            print(f"commit rows={rows} last_ts_us={last_ts_us}", flush=True)
+
+    service = build_service(model, source, mapping=mapping, store_dir=store, commit_ms=commit_ms,
+                            retention_s=None if retention_hours is None else retention_hours * 3600,
+                            physics=physics, silent_s=silent, on_commit=on_commit)  # fmt: skip
+    start = time.monotonic()
+    try:
+        asyncio.run(_serve(service, bind, token, duration, max_samples, quiet))
+    except OSError as exc:
+        raise ConfigError(f"cannot serve the page on {http} ({exc.strerror or exc})",
+                          where="--http", fix="choose a free port") from None  # fmt: skip
+    except KeyboardInterrupt:
+        err_console.print("interrupted: committing what was received")
+    finally:
+        if service.writer is not None:
+            service.writer.close()
+            service.writer.store.close()
+    status = service.status()
+    status["wall_s"] = time.monotonic() - start
+    if as_json:
+        print_json(status)
+        return
+    _print_status(status)
+
+
+async def _serve(service, bind, token, duration, max_samples, quiet) -> None:  # noqa: ANN001
+    ticker = None if quiet else asyncio.create_task(_status_lines(service))
+    try:
+        if bind is None:
+            await service.run(duration_s=duration, max_rows=max_samples)
+            return
+        from drafttwin.twin.web import serve_with
+
+        def started(_: object) -> None:
+            err_console.print(f"page on http://{bind[0]}:{bind[1]}/")
+
+        await serve_with(service, bind, token, duration, max_samples, started)
+    finally:
+        if ticker is not None:
+            ticker.cancel()
+
+
+async def _status_lines(service) -> None:  # noqa: ANN001
+    """One line every 10 s: samples, p99 latency, machines by state (a live run has no end
+    to show a progress bar against)."""
+    while True:
+        await asyncio.sleep(10.0)
+        status = service.status()
+        states: dict[str, int] = {}
+        for m in status["machines"].values():
+            states[m["state"]] = states.get(m["state"], 0) + 1
+        p99 = status["latency_ms"]["p99"]
+        err_console.print(f"{status['rows']} samples, p99 {'-' if p99 is None else f'{p99:.1f}'} "
+                          "ms, machines " + ", ".join(f"{v} {k}" for k, v in states.items()),
+                          highlight=False)  # fmt: skip
+
+
+def _print_status(status: dict) -> None:
+    table = Table(title=f"live twin: {status['rows']} samples in {status['wall_s']:.1f} s")
+    for col in ("machine", "state", "received", "processed", "dropped", "late", "duplicate",
+                "skipped", "spikes"):  # fmt: skip
+        table.add_column(col, justify="left" if col in ("machine", "state") else "right")
+    for name, m in status["machines"].items():
+        table.add_row(name, m["state"], str(m["received"]), str(m["processed"]), str(m["dropped"]),
+                      str(m["late"]), str(m["duplicate"]), str(m["skipped"]),
+                      str(m["spikes_rejected"]))  # fmt: skip
+    console.print(table)
+    lat = status["latency_ms"]
+    if lat["p99"] is not None:
+        console.print(f"latency received -> stored/pushed: p50 {lat['p50']:.2f} ms, "
+                      f"p99 {lat['p99']:.2f} ms, max {lat['max']:.2f} ms")  # fmt: skip
+    if status["store"] is not None:
+        console.print(f"store: {status['store']['committed']} rows committed")
+
+
+@twin_app.command("query")
+def twin_query(
+    store: Annotated[
+        Path, typer.Option(help="Store folder a twin wrote.", callback=input_path("--store"))
+    ],
+    machine: Annotated[str | None, typer.Option(help="One machine (default: all).")] = None,
+    t_from: Annotated[
+        float | None,
+        typer.Option("--from", help="From this time, s (inclusive).", callback=bounded("--from")),
+    ] = None,  # fmt: skip
+    t_to: Annotated[
+        float | None,
+        typer.Option("--to", help="To this time, s (inclusive).", callback=bounded("--to")),
+    ] = None,  # fmt: skip
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write the samples to a .csv or .parquet file.", callback=output_file("--out")
+        ),
+    ] = None,  # fmt: skip
+    events: Annotated[bool, typer.Option(help="Export the events instead of samples.")] = False,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+) -> None:
+    """Export a twin's history (all of it by default): per sample the measured values, the
+    physics, the twin's prediction and the residual per channel; or its events."""
+    _need_twin_extra()
+    from drafttwin._io import atomic_path
+    from drafttwin.cli._common import check_output_suffix
+    from drafttwin.twin.history import read_events, read_history, summary
+
+    if out is not None:
+        check_output_suffix(out)
+    if t_from is not None and t_to is not None and t_to < t_from:
+        raise ConfigError(f"--to {t_to:g} is before --from {t_from:g}", where="--to",
+                          fix="give --from <= --to")  # fmt: skip
+    frame = read_events(store, machine) if events else read_history(store, machine, t_from, t_to)
+    if out is not None:
+        with atomic_path(out) as tmp:
+            if out.suffix.lower() == ".parquet":
+                frame.to_parquet(tmp, index=False)
+            else:
+                frame.to_csv(tmp, index=False, float_format="%.10g")
+    machines = summary(store)
+    if as_json:
+        print_json({"rows": len(frame), "out": None if out is None else str(out),
+                    "machines": machines})  # fmt: skip
+        return
+    table = Table(title=f"twin store {store}")
+    for col in ("machine", "samples", "first s", "last s", "events"):
+        table.add_column(col, justify="left" if col == "machine" else "right")
+    for m in machines:
+        table.add_row(str(m["machine"]), str(m["samples"]), _t(m["first_s"]), _t(m["last_s"]),
+                      str(m["events"]))  # fmt: skip
+    console.print(table)
+    console.print(f"{len(frame)} {'events' if events else 'samples'} selected"
+                  + (f", wrote {out}" if out is not None else ""))  # fmt: skip
+
+
+def _t(x: object) -> str:
+    return f"{x:.3f}" if isinstance(x, float) and math.isfinite(x) else "-"
+
+
+@plant_app.command("serve")
+def plant_serve(
+    opcua: Annotated[
+        str | None,
+        typer.Option(help="Serve over OPC UA at this address, e.g. opc.tcp://127.0.0.1:4840."),
+    ] = None,  # fmt: skip
+    mqtt: Annotated[
+        str | None,
+        typer.Option(
+            help="Publish to the MQTT broker at HOST:PORT (one is started "
+            "there if none answers and HOST is local)."
+        ),
+    ] = None,  # fmt: skip
+    name: Annotated[str, typer.Option(help="Machine name (NAME-1, NAME-2... for several).")] = (
+        "fa320a"
+    ),
+    machines: Annotated[
+        int, typer.Option(help="Number of machines.", callback=bounded("--machines"))
+    ] = 1,
+    seed: Annotated[
+        int,
+        typer.Option(
+            help="Seed of the first machine (+1 per machine).", callback=bounded("--seed")
+        ),
+    ] = 0,  # fmt: skip
+    rate: Annotated[
+        float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))
+    ] = 100.0,
+    physics: Annotated[str, typer.Option(help="full (the truth) | reduced (many machines).")] = (
+        "full"
+    ),
+    ramp: Annotated[
+        float,
+        typer.Option(help="VFD ramp toward a new set-point, Hz/s.", callback=bounded("--ramp")),
+    ] = 10.0,  # fmt: skip
+    duration: Annotated[
+        float | None,
+        typer.Option(
+            help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
+        ),
+    ] = None,  # fmt: skip
+    mqtt_user: Annotated[
+        str | None,
+        typer.Option(
+            help="MQTT: connect as this user (password in "
+            "DRAFTTWIN_MQTT_PASSWORD); the embedded broker admits only it."
+        ),
+    ] = None,  # fmt: skip
+    cert: Annotated[
+        Path | None,
+        typer.Option(
+            help="Security with the certificates in this folder ('drafttwin twin certs'): OPC UA "
+            "Basic256Sha256 SignAndEncrypt, trusted clients only; MQTT over TLS.",
+            callback=input_path("--cert"),
+        ),
+    ] = None,  # fmt: skip
+) -> None:
+    """Run the plant emulator in real time as live machines: roller and motor speeds every
+    sample, a writable supply set-point (write it and the plant changes speed)."""
+    _need_twin_extra()
+    if (opcua is None) == (mqtt is None):
+        raise ConfigError("give one of --opcua and --mqtt", where="--opcua",
+                          fix="e.g. --opcua opc.tcp://127.0.0.1:4840")  # fmt: skip
+    if physics not in ("full", "reduced"):
+        raise ConfigError(f"unknown physics {physics!r}", where="--physics",
+                          fix="use full or reduced")  # fmt: skip
+    if rate > 1000:
+        raise ConfigError(f"--rate {rate:g}: a live plant publishes at most 1000 Hz",
+                          where="--rate", fix="use --rate 100 (the FA320A logger's rate)")  # fmt: skip
+    names = [name] if machines == 1 else [f"{name}-{k + 1}" for k in range(machines)]
+    opts: dict[str, Any] = {"seed": seed, "rate_hz": rate, "physics": physics, "ramp_hz_per_s": ramp,
+            "duration_s": duration}  # fmt: skip
+    if opcua is not None:
+        from drafttwin.twin.plantserver import parse_opcua_url, serve_opcua
+
+        parse_opcua_url(opcua)
+
+        def ready() -> None:
+            err_console.print(f"serving {', '.join(names)} on OPC UA {opcua}, nodes "
+                              "ns=2;s=NAME.sample (Ctrl-C stops)")  # fmt: skip
+
+        try:
+            counts = asyncio.run(serve_opcua(opcua, names, ready=ready, cert_dir=cert, **opts))
+        except KeyboardInterrupt:
+            return
+        except OSError as exc:
+            raise ConfigError(f"cannot serve on {opcua} ({exc.strerror or exc})", where="--opcua",
+                              fix="choose a free port") from None  # fmt: skip
+    else:
+        from drafttwin.twin.mqtt import parse_hostport, serve_mqtt
+
+        parse_hostport(str(mqtt), "--mqtt")
+
+        def said(where: str) -> None:
+            err_console.print(f"serving {', '.join(names)} on {where}, topics "
+                              "drafttwin/NAME/sample (Ctrl-C stops)")  # fmt: skip
+
+        try:
+            counts = asyncio.run(serve_mqtt(str(mqtt), names, ready=said, username=mqtt_user,
+                                            password=_mqtt_password(mqtt_user), cert_dir=cert,
+                                            **opts))  # fmt: skip
+        except KeyboardInterrupt:
+            return
+        except OSError as exc:
+            raise ConfigError(f"cannot reach or start a broker at {mqtt} ({exc.strerror or exc})",
+                              where="--mqtt", fix="choose a free port or a running broker") from None  # fmt: skip
+    console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in counts.items()))
+
+
+@twin_app.command("certs")
+def twin_certs(
+    out: Annotated[
+        Path,
+        typer.Option(help="Folder for the keys and certificates.", callback=output_dir("--out")),
+    ],  # fmt: skip
+    host: Annotated[str, typer.Option(help="Host name in the certificates.")] = "127.0.0.1",
+) -> None:
+    """Make self-signed OPC UA certificates (365 days) for 'plant serve --cert' and the twin's
+    source 'opcua:URL?cert=DIR'. Existing valid ones are kept."""
+    _need_twin_extra()
+    from drafttwin.twin.security import make_certificates
+
+    paths = asyncio.run(make_certificates(out, host))
+    console.print("wrote " + ", ".join(str(p) for p in paths) + f" and {out / 'trusted'}")
+
+
+def _mqtt_password(user: str | None) -> str | None:
+    import os
+
+    if user is None:
+        return None
+    password = os.environ.get("DRAFTTWIN_MQTT_PASSWORD")
+    if not password:
+        raise ConfigError(f"no password for MQTT user {user!r}", where="--mqtt-user",
+                          fix="set DRAFTTWIN_MQTT_PASSWORD (kept out of the command line)")  # fmt: skip
+    return password

@@ -1,0 +1,115 @@
+"""The plant as a live machine: stepped in real time, its supply set-point changed while it
+runs (``drafttwin plant serve`` publishes it over OPC UA or MQTT).
+
+What it keeps of the recorded plant (:class:`~drafttwin.plant.Plant`): the machine's true
+drive train (seeded parameter deviations, :class:`~drafttwin.plant.Machine`), encoders
+counting whole edges over each sample window, dropped samples and spikes at the configured
+rates. What it leaves out, because they are drawn over a whole record in advance: the
+drafting-force noise, supply jitter, eccentricity torques and thermal drift. The VFD ramps its
+output toward a written set-point at ``ramp_hz_per_s`` (an assumed acceleration setting).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from drafttwin._constants import ROLLERS
+from drafttwin.errors import ConfigError
+from drafttwin.mechanics import DriveTrain, reduce
+from drafttwin.mechanics.stepper import LiveStepper
+from drafttwin.plant.config import PlantConfig
+from drafttwin.plant.machine import Machine
+
+DEFAULT_RAMP_HZ_PER_S = 10.0
+"""VFD acceleration/deceleration, Hz/s (assumption: 5 s from 0 to 50 Hz)."""
+MAX_SUPPLY_HZ = 120.0
+"""Highest set-point accepted, Hz (the FA320A motor is rated at 50 Hz)."""
+
+
+@dataclass(frozen=True)
+class LiveSample:
+    """One published sample: counter, time (s), measured roller speeds (rpm, NaN dropped),
+    measured motor speed (rpm) and the VFD output frequency (Hz)."""
+
+    seq: int
+    time_s: float
+    rollers_rpm: np.ndarray
+    motor_rpm: float
+    supply_hz: float
+    true_rpm: np.ndarray
+
+
+class LivePlant:
+    """A drawing frame stepped one sample at a time.
+
+    Args:
+        seed: draws the machine (its true parameters) and the data-path defects.
+        rate_hz: sample rate, Hz.
+        t0_s: time of the first state, s (e.g. the epoch time when serving).
+        physics: ``full`` (the truth, default) or ``reduced`` (for many machines on one core).
+    """
+
+    def __init__(self, seed: int = 0, rate_hz: float = 100.0, *, t0_s: float = 0.0,
+                 train: DriveTrain | None = None, config: PlantConfig | None = None,
+                 physics: str = "full", ramp_hz_per_s: float = DEFAULT_RAMP_HZ_PER_S) -> None:  # fmt: skip
+        nominal = train if train is not None else DriveTrain.preset("fa320a")
+        self.config = config if config is not None else PlantConfig()
+        if nominal.spec.motor is None:
+            raise ConfigError("the live plant follows the motor's supply; the train has none",
+                              source=nominal.source, fix="add a [motor] to the train")  # fmt: skip
+        self.machine = Machine.draw(nominal, self.config, seed)
+        truth = reduce(self.machine.train) if physics == "reduced" else self.machine.train
+        self.supply_hz = self.target_hz = float(nominal.spec.motor.supply_hz)
+        self.ramp = float(ramp_hz_per_s)
+        self.rate_hz = float(rate_hz)
+        self.t0_s = float(t0_s)  # times are t0 + seq / rate: no round-off piling up
+        self.stepper = LiveStepper(truth, rate_hz, self.supply_hz)
+        self._rollers = [int(truth.roller_nodes[r]) for r in ROLLERS]
+        self._motor = self.stepper.motor_node
+        s = self.config.sensors
+        self._cpr = s.pulses_per_rev * s.quadrature
+        self._rng = np.random.default_rng(np.random.SeedSequence([seed, 0x11FE]))
+        self._rev = self._rng.uniform(0.0, 1.0, len(ROLLERS) + 1)  # arbitrary encoder zeros
+        self._counts = np.floor(self._rev * self._cpr)
+        self.seq = 0
+
+    def set_supply(self, hz: float) -> None:
+        """A new VFD set-point, Hz; the output ramps to it."""
+        if not (math.isfinite(hz) and 0.0 <= hz <= MAX_SUPPLY_HZ):
+            raise ConfigError(f"supply set-point {hz!r} Hz", where="supply_setpoint_hz",
+                              fix=f"write a number from 0 to {MAX_SUPPLY_HZ:g} Hz")  # fmt: skip
+        self.target_hz = float(hz)
+
+    def step(self) -> LiveSample:
+        """Advance one sample: ramp the supply, integrate, count encoder edges."""
+        dt = 1.0 / self.rate_hz
+        delta = self.target_hz - self.supply_hz
+        limit = self.ramp * dt if self.ramp > 0 else math.inf
+        self.supply_hz += max(-limit, min(limit, delta))
+        node_rpm = self.stepper.step(self.supply_hz)
+        true = node_rpm[[*self._rollers, self._motor]]
+        self._rev += true / 60.0 * dt
+        counts = np.floor(self._rev * self._cpr)
+        measured = (counts - self._counts) / self._cpr * 60.0 / dt
+        self._counts = counts
+        s = self.config.sensors
+        rollers = measured[:-1].copy()
+        spikes = self._rng.random(len(rollers)) < s.outlier_rate
+        if spikes.any():
+            lo, hi = s.outlier_size
+            size = lo + (hi - lo) * self._rng.random(len(rollers))
+            sign = np.where(self._rng.random(len(rollers)) < 0.5, -1.0, 1.0)
+            rollers = np.where(spikes, rollers * (1.0 + sign * size), rollers)
+        motor = float(measured[-1])
+        if self._rng.random() < s.missing_rate:  # a dropped logger row
+            rollers[:] = np.nan
+            motor = math.nan
+        self.seq += 1
+        time_s = self.t0_s + self.seq / self.rate_hz
+        return LiveSample(self.seq, time_s, rollers, motor, self.supply_hz, true[:-1])
+
+
+__all__ = ["DEFAULT_RAMP_HZ_PER_S", "LivePlant", "LiveSample"]

@@ -1,0 +1,227 @@
+"""The live twin service: sources -> per-machine hybrid -> store, page and metrics.
+
+One asyncio loop runs every source and processes each sample as it arrives (the machine's
+hybrid is a few hundred microseconds to a few milliseconds of CPU); a writer thread commits
+the store; the page's WebSocket clients get each processed row. A machine whose source goes
+silent for ``silent_s`` is marked (an event, its state on the page) and its held rows are
+released; the others run on.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from drafttwin.models.online import forecast_many
+from drafttwin.twin.live import Begun, MachineTwin
+from drafttwin.twin.mapping import MachineMap
+from drafttwin.twin.sources import Sample, Source
+from drafttwin.twin.store import EventRow, SampleRow, StoreWriter
+
+LATENCY_WINDOW = 20_000
+"""Latencies kept for the percentiles (sample received -> stored and pushed)."""
+HISTORY_ROWS = 3000
+"""Rows per machine kept in memory for the page (30 s at 100 Hz)."""
+
+
+@dataclass
+class MachineState:
+    """What the page and /api/status show for a machine."""
+
+    twin: MachineTwin
+    mapping: MachineMap
+    source: str
+    state: str = "connecting"
+    received: int = 0
+    dropped: int = 0
+    skipped: int = 0  # already in the store (a restart resumed after them)
+    last_wall: float = 0.0
+    resume_after_us: int | None = None
+    recent: deque[SampleRow] = field(default_factory=lambda: deque(maxlen=HISTORY_ROWS))
+    alarms: deque[EventRow] = field(default_factory=lambda: deque(maxlen=200))
+
+
+class TwinService:
+    """Run ``twins`` fed by ``sources``; rows go to ``writer`` (if any) and subscribers."""
+
+    def __init__(self, states: dict[str, MachineState], sources: Sequence[Source],
+                 writer: StoreWriter | None = None, *, silent_s: float = 2.0) -> None:  # fmt: skip
+        self.states, self.sources, self.writer = states, list(sources), writer
+        self.silent_s = silent_s
+        self.latency_s: deque[float] = deque(maxlen=LATENCY_WINDOW)
+        self.rows = 0
+        self.subscribers: list[Callable[[str, list[SampleRow], list[EventRow]], None]] = []
+        self.metrics: Any = None  # drafttwin.twin.web.Metrics when the page runs
+        self.event_hooks: list[Callable[[EventRow], None]] = []
+        self.started = time.monotonic()
+        self._stop = asyncio.Event()
+        self._batch: list[Sample] = []
+        self._scheduled = False
+
+    # ---- samples in ---------------------------------------------------------------------
+    def on_sample(self, s: Sample) -> None:
+        """Queue a sample; the samples that arrive in one turn of the event loop (one OPC UA
+        publish, one tick of the machines) are processed together, one network pass for all
+        machines that share a model (:func:`~drafttwin.models.online.forecast_many`)."""
+        self._batch.append(s)
+        if self._scheduled:
+            return
+        try:
+            loop = asyncio.get_running_loop()
+        except RuntimeError:  # called outside a loop (a script): at once
+            self._run_batch()
+            return
+        self._scheduled = True
+        loop.call_soon(self._run_batch)
+
+    def _run_batch(self) -> None:
+        self._scheduled = False
+        batch, self._batch = self._batch, []
+        rnd: list[tuple[MachineState, Begun, float]] = []
+        for s in batch:
+            st = self.states.get(s.machine)
+            if st is None:
+                continue
+            st.received += 1
+            st.last_wall = time.monotonic()
+            if st.state != "live":
+                st.state = "live"
+            if st.resume_after_us is not None and s.ts_us <= st.resume_after_us:
+                st.skipped += 1  # stored before a restart: not again
+                continue
+            if any(r[0] is st for r in rnd):  # a second sample of a machine: finish the first
+                self._finish(rnd)
+                rnd = []
+            rows, begun = st.twin.receive_deferred(s.ts_us, s.seq, s.values, s.setpoint, s.received)
+            self._out(st, rows, s.received)
+            if begun is not None:
+                rnd.append((st, begun, s.received))
+        self._finish(rnd)
+
+    def _finish(self, rnd: list[tuple[MachineState, Begun, float]]) -> None:
+        if not rnd:
+            return
+        twins = forecast_many([b.predictor for _, b, _ in rnd], [b.ts_us / 1e6 for _, b, _ in rnd])
+        for (st, b, received), twin in zip(rnd, twins, strict=True):
+            self._out(st, [st.twin.end(b, twin)], received)
+
+    def _out(self, st: MachineState, rows: list[SampleRow], received: float | None) -> None:
+        events, st.twin.events = st.twin.events, []
+        for ev in events:
+            self._event(st, ev)
+        if not rows:
+            if events:
+                for push in self.subscribers:
+                    push(st.twin.name, [], events)
+            return
+        for row in rows:
+            st.recent.append(row)
+            if self.writer is not None:
+                self.writer.put(row)
+        for push in self.subscribers:
+            push(st.twin.name, rows, events)
+        self.rows += len(rows)
+        if received is not None:
+            lat = time.perf_counter() - received
+            self.latency_s.append(lat)
+            if self.metrics is not None:
+                self.metrics.observe(st.twin.name, len(rows), lat)
+
+    def report(self, machine: str, kind: str, detail: str, count: int = 1) -> None:
+        """A source's state change, or ``count`` dropped payloads."""
+        st = self.states.get(machine)
+        if st is None:
+            return
+        if kind.startswith("source-"):
+            st.state = kind.removeprefix("source-")
+        if kind == "dropped":
+            before, st.dropped = st.dropped, st.dropped + count
+            if self.metrics is not None:
+                self.metrics.dropped(machine, count)
+            if before >= 100 and before // 1000 == st.dropped // 1000:
+                return  # a flood: counted, one event per 1000
+        self._event(st, EventRow(machine, kind, int(time.time() * 1e6), detail[:500]))
+
+    def _event(self, st: MachineState, ev: EventRow) -> None:
+        st.alarms.append(ev)
+        for hook in self.event_hooks:
+            hook(ev)
+        if self.writer is not None:
+            self.writer.put(ev)
+
+    # ---- running ------------------------------------------------------------------------
+    async def _watch(self) -> None:
+        """Mark silent machines and release what their reorder buffers hold."""
+        while not self._stop.is_set():
+            await asyncio.sleep(min(0.5, self.silent_s / 2))
+            now = time.monotonic()
+            for st in self.states.values():
+                quiet = st.last_wall and now - st.last_wall > self.silent_s
+                if quiet and st.state == "live":
+                    st.state = "silent"
+                    self._event(st, EventRow(st.twin.name, "silent", int(time.time() * 1e6),
+                                             f"no sample for {self.silent_s:g} s"))  # fmt: skip
+                    self._out(st, st.twin.flush(), None)
+
+    async def run(self, *, duration_s: float | None = None, max_rows: int | None = None) -> None:
+        """Run until every source ended, ``duration_s`` passed or ``max_rows`` were processed."""
+        tasks = [asyncio.create_task(src.run(self.on_sample, self.report)) for src in self.sources]
+        watch = asyncio.create_task(self._watch())
+        deadline = math.inf if duration_s is None else time.monotonic() + duration_s
+        try:
+            while time.monotonic() < deadline and not self._stop.is_set():
+                if max_rows is not None and self.rows >= max_rows:
+                    break
+                if all(t.done() for t in tasks):
+                    for t in tasks:
+                        if t.exception() is not None:
+                            raise t.exception()  # type: ignore[misc]
+                    break
+                await asyncio.sleep(0.05)
+        finally:
+            self._stop.set()
+            for t in [*tasks, watch]:
+                t.cancel()
+            # a client library stuck in its own clean-up must not hold the twin's shutdown
+            await asyncio.wait([*tasks, watch], timeout=5.0)
+            self._run_batch()
+            for st in self.states.values():
+                self._out(st, st.twin.flush(), None)
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    # ---- figures ------------------------------------------------------------------------
+    def latency_ms(self) -> dict[str, float | None]:
+        if not self.latency_s:
+            return {"p50": None, "p99": None, "max": None}
+        lat = np.asarray(self.latency_s) * 1e3
+        return {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99)),
+                "max": float(lat.max())}  # fmt: skip
+
+    def status(self) -> dict[str, Any]:
+        return {
+            "uptime_s": time.monotonic() - self.started,
+            "rows": self.rows,
+            "latency_ms": self.latency_ms(),
+            "store": None if self.writer is None else {
+                "committed": self.writer.committed, "dropped": self.writer.dropped,
+                "commit_ms": self.writer.commit_s * 1e3},
+            "machines": {name: {"state": st.state, "received": st.received,
+                                "processed": st.twin.n_rows, "dropped": st.dropped,
+                                "skipped": st.skipped, "late": st.twin.reorder.late,
+                                "duplicate": st.twin.reorder.duplicate,
+                                "spikes_rejected": st.twin.filter.rejected,
+                                "source": st.source}
+                         for name, st in self.states.items()},
+        }  # fmt: skip
+
+
+__all__ = ["MachineState", "TwinService"]

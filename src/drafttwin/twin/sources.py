@@ -1,0 +1,256 @@
+"""Where a live twin's samples come from: a replayed file, an OPC UA server, an MQTT broker.
+
+Every source delivers whole rows, one per machine and sample time (a :class:`Sample`): the
+machine's output channels, its set-point, a sequence number and the sample's own time stamp.
+One vector per machine per tick, not one value per roller: a row arrives whole or not at
+all, the sequence number reveals losses and defeats OPC UA's suppression of equal values,
+and it costs the transport a fifth of the notifications (docs/twin.md, measured figures).
+
+A source runs as an asyncio task, calls ``emit`` for each sample, reports its state
+(``connecting``, ``live``, ``reconnecting``, ``ended``) and reconnects with exponential
+backoff; it never blocks another machine's source.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+from urllib.parse import parse_qs, urlsplit
+
+import numpy as np
+
+from drafttwin.errors import ConfigError, DataError
+from drafttwin.twin.mapping import MachineMap
+
+SERVER_QUEUE = 10_000
+"""Monitored-item queue asked of an OPC UA server (samples kept while the twin is busy)."""
+BACKOFF_S = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
+"""Waits between reconnect attempts (the last one repeats)."""
+
+
+@dataclass
+class Sample:
+    """One row of one machine: values in the order of its mapping's channels."""
+
+    machine: str
+    ts_us: int
+    seq: int
+    values: np.ndarray
+    setpoint: float
+    received: float = field(default_factory=time.perf_counter)
+
+
+Emit = Callable[[Sample], None]
+Report = Callable[..., None]  # (machine, kind, detail[, count]): state changes, drops
+
+
+class Source:
+    """Base class: ``machines`` served, ``state``, ``run(emit, report)``."""
+
+    spec: str = ""
+    machines: tuple[MachineMap, ...] = ()
+    state: str = "connecting"
+
+    async def run(self, emit: Emit, report: Report) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def _set(self, state: str, report: Report, detail: str = "") -> None:
+        if state != self.state:
+            self.state = state
+            for m in self.machines:
+                report(m.name, f"source-{state}", detail or self.spec)
+
+
+# ---- replay -------------------------------------------------------------------------------
+class ReplaySource(Source):
+    """A plant (or measured) file replayed at ``speed`` times real time (``inf``: at once)."""
+
+    def __init__(self, path: Path, machine: MachineMap, speed: float = 1.0) -> None:
+        from drafttwin.data.io import read_measurements
+
+        self.spec = f"replay:{path}"
+        self.machines = (machine,)
+        self.speed = speed
+        series = read_measurements(path, outputs=list(machine.channels), check_units=False)
+        if machine.setpoint not in series.inputs:
+            raise DataError(f"no set-point column {machine.setpoint!r}", source=path,
+                            fix="replay a file 'drafttwin generate' wrote (it has supply_hz), "
+                            "or name the set-point column in the mapping (setpoint = ...)")  # fmt: skip
+        self.ts_us = np.round(series.time_s * 1e6).astype(np.int64)
+        self.values = series.values
+        self.setpoints = np.asarray(series.inputs[machine.setpoint], dtype=np.float64)
+        self.first = 0
+
+    def skip_to(self, after_us: int | None) -> None:
+        """Start after ``after_us`` (a restart: those rows are stored already)."""
+        if after_us is not None:
+            self.first = int(np.searchsorted(self.ts_us, after_us, "right"))
+
+    async def run(self, emit: Emit, report: Report) -> None:
+        self._set("live", report)
+        name = self.machines[0].name
+        start_wall = time.monotonic()
+        t0 = self.ts_us[self.first] if self.first < len(self.ts_us) else 0
+        for i in range(self.first, len(self.ts_us)):
+            if math.isfinite(self.speed):
+                due = start_wall + (self.ts_us[i] - t0) / 1e6 / self.speed
+                delay = due - time.monotonic()
+                # always yield: a loop behind schedule must still let the others run
+                await asyncio.sleep(max(delay, 0.0))
+            elif i % 50 == 0:
+                await asyncio.sleep(0)  # let the other machines and the page run
+            emit(Sample(name, int(self.ts_us[i]), i, self.values[i], float(self.setpoints[i])))
+        self._set("ended", report)
+
+
+# ---- OPC UA -------------------------------------------------------------------------------
+class OpcUaSource(Source):
+    """A subscription to each machine's sample node (a Double array laid out as the
+    mapping's ``fields``), with queue sizes that keep every sample (docs/twin.md)."""
+
+    def __init__(self, url: str, machines: tuple[MachineMap, ...], publish_ms: float = 10.0,
+                 cert_dir: Path | None = None) -> None:  # fmt: skip
+        self.spec, self.url, self.machines = f"opcua:{url}", url, machines
+        self.publish_ms = publish_ms
+        self.cert_dir = cert_dir
+        self.silence_s = 5.0
+        self.client: Any = None
+
+    async def run(self, emit: Emit, report: Report) -> None:
+        from asyncua import Client
+        from asyncua.common.subscription import DataChangeEvent, OverflowPolicy
+
+        by_node = {m.node: m for m in self.machines}
+        attempt = 0
+        while True:
+            client = Client(self.url, timeout=2.0, watchdog_intervall=1.0)
+            try:
+                if self.cert_dir is not None:
+                    from drafttwin.twin.security import secure_client
+
+                    await secure_client(client, self.cert_dir)
+                async with client:
+                    self.client = client
+                    # server queues of 100 s at 100 Hz (asyncua's cap, 10 000; a spec server
+                    # needs at least 2x the samples per publishing interval) and a client queue
+                    # of minutes: a stalled loop loses nothing on either side
+                    sub = await client.create_subscription(
+                        self.publish_ms, None, queue_maxsize=200_000,
+                        overflow=OverflowPolicy.DISCONNECT)  # fmt: skip
+                    async with sub:
+                        nodes = [client.get_node(n) for n in by_node]
+                        await sub.subscribe_data_change(nodes, queuesize=SERVER_QUEUE)
+                        self._set("live", report)
+                        attempt = 0
+                        while True:
+                            # a subscription that goes quiet without an error (opcua-asyncio
+                            # #1925) is dropped and made again, like a broken connection
+                            ev = await asyncio.wait_for(anext(sub), self.silence_s)
+                            if not isinstance(ev, DataChangeEvent):
+                                continue
+                            m = by_node.get(ev.node.nodeid.to_string())
+                            if m is None:
+                                continue
+                            row = m.from_array(ev.value)
+                            if row is None:
+                                report(m.name, "dropped", f"malformed value {str(ev.value)[:80]}")
+                            else:
+                                emit(Sample(m.name, *row))
+            except asyncio.CancelledError:
+                raise
+            except TimeoutError:
+                self._set("reconnecting", report, f"no sample for {self.silence_s:g} s")
+            except Exception as exc:  # noqa: BLE001  any network / server failure: reconnect
+                self._set("reconnecting", report, f"{type(exc).__name__}: {exc}"[:200])
+            finally:
+                self.client = None
+                with contextlib.suppress(Exception):
+                    await client.disconnect()
+            await asyncio.sleep(BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
+            attempt += 1
+
+
+# ---- parsing --------------------------------------------------------------------------------
+def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...]) -> Source:
+    """``replay:FILE?speed=10&machine=NAME``, ``opcua:opc.tcp://HOST:PORT``,
+    ``mqtt://HOST:PORT`` into a source (its machines from the mapping, or ``default``)."""
+    kind, _, rest = text.partition(":")
+    if kind == "replay":
+        path, _, query = rest.partition("?")
+        opts = _query(query, text, {"speed", "machine"})
+        speed = _speed(opts.get("speed", "1"), text)
+        name = opts.get("machine", Path(path).stem)
+        machine = next((m for m in mapped if m.name == name), default.renamed(name))
+        if not Path(path).is_file():
+            raise DataError("file not found", source=path, where="--source",
+                            fix="replay a file 'drafttwin generate --out FILE' wrote")  # fmt: skip
+        return ReplaySource(Path(path), machine, speed)
+    if kind == "opcua":
+        url = rest.split("?", 1)[0]
+        opts = _query(rest.partition("?")[2], text, {"machine", "publish_ms", "cert"})
+        if not url.startswith("opc.tcp://"):
+            raise ConfigError(f"bad OPC UA address {url!r}", where="--source",
+                              fix="write opcua:opc.tcp://HOST:PORT")  # fmt: skip
+        machines = mapped or (default.renamed(opts.get("machine", default.name)),)
+        cert = Path(opts["cert"]) if "cert" in opts else None
+        if cert is not None:
+            from drafttwin.twin.security import _need
+
+            _need(cert, "client_key.pem", "client_cert.der", "server_cert.der")
+        return OpcUaSource(url, machines, float(opts.get("publish_ms", 10)), cert)
+    if kind in ("mqtt", "mqtts"):
+        from drafttwin.twin.mqtt import MqttSource
+
+        parts = urlsplit(text)
+        opts = _query(parts.query, text, {"machine", "cert"})
+        ca = None
+        if kind == "mqtts":
+            if "cert" not in opts:
+                raise ConfigError("mqtts needs the broker's certificate", where="--source",
+                                  fix="write mqtts://HOST:PORT?cert=DIR (drafttwin twin certs)")  # fmt: skip
+            ca = Path(opts["cert"]) / "mqtt_cert.pem"
+            if not ca.is_file():
+                raise DataError("file not found", source=ca, where="--source",
+                                fix=f"make it with: drafttwin twin certs --out {opts['cert']}")  # fmt: skip
+        machines = mapped or (default.renamed(opts.get("machine", default.name)),)
+        password = os.environ.get("DRAFTTWIN_MQTT_PASSWORD") if parts.username else None
+        if parts.username and not password:
+            raise ConfigError(f"no password for MQTT user {parts.username!r}", where="--source",
+                              fix="set DRAFTTWIN_MQTT_PASSWORD (kept out of the command line)")  # fmt: skip
+        return MqttSource(parts.hostname or "127.0.0.1", parts.port or 1883, machines,
+                          parts.username, password, ca)  # fmt: skip
+    raise ConfigError(f"unknown source {text!r}", where="--source",
+                      fix="use replay:FILE?speed=10, opcua:opc.tcp://HOST:PORT or "
+                      "mqtt://[USER@]HOST:PORT")  # fmt: skip
+
+
+def _query(query: str, text: str, allowed: set[str]) -> dict[str, str]:
+    opts = {k: v[-1] for k, v in parse_qs(query, keep_blank_values=True).items()}
+    unknown = sorted(set(opts) - allowed)
+    if unknown:
+        raise ConfigError(f"unknown option(s) {unknown} in {text!r}", where="--source",
+                          fix=f"use {', '.join(sorted(allowed))}")  # fmt: skip
+    return opts
+
+
+def _speed(value: str, text: str) -> float:
+    if value in ("max", "inf"):
+        return math.inf
+    try:
+        speed = float(value)
+    except ValueError:
+        speed = math.nan
+    if not (math.isfinite(speed) and 0 < speed <= 1e6):
+        raise ConfigError(f"speed={value!r} in {text!r}", where="--source",
+                          fix="speed must be > 0 and <= 1e6 (or 'max')")  # fmt: skip
+    return speed
+
+
+__all__ = ["OpcUaSource", "ReplaySource", "Sample", "Source", "parse_source"]

@@ -1,0 +1,129 @@
+"""'drafttwin twin run | query' and 'plant serve' from the command line: several machines in
+one process, the history exported, and every bad input refused in one line with exit code 2."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin.cli import app
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def _run(*args: str):  # noqa: ANN202
+    return CliRunner().invoke(app, list(args))
+
+
+def _one_line_error(res, *needles: str) -> None:  # noqa: ANN001
+    assert res.exit_code == 2, res.stdout + res.stderr
+    assert "Traceback" not in res.stderr
+    assert res.stderr.startswith("error:")
+    for n in needles:
+        assert n in res.stderr, res.stderr
+
+
+def test_two_machines_in_one_process_then_query(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    record, model = twin_files
+    mapping = tmp_path / "hall.toml"
+    mapping.write_text('[[machine]]\nname = "df-02"\nrate_hz = 100\n', encoding="utf-8")
+    store = tmp_path / "store"
+    res = _run("twin", "run", "--model", str(model), "--mapping", str(mapping), "--store", str(store),
+               "--source", f"replay:{record}?speed=max&machine=df-01",
+               "--source", f"replay:{record}?speed=max&machine=df-02", "--json")  # fmt: skip
+    assert res.exit_code == 0, res.stderr
+    status = json.loads(res.stdout)
+    assert {m: s["processed"] for m, s in status["machines"].items()} == {
+        "df-01": 600,
+        "df-02": 600,
+    }
+    out = tmp_path / "df02.csv"
+    res = _run("twin", "query", "--store", str(store), "--machine", "df-02", "--from", "1",
+               "--to", "2", "--out", str(out), "--json")  # fmt: skip
+    assert res.exit_code == 0, res.stderr
+    info = json.loads(res.stdout)
+    assert info["rows"] == 101
+    assert [m["samples"] for m in info["machines"]] == [600, 600]
+    frame = pd.read_csv(out)
+    plant = pd.read_parquet(record)
+    assert frame["time"].iloc[0] == pytest.approx(1.0)
+    assert frame["front"].to_numpy() == pytest.approx(
+        plant["front"].to_numpy()[99:200], nan_ok=True
+    )
+    assert {"front_physics", "front_twin", "back_residual", "supply_hz"} <= set(frame.columns)
+    events = _run("twin", "query", "--store", str(store), "--events", "--out",
+                  str(tmp_path / "ev.parquet"))  # fmt: skip
+    assert events.exit_code == 0, events.stderr
+    assert set(pd.read_parquet(tmp_path / "ev.parquet")["kind"]) == {"source-live", "source-ended"}
+
+
+@pytest.mark.parametrize(
+    ("source", "needles"),
+    [
+        ("foo:bar", ("--source", "unknown source")),
+        ("replay:{tmp}/missing.parquet", ("--source", "file not found")),
+        ("replay:{record}?speed=0", ("--source", "speed")),
+        ("replay:{record}?sped=2", ("--source", "unknown option")),
+        ("opcua:http://x", ("--source", "bad OPC UA address")),
+    ],
+)
+def test_bad_sources_are_refused(
+    source: str, needles: tuple[str, ...], twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    record, model = twin_files
+    text = source.format(tmp=tmp_path, record=record)
+    _one_line_error(_run("twin", "run", "--model", str(model), "--source", text), *needles)
+
+
+def test_bad_run_options_are_refused(twin_files: tuple[Path, Path], tmp_path: Path) -> None:
+    record, model = twin_files
+    base = ["twin", "run", "--model", str(model), "--source", f"replay:{record}"]
+    _one_line_error(_run(*base, "--source", f"replay:{record}"), "comes from two sources")
+    _one_line_error(_run(*base, "--physics", "medium"), "--physics")
+    _one_line_error(_run(*base, "--http", "127.0.0.1:web"), "--http", "bad address")
+    _one_line_error(_run(*base, "--http", "0.0.0.0:8050", "--token", "short"), "--token")
+    bad = tmp_path / "bad.toml"
+    for text, needle in (("[[machine]\n", "not valid TOML"),
+                         ('[[machine]]\nname = "a"\ncolour = 1\n', "machine.0.colour"),
+                         ('[[machine]]\nname = "a"\n[[machine]]\nname = "a"\n', "named twice"),
+                         ('[[machine]]\nname = "a"\nfields = ["seq", "time", "front"]\n',
+                          "fields lack")):  # fmt: skip
+        bad.write_text(text, encoding="utf-8")
+        _one_line_error(_run(*base, "--mapping", str(bad)), str(bad), needle)
+    plain = tmp_path / "plain.csv"
+    pd.read_parquet(record).drop(columns=["supply_hz"]).to_csv(plain, index=False)
+    _one_line_error(_run("twin", "run", "--model", str(model), "--source", f"replay:{plain}"),
+                    "no set-point column 'supply_hz'")  # fmt: skip
+
+
+def test_bad_query_and_serve_options_are_refused(tmp_path: Path) -> None:
+    _one_line_error(_run("twin", "query", "--store", str(tmp_path)), "no twin store here")
+    _one_line_error(_run("twin", "query", "--store", str(tmp_path), "--from", "2", "--to", "1"),
+                    "--to")  # fmt: skip
+    _one_line_error(_run("twin", "query", "--store", str(tmp_path), "--out", str(tmp_path / "a.xls")),
+                    "unsupported output file type")  # fmt: skip
+    _one_line_error(_run("plant", "serve"), "give one of --opcua and --mqtt")
+    _one_line_error(
+        _run("plant", "serve", "--opcua", "http://x:1"), "--opcua", "bad OPC UA address"
+    )
+    _one_line_error(_run("plant", "serve", "--mqtt", "127.0.0.1"), "--mqtt", "bad MQTT address")
+    _one_line_error(_run("plant", "serve", "--opcua", "opc.tcp://127.0.0.1:4840", "--physics", "x"),
+                    "--physics")  # fmt: skip
+
+
+def test_retention_keeps_the_newest_hours(twin_files: tuple[Path, Path], tmp_path: Path) -> None:
+    record, model = twin_files
+    store = tmp_path / "store"
+    res = _run("twin", "run", "--model", str(model), "--source", f"replay:{record}?speed=max",
+               "--store", str(store), "--retention-hours", str(2.0 / 3600), "--quiet")  # fmt: skip
+    assert res.exit_code == 0, res.stderr
+    res = _run("twin", "query", "--store", str(store), "--json")
+    (m,) = json.loads(res.stdout)["machines"]
+    assert m["samples"] == 201  # the last 2 s at 100 Hz, both ends included
+    assert m["last_s"] == pytest.approx(6.0)
