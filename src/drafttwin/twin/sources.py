@@ -171,8 +171,10 @@ class OpcUaSource(Source):
                 self._set("reconnecting", report, f"{type(exc).__name__}: {exc}"[:200])
             finally:
                 self.client = None
+                # bounded: a refused secured session can leave asyncua's disconnect waiting on
+                # a reply that never comes, which would hold the twin's shutdown
                 with contextlib.suppress(Exception):
-                    await client.disconnect()
+                    await asyncio.wait_for(client.disconnect(), 2.0)
             await asyncio.sleep(BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
             attempt += 1
 
