@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from drafttwin.twin.aio import run_bounded
 from drafttwin.twin.build import build_service
 
 from ._twin import cli, env, free_port
@@ -152,7 +153,7 @@ def test_mqtt_with_a_user_admits_only_that_user(twin_files: tuple[Path, Path]) -
                 if password is not None:
                     mp.setenv("DRAFTTWIN_MQTT_PASSWORD", password)
                 service = build_service(model, [url])
-            asyncio.run(service.run(duration_s=3.0))
+            run_bounded(service.run(duration_s=3.0))
             st = service.states["fa320a"]
             results[name] = (st.received > 50, st.state)
     finally:
@@ -187,7 +188,7 @@ def test_mqtt_over_tls_with_the_generated_certificate(
         for name, url in (("tls", f"mqtts://127.0.0.1:{port}?cert={certs}"),
                           ("plain", f"mqtt://127.0.0.1:{port}")):  # fmt: skip
             service = build_service(model, [url])
-            asyncio.run(service.run(duration_s=3.0))
+            run_bounded(service.run(duration_s=3.0))
             results[name] = service.states["fa320a"].received
     finally:
         proc.kill()

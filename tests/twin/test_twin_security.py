@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pytest
 
+from drafttwin.twin.aio import run_bounded
 from drafttwin.twin.build import build_service
 from drafttwin.twin.security import make_certificates
 
@@ -20,7 +21,7 @@ pytestmark = pytest.mark.timeout(150)
 
 def _received(model: Path, source: str, seconds: float) -> tuple[int, str]:
     service = build_service(model, [source])
-    asyncio.run(service.run(duration_s=seconds))
+    run_bounded(service.run(duration_s=seconds))
     st = service.states["fa320a"]
     return st.received, st.state
 

@@ -165,7 +165,9 @@ def twin_run(
                             physics=physics, silent_s=silent, on_commit=on_commit)  # fmt: skip
     start = time.monotonic()
     try:
-        asyncio.run(_serve(service, bind, token, duration, max_samples, quiet))
+        from drafttwin.twin.aio import run_bounded
+
+        run_bounded(_serve(service, bind, token, duration, max_samples, quiet))
     except OSError as exc:
         raise ConfigError(f"cannot serve the page on {http} ({exc.strerror or exc})",
                           where="--http", fix="choose a free port") from None  # fmt: skip
