@@ -18,6 +18,7 @@ import contextlib
 import math
 import os
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,15 +52,17 @@ Emit = Callable[[Sample], None]
 Report = Callable[..., None]  # (machine, kind, detail[, count]): state changes, drops
 
 
-class Source:
+class Source(ABC):
     """Base class: ``machines`` served, ``state``, ``run(emit, report)``."""
 
     spec: str = ""
     machines: tuple[MachineMap, ...] = ()
     state: str = "connecting"
 
-    async def run(self, emit: Emit, report: Report) -> None:  # pragma: no cover - abstract
-        raise NotImplementedError
+    @abstractmethod
+    async def run(self, emit: Emit, report: Report) -> None:
+        """Deliver samples through ``emit`` and state changes through ``report`` until
+        cancelled (or, for a finite source, until it ends)."""
 
     def _set(self, state: str, report: Report, detail: str = "") -> None:
         if state != self.state:
