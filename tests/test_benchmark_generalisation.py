@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -84,6 +85,40 @@ def test_faded_hybrid_falls_back_on_its_physics_far_outside_training(
         assert again.get_params()["structure"] == "relative"
         np.testing.assert_allclose(again.predict_values(far, far_mech), pred, equal_nan=True)
     assert FADE_WIDTH > 0
+
+
+def test_strict_fade_turns_the_correction_off_where_a_held_set_point_moves(
+    tmp_path: Path,
+) -> None:
+    """Trained at one set-point (an input constant in training), the strict fade keeps the
+    correction where the set-point holds that value, turns it off on exactly the rows whose
+    window saw it move, and survives a save and load; the plain fade ignores the set-point."""
+    from drafttwin.models import load_model
+
+    series, _ = make_series(400, seed=4)
+    held = np.full(len(series), 48.5)
+    train = replace(series, inputs={"supply_hz": held})
+    window = TINY["window"]
+    with one_thread():
+        model = make_model("parallel", "quick", **TINY, inputs=("supply_hz",), fade="strict")
+        model.fit(train, mechanistic)
+        moved = held.copy()
+        moved[200:] = 43.6  # the VFD set-point lowered at row 200
+        test = replace(series, inputs={"supply_hz": moved})
+        mech = mechanistic(series.time_s)
+        strict = model.predict_values(test, mech)
+        correction = np.abs(strict - mech).max(axis=1)
+        assert np.nanmin(correction[window + 2 : 195]) > 1e-9  # kept before the change
+        # off from the first target whose window (rows T-W .. T-1, one step ahead) saw it move
+        np.testing.assert_allclose(strict[201:], mech[201:], rtol=0, atol=1e-12)
+        np.testing.assert_allclose(strict[:195], model.predict_values(train, mech)[:195])
+        model.set_params(fade=True)
+        plain = model.predict_values(test, mech)
+        assert np.nanmax(np.abs(plain[200:] - mech[200:])) > 1e-9
+        model.set_params(fade="strict")
+        again = load_model(model.save(tmp_path / "strict.pt"))
+        assert again.get_params()["fade"] == "strict"
+        np.testing.assert_allclose(again.predict_values(test, mech), strict, equal_nan=True)
 
 
 def test_model_file_without_the_structure_params_reads_as_absolute(tmp_path: Path) -> None:

@@ -152,9 +152,10 @@ def generalisation(
     calibrated physics), little-data (learning curves: 10, 30, 90, 300 s of training, 3 seeds).
     Tasks prediction (one step) and simulation (free run from the set-point with a short
     measured start); models mechanistic, persistence, gru, parallel, md-s-l. The hybrids'
-    structure (absolute or relative to the physics' speed, correction faded outside the
-    training range or not) is chosen on two validation records at +15 % speed (steady, and a
-    speed change), against the physics. Writes
+    structure (absolute or relative to the physics' speed; correction not faded, faded
+    outside the training range, or strictly: also off where a set-point leaves its training
+    value) is chosen on three validation records (steady at +15 % and -15 % speed, a speed
+    change from +15 %), against the physics. Writes
     OUT/generalisation_report.html and OUT/generalisation_results.json (docs/generalisation.md).
     """
     from drafttwin.benchmarks.generalisation import get_config, run_benchmark

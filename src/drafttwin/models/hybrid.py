@@ -22,7 +22,10 @@ and the inputs by their training mean: the net learns the residual as a fraction
 physics' speed, which is what carries over to another set-point or gear set. With
 ``fade=True`` the correction is scaled down linearly as the net's scaled inputs leave the
 training range (to nothing at :data:`FADE_WIDTH` training ranges beyond it): outside what it
-was trained on, the hybrid falls back on its physics. Which of these to use is chosen on a
+was trained on, the hybrid falls back on its physics. ``fade="strict"`` also counts the channels
+that were constant in training (a set-point held at one value): the correction is off wherever
+such a channel leaves its training value, since nothing in training showed what it does there
+(MD-S-L's data-driven model, fed the set-point, returns garbage at another one). Which of these to use is chosen on a
 validation record (``drafttwin benchmark generalisation``); the defaults keep the plain
 structure.
 """
@@ -67,6 +70,11 @@ LEVEL_FLOOR = 0.05
 magnitude before dividing by it (start-up and stop pass through zero)."""
 FADE_WIDTH = 1.0
 """Fade: the correction reaches zero this many training ranges outside the training range."""
+FADES = (False, True, "strict")
+"""No fade; fade over the channels that varied in training; also over those constant in it."""
+CONSTANT_TOLERANCE = 1e-6
+"""Strict fade: a channel constant in training counts as left when it moves by more than this
+share of its training value (set-points are exact numbers; float round-off is far below)."""
 """MD-S-L (SKNet + LSTM), MD-L (no SKNet), MD-S (no LSTM)."""
 
 Groups = dict[str, np.ndarray]
@@ -79,7 +87,7 @@ class _ResidualHybrid(_NeuralModel):
     needs_mechanistic = True
     accumulate: bool | None
     structure: str
-    fade: bool
+    fade: bool | str
 
     @property
     def use_sknet(self) -> bool:
@@ -180,14 +188,23 @@ class _ResidualHybrid(_NeuralModel):
         """Per window, the share of the correction kept: 1 inside the training range of every
         scaled channel, falling linearly to 0 at FADE_WIDTH ranges outside it. A channel that
         was constant in training has no range to measure against (and taught the net nothing
-        about changes of it): it is left out."""
+        about changes of it): it is left out, unless the fade is strict, where leaving its
+        training value turns the correction off."""
+        lows = np.concatenate([self.scalers_[k].min_ for k in self._channels()])
         varying = np.concatenate([self.scalers_[k].max_ > self.scalers_[k].min_
                                   for k in self._channels()])  # fmt: skip
-        if not varying.any():
-            return np.ones(len(x))
-        beyond = np.fmax(x[..., varying] - 1.0, -x[..., varying])
-        excess = np.nanmax(np.where(np.isfinite(beyond), beyond, 0.0).reshape(len(x), -1), axis=1)
-        return np.clip(1.0 - np.maximum(excess, 0.0) / FADE_WIDTH, 0.0, 1.0)
+        keep = np.ones(len(x))
+        if varying.any():
+            beyond = np.fmax(x[..., varying] - 1.0, -x[..., varying])
+            beyond = np.where(np.isfinite(beyond), beyond, 0.0).reshape(len(x), -1)
+            keep = np.clip(1.0 - np.maximum(np.nanmax(beyond, axis=1), 0.0) / FADE_WIDTH, 0, 1)
+        if self.fade == "strict" and not varying.all():
+            # a constant channel scales to x - min: 0 while it holds its training value
+            moved = np.abs(x[..., ~varying]) > CONSTANT_TOLERANCE * np.maximum(
+                np.abs(lows[~varying]), 1.0
+            )
+            keep = np.where(moved.reshape(len(x), -1).any(axis=1), 0.0, keep)
+        return keep
 
     def _new_net(self, n_out: int) -> ResidualNet:
         widths = {g: (len(self.task.inputs) if g == "u" else n_out) for g in self._channels()}
@@ -382,7 +399,9 @@ class ParallelHybrid(_ResidualHybrid):
         structure: ``"absolute"`` (speeds as they are) or ``"relative"`` (residual and speeds
             as fractions of the physics' speed, inputs over their training mean); see the
             module docstring.
-        fade: scale the correction down outside the training range (back to the physics).
+        fade: scale the correction down outside the training range (back to the physics);
+            ``"strict"``: also off wherever a channel held constant in training (a set-point)
+            leaves its training value.
         task / training / seed / quiet: as :class:`~drafttwin.models.GRUModel`.
     """
 
@@ -395,7 +414,7 @@ class ParallelHybrid(_ResidualHybrid):
         skip: bool | None = None,
         accumulate: bool | None = None,
         structure: str = "absolute",
-        fade: bool = False,
+        fade: bool | str = False,
         task: Task = Task(),
         training: Training = Training(),
         seed: int = 0,

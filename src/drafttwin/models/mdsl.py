@@ -72,7 +72,7 @@ class MDSL(_ResidualHybrid):
         skip: bool | None = None,
         accumulate: bool | None = None,
         structure: str = "absolute",
-        fade: bool = False,
+        fade: bool | str = False,
         folds: int = 3,
         data_model: _RecurrentModel | None = None,
         task: Task = Task(),

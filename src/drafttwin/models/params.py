@@ -51,7 +51,7 @@ CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "skip": (_optional_bool, "None (the default for the task), True or False"),
     "accumulate": (_optional_bool, "None (chosen on validation data), True or False"),
     "structure": (lambda v: v in ("absolute", "relative"), '"absolute" or "relative"'),
-    "fade": (lambda v: isinstance(v, bool), "True or False"),
+    "fade": (lambda v: isinstance(v, bool) or v == "strict", 'True, False or "strict"'),
     "quiet": (lambda v: isinstance(v, bool), "True or False"),
     "use_disagreement": (lambda v: isinstance(v, bool), "True or False"),
     "task": (lambda v: isinstance(v, Task), "a drafttwin.models.Task"),

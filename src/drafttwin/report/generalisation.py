@@ -193,15 +193,20 @@ def structure_rows(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
         "model",
         "task",
         "chosen",
-        "validation scores (RMSE / physics RMSE, mean over rollers and both records)",
+        "validation scores (RMSE / physics RMSE, mean over rollers and the validation records)",
     ]
     rows = []
     for r in doc["structure_choice"]:
-        scores = "; ".join(f"{s['structure']}{' + fade' if s['fade'] else ''} {_num(s['score'])}"
-                           for s in r["scores"])  # fmt: skip
-        rows.append([r["model"], r["task"], r["structure"] + (" + fade" if r["fade"] else ""),
-                     scores])  # fmt: skip
+        scores = "; ".join(f"{structure_name(s)} {_num(s['score'])}" for s in r["scores"])
+        rows.append([r["model"], r["task"], structure_name(r), scores])
     return head, rows
+
+
+def structure_name(choice: Mapping[str, Any]) -> str:
+    """``relative + fade``, ``absolute + strict fade``, ``relative`` ..."""
+    fade = choice.get("fade")
+    suffix = " + strict fade" if fade == "strict" else " + fade" if fade else ""
+    return f"{choice['structure']}{suffix}"
 
 
 def check_lines(doc: Mapping[str, Any]) -> list[str]:

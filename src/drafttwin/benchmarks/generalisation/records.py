@@ -16,9 +16,10 @@ preset's VFD set-point for training; each scenario's test record is a separate r
 * ``little-data``: the training machine again at the preset's set-point (training records of
   10 ... 300 s are prefixes of the one training record).
 
-Two separate validation records, never scored, choose the hybrids' structure
-(:mod:`drafttwin.benchmarks.generalisation.run`): steady running at +15 % speed, and the
-plant's speed change run from +15 % (a transient at a set-point the scored records do not use).
+Three separate validation records, never scored, choose the hybrids' structure
+(:mod:`drafttwin.benchmarks.generalisation.run`): steady running at +15 % and at -15 % speed
+(both directions: a model can fail on one side of its training point only), and the plant's
+speed change run from +15 % (a transient at set-points the scored records do not use).
 """
 
 from __future__ import annotations
@@ -85,6 +86,8 @@ TRAIN_RECORD = RecordSpec("train", record_seed=TRAIN_RECORD_SEED)
 VALIDATION_RECORDS: dict[str, RecordSpec] = {
     "validation": RecordSpec("validation: steady at +15 %", speed_scale=1.15,
                              record_seed=VALIDATION_RECORD_SEED),
+    "validation-low": RecordSpec("validation: steady at -15 %", speed_scale=0.85,
+                                 record_seed=VALIDATION_RECORD_SEED + 2),
     "validation-transient": RecordSpec("validation: speed change from +15 %",
                                        plant_scenario="speed-change", speed_scale=1.15,
                                        record_seed=VALIDATION_RECORD_SEED + 1),

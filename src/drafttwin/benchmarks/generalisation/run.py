@@ -40,7 +40,7 @@ from drafttwin.errors import ConfigError
 from drafttwin.execution import integrity
 from drafttwin.execution.executor import run_tasks
 from drafttwin.execution.store import ResultStore
-from drafttwin.models.hybrid import STRUCTURES
+from drafttwin.models.hybrid import FADES, STRUCTURES
 
 MODELS = ("mechanistic", "persistence", "gru", "parallel", "md-s-l")
 """The CLI's model names; ``mechanistic`` is the physics alone."""
@@ -230,7 +230,7 @@ def fit_configs(config: GeneralisationConfig, path: Path,
 
 def selection_configs(config: GeneralisationConfig, path: Path) -> list[dict[str, Any]]:
     """Item 2's choice: each hybrid in each task fitted (seed 0, full length) with each
-    structure, scored on the validation records without and with the fade; the physics on
+    structure, scored on the validation records without fade, with it and with the strict fade; the physics on
     the same records is the yardstick."""
     tests = [[k, "nominal", k] for k in R.VALIDATION_RECORDS]
     base = {"train_s": config.train_s, "seed": 0, "skip_rows": config.skip_rows,
@@ -245,7 +245,7 @@ def selection_configs(config: GeneralisationConfig, path: Path) -> list[dict[str
         }
         for task in config.tasks
     ]
-    out += [{**base, "task": task, "model": name, "fade_variants": [False, True],
+    out += [{**base, "task": task, "model": name, "fade_variants": list(FADES),
              "hyper": hyperparameters(name, task, config, 0, {"structure": structure})}
             for task in config.tasks for name in HYBRIDS if name in config.models
             for structure in STRUCTURES]  # fmt: skip
@@ -264,7 +264,7 @@ def choose_structures(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[
     for model, task in keys:
         scores: list[dict[str, Any]] = []
         for structure in STRUCTURES:
-            for fade in (False, True):
+            for fade in FADES:
                 mine = [r for r in rows if (r["model"], r["task"], r.get("structure"),
                                             r.get("fade")) == (model, task, structure, fade)]  # fmt: skip
                 ratios = []
