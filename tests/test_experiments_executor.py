@@ -48,6 +48,27 @@ def test_store_skips_finished_tasks(tmp_path):
     assert task_key(configs[0], "d") != task_key(configs[0], data_hash(__import__("numpy").ones(3)))
 
 
+def test_results_of_other_code_are_not_read_back(tmp_path, monkeypatch):
+    """A result cached by another version of the code is recomputed, not trusted: the task
+    key holds a fingerprint of the package's sources."""
+    from drafttwin.execution import store as store_module
+
+    fingerprint = store_module.code_fingerprint()
+    assert len(fingerprint) == 64 and fingerprint == store_module.code_fingerprint()
+    store = ResultStore(tmp_path / "store")
+    markers = tmp_path / "markers"
+    markers.mkdir()
+    config = [{"k": 3, "marker_dir": str(markers)}]
+    key_before = task_key(config[0], "d")
+    run_tasks(slow_marked_task, config, store=store, data_digest="d", workers=1)
+    monkeypatch.setattr(store_module, "code_fingerprint", lambda: "0" * 64)  # the code changed
+    assert task_key(config[0], "d") != key_before
+    seen = []
+    run_tasks(slow_marked_task, config, store=store, data_digest="d", workers=1,
+              on_result=lambda i, r, cached: seen.append(cached))  # fmt: skip
+    assert seen == [False]  # computed again
+
+
 def test_killed_sweep_resumes_without_repeating(tmp_path):
     store_dir, markers = tmp_path / "store", tmp_path / "markers"
     markers.mkdir()

@@ -1,4 +1,4 @@
-"""Results of sweep tasks, written once each, keyed by task configuration and data hash.
+"""Results of sweep tasks, written once each, keyed by task configuration, data hash and code.
 
 A rerun of an interrupted sweep finds finished tasks here and skips them. A task's result is
 written atomically with a ``.sha256`` sidecar, and holds its configuration, the hashes of the
@@ -9,6 +9,7 @@ only when all of these check out; otherwise it is reported, discarded and recomp
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -53,8 +54,23 @@ def public(config: dict[str, Any]) -> dict[str, Any]:
 
 
 def task_key(config: dict[str, Any], data_digest: str) -> str:
-    """Identity of a task: its public configuration and the hash of the data it reads."""
-    return hashlib.sha256((canonical_json(public(config)) + data_digest).encode()).hexdigest()
+    """Identity of a task: its public configuration, the hash of the data it reads and the
+    code that computes it (:func:`code_fingerprint`)."""
+    text = canonical_json(public(config)) + data_digest + code_fingerprint()
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """SHA-256 over the drafttwin package's Python sources (relative path and bytes of each):
+    a result cached by other code is another result (a changed model or metric would
+    otherwise be read back as if it were this one's). About 2 MB, read once per process."""
+    package = Path(__file__).resolve().parents[1]
+    h = hashlib.sha256()
+    for path in sorted(package.rglob("*.py")):
+        h.update(path.relative_to(package).as_posix().encode() + b"\0")
+        h.update(path.read_bytes())
+    return h.hexdigest()
 
 
 class ResultStore:

@@ -102,10 +102,13 @@ class PreparedData:
 
 
 def _key(series: MeasurementSeries, preset: str, *extra: bytes) -> str:
-    """Cache key of a simulation: grid, set-points, preset file and anything else given."""
+    """Cache key of a simulation: grid, set-points, preset file, the code and anything else
+    given."""
+    from drafttwin.execution.store import code_fingerprint
     from drafttwin.mechanics.config import preset_path
 
     parts = [series.time_s.tobytes(), preset_path(preset).read_bytes(), *extra]
+    parts.append(code_fingerprint().encode())
     parts += [k.encode() + v.tobytes() for k, v in sorted(series.inputs.items())]
     return hashlib.sha256(b"|".join(parts)).hexdigest()[:20]
 

@@ -39,7 +39,7 @@ from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError
 from drafttwin.execution import integrity
 from drafttwin.execution.executor import run_tasks
-from drafttwin.execution.store import ResultStore
+from drafttwin.execution.store import ResultStore, code_fingerprint
 from drafttwin.models.hybrid import FADES, STRUCTURES
 
 MODELS = ("mechanistic", "persistence", "gru", "parallel", "md-s-l")
@@ -318,7 +318,7 @@ def _records_key(config: GeneralisationConfig) -> str:
     keep = {k: v for k, v in asdict(config).items() if k in (
         "train_lengths_s", "test_s", "validation_s", "rate_hz", "calibrate_s", "calibrate_params",
         "scenarios")}  # fmt: skip
-    text = json.dumps(keep, sort_keys=True) + __version__ + str(R.DRAFT_GEARS)
+    text = json.dumps(keep, sort_keys=True) + code_fingerprint() + str(R.DRAFT_GEARS)
     digest = hashlib.sha256(text.encode() + preset_path("fa320a").read_bytes())
     return digest.hexdigest()[:16]
 
