@@ -424,21 +424,56 @@ def reject_spikes_causal(
     rejected = np.zeros(x2.shape, dtype=bool)
     sc = np.broadcast_to(np.nan if scale is None else np.asarray(scale, float), x2.shape[1:])
     low = np.broadcast_to(0.0 if floor is None else np.asarray(floor, float), x2.shape[1:])
-    starts = {a for a, _ in _bounds(x2.shape[0], record_starts)}
-    for j in range(x2.shape[1]):
-        last = held = np.nan  # last accepted value; the sample rejected just before (if any)
-        col = x2[:, j]
-        for i in range(col.shape[0]):  # sequential by nature: each decision depends on the last
-            if i in starts:
-                last = held = np.nan
-            v = col[i]
+    is_start = np.zeros(x2.shape[0], dtype=np.bool_)
+    for a, _ in _bounds(x2.shape[0], record_starts):
+        is_start[a] = True
+    x2 = np.ascontiguousarray(x2)
+    _spike_kernel()(x2, is_start, float(threshold), np.ascontiguousarray(sc, dtype=np.float64),
+                    np.ascontiguousarray(low, dtype=np.float64), rejected)  # fmt: skip
+    return (x2[:, 0] if squeeze else x2), (rejected[:, 0] if squeeze else rejected)
+
+
+def _reject_spikes_columns(
+    x: np.ndarray, is_start: np.ndarray, threshold: float, scale: np.ndarray, low: np.ndarray,
+    rejected: np.ndarray,
+) -> None:  # fmt: skip
+    """The causal spike rule in place, column by column (compiled by :func:`_spike_kernel`:
+    sequential by nature, each decision depends on the last, and the evaluation protocol runs
+    it on every test set)."""
+    for j in range(x.shape[1]):
+        last = np.nan  # last accepted value
+        held = np.nan  # the sample rejected just before (if any)
+        for i in range(x.shape[0]):
+            if is_start[i]:
+                last = np.nan
+                held = np.nan
+            v = x[i, j]
             if np.isnan(v):
                 continue
-            tol = threshold * (max(abs(last), low[j]) if np.isnan(sc[j]) else sc[j])
+            if not np.isfinite(last):  # a record's first sample: nothing to compare with
+                last = v
+                held = np.nan
+                continue
+            tol = threshold * (max(abs(last), low[j]) if np.isnan(scale[j]) else scale[j])
             moved = np.isfinite(held) and abs(v - held) <= tol
-            if np.isfinite(last) and abs(v - last) > tol and not moved:
+            if abs(v - last) > tol and not moved:
                 rejected[i, j] = True
-                held, col[i] = v, np.nan
+                held = v
+                x[i, j] = np.nan
             else:
-                last, held = v, np.nan
-    return (x2[:, 0] if squeeze else x2), (rejected[:, 0] if squeeze else rejected)
+                last = v
+                held = np.nan
+
+
+_KERNEL: Any = None
+
+
+def _spike_kernel() -> Any:
+    """:func:`_reject_spikes_columns` compiled with numba on first use (cached on disk), so
+    that importing the data layer does not load numba."""
+    global _KERNEL
+    if _KERNEL is None:
+        from numba import njit
+
+        _KERNEL = njit(cache=True)(_reject_spikes_columns)
+    return _KERNEL
