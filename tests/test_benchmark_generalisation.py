@@ -200,6 +200,33 @@ def test_quick_benchmark_values_are_finite_and_sane(quick_run) -> None:
     assert {c["scenario"] for c in doc["checks"]} == {"draft-gears", "speed+25", "speed-25"}
 
 
+def test_structure_choice_takes_the_best_candidate_and_keeps_the_simplest_on_a_tie() -> None:
+    from drafttwin.benchmarks.generalisation.run import choose_structures
+
+    rows = [{"model": "mechanistic", "task": "prediction", "scenario": "v", "channel": c,
+             "rmse": 1.0} for c in ("a", "b")]  # fmt: skip
+
+    def cand(structure, fade, skip, rmse):
+        return [{"model": "parallel", "task": "prediction", "scenario": "v", "channel": c,
+                 "rmse": rmse, "structure": structure, "fade": fade, "skip": skip}
+                for c in ("a", "b")]  # fmt: skip
+
+    for structure in ("absolute", "relative"):
+        for fade in (False, True, "strict"):
+            rows += cand(structure, fade, None, 1.0)  # all equal to the physics: a tie
+            rows += cand(structure, fade, False, 1.0)
+    chosen = choose_structures(rows)[("parallel", "prediction")]
+    assert (chosen["structure"], chosen["fade"], chosen["skip"]) == ("absolute", False, None)
+    assert len(chosen["scores"]) == 12
+    better = [r for r in rows if not (r.get("structure") == "relative"
+              and r.get("fade") == "strict" and r.get("skip") is False)]  # fmt: skip
+    better += cand("relative", "strict", False, 0.8)
+    chosen = choose_structures(better)[("parallel", "prediction")]
+    assert (chosen["structure"], chosen["fade"], chosen["skip"]) == ("relative", "strict", False)
+    score = {(s["structure"], s["fade"], s["skip"]): s["score"] for s in chosen["scores"]}
+    assert score[("relative", "strict", False)] == pytest.approx(0.8)
+
+
 def test_bad_seeds_option_is_a_one_line_error() -> None:
     res = runner.invoke(app, ["benchmark", "generalisation", "--quick", "--seeds", "0"])
     assert res.exit_code == 2

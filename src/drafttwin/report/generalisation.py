@@ -203,10 +203,11 @@ def structure_rows(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
 
 
 def structure_name(choice: Mapping[str, Any]) -> str:
-    """``relative + fade``, ``absolute + strict fade``, ``relative`` ..."""
+    """``relative + fade``, ``absolute + strict fade, no skip``, ``relative`` ..."""
     fade = choice.get("fade")
     suffix = " + strict fade" if fade == "strict" else " + fade" if fade else ""
-    return f"{choice['structure']}{suffix}"
+    skip = ", no skip" if choice.get("skip") is False else ""
+    return f"{choice['structure']}{suffix}{skip}"
 
 
 def check_lines(doc: Mapping[str, Any]) -> list[str]:

@@ -93,7 +93,7 @@ def _fit_and_score(cfg: dict[str, Any]) -> dict[str, Any]:
     protocol.fit(model, train, train_fraction=1.0, mechanistic=MechanisticModel(mech_train))
     fit_s = time.perf_counter() - start
     rows: list[dict[str, Any]] = []
-    structure = {k: v for k, v in model.get_params().items() if k in ("structure", "fade")}
+    structure = {k: v for k, v in model.get_params().items() if k in ("structure", "fade", "skip")}
     # fade acts at prediction time only: one fit scores each variant asked for
     for fade in cfg.get("fade_variants") or [structure.get("fade")]:
         if fade is not None:

@@ -230,7 +230,8 @@ def fit_configs(config: GeneralisationConfig, path: Path,
 
 def selection_configs(config: GeneralisationConfig, path: Path) -> list[dict[str, Any]]:
     """Item 2's choice: each hybrid in each task fitted (seed 0, full length) with each
-    structure, scored on the validation records without fade, with it and with the strict fade; the physics on
+    structure (and, one step ahead, with and without the skip onto the last residual), scored
+    on the validation records without fade, with it and with the strict fade; the physics on
     the same records is the yardstick."""
     tests = [[k, "nominal", k] for k in R.VALIDATION_RECORDS]
     base = {"train_s": config.train_s, "seed": 0, "skip_rows": config.skip_rows,
@@ -246,41 +247,53 @@ def selection_configs(config: GeneralisationConfig, path: Path) -> list[dict[str
         for task in config.tasks
     ]
     out += [{**base, "task": task, "model": name, "fade_variants": list(FADES),
-             "hyper": hyperparameters(name, task, config, 0, {"structure": structure})}
+             "hyper": hyperparameters(name, task, config, 0, {"structure": structure, "skip": skip})}
             for task in config.tasks for name in HYBRIDS if name in config.models
-            for structure in STRUCTURES]  # fmt: skip
+            for skip in _skips(task) for structure in STRUCTURES]  # fmt: skip
     return out
 
 
+def _skips(task: str) -> tuple[bool | None, ...]:
+    """The skip options of a task: one step ahead the default (onto the last residual) and
+    none; a free run has no measured residual to skip onto."""
+    return (None, False) if task == "prediction" else (None,)
+
+
 def choose_structures(rows: list[dict[str, Any]]) -> dict[tuple[str, str], dict[str, Any]]:
-    """Per (hybrid, task), the structure and fade with the lowest validation score: the mean
-    over validation records and channels of the hybrid's RMSE over its physics' RMSE on the
-    same record (below 1: the hybrid improves on its physics). Candidates are tried simplest
-    first and a later one must be strictly better."""
+    """Per (hybrid, task), the structure, fade and skip with the lowest validation score: the
+    mean over validation records and channels of the hybrid's RMSE over its physics' RMSE on
+    the same record (below 1: the hybrid improves on its physics). Candidates are tried
+    simplest first and a later one must be strictly better."""
     out: dict[tuple[str, str], dict[str, Any]] = {}
     physics = {(r["task"], r["scenario"], r["channel"]): r["rmse"] for r in rows
                if r["model"] == "mechanistic"}  # fmt: skip
     keys = sorted({(r["model"], r["task"]) for r in rows if r["model"] != "mechanistic"})
     for model, task in keys:
         scores: list[dict[str, Any]] = []
-        for structure in STRUCTURES:
-            for fade in FADES:
-                mine = [r for r in rows if (r["model"], r["task"], r.get("structure"),
-                                            r.get("fade")) == (model, task, structure, fade)]  # fmt: skip
-                ratios = []
-                for r in mine:
-                    ref = physics.get((task, r["scenario"], r["channel"]))
-                    if ref is not None and _finite(r["rmse"]) and _finite(ref) and ref > 0:
-                        ratios.append(r["rmse"] / ref)
-                score = float(np.mean(ratios)) if len(ratios) == len(mine) and mine else np.inf
-                scores.append({"structure": structure, "fade": fade, "score": score})
+        for skip in _skips(task):
+            for structure in STRUCTURES:
+                for fade in FADES:
+                    cand = {"structure": structure, "fade": fade, "skip": skip}
+                    mine = [r for r in rows if (r["model"], r["task"]) == (model, task)
+                            and all(r.get(k) == v for k, v in cand.items())]  # fmt: skip
+                    scores.append({**cand, "score": _validation_score(mine, physics, task)})
         best = scores[0]
         for cand in scores[1:]:
             if cand["score"] < best["score"]:
                 best = cand
         out[(model, task)] = {"structure": best["structure"], "fade": best["fade"],
-                              "scores": scores}  # fmt: skip
+                              "skip": best["skip"], "scores": scores}  # fmt: skip
     return out
+
+
+def _validation_score(mine: list[dict[str, Any]], physics: dict[tuple, float], task: str) -> float:
+    """Mean RMSE / physics RMSE over the rows of one candidate (inf if any is missing)."""
+    ratios = []
+    for r in mine:
+        ref = physics.get((task, r["scenario"], r["channel"]))
+        if ref is not None and _finite(r["rmse"]) and _finite(ref) and ref > 0:
+            ratios.append(r["rmse"] / ref)
+    return float(np.mean(ratios)) if len(ratios) == len(mine) and mine else np.inf
 
 
 def floors(
@@ -361,7 +374,8 @@ def run_benchmark(config: GeneralisationConfig, progress: Progress | None = None
         chosen = choose_structures([row for r in selected for row in r["rows"]])
         timings["structure_choice_s"] = time.perf_counter() - t1
         t1 = time.perf_counter()
-        extra = {k: {"structure": v["structure"], "fade": v["fade"]} for k, v in chosen.items()}
+        extra = {k: {"structure": v["structure"], "fade": v["fade"], "skip": v["skip"]}
+                 for k, v in chosen.items()}  # fmt: skip
         results = _fits(fit_configs(config, path, extra), config, "model fits", progress,
                         store, digest)  # fmt: skip
         timings["fits_s"] = time.perf_counter() - t1
