@@ -79,7 +79,7 @@ def main() -> None:
         f"at most {cfg['epochs']} epochs (patience {cfg['patience']}), stride {cfg['stride']}, "
         f"{cfg['workers']} worker(s); wall time {doc['timings']['total_s']:.0f} s. "
         "RMSE in rpm, mean ± std over seeds.",
-        "## Hybrid structure chosen on the validation records (steady at +15 % and -15 %, speed change from +15 %)",
+        "## Hybrid structure chosen on the validation records (steady at the training set-point, at +15 % and -15 %, speed change from +15 %)",
         markdown(*structure_rows(doc)),
         "## Checks", "\n".join(f"* {line}" for line in check_lines(doc)),
         "## Extrapolation table: free-run simulation", markdown(*extrapolation_rows(doc, "simulation")),
