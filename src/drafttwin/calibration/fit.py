@@ -36,13 +36,16 @@ OUTLIER_SCALES = 10.0
 BOUNDS = (0.2, 5.0)
 """Factor bounds: a parameter may move from a fifth to five times its nominal value."""
 BREAKAWAY_S = 0.5
-"""Blocks this long after a start from rest are not scored. The model lacks what happens
-there: the plant drafts its sliver from 5 % of the set-point on (a step in load), while the
-model's zones act as soon as the rollers turn, and the gears' backlash is taken up. On
-validation machine 7 the machine's own true train is 0.3-0.65 rpm off at the motor in the
-first four blocks of a start-up (ten times the block noise), exactly where the ramp's
-acceleration torque sets in: a fit that weights sharp features (generalised least squares
-under a slow wander) would read that as motor slip."""
+"""Blocks at standstill and this long after a start from rest are not scored. At standstill
+model and machine agree (speed 0) and tell nothing, but the supply's wander, absent while the
+VFD is off, would look pinned to zero there and make the first running blocks carry the
+whole level of the wander model. Just after the start the model lacks what happens: the plant
+drafts its sliver from 5 % of the set-point on (a step in load), while the model's zones act
+as soon as the rollers turn, and the gears' backlash is taken up. On validation machine 7
+the machine's own true train is 0.3-0.65 rpm off at the motor in the first four blocks of a
+start-up (ten times the block noise), exactly where the ramp's acceleration torque sets in:
+a fit that weights sharp features (generalised least squares under a slow wander) would
+read that as motor slip."""
 DIFF_STEP = 1e-3
 """Relative finite-difference step: the simulator's round-off (angle states of ~1e4 rad) makes
 the default step of ~1.5e-8 useless for weak parameters."""
@@ -152,17 +155,18 @@ def blocks(
 
 
 def _breakaway(record: MeasurementSeries, block: int, n_blocks: int) -> np.ndarray:
-    """Blocks that overlap the first :data:`BREAKAWAY_S` after a start from rest (the supply
-    set-point rising through the VFD's starting frequency)."""
+    """Blocks that overlap standstill (the supply set-point below the VFD's starting
+    frequency) or the first :data:`BREAKAWAY_S` after a start from rest."""
     supply = record.inputs.get("supply_hz")
     out = np.zeros(n_blocks, bool)
-    if supply is None or BREAKAWAY_S <= 0:
+    if supply is None:
         return out
-    running = supply >= STOPPED_SUPPLY_HZ
-    starts = np.flatnonzero(running[1:] & ~running[:-1]) + 1
+    still = supply < STOPPED_SUPPLY_HZ
     span = int(round(BREAKAWAY_S * record.sample_rate_hz))
-    for i in starts:
-        out[i // block : min((i + span - 1) // block + 1, n_blocks)] = True
+    for i in np.flatnonzero(~still[1:] & still[:-1]) + 1:  # starts from rest
+        still[i : i + span] = True
+    for k in range(n_blocks):
+        out[k] = bool(still[k * block : (k + 1) * block].any())
     return out
 
 
