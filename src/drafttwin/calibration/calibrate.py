@@ -102,6 +102,9 @@ class Calibration:
     model: str
     notes: list[str] = field(default_factory=list)
     lines: dict[str, Any] | None = None  # known-frequency terms (calibrate(lines=True))
+    # the weighted fit's residual model per channel (calibrate(coloured=...)): standard
+    # deviations of the wander and of the white part in the channel's unit, correlation time
+    residual_model: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @staticmethod
     def _overall(per_channel: dict[str, float]) -> float:
@@ -132,6 +135,7 @@ class Calibration:
             "wall_s": self.wall_s,
             "notes": list(self.notes),
             **({"lines": self.lines} if self.lines is not None else {}),
+            **({"residual_model": self.residual_model} if self.residual_model else {}),
         }
 
 
@@ -145,7 +149,7 @@ def calibrate(
     model_name: str = "full",
     progress: Progress | None = None,
     lines: bool = False,
-    coloured: Sequence[str] = ("motor",),
+    coloured: Sequence[str] = (),
 ) -> Calibration:
     """Estimate ``params`` (dotted names; ``None``: the default set) of ``train`` from the
     measured records ``data`` (outputs the train maps, inputs it follows). ``model`` turns a
@@ -162,15 +166,16 @@ def calibrate(
         raise DataError(f"the drive train gives no output channel(s) {missing}",
                         fix="calibrate on the channels the train maps ([[output]] tables)")  # fmt: skip
     data, _ = preprocess(data)  # gaps and spikes as everywhere in drafttwin: a spike is 100 sigma
-    blocks = F.blocks(data, block_s, train=train)
+    blocks = F.blocks(data, block_s, train=train, skip_start=bool(coloured))
     singles = [[i] for i in range(len(chosen))]
     say(f"screening {len(chosen)} parameters at their nominal values")
     screen = F.Objective(train, blocks, chosen, singles, transform=model)
     jac0 = F.jacobian(screen, np.ones(len(chosen)))
     notes: list[str] = []
+    residual: dict[str, dict[str, float]] = {}
     free, verdicts, powers = _screen(jac0, chosen, notes)
     x, jac, se, gamma, objective, runs = _fit_and_prune(
-        train, blocks, chosen, free, verdicts, model, say, notes, powers, coloured
+        train, blocks, chosen, free, verdicts, model, say, notes, powers, coloured, residual
     )
     factors = objective.factors(x) if free else np.ones(len(chosen))
     calibrated = with_factors(train, chosen, factors)
@@ -185,7 +190,7 @@ def calibrate(
         collinearity=gamma, block_s=block_s, records=data.n_records,
         evaluations=screen.evaluations + runs, wall_s=time.perf_counter() - start,
         model=model_name, notes=notes,
-        lines=_lines(train, data, final, say) if lines else None,
+        lines=_lines(train, data, final, say) if lines else None, residual_model=residual,
     )  # fmt: skip
 
 
@@ -244,6 +249,7 @@ def _fit_and_prune(
     notes: list[str],
     powers: dict[int, float],
     coloured: Sequence[str] = (),
+    residual: dict[str, dict[str, float]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, F.Objective, int]:
     """Fit (a robust pass, outliers set aside and channels reweighted, then least squares);
     standard errors by the sandwich formula under AR residuals; drop the least determined
@@ -274,7 +280,13 @@ def _fit_and_prune(
         rel = se / np.maximum(np.abs(x), 1e-12)
         if not free or (rel.max() <= I.MAX_RELATIVE_SE and gamma <= I.MAX_COLLINEARITY):
             if coloured:
-                notes.append(_noise_note(plain.data, noises))
+                model_of = _residual_model(plain.data, noises)
+                notes.append("residual model of the weighted fit: " + "; ".join(
+                    f"{c}: wander {m['wander_sd']:.3g} {plain.data.units.get(c, '')} over "
+                    f"{m['correlation_s']:.3g} s, white {m['white_sd']:.3g}"
+                    for c, m in model_of.items()))  # fmt: skip
+                if residual is not None:
+                    residual.update(model_of)
             if wild:
                 notes.append(f"{wild} block(s) set aside as outliers (over "
                              f"{F.OUTLIER_SCALES:g} robust standard deviations off)")  # fmt: skip
@@ -307,14 +319,16 @@ def _coloured(
     return replace(objective, whiten=whiten, evaluations=0), noises
 
 
-def _noise_note(data: F.Blocks, noises: Sequence[N.ChannelNoise | None]) -> str:
-    parts = [
-        f"{c}: wander {np.sqrt(n.ou_var) * data.noise[j]:.3g} {data.units.get(c, '')} "
-        f"over {n.tau_s:.3g} s, white {np.sqrt(n.white_var) * data.noise[j]:.3g}"
+def _residual_model(
+    data: F.Blocks, noises: Sequence[N.ChannelNoise | None]
+) -> dict[str, dict[str, float]]:
+    """Each modelled channel's wander and white standard deviation per block (in the
+    channel's unit) and the wander's correlation time."""
+    return {
+        c: {"wander_sd": float(np.sqrt(n.ou_var) * data.noise[j]), "correlation_s": n.tau_s,
+            "white_sd": float(np.sqrt(n.white_var) * data.noise[j])}
         for j, (c, n) in enumerate(zip(data.channels, noises, strict=True)) if n is not None
-    ]  # fmt: skip
-    block_s = data.block / data.series.sample_rate_hz
-    return f"residual model of the weighted fit (per {block_s:g} s block): " + "; ".join(parts)
+    }  # fmt: skip
 
 
 def _estimates(

@@ -121,18 +121,20 @@ def motor_gains(train: DriveTrain, channels: Sequence[str], units: dict[str, str
 
 def blocks(
     series: MeasurementSeries, block_s: float, with_motor: bool = True,
-    train: DriveTrain | None = None,
+    train: DriveTrain | None = None, skip_start: bool = False,
 ) -> Blocks:  # fmt: skip
     """Block means of every record (and of the motor speed, when recorded and
     ``with_motor``); the noise scale from the block-to-block changes of the scored errors
-    (relative to the motor's, when ``train`` is given and the motor speed recorded)."""
+    (relative to the motor's, when ``train`` is given and the motor speed recorded).
+    ``skip_start``: standstill and start-up blocks are not scored (:data:`BREAKAWAY_S`)."""
     rate = series.sample_rate_hz
     block = max(1, int(round(block_s * rate)))
     names, _ = _columns(series, with_motor)
     parts, rows, start = [], [], 0
     for record in series.records():
         means = block_means(_columns(record, with_motor)[1], block)
-        means[_breakaway(record, block, len(means))] = np.nan
+        if skip_start:
+            means[_breakaway(record, block, len(means))] = np.nan
         if len(means) < 3:
             raise DataError(
                 f"a record of {len(record)} samples gives {len(means)} blocks of {block_s:g} s",

@@ -46,9 +46,6 @@ class ChannelNoise:
         lag = np.abs(t_s[:, None] - t_s[None, :])
         return self.ou_var * np.exp(-lag / self.tau_s) + self.white_var * np.eye(len(t_s))
 
-    def to_dict(self) -> dict[str, float]:
-        return {"white_var": self.white_var, "ou_var": self.ou_var, "tau_s": self.tau_s}
-
 
 @njit(cache=True)
 def _innovations(
