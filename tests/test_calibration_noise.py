@@ -114,3 +114,15 @@ def test_hc3_errors_follow_the_scatter_of_the_rows_that_carry_the_fit():
     spread = np.std(slopes)
     assert np.sqrt(np.mean(np.square(hc3))) == pytest.approx(spread, rel=0.2)
     assert np.sqrt(np.mean(np.square(white))) < 0.6 * spread
+
+
+def test_the_wander_model_refuses_records_without_a_motor_speed():
+    from drafttwin.calibration import calibrate
+    from drafttwin.errors import DataError
+    from drafttwin.mechanics import DriveTrain
+
+    n = 200
+    series = MeasurementSeries(time_s=np.arange(n) / 100.0, values=np.full((n, 4), 100.0),
+                               inputs={"supply_hz": np.full(n, 50.0)})  # fmt: skip
+    with pytest.raises(DataError, match="motor"):
+        calibrate(DriveTrain.preset("fa320a"), series, coloured=("motor",))

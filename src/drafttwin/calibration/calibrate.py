@@ -167,6 +167,10 @@ def calibrate(
                         fix="calibrate on the channels the train maps ([[output]] tables)")  # fmt: skip
     data, _ = preprocess(data)  # gaps and spikes as everywhere in drafttwin: a spike is 100 sigma
     blocks = F.blocks(data, block_s, train=train, skip_start=bool(coloured))
+    absent = [c for c in coloured if c != "all" and c not in blocks.channels]
+    if absent:
+        raise DataError(f"no recorded {', '.join(absent)} speed to model the wander of",
+                        fix="record the motor speed (a 'motor' column) or leave out --wander")  # fmt: skip
     singles = [[i] for i in range(len(chosen))]
     say(f"screening {len(chosen)} parameters at their nominal values")
     screen = F.Objective(train, blocks, chosen, singles, transform=model)
