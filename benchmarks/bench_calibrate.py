@@ -1,6 +1,7 @@
 """Calibration on the plant: estimates against the true machine, and the physics before/after.
 
     python benchmarks/bench_calibrate.py [--machines 3] [--train-s 60] [--test-s 120] [--full-model]
+        [--first-seed 101] [--wander]
 
 For each machine (machine seeds 101, 102, ...) the plant records three runs of that one
 machine: a start-up and a steady run (``--train-s`` each; the calibration data) and a speed
@@ -17,7 +18,8 @@ and true ("oracle": the machine's own parameters and thermal state) physics' bia
 roller on the test record (full model, following the record's set-points, scored as
 ``drafttwin evaluate`` scores: the measured samples that are not outliers); the
 nominal physics' RMSE over the first 5 s of the start-up record; the calibration's wall time.
-Writes benchmarks/results/calibrate.json.
+Writes benchmarks/results/calibrate.json (``calibrate_seeds_K[_wander].json`` for other
+first seeds or with the supply-wander model of ``calibrate --wander``).
 """
 
 from __future__ import annotations
@@ -117,7 +119,8 @@ def one_machine(seed: int, args: argparse.Namespace, folder: Path, model) -> dic
     data = dt.read_measurements([paths["startup"], paths["steady"]])
     test = dt.read_measurements(paths["speed-change"])
     start = time.perf_counter()
-    cal = calibrate(plant.train, data, model=model, model_name="reduced" if model else "full")
+    cal = calibrate(plant.train, data, model=model, model_name="reduced" if model else "full",
+                    coloured=("motor",) if args.wander else ())  # fmt: skip
     wall = time.perf_counter() - start
     true = truth(machine, plant.config, 0.5 * args.train_s)
     chosen = select(plant.train, None)
@@ -205,6 +208,8 @@ def main() -> None:
     parser.add_argument("--train-s", type=float, default=60.0)
     parser.add_argument("--test-s", type=float, default=120.0)
     parser.add_argument("--full-model", action="store_true")
+    parser.add_argument("--wander", action="store_true",
+                        help="model the motor's supply wander (calibrate --wander)")  # fmt: skip
     parser.add_argument(
         "--first-seed",
         type=int,
@@ -220,7 +225,9 @@ def main() -> None:
             one_machine(args.first_seed + k, args, Path(tmp), model) for k in range(args.machines)
         ]
     figures = report(rows)
-    print(f"wrote {write_results('calibrate', figures)}")
+    name = "calibrate" + (f"_seeds_{args.first_seed}" if args.first_seed != 101 else "")
+    name += "_wander" if args.wander else ""  # the variants do not overwrite the report
+    print(f"wrote {write_results(name, figures)}")
 
 
 if __name__ == "__main__":

@@ -24,7 +24,7 @@ def _rotor_factor(plant: Plant, t_s: float) -> float:
 
 
 @pytest.fixture(scope="module")
-def case(tmp_path_factory):
+def records(tmp_path_factory):
     plant = Plant()
     machine = Machine.draw(plant.train, plant.config, SEED)
     folder = tmp_path_factory.mktemp("plant")
@@ -33,8 +33,22 @@ def case(tmp_path_factory):
         rec = plant.run(SECONDS, 100.0, seed=10 * SEED + k, scenario=scenario, machine=machine)
         paths[scenario], recs[scenario] = rec.write(folder / f"{scenario}.parquet")[0], rec
     data = read_measurements([paths["startup"], paths["steady"]])
+    return plant, machine, data, recs["speed-change"]
+
+
+@pytest.fixture(scope="module")
+def case(records):
+    plant, machine, data, test = records
     cal = calibrate(plant.train, data, model=reduce, model_name="reduced")
-    return plant, machine, cal, recs["speed-change"]
+    return plant, machine, cal, test
+
+
+@pytest.fixture(scope="module")
+def wander(records):
+    plant, machine, data, _ = records
+    cal = calibrate(plant.train, data, model=reduce, model_name="reduced",
+                    coloured=("motor",))  # fmt: skip
+    return plant, machine, cal
 
 
 @pytest.mark.slow
@@ -54,6 +68,25 @@ def test_identified_parameters_lie_within_three_standard_errors_of_the_machine(c
     breakdown = next(e for e in cal.estimates if e.name == "motor.breakdown_torque_ratio")
     assert breakdown.factor == 1.0 and breakdown.verdict == "not separable in this data"
     assert any("motor.breakdown_torque_ratio" in note for note in cal.notes)
+
+
+@pytest.mark.slow
+def test_the_supply_wander_model_finds_the_plants_jitter_and_keeps_the_truth_within_3_se(wander):
+    plant, machine, cal = wander
+    truth = {name: 1.0 + u for name, u in machine.draws.items()}
+    truth["motor.rated_slip"] = _rotor_factor(plant, 0.5 * SECONDS)
+    identified = [e for e in cal.estimates if e.verdict == "identified"]
+    assert len(identified) >= 2, [(e.name, e.verdict) for e in cal.estimates]
+    for e in identified:
+        assert abs(e.factor - truth[e.name]) <= 3 * e.factor_se, (e.name, e.factor, e.factor_se)
+    # the plant's VFD jitter (OU, sd jitter_hz, correlation_s) at the motor: 120 / poles rpm
+    # per Hz, less the slip; estimated from two 30 s records, so only roughly
+    motor = cal.residual_model["motor"]
+    expected = plant.config.supply.jitter_hz * 120.0 / plant.train.spec.motor.poles
+    assert 0.5 * expected < motor["wander_sd"] < 2.0 * expected, (motor, expected)
+    assert 0.3 * plant.config.supply.correlation_s < motor["correlation_s"] < 30.0
+    assert set(cal.residual_model) == {"motor"}
+    assert "residual_model" in cal.to_dict()
 
 
 @pytest.mark.slow

@@ -7,13 +7,17 @@ Stages (on the records cleaned as everywhere in drafttwin: gaps filled, spikes s
    and stay nominal; parameters whose effects are parallel are "only in combination" and move
    together as one factor (for mean roller speeds: the friction loads, through their total
    torque at the motor).
-2. **Output-error fit** of the free factors (least squares on block means): a robust first
-   pass, then blocks far off set aside and each channel weighted by its residual scale, and
-   a least-squares refit. Standard errors by the sandwich formula with an AR model of the
-   residuals, so that they allow for the coloured fluctuation the physics leaves out
-   (prewhitening the fit itself would weight the transients, where model and machine differ
-   most, over the steady levels).
-3. **Identifiability**: while the free set's collinearity index exceeds 10 or an estimate's
+2. **Output-error fit** of the free factors (least squares on block means; the first 0.5 s
+   after a start from rest are not scored, see ``fit.BREAKAWAY_S``): a robust first
+   pass, then blocks far off set aside and each channel weighted by its residual scale, a
+   least-squares refit, and a generalised least-squares refit in which the motor channel's
+   error is white noise plus the supply's wander (an exponentially correlated process whose
+   size and correlation time are estimated from that residual by maximum likelihood,
+   :mod:`drafttwin.calibration.noise`): the wander, which only the motor sees, is then no
+   longer read as motor slip. Standard errors by the sandwich formula with an AR model of
+   the (whitened) residuals and, where whitened, no smaller than the leverage-corrected
+   heteroscedasticity-consistent ones (HC3: a few blocks of the ramp carry most of it).
+3. **Identifiability**: while the free set's collinearity index exceeds 30 or an estimate's
    relative standard error exceeds 10 %, the least determined entry goes back to nominal
    ("not separable in this data") and the rest is refitted.
 
@@ -27,7 +31,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -35,6 +39,7 @@ import numpy as np
 from drafttwin._io import json_number
 from drafttwin.calibration import fit as F
 from drafttwin.calibration import identify as I
+from drafttwin.calibration import noise as N
 from drafttwin.calibration.parameters import Parameter, nominal_values, select, with_factors
 from drafttwin.data.preprocess import preprocess
 from drafttwin.data.series import MeasurementSeries
@@ -97,6 +102,9 @@ class Calibration:
     model: str
     notes: list[str] = field(default_factory=list)
     lines: dict[str, Any] | None = None  # known-frequency terms (calibrate(lines=True))
+    # the weighted fit's residual model per channel (calibrate(coloured=...)): standard
+    # deviations of the wander and of the white part in the channel's unit, correlation time
+    residual_model: dict[str, dict[str, float]] = field(default_factory=dict)
 
     @staticmethod
     def _overall(per_channel: dict[str, float]) -> float:
@@ -127,6 +135,7 @@ class Calibration:
             "wall_s": self.wall_s,
             "notes": list(self.notes),
             **({"lines": self.lines} if self.lines is not None else {}),
+            **({"residual_model": self.residual_model} if self.residual_model else {}),
         }
 
 
@@ -140,12 +149,15 @@ def calibrate(
     model_name: str = "full",
     progress: Progress | None = None,
     lines: bool = False,
+    coloured: Sequence[str] = (),
 ) -> Calibration:
     """Estimate ``params`` (dotted names; ``None``: the default set) of ``train`` from the
     measured records ``data`` (outputs the train maps, inputs it follows). ``model`` turns a
     train into the one simulated in the loop (e.g. :func:`drafttwin.mechanics.reduce`).
     ``lines``: also fit the known-frequency terms to the calibrated physics' residual
-    (:mod:`drafttwin.calibration.lines`)."""
+    (:mod:`drafttwin.calibration.lines`). ``coloured``: the channels whose error is modelled as
+    white noise plus an exponentially correlated wander in the final, generalised
+    least-squares fit (``"all"``: every channel; empty: plain least squares)."""
     start = time.perf_counter()
     say = progress or (lambda _msg: None)
     chosen = select(train, params)
@@ -154,15 +166,20 @@ def calibrate(
         raise DataError(f"the drive train gives no output channel(s) {missing}",
                         fix="calibrate on the channels the train maps ([[output]] tables)")  # fmt: skip
     data, _ = preprocess(data)  # gaps and spikes as everywhere in drafttwin: a spike is 100 sigma
-    blocks = F.blocks(data, block_s, train=train)
+    blocks = F.blocks(data, block_s, train=train, skip_start=bool(coloured))
+    absent = [c for c in coloured if c != "all" and c not in blocks.channels]
+    if absent:
+        raise DataError(f"no recorded {', '.join(absent)} speed to model the wander of",
+                        fix="record the motor speed (a 'motor' column) or leave out --wander")  # fmt: skip
     singles = [[i] for i in range(len(chosen))]
     say(f"screening {len(chosen)} parameters at their nominal values")
     screen = F.Objective(train, blocks, chosen, singles, transform=model)
     jac0 = F.jacobian(screen, np.ones(len(chosen)))
     notes: list[str] = []
+    residual: dict[str, dict[str, float]] = {}
     free, verdicts, powers = _screen(jac0, chosen, notes)
     x, jac, se, gamma, objective, runs = _fit_and_prune(
-        train, blocks, chosen, free, verdicts, model, say, notes, powers
+        train, blocks, chosen, free, verdicts, model, say, notes, powers, coloured, residual
     )
     factors = objective.factors(x) if free else np.ones(len(chosen))
     calibrated = with_factors(train, chosen, factors)
@@ -177,7 +194,7 @@ def calibrate(
         collinearity=gamma, block_s=block_s, records=data.n_records,
         evaluations=screen.evaluations + runs, wall_s=time.perf_counter() - start,
         model=model_name, notes=notes,
-        lines=_lines(train, data, final, say) if lines else None,
+        lines=_lines(train, data, final, say) if lines else None, residual_model=residual,
     )  # fmt: skip
 
 
@@ -235,12 +252,15 @@ def _fit_and_prune(
     say: Progress,
     notes: list[str],
     powers: dict[int, float],
+    coloured: Sequence[str] = (),
+    residual: dict[str, dict[str, float]] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float, F.Objective, int]:
     """Fit (a robust pass, outliers set aside and channels reweighted, then least squares);
     standard errors by the sandwich formula under AR residuals; drop the least determined
     free entry while the set is not identifiable. Returns the final factors, Jacobian,
     standard errors, collinearity, the objective they belong to and the simulations run."""
     x = np.ones(len(free))
+    noises: list[N.ChannelNoise | None] = []
     cache: dict[tuple[float, ...], np.ndarray] = {}  # simulations do not depend on weights
     while True:
         robust = F.Objective(
@@ -251,12 +271,26 @@ def _fit_and_prune(
         data, wild = F.reweighted(blocks, blocks.errors(robust.blocks(x)))
         plain = F.Objective(train, data, chosen, free, transform=model, powers=powers, _cache=cache)
         x = F.fit(plain, x)
+        if coloured:
+            plain, noises = _coloured(plain, x, coloured)
+            x = F.fit(plain, x)
         jac = F.jacobian(plain, x)
         mask = np.isfinite(data.measured)
-        se = I.sandwich_standard_errors(jac, plain.residuals(x), mask, data.record_rows)
+        resid = plain.residuals(x)
+        se = I.sandwich_standard_errors(jac, resid, mask, data.record_rows)
+        if coloured:  # whitened: also the rows' own scatter where few rows carry the fit
+            se = np.maximum(se, I.hc3_standard_errors(jac, resid))
         gamma = I.collinearity(jac)
         rel = se / np.maximum(np.abs(x), 1e-12)
         if not free or (rel.max() <= I.MAX_RELATIVE_SE and gamma <= I.MAX_COLLINEARITY):
+            if coloured:
+                model_of = _residual_model(plain.data, noises)
+                notes.append("residual model of the weighted fit: " + "; ".join(
+                    f"{c}: wander {m['wander_sd']:.3g} {plain.data.units.get(c, '')} over "
+                    f"{m['correlation_s']:.3g} s, white {m['white_sd']:.3g}"
+                    for c, m in model_of.items()))  # fmt: skip
+                if residual is not None:
+                    residual.update(model_of)
             if wild:
                 notes.append(f"{wild} block(s) set aside as outliers (over "
                              f"{F.OUTLIER_SCALES:g} robust standard deviations off)")  # fmt: skip
@@ -268,6 +302,37 @@ def _fit_and_prune(
             f"collinearity {gamma:.3g}: back to nominal")  # fmt: skip
         free = [g for k, g in enumerate(free) if k != worst]
         x = np.delete(x, worst)
+
+
+def _coloured(
+    objective: F.Objective, x: np.ndarray, channels: Sequence[str]
+) -> tuple[F.Objective, list[N.ChannelNoise | None]]:
+    """The objective weighted by the residual's coloured model (generalised least squares):
+    a white + OU model per channel in ``channels``, by maximum likelihood on the residual at
+    ``x``."""
+    data = objective.data
+    resid = data.errors(objective.blocks(x))
+    mask = np.isfinite(data.measured) & np.isfinite(resid)
+    block_s = data.block / data.series.sample_rate_hz
+    noises = [
+        N.fit_noise(N.channel_segments(resid, mask, data.record_rows, j, block_s), block_s)
+        if (c in channels or "all" in channels) else None
+        for j, c in enumerate(data.channels)
+    ]  # fmt: skip
+    whiten = N.Whitener(noises, mask, data.record_rows, block_s)
+    return replace(objective, whiten=whiten, evaluations=0), noises
+
+
+def _residual_model(
+    data: F.Blocks, noises: Sequence[N.ChannelNoise | None]
+) -> dict[str, dict[str, float]]:
+    """Each modelled channel's wander and white standard deviation per block (in the
+    channel's unit) and the wander's correlation time."""
+    return {
+        c: {"wander_sd": float(np.sqrt(n.ou_var) * data.noise[j]), "correlation_s": n.tau_s,
+            "white_sd": float(np.sqrt(n.white_var) * data.noise[j])}
+        for j, (c, n) in enumerate(zip(data.channels, noises, strict=True)) if n is not None
+    }  # fmt: skip
 
 
 def _estimates(

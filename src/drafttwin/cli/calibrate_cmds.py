@@ -18,6 +18,8 @@ from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 from drafttwin.errors import ConfigError
 
+WANDER_DEFAULT = False
+
 if TYPE_CHECKING:
     from drafttwin.calibration import Calibration
 
@@ -78,6 +80,16 @@ def calibrate(
             "explain on each record's held-out last 30 % and the largest terms.",
         ),
     ] = False,  # fmt: skip
+    wander: Annotated[
+        bool,
+        typer.Option(
+            "--wander/--no-wander",
+            help="Model the motor channel's error as white noise plus a slow wander (the "
+            "VFD's supply frequency, which only the motor sees; size and correlation time "
+            "by maximum likelihood) and refit by generalised least squares; standstill and "
+            "the first 0.5 s after a start are then not scored. Needs a recorded motor speed.",
+        ),
+    ] = WANDER_DEFAULT,  # fmt: skip
     as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
     quiet: Annotated[bool, typer.Option(help="No progress messages.")] = False,
 ) -> None:
@@ -104,7 +116,8 @@ def calibrate(
     names = None if params is None else [p.strip() for p in params.split(",") if p.strip()]
     say = None if (quiet or as_json) else (lambda msg: err_console.print(escape(msg)))
     result = run(train, series, names, block_s=block, model=model, model_name=name,
-                 progress=say, lines=lines)  # fmt: skip
+                 progress=say, lines=lines,
+                 coloured=("motor",) if wander else ())  # fmt: skip
     report = {**result.to_dict(), "data": data, "drive_train": train.spec.train.name}
     # the train and its report are renamed into place together, or neither is
     write_texts_atomic({
