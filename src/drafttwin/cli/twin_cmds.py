@@ -3,8 +3,12 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
+import signal
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -40,6 +44,20 @@ def _need_twin_extra() -> None:
     except ImportError as exc:
         raise ConfigError(f"the live twin needs the 'twin' extra ({exc.name} is missing)",
                           fix="pip install 'drafttwin[twin]'") from None  # fmt: skip
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (a service manager stopping the process) raises KeyboardInterrupt, like Ctrl-C,
+    for the duration of the block (the previous handler is put back)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def parse_bind(text: str, token: str | None) -> tuple[str, int]:
@@ -157,8 +175,10 @@ def twin_run(
     bind = None if http is None else parse_bind(http, token)
 
     def on_commit(rows: int, last_ts_us: int) -> None:
-        if verbose:
-            print(f"commit rows={rows} last_ts_us={last_ts_us}", flush=True)
+        if verbose:  # called by the writer thread just after the commit, with its duration
+            took = service.writer.commit_seconds[-1] * 1e3 if service.writer else math.nan
+            print(f"commit rows={rows} last_ts_us={last_ts_us} ms={took:.1f} "
+                  f"at={time.time():.3f}", flush=True)  # fmt: skip
 
     service = build_service(model, source, mapping=mapping, store_dir=store, commit_ms=commit_ms,
                             retention_s=None if retention_hours is None else retention_hours * 3600,
@@ -167,7 +187,10 @@ def twin_run(
     try:
         from drafttwin.twin.aio import run_bounded
 
-        run_bounded(_serve(service, bind, token, duration, max_samples, quiet))
+        # SIGTERM ends the twin like Ctrl-C: what was received is committed; only SIGKILL
+        # loses the rows of the open commit interval
+        with sigterm_as_interrupt():
+            run_bounded(_serve(service, bind, token, duration, max_samples, quiet))
     except OSError as exc:
         raise ConfigError(f"cannot serve the page on {http} ({exc.strerror or exc})",
                           where="--http", fix="choose a free port") from None  # fmt: skip
@@ -353,10 +376,30 @@ def plant_serve(
             callback=input_path("--cert"),
         ),
     ] = None,  # fmt: skip
+    broker: Annotated[
+        str,
+        typer.Option(
+            help="MQTT: auto (start the embedded amqtt broker when none answers locally) | "
+            "external (publish to the broker there, e.g. Mosquitto; never start one) | embedded."
+        ),
+    ] = "auto",  # fmt: skip
+    log: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write every published sample to this .parquet/.csv file when the plant stops "
+            "(the plant's own record, for 'drafttwin twin audit').",
+            callback=output_file("--log"),
+        ),
+    ] = None,  # fmt: skip
 ) -> None:
     """Run the plant emulator in real time as live machines: roller and motor speeds every
     sample, a writable supply set-point (write it and the plant changes speed)."""
     _need_twin_extra()
+    from drafttwin.twin.plantlog import open_plant_log
+
+    if broker not in ("auto", "external", "embedded"):
+        raise ConfigError(f"unknown broker mode {broker!r}", where="--broker",
+                          fix="use auto, external or embedded")  # fmt: skip
     if (opcua is None) == (mqtt is None):
         raise ConfigError("give one of --opcua and --mqtt", where="--opcua",
                           fix="e.g. --opcua opc.tcp://127.0.0.1:4840")  # fmt: skip
@@ -366,9 +409,25 @@ def plant_serve(
     if rate > 1000:
         raise ConfigError(f"--rate {rate:g}: a live plant publishes at most 1000 Hz",
                           where="--rate", fix="use --rate 100 (the FA320A logger's rate)")  # fmt: skip
+    if log is not None and log.suffix.lower() not in (".parquet", ".csv"):
+        raise ConfigError(f"unsupported log file type '{log.suffix or '(none)'}'", source=log,
+                          where="--log", fix="name the log *.parquet or *.csv")  # fmt: skip
     names = [name] if machines == 1 else [f"{name}-{k + 1}" for k in range(machines)]
-    opts: dict[str, Any] = {"seed": seed, "rate_hz": rate, "physics": physics, "ramp_hz_per_s": ramp,
-            "duration_s": duration}  # fmt: skip
+    opts: dict[str, Any] = {"seed": seed, "rate_hz": rate, "physics": physics,
+                            "ramp_hz_per_s": ramp, "duration_s": duration}  # fmt: skip
+    with open_plant_log(log) as plant_log:
+        opts["on_sample"] = None if plant_log is None else plant_log.add
+        counts = _serve_plant(opcua, mqtt, names, opts, mqtt_user, cert, broker)
+    if counts is not None:
+        console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in counts.items()))
+    if log is not None:
+        console.print(f"wrote {log}")
+
+
+def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: dict[str, Any],
+                 mqtt_user: str | None, cert: Path | None, broker: str) -> dict[str, int] | None:  # fmt: skip
+    """Run the plant until its duration, Ctrl-C or SIGTERM (then ``None``: nothing to
+    report; the log is written either way)."""
     if opcua is not None:
         from drafttwin.twin.plantserver import parse_opcua_url, serve_opcua
 
@@ -379,9 +438,10 @@ def plant_serve(
                               "ns=2;s=NAME.sample (Ctrl-C stops)")  # fmt: skip
 
         try:
-            counts = asyncio.run(serve_opcua(opcua, names, ready=ready, cert_dir=cert, **opts))
+            with sigterm_as_interrupt():
+                return asyncio.run(serve_opcua(opcua, names, ready=ready, cert_dir=cert, **opts))
         except KeyboardInterrupt:
-            return
+            return None
         except OSError as exc:
             raise ConfigError(f"cannot serve on {opcua} ({exc.strerror or exc})", where="--opcua",
                               fix="choose a free port") from None  # fmt: skip
@@ -395,15 +455,15 @@ def plant_serve(
                               "drafttwin/NAME/sample (Ctrl-C stops)")  # fmt: skip
 
         try:
-            counts = asyncio.run(serve_mqtt(str(mqtt), names, ready=said, username=mqtt_user,
-                                            password=_mqtt_password(mqtt_user), cert_dir=cert,
-                                            **opts))  # fmt: skip
+            with sigterm_as_interrupt():
+                return asyncio.run(serve_mqtt(str(mqtt), names, ready=said, username=mqtt_user,
+                                              password=_mqtt_password(mqtt_user), cert_dir=cert,
+                                              broker_mode=broker, **opts))  # fmt: skip
         except KeyboardInterrupt:
-            return
+            return None
         except OSError as exc:
             raise ConfigError(f"cannot reach or start a broker at {mqtt} ({exc.strerror or exc})",
                               where="--mqtt", fix="choose a free port or a running broker") from None  # fmt: skip
-    console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in counts.items()))
 
 
 @twin_app.command("certs")

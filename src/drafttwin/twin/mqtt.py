@@ -203,16 +203,29 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
                      physics: str = "full", ramp_hz_per_s: float = 10.0,
                      duration_s: float | None = None, ready: Any = None,
                      username: str | None = None, password: str | None = None,
-                     cert_dir: Path | None = None) -> dict[str, int]:  # fmt: skip
-    """Publish ``names`` live plants to the broker at ``address`` (started here when none
-    answers on a local address); set-points arrive on ``drafttwin/NAME/setpoint``."""
+                     cert_dir: Path | None = None, broker_mode: str = "auto",
+                     on_sample: Any = None) -> dict[str, int]:  # fmt: skip
+    """Publish ``names`` live plants to the broker at ``address``; set-points arrive on
+    ``drafttwin/NAME/setpoint``. ``broker_mode``: ``auto`` starts the embedded broker when none
+    answers on a local address, ``external`` never starts one (a broker must answer),
+    ``embedded`` always starts one (the port must be free). ``on_sample(name, sample)`` is
+    called after each publish (the plant's own log)."""
     import paho.mqtt.client as mqtt
 
     from drafttwin.plant.live import LivePlant
 
     host, port = parse_hostport(address, "--mqtt")
     broker = None
-    if not broker_answers(host, port):
+    answers = broker_answers(host, port)
+    if broker_mode == "external" and not answers:
+        raise ConfigError(f"no MQTT broker answers at {host}:{port}", where="--mqtt",
+                          fix="start the broker first (e.g. mosquitto -p PORT), or drop "
+                          "--broker external to start the embedded one")  # fmt: skip
+    if broker_mode == "embedded" and answers:
+        raise ConfigError(f"{host}:{port} is taken (a broker or another server answers)",
+                          where="--mqtt", fix="choose a free port for the embedded broker, or "
+                          "use --broker external to publish to the one there")  # fmt: skip
+    if not answers:
         if host not in ("127.0.0.1", "localhost"):
             raise ConfigError(f"no MQTT broker answers at {host}:{port}", where="--mqtt",
                               fix="start one there, or use 127.0.0.1 to start the embedded one")  # fmt: skip
@@ -252,9 +265,10 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
     for n in names:
         client.subscribe(setpoint_topic(n), qos=1)
     if ready is not None:
-        ready(f"MQTT {host}:{port}" + (" (embedded amqtt broker)" if broker else ""))
+        ready(f"MQTT {host}:{port}" + (" (embedded amqtt broker)" if broker else
+                                       " (external broker)"))  # fmt: skip
     try:
-        return await _publish(client, plants, pending, rate_hz, duration_s)
+        return await _publish(client, plants, pending, rate_hz, duration_s, on_sample)
     finally:
         client.loop_stop()
         client.disconnect()
@@ -263,7 +277,7 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
 
 
 async def _publish(client: Any, plants: dict, pending: dict[str, float], rate_hz: float,
-                   duration_s: float | None) -> dict[str, int]:  # fmt: skip
+                   duration_s: float | None, on_sample: Any = None) -> dict[str, int]:  # fmt: skip
     t0 = time.time()
     for p in plants.values():
         p.t0_s = t0
@@ -285,6 +299,8 @@ async def _publish(client: Any, plants: dict, pending: dict[str, float], rate_hz
                        **{c: _num(v) for c, v in zip(("front", "second", "third", "back"),
                                                      s.rollers_rpm, strict=True)}}  # fmt: skip
             client.publish(f"drafttwin/{name}/sample", json.dumps(payload), qos=0)
+            if on_sample is not None:
+                on_sample(name, s)
     return {n: p.seq for n, p in plants.items()}
 
 
