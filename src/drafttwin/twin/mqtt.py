@@ -49,11 +49,16 @@ def setpoint_topic(machine: str) -> str:
 
 
 class MqttSource(Source):
-    """Subscribe to each machine's topic (QoS 0) on a broker; reconnect with backoff."""
+    """Subscribe to each machine's topic (QoS 0) on a broker; reconnect with backoff.
+
+    With ``share`` (a group name) it subscribes over MQTT 5 to ``$share/GROUP/TOPIC``: the
+    broker hands each message to one member of the group (MQTT 5.0 §4.8.2). Which member is
+    the broker's choice: Mosquitto 2.0 takes turns per message, so one machine's samples
+    spread over the members (docs/twin.md); EMQX's ``hash_topic`` keeps a topic on one."""
 
     def __init__(self, host: str, port: int, machines: tuple[MachineMap, ...],
                  username: str | None = None, password: str | None = None,
-                 ca_file: Path | None = None) -> None:  # fmt: skip
+                 ca_file: Path | None = None, *, share: str | None = None) -> None:  # fmt: skip
         self.spec, self.host, self.port, self.machines = (
             f"mqtt://{host}:{port}",
             host,
@@ -63,6 +68,10 @@ class MqttSource(Source):
         self.by_topic = {m.topic: m for m in machines}
         self.username, self.password = username, password
         self.ca_file = ca_file  # TLS, trusting exactly this certificate
+        self.share = share
+        self.refused: str | None = None  # why the broker would not do what was asked
+        if share is not None:
+            self.spec += f"?share={share}"
         self.queued = 0  # written by the network thread only
         self.handled = 0  # written by the event loop only
 
@@ -84,9 +93,16 @@ class MqttSource(Source):
                 self._report(name, "dropped", f"flood: {new} samples over the backlog limit", new)
                 self._flood_reported[name] = n
 
-    def _subscribe(self, client: Any, *_: Any) -> None:
+    def _subscribe(self, client: Any, userdata: Any, flags: Any, reason: Any,
+                   properties: Any = None) -> None:  # fmt: skip
+        available = getattr(properties, "SharedSubscriptionAvailable", 1)  # CONNACK, MQTT 5
+        if self.share is not None and available == 0:
+            self.refused = "the broker has no shared subscriptions"
+            client.disconnect()
+            return
+        prefix = "" if self.share is None else f"$share/{self.share}/"
         for topic in self.by_topic:
-            client.subscribe(topic, qos=0)
+            client.subscribe(prefix + topic, qos=0)
 
     def on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         """paho's callback (network thread): check, then queue for the loop, or count a drop."""
@@ -110,8 +126,10 @@ class MqttSource(Source):
             loop.call_soon_threadsafe(lost.set)
 
         attempt = 0
+        self.refused = None
+        protocol = mqtt.MQTTv311 if self.share is None else mqtt.MQTTv5  # $share is MQTT 5
         while True:
-            client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv311)
+            client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=protocol)
             client.on_message = self.on_message
             client.on_disconnect = on_disconnect
             client.on_connect = self._subscribe  # on every (re)connect, once acknowledged
@@ -132,7 +150,7 @@ class MqttSource(Source):
                 self._set("live", report)
                 attempt = 0
                 await lost.wait()
-                self._set("reconnecting", report, "broker connection lost")
+                self._set("reconnecting", report, self.refused or "broker connection lost")
             except asyncio.CancelledError:
                 raise
             except OSError as exc:
