@@ -1,8 +1,10 @@
-"""``drafttwin twin audit``: a twin's store counted against the plant's own log (docs/twin.md)."""
+"""``drafttwin twin audit``: a twin's store counted against the plant's own log; ``drafttwin
+twin hall``: a hall of machines spread over Ray actors (docs/twin.md)."""
 
 from __future__ import annotations
 
 import datetime as dt
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -10,9 +12,11 @@ import typer
 from rich import box
 from rich.table import Table
 
-from drafttwin.cli._oserrors import input_path
-from drafttwin.cli.app import console, print_json
-from drafttwin.cli.twin_cmds import _need_twin_extra, twin_app
+from drafttwin.cli._bounds import bounded
+from drafttwin.cli._oserrors import input_path, output_dir
+from drafttwin.cli.app import console, err_console, print_json
+from drafttwin.cli.twin_cmds import _need_twin_extra, sigterm_as_interrupt, twin_app
+from drafttwin.errors import ConfigError
 
 
 @twin_app.command("audit")
@@ -66,3 +70,112 @@ def twin_audit(
 
 def _clock(t: float) -> str:
     return dt.datetime.fromtimestamp(t, tz=dt.UTC).strftime("%H:%M:%S.%f")[:-3] + " UTC"
+
+
+@twin_app.command("hall")
+def twin_hall(
+    model: Annotated[
+        Path,
+        typer.Option(
+            help="Model file (.dtm) for the machines (the mapping may name others).",
+            callback=input_path("--model"),
+        ),
+    ],  # fmt: skip
+    source: Annotated[
+        str, typer.Option(help="The hall's server: opcua:opc.tcp://HOST:PORT | mqtt://HOST:PORT.")
+    ],
+    mapping: Annotated[
+        Path,
+        typer.Option(
+            help="Mapping TOML listing the hall's machines (split over the shards).",
+            callback=input_path("--mapping"),
+        ),
+    ],  # fmt: skip
+    store: Annotated[
+        Path,
+        typer.Option(
+            help="Store folder: one DuckDB file per shard (shard-I-of-K/).",
+            callback=output_dir("--store"),
+        ),
+    ],  # fmt: skip
+    shards: Annotated[
+        int, typer.Option(help="Number of twins (Ray actors), K.", callback=bounded("--shards"))
+    ] = 2,
+    ray_address: Annotated[
+        str | None,
+        typer.Option(
+            "--ray",
+            help="Ray cluster address (HOST:PORT, ray://HOST:PORT or auto); "
+            "default: a private Ray on this machine with K CPUs.",
+        ),
+    ] = None,  # fmt: skip
+    commit_ms: Annotated[
+        float, typer.Option(help="Commit interval, ms.", callback=bounded("--commit-ms"))
+    ] = 200.0,
+    physics: Annotated[str, typer.Option(help="reduced (fast) | full drive train.")] = "reduced",
+    duration: Annotated[
+        float | None,
+        typer.Option(
+            help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
+        ),
+    ] = None,  # fmt: skip
+    quiet: Annotated[bool, typer.Option(help="No status line every 10 s on stderr.")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print each shard's status as JSON.")
+    ] = False,
+) -> None:
+    """Run a hall as K live twins, one Ray actor each: shard I takes the mapping's machines
+    I, I+K, I+2K... (each machine whole in one twin) and writes its own store in
+    STORE/shard-I-of-K/; 'twin query' and 'twin audit' read them all. Stops after --duration
+    or on Ctrl-C / SIGTERM (every shard commits what it received)."""
+    _need_twin_extra()
+    from drafttwin.execution.executor import _check_address, _import_ray
+    from drafttwin.twin.hall import check_hall, check_store, run_hall
+
+    if physics not in ("reduced", "full"):
+        raise ConfigError(f"unknown physics {physics!r}", where="--physics",
+                          fix="use reduced or full")  # fmt: skip
+    check_store(store, shards)
+    n = check_hall(model, source, mapping, shards)
+    _import_ray()
+    if ray_address is not None:
+        _check_address(ray_address)
+    err_console.print(f"hall: {n} machines over {shards} twins on "
+                      f"{ray_address or 'a private Ray'}")  # fmt: skip
+
+    def status(shard_status: list) -> None:  # noqa: ANN001  one line per 10 s
+        if quiet:
+            return
+        parts = []
+        for i, st in enumerate(shard_status):
+            if st is None:
+                parts.append(f"shard {i}: starting")
+            else:
+                p99 = st["latency_ms"]["p99"]
+                parts.append(f"shard {i}: {st['rows']} samples, p99 "
+                             f"{'-' if p99 is None else f'{p99:.1f}'} ms")  # fmt: skip
+        err_console.print("; ".join(parts), highlight=False)
+
+    start = time.monotonic()
+    try:
+        with sigterm_as_interrupt():
+            results = run_hall(model, source, mapping, store, shards, address=ray_address,
+                               commit_ms=commit_ms, physics=physics, duration_s=duration,
+                               on_status=status)  # fmt: skip
+    except KeyboardInterrupt:
+        err_console.print("interrupted: every shard committed what it received")
+        return
+    if as_json:
+        print_json({"wall_s": time.monotonic() - start, "shards": results})
+        return
+    table = Table(title=f"hall: {shards} twins, {time.monotonic() - start:.1f} s", box=box.SIMPLE)
+    for col in ("shard", "machines", "processed", "dropped", "p99 ms", "committed"):
+        table.add_column(col, justify="left" if col in ("shard", "machines") else "right")
+    for i, r in enumerate(results):
+        p99 = r["latency_ms"]["p99"]
+        table.add_row(str(i), ", ".join(r["machines"]),
+                      str(sum(m["processed"] for m in r["machines"].values())),
+                      str(sum(m["dropped"] for m in r["machines"].values())),
+                      "-" if p99 is None else f"{p99:.1f}",
+                      str(r["store"]["committed"]))  # fmt: skip
+    console.print(table)

@@ -56,24 +56,24 @@ class MachineAudit:
 
 
 def _store_rows(folder: Path, machine: str | None) -> tuple[pd.DataFrame, dict[str, list[str]]]:
-    from drafttwin.twin.history import _open
+    """The stored rows (of a single store, or of every shard of a hall)."""
+    from drafttwin.twin.history import _open, machines_of
 
-    con, path = _open(folder)
-    try:
-        channels = {m: list(c) for m, c in con.execute("SELECT machine, channels FROM machines")
-                    .fetchall()}  # fmt: skip
-        if machine is not None and machine not in channels:
-            raise DataError(f"no machine {machine!r} in the store", source=path,
-                            fix=f"use one of: {', '.join(sorted(channels)) or '(none stored)'}")  # fmt: skip
-        sql = "SELECT machine, ts_us, seq, measured FROM samples"
-        args: list[Any] = []
-        if machine is not None:
-            sql += " WHERE machine = ?"
-            args.append(machine)
-        frame = con.execute(sql + " ORDER BY machine, ts_us", args).df()
-    finally:
-        con.close()
-    return frame, channels
+    machines = machines_of(folder)
+    if machine is not None and machine not in machines:
+        raise DataError(f"no machine {machine!r} in the store", source=folder,
+                        fix=f"use one of: {', '.join(sorted(machines)) or '(none stored)'}")  # fmt: skip
+    frames = []
+    for name in sorted(machines) if machine is None else [machine]:
+        con, _ = _open(machines[name][0])
+        try:
+            frames.append(con.execute("SELECT machine, ts_us, seq, measured FROM samples WHERE "
+                                      "machine = ? ORDER BY ts_us", [name]).df())  # fmt: skip
+        finally:
+            con.close()
+    frame = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(
+        {"machine": [], "ts_us": [], "seq": [], "measured": []})  # fmt: skip
+    return frame, {name: chans for name, (_, chans) in machines.items()}
 
 
 def audit(
