@@ -18,6 +18,9 @@ from drafttwin.cli.app import console, err_console, print_json
 from drafttwin.cli.twin_cmds import _need_twin_extra, sigterm_as_interrupt, twin_app
 from drafttwin.errors import ConfigError
 
+RUNS_SHOWN = 10
+"""Runs of absent samples listed per machine (the JSON has them all)."""
+
 
 @twin_app.command("audit")
 def twin_audit(
@@ -62,10 +65,14 @@ def twin_audit(
                   "stored sample; filled: rows the twin made up for samples it never received",
                   highlight=False)  # fmt: skip
     for m in result:
-        for r in m.runs:
-            console.print(f"{m.machine}: {r.samples} samples missing, seq {r.first_seq}-"
-                          f"{r.last_seq}, published {_clock(r.first_published_s)} to "
-                          f"{_clock(r.last_published_s)}", highlight=False)  # fmt: skip
+        for r in m.runs[:RUNS_SHOWN]:
+            console.print(f"{m.machine}: absent seq {r.first_seq}-{r.last_seq} ({r.samples} "
+                          f"sample{'s' if r.samples > 1 else ''}), published "
+                          f"{_clock(r.first_published_s)} to {_clock(r.last_published_s)}",
+                          highlight=False)  # fmt: skip
+        if len(m.runs) > RUNS_SHOWN:
+            console.print(f"{m.machine}: {len(m.runs) - RUNS_SHOWN} more runs (--json lists "
+                          "them all)", highlight=False)  # fmt: skip
 
 
 def _clock(t: float) -> str:

@@ -123,7 +123,17 @@ def _actor_class(ray: Any) -> Any:
             await self.service.run(duration_s=duration_s)
 
         def status(self) -> dict[str, Any] | None:
-            return None if self.service is None else self.service.status()
+            """The shard's status, read in its own event loop (not while it changes)."""
+            if self.service is None or self.loop is None:
+                return None
+
+            async def read() -> dict[str, Any]:
+                return dict(self.service.status())
+
+            try:
+                return asyncio.run_coroutine_threadsafe(read(), self.loop).result(timeout=10)
+            except (RuntimeError, TimeoutError):  # the loop closed, or is stuck: no status
+                return None
 
         def stop(self) -> None:
             self.stopping.set()

@@ -146,7 +146,9 @@ class MqttSource(Source):
                         break
                     await asyncio.sleep(0.05)
                 else:
-                    raise OSError("no MQTT acknowledgement from the broker")
+                    raise OSError("no MQTT acknowledgement from the broker" + (
+                        " (share= needs MQTT 5, e.g. Mosquitto; the embedded amqtt speaks "
+                        "3.1.1 only)" if self.share else ""))  # fmt: skip
                 self._set("live", report)
                 attempt = 0
                 await lost.wait()
