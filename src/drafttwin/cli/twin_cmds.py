@@ -177,8 +177,9 @@ def twin_run(
     def on_commit(rows: int, last_ts_us: int) -> None:
         if verbose:  # called by the writer thread just after the commit, with its duration
             took = service.writer.commit_seconds[-1] * 1e3 if service.writer else math.nan
-            print(f"commit rows={rows} last_ts_us={last_ts_us} ms={took:.1f} "
-                  f"at={time.time():.3f}", flush=True)  # fmt: skip
+            # last_ts_us stays the last field: scripts that cut the line after it still work
+            print(f"commit rows={rows} ms={took:.1f} at={time.time():.3f} "
+                  f"last_ts_us={last_ts_us}", flush=True)  # fmt: skip
 
     service = build_service(model, source, mapping=mapping, store_dir=store, commit_ms=commit_ms,
                             retention_s=None if retention_hours is None else retention_hours * 3600,
