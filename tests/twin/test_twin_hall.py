@@ -1,18 +1,23 @@
 """'drafttwin twin hall': a hall of machines spread over Ray actors (a private local Ray with 2
-CPUs), one store per shard, read back as one by 'twin query' and counted against the plant's
-log by 'twin audit'; and the hall's refusals."""
+CPUs), one store per shard, read back as one by 'twin query'; a shard killed with SIGKILL is
+started again by Ray and recovers what it missed from the server's history, counted against
+the plant's log by 'twin audit'; and the hall's refusals."""
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
 import signal
 import subprocess
+import time
 from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
 
 from drafttwin.cli import app
+from drafttwin.twin.history import read_events
 
 from ._twin import cli, env, free_port, run_cli
 
@@ -23,8 +28,28 @@ pytestmark = pytest.mark.timeout(240)
 HALL = "".join(f'[[machine]]\nname = "fa320a-{k}"\n\n' for k in (1, 2, 3))
 
 
-@pytest.mark.slow  # a plant, a private Ray and two twin actors: about 40 s
-def test_a_hall_of_three_machines_on_two_ray_actors(
+def _kill_a_shard(hall: subprocess.Popen[str], store: Path, timeout: float = 120) -> Path:
+    """SIGKILL shard 0's process (the one holding its store) once both shards committed rows;
+    that shard's folder."""
+    import psutil
+
+    deadline = time.monotonic() + timeout
+    wals = [store / f"shard-{i}-of-2" / "twin.duckdb.wal" for i in (0, 1)]
+    while not all(w.exists() for w in wals):  # the stores are made
+        assert hall.poll() is None and time.monotonic() < deadline, "the shards never started"
+        time.sleep(0.2)
+    time.sleep(3.0)  # connected and committing rows (every 100 ms)
+    target = wals[0].parent  # shard 0; both run for --duration from their first sample
+    for p in psutil.Process(hall.pid).children(recursive=True):
+        with contextlib.suppress(psutil.Error):
+            if any(Path(f.path).parent == target for f in p.open_files()):
+                os.kill(p.pid, signal.SIGKILL)
+                return target
+    raise AssertionError(f"no process holds {target}")
+
+
+@pytest.mark.slow  # a plant, a private Ray, two twin actors and a restart: about 70 s
+def test_a_hall_on_two_ray_actors_survives_a_killed_shard(
     twin_files: tuple[Path, Path], tmp_path: Path
 ) -> None:
     _, model = twin_files
@@ -33,36 +58,49 @@ def test_a_hall_of_three_machines_on_two_ray_actors(
     url = f"opc.tcp://127.0.0.1:{free_port()}"
     log, store = tmp_path / "plant.parquet", tmp_path / "store"
     plant = subprocess.Popen(cli("plant", "serve", "--opcua", url, "--machines", "3", "--physics",
-                                 "reduced", "--log", str(log)), env=env(),
+                                 "reduced", "--log", str(log), "--history", "60"), env=env(),
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    procs = [plant]
     try:
         assert plant.stderr is not None and "serving" in plant.stderr.readline()
-        res = run_cli("twin", "hall", "--model", str(model), "--source", f"opcua:{url}",
-                      "--mapping", str(mapping), "--store", str(store), "--shards", "2",
-                      "--duration", "4", "--commit-ms", "100", "--json", timeout=180)  # fmt: skip
+        hall = subprocess.Popen(cli("twin", "hall", "--model", str(model), "--source", f"opcua:{url}",
+                                    "--mapping", str(mapping), "--store", str(store), "--shards",
+                                    "2", "--duration", "12", "--commit-ms", "100", "--json"),
+                                env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)  # fmt: skip
+        procs.append(hall)
+        killed = _kill_a_shard(hall, store)  # Ray starts it again and retries its run
+        out, err = hall.communicate(timeout=180)
+        assert hall.returncode == 0, err
     finally:
-        plant.send_signal(signal.SIGTERM)  # the plant writes its log
-        try:
-            plant.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            plant.kill()
-            plant.wait(timeout=30)
-    assert res.returncode == 0, res.stderr
-    shards = json.loads(res.stdout)["shards"]
+        for p in procs:  # the plant by SIGTERM: it writes its log
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=30)
+    shards = json.loads(out)["shards"]
     # shard I has the mapping's machines I, I+2: each machine in exactly one actor
     assert [sorted(s["machines"]) for s in shards] == [["fa320a-1", "fa320a-3"], ["fa320a-2"]]
     assert [Path(s["store_dir"]).name for s in shards] == ["shard-0-of-2", "shard-1-of-2"]
     for s in shards:
         for m in s["machines"].values():
-            assert m["processed"] > 200 and m["dropped"] == 0  # 4 s at 100 Hz, start-up aside
+            assert m["processed"] > 200 and m["dropped"] == 0  # 12 s at 100 Hz, start-up aside
     query = run_cli("twin", "query", "--store", str(store), "--json")
     assert query.returncode == 0, query.stderr
     info = json.loads(query.stdout)
     assert [m["machine"] for m in info["machines"]] == ["fa320a-1", "fa320a-2", "fa320a-3"]
-    assert info["rows"] == sum(s["store"]["committed"] for s in shards)
+    # the restarted shard read what it missed from the server's history ...
+    events = read_events(killed)
+    recovered = events[events["kind"] == "history"]["detail"]
+    assert len(recovered) >= 1 and all("samples recovered" in d for d in recovered), events
+    # ... so, counted against the plant's log, every machine's samples from its first to its
+    # last stored one are there, once, as published
     audit = run_cli("twin", "audit", "--store", str(store), "--plant-log", str(log), "--json")
     assert audit.returncode == 0, audit.stderr
-    for m in json.loads(audit.stdout)["machines"]:  # every sample between first and last once
+    for m in json.loads(audit.stdout)["machines"]:
         assert m["stored"] > 200
         assert (m["missing_inside"], m["duplicates"], m["mismatched"], m["filled"]) == (0, 0, 0, 0)
 

@@ -3,7 +3,9 @@ twin hall``: a hall of machines spread over Ray actors (docs/twin.md)."""
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
+import sys
 import time
 from pathlib import Path
 from typing import Annotated
@@ -165,7 +167,9 @@ def twin_hall(
 
     start = time.monotonic()
     try:
-        with sigterm_as_interrupt():
+        # Ray prints its own notes (a shard's process died and is started again) on stdout:
+        # they go to stderr, so that stdout holds only the result (strict JSON with --json)
+        with sigterm_as_interrupt(), contextlib.redirect_stdout(sys.stderr):
             results = run_hall(model, source, mapping, store, shards, address=ray_address,
                                commit_ms=commit_ms, physics=physics, duration_s=duration,
                                on_status=status)  # fmt: skip

@@ -29,6 +29,8 @@ from typing import Any
 from drafttwin.errors import ConfigError
 
 SHARD_DIR = re.compile(r"^shard-(\d+)-of-(\d+)$")
+RESTARTS = 3
+"""Times Ray starts a shard again after its process died (an error in the twin is not retried)."""
 POLL_S = 1.0
 """How often the driver looks at its actors (and lets Ctrl-C through)."""
 
@@ -75,7 +77,10 @@ def check_hall(model: Path, source: str, mapping: Path, shards: int) -> int:
 
 
 def _actor_class(ray: Any) -> Any:
-    @ray.remote(num_cpus=1, max_concurrency=2)  # run() in one thread; status()/stop() beside
+    # run() in one thread, status()/stop() beside it. A shard whose process dies is started
+    # again and its run() retried (RESTARTS times): the new twin resumes from its own store
+    # (and the server's history), as a restarted 'twin run' does
+    @ray.remote(num_cpus=1, max_concurrency=2, max_restarts=RESTARTS, max_task_retries=RESTARTS)
     class ShardTwin:
         """One twin over one shard, in its own process."""
 
@@ -123,17 +128,16 @@ def _actor_class(ray: Any) -> Any:
             await self.service.run(duration_s=duration_s)
 
         def status(self) -> dict[str, Any] | None:
-            """The shard's status, read in its own event loop (not while it changes)."""
-            if self.service is None or self.loop is None:
-                return None
-
-            async def read() -> dict[str, Any]:
-                return dict(self.service.status())
-
-            try:
-                return asyncio.run_coroutine_threadsafe(read(), self.loop).result(timeout=10)
-            except (RuntimeError, TimeoutError):  # the loop closed, or is stuck: no status
-                return None
+            """The shard's status (``None`` before its twin is built). Read from this thread
+            while the twin's loop runs: a collection changing under the read is read again."""
+            for _ in range(5):
+                if self.service is None:
+                    return None
+                try:
+                    return dict(self.service.status())
+                except RuntimeError:  # "deque mutated during iteration"
+                    time.sleep(0.01)
+            return None
 
         def stop(self) -> None:
             self.stopping.set()
@@ -190,7 +194,15 @@ def _wait(ray: Any, actors: list[Any], refs: list[Any], on_status: Any, every_s:
         _, pending = ray.wait(pending, num_returns=len(pending), timeout=POLL_S)
         if on_status is not None and time.monotonic() - last >= every_s:
             last = time.monotonic()
-            on_status(ray.get([a.status.remote() for a in actors], timeout=30))
+            on_status([_status(ray, a) for a in actors])
+
+
+def _status(ray: Any, actor: Any) -> dict[str, Any] | None:
+    """A shard's status; ``None`` while it starts (again) or does not answer."""
+    try:
+        return ray.get(actor.status.remote(), timeout=30)
+    except (ray.exceptions.RayError, TimeoutError):
+        return None
 
 
 def _collect(ray: Any, refs: list[Any]) -> list[dict[str, Any]]:
