@@ -129,3 +129,5 @@ def test_the_hall_refuses_what_would_go_wrong_in_an_actor(
     _error(run(app, [*base, "--source", opcua, "--shards", "0"]), "--shards")
     fresh = [*base[:-1], str(tmp_path / "fresh")]
     _error(run(app, [*fresh, "--source", opcua, "--shards", "4"]), "is empty")  # 3 machines
+    nobody = f"127.0.0.1:{free_port()}"
+    _error(run(app, [*fresh, "--source", opcua, "--ray", nobody]), "--ray", "no Ray cluster")

@@ -18,7 +18,7 @@ from drafttwin.cli._bounds import bounded
 from drafttwin.cli._oserrors import input_path, output_dir
 from drafttwin.cli.app import console, err_console, print_json
 from drafttwin.cli.twin_cmds import _need_twin_extra, sigterm_as_interrupt, twin_app
-from drafttwin.errors import ConfigError
+from drafttwin.errors import ConfigError, DrafttwinError
 
 RUNS_SHOWN = 10
 """Runs of absent samples listed per machine (the JSON has them all)."""
@@ -148,7 +148,10 @@ def twin_hall(
     n = check_hall(model, source, mapping, shards)
     _import_ray()
     if ray_address is not None:
-        _check_address(ray_address)
+        try:
+            _check_address(ray_address)
+        except DrafttwinError as exc:  # named after this command's option
+            raise ConfigError(exc.problem, where="--ray", fix=exc.fix) from None
     err_console.print(f"hall: {n} machines over {shards} twins on "
                       f"{ray_address or 'a private Ray'}")  # fmt: skip
 
