@@ -148,11 +148,15 @@ def test_a_hall_spread_over_two_twins_by_shared_subscription_and_by_shard(
     published = {str(m): set(g["seq"].tolist()) for m, g in plant_log.groupby("machine")}
     a, b = _seqs(tmp_path / "share-a"), _seqs(tmp_path / "share-b")
     for name in published:
-        both = a.get(name, set()) | b.get(name, set())
+        in_a, in_b = a[name], b[name]
         # every message went to exactly one member: none in both stores ...
-        assert not a.get(name, set()) & b.get(name, set())
-        # ... and none lost: from the first to the last sample the group received, all there
-        assert both == {s for s in published[name] if min(both) <= s <= max(both)}, name
+        assert not in_a & in_b
+        # ... and none lost while both members were subscribed (at QoS 0, what the broker had
+        # sent to a member that then leaves is gone with it: the members' runs end apart)
+        lo, hi = max(min(in_a), min(in_b)), min(max(in_a), max(in_b))
+        window = {s for s in published[name] if lo <= s <= hi}
+        assert {s for s in in_a | in_b if lo <= s <= hi} == window, name
+        assert len(window) > 200  # most of the 4 s run
     # Mosquitto 2.0 takes turns per message: both members got a good part of the hall
     total_a, total_b = sum(map(len, a.values())), sum(map(len, b.values()))
     assert min(total_a, total_b) > 0.3 * (total_a + total_b)
