@@ -92,6 +92,17 @@ def test_foreign_files_and_channel_changes_are_refused(tmp_path: Path) -> None:
         read_history(tmp_path / "nowhere")
 
 
+def test_a_store_whose_creation_was_killed_is_made_again(tmp_path: Path) -> None:
+    """The schema and the format record are one transaction: a kill -9 while a store is made
+    leaves a database with no table (made again on the next open), never a half store."""
+    duckdb.connect(str(store_path(tmp_path))).close()  # what such a kill leaves
+    store = TwinStore(tmp_path)
+    store.register_machine("m1", CHANNELS, "x", "test")
+    store.commit(_rows("m1", 0, 3), [])
+    store.close()
+    assert len(read_history(tmp_path)) == 3
+
+
 @pytest.mark.slow  # two CLI start-ups and a live replay: about 30 s
 def test_kill_9_loses_nothing_committed_and_a_restart_duplicates_nothing(
     tmp_path: Path, twin_files: tuple[Path, Path]

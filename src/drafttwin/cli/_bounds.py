@@ -79,6 +79,8 @@ BOUNDS: dict[str, Bound] = {
     "--from": Bound(0, 1e11, "s", low_inclusive=True),
     "--to": Bound(0, 1e11, "s", low_inclusive=True),
     "--machines": Bound(1, 10_000, "machines", low_inclusive=True),
+    "--shards": Bound(1, 1000, "twins", low_inclusive=True),
+    "--history": Bound(0, 86_400, "s", low_inclusive=True),
     "--ramp": Bound(0, 1e4, "Hz/s"),
 }
 

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
+import signal
+import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 from rich.table import Table
@@ -40,6 +44,20 @@ def _need_twin_extra() -> None:
     except ImportError as exc:
         raise ConfigError(f"the live twin needs the 'twin' extra ({exc.name} is missing)",
                           fix="pip install 'drafttwin[twin]'") from None  # fmt: skip
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM (a service manager stopping the process) raises KeyboardInterrupt, like Ctrl-C,
+    for the duration of the block (the previous handler is put back)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 def parse_bind(text: str, token: str | None) -> tuple[str, int]:
@@ -157,8 +175,11 @@ def twin_run(
     bind = None if http is None else parse_bind(http, token)
 
     def on_commit(rows: int, last_ts_us: int) -> None:
-        if verbose:
-            print(f"commit rows={rows} last_ts_us={last_ts_us}", flush=True)
+        if verbose:  # called by the writer thread just after the commit, with its duration
+            took = service.writer.commit_seconds[-1] * 1e3 if service.writer else math.nan
+            # last_ts_us stays the last field: scripts that cut the line after it still work
+            print(f"commit rows={rows} ms={took:.1f} at={time.time():.3f} "
+                  f"last_ts_us={last_ts_us}", flush=True)  # fmt: skip
 
     service = build_service(model, source, mapping=mapping, store_dir=store, commit_ms=commit_ms,
                             retention_s=None if retention_hours is None else retention_hours * 3600,
@@ -167,7 +188,10 @@ def twin_run(
     try:
         from drafttwin.twin.aio import run_bounded
 
-        run_bounded(_serve(service, bind, token, duration, max_samples, quiet))
+        # SIGTERM ends the twin like Ctrl-C: what was received is committed; only SIGKILL
+        # loses the rows of the open commit interval
+        with sigterm_as_interrupt():
+            run_bounded(_serve(service, bind, token, duration, max_samples, quiet))
     except OSError as exc:
         raise ConfigError(f"cannot serve the page on {http} ({exc.strerror or exc})",
                           where="--http", fix="choose a free port") from None  # fmt: skip
@@ -297,115 +321,6 @@ def _t(x: object) -> str:
     return f"{x:.3f}" if isinstance(x, float) and math.isfinite(x) else "-"
 
 
-@plant_app.command("serve")
-def plant_serve(
-    opcua: Annotated[
-        str | None,
-        typer.Option(help="Serve over OPC UA at this address, e.g. opc.tcp://127.0.0.1:4840."),
-    ] = None,  # fmt: skip
-    mqtt: Annotated[
-        str | None,
-        typer.Option(
-            help="Publish to the MQTT broker at HOST:PORT (one is started "
-            "there if none answers and HOST is local)."
-        ),
-    ] = None,  # fmt: skip
-    name: Annotated[str, typer.Option(help="Machine name (NAME-1, NAME-2... for several).")] = (
-        "fa320a"
-    ),
-    machines: Annotated[
-        int, typer.Option(help="Number of machines.", callback=bounded("--machines"))
-    ] = 1,
-    seed: Annotated[
-        int,
-        typer.Option(
-            help="Seed of the first machine (+1 per machine).", callback=bounded("--seed")
-        ),
-    ] = 0,  # fmt: skip
-    rate: Annotated[
-        float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))
-    ] = 100.0,
-    physics: Annotated[str, typer.Option(help="full (the truth) | reduced (many machines).")] = (
-        "full"
-    ),
-    ramp: Annotated[
-        float,
-        typer.Option(help="VFD ramp toward a new set-point, Hz/s.", callback=bounded("--ramp")),
-    ] = 10.0,  # fmt: skip
-    duration: Annotated[
-        float | None,
-        typer.Option(
-            help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
-        ),
-    ] = None,  # fmt: skip
-    mqtt_user: Annotated[
-        str | None,
-        typer.Option(
-            help="MQTT: connect as this user (password in "
-            "DRAFTTWIN_MQTT_PASSWORD); the embedded broker admits only it."
-        ),
-    ] = None,  # fmt: skip
-    cert: Annotated[
-        Path | None,
-        typer.Option(
-            help="Security with the certificates in this folder ('drafttwin twin certs'): OPC UA "
-            "Basic256Sha256 SignAndEncrypt, trusted clients only; MQTT over TLS.",
-            callback=input_path("--cert"),
-        ),
-    ] = None,  # fmt: skip
-) -> None:
-    """Run the plant emulator in real time as live machines: roller and motor speeds every
-    sample, a writable supply set-point (write it and the plant changes speed)."""
-    _need_twin_extra()
-    if (opcua is None) == (mqtt is None):
-        raise ConfigError("give one of --opcua and --mqtt", where="--opcua",
-                          fix="e.g. --opcua opc.tcp://127.0.0.1:4840")  # fmt: skip
-    if physics not in ("full", "reduced"):
-        raise ConfigError(f"unknown physics {physics!r}", where="--physics",
-                          fix="use full or reduced")  # fmt: skip
-    if rate > 1000:
-        raise ConfigError(f"--rate {rate:g}: a live plant publishes at most 1000 Hz",
-                          where="--rate", fix="use --rate 100 (the FA320A logger's rate)")  # fmt: skip
-    names = [name] if machines == 1 else [f"{name}-{k + 1}" for k in range(machines)]
-    opts: dict[str, Any] = {"seed": seed, "rate_hz": rate, "physics": physics, "ramp_hz_per_s": ramp,
-            "duration_s": duration}  # fmt: skip
-    if opcua is not None:
-        from drafttwin.twin.plantserver import parse_opcua_url, serve_opcua
-
-        parse_opcua_url(opcua)
-
-        def ready() -> None:
-            err_console.print(f"serving {', '.join(names)} on OPC UA {opcua}, nodes "
-                              "ns=2;s=NAME.sample (Ctrl-C stops)")  # fmt: skip
-
-        try:
-            counts = asyncio.run(serve_opcua(opcua, names, ready=ready, cert_dir=cert, **opts))
-        except KeyboardInterrupt:
-            return
-        except OSError as exc:
-            raise ConfigError(f"cannot serve on {opcua} ({exc.strerror or exc})", where="--opcua",
-                              fix="choose a free port") from None  # fmt: skip
-    else:
-        from drafttwin.twin.mqtt import parse_hostport, serve_mqtt
-
-        parse_hostport(str(mqtt), "--mqtt")
-
-        def said(where: str) -> None:
-            err_console.print(f"serving {', '.join(names)} on {where}, topics "
-                              "drafttwin/NAME/sample (Ctrl-C stops)")  # fmt: skip
-
-        try:
-            counts = asyncio.run(serve_mqtt(str(mqtt), names, ready=said, username=mqtt_user,
-                                            password=_mqtt_password(mqtt_user), cert_dir=cert,
-                                            **opts))  # fmt: skip
-        except KeyboardInterrupt:
-            return
-        except OSError as exc:
-            raise ConfigError(f"cannot reach or start a broker at {mqtt} ({exc.strerror or exc})",
-                              where="--mqtt", fix="choose a free port or a running broker") from None  # fmt: skip
-    console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in counts.items()))
-
-
 @twin_app.command("certs")
 def twin_certs(
     out: Annotated[
@@ -421,15 +336,3 @@ def twin_certs(
 
     paths = asyncio.run(make_certificates(out, host))
     console.print("wrote " + ", ".join(str(p) for p in paths) + f" and {out / 'trusted'}")
-
-
-def _mqtt_password(user: str | None) -> str | None:
-    import os
-
-    if user is None:
-        return None
-    password = os.environ.get("DRAFTTWIN_MQTT_PASSWORD")
-    if not password:
-        raise ConfigError(f"no password for MQTT user {user!r}", where="--mqtt-user",
-                          fix="set DRAFTTWIN_MQTT_PASSWORD (kept out of the command line)")  # fmt: skip
-    return password

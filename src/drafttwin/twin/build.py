@@ -12,7 +12,7 @@ from drafttwin.models.base import BaseModel
 from drafttwin.twin.live import MachineTwin, physics_train
 from drafttwin.twin.mapping import MachineMap, read_mapping
 from drafttwin.twin.service import MachineState, TwinService
-from drafttwin.twin.sources import ReplaySource, Source, parse_source
+from drafttwin.twin.sources import OpcUaSource, ReplaySource, Source, parse_source
 from drafttwin.twin.store import StoreWriter, TwinStore
 
 
@@ -79,9 +79,12 @@ def build_service(
         if store is not None:
             store.close()
         raise
-    for src in built:  # a replay restarts after what the store holds, without waiting for it
-        if isinstance(src, ReplaySource):
+    for src in built:  # a restart resumes after what the store holds
+        if isinstance(src, ReplaySource):  # a replay seeks there
             src.skip_to(states[src.machines[0].name].resume_after_us)
+        elif isinstance(src, OpcUaSource):  # a server with history sends what it missed
+            src.resume_after = {m.name: after for m in src.machines
+                                if (after := states[m.name].resume_after_us) is not None}  # fmt: skip
     writer = None
     if store is not None:
         writer = StoreWriter(store, commit_ms, retention_s=retention_s, on_commit=on_commit)

@@ -14,6 +14,19 @@ SUFFIX = {"measured": "", "physics": "_physics", "twin": "_twin", "residual": "_
 """Column suffix of each kind in an exported table: ``front``, ``front_physics``, ..."""
 
 
+def store_folders(folder: str | Path) -> list[Path]:
+    """The store in ``folder``, or the shards' stores of a hall (``shard-I-of-K/``)."""
+    folder = Path(folder)
+    if store_path(folder).is_file():
+        return [folder]
+    shards = sorted(p for p in folder.glob("shard-*-of-*") if store_path(p).is_file())
+    if not shards:
+        raise DataError("no twin store here", source=folder,
+                        fix="give the folder 'drafttwin twin run --store DIR' (or 'twin hall') "
+                        "wrote")  # fmt: skip
+    return shards
+
+
 def _open(folder: str | Path):  # noqa: ANN202  a DuckDB connection
     path = store_path(folder)
     if not path.is_file():
@@ -24,27 +37,40 @@ def _open(folder: str | Path):  # noqa: ANN202  a DuckDB connection
     return con, path
 
 
+def machines_of(folder: str | Path) -> dict[str, tuple[Path, list[str]]]:
+    """Every stored machine: (its store folder, its channels)."""
+    out: dict[str, tuple[Path, list[str]]] = {}
+    for one in store_folders(folder):
+        con, _ = _open(one)
+        try:
+            for name, chans in con.execute("SELECT machine, channels FROM machines").fetchall():
+                out[name] = (one, list(chans))
+        finally:
+            con.close()
+    return out
+
+
 def read_history(folder: str | Path, machine: str | None = None, t_from_s: float | None = None,
                  t_to_s: float | None = None) -> pd.DataFrame:  # fmt: skip
     """Samples of one machine (or all) between two times (s, inclusive), oldest first:
     ``machine, time, seq, supply_hz`` then per channel the measured value and its
-    ``_physics``, ``_twin`` and ``_residual``."""
-    con, path = _open(folder)
-    try:
-        machines = dict(con.execute("SELECT machine, channels FROM machines").fetchall())
-        if machine is not None and machine not in machines:
-            raise DataError(f"no machine {machine!r} in the store", source=path,
-                            fix=f"use one of: {', '.join(sorted(machines)) or '(none stored)'}")  # fmt: skip
-        where, args = _window(machine, t_from_s, t_to_s)
-        frames = []
-        for name in sorted(machines) if machine is None else [machine]:
+    ``_physics``, ``_twin`` and ``_residual``. A hall's folder reads every shard's store."""
+    machines = machines_of(folder)
+    if machine is not None and machine not in machines:
+        raise DataError(f"no machine {machine!r} in the store", source=Path(folder),
+                        fix=f"use one of: {', '.join(sorted(machines)) or '(none stored)'}")  # fmt: skip
+    where, args = _window(machine, t_from_s, t_to_s)
+    frames = []
+    for name in sorted(machines) if machine is None else [machine]:
+        con, _ = _open(machines[name][0])
+        try:
             rows = con.execute(
                 "SELECT ts_us, seq, setpoint, measured, physics, twin, residual FROM samples "
                 f"WHERE machine = ? {where} ORDER BY ts_us", [name, *args],
             ).fetchnumpy()  # fmt: skip
-            frames.append(_frame(name, list(machines[name]), rows))
-    finally:
-        con.close()
+        finally:
+            con.close()
+        frames.append(_frame(name, machines[name][1], rows))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
@@ -77,36 +103,43 @@ def _frame(machine: str, channels: list[str], rows: dict) -> pd.DataFrame:
 
 def read_events(folder: str | Path, machine: str | None = None) -> pd.DataFrame:
     """Gaps, reconnects, dropped payloads and alarms, oldest first."""
-    con, _ = _open(folder)
-    try:
-        sql = "SELECT machine, kind, ts_us, detail FROM events"
-        args = []
-        if machine is not None:
-            sql += " WHERE machine = ?"
-            args.append(machine)
-        frame = con.execute(sql + " ORDER BY ts_us", args).df()
-    finally:
-        con.close()
+    frames = []
+    for one in store_folders(folder):
+        con, _ = _open(one)
+        try:
+            sql = "SELECT machine, kind, ts_us, detail FROM events"
+            args = []
+            if machine is not None:
+                sql += " WHERE machine = ?"
+                args.append(machine)
+            frames.append(con.execute(sql, args).df())
+        finally:
+            con.close()
+    frame = pd.concat(frames, ignore_index=True).sort_values("ts_us", kind="stable")
+    frame = frame.reset_index(drop=True)
     frame["time"] = frame.pop("ts_us") / 1e6
     return frame
 
 
 def summary(folder: str | Path) -> list[dict[str, object]]:
     """Per machine: sample count, first and last time (s), events."""
-    con, _ = _open(folder)
-    try:
-        rows = con.execute(
-            "SELECT m.machine, count(s.ts_us), min(s.ts_us), max(s.ts_us), "
-            "(SELECT count(*) FROM events e WHERE e.machine = m.machine) "
-            "FROM machines m LEFT JOIN samples s ON s.machine = m.machine "
-            "GROUP BY m.machine ORDER BY m.machine"
-        ).fetchall()
-    finally:
-        con.close()
+    rows = []
+    for one in store_folders(folder):
+        con, _ = _open(one)
+        try:
+            rows += con.execute(
+                "SELECT m.machine, count(s.ts_us), min(s.ts_us), max(s.ts_us), "
+                "(SELECT count(*) FROM events e WHERE e.machine = m.machine) "
+                "FROM machines m LEFT JOIN samples s ON s.machine = m.machine "
+                "GROUP BY m.machine"
+            ).fetchall()
+        finally:
+            con.close()
+    rows.sort(key=lambda r: r[0])
     return [{"machine": r[0], "samples": int(r[1]),
              "first_s": None if r[2] is None else r[2] / 1e6,
              "last_s": None if r[3] is None else r[3] / 1e6, "events": int(r[4])}
             for r in rows]  # fmt: skip
 
 
-__all__ = ["read_events", "read_history", "summary"]
+__all__ = ["machines_of", "read_events", "read_history", "store_folders", "summary"]

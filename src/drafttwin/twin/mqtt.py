@@ -49,11 +49,16 @@ def setpoint_topic(machine: str) -> str:
 
 
 class MqttSource(Source):
-    """Subscribe to each machine's topic (QoS 0) on a broker; reconnect with backoff."""
+    """Subscribe to each machine's topic (QoS 0) on a broker; reconnect with backoff.
+
+    With ``share`` (a group name) it subscribes over MQTT 5 to ``$share/GROUP/TOPIC``: the
+    broker hands each message to one member of the group (MQTT 5.0 §4.8.2). Which member is
+    the broker's choice: Mosquitto 2.0 takes turns per message, so one machine's samples
+    spread over the members (docs/twin.md); EMQX's ``hash_topic`` keeps a topic on one."""
 
     def __init__(self, host: str, port: int, machines: tuple[MachineMap, ...],
                  username: str | None = None, password: str | None = None,
-                 ca_file: Path | None = None) -> None:  # fmt: skip
+                 ca_file: Path | None = None, *, share: str | None = None) -> None:  # fmt: skip
         self.spec, self.host, self.port, self.machines = (
             f"mqtt://{host}:{port}",
             host,
@@ -63,6 +68,10 @@ class MqttSource(Source):
         self.by_topic = {m.topic: m for m in machines}
         self.username, self.password = username, password
         self.ca_file = ca_file  # TLS, trusting exactly this certificate
+        self.share = share
+        self.refused: str | None = None  # why the broker would not do what was asked
+        if share is not None:
+            self.spec += f"?share={share}"
         self.queued = 0  # written by the network thread only
         self.handled = 0  # written by the event loop only
 
@@ -84,9 +93,16 @@ class MqttSource(Source):
                 self._report(name, "dropped", f"flood: {new} samples over the backlog limit", new)
                 self._flood_reported[name] = n
 
-    def _subscribe(self, client: Any, *_: Any) -> None:
+    def _subscribe(self, client: Any, userdata: Any, flags: Any, reason: Any,
+                   properties: Any = None) -> None:  # fmt: skip
+        available = getattr(properties, "SharedSubscriptionAvailable", 1)  # CONNACK, MQTT 5
+        if self.share is not None and available == 0:
+            self.refused = "the broker has no shared subscriptions"
+            client.disconnect()
+            return
+        prefix = "" if self.share is None else f"$share/{self.share}/"
         for topic in self.by_topic:
-            client.subscribe(topic, qos=0)
+            client.subscribe(prefix + topic, qos=0)
 
     def on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         """paho's callback (network thread): check, then queue for the loop, or count a drop."""
@@ -110,8 +126,10 @@ class MqttSource(Source):
             loop.call_soon_threadsafe(lost.set)
 
         attempt = 0
+        self.refused = None
+        protocol = mqtt.MQTTv311 if self.share is None else mqtt.MQTTv5  # $share is MQTT 5
         while True:
-            client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv311)
+            client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=protocol)
             client.on_message = self.on_message
             client.on_disconnect = on_disconnect
             client.on_connect = self._subscribe  # on every (re)connect, once acknowledged
@@ -128,11 +146,13 @@ class MqttSource(Source):
                         break
                     await asyncio.sleep(0.05)
                 else:
-                    raise OSError("no MQTT acknowledgement from the broker")
+                    raise OSError("no MQTT acknowledgement from the broker" + (
+                        " (share= needs MQTT 5, e.g. Mosquitto; the embedded amqtt speaks "
+                        "3.1.1 only)" if self.share else ""))  # fmt: skip
                 self._set("live", report)
                 attempt = 0
                 await lost.wait()
-                self._set("reconnecting", report, "broker connection lost")
+                self._set("reconnecting", report, self.refused or "broker connection lost")
             except asyncio.CancelledError:
                 raise
             except OSError as exc:
@@ -203,16 +223,29 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
                      physics: str = "full", ramp_hz_per_s: float = 10.0,
                      duration_s: float | None = None, ready: Any = None,
                      username: str | None = None, password: str | None = None,
-                     cert_dir: Path | None = None) -> dict[str, int]:  # fmt: skip
-    """Publish ``names`` live plants to the broker at ``address`` (started here when none
-    answers on a local address); set-points arrive on ``drafttwin/NAME/setpoint``."""
+                     cert_dir: Path | None = None, broker_mode: str = "auto",
+                     on_sample: Any = None) -> dict[str, int]:  # fmt: skip
+    """Publish ``names`` live plants to the broker at ``address``; set-points arrive on
+    ``drafttwin/NAME/setpoint``. ``broker_mode``: ``auto`` starts the embedded broker when none
+    answers on a local address, ``external`` never starts one (a broker must answer),
+    ``embedded`` always starts one (the port must be free). ``on_sample(name, sample)`` is
+    called after each publish (the plant's own log)."""
     import paho.mqtt.client as mqtt
 
     from drafttwin.plant.live import LivePlant
 
     host, port = parse_hostport(address, "--mqtt")
     broker = None
-    if not broker_answers(host, port):
+    answers = broker_answers(host, port)
+    if broker_mode == "external" and not answers:
+        raise ConfigError(f"no MQTT broker answers at {host}:{port}", where="--mqtt",
+                          fix="start the broker first (e.g. mosquitto -p PORT), or drop "
+                          "--broker external to start the embedded one")  # fmt: skip
+    if broker_mode == "embedded" and answers:
+        raise ConfigError(f"{host}:{port} is taken (a broker or another server answers)",
+                          where="--mqtt", fix="choose a free port for the embedded broker, or "
+                          "use --broker external to publish to the one there")  # fmt: skip
+    if not answers:
         if host not in ("127.0.0.1", "localhost"):
             raise ConfigError(f"no MQTT broker answers at {host}:{port}", where="--mqtt",
                               fix="start one there, or use 127.0.0.1 to start the embedded one")  # fmt: skip
@@ -252,9 +285,10 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
     for n in names:
         client.subscribe(setpoint_topic(n), qos=1)
     if ready is not None:
-        ready(f"MQTT {host}:{port}" + (" (embedded amqtt broker)" if broker else ""))
+        ready(f"MQTT {host}:{port}" + (" (embedded amqtt broker)" if broker else
+                                       " (external broker)"))  # fmt: skip
     try:
-        return await _publish(client, plants, pending, rate_hz, duration_s)
+        return await _publish(client, plants, pending, rate_hz, duration_s, on_sample)
     finally:
         client.loop_stop()
         client.disconnect()
@@ -263,7 +297,7 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
 
 
 async def _publish(client: Any, plants: dict, pending: dict[str, float], rate_hz: float,
-                   duration_s: float | None) -> dict[str, int]:  # fmt: skip
+                   duration_s: float | None, on_sample: Any = None) -> dict[str, int]:  # fmt: skip
     t0 = time.time()
     for p in plants.values():
         p.t0_s = t0
@@ -285,6 +319,8 @@ async def _publish(client: Any, plants: dict, pending: dict[str, float], rate_hz
                        **{c: _num(v) for c, v in zip(("front", "second", "third", "back"),
                                                      s.rollers_rpm, strict=True)}}  # fmt: skip
             client.publish(f"drafttwin/{name}/sample", json.dumps(payload), qos=0)
+            if on_sample is not None:
+                on_sample(name, s)
     return {n: p.seq for n, p in plants.items()}
 
 

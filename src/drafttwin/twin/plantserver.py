@@ -83,9 +83,12 @@ async def serve_opcua(
     on_sample: Callable[[str, LiveSample], None] | None = None,
     ready: Callable[[], None] | None = None,
     cert_dir: Path | None = None,
+    history_s: float = 0.0,
 ) -> dict[str, int]:
     """Serve ``names`` live plants at ``url`` until ``duration_s`` (or cancelled); returns
-    the samples published per machine."""
+    the samples published per machine. With ``history_s`` the server keeps each machine's
+    samples of the last ``history_s`` seconds for OPC UA HistoryRead (in memory), so that a
+    restarted twin recovers what was published while it was down."""
     from asyncua import Server, ua
 
     host, port = parse_opcua_url(url)
@@ -108,6 +111,12 @@ async def serve_opcua(
         plant = LivePlant(seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s)
         machines.append(await _add_machine(server, idx, folder, name, plant))
     async with server:
+        if history_s > 0:
+            import datetime as dt
+
+            period = dt.timedelta(seconds=history_s)
+            for m in machines:
+                await server.historize_node_data_change(m.sample_node, period=period)
         t0 = time.time()  # the clocks start when the machines run, not while they were built
         for m in machines:
             m.plant.t0_s = t0

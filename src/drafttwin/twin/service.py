@@ -128,7 +128,7 @@ class TwinService:
         for push in self.subscribers:
             push(st.twin.name, rows, events)
         self.rows += len(rows)
-        if received is not None:
+        if received is not None and math.isfinite(received):  # NaN: recovered, not live
             lat = time.perf_counter() - received
             self.latency_s.append(lat)
             if self.metrics is not None:

@@ -125,6 +125,7 @@ class OpcUaSource(Source):
         self.cert_dir = cert_dir
         self.silence_s = 5.0
         self.client: Any = None
+        self.resume_after: dict[str, int] = {}  # a restart: read the server's history after these
 
     async def run(self, emit: Emit, report: Report) -> None:
         from asyncua import Client
@@ -152,6 +153,9 @@ class OpcUaSource(Source):
                         await sub.subscribe_data_change(nodes, queuesize=SERVER_QUEUE)
                         self._set("live", report)
                         attempt = 0
+                        if self.resume_after:  # once, on the first connection after a restart
+                            await self._backfill(client, emit, report)
+                            self.resume_after = {}
                         while True:
                             # a subscription that goes quiet without an error (opcua-asyncio
                             # #1925) is dropped and made again, like a broken connection
@@ -181,11 +185,40 @@ class OpcUaSource(Source):
             await asyncio.sleep(BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
             attempt += 1
 
+    async def _backfill(self, client: Any, emit: Emit, report: Report) -> None:
+        """Emit what the server's history holds after each machine's last stored sample (the
+        subscription, made first, queues what comes meanwhile; the reorder step drops the
+        overlap). A server without history recovers nothing, and says so."""
+        import datetime as dt
+
+        from asyncua import ua
+
+        now = dt.datetime.now(dt.UTC)
+        for m in self.machines:
+            after = self.resume_after.get(m.name)
+            if after is None:
+                continue
+            start = dt.datetime.fromtimestamp(after / 1e6, tz=dt.UTC)
+            try:
+                node = client.get_node(m.node)
+                values = await asyncio.wait_for(node.read_raw_history(start, now), 30.0)
+            except (ua.UaError, TimeoutError) as exc:
+                report(m.name, "history", f"no history read ({type(exc).__name__}): samples "
+                       "published while no twin ran are not recovered")  # fmt: skip
+                continue
+            rows = [m.from_array(dv.Value.Value) for dv in values if dv.Value is not None]
+            fresh = [r for r in rows if r is not None and r[0] > after]
+            for row in fresh:  # no receive time: their latency is not the live path's
+                emit(Sample(m.name, *row, received=math.nan))
+            report(m.name, "history", f"{len(fresh)} samples recovered from the server's history")
+
 
 # ---- parsing --------------------------------------------------------------------------------
 def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...]) -> Source:
     """``replay:FILE?speed=10&machine=NAME``, ``opcua:opc.tcp://HOST:PORT``,
-    ``mqtt://HOST:PORT`` into a source (its machines from the mapping, or ``default``)."""
+    ``mqtt://HOST:PORT`` into a source (its machines from the mapping, or ``default``).
+    ``shard=I/K`` (OPC UA, MQTT) keeps one shard of the mapping's machines; ``share=GROUP``
+    (MQTT) subscribes as a member of a shared subscription."""
     kind, _, rest = text.partition(":")
     if kind == "replay":
         path, _, query = rest.partition("?")
@@ -199,11 +232,12 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
         return ReplaySource(Path(path), machine, speed)
     if kind == "opcua":
         url = rest.split("?", 1)[0]
-        opts = _query(rest.partition("?")[2], text, {"machine", "publish_ms", "cert"})
+        opts = _query(rest.partition("?")[2], text, {"machine", "publish_ms", "cert", "shard"})
         if not url.startswith("opc.tcp://"):
             raise ConfigError(f"bad OPC UA address {url!r}", where="--source",
                               fix="write opcua:opc.tcp://HOST:PORT")  # fmt: skip
         machines = mapped or (default.renamed(opts.get("machine", default.name)),)
+        machines = select_shard(machines, opts.get("shard"), text)
         cert = Path(opts["cert"]) if "cert" in opts else None
         if cert is not None:
             from drafttwin.twin.security import _need
@@ -214,7 +248,7 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
         from drafttwin.twin.mqtt import MqttSource
 
         parts = urlsplit(text)
-        opts = _query(parts.query, text, {"machine", "cert"})
+        opts = _query(parts.query, text, {"machine", "cert", "share", "shard"})
         ca = None
         if kind == "mqtts":
             if "cert" not in opts:
@@ -225,15 +259,38 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
                 raise DataError("file not found", source=ca, where="--source",
                                 fix=f"make it with: drafttwin twin certs --out {opts['cert']}")  # fmt: skip
         machines = mapped or (default.renamed(opts.get("machine", default.name)),)
+        machines = select_shard(machines, opts.get("shard"), text)
+        share = opts.get("share")
+        if share is not None and (not share or any(c in share for c in "/+#")):
+            raise ConfigError(f"bad share group {share!r} in {text!r}", where="--source",
+                              fix="name the group without '/', '+' or '#', e.g. share=hall")  # fmt: skip
         password = os.environ.get("DRAFTTWIN_MQTT_PASSWORD") if parts.username else None
         if parts.username and not password:
             raise ConfigError(f"no password for MQTT user {parts.username!r}", where="--source",
                               fix="set DRAFTTWIN_MQTT_PASSWORD (kept out of the command line)")  # fmt: skip
         return MqttSource(parts.hostname or "127.0.0.1", parts.port or 1883, machines,
-                          parts.username, password, ca)  # fmt: skip
+                          parts.username, password, ca, share=share)  # fmt: skip
     raise ConfigError(f"unknown source {text!r}", where="--source",
                       fix="use replay:FILE?speed=10, opcua:opc.tcp://HOST:PORT or "
                       "mqtt://[USER@]HOST:PORT")  # fmt: skip
+
+
+def select_shard(machines: tuple[MachineMap, ...], shard: str | None,
+                 text: str) -> tuple[MachineMap, ...]:  # fmt: skip
+    """``shard=I/K``: the machines at positions I, I+K, I+2K... of the mapping (every process
+    of a hall reads the same mapping, so the K shards split it exactly, each machine whole)."""
+    if shard is None:
+        return machines
+    i_text, _, k_text = shard.partition("/")
+    ok = i_text.isdigit() and k_text.isdigit() and 0 <= int(i_text) < int(k_text) <= 10_000
+    if not ok:
+        raise ConfigError(f"bad shard {shard!r} in {text!r}", where="--source",
+                          fix="write shard=I/K with 0 <= I < K, e.g. shard=0/4")  # fmt: skip
+    chosen = machines[int(i_text) :: int(k_text)]
+    if not chosen:
+        raise ConfigError(f"shard {shard} of {len(machines)} machine(s) is empty", where="--source",
+                          fix="use at most as many shards as the mapping has machines")  # fmt: skip
+    return chosen
 
 
 def _query(query: str, text: str, allowed: set[str]) -> dict[str, str]:
@@ -258,4 +315,4 @@ def _speed(value: str, text: str) -> float:
     return speed
 
 
-__all__ = ["OpcUaSource", "ReplaySource", "Sample", "Source", "parse_source"]
+__all__ = ["OpcUaSource", "ReplaySource", "Sample", "Source", "parse_source", "select_shard"]

@@ -115,14 +115,17 @@ class TwinStore:
 
     def __init__(self, folder: str | Path) -> None:
         self.path = store_path(folder)
-        fresh = not self.path.exists()
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.con = _connect(self.path, read_only=False)
-        if fresh:
+        tables = self.con.execute("SELECT count(*) FROM information_schema.tables").fetchall()
+        if tables[0][0] == 0:  # new, or a creation killed before its commit: make it whole
+            # one transaction: a kill -9 while the store is made leaves all of it or nothing
+            self.con.execute("BEGIN TRANSACTION")
             for sql in _SCHEMA:
                 self.con.execute(sql)
             self.con.execute("INSERT INTO meta VALUES ('format', ?), ('version', ?)",
                              [FORMAT, str(VERSION)])  # fmt: skip
+            self.con.execute("COMMIT")
         _check_format(self.con, self.path)
 
     def register_machine(self, machine: str, channels: Sequence[str], model: str,

@@ -1,0 +1,187 @@
+"""``drafttwin plant serve``: the plant emulator as live machines over OPC UA or MQTT, with
+its own log of every published sample (docs/twin.md)."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+from drafttwin.cli._bounds import bounded
+from drafttwin.cli._oserrors import input_path, output_file
+from drafttwin.cli.app import console, err_console
+from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app, sigterm_as_interrupt
+from drafttwin.errors import ConfigError
+
+
+@plant_app.command("serve")
+def plant_serve(
+    opcua: Annotated[
+        str | None,
+        typer.Option(help="Serve over OPC UA at this address, e.g. opc.tcp://127.0.0.1:4840."),
+    ] = None,  # fmt: skip
+    mqtt: Annotated[
+        str | None,
+        typer.Option(
+            help="Publish to the MQTT broker at HOST:PORT (one is started "
+            "there if none answers and HOST is local)."
+        ),
+    ] = None,  # fmt: skip
+    name: Annotated[str, typer.Option(help="Machine name (NAME-1, NAME-2... for several).")] = (
+        "fa320a"
+    ),
+    machines: Annotated[
+        int, typer.Option(help="Number of machines.", callback=bounded("--machines"))
+    ] = 1,
+    seed: Annotated[
+        int,
+        typer.Option(
+            help="Seed of the first machine (+1 per machine).", callback=bounded("--seed")
+        ),
+    ] = 0,  # fmt: skip
+    rate: Annotated[
+        float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))
+    ] = 100.0,
+    physics: Annotated[str, typer.Option(help="full (the truth) | reduced (many machines).")] = (
+        "full"
+    ),
+    ramp: Annotated[
+        float,
+        typer.Option(help="VFD ramp toward a new set-point, Hz/s.", callback=bounded("--ramp")),
+    ] = 10.0,  # fmt: skip
+    duration: Annotated[
+        float | None,
+        typer.Option(
+            help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
+        ),
+    ] = None,  # fmt: skip
+    mqtt_user: Annotated[
+        str | None,
+        typer.Option(
+            help="MQTT: connect as this user (password in "
+            "DRAFTTWIN_MQTT_PASSWORD); the embedded broker admits only it."
+        ),
+    ] = None,  # fmt: skip
+    cert: Annotated[
+        Path | None,
+        typer.Option(
+            help="Security with the certificates in this folder ('drafttwin twin certs'): OPC UA "
+            "Basic256Sha256 SignAndEncrypt, trusted clients only; MQTT over TLS.",
+            callback=input_path("--cert"),
+        ),
+    ] = None,  # fmt: skip
+    broker: Annotated[
+        str,
+        typer.Option(
+            help="MQTT: auto (start the embedded amqtt broker when none answers locally) | "
+            "external (publish to the broker there, e.g. Mosquitto; never start one) | embedded."
+        ),
+    ] = "auto",  # fmt: skip
+    history: Annotated[
+        float,
+        typer.Option(
+            help="OPC UA: keep each machine's samples of the last SECONDS for HistoryRead (in "
+            "memory): a restarted twin recovers what it missed.",
+            callback=bounded("--history"),
+        ),
+    ] = 0.0,
+    log: Annotated[
+        Path | None,
+        typer.Option(
+            help="Write every published sample to this .parquet/.csv file when the plant stops "
+            "(the plant's own record, for 'drafttwin twin audit').",
+            callback=output_file("--log"),
+        ),
+    ] = None,  # fmt: skip
+) -> None:
+    """Run the plant emulator in real time as live machines: roller and motor speeds every
+    sample, a writable supply set-point (write it and the plant changes speed)."""
+    _need_twin_extra()
+    from drafttwin.twin.plantlog import open_plant_log
+
+    if broker not in ("auto", "external", "embedded"):
+        raise ConfigError(f"unknown broker mode {broker!r}", where="--broker",
+                          fix="use auto, external or embedded")  # fmt: skip
+    if (opcua is None) == (mqtt is None):
+        raise ConfigError("give one of --opcua and --mqtt", where="--opcua",
+                          fix="e.g. --opcua opc.tcp://127.0.0.1:4840")  # fmt: skip
+    if physics not in ("full", "reduced"):
+        raise ConfigError(f"unknown physics {physics!r}", where="--physics",
+                          fix="use full or reduced")  # fmt: skip
+    if rate > 1000:
+        raise ConfigError(f"--rate {rate:g}: a live plant publishes at most 1000 Hz",
+                          where="--rate", fix="use --rate 100 (the FA320A logger's rate)")  # fmt: skip
+    if history and opcua is None:
+        raise ConfigError("--history is for OPC UA (MQTT keeps no history of QoS 0 samples)",
+                          where="--history", fix="drop --history, or serve with --opcua")  # fmt: skip
+    if log is not None and log.suffix.lower() not in (".parquet", ".csv"):
+        raise ConfigError(f"unsupported log file type '{log.suffix or '(none)'}'", source=log,
+                          where="--log", fix="name the log *.parquet or *.csv")  # fmt: skip
+    names = [name] if machines == 1 else [f"{name}-{k + 1}" for k in range(machines)]
+    opts: dict[str, Any] = {"seed": seed, "rate_hz": rate, "physics": physics,
+                            "ramp_hz_per_s": ramp, "duration_s": duration}  # fmt: skip
+    with open_plant_log(log) as plant_log:
+        opts["on_sample"] = None if plant_log is None else plant_log.add
+        if history:
+            opts["history_s"] = history
+        counts = _serve_plant(opcua, mqtt, names, opts, mqtt_user, cert, broker)
+    if counts is not None:
+        console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in counts.items()))
+    if log is not None:
+        console.print(f"wrote {log}")
+
+
+def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: dict[str, Any],
+                 mqtt_user: str | None, cert: Path | None, broker: str) -> dict[str, int] | None:  # fmt: skip
+    """Run the plant until its duration, Ctrl-C or SIGTERM (then ``None``: nothing to
+    report; the log is written either way)."""
+    if opcua is not None:
+        from drafttwin.twin.plantserver import parse_opcua_url, serve_opcua
+
+        parse_opcua_url(opcua)
+
+        def ready() -> None:
+            err_console.print(f"serving {', '.join(names)} on OPC UA {opcua}, nodes "
+                              "ns=2;s=NAME.sample (Ctrl-C stops)")  # fmt: skip
+
+        try:
+            with sigterm_as_interrupt():
+                return asyncio.run(serve_opcua(opcua, names, ready=ready, cert_dir=cert, **opts))
+        except KeyboardInterrupt:
+            return None
+        except OSError as exc:
+            raise ConfigError(f"cannot serve on {opcua} ({exc.strerror or exc})", where="--opcua",
+                              fix="choose a free port") from None  # fmt: skip
+    else:
+        from drafttwin.twin.mqtt import parse_hostport, serve_mqtt
+
+        parse_hostport(str(mqtt), "--mqtt")
+
+        def said(where: str) -> None:
+            err_console.print(f"serving {', '.join(names)} on {where}, topics "
+                              "drafttwin/NAME/sample (Ctrl-C stops)")  # fmt: skip
+
+        try:
+            with sigterm_as_interrupt():
+                return asyncio.run(serve_mqtt(str(mqtt), names, ready=said, username=mqtt_user,
+                                              password=_mqtt_password(mqtt_user), cert_dir=cert,
+                                              broker_mode=broker, **opts))  # fmt: skip
+        except KeyboardInterrupt:
+            return None
+        except OSError as exc:
+            raise ConfigError(f"cannot reach or start a broker at {mqtt} ({exc.strerror or exc})",
+                              where="--mqtt", fix="choose a free port or a running broker") from None  # fmt: skip
+
+
+def _mqtt_password(user: str | None) -> str | None:
+    import os
+
+    if user is None:
+        return None
+    password = os.environ.get("DRAFTTWIN_MQTT_PASSWORD")
+    if not password:
+        raise ConfigError(f"no password for MQTT user {user!r}", where="--mqtt-user",
+                          fix="set DRAFTTWIN_MQTT_PASSWORD (kept out of the command line)")  # fmt: skip
+    return password

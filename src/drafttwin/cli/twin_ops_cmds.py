@@ -1,0 +1,195 @@
+"""``drafttwin twin audit``: a twin's store counted against the plant's own log; ``drafttwin
+twin hall``: a hall of machines spread over Ray actors (docs/twin.md)."""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import sys
+import time
+from pathlib import Path
+from typing import Annotated
+
+import typer
+from rich import box
+from rich.table import Table
+
+from drafttwin.cli._bounds import bounded
+from drafttwin.cli._oserrors import input_path, output_dir
+from drafttwin.cli.app import console, err_console, print_json
+from drafttwin.cli.twin_cmds import _need_twin_extra, sigterm_as_interrupt, twin_app
+from drafttwin.errors import ConfigError, DrafttwinError
+
+RUNS_SHOWN = 10
+"""Runs of absent samples listed per machine (the JSON has them all)."""
+
+
+@twin_app.command("audit")
+def twin_audit(
+    store: Annotated[
+        Path, typer.Option(help="Store folder a twin wrote.", callback=input_path("--store"))
+    ],
+    plant_log: Annotated[
+        Path,
+        typer.Option(
+            help="The plant's log ('drafttwin plant serve --log FILE').",
+            callback=input_path("--plant-log"),
+        ),
+    ],  # fmt: skip
+    machine: Annotated[str | None, typer.Option(help="One machine (default: all).")] = None,
+    as_json: Annotated[bool, typer.Option("--json", help="Print the audit as JSON.")] = False,
+) -> None:
+    """Count the store against the plant's log: per machine the samples published, stored,
+    stored twice, stored with other values, and the runs of published samples the store lacks
+    (with when the plant published them), apart from those before the twin's first and after
+    its last stored sample."""
+    _need_twin_extra()
+    from drafttwin.twin.audit import as_json as audit_json
+    from drafttwin.twin.audit import audit
+
+    result = audit(store, plant_log, machine)
+    if as_json:
+        print_json({"machines": audit_json(result)})
+        return
+    table = Table(title=f"store {store} against {plant_log}", box=box.SIMPLE)
+    cols = ("machine", "sent", "stored", "twice", "differ", "absent", "before", "after",
+            "filled")  # fmt: skip
+    for col in cols:
+        table.add_column(col, justify="left" if col == "machine" else "right")
+    for m in result:
+        table.add_row(m.machine, *map(str, (m.published, m.stored, m.duplicates, m.mismatched,
+                                            m.missing_inside, m.before_first, m.after_last,
+                                            m.filled)))  # fmt: skip
+    console.print(table)
+    console.print("sent: published by the plant; twice: stored more than once; differ: stored with another time or value; "
+                  "absent: published between the first and last stored sample but not stored "
+                  "(runs below); before / after: published before the first / after the last "
+                  "stored sample; filled: rows the twin made up for samples it never received",
+                  highlight=False)  # fmt: skip
+    for m in result:
+        for r in m.runs[:RUNS_SHOWN]:
+            console.print(f"{m.machine}: absent seq {r.first_seq}-{r.last_seq} ({r.samples} "
+                          f"sample{'s' if r.samples > 1 else ''}), published "
+                          f"{_clock(r.first_published_s)} to {_clock(r.last_published_s)}",
+                          highlight=False)  # fmt: skip
+        if len(m.runs) > RUNS_SHOWN:
+            console.print(f"{m.machine}: {len(m.runs) - RUNS_SHOWN} more runs (--json lists "
+                          "them all)", highlight=False)  # fmt: skip
+
+
+def _clock(t: float) -> str:
+    return dt.datetime.fromtimestamp(t, tz=dt.UTC).strftime("%H:%M:%S.%f")[:-3] + " UTC"
+
+
+@twin_app.command("hall")
+def twin_hall(
+    model: Annotated[
+        Path,
+        typer.Option(
+            help="Model file (.dtm) for the machines (the mapping may name others).",
+            callback=input_path("--model"),
+        ),
+    ],  # fmt: skip
+    source: Annotated[
+        str, typer.Option(help="The hall's server: opcua:opc.tcp://HOST:PORT | mqtt://HOST:PORT.")
+    ],
+    mapping: Annotated[
+        Path,
+        typer.Option(
+            help="Mapping TOML listing the hall's machines (split over the shards).",
+            callback=input_path("--mapping"),
+        ),
+    ],  # fmt: skip
+    store: Annotated[
+        Path,
+        typer.Option(
+            help="Store folder: one DuckDB file per shard (shard-I-of-K/).",
+            callback=output_dir("--store"),
+        ),
+    ],  # fmt: skip
+    shards: Annotated[
+        int, typer.Option(help="Number of twins (Ray actors), K.", callback=bounded("--shards"))
+    ] = 2,
+    ray_address: Annotated[
+        str | None,
+        typer.Option(
+            "--ray",
+            help="Ray cluster address (HOST:PORT, ray://HOST:PORT or auto); "
+            "default: a private Ray on this machine with K CPUs.",
+        ),
+    ] = None,  # fmt: skip
+    commit_ms: Annotated[
+        float, typer.Option(help="Commit interval, ms.", callback=bounded("--commit-ms"))
+    ] = 200.0,
+    physics: Annotated[str, typer.Option(help="reduced (fast) | full drive train.")] = "reduced",
+    duration: Annotated[
+        float | None,
+        typer.Option(
+            help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
+        ),
+    ] = None,  # fmt: skip
+    quiet: Annotated[bool, typer.Option(help="No status line every 10 s on stderr.")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print each shard's status as JSON.")
+    ] = False,
+) -> None:
+    """Run a hall as K live twins, one Ray actor each: shard I takes the mapping's machines
+    I, I+K, I+2K... (each machine whole in one twin) and writes its own store in
+    STORE/shard-I-of-K/; 'twin query' and 'twin audit' read them all. Stops after --duration
+    or on Ctrl-C / SIGTERM (every shard commits what it received)."""
+    _need_twin_extra()
+    from drafttwin.execution.executor import _check_address, _import_ray
+    from drafttwin.twin.hall import check_hall, check_store, run_hall
+
+    if physics not in ("reduced", "full"):
+        raise ConfigError(f"unknown physics {physics!r}", where="--physics",
+                          fix="use reduced or full")  # fmt: skip
+    check_store(store, shards)
+    n = check_hall(model, source, mapping, shards)
+    _import_ray()
+    if ray_address is not None:
+        try:
+            _check_address(ray_address)
+        except DrafttwinError as exc:  # named after this command's option
+            raise ConfigError(exc.problem, where="--ray", fix=exc.fix) from None
+    err_console.print(f"hall: {n} machines over {shards} twins on "
+                      f"{ray_address or 'a private Ray'}")  # fmt: skip
+
+    def status(shard_status: list) -> None:  # noqa: ANN001  one line per 10 s
+        if quiet:
+            return
+        parts = []
+        for i, st in enumerate(shard_status):
+            if st is None:
+                parts.append(f"shard {i}: starting")
+            else:
+                p99 = st["latency_ms"]["p99"]
+                parts.append(f"shard {i}: {st['rows']} samples, p99 "
+                             f"{'-' if p99 is None else f'{p99:.1f}'} ms")  # fmt: skip
+        err_console.print("; ".join(parts), highlight=False)
+
+    start = time.monotonic()
+    try:
+        # Ray prints its own notes (a shard's process died and is started again) on stdout:
+        # they go to stderr, so that stdout holds only the result (strict JSON with --json)
+        with sigterm_as_interrupt(), contextlib.redirect_stdout(sys.stderr):
+            results = run_hall(model, source, mapping, store, shards, address=ray_address,
+                               commit_ms=commit_ms, physics=physics, duration_s=duration,
+                               on_status=status)  # fmt: skip
+    except KeyboardInterrupt:
+        err_console.print("interrupted: every shard committed what it received")
+        return
+    if as_json:
+        print_json({"wall_s": time.monotonic() - start, "shards": results})
+        return
+    table = Table(title=f"hall: {shards} twins, {time.monotonic() - start:.1f} s", box=box.SIMPLE)
+    for col in ("shard", "machines", "processed", "dropped", "p99 ms", "committed"):
+        table.add_column(col, justify="left" if col in ("shard", "machines") else "right")
+    for i, r in enumerate(results):
+        p99 = r["latency_ms"]["p99"]
+        table.add_row(str(i), ", ".join(r["machines"]),
+                      str(sum(m["processed"] for m in r["machines"].values())),
+                      str(sum(m["dropped"] for m in r["machines"].values())),
+                      "-" if p99 is None else f"{p99:.1f}",
+                      str(r["store"]["committed"]))  # fmt: skip
+    console.print(table)

@@ -1,0 +1,228 @@
+"""A hall of machines spread over K twins, one Ray actor each (``drafttwin twin hall``).
+
+Each actor is a whole live twin (sources, hybrid, store) over one shard of the mapping's
+machines: the source spec gets ``shard=I/K`` (machines at positions I, I+K, ... of the
+mapping), so every machine lives, whole and in order, in exactly one actor.
+
+Store: one DuckDB file per shard, ``DIR/shard-I-of-K/twin.duckdb``; ``twin query`` and ``twin
+audit`` read them all. Why not one writer actor for all shards: DuckDB allows one writing
+process, so a shared store would route every row through that actor (an actor call costs
+about 1.4 ms here, research notes), make it a single point of failure for the whole hall, and
+make a shard's restart depend on it to find where to resume. A file per shard keeps each
+shard's crash and restart to itself (it resumes from its own file, like ``twin run``), needs
+no traffic between processes, and a query over K files is a loop. The price: K fixed per
+store folder (a machine's history must stay in one file); a hall refuses a folder written
+with another K.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import re
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from drafttwin.errors import ConfigError
+
+SHARD_DIR = re.compile(r"^shard-(\d+)-of-(\d+)$")
+RESTARTS = 3
+"""Times Ray starts a shard again after its process died (an error in the twin is not retried)."""
+POLL_S = 1.0
+"""How often the driver looks at its actors (and lets Ctrl-C through)."""
+
+
+def shard_dir(store: Path, i: int, k: int) -> Path:
+    return store / f"shard-{i}-of-{k}"
+
+
+def check_store(store: Path, shards: int) -> None:
+    """Refuse a store folder a hall of another size wrote (a machine's history in one file)."""
+    if (store / "twin.duckdb").exists():
+        raise ConfigError("this folder holds the store of a single 'twin run'", source=store,
+                          where="--store", fix="give a new folder to the hall")  # fmt: skip
+    for p in store.glob("shard-*") if store.is_dir() else []:
+        m = SHARD_DIR.match(p.name)
+        if m and int(m.group(2)) != shards:
+            raise ConfigError(f"this store was written by a hall of {m.group(2)} shards",
+                              source=store, where="--shards",
+                              fix=f"use --shards {m.group(2)}, or a new --store folder")  # fmt: skip
+
+
+def shard_source(source: str, i: int, k: int) -> str:
+    return f"{source}{'&' if '?' in source else '?'}shard={i}/{k}"
+
+
+def check_hall(model: Path, source: str, mapping: Path, shards: int) -> int:
+    """Check the pieces before any actor starts; returns the number of machines."""
+    from drafttwin.twin.build import load_twin_model
+    from drafttwin.twin.mapping import MachineMap, read_mapping
+    from drafttwin.twin.sources import parse_source
+
+    kind = source.partition(":")[0]
+    if kind not in ("opcua", "mqtt", "mqtts"):
+        raise ConfigError(f"a hall reads a live server, not {kind!r}", where="--source",
+                          fix="give opcua:opc.tcp://HOST:PORT or mqtt://HOST:PORT")  # fmt: skip
+    if "shard=" in source:
+        raise ConfigError("the hall sets each actor's shard itself", where="--source",
+                          fix="drop shard=... from --source")  # fmt: skip
+    channels = tuple(load_twin_model(model).channels_)
+    mapped = read_mapping(mapping, channels)
+    for i in range(shards):  # an empty shard, a bad option: refused here, not in an actor
+        parse_source(shard_source(source, i, shards), MachineMap("fa320a", channels), mapped)
+    return len(mapped)
+
+
+def _actor_class(ray: Any) -> Any:
+    # run() in one thread, status()/stop() beside it. A shard whose process dies is started
+    # again and its run() retried (RESTARTS times): the new twin resumes from its own store
+    # (and the server's history), as a restarted 'twin run' does
+    @ray.remote(num_cpus=1, max_concurrency=2, max_restarts=RESTARTS, max_task_retries=RESTARTS)
+    class ShardTwin:
+        """One twin over one shard, in its own process."""
+
+        def __init__(self, options: dict[str, Any]) -> None:
+            self.options = options
+            self.service: Any = None
+            self.loop: asyncio.AbstractEventLoop | None = None
+            self.stopping = threading.Event()
+
+        def run(self, duration_s: float | None) -> dict[str, Any]:
+            import torch
+
+            from drafttwin.twin.aio import run_bounded
+            from drafttwin.twin.build import build_service
+
+            torch.set_num_threads(1)
+            o = self.options
+            self.service = build_service(o["model"], [o["source"]], mapping=o["mapping"],
+                                         store_dir=o["store"], commit_ms=o["commit_ms"],
+                                         physics=o["physics"], silent_s=o["silent_s"])  # fmt: skip
+            failed: list[BaseException] = []
+
+            def loop() -> None:  # a thread of its own: Ray's method thread runs its own loop
+                try:
+                    run_bounded(self._main(duration_s))
+                except BaseException as exc:  # noqa: BLE001  raised again in the method
+                    failed.append(exc)
+
+            try:
+                thread = threading.Thread(target=loop, name="twin-shard")
+                thread.start()
+                thread.join()
+                if failed:
+                    raise failed[0]
+            finally:
+                if self.service.writer is not None:
+                    self.service.writer.close()
+                    self.service.writer.store.close()
+            return {"source": o["source"], "store_dir": str(o["store"]), **self.service.status()}
+
+        async def _main(self, duration_s: float | None) -> None:
+            self.loop = asyncio.get_running_loop()
+            if self.stopping.is_set():
+                return
+            await self.service.run(duration_s=duration_s)
+
+        def status(self) -> dict[str, Any] | None:
+            """The shard's status (``None`` before its twin is built). Read from this thread
+            while the twin's loop runs: a collection changing under the read is read again."""
+            for _ in range(5):
+                if self.service is None:
+                    return None
+                try:
+                    return dict(self.service.status())
+                except RuntimeError:  # "deque mutated during iteration"
+                    time.sleep(0.01)
+            return None
+
+        def stop(self) -> None:
+            self.stopping.set()
+            if self.loop is not None and self.service is not None:
+                with contextlib.suppress(RuntimeError):  # the loop already closed
+                    self.loop.call_soon_threadsafe(self.service.stop)
+
+    return ShardTwin
+
+
+def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, *,
+             address: str | None = None, commit_ms: float = 200.0, physics: str = "reduced",
+             silent_s: float = 2.0, duration_s: float | None = None,
+             on_status: Callable[[list[dict[str, Any] | None]], None] | None = None,
+             status_every_s: float = 10.0) -> list[dict[str, Any]]:  # fmt: skip
+    """Run ``shards`` twin actors on Ray (the cluster at ``address``, else a private instance
+    with ``shards`` CPUs) until ``duration_s`` or Ctrl-C; each shard's final status."""
+    from drafttwin.execution.executor import _import_ray, _init_ray, _start_guard
+
+    check_store(store, shards)
+    ray = _import_ray()
+    guard = None if address else _start_guard()  # kills a private Ray if this process dies
+    started = not ray.is_initialized()
+    try:
+        _init_ray(ray, shards, address)
+        cls = _actor_class(ray)
+        opts = {"model": model.resolve(), "mapping": mapping.resolve(), "commit_ms": commit_ms,
+                "physics": physics, "silent_s": silent_s}  # fmt: skip
+        actors = [cls.remote({**opts, "source": shard_source(source, i, shards),
+                              "store": shard_dir(store.resolve(), i, shards)})
+                  for i in range(shards)]  # fmt: skip
+        refs = [a.run.remote(duration_s) for a in actors]
+        try:
+            _wait(ray, actors, refs, on_status, status_every_s)
+        except BaseException:  # Ctrl-C or SIGTERM: each actor commits what it received
+            for a in actors:
+                a.stop.remote()
+            with contextlib.suppress(Exception):
+                ray.get(refs, timeout=60)
+            raise
+        return _collect(ray, refs)
+    finally:
+        if started:
+            ray.shutdown()
+        if guard is not None:
+            guard.terminate()
+            guard.wait()
+
+
+def _wait(ray: Any, actors: list[Any], refs: list[Any], on_status: Any, every_s: float) -> None:
+    last = time.monotonic()
+    pending = list(refs)
+    while pending:
+        _, pending = ray.wait(pending, num_returns=len(pending), timeout=POLL_S)
+        if on_status is not None and time.monotonic() - last >= every_s:
+            last = time.monotonic()
+            on_status([_status(ray, a) for a in actors])
+
+
+def _status(ray: Any, actor: Any) -> dict[str, Any] | None:
+    """A shard's status; ``None`` while it starts (again) or does not answer."""
+    try:
+        return ray.get(actor.status.remote(), timeout=30)
+    except (ray.exceptions.RayError, TimeoutError):
+        return None
+
+
+def _collect(ray: Any, refs: list[Any]) -> list[dict[str, Any]]:
+    """Each actor's final status; a shard's user error (a refused store, an unreadable
+    model) comes back as that error, anything else as one line naming the shard."""
+    from drafttwin.errors import DrafttwinError
+
+    out = []
+    for i, ref in enumerate(refs):
+        try:
+            out.append(ray.get(ref, timeout=60))
+        except ray.exceptions.RayTaskError as exc:
+            cause = getattr(exc, "cause", None)
+            if isinstance(cause, DrafttwinError):
+                raise cause from None
+            text = str(cause or exc).strip().splitlines()
+            raise DrafttwinError(f"shard {i} failed: {text[-1] if text else type(exc).__name__}",
+                                 fix="see the shard's message; run that shard alone with "
+                                 "'drafttwin twin run --source ...?shard=I/K' to debug") from None  # fmt: skip
+    return out
+
+
+__all__ = ["check_hall", "check_store", "run_hall", "shard_dir", "shard_source"]

@@ -1,0 +1,176 @@
+"""The live plant's own log: every sample ``plant serve`` published, for auditing a twin's store.
+
+A twin's store is only as good as what it can be checked against. ``plant serve --log FILE``
+records each sample as it goes out (machine, counter, time, values, set-point and the wall
+time it was published), so that :func:`drafttwin.twin.audit.audit` can count, sample by sample,
+what a twin stored, what it lost, and what it stored twice.
+
+The file is written in row groups to a temporary name beside the target and renamed onto it
+when the plant stops (:func:`drafttwin._io.atomic_path`): a reader sees the whole log or none,
+and memory stays bounded on a long run. A plant killed with SIGKILL leaves no log (only the
+hidden temporary file); Ctrl-C, SIGTERM and ``--duration`` write it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drafttwin.errors import ConfigError
+from drafttwin.plant.live import LiveSample
+
+COLUMNS = ("machine", "seq", "ts_us", "time", "front", "second", "third", "back", "motor",
+           "supply_hz", "published")  # fmt: skip
+"""Columns of a plant log; ``ts_us`` is the sample time in µs as a twin stores it,
+``published`` the wall time (s since the epoch) the plant handed the sample to the transport."""
+ROW_GROUP = 2000
+"""Samples buffered before they are written (20 s of one machine at 100 Hz)."""
+
+
+class PlantLog:
+    """Append published samples to ``path`` (``.parquet`` or ``.csv``); :meth:`close` makes
+    it appear. Use as a context manager."""
+
+    def __init__(self, path: Path) -> None:
+        from drafttwin._io import atomic_path
+
+        suffix = path.suffix.lower()
+        if suffix not in (".parquet", ".csv"):
+            raise ConfigError(f"unsupported log file type '{path.suffix or '(none)'}'",
+                              source=path, where="--log", fix="name the log *.parquet or *.csv")  # fmt: skip
+        self.path, self.rows = path, 0
+        self._ctx = atomic_path(path)
+        self._tmp = self._ctx.__enter__()
+        self._buf: dict[str, list[Any]] = {c: [] for c in COLUMNS}
+        self._writer: Any = None
+        self._parquet = suffix == ".parquet"
+
+    def add(self, machine: str, s: LiveSample) -> None:
+        """Record one sample, just after it was published."""
+        b = self._buf
+        b["machine"].append(machine)
+        b["seq"].append(s.seq)
+        b["ts_us"].append(int(round(s.time_s * 1e6)))  # as the twin's mapping reads it
+        b["time"].append(s.time_s)
+        for col, v in zip(("front", "second", "third", "back"), s.rollers_rpm, strict=True):
+            b[col].append(float(v))
+        b["motor"].append(float(s.motor_rpm))
+        b["supply_hz"].append(float(s.supply_hz))
+        b["published"].append(time.time())
+        self.rows += 1
+        if len(b["seq"]) >= ROW_GROUP:
+            self._write()
+
+    def _write(self) -> None:
+        import pyarrow as pa
+
+        if not self._buf["seq"]:
+            return
+        schema = _schema()
+        table = pa.table({c: pa.array(self._buf[c], schema.field(c).type) for c in COLUMNS})
+        if self._writer is None:
+            self._open(schema)
+        self._writer.write_table(table)
+        self._buf = {c: [] for c in COLUMNS}
+
+    def _open(self, schema: Any) -> None:
+        if self._parquet:
+            import pyarrow.parquet as pq
+
+            self._writer = pq.ParquetWriter(self._tmp, schema)
+        else:
+            import pyarrow.csv as pcsv
+
+            self._writer = pcsv.CSVWriter(str(self._tmp), schema)
+
+    def close(self) -> None:
+        """Write what is buffered and rename the file onto its name."""
+        self._write()
+        if self._writer is None:  # nothing published: an empty log with the columns
+            self._open(_schema())
+        self._writer.close()
+        self._ctx.__exit__(None, None, None)
+
+    def abandon(self, exc: BaseException) -> None:
+        """Remove the temporary file (the run failed before anything was published)."""
+        with contextlib.suppress(Exception):
+            if self._writer is not None:
+                self._writer.close()
+        with contextlib.suppress(BaseException):
+            self._ctx.__exit__(type(exc), exc, exc.__traceback__)
+
+    def __enter__(self) -> PlantLog:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+@contextlib.contextmanager
+def open_plant_log(path: Path | None) -> Iterator[PlantLog | None]:
+    """The log of a ``plant serve`` run (``None``: no log): written when the run ends, by
+    its duration, Ctrl-C or an error after samples went out; nothing when it failed first."""
+    if path is None:
+        yield None
+        return
+    log = PlantLog(path)
+    try:
+        yield log
+    except BaseException as exc:
+        if log.rows:
+            log.close()
+        else:
+            log.abandon(exc)
+        raise
+    log.close()
+
+
+def _schema() -> Any:
+    import pyarrow as pa
+
+    def kind(c: str) -> Any:
+        return (
+            pa.string() if c == "machine" else pa.int64() if c in ("seq", "ts_us") else pa.float64()
+        )
+
+    return pa.schema([(c, kind(c)) for c in COLUMNS])
+
+
+def read_plant_log(path: Path) -> Any:
+    """A plant log as a DataFrame, checked: the columns, whole counters, one row per
+    (machine, seq)."""
+    import pandas as pd
+
+    from drafttwin.errors import DataError
+
+    if not path.is_file():
+        raise DataError("file not found", source=path, where="--plant-log",
+                        fix="give the file 'drafttwin plant serve --log FILE' wrote")  # fmt: skip
+    try:
+        frame = pd.read_parquet(path) if path.suffix.lower() == ".parquet" else pd.read_csv(path)
+    except Exception as exc:  # noqa: BLE001  any reader error: not a log
+        raise DataError(f"cannot read the plant log ({type(exc).__name__})", source=path,
+                        fix="give the file 'drafttwin plant serve --log FILE' wrote") from None  # fmt: skip
+    missing = [c for c in COLUMNS if c not in frame.columns]
+    if missing:
+        raise DataError(f"not a plant log: columns {missing} missing", source=path,
+                        fix="give the file 'drafttwin plant serve --log FILE' wrote")  # fmt: skip
+    frame["machine"] = frame["machine"].astype(str)
+    for col in ("seq", "ts_us"):
+        values = pd.to_numeric(frame[col], errors="coerce").to_numpy(dtype=np.float64)
+        if not np.isfinite(values).all() or (values != np.round(values)).any():
+            raise DataError(f"column {col!r} holds non-integers", source=path,
+                            fix="give the file 'drafttwin plant serve --log FILE' wrote")  # fmt: skip
+        frame[col] = values.astype(np.int64)
+    if frame.duplicated(["machine", "seq"]).any():
+        raise DataError("the log has a sample twice (same machine and seq)", source=path,
+                        fix="give the log of one plant run")  # fmt: skip
+    return frame
+
+
+__all__ = ["COLUMNS", "PlantLog", "open_plant_log", "read_plant_log"]

@@ -1,0 +1,133 @@
+"""'drafttwin twin hall': a hall of machines spread over Ray actors (a private local Ray with 2
+CPUs), one store per shard, read back as one by 'twin query'; a shard killed with SIGKILL is
+started again by Ray and recovers what it missed from the server's history, counted against
+the plant's log by 'twin audit'; and the hall's refusals."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin.cli import app
+from drafttwin.twin.history import read_events
+
+from ._twin import cli, env, free_port, run_cli
+
+pytest.importorskip("ray", reason="the hall runs on Ray (pip install 'drafttwin[ray]')")
+
+pytestmark = pytest.mark.timeout(240)
+
+HALL = "".join(f'[[machine]]\nname = "fa320a-{k}"\n\n' for k in (1, 2, 3))
+
+
+def _kill_a_shard(hall: subprocess.Popen[str], store: Path, timeout: float = 120) -> Path:
+    """SIGKILL shard 0's process (the one holding its store) once both shards committed rows;
+    that shard's folder."""
+    deadline = time.monotonic() + timeout
+    wals = [store / f"shard-{i}-of-2" / "twin.duckdb.wal" for i in (0, 1)]
+    while not all(w.exists() for w in wals):  # the stores are made
+        assert hall.poll() is None and time.monotonic() < deadline, "the shards never started"
+        time.sleep(0.2)
+    time.sleep(3.0)  # connected and committing rows (every 100 ms)
+    target = wals[0].parent.resolve()  # shard 0; both run for --duration from their start
+    for fds in Path("/proc").glob("[0-9]*/fd"):  # the process that holds its store open
+        with contextlib.suppress(OSError):
+            if any(Path(os.readlink(fd)).parent == target for fd in fds.iterdir()):
+                os.kill(int(fds.parent.name), signal.SIGKILL)
+                return target
+    raise AssertionError(f"no process holds {target}")
+
+
+@pytest.mark.slow  # a plant, a private Ray, two twin actors and a restart: about 50 s
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="finds the shard through /proc")
+def test_a_hall_on_two_ray_actors_survives_a_killed_shard(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    _, model = twin_files
+    mapping = tmp_path / "hall.toml"
+    mapping.write_text(HALL, encoding="utf-8")
+    url = f"opc.tcp://127.0.0.1:{free_port()}"
+    log, store = tmp_path / "plant.parquet", tmp_path / "store"
+    plant = subprocess.Popen(cli("plant", "serve", "--opcua", url, "--machines", "3", "--physics",
+                                 "reduced", "--log", str(log), "--history", "60"), env=env(),
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    procs = [plant]
+    try:
+        assert plant.stderr is not None and "serving" in plant.stderr.readline()
+        hall = subprocess.Popen(cli("twin", "hall", "--model", str(model), "--source", f"opcua:{url}",
+                                    "--mapping", str(mapping), "--store", str(store), "--shards",
+                                    "2", "--duration", "12", "--commit-ms", "100", "--json"),
+                                env=env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)  # fmt: skip
+        procs.append(hall)
+        killed = _kill_a_shard(hall, store)  # Ray starts it again and retries its run
+        out, err = hall.communicate(timeout=180)
+        assert hall.returncode == 0, err
+    finally:
+        for p in procs:  # the plant by SIGTERM: it writes its log
+            if p.poll() is None:
+                p.send_signal(signal.SIGTERM)
+            try:
+                p.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=30)
+    shards = json.loads(out)["shards"]
+    # shard I has the mapping's machines I, I+2: each machine in exactly one actor
+    assert [sorted(s["machines"]) for s in shards] == [["fa320a-1", "fa320a-3"], ["fa320a-2"]]
+    assert [Path(s["store_dir"]).name for s in shards] == ["shard-0-of-2", "shard-1-of-2"]
+    for s in shards:
+        for m in s["machines"].values():
+            assert m["processed"] > 200 and m["dropped"] == 0  # 12 s at 100 Hz, start-up aside
+    query = run_cli("twin", "query", "--store", str(store), "--json")
+    assert query.returncode == 0, query.stderr
+    info = json.loads(query.stdout)
+    assert [m["machine"] for m in info["machines"]] == ["fa320a-1", "fa320a-2", "fa320a-3"]
+    # the restarted shard read what it missed from the server's history ...
+    events = read_events(killed)
+    recovered = events[events["kind"] == "history"]["detail"]
+    assert len(recovered) >= 1 and all("samples recovered" in d for d in recovered), events
+    # ... so, counted against the plant's log, every machine's samples from its first to its
+    # last stored one are there, once, as published
+    audit = run_cli("twin", "audit", "--store", str(store), "--plant-log", str(log), "--json")
+    assert audit.returncode == 0, audit.stderr
+    for m in json.loads(audit.stdout)["machines"]:
+        assert m["stored"] > 200
+        assert (m["missing_inside"], m["duplicates"], m["mismatched"], m["filled"]) == (0, 0, 0, 0)
+
+
+def _error(res, *needles: str) -> None:  # noqa: ANN001
+    assert res.exit_code == 2, res.stdout + res.stderr
+    assert res.stderr.startswith("error:") and "Traceback" not in res.stderr
+    for n in needles:
+        assert n in res.stderr, res.stderr
+
+
+def test_the_hall_refuses_what_would_go_wrong_in_an_actor(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    record, model = twin_files
+    mapping = tmp_path / "hall.toml"
+    mapping.write_text(HALL, encoding="utf-8")
+    store = tmp_path / "store"
+    (store / "shard-0-of-2").mkdir(parents=True)
+    base = ["twin", "hall", "--model", str(model), "--mapping", str(mapping), "--store", str(store)]
+    run = CliRunner().invoke
+    opcua = "opcua:opc.tcp://127.0.0.1:4840"
+    _error(run(app, [*base, "--source", opcua, "--shards", "3"]), "hall of 2 shards", "--shards 2")
+    _error(run(app, [*base, "--source", f"replay:{record}", "--shards", "2"]), "live server")
+    _error(run(app, [*base, "--source", f"{opcua}?shard=0/2", "--shards", "2"]), "drop shard=")
+    _error(run(app, [*base, "--source", opcua, "--shards", "4"]), "hall of 2 shards")
+    _error(run(app, [*base, "--source", opcua, "--shards", "0"]), "--shards")
+    fresh = [*base[:-1], str(tmp_path / "fresh")]
+    _error(run(app, [*fresh, "--source", opcua, "--shards", "4"]), "is empty")  # 3 machines
+    nobody = f"127.0.0.1:{free_port()}"
+    _error(run(app, [*fresh, "--source", opcua, "--ray", nobody]), "--ray", "no Ray cluster")
