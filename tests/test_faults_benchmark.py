@@ -42,9 +42,17 @@ def test_tiny_benchmark_scores_and_page():
     assert phys["localisation"]["sensor_blamed_on_machine"] == 0
     assert phys["confusion"] == {"belt_wear": {"belt_wear": 1}, "gain": {"gain": 1}}
     assert raw["localisation"] is None  # the baseline does not locate
+    hyb, dd = res["scores"]["hybrid"], res["scores"]["data-driven"]
+    assert hyb["detection_pct"]["severe"] == 100.0  # open loop: the hybrid sees the shift too
+    assert hyb["localisation"]["top1_pct"] == 100.0  # and the physics ranking names it
+    assert hyb["localisation"]["sensor_blamed_on_machine"] == 0
+    assert dd["localisation"] is None  # a one-step innovation is not localised
+    assert set(res["detectors"]) == {"physics", "hybrid", "data-driven"}
+    assert res["learned"]["data-driven"]["task"] == "prediction"
     json.dumps(res, allow_nan=True)
     html = render_benchmark(res)
     assert 'id="scores"' in html and 'id="confusion"' in html and "raw-threshold" in html
+    assert 'id="confusion-hybrid"' in html and "data-driven" in html
 
 
 def test_cli_refuses_bad_numbers(tmp_path):

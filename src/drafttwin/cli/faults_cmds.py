@@ -232,8 +232,10 @@ def benchmark_faults(
     thresholds from a separate healthy tuning set; false alarms over healthy running of other
     machines. Scores (detection per severity, delays, false alarms per 24 h, top-1/top-3
     localisation, severity error, sensor faults blamed on the machine, confusion matrix) for
-    the twin's physics diagnosis and a fixed-threshold baseline on raw speeds. Writes
-    OUT/faults_results.json and OUT/faults_report.html.
+    four methods at the same false-alarm budget: the physics residual, the parallel hybrid's
+    residual (both located by the physics ranking), the data-driven (one-step GRU) residual and
+    fixed thresholds on raw speeds; both networks are fitted once, on the tuning records only.
+    Writes OUT/faults_results.json and OUT/faults_report.html.
     """
     import math
     from dataclasses import replace

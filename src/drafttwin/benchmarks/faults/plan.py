@@ -18,7 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from drafttwin.diagnosis.residuals import record_features
+from drafttwin.benchmarks.faults.learned import raw_record
+from drafttwin.diagnosis.residuals import block_features, measured, physics_prediction
 from drafttwin.mechanics import DriveTrain
 from drafttwin.plant import Machine, Plant
 from drafttwin.plant.fault_cases import make_fault
@@ -97,7 +98,8 @@ def plan(profile: Profile, seed: int) -> list[dict[str, Any]]:
 
 
 def run_record(config: dict[str, Any]) -> dict[str, Any]:
-    """One task: the plant record's block features and labels (plain lists)."""
+    """One task: the plant record's physics block features and labels (plain lists), and
+    its raw channels with the physics prediction (arrays) for the learned residuals."""
     from drafttwin.plant.faults import FaultSpec
 
     plant = Plant()
@@ -105,6 +107,8 @@ def run_record(config: dict[str, Any]) -> dict[str, Any]:
     faults = [FaultSpec(**f) for f in config["faults"]]
     rec = plant.run(float(config["duration_s"]), RATE_HZ, seed=int(config["seed"]),
                     machine=machine, faults=faults)  # fmt: skip
-    f = record_features(DriveTrain.preset("fa320a"), rec.series, BLOCK_S)
+    physics = physics_prediction(DriveTrain.preset("fa320a"), rec.series)
+    f = block_features(measured(rec.series), physics, rec.series.time_s, BLOCK_S)
     return {"time_s": f.time_s.tolist(), "level": f.level.tolist(), "lost": f.lost.tolist(),
-            "run": f.run.tolist(), "block_s": f.block_s, "labels": rec.info["faults"]}  # fmt: skip
+            "run": f.run.tolist(), "block_s": f.block_s, "labels": rec.info["faults"],
+            "raw": raw_record(rec.series, physics)}  # fmt: skip
