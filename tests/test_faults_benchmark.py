@@ -5,7 +5,14 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from drafttwin.benchmarks.faults.plan import ELEMENTS, PROFILES, Profile, plan
+from drafttwin.benchmarks.faults.plan import (
+    ELEMENTS,
+    PROFILES,
+    Profile,
+    decided_s,
+    plan,
+    with_healthy_hours,
+)
 from drafttwin.benchmarks.faults.score import poisson_upper
 from drafttwin.cli import app
 from drafttwin.plant.faults import KINDS
@@ -21,6 +28,16 @@ def test_full_plan_covers_every_kind_three_severities_both_profiles():
     machines = [t["machine_seed"] for t in tasks]
     assert len(set(machines)) == len(machines)  # tuning, faults and healthy share no machine
     assert plan(PROFILES["full"], seed=0) == tasks  # seeded
+
+
+def test_full_plan_has_two_hours_of_watched_healthy_running_on_several_machines():
+    healthy = [t for t in plan(PROFILES["full"], seed=0) if t["set"] == "healthy"]
+    assert len(healthy) >= 5
+    assert sum(decided_s(t["duration_s"]) for t in healthy) >= 2 * 3600  # issue 13
+    assert decided_s(PROFILES["full"].healthy[1]) == PROFILES["full"].healthy[1] - 15.0
+    more = with_healthy_hours(PROFILES["full"], 72.0)
+    assert more.healthy[0] * decided_s(more.healthy[1]) >= 72 * 3600
+    assert (more.healthy[0] - 1) * decided_s(more.healthy[1]) < 72 * 3600  # no more than needed
 
 
 def test_poisson_bound_is_the_rule_of_three():

@@ -123,6 +123,9 @@ class FaultDetector:
             raise DataError("healthy tuning data too short (fewer than 10 blocks after the "
                             "reference window)", where="tuning", fix="give longer records")  # fmt: skip
         self.level_cov_ = np.cov(d_all.T)
+        # each record's belt level against the physics (not its deviation): how far the
+        # physics' belt creep is off on these machines (see locate.creep_mismatch)
+        self.belt_level_ = np.array([np.nanmean(f.level @ a[2]) for f in healthy])
         s_all = d_all @ a.T
         x0 = np.vstack([p[0] for p in pairs])
         x1 = np.vstack([p[1] for p in pairs])
@@ -216,7 +219,7 @@ class FaultDetector:
         """The fitted settings, JSON-able."""
         return {"far_per_day": self.far_per_day, "k": self.k, "h": self.h_,
                 "block_s": self.block_s_, "reference_s": self.reference_s,
-                "drift_tau_s": self.drift_tau_s,
+                "drift_tau_s": self.drift_tau_s, "belt_level": self.belt_level_.tolist(),
                 "streams": {s: {"sigma": float(self.sigma_[i]), "phi": float(self.phi_[i])}
                             for i, s in enumerate(STREAMS)},
                 "run_limit": dict(zip(CHANNELS, map(float, self.run_limit_), strict=True)),
