@@ -256,7 +256,10 @@ def benchmark_faults(
         def advance(done: int, total: int) -> None:
             bar.update(task, total=total, completed=done)
 
-        results = run_benchmark(profile, seed, workers, on_record=advance)
+        def stage(what: str) -> None:
+            bar.update(task, description=f"fault benchmark ({profile.name}): {what}")
+
+        results = run_benchmark(profile, seed, workers, on_record=advance, on_stage=stage)
     with atomic_path(out / "faults_results.json") as tmp:
         tmp.write_text(dumps_strict(results, sort_keys=True) + "\n", encoding="utf-8")
     with atomic_path(out / "faults_report.html") as tmp:
