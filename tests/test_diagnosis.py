@@ -225,3 +225,11 @@ def test_cli_diagnose_refuses_bad_input(records, tmp_path):
     ):
         res = CliRunner().invoke(app, ["diagnose", "--model", "preset", *args])
         assert res.exit_code == 2 and text in res.output and "Traceback" not in res.output
+
+
+def test_one_step_is_one_alarm_episode_when_counting_every_alarm(detector):
+    # after an alarm the detector re-references on a new window, as at a record's start: a
+    # single persistent change is one episode (a one-block baseline set off a cascade)
+    shift = np.array([-1, -1, -1, -1, -0.8]) * 3 * SIGMA
+    det = detector.run(synthetic(13, n=3000, shift=shift, at=300), stop_at_first=False)
+    assert len(det.alarms) == 1 and 300 < det.alarms[0].time_s <= 330

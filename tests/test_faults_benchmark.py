@@ -5,7 +5,14 @@ import json
 import pytest
 from typer.testing import CliRunner
 
-from drafttwin.benchmarks.faults.plan import ELEMENTS, PROFILES, Profile, plan
+from drafttwin.benchmarks.faults.plan import (
+    ELEMENTS,
+    PROFILES,
+    Profile,
+    decided_s,
+    plan,
+    with_healthy_hours,
+)
 from drafttwin.benchmarks.faults.score import poisson_upper
 from drafttwin.cli import app
 from drafttwin.plant.faults import KINDS
@@ -21,6 +28,16 @@ def test_full_plan_covers_every_kind_three_severities_both_profiles():
     machines = [t["machine_seed"] for t in tasks]
     assert len(set(machines)) == len(machines)  # tuning, faults and healthy share no machine
     assert plan(PROFILES["full"], seed=0) == tasks  # seeded
+
+
+def test_full_plan_has_two_hours_of_watched_healthy_running_on_several_machines():
+    healthy = [t for t in plan(PROFILES["full"], seed=0) if t["set"] == "healthy"]
+    assert len(healthy) >= 5
+    assert sum(decided_s(t["duration_s"]) for t in healthy) >= 2 * 3600  # issue 13
+    assert decided_s(PROFILES["full"].healthy[1]) == PROFILES["full"].healthy[1] - 15.0
+    more = with_healthy_hours(PROFILES["full"], 72.0)
+    assert more.healthy[0] * decided_s(more.healthy[1]) >= 72 * 3600
+    assert (more.healthy[0] - 1) * decided_s(more.healthy[1]) < 72 * 3600  # no more than needed
 
 
 def test_poisson_bound_is_the_rule_of_three():
@@ -42,9 +59,17 @@ def test_tiny_benchmark_scores_and_page():
     assert phys["localisation"]["sensor_blamed_on_machine"] == 0
     assert phys["confusion"] == {"belt_wear": {"belt_wear": 1}, "gain": {"gain": 1}}
     assert raw["localisation"] is None  # the baseline does not locate
+    hyb, dd = res["scores"]["hybrid"], res["scores"]["data-driven"]
+    assert hyb["detection_pct"]["severe"] == 100.0  # open loop: the hybrid sees the shift too
+    assert hyb["localisation"]["top1_pct"] == 100.0  # and the physics ranking names it
+    assert hyb["localisation"]["sensor_blamed_on_machine"] == 0
+    assert dd["localisation"] is None  # a one-step innovation is not localised
+    assert set(res["detectors"]) == {"physics", "hybrid", "data-driven"}
+    assert res["learned"]["data-driven"]["task"] == "prediction"
     json.dumps(res, allow_nan=True)
     html = render_benchmark(res)
     assert 'id="scores"' in html and 'id="confusion"' in html and "raw-threshold" in html
+    assert 'id="confusion-hybrid"' in html and "data-driven" in html
 
 
 def test_cli_refuses_bad_numbers(tmp_path):

@@ -123,6 +123,9 @@ class FaultDetector:
             raise DataError("healthy tuning data too short (fewer than 10 blocks after the "
                             "reference window)", where="tuning", fix="give longer records")  # fmt: skip
         self.level_cov_ = np.cov(d_all.T)
+        # each record's belt level against the physics (not its deviation): how far the
+        # physics' belt creep is off on these machines (see locate.creep_mismatch)
+        self.belt_level_ = np.array([np.nanmean(f.level @ a[2]) for f in healthy])
         s_all = d_all @ a.T
         x0 = np.vstack([p[0] for p in pairs])
         x1 = np.vstack([p[1] for p in pairs])
@@ -153,7 +156,8 @@ class FaultDetector:
     # ---- running causally over one record -----------------------------------------------
     def run(self, f: BlockFeatures, *, stop_at_first: bool = True) -> Detection:
         """Decide block by block; with ``stop_at_first=False`` every alarm episode is kept
-        (the CUSUMs restart after each), for counting false alarms."""
+        (after each, the CUSUMs restart from a new reference window, as at a record's
+        start), for counting false alarms."""
         a = stream_matrix()
         n_ref = self._n_ref(f)
         base = np.nanmean(f.level[:n_ref], axis=0)
@@ -166,6 +170,8 @@ class FaultDetector:
         prev = np.zeros(ns)
         scale = self.sigma_ * np.sqrt(1 - self.phi_**2)
         alpha = min(1.0, self.block_s_ / self.drift_tau_s)
+        rebase: list[np.ndarray] = []
+        rebasing = False
         for j in range(n_ref, nb):
             sensor = self._sensor_alarm(f, j)
             if sensor is not None:
@@ -175,6 +181,11 @@ class FaultDetector:
                     break
             lev = f.level[j]
             if not np.isfinite(lev).all():
+                continue
+            if rebasing:  # after an alarm: a new reference window, no decisions
+                rebase.append(lev)
+                if len(rebase) >= n_ref:
+                    base, rebasing = np.mean(rebase, axis=0), False
                 continue
             dev[j] = lev - base
             s = dev[j] @ a.T
@@ -196,7 +207,9 @@ class FaultDetector:
                 if stop_at_first:
                     break
                 up[:], down[:], prev[:] = 0.0, 0.0, 0.0
-                base = lev.copy()  # restart from the present state
+                # restart like a record's start: the mean of the next reference window (one
+                # block alone is too noisy a baseline: it set off a cascade of alarms)
+                rebase, rebasing = [], True
                 continue
             if stat[j].max() < 0.5:  # nothing suspicious: follow slow normal drift
                 base = base + alpha * (lev - base)
@@ -216,7 +229,7 @@ class FaultDetector:
         """The fitted settings, JSON-able."""
         return {"far_per_day": self.far_per_day, "k": self.k, "h": self.h_,
                 "block_s": self.block_s_, "reference_s": self.reference_s,
-                "drift_tau_s": self.drift_tau_s,
+                "drift_tau_s": self.drift_tau_s, "belt_level": self.belt_level_.tolist(),
                 "streams": {s: {"sigma": float(self.sigma_[i]), "phi": float(self.phi_[i])}
                             for i, s in enumerate(STREAMS)},
                 "run_limit": dict(zip(CHANNELS, map(float, self.run_limit_), strict=True)),

@@ -19,7 +19,13 @@ import numpy as np
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.diagnosis.detect import Alarm, Detection, FaultDetector
-from drafttwin.diagnosis.locate import NOT_FROM_LEVELS, Cause, SignatureModel, rank_causes
+from drafttwin.diagnosis.locate import (
+    NOT_FROM_LEVELS,
+    Cause,
+    SignatureModel,
+    creep_mismatch,
+    rank_causes,
+)
 from drafttwin.diagnosis.residuals import CHANNELS, BlockFeatures, record_features
 from drafttwin.diagnosis.spectrum import LineEvidence, line_evidence
 from drafttwin.mechanics import DriveTrain
@@ -63,11 +69,20 @@ class Diagnosis:
 
 
 class Diagnoser:
-    """Detection, then localisation, on the physics ``train`` with a fitted detector."""
+    """Detection, then localisation, on the physics ``train`` with a fitted detector.
 
-    def __init__(self, train: DriveTrain, detector: FaultDetector) -> None:
+    Args:
+        model_mismatch: allow for the physics' belt creep being off on this machine (its
+            relative error estimated from the detector's healthy records,
+            :func:`~drafttwin.diagnosis.locate.creep_mismatch`) in the ranking's covariance.
+    """
+
+    def __init__(self, train: DriveTrain, detector: FaultDetector,
+                 model_mismatch: bool = True) -> None:  # fmt: skip
         self.train, self.detector = train, detector
         self.signatures = SignatureModel(train)
+        self.creep_rel_sd = (creep_mismatch(self.signatures, detector.belt_level_)
+                             if model_mismatch else 0.0)  # fmt: skip
 
     def diagnose(self, series: MeasurementSeries) -> Diagnosis:
         """Detect, locate and size (with spectral evidence) in one record."""
@@ -103,7 +118,7 @@ class Diagnoser:
         phi = float(self.detector.phi_[0])
         inflation = (1 + phi) / (1 - phi)
         cov = self.detector.level_cov_ * inflation / int(window.sum())
-        dx.causes = rank_causes(self.signatures, dx.shift, cov)
+        dx.causes = rank_causes(self.signatures, dx.shift, cov, self.creep_rel_sd)
         return dx
 
 

@@ -113,27 +113,56 @@ class SignatureModel:
         return DriveTrain.from_dict(raw, source="fault candidate")
 
 
-def rank_causes(model: SignatureModel, shift: np.ndarray, cov: np.ndarray) -> list[Cause]:
+BELT_DIRECTION = np.array([1.0, 1.0, 1.0, 1.0, 0.0])
+"""A wrong belt creep moves the four rollers together and leaves the motor where it is."""
+
+
+def _belt(sig: np.ndarray) -> float:
+    """The belt component of a signature: mean roller change minus motor change."""
+    return float(sig[:4].mean() - sig[4])
+
+
+def nominal_creep(model: SignatureModel) -> float:
+    """The physics' belt creep at its operating point, as a relative speed (0 without a
+    belt): halving the belt's axial rigidity doubles the creep (creep = F / EA)."""
+    belts = [e for e, k in model.candidates if k == "belt_wear"]
+    return -_belt(model.signature(belts[0], "belt_wear", 0.5)) if belts else 0.0
+
+
+def creep_mismatch(model: SignatureModel, belt_levels: np.ndarray) -> float:
+    """Relative error of the physics' belt creep on the machines of the healthy records:
+    the RMS of their belt levels (rollers minus motor against the physics; the physics is
+    the reference, so its bias counts) over the nominal creep. A machine's belt rigidity and
+    load are not the nominal ones (the plant draws the rigidity +-30 %), so a load fault's
+    predicted rollers-to-motor split is off by this share of its creep part."""
+    creep = nominal_creep(model)
+    levels = np.asarray(belt_levels, dtype=float)
+    levels = levels[np.isfinite(levels)]
+    if creep == 0 or levels.size == 0:
+        return 0.0
+    return float(np.sqrt(np.mean(levels**2)) / abs(creep))
+
+
+def rank_causes(model: SignatureModel, shift: np.ndarray, cov: np.ndarray,
+                creep_rel_sd: float = 0.0) -> list[Cause]:  # fmt: skip
     """Candidates ranked by how well each explains ``shift`` (5 relative level changes) with
-    noise covariance ``cov``; the best first."""
-    chol = np.linalg.cholesky(cov + 1e-30 * np.eye(len(cov)))
+    noise covariance ``cov``; the best first. ``creep_rel_sd`` adds the model mismatch of a
+    wrong belt creep: each machine candidate's covariance gets ``(sd * b) d d'`` with ``b`` the
+    belt part of its fitted signature and ``d`` :data:`BELT_DIRECTION` (refitted once with it);
+    a sensor gain does not pass the belt and gets none."""
+    chol = _chol(cov)
 
     def white(v: np.ndarray) -> np.ndarray:
         return np.linalg.solve(chol, v)
 
     fits = []
     for element, kind in model.candidates:
-        k = KINDS[kind]
-        lo, hi = (-k.high, k.high) if k.signed else (0.0, k.high)
-        x0 = k.levels[0] * (1.0 if not k.signed or shift[CHANNELS.index(element)] >= 0 else -1.0)
-        res = least_squares(lambda x, e=element, kd=kind: white(shift - model.signature(e, kd, x[0])),
-                            [x0], bounds=([lo], [hi]), diff_step=1e-3)  # fmt: skip
-        s = float(res.x[0])
-        jtj = float(res.jac[:, 0] @ res.jac[:, 0])
-        half = 1.96 / math.sqrt(jtj) if jtj > 0 else math.inf
-        interval = (max(lo, s - half), min(hi, s + half))
+        s, interval, cost, x0 = _fit(model, element, kind, shift, chol)
+        if creep_rel_sd > 0 and kind != "gain":
+            m = creep_rel_sd * _belt(model.signature(element, kind, s)) * BELT_DIRECTION
+            s, interval, cost, x0 = _fit(model, element, kind, shift, _chol(cov + np.outer(m, m)))
         direction = white(model.signature(element, kind, s if s != 0 else x0))
-        fits.append((element, kind, s, interval, float(2 * res.cost), direction))
+        fits.append((element, kind, s, interval, cost, direction))
     chi = np.array([f[4] + 2 * abs(f[2]) / KINDS[f[1]].levels[1] for f in fits])
     prob = np.exp(-(chi - chi.min()) / 2)
     prob /= prob.sum()
@@ -148,6 +177,24 @@ def rank_causes(model: SignatureModel, shift: np.ndarray, cov: np.ndarray) -> li
         causes.append(Cause(element, kind, k.family, s, interval, k.parameter, c2,
                             float(prob[i]), group))  # fmt: skip
     return causes
+
+
+def _chol(cov: np.ndarray) -> np.ndarray:
+    return np.linalg.cholesky(cov + 1e-30 * np.eye(len(cov)))
+
+
+def _fit(model: SignatureModel, element: str, kind: str, shift: np.ndarray,
+         chol: np.ndarray) -> tuple[float, tuple[float, float], float, float]:  # fmt: skip
+    """Severity, its 95 % interval, chi-square and start value of one candidate."""
+    k = KINDS[kind]
+    lo, hi = (-k.high, k.high) if k.signed else (0.0, k.high)
+    x0 = k.levels[0] * (1.0 if not k.signed or shift[CHANNELS.index(element)] >= 0 else -1.0)
+    res = least_squares(lambda x: np.linalg.solve(chol, shift - model.signature(element, kind, x[0])),
+                        [x0], bounds=([lo], [hi]), diff_step=1e-3)  # fmt: skip
+    s = float(res.x[0])
+    jtj = float(res.jac[:, 0] @ res.jac[:, 0])
+    half = 1.96 / math.sqrt(jtj) if jtj > 0 else math.inf
+    return s, (max(lo, s - half), min(hi, s + half)), float(2 * res.cost), x0
 
 
 def _cos(a: np.ndarray, b: np.ndarray) -> float:

@@ -17,6 +17,7 @@ visible in a second (research/faults.md, section 1).
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -79,7 +80,9 @@ def block_features(y: np.ndarray, yhat: np.ndarray, time_s: np.ndarray,
     n = nb * per
     with np.errstate(invalid="ignore", divide="ignore"):
         r = (y[:n] / yhat[:n] - 1.0).reshape(nb, per, -1)
-    med = np.nanmedian(np.where(np.isfinite(r), r, np.nan), axis=1, keepdims=True) if n else r
+    with warnings.catch_warnings():  # a block with no sample (a dropout) has no median: NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        med = np.nanmedian(np.where(np.isfinite(r), r, np.nan), axis=1, keepdims=True) if n else r
     ok = np.isfinite(r) & (np.abs(r - med) < SPIKE)
     count = ok.sum(axis=1)
     level = np.where(

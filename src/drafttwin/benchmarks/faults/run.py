@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import resource
 import time
 from collections.abc import Callable
 from typing import Any
@@ -20,8 +21,16 @@ def get_profile(name: str) -> Profile:
         raise unknown_choice(f"unknown profile '{name}'", PROFILES, where="--profile") from None
 
 
+def _cpu() -> float:
+    """CPU seconds of this process and of its waited-for children so far."""
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def run_benchmark(profile: Profile | str = "full", seed: int = 0, workers: int = 1,
-                  on_record: Callable[[int, int], None] | None = None) -> dict[str, Any]:  # fmt: skip
+                  on_record: Callable[[int, int], None] | None = None,
+                  on_stage: Callable[[str], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """Results of one benchmark run (JSON-able): plan, scores per method, every record."""
     prof = get_profile(profile) if isinstance(profile, str) else profile
     tasks = plan(prof, seed)
@@ -33,18 +42,22 @@ def run_benchmark(profile: Profile | str = "full", seed: int = 0, workers: int =
         if on_record is not None:
             on_record(done[0], len(tasks))
 
+    cpu0 = _cpu()
     results = run_tasks(run_record, tasks, workers=workers, on_result=progress)
-    scored = evaluate(tasks, results)
+    plant_s, cpu1 = time.perf_counter() - start, _cpu()
+    if on_stage is not None:
+        on_stage("fitting the networks on the tuning set, scoring")
+    scored = evaluate(tasks, results, seed=seed)
+    cpu2 = _cpu()
     return {
         "benchmark": "faults", "drafttwin_version": __version__, "profile": prof.name,
         "seed": seed, "workers": workers, "wall_s": time.perf_counter() - start,
+        "plant_wall_s": plant_s,
+        # CPU time (this process and its finished workers): on a shared machine the wall time
+        # says little; the plant part runs in parallel, the scoring in this process alone
+        "cpu_s": {"plant": cpu1 - cpu0, "scoring": cpu2 - cpu1},
         "sets": {s: sum(t["set"] == s for t in tasks) for s in ("tuning", "faults", "healthy")},
         "machine_seconds": {s: sum(t["duration_s"] for t in tasks if t["set"] == s)
                             for s in ("tuning", "faults", "healthy")},
-        "methods_not_run": {
-            "data-driven residual": "not implemented in this version (needs a model trained "
-            "per machine on healthy data; see docs/faults.md)",
-            "hybrid residual": "not implemented in this version",
-        },
         **scored,
     }  # fmt: skip
