@@ -68,6 +68,20 @@ BASE: dict[str, list[str]] = {
     "twin run": ["twin", "run", "--model", "{model}", "--source", "replay:{tmp}/none.csv"],
     "twin query": ["twin", "query", "--store", "{tmp}/store"],
     "plant serve": ["plant", "serve", "--opcua", "opc.tcp://127.0.0.1:1", "--duration", "0.1"],
+    "twin hall": [
+        "twin",
+        "hall",
+        "--model",
+        "{model}",
+        "--source",
+        "opcua:opc.tcp://127.0.0.1:1",
+        "--mapping",
+        "{tmp}/hall.toml",
+        "--store",
+        "{tmp}/hall",
+        "--duration",
+        "0.1",
+    ],  # fmt: skip
 }
 
 #: every numeric option of every command, with whether 0 and -1 are in its range
@@ -96,12 +110,13 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "benchmark emps": ["--seeds", "--workers", "--epochs", "--max-samples"],
     "twin run": ["--commit-ms", "--retention-hours", "--silent", "--duration", "--max-samples"],
     "twin query": ["--from", "--to"],
-    "plant serve": ["--machines", "--seed", "--rate", "--ramp", "--duration"],
+    "plant serve": ["--machines", "--seed", "--rate", "--ramp", "--duration", "--history"],
+    "twin hall": ["--shards", "--commit-ms", "--duration"],
 }
 
 #: values inside the range of options that may be zero (these are not hostile there)
 ZERO_OK = {"--settle", "--rate-tolerance", "--threshold", "--seed", "--machine-seed", "--from",
-           "--to"}  # fmt: skip
+           "--to", "--history"}  # fmt: skip
 
 
 def numeric_cases() -> list[tuple[str, str, str]]:
