@@ -22,12 +22,12 @@ and the inputs by their training mean: the net learns the residual as a fraction
 physics' speed, which is what carries over to another set-point or gear set. With
 ``fade=True`` the correction is scaled down linearly as the net's scaled inputs leave the
 training range (to nothing at :data:`FADE_WIDTH` training ranges beyond it): outside what it
-was trained on, the hybrid falls back on its physics. ``fade="strict"`` also counts the channels
-that were constant in training (a set-point held at one value): the correction is off wherever
-such a channel leaves its training value, since nothing in training showed what it does there
-(MD-S-L's data-driven model, fed the set-point, returns garbage at another one). Which of these to use is chosen on a
-validation record (``drafttwin benchmark generalisation``); the defaults keep the plain
-structure.
+was trained on, the hybrid falls back on its physics. ``fade="strict"`` also counts the
+channels that were constant in training (a set-point held at one value): the correction is off
+wherever such a channel leaves its training value, since nothing in training showed what it
+does there (MD-S-L's data-driven model, fed the set-point, returns garbage at another one).
+Which of these to use is chosen on validation records (``drafttwin benchmark
+generalisation``); the defaults keep the plain structure.
 """
 
 from __future__ import annotations
@@ -63,6 +63,7 @@ from drafttwin.models.windows import (
 )
 
 VARIANTS = ("md-s-l", "md-l", "md-s")
+"""MD-S-L (SKNet + LSTM), MD-L (no SKNet), MD-S (no LSTM)."""
 STRUCTURES = ("absolute", "relative")
 """How the residual net sees speeds: as they are, or relative to the physics' speed."""
 LEVEL_FLOOR = 0.05
@@ -75,7 +76,6 @@ FADES = (False, True, "strict")
 CONSTANT_TOLERANCE = 1e-6
 """Strict fade: a channel constant in training counts as left when it moves by more than this
 share of its training value (set-points are exact numbers; float round-off is far below)."""
-"""MD-S-L (SKNet + LSTM), MD-L (no SKNet), MD-S (no LSTM)."""
 
 Groups = dict[str, np.ndarray]
 
@@ -190,7 +190,6 @@ class _ResidualHybrid(_NeuralModel):
         was constant in training has no range to measure against (and taught the net nothing
         about changes of it): it is left out, unless the fade is strict, where leaving its
         training value turns the correction off."""
-        lows = np.concatenate([self.scalers_[k].min_ for k in self._channels()])
         varying = np.concatenate([self.scalers_[k].max_ > self.scalers_[k].min_
                                   for k in self._channels()])  # fmt: skip
         keep = np.ones(len(x))
@@ -200,6 +199,7 @@ class _ResidualHybrid(_NeuralModel):
             keep = np.clip(1.0 - np.maximum(np.nanmax(beyond, axis=1), 0.0) / FADE_WIDTH, 0, 1)
         if self.fade == "strict" and not varying.all():
             # a constant channel scales to x - min: 0 while it holds its training value
+            lows = np.concatenate([self.scalers_[k].min_ for k in self._channels()])
             moved = np.abs(x[..., ~varying]) > CONSTANT_TOLERANCE * np.maximum(
                 np.abs(lows[~varying]), 1.0
             )
