@@ -67,6 +67,14 @@ BASE: dict[str, list[str]] = {
     ],  # fmt: skip
     "twin run": ["twin", "run", "--model", "{model}", "--source", "replay:{tmp}/none.csv"],
     "twin query": ["twin", "query", "--store", "{tmp}/store"],
+    "twin fit-detector": [
+        "twin",
+        "fit-detector",
+        "--model",
+        "{model}",
+        "--healthy",
+        "{tmp}/none.parquet",
+    ],  # fmt: skip
     "plant serve": ["plant", "serve", "--opcua", "opc.tcp://127.0.0.1:1", "--duration", "0.1"],
     "twin hall": [
         "twin",
@@ -110,6 +118,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "benchmark emps": ["--seeds", "--workers", "--epochs", "--max-samples"],
     "twin run": ["--commit-ms", "--retention-hours", "--silent", "--duration", "--max-samples"],
     "twin query": ["--from", "--to"],
+    "twin fit-detector": ["--far-per-day", "--reference"],
     "plant serve": ["--machines", "--seed", "--rate", "--ramp", "--duration", "--history"],
     "twin hall": ["--shards", "--commit-ms", "--duration"],
 }

@@ -20,6 +20,7 @@ from drafttwin.cli import benchmark_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import faults_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import twin_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import twin_ops_cmds  # noqa: E402,F401  isort: skip
+from drafttwin.cli import twin_fault_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import plant_serve_cmds  # noqa: E402,F401  isort: skip
 
 

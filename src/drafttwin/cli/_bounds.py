@@ -82,6 +82,7 @@ BOUNDS: dict[str, Bound] = {
     "--shards": Bound(1, 1000, "twins", low_inclusive=True),
     "--history": Bound(0, 86_400, "s", low_inclusive=True),
     "--ramp": Bound(0, 1e4, "Hz/s"),
+    "--reference": Bound(0, 3600, "s"),
 }
 
 

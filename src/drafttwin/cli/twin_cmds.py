@@ -136,6 +136,14 @@ def twin_run(
         ),
     ] = None,  # fmt: skip
     physics: Annotated[str, typer.Option(help="reduced (fast) | full drive train.")] = "reduced",
+    detector: Annotated[
+        str,
+        typer.Option(
+            help="Fault detector: auto (MODEL.dtm.detector.json when it exists, from 'twin "
+            "fit-detector') | none | FILE. Alarms with their probable cause go to the store, "
+            "the page, /api/alarms and /metrics.",
+        ),
+    ] = "auto",  # fmt: skip
     silent: Annotated[
         float,
         typer.Option(
@@ -183,7 +191,8 @@ def twin_run(
 
     service = build_service(model, source, mapping=mapping, store_dir=store, commit_ms=commit_ms,
                             retention_s=None if retention_hours is None else retention_hours * 3600,
-                            physics=physics, silent_s=silent, on_commit=on_commit)  # fmt: skip
+                            physics=physics, silent_s=silent, on_commit=on_commit,
+                            detector=detector)  # fmt: skip
     start = time.monotonic()
     try:
         from drafttwin.twin.aio import run_bounded

@@ -158,71 +158,33 @@ class FaultDetector:
         """Decide block by block; with ``stop_at_first=False`` every alarm episode is kept
         (after each, the CUSUMs restart from a new reference window, as at a record's
         start), for counting false alarms."""
-        a = stream_matrix()
         n_ref = self._n_ref(f)
-        base = np.nanmean(f.level[:n_ref], axis=0)
         nb, ns = len(f.level), len(STREAMS)
         dev = np.full((nb, len(CHANNELS)), np.nan)
         stat = np.zeros((nb, ns))
         det = Detection(f.time_s, dev, stat)
-        up, down = np.zeros(ns), np.zeros(ns)
-        up_start, down_start = np.zeros(ns, dtype=int), np.zeros(ns, dtype=int)
-        prev = np.zeros(ns)
-        scale = self.sigma_ * np.sqrt(1 - self.phi_**2)
-        alpha = min(1.0, self.block_s_ / self.drift_tau_s)
-        rebase: list[np.ndarray] = []
-        rebasing = False
-        for j in range(n_ref, nb):
-            sensor = self._sensor_alarm(f, j)
-            if sensor is not None:
-                det.alarms.append(sensor)
-                det.baseline_at_alarm = base.copy()
+        state = CusumState(self, n_ref, f.block_s)
+        for j in range(nb):
+            alarms = state.update(float(f.time_s[j]), f.level[j], f.lost[j], f.run[j])
+            sensor_first = stop_at_first and alarms and alarms[0].direction == 0
+            if state.deviation is not None and not sensor_first:  # (it stopped before them)
+                dev[j], stat[j] = state.deviation, state.statistic
+            if alarms:
+                det.baseline_at_alarm = state.baseline_at_alarm
+                det.alarms.extend(alarms[:1] if stop_at_first else alarms)
                 if stop_at_first:
                     break
-            lev = f.level[j]
-            if not np.isfinite(lev).all():
-                continue
-            if rebasing:  # after an alarm: a new reference window, no decisions
-                rebase.append(lev)
-                if len(rebase) >= n_ref:
-                    base, rebasing = np.mean(rebase, axis=0), False
-                continue
-            dev[j] = lev - base
-            s = dev[j] @ a.T
-            e = (s - self.phi_ * prev) / scale
-            prev = s
-            for arr, start, sign in ((up, up_start, 1.0), (down, down_start, -1.0)):
-                was_zero = arr <= 0
-                arr[:] = np.maximum(0.0, arr + sign * e - self.k)
-                start[was_zero & (arr > 0)] = j
-            stat[j] = np.maximum(up, down) / self.h_
-            hit = np.flatnonzero(stat[j] >= 1.0)
-            if hit.size:
-                i = int(hit[np.argmax(stat[j, hit])])
-                side = 1 if up[i] >= down[i] else -1
-                begin = (up_start if side > 0 else down_start)[i]
-                det.alarms.append(Alarm(float(f.time_s[j]), j, STREAMS[i], side,
-                                        float(f.time_s[begin] - f.block_s)))  # fmt: skip
-                det.baseline_at_alarm = base.copy()
-                if stop_at_first:
-                    break
-                up[:], down[:], prev[:] = 0.0, 0.0, 0.0
-                # restart like a record's start: the mean of the next reference window (one
-                # block alone is too noisy a baseline: it set off a cascade of alarms)
-                rebase, rebasing = [], True
-                continue
-            if stat[j].max() < 0.5:  # nothing suspicious: follow slow normal drift
-                base = base + alpha * (lev - base)
         return det
 
-    def _sensor_alarm(self, f: BlockFeatures, j: int) -> Alarm | None:
-        for kind, values, limit in (("lost", f.lost[j], self.lost_limit_),
-                                    ("stuck", f.run[j], self.run_limit_)):  # fmt: skip
+    def sensor_alarm(self, time_s: float, block: int, lost: np.ndarray, run: np.ndarray,
+                     block_s: float) -> Alarm | None:  # fmt: skip
+        """The sensor rules on one block: a channel losing samples alone, or stuck."""
+        for kind, values, limit in (("lost", lost, self.lost_limit_),
+                                    ("stuck", run, self.run_limit_)):  # fmt: skip
             bad = np.flatnonzero(values > limit)
             if bad.size:
                 ch = int(bad[np.argmax(values[bad] / np.maximum(limit[bad], 1e-12))])
-                return Alarm(float(f.time_s[j]), j, f"{kind}_{CHANNELS[ch]}", 0,
-                             float(f.time_s[j] - f.block_s))  # fmt: skip
+                return Alarm(time_s, block, f"{kind}_{CHANNELS[ch]}", 0, time_s - block_s)
         return None
 
     def describe(self) -> dict[str, Any]:
@@ -234,3 +196,144 @@ class FaultDetector:
                             for i, s in enumerate(STREAMS)},
                 "run_limit": dict(zip(CHANNELS, map(float, self.run_limit_), strict=True)),
                 "lost_limit": dict(zip(CHANNELS, map(float, self.lost_limit_), strict=True))}  # fmt: skip
+
+    # ---- stored with a model (drafttwin twin fit-detector) -----------------------------
+    def to_state(self) -> dict[str, Any]:
+        """Everything :meth:`from_state` needs, JSON-able (the settings and fitted values)."""
+        return {"far_per_day": self.far_per_day, "k": self.k, "reference_s": self.reference_s,
+                "drift_tau_s": self.drift_tau_s, "block_s": self.block_s_, "h": self.h_,
+                "level_cov": self.level_cov_.tolist(), "belt_level": self.belt_level_.tolist(),
+                "phi": self.phi_.tolist(), "sigma": self.sigma_.tolist(),
+                "run_limit": self.run_limit_.tolist(), "lost_limit": self.lost_limit_.tolist()}  # fmt: skip
+
+    @classmethod
+    def from_state(cls, state: dict[str, Any], source: str = "detector") -> FaultDetector:
+        """A fitted detector from :meth:`to_state`, every value checked (shape, finite, > 0
+        where a scale or threshold)."""
+        try:
+            det = cls(float(state["far_per_day"]), float(state["k"]),
+                      float(state["reference_s"]), float(state["drift_tau_s"]))  # fmt: skip
+            ns, nc = len(STREAMS), len(CHANNELS)
+            det.block_s_ = _positive(state["block_s"], "block_s", source)
+            det.h_ = _positive(state["h"], "h", source)
+            det.level_cov_ = _array(state["level_cov"], (nc, nc), "level_cov", source)
+            det.belt_level_ = np.asarray(state["belt_level"], dtype=np.float64)
+            det.phi_ = _array(state["phi"], (ns,), "phi", source)
+            det.sigma_ = _array(state["sigma"], (ns,), "sigma", source)
+            det.run_limit_ = _array(state["run_limit"], (nc,), "run_limit", source)
+            det.lost_limit_ = _array(state["lost_limit"], (nc,), "lost_limit", source)
+        except (KeyError, TypeError, ValueError) as exc:
+            raise DataError(f"not a fitted detector ({type(exc).__name__}: {exc})",
+                            source=source, fix="fit it again (drafttwin twin fit-detector)") from None  # fmt: skip
+        if (det.sigma_ <= 0).any() or not (det.phi_ >= 0).all() or not (det.phi_ < 1).all():
+            raise DataError("detector scales out of range (sigma > 0, 0 <= phi < 1)",
+                            source=source, fix="fit it again (drafttwin twin fit-detector)")  # fmt: skip
+        if det.belt_level_.ndim != 1 or not np.isfinite(det.belt_level_).all():
+            raise DataError("detector belt levels not finite", source=source,
+                            fix="fit it again (drafttwin twin fit-detector)")  # fmt: skip
+        return det
+
+
+def _positive(v: Any, name: str, source: str) -> float:
+    x = float(v)
+    if not (math.isfinite(x) and x > 0):
+        raise DataError(f"{name} = {x} is not > 0", source=source, where=name,
+                        fix="fit it again (drafttwin twin fit-detector)")  # fmt: skip
+    return x
+
+
+def _array(v: Any, shape: tuple[int, ...], name: str, source: str) -> np.ndarray:
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != shape or not np.isfinite(a).all():
+        raise DataError(f"{name} has shape {a.shape} (expected {shape}) or is not finite",
+                        source=source, where=name, fix="fit it again (drafttwin twin fit-detector)")  # fmt: skip
+    return a
+
+
+class CusumState:
+    """The decisions of :meth:`FaultDetector.run`, one block at a time (the live twin feeds
+    it each block as it closes; ``run`` feeds it a whole record: the same code decides).
+
+    The first ``n_ref`` blocks make the baseline; after an alarm the CUSUMs restart from a new
+    reference window. After :meth:`update`, ``deviation`` and ``statistic`` hold the block's
+    level minus baseline and CUSUM over ``h`` (``None`` when the block was not decided)."""
+
+    def __init__(self, detector: FaultDetector, n_ref: int, block_s: float) -> None:
+        ns = len(STREAMS)
+        self.det, self.n_ref, self.block_s = detector, n_ref, block_s
+        self.a = stream_matrix()
+        self.scale = detector.sigma_ * np.sqrt(1 - detector.phi_**2)
+        self.alpha = min(1.0, detector.block_s_ / detector.drift_tau_s)
+        self.up, self.down, self.prev = np.zeros(ns), np.zeros(ns), np.zeros(ns)
+        self.up_start, self.down_start = np.zeros(ns), np.zeros(ns)  # block end times
+        self.reference: list[np.ndarray] = []
+        self.base: np.ndarray | None = None
+        self.rebase: list[np.ndarray] = []
+        self.rebasing = False
+        self.block = 0
+        self.deviation: np.ndarray | None = None
+        self.statistic: np.ndarray | None = None
+        self.baseline_at_alarm: np.ndarray | None = None
+
+    @property
+    def ready(self) -> bool:
+        """The baseline is set and no new reference window is being collected."""
+        return self.base is not None and not self.rebasing
+
+    def update(self, time_s: float, level: np.ndarray, lost: np.ndarray,
+               run: np.ndarray) -> list[Alarm]:  # fmt: skip
+        """One block's features; the alarms it raises (a sensor rule and a CUSUM may both
+        fire on one block)."""
+        j = self.block
+        self.block += 1
+        self.deviation = self.statistic = None
+        if self.base is None:  # the reference window: no decisions
+            self.reference.append(level)
+            if len(self.reference) == self.n_ref:
+                self.base = np.nanmean(self.reference, axis=0)
+            return []
+        out = []
+        sensor = self.det.sensor_alarm(time_s, j, lost, run, self.block_s)
+        if sensor is not None:
+            out.append(sensor)
+            self.baseline_at_alarm = self.base.copy()
+        if not np.isfinite(level).all():
+            return out
+        if self.rebasing:  # after an alarm: a new reference window, no decisions
+            self.rebase.append(level)
+            if len(self.rebase) >= self.n_ref:
+                self.base, self.rebasing = np.mean(self.rebase, axis=0), False
+            return out
+        alarm = self._cusum(time_s, j, level)
+        if alarm is not None:
+            out.append(alarm)
+        return out
+
+    def _cusum(self, time_s: float, j: int, level: np.ndarray) -> Alarm | None:
+        assert self.base is not None
+        det = self.det
+        self.deviation = level - self.base
+        s = self.deviation @ self.a.T
+        e = (s - det.phi_ * self.prev) / self.scale
+        self.prev = s
+        for arr, start, sign in ((self.up, self.up_start, 1.0),
+                                 (self.down, self.down_start, -1.0)):  # fmt: skip
+            was_zero = arr <= 0
+            arr[:] = np.maximum(0.0, arr + sign * e - det.k)
+            start[was_zero & (arr > 0)] = time_s
+        stat = self.statistic = np.maximum(self.up, self.down) / det.h_
+        hit = np.flatnonzero(stat >= 1.0)
+        if hit.size:
+            i = int(hit[np.argmax(stat[hit])])
+            side = 1 if self.up[i] >= self.down[i] else -1
+            begin = (self.up_start if side > 0 else self.down_start)[i]
+            alarm = Alarm(time_s, j, STREAMS[i], side, float(begin - self.block_s))
+            self.baseline_at_alarm = self.base.copy()
+            self.up[:], self.down[:], self.prev[:] = 0.0, 0.0, 0.0
+            # restart like a record's start: the mean of the next reference window (one
+            # block alone is too noisy a baseline: it set off a cascade of alarms)
+            self.rebase, self.rebasing = [], True
+            return alarm
+        if stat.max() < 0.5:  # nothing suspicious: follow slow normal drift
+            self.base = self.base + self.alpha * (level - self.base)
+        return None

@@ -100,7 +100,7 @@ class Diagnoser:
         if alarm is None:
             return dx
         if alarm.direction == 0:  # a sensor rule: the channel is named, nothing else
-            dx.causes = [_sensor_cause(alarm, f)]
+            dx.causes = [sensor_cause(alarm, f.lost[alarm.block], f.run[alarm.block])]
             return dx
         base = det.baseline_at_alarm
         assert base is not None
@@ -115,21 +115,27 @@ class Diagnoser:
         if not window.any():
             return dx
         dx.shift = (f.level[window] - base).mean(axis=0)
-        phi = float(self.detector.phi_[0])
-        inflation = (1 + phi) / (1 - phi)
-        cov = self.detector.level_cov_ * inflation / int(window.sum())
-        dx.causes = rank_causes(self.signatures, dx.shift, cov, self.creep_rel_sd)
+        dx.causes = self.rank(dx.shift, int(window.sum()))
         return dx
 
+    def rank(self, shift: np.ndarray, n_blocks: int) -> list[Cause]:
+        """The candidates ranked for a level ``shift`` (5 channels) measured as the mean of
+        ``n_blocks`` blocks (the live twin calls this on its post-alarm window)."""
+        phi = float(self.detector.phi_[0])
+        inflation = (1 + phi) / (1 - phi)
+        cov = self.detector.level_cov_ * inflation / n_blocks
+        return rank_causes(self.signatures, shift, cov, self.creep_rel_sd)
 
-def _sensor_cause(alarm: Alarm, f: BlockFeatures) -> Cause:
+
+def sensor_cause(alarm: Alarm, lost: np.ndarray, run: np.ndarray) -> Cause:
+    """The cause a sensor rule names: the channel, from its block's ``lost`` and ``run``."""
     rule, channel = alarm.test.split("_", 1)
     kind = "dropout" if rule == "lost" else "stuck"
     j = CHANNELS.index(channel)
     if kind == "dropout":
-        sev = float(f.lost[alarm.block, j])
+        sev = float(lost[j])
         parameter = "fraction of the channel's samples lost (in the alarm block)"
     else:
-        sev = float(f.run[alarm.block, j])
+        sev = float(run[j])
         parameter = "identical consecutive values (samples, in the alarm block)"
     return Cause(channel, kind, "sensor", sev, (sev, sev), parameter, 0.0, 1.0, ())

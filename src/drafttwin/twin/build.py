@@ -6,9 +6,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
+from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import DriveTrain
 from drafttwin.models.base import BaseModel
+from drafttwin.twin.faultwatch import LiveFaultWatch, detector_path, load_detector
 from drafttwin.twin.live import MachineTwin, physics_train
 from drafttwin.twin.mapping import MachineMap, read_mapping
 from drafttwin.twin.service import MachineState, TwinService
@@ -38,8 +40,15 @@ def build_service(
     physics: str = "reduced",
     silent_s: float = 2.0,
     on_commit: Callable[[int, int], None] | None = None,
+    detector: str = "auto",
 ) -> TwinService:
-    """The service for ``sources`` (``--source`` values), each machine with its model."""
+    """The service for ``sources`` (``--source`` values), each machine with its model.
+
+    ``detector``: ``auto`` (each model's ``MODEL.dtm.detector.json`` when it exists), ``none``,
+    or a detector file for the machines of ``model_path`` (the others: auto)."""
+    if detector != "auto" and detector != "none" and not Path(detector).is_file():
+        raise ConfigError(f"no detector file {detector}", where="--detector",
+                          fix="give the file 'drafttwin twin fit-detector' wrote, auto or none")  # fmt: skip
     if not sources:
         raise ConfigError("no source", where="--source",
                           fix="give --source replay:FILE, opcua:opc.tcp://HOST:PORT or "
@@ -59,6 +68,8 @@ def build_service(
     store = None if store_dir is None else TwinStore(store_dir)
     states: dict[str, MachineState] = {}
     trains: dict[Path, DriveTrain] = {}
+    detectors: dict[Path, FaultDetector | None] = {}
+    service_models: dict[str, tuple[DriveTrain, FaultDetector]] = {}
     try:
         for name, (m, spec) in maps.items():
             path = m.model or model_path
@@ -70,7 +81,14 @@ def build_service(
                 trains[path] = physics_train(model, physics)
             twin = MachineTwin(name, model, m.rate_hz, physics=physics, train=trains[path])
             twin.warm_up()
-            st = MachineState(twin, m, spec)
+            st = MachineState(twin, m, spec, model_key=str(path))
+            if path not in detectors:
+                detectors[path] = _detector(path, model_path, detector)
+            det = detectors[path]
+            if det is not None:
+                st.watch = LiveFaultWatch(det, name, m.channels, m.rate_hz, has_motor=m.has_motor)
+                if str(path) not in service_models:
+                    service_models[str(path)] = (physics_train(model, "full"), det)
             if store is not None:
                 store.register_machine(name, m.channels, str(path), spec)
                 st.resume_after_us = store.last_ts_us(name)
@@ -88,7 +106,20 @@ def build_service(
     writer = None
     if store is not None:
         writer = StoreWriter(store, commit_ms, retention_s=retention_s, on_commit=on_commit)
-    return TwinService(states, built, writer, silent_s=silent_s)
+    service = TwinService(states, built, writer, silent_s=silent_s)
+    for key, (train, det) in service_models.items():
+        service.locator.register(key, train, det)
+    return service
+
+
+def _detector(path: Path, main: Path, choice: str) -> FaultDetector | None:
+    """The fault detector of the model at ``path`` (None: the model has none, or ``none``)."""
+    if choice == "none":
+        return None
+    if choice != "auto" and path == main:
+        return load_detector(Path(choice), path)
+    auto = detector_path(path)
+    return load_detector(auto, path) if auto.is_file() else None
 
 
 __all__ = ["build_service", "load_twin_model"]

@@ -74,6 +74,7 @@ class Pending:
     values: np.ndarray = field(compare=False)
     setpoint: float = field(compare=False)
     received: float = field(compare=False, default=0.0)
+    motor: float = field(compare=False, default=math.nan)
 
 
 class Reorder:
@@ -143,6 +144,8 @@ class Begun:
     values: np.ndarray
     setpoint: float
     physics: np.ndarray
+    motor: float = math.nan
+    motor_physics: float = math.nan
 
 
 class MachineTwin:
@@ -220,19 +223,20 @@ class MachineTwin:
 
     # ---- per sample -----------------------------------------------------------------------
     def receive(self, ts_us: int, seq: int, values: np.ndarray, setpoint: float,
-                received: float = 0.0) -> list[SampleRow]:  # fmt: skip
+                received: float = 0.0, motor: float = math.nan) -> list[SampleRow]:  # fmt: skip
         """A sample from the source (any order); returns the rows it releases, in order."""
         rows = []
-        for p in self.reorder.push(Pending(ts_us, seq, values, setpoint, received)):
+        for p in self.reorder.push(Pending(ts_us, seq, values, setpoint, received, motor)):
             rows += self._release(p)
         return rows
 
     def receive_deferred(self, ts_us: int, seq: int, values: np.ndarray, setpoint: float,
-                         received: float = 0.0) -> tuple[list[SampleRow], Begun | None]:  # fmt: skip
+                         received: float = 0.0,
+                         motor: float = math.nan) -> tuple[list[SampleRow], Begun | None]:  # fmt: skip
         """:meth:`receive`, but the last released row stops before its forecast: the caller
         forecasts many machines' rows in one network pass (:func:`forecast_many`) and ends each
         with :meth:`end`. Only for one-step models (else nothing is deferred)."""
-        released = self.reorder.push(Pending(ts_us, seq, values, setpoint, received))
+        released = self.reorder.push(Pending(ts_us, seq, values, setpoint, received, motor))
         rows: list[SampleRow] = []
         for p in released[:-1]:
             rows += self._release(p)
@@ -271,12 +275,13 @@ class MachineTwin:
                 nan = np.full(len(self.channels), np.nan)
                 rows.append(self._one(last + k * self.period_us, -1, nan, sp))
         if defer:
-            return rows, self._begin(p.ts_us, p.seq, p.values, setpoint)
-        rows.append(self._one(p.ts_us, p.seq, p.values, setpoint))
+            return rows, self._begin(p.ts_us, p.seq, p.values, setpoint, p.motor)
+        rows.append(self._one(p.ts_us, p.seq, p.values, setpoint, p.motor))
         return rows
 
-    def _one(self, ts_us: int, seq: int, values: np.ndarray, setpoint: float) -> SampleRow:
-        begun = self._begin(ts_us, seq, values, setpoint)
+    def _one(self, ts_us: int, seq: int, values: np.ndarray, setpoint: float,
+             motor: float = math.nan) -> SampleRow:  # fmt: skip
+        begun = self._begin(ts_us, seq, values, setpoint, motor)
         if self.horizon == 1:  # this sample's set-point is known now: exact physics at t
             assert self.predictor is not None
             twin = self.predictor.forecast(ts_us / 1e6)
@@ -284,16 +289,18 @@ class MachineTwin:
             twin = self._forecast.pop(ts_us, np.full(len(self.channels), np.nan))
         return self._end(begun, twin)
 
-    def _begin(self, ts_us: int, seq: int, values: np.ndarray, setpoint: float) -> Begun:
+    def _begin(self, ts_us: int, seq: int, values: np.ndarray, setpoint: float,
+               motor: float = math.nan) -> Begun:  # fmt: skip
         """Physics to this sample; the forecast comes next, then :meth:`_end`."""
         assert self.stepper is not None and self.predictor is not None
-        m = self._to_channels(self.stepper.step(setpoint, (ts_us - self.last_us) / 1e6))
+        node_rpm = self.stepper.step(setpoint, (ts_us - self.last_us) / 1e6)
+        m = self._to_channels(node_rpm)
         self.last_setpoint, self.last_us = setpoint, ts_us
         self._physics[ts_us] = m
         if self._fresh:  # near standstill 10 % of the last value is nothing: floor it
             self.filter, self._fresh = SpikeFilter(len(self.channels), floor=0.5 * np.abs(m)), False
         return Begun(self, self.predictor, ts_us, seq, np.asarray(values, dtype=np.float64),
-                     setpoint, m)  # fmt: skip
+                     setpoint, m, motor, float(node_rpm[self.stepper.motor_node]))  # fmt: skip
 
     def _end(self, b: Begun, twin: np.ndarray) -> SampleRow:
         assert self.predictor is not None
@@ -304,7 +311,7 @@ class MachineTwin:
             self._physics.pop(b.ts_us - self.period_us, None)
         self.n_rows += 1
         return SampleRow(self.name, b.ts_us, b.seq, b.setpoint, b.values, b.physics, twin,
-                         b.values - twin)  # fmt: skip
+                         b.values - twin, b.motor, b.motor_physics)  # fmt: skip
 
     def _look_ahead(self, ts_us: int, setpoint: float) -> None:
         """Physics for the next ``horizon`` samples (set-point held) and the forecast of the

@@ -39,6 +39,8 @@ MAX_ABS = 1e7
 """Largest magnitude accepted for a channel value (rpm); beyond it a payload is hostile or
 broken, not a measurement."""
 MAX_SEQ = 2**62
+Row = tuple[int, int, np.ndarray, float, float]
+"""A checked sample: time (us), counter, channel values, set-point, motor speed (NaN: none)."""
 
 
 def default_node(machine: str) -> str:
@@ -78,17 +80,25 @@ class MachineMap:
     def renamed(self, name: str) -> MachineMap:
         return replace(self, name=name, node="", topic="")
 
-    def row(self, get: Any) -> tuple[int, int, np.ndarray, float] | None:
-        """``(ts_us, seq, values, setpoint)`` from a sample whose field ``f`` is ``get(f)``;
-        ``None`` if any field is missing, of the wrong type, out of range or not finite
-        (NaN is allowed for a channel: a missing measurement)."""
+    @property
+    def has_motor(self) -> bool:
+        """The samples carry the motor speed (the fault detector's fifth channel)."""
+        return "motor" in self.fields and "motor" not in self.channels
+
+    def row(self, get: Any) -> Row | None:
+        """``(ts_us, seq, values, setpoint, motor_rpm)`` from a sample whose field ``f`` is
+        ``get(f)``; ``None`` if any field is missing, of the wrong type, out of range or not
+        finite (NaN is allowed for a channel: a missing measurement; the motor is NaN when the
+        layout has none)."""
         try:
             seq, t, sp = get("seq"), get("time"), get(self.setpoint)
             values = [get(c) for c in self.channels]
+            motor = get("motor") if self.has_motor else None
         except (KeyError, IndexError, TypeError):
             return None
         values = [math.nan if v is None else v for v in values]  # null: a dropped measurement
-        if not all(_is_number(v) for v in (seq, t, sp, *values)):
+        motor = math.nan if motor is None else motor
+        if not all(_is_number(v) for v in (seq, t, sp, motor, *values)):
             return None
         seq_f, t_f, sp_f = float(seq), float(t), float(sp)
         if not (math.isfinite(seq_f) and 0 <= seq_f < MAX_SEQ and seq_f == int(seq_f)):
@@ -100,15 +110,18 @@ class MachineMap:
         arr = np.array(values, dtype=np.float64)
         if (np.abs(arr[np.isfinite(arr)]) > MAX_ABS).any() or np.isinf(arr).any():
             return None
-        return int(round(t_f * 1e6)), int(seq_f), arr, sp_f
+        motor_f = float(motor)
+        if math.isinf(motor_f) or abs(motor_f) > MAX_ABS:
+            return None
+        return int(round(t_f * 1e6)), int(seq_f), arr, sp_f, motor_f
 
-    def from_array(self, value: Any) -> tuple[int, int, np.ndarray, float] | None:
+    def from_array(self, value: Any) -> Row | None:
         """A row from an OPC UA array value laid out as ``fields``."""
         if not isinstance(value, list | tuple | np.ndarray) or len(value) != len(self.fields):
             return None
         return self.row(lambda f: value[self.fields.index(f)])
 
-    def from_json(self, obj: Any) -> tuple[int, int, np.ndarray, float] | None:
+    def from_json(self, obj: Any) -> Row | None:
         """A row from a decoded JSON object keyed by ``fields``."""
         if not isinstance(obj, dict):
             return None

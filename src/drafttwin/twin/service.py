@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from drafttwin.models.online import forecast_many
+from drafttwin.twin.faultwatch import LiveFaultWatch, Localise, Locator, alarm_detail
 from drafttwin.twin.live import Begun, MachineTwin
 from drafttwin.twin.mapping import MachineMap
 from drafttwin.twin.sources import Sample, Source
@@ -29,6 +30,8 @@ LATENCY_WINDOW = 20_000
 """Latencies kept for the percentiles (sample received -> stored and pushed)."""
 HISTORY_ROWS = 3000
 """Rows per machine kept in memory for the page (30 s at 100 Hz)."""
+LOCATE_WAIT_S = 30.0
+"""At the end of a run, how long the rankings still running may take to finish (stored)."""
 
 
 @dataclass
@@ -46,6 +49,9 @@ class MachineState:
     resume_after_us: int | None = None
     recent: deque[SampleRow] = field(default_factory=lambda: deque(maxlen=HISTORY_ROWS))
     alarms: deque[EventRow] = field(default_factory=lambda: deque(maxlen=200))
+    watch: LiveFaultWatch | None = None  # the fault detector, when the model has one
+    model_key: str = ""  # the model file (the locator's key for its diagnoser)
+    faults: int = 0
 
 
 class TwinService:
@@ -61,6 +67,8 @@ class TwinService:
         self.metrics: Any = None  # drafttwin.twin.web.Metrics when the page runs
         self.event_hooks: list[Callable[[EventRow], None]] = []
         self.started = time.monotonic()
+        self.locator = Locator()
+        self._loop: asyncio.AbstractEventLoop | None = None
         self._stop = asyncio.Event()
         self._batch: list[Sample] = []
         self._scheduled = False
@@ -99,7 +107,8 @@ class TwinService:
             if any(r[0] is st for r in rnd):  # a second sample of a machine: finish the first
                 self._finish(rnd)
                 rnd = []
-            rows, begun = st.twin.receive_deferred(s.ts_us, s.seq, s.values, s.setpoint, s.received)
+            rows, begun = st.twin.receive_deferred(s.ts_us, s.seq, s.values, s.setpoint,
+                                                   s.received, s.motor)  # fmt: skip
             self._out(st, rows, s.received)
             if begun is not None:
                 rnd.append((st, begun, s.received))
@@ -125,6 +134,8 @@ class TwinService:
             st.recent.append(row)
             if self.writer is not None:
                 self.writer.put(row)
+        if st.watch is not None:
+            events += self._watch_rows(st, rows)
         for push in self.subscribers:
             push(st.twin.name, rows, events)
         self.rows += len(rows)
@@ -133,6 +144,68 @@ class TwinService:
             self.latency_s.append(lat)
             if self.metrics is not None:
                 self.metrics.observe(st.twin.name, len(rows), lat)
+
+    # ---- faults -------------------------------------------------------------------------
+    def _watch_rows(self, st: MachineState, rows: list[SampleRow]) -> list[EventRow]:
+        """Feed the machine's fault watch; alarms become events at once, rankings are queued."""
+        assert st.watch is not None
+        out = []
+        for row in rows:
+            alarms, causes, requests = st.watch.add(row)
+            out += self._fault_events(st, alarms, causes)
+            for req in requests:
+                self._locate(st, req)
+        return out
+
+    def _fault_events(self, st: MachineState, alarms: list[Any],
+                      causes: list[dict[str, Any]]) -> list[EventRow]:  # fmt: skip
+        out, sensor = [], iter(causes)
+        for a in alarms:
+            st.faults += 1
+            if a.direction == 0:  # a sensor rule: its channel is the cause
+                ev = EventRow(st.twin.name, "sensor-fault", int(round(a.time_s * 1e6)),
+                              alarm_detail(a, [next(sensor)]))  # fmt: skip
+            else:
+                ev = EventRow(st.twin.name, "fault", int(round(a.time_s * 1e6)),
+                              alarm_detail(a, note="probable cause after "
+                                           f"{st.watch.post * st.watch.block_s if st.watch else 0:g} s"))  # fmt: skip
+            self._event(st, ev)
+            out.append(ev)
+        return out
+
+    def _locate(self, st: MachineState, req: Localise) -> None:
+        def done(r: Localise, causes: list[dict[str, Any]] | None, error: str | None) -> None:
+            note = None if causes is not None else f"not localised ({error})"
+            ev = EventRow(r.machine, "fault-cause", int(round(r.alarm.time_s * 1e6)),
+                          alarm_detail(r.alarm, causes, note))  # fmt: skip
+            if self._loop is not None and self._loop.is_running():
+                self._loop.call_soon_threadsafe(self._cause, st, ev, causes)
+            else:
+                self._cause(st, ev, causes)
+
+        if not self.locator.submit(st.model_key, req, done):
+            done(req, None, "the locator is busy")
+
+    def _cause(self, st: MachineState, ev: EventRow, causes: list[dict[str, Any]] | None) -> None:
+        self._event(st, ev)
+        if self.metrics is not None and hasattr(self.metrics, "cause"):
+            top = causes[0] if causes else None
+            self.metrics.cause(ev.machine, "none" if top is None else
+                               f"{top['element']}:{top['kind']}")  # fmt: skip
+        for push in self.subscribers:
+            push(st.twin.name, [], [ev])
+
+    async def _settle_faults(self) -> None:
+        """At the end: rank what a pending alarm collected, wait for the rankings running."""
+        for st in self.states.values():
+            if st.watch is not None:
+                for req in st.watch.flush():
+                    self._locate(st, req)
+        deadline = time.monotonic() + LOCATE_WAIT_S
+        while self.locator.in_flight and time.monotonic() < deadline:
+            await asyncio.sleep(0.05)
+        await asyncio.sleep(0)  # the callbacks scheduled from the worker's thread
+        self.locator.close()
 
     def report(self, machine: str, kind: str, detail: str, count: int = 1) -> None:
         """A source's state change, or ``count`` dropped payloads."""
@@ -172,6 +245,7 @@ class TwinService:
 
     async def run(self, *, duration_s: float | None = None, max_rows: int | None = None) -> None:
         """Run until every source ended, ``duration_s`` passed or ``max_rows`` were processed."""
+        self._loop = asyncio.get_running_loop()
         tasks = [asyncio.create_task(src.run(self.on_sample, self.report)) for src in self.sources]
         watch = asyncio.create_task(self._watch())
         deadline = math.inf if duration_s is None else time.monotonic() + duration_s
@@ -194,6 +268,7 @@ class TwinService:
             self._run_batch()
             for st in self.states.values():
                 self._out(st, st.twin.flush(), None)
+            await self._settle_faults()
 
     def stop(self) -> None:
         self._stop.set()
@@ -219,7 +294,8 @@ class TwinService:
                                 "skipped": st.skipped, "late": st.twin.reorder.late,
                                 "duplicate": st.twin.reorder.duplicate,
                                 "spikes_rejected": st.twin.filter.rejected,
-                                "source": st.source}
+                                "source": st.source, "fault_alarms": st.faults,
+                                "fault_detector": st.watch is not None}
                          for name, st in self.states.items()},
         }  # fmt: skip
 

@@ -45,6 +45,7 @@ class Sample:
     seq: int
     values: np.ndarray
     setpoint: float
+    motor: float = math.nan  # rpm, for the fault detector (NaN: the source has none)
     received: float = field(default_factory=time.perf_counter)
 
 
@@ -89,6 +90,8 @@ class ReplaySource(Source):
         self.ts_us = np.round(series.time_s * 1e6).astype(np.int64)
         self.values = series.values
         self.setpoints = np.asarray(series.inputs[machine.setpoint], dtype=np.float64)
+        self.motor = (np.full(len(self.ts_us), np.nan) if series.motor_rpm is None
+                      else np.asarray(series.motor_rpm, dtype=np.float64))  # fmt: skip
         self.first = 0
 
     def skip_to(self, after_us: int | None) -> None:
@@ -109,7 +112,8 @@ class ReplaySource(Source):
                 await asyncio.sleep(max(delay, 0.0))
             elif i % 50 == 0:
                 await asyncio.sleep(0)  # let the other machines and the page run
-            emit(Sample(name, int(self.ts_us[i]), i, self.values[i], float(self.setpoints[i])))
+            emit(Sample(name, int(self.ts_us[i]), i, self.values[i], float(self.setpoints[i]),
+                        float(self.motor[i])))  # fmt: skip
         self._set("ended", report)
 
 

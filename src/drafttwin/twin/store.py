@@ -23,6 +23,7 @@ the last commit (at most one interval plus the commit's own time). A restart res
 from __future__ import annotations
 
 import contextlib
+import math
 import queue
 import threading
 import time
@@ -65,6 +66,8 @@ class SampleRow:
     physics: np.ndarray
     twin: np.ndarray
     residual: np.ndarray
+    motor: float = math.nan  # measured motor speed, rpm (the fault detector's; not stored)
+    motor_physics: float = math.nan  # the physics' motor speed, rpm
 
 
 @dataclass

@@ -53,6 +53,12 @@ class Metrics:
                                  buckets=LATENCY_BUCKETS, registry=self.registry)  # fmt: skip
         self.source_up = Gauge("drafttwin_source_up", "1 while the machine's source delivers",
                                ["machine"], registry=self.registry)  # fmt: skip
+        self.causes = Counter("drafttwin_fault_causes", "Fault alarms localised, by the most "
+                              "probable cause (element:kind; none when not localised)",
+                              ["machine", "cause"], registry=self.registry)  # fmt: skip
+
+    def cause(self, machine: str, cause: str) -> None:
+        self.causes.labels(machine, cause).inc()
 
     def observe(self, machine: str, rows: int, latency_s: float) -> None:
         self.samples.labels(machine).inc(rows)
@@ -76,8 +82,16 @@ def _row(r: SampleRow) -> list[Any]:
     return [r.ts_us / 1e6, r.seq, r.setpoint, *r.measured, *r.physics, *r.twin, *r.residual]
 
 
+FAULT_KINDS = ("fault", "fault-cause", "sensor-fault")
+"""Events whose detail is JSON (the alarm and its probable cause): parsed into ``fault``."""
+
+
 def _event(e: EventRow) -> dict[str, Any]:
-    return {"machine": e.machine, "kind": e.kind, "time": e.ts_us / 1e6, "detail": e.detail}
+    out = {"machine": e.machine, "kind": e.kind, "time": e.ts_us / 1e6, "detail": e.detail}
+    if e.kind in FAULT_KINDS:
+        with contextlib.suppress(ValueError):
+            out["fault"] = json.loads(e.detail)
+    return out
 
 
 class Hub:

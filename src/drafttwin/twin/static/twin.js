@@ -48,11 +48,31 @@ function push(m, rows) {
   }
 }
 
+// an alarm's test and its probable cause (kinds fault, fault-cause, sensor-fault: JSON detail)
+function describe(a) {
+  const f = a.fault;
+  if (!f) return a.detail;
+  const way = f.direction > 0 ? " up" : f.direction < 0 ? " down" : "";
+  let text = `${f.test}${way}, onset ${new Date(f.onset_s * 1000).toISOString().slice(11, 19)}`;
+  if (f.causes && f.causes.length) {
+    text += " · probable cause: " + f.causes.map(c =>
+      `${c.element} ${c.kind} ${fmt(c.severity, 3)} [${fmt(c.interval[0], 3)}, ${fmt(c.interval[1], 3)}] ` +
+      `(p ${fmt(100 * c.probability, 0)} %)`).join("; ");
+  }
+  if (f.note) text += " · " + f.note;
+  return text;
+}
+
+function faulted(name) {
+  return state.alarms.some(a => a.machine === name && a.fault);
+}
+
 function tiles() {
   const hall = document.getElementById("hall");
   hall.replaceChildren();
   for (const [name, b] of Object.entries(state.machines)) {
-    const t = el("div", { class: "tile " + (b.state || "") + (name === state.selected ? " sel" : ""),
+    const t = el("div", { class: "tile " + (b.state || "") + (faulted(name) ? " fault" : "") +
+                                   (name === state.selected ? " sel" : ""),
                           "data-machine": name });
     t.append(el("b", {}, name), el("br"));
     const r = b.last;
@@ -116,7 +136,8 @@ function draw() {
   const box = document.getElementById("alarms");
   if (box) {
     box.replaceChildren(...state.alarms.slice(-100).reverse().map(a =>
-      el("div", {}, `${new Date(a.time * 1000).toISOString().slice(11, 23)} ${a.machine} ${a.kind}: ${a.detail}`)));
+      el("div", { class: a.fault ? "fault" : "" },
+         `${new Date(a.time * 1000).toISOString().slice(11, 23)} ${a.machine} ${a.kind}: ${describe(a)}`)));
   }
 }
 

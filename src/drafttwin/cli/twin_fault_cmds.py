@@ -1,0 +1,88 @@
+"""``drafttwin twin fit-detector``: the live twin's fault detector, fitted on healthy records
+and stored next to the model (docs/twin.md, 'Faults live')."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from drafttwin.cli._bounds import bounded
+from drafttwin.cli._oserrors import input_path, input_paths, output_file
+from drafttwin.cli.app import console, print_json
+from drafttwin.cli.twin_cmds import twin_app
+from drafttwin.errors import ConfigError
+
+
+@twin_app.command("fit-detector")
+def twin_fit_detector(
+    model: Annotated[
+        Path,
+        typer.Option(help="The model file (.dtm) the twin runs.", callback=input_path("--model")),
+    ],
+    healthy: Annotated[
+        str,
+        typer.Option(
+            help="Healthy records of the machine(s) (comma-separated .csv/.parquet with a motor "
+            "column, e.g. from 'drafttwin generate'): they set the thresholds.",
+            callback=input_paths("--healthy"),
+        ),
+    ],
+    far_per_day: Annotated[
+        float,
+        typer.Option(
+            help="False alarms allowed per 24 h of healthy running.",
+            callback=bounded("--far-per-day"),
+        ),
+    ] = 1.0,  # fmt: skip
+    reference: Annotated[
+        float,
+        typer.Option(
+            help="Seconds at the start of a run (and after each alarm) that set the baseline; "
+            "no decisions there.",
+            callback=bounded("--reference"),
+        ),
+    ] = 15.0,  # fmt: skip
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            help="Where to write it (default: MODEL.dtm.detector.json, which 'twin run' finds).",
+            callback=output_file("--out"),
+        ),
+    ] = None,  # fmt: skip
+    as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+) -> None:
+    """Fit the live fault detector on healthy records and store it with the model.
+
+    The residuals of each record against the model's physics (open loop, the rollers and the
+    motor, in 1-s blocks) set each CUSUM's scale, its AR(1) coefficient and a threshold for the
+    false-alarm rate asked, as 'drafttwin diagnose' does offline. 'twin run' then raises an
+    alarm per sample block and names its probable cause. The file is tied to the model by its
+    SHA-256: refitting the model needs a new detector.
+    """
+    from drafttwin.cli._data import Channels
+    from drafttwin.diagnosis.detect import FaultDetector
+    from drafttwin.diagnosis.residuals import record_features
+    from drafttwin.twin.build import load_twin_model
+    from drafttwin.twin.faultwatch import detector_path, save_detector
+    from drafttwin.twin.live import physics_train
+
+    files = [p.strip() for p in healthy.split(",") if p.strip()]
+    if not files:
+        raise ConfigError("no healthy record", where="--healthy", fix="give one or more files")
+    fitted = load_twin_model(model)
+    train = physics_train(fitted, "reduced")  # the physics the live twin steps
+    features = [record_features(train, Channels().read(p)) for p in files]
+    detector = FaultDetector(far_per_day=far_per_day, reference_s=reference).fit(features)
+    target = out if out is not None else detector_path(model)
+    save_detector(target, detector, model, files)
+    result = {"detector": str(target), "model": str(model), "fitted_on": files,
+              **detector.describe()}  # fmt: skip
+    if as_json:
+        print_json(result)
+        return
+    console.print(f"fitted on {len(files)} record(s): CUSUM threshold h = {detector.h_:.2f} "
+                  f"(k = {detector.k:g}, {far_per_day:g} false alarm(s) per 24 h), "
+                  f"blocks of {detector.block_s_:g} s, baseline {reference:g} s")  # fmt: skip
+    console.print(f"wrote {target} ('twin run --model {model}' uses it)")

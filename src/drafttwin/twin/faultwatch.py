@@ -1,0 +1,288 @@
+"""Fault detection and probable cause in the live path (issue 13's detector, run live).
+
+Per machine, :class:`LiveFaultWatch` takes each processed row (in time order) and keeps one
+block of measured and open-loop physics speeds (the four rollers and the motor). When a block
+closes, its features come from the same function the offline diagnosis uses
+(:func:`~drafttwin.diagnosis.residuals.block_features`) and go to the same CUSUM decisions
+(:class:`~drafttwin.diagnosis.detect.CusumState`): per sample the cost is a copy into the block
+buffer; per block one feature row and one CUSUM step. Nothing is recomputed over the history.
+
+After a CUSUM alarm the watch collects :data:`POST_S` of blocks (the shift grows by then, as
+offline) and hands the mean shift to the model-based ranking
+(:meth:`~drafttwin.diagnosis.diagnose.Diagnoser.rank`), which the service runs in a separate
+process (:class:`Locator`): a second of SciPy fits must not hold up any machine's samples.
+A sensor rule names its channel at once.
+
+The detector's thresholds come from healthy records and are stored next to the model
+(``MODEL.dtm.detector.json``, :func:`save_detector`), tied to the model file by its SHA-256 and
+checked when read back (:func:`load_detector`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from drafttwin._constants import ROLLERS
+from drafttwin.diagnosis.detect import Alarm, CusumState, FaultDetector
+from drafttwin.diagnosis.diagnose import Diagnoser, sensor_cause
+from drafttwin.diagnosis.residuals import CHANNELS, block_features
+from drafttwin.errors import ConfigError, DataError
+from drafttwin.mechanics import DriveTrain
+from drafttwin.twin.store import SampleRow
+
+FORMAT = "drafttwin-live-detector"
+VERSION = 1
+POST_S = 10.0
+"""Seconds of blocks after a CUSUM alarm whose mean shift is ranked (offline: up to 30 s;
+live, a shorter window gives the probable cause sooner)."""
+TOP = 3
+"""Causes kept per alarm (the best first)."""
+MAX_PENDING = 4
+"""Localisations queued at once; more alarms in that time get no cause ('busy')."""
+
+
+def detector_path(model: Path) -> Path:
+    """Where a model's detector lives: next to it, ``MODEL.dtm.detector.json``."""
+    return model.with_name(model.name + ".detector.json")
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def save_detector(path: Path, detector: FaultDetector, model: Path, fitted_on: list[str]) -> None:
+    """Write the fitted detector (atomic), tied to ``model`` by its SHA-256."""
+    from drafttwin._io import atomic_path
+    from drafttwin._json import dumps_strict
+
+    doc = {"format": FORMAT, "version": VERSION, "model_file": model.name,
+           "model_sha256": file_sha256(model), "fitted_on": fitted_on,
+           "detector": detector.to_state(), "describe": detector.describe()}  # fmt: skip
+    with atomic_path(path) as tmp:
+        tmp.write_text(dumps_strict(doc), encoding="utf-8")
+
+
+def load_detector(path: Path, model: Path) -> FaultDetector:
+    """Read a detector back, refusing one of another format or fitted for another model."""
+    fix = f"fit it again: drafttwin twin fit-detector --model {model} --healthy FILES"
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DataError(f"cannot read the detector ({type(exc).__name__})", source=path,
+                        fix=fix) from None  # fmt: skip
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise DataError("not a drafttwin live detector file", source=path, fix=fix)
+    if doc.get("version") != VERSION:
+        raise DataError(f"detector format version {doc.get('version')}, this drafttwin reads "
+                        f"{VERSION}", source=path, fix=fix)  # fmt: skip
+    if doc.get("model_sha256") != file_sha256(model):
+        raise DataError(f"the detector was fitted for another model file "
+                        f"({doc.get('model_file')!r}, a different SHA-256)", source=path,
+                        where="model_sha256", fix=fix)  # fmt: skip
+    state = doc.get("detector")
+    if not isinstance(state, dict):
+        raise DataError("the detector file has no fitted detector", source=path, fix=fix)
+    return FaultDetector.from_state(state, source=str(path))
+
+
+@dataclass(frozen=True)
+class Localise:
+    """A request for the ranking: the alarm, the mean level shift and its block count."""
+
+    machine: str
+    alarm: Alarm
+    shift: np.ndarray
+    n_blocks: int
+
+
+class LiveFaultWatch:
+    """The fault detector of one machine, fed row by row.
+
+    Args:
+        detector: a fitted :class:`~drafttwin.diagnosis.detect.FaultDetector`.
+        machine: the machine's name.
+        channels: the model's output channels (must be the four rollers).
+        rate_hz: the machine's sample rate.
+        has_motor: the samples carry the motor speed; without it the motor's residual is
+            taken as zero (see docs/twin.md: motor-side faults and belt wear then look alike).
+    """
+
+    def __init__(self, detector: FaultDetector, machine: str, channels: tuple[str, ...],
+                 rate_hz: float, *, has_motor: bool = True, post_s: float = POST_S) -> None:  # fmt: skip
+        if tuple(channels) != ROLLERS:
+            raise ConfigError(f"the fault detector needs the channels {', '.join(ROLLERS)}, the "
+                              f"model has {', '.join(channels)}", where="--detector",
+                              fix="run without a detector, or fit the model on the four rollers")  # fmt: skip
+        self.detector, self.machine, self.has_motor = detector, machine, has_motor
+        self.per = max(1, int(round(detector.block_s_ * rate_hz)))
+        self.block_s = self.per / rate_hz
+        self.period_us = int(round(1e6 / rate_hz))
+        self.n_ref = max(2, int(round(detector.reference_s / self.block_s)))
+        self.post = max(1, int(round(post_s / self.block_s)))
+        self.y = np.full((self.per, len(CHANNELS)), np.nan)
+        self.yhat = np.full((self.per, len(CHANNELS)), np.nan)
+        self.t = np.zeros(self.per)
+        self.k = 0
+        self.last_us: int | None = None
+        self.state = CusumState(detector, self.n_ref, self.block_s)
+        self.pending: tuple[Alarm, np.ndarray, list[np.ndarray]] | None = None
+        self.blocks = 0
+        self.restarts = 0
+        self.levels: deque[tuple[float, np.ndarray]] = deque(maxlen=self.post + self.n_ref)
+
+    def restart(self) -> None:
+        """A new baseline (after a gap the physics restarts: the old one no longer holds)."""
+        self.state = CusumState(self.detector, self.n_ref, self.block_s)
+        self.k, self.pending = 0, None
+        self.restarts += 1
+
+    def add(self, row: SampleRow) -> tuple[list[Alarm], list[dict[str, Any]], list[Localise]]:
+        """One row: the alarms of the block it closed, the sensor causes found at once and the
+        localisations to run (empty lists while the block is open)."""
+        if self.last_us is not None and row.ts_us - self.last_us > 1.5 * self.period_us:
+            self.restart()
+        self.last_us = row.ts_us
+        k = self.k
+        self.y[k, :4], self.y[k, 4] = row.measured, row.motor
+        self.yhat[k, :4], self.yhat[k, 4] = row.physics, row.motor_physics
+        if not self.has_motor:  # no motor channel: its residual is zero by construction
+            self.y[k, 4] = row.motor_physics
+        self.t[k] = row.ts_us / 1e6
+        self.k += 1
+        if self.k < self.per:
+            return [], [], []
+        self.k = 0
+        return self._block()
+
+    def _block(self) -> tuple[list[Alarm], list[dict[str, Any]], list[Localise]]:
+        f = block_features(self.y, self.yhat, self.t, self.block_s)
+        level, lost, run = f.level[0], f.lost[0], f.run[0]
+        self.blocks += 1
+        self.levels.append((float(f.time_s[0]), level))
+        alarms = self.state.update(float(f.time_s[0]), level, lost, run)
+        causes, requests = [], []
+        if self.pending is not None and np.isfinite(level).all():
+            alarm, base, after = self.pending
+            after.append(level)
+            if len(after) >= self.post:
+                shift = np.mean(after, axis=0) - base
+                requests.append(Localise(self.machine, alarm, shift, len(after)))
+                self.pending = None
+        for a in alarms:
+            if a.direction == 0:
+                causes.append(sensor_cause(a, lost, run).to_dict())
+            elif self.state.baseline_at_alarm is not None and self.pending is None:
+                self.pending = (a, self.state.baseline_at_alarm.copy(), [])
+        return alarms, causes, requests
+
+    def flush(self) -> list[Localise]:
+        """At the end of a run: rank what a pending alarm collected (at least one block after
+        it, else the blocks from its onset on, as offline when too little follows)."""
+        if self.pending is None:
+            return []
+        alarm, base, after = self.pending
+        self.pending = None
+        if not after:
+            after = [lv for t, lv in self.levels
+                     if alarm.change_s < t <= alarm.time_s and np.isfinite(lv).all()]  # fmt: skip
+        if not after:
+            return []
+        return [Localise(self.machine, alarm, np.mean(after, axis=0) - base, len(after))]
+
+
+# ---- the ranking, in a worker process ---------------------------------------------------------
+_DIAGNOSERS: dict[str, Diagnoser] = {}
+
+
+def _rank(key: str, train: dict[str, Any], detector: dict[str, Any], shift: list[float],
+          n_blocks: int) -> list[dict[str, Any]]:  # fmt: skip
+    """Worker side: the top causes (the diagnoser built once per model and kept)."""
+    dx = _DIAGNOSERS.get(key)
+    if dx is None:
+        dx = Diagnoser(DriveTrain.from_dict(train, source=f"model {key}"),
+                       FaultDetector.from_state(detector))  # fmt: skip
+        _DIAGNOSERS[key] = dx
+    return [c.to_dict() for c in dx.rank(np.asarray(shift, dtype=np.float64), n_blocks)[:TOP]]
+
+
+class Locator:
+    """Runs the rankings in one worker process (spawned on the first alarm), at most
+    :data:`MAX_PENDING` at a time; ``done(request, causes, error)`` is called from the
+    executor's thread."""
+
+    def __init__(self) -> None:
+        self.executor: ProcessPoolExecutor | None = None
+        self.in_flight = 0
+        self.models: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {}
+
+    def register(self, key: str, train: DriveTrain, detector: FaultDetector) -> None:
+        self.models[key] = (train.to_dict(), detector.to_state())
+
+    def submit(self, key: str, req: Localise,
+               done: Callable[[Localise, list[dict[str, Any]] | None, str | None], None]) -> bool:  # fmt: skip
+        """Queue one ranking; ``False`` (nothing queued) when :data:`MAX_PENDING` are."""
+        if self.in_flight >= MAX_PENDING:
+            return False
+        if self.executor is None:
+            import multiprocessing
+
+            self.executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        train, det = self.models[key]
+        fut = self.executor.submit(_rank, key, train, det, req.shift.tolist(), req.n_blocks)
+        self.in_flight += 1
+
+        def finished(f: Future[list[dict[str, Any]]]) -> None:
+            self.in_flight -= 1
+            exc = f.exception() if not f.cancelled() else None
+            if f.cancelled() or exc is not None:
+                done(req, None, "cancelled" if exc is None else f"{type(exc).__name__}: {exc}")
+            else:
+                done(req, f.result(), None)
+
+        fut.add_done_callback(finished)
+        return True
+
+    def close(self, wait: bool = False) -> None:
+        if self.executor is not None:
+            self.executor.shutdown(wait=wait, cancel_futures=not wait)
+            self.executor = None
+
+
+def alarm_detail(alarm: Alarm, causes: list[dict[str, Any]] | None = None,
+                 note: str | None = None) -> str:  # fmt: skip
+    """The JSON stored as an alarm event's detail (and parsed back for REST and the page)."""
+    from drafttwin._json import to_strict
+
+    doc: dict[str, Any] = {"test": alarm.test, "direction": alarm.direction,
+                           "alarm_s": alarm.time_s, "onset_s": alarm.change_s}  # fmt: skip
+    if causes is not None:
+        doc["causes"] = [_short(c) for c in causes]
+    if note is not None:
+        doc["note"] = note
+    return json.dumps(to_strict(doc), allow_nan=False, separators=(",", ":"))
+
+
+def _short(c: dict[str, Any]) -> dict[str, Any]:
+    keep = ("element", "kind", "family", "severity", "interval", "parameter", "probability",
+            "group")  # fmt: skip
+    out = {k: c[k] for k in keep if k in c}
+    if isinstance(out.get("severity"), float) and not math.isfinite(out["severity"]):
+        out["severity"] = None
+    return out
+
+
+__all__ = ["LiveFaultWatch", "Locator", "detector_path", "load_detector", "save_detector"]
