@@ -118,7 +118,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "benchmark emps": ["--seeds", "--workers", "--epochs", "--max-samples"],
     "twin run": ["--commit-ms", "--retention-hours", "--silent", "--duration", "--max-samples"],
     "twin query": ["--from", "--to"],
-    "twin fit-detector": ["--far-per-day", "--reference"],
+    "twin fit-detector": ["--far-per-day", "--reference", "--post"],
     "plant serve": ["--machines", "--seed", "--rate", "--ramp", "--duration", "--history"],
     "twin hall": ["--shards", "--commit-ms", "--duration"],
 }

@@ -83,6 +83,7 @@ BOUNDS: dict[str, Bound] = {
     "--history": Bound(0, 86_400, "s", low_inclusive=True),
     "--ramp": Bound(0, 1e4, "Hz/s"),
     "--reference": Bound(0, 3600, "s"),
+    "--post": Bound(0, 3600, "s"),
 }
 
 

@@ -87,6 +87,15 @@ def plant_serve(
             callback=bounded("--history"),
         ),
     ] = 0.0,
+    fault: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--fault",
+            help="Inject a fault into every served machine: ELEMENT:KIND:severity=S:onset=T"
+            "[:ramp=R] (T, R in s from the start; the syntax of 'generate --fault', "
+            "docs/faults.md). Not live: rotor_resistance, eccentricity.",
+        ),
+    ] = None,  # fmt: skip
     log: Annotated[
         Path | None,
         typer.Option(
@@ -119,9 +128,15 @@ def plant_serve(
     if log is not None and log.suffix.lower() not in (".parquet", ".csv"):
         raise ConfigError(f"unsupported log file type '{log.suffix or '(none)'}'", source=log,
                           where="--log", fix="name the log *.parquet or *.csv")  # fmt: skip
+    from drafttwin.mechanics import DriveTrain
+    from drafttwin.plant.faults import FaultSpec
+    from drafttwin.plant.live import live_faults
+
+    faults = live_faults([FaultSpec.parse(f) for f in fault or []], DriveTrain.preset("fa320a"),
+                         physics)  # fmt: skip
     names = [name] if machines == 1 else [f"{name}-{k + 1}" for k in range(machines)]
     opts: dict[str, Any] = {"seed": seed, "rate_hz": rate, "physics": physics,
-                            "ramp_hz_per_s": ramp, "duration_s": duration}  # fmt: skip
+                            "ramp_hz_per_s": ramp, "duration_s": duration, "faults": faults}  # fmt: skip
     with open_plant_log(log) as plant_log:
         opts["on_sample"] = None if plant_log is None else plant_log.add
         if history:

@@ -44,6 +44,13 @@ def twin_fit_detector(
             callback=bounded("--reference"),
         ),
     ] = 15.0,  # fmt: skip
+    post: Annotated[
+        float,
+        typer.Option(
+            help="Seconds after an alarm whose mean shift is ranked for the probable cause.",
+            callback=bounded("--post"),
+        ),
+    ] = 10.0,  # fmt: skip
     out: Annotated[
         Path | None,
         typer.Option(
@@ -76,8 +83,8 @@ def twin_fit_detector(
     features = [record_features(train, Channels().read(p)) for p in files]
     detector = FaultDetector(far_per_day=far_per_day, reference_s=reference).fit(features)
     target = out if out is not None else detector_path(model)
-    save_detector(target, detector, model, files)
-    result = {"detector": str(target), "model": str(model), "fitted_on": files,
+    save_detector(target, detector, model, files, post)
+    result = {"detector": str(target), "model": str(model), "fitted_on": files, "post_s": post,
               **detector.describe()}  # fmt: skip
     if as_json:
         print_json(result)

@@ -7,11 +7,20 @@ counting whole edges over each sample window, dropped samples and spikes at the 
 rates. What it leaves out, because they are drawn over a whole record in advance: the
 drafting-force noise, supply jitter, eccentricity torques and thermal drift. The VFD ramps its
 output toward a written set-point at ``ramp_hz_per_s`` (an assumed acceleration setting).
+
+Faults (``plant serve --fault``, the syntax of ``generate --fault``; onset and ramp in seconds
+from the plant's start): machine faults change the true train's tables as the recorded plant's
+:class:`~drafttwin.plant.faults.FaultSchedule` does (held per kernel block), written into the
+running integrator; sensor faults change what the encoders report
+(:func:`~drafttwin.plant.faults.apply_sensor_faults`). Not live: the rotor-resistance and
+eccentricity faults (time signals drawn over a whole record) and machine faults on the reduced
+physics (its tables are the reduction's).
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,7 +30,18 @@ from drafttwin.errors import ConfigError
 from drafttwin.mechanics import DriveTrain, reduce
 from drafttwin.mechanics.stepper import LiveStepper
 from drafttwin.plant.config import PlantConfig
+from drafttwin.plant.faults import (
+    SENSOR_CHANNELS,
+    FaultSchedule,
+    FaultSpec,
+    apply_sensor_faults,
+    block_seconds,
+    check_faults,
+)
 from drafttwin.plant.machine import Machine
+
+NOT_LIVE = ("rotor_resistance", "eccentricity")
+"""Fault kinds the live plant cannot inject (time signals drawn for a whole record)."""
 
 DEFAULT_RAMP_HZ_PER_S = 10.0
 """VFD acceleration/deceleration, Hz/s (assumption: 5 s from 0 to 50 Hz)."""
@@ -42,6 +62,22 @@ class LiveSample:
     true_rpm: np.ndarray
 
 
+def live_faults(faults: Sequence[FaultSpec], train: DriveTrain,
+                physics: str = "full") -> tuple[FaultSpec, ...]:  # fmt: skip
+    """The faults, checked for ``train`` and for what a live plant can inject."""
+    checked = check_faults(faults, train)
+    for f in checked:
+        if f.kind in NOT_LIVE:
+            raise ConfigError(f"a {f.kind} fault cannot be injected into the live plant",
+                              where="--fault", fix="record it offline (drafttwin generate "
+                              "--fault); live: a bearing, load, belt, gear, chain, torque or "
+                              "sensor fault")  # fmt: skip
+        if not f.is_sensor and physics != "full":
+            raise ConfigError("machine faults need the full physics of the live plant",
+                              where="--fault", fix="leave out --physics reduced")  # fmt: skip
+    return checked
+
+
 class LivePlant:
     """A drawing frame stepped one sample at a time.
 
@@ -54,7 +90,8 @@ class LivePlant:
 
     def __init__(self, seed: int = 0, rate_hz: float = 100.0, *, t0_s: float = 0.0,
                  train: DriveTrain | None = None, config: PlantConfig | None = None,
-                 physics: str = "full", ramp_hz_per_s: float = DEFAULT_RAMP_HZ_PER_S) -> None:  # fmt: skip
+                 physics: str = "full", ramp_hz_per_s: float = DEFAULT_RAMP_HZ_PER_S,
+                 faults: Sequence[FaultSpec] = ()) -> None:  # fmt: skip
         nominal = train if train is not None else DriveTrain.preset("fa320a")
         self.config = config if config is not None else PlantConfig()
         if nominal.spec.motor is None:
@@ -75,6 +112,39 @@ class LivePlant:
         self._rev = self._rng.uniform(0.0, 1.0, len(ROLLERS) + 1)  # arbitrary encoder zeros
         self._counts = np.floor(self._rev * self._cpr)
         self.seq = 0
+        self._faults(live_faults(faults, nominal, physics), seed)
+
+    def _faults(self, faults: tuple[FaultSpec, ...], seed: int) -> None:
+        self.faults = faults
+        self.sensor_faults = tuple(f for f in faults if f.is_sensor)
+        machine = [f for f in faults if not f.is_sensor]
+        self.schedule = FaultSchedule(self.stepper.train, machine) if machine else None
+        self._block_s = block_seconds(self.rate_hz)
+        self._held: dict[int, float] = {}  # stuck encoders: the value they repeat
+        self._fault_rng = np.random.default_rng(np.random.SeedSequence([seed, 0xFA17]))
+
+    def _apply_machine_faults(self, t: float) -> None:
+        """Write the faulted tables (held per kernel block, as recorded) into the integrator."""
+        assert self.schedule is not None
+        args = self.stepper._args  # the kernel's table arrays, read on every call
+        new = self.schedule(math.floor(t / self._block_s) * self._block_s).args()
+        for old, value in zip(args[:-3], new[:-3], strict=True):  # the last three: the supply
+            if old is not value and old.shape == value.shape:
+                np.copyto(old, value)
+
+    def _apply_sensor_faults(self, t: float, rollers: np.ndarray,
+                             motor: float) -> tuple[np.ndarray, float]:  # fmt: skip
+        x = np.append(rollers, motor)
+        for f in self.sensor_faults:
+            col = SENSOR_CHANNELS.index(f.element)
+            if f.kind == "stuck":  # held at the value before onset for severity s
+                if f.onset_s <= t < f.onset_s + f.severity:
+                    x[col] = self._held.setdefault(col, x[col])
+                continue
+            r, m, _ = apply_sensor_faults(x[None, :4], x[4:], np.array([t]), [f],
+                                          self._fault_rng)  # fmt: skip
+            x[:4], x[4] = r[0], m[0]
+        return x[:4], float(x[4])
 
     def set_supply(self, hz: float) -> None:
         """A new VFD set-point, Hz; the output ramps to it."""
@@ -86,6 +156,9 @@ class LivePlant:
     def step(self) -> LiveSample:
         """Advance one sample: ramp the supply, integrate, count encoder edges."""
         dt = 1.0 / self.rate_hz
+        t_fault = (self.seq + 1) / self.rate_hz  # machine time of this sample, from the start
+        if self.schedule is not None:
+            self._apply_machine_faults(t_fault - dt)
         delta = self.target_hz - self.supply_hz
         limit = self.ramp * dt if self.ramp > 0 else math.inf
         self.supply_hz += max(-limit, min(limit, delta))
@@ -104,6 +177,8 @@ class LivePlant:
             sign = np.where(self._rng.random(len(rollers)) < 0.5, -1.0, 1.0)
             rollers = np.where(spikes, rollers * (1.0 + sign * size), rollers)
         motor = float(measured[-1])
+        if self.sensor_faults:
+            rollers, motor = self._apply_sensor_faults(t_fault, rollers, motor)
         if self._rng.random() < s.missing_rate:  # a dropped logger row
             rollers[:] = np.nan
             motor = math.nan
@@ -112,4 +187,4 @@ class LivePlant:
         return LiveSample(self.seq, time_s, rollers, motor, self.supply_hz, true[:-1])
 
 
-__all__ = ["DEFAULT_RAMP_HZ_PER_S", "LivePlant", "LiveSample"]
+__all__ = ["DEFAULT_RAMP_HZ_PER_S", "LivePlant", "LiveSample", "live_faults"]

@@ -68,7 +68,7 @@ def build_service(
     store = None if store_dir is None else TwinStore(store_dir)
     states: dict[str, MachineState] = {}
     trains: dict[Path, DriveTrain] = {}
-    detectors: dict[Path, FaultDetector | None] = {}
+    detectors: dict[Path, tuple[FaultDetector, float] | None] = {}
     service_models: dict[str, tuple[DriveTrain, FaultDetector]] = {}
     try:
         for name, (m, spec) in maps.items():
@@ -84,9 +84,11 @@ def build_service(
             st = MachineState(twin, m, spec, model_key=str(path))
             if path not in detectors:
                 detectors[path] = _detector(path, model_path, detector)
-            det = detectors[path]
-            if det is not None:
-                st.watch = LiveFaultWatch(det, name, m.channels, m.rate_hz, has_motor=m.has_motor)
+            found = detectors[path]
+            if found is not None:
+                det, post_s = found
+                st.watch = LiveFaultWatch(det, name, m.channels, m.rate_hz, has_motor=m.has_motor,
+                                          post_s=post_s)  # fmt: skip
                 if str(path) not in service_models:
                     service_models[str(path)] = (physics_train(model, "full"), det)
             if store is not None:
@@ -112,7 +114,7 @@ def build_service(
     return service
 
 
-def _detector(path: Path, main: Path, choice: str) -> FaultDetector | None:
+def _detector(path: Path, main: Path, choice: str) -> tuple[FaultDetector, float] | None:
     """The fault detector of the model at ``path`` (None: the model has none, or ``none``)."""
     if choice == "none":
         return None

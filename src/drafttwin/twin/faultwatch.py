@@ -7,7 +7,9 @@ closes, its features come from the same function the offline diagnosis uses
 (:class:`~drafttwin.diagnosis.detect.CusumState`): per sample the cost is a copy into the block
 buffer; per block one feature row and one CUSUM step. Nothing is recomputed over the history.
 
-After a CUSUM alarm the watch collects :data:`POST_S` of blocks (the shift grows by then, as
+A sensor rule fires on every block while its fault lasts; the watch raises it once per
+episode (offline, ``run(stop_at_first=False)`` lists every block). After a CUSUM alarm the
+watch collects :data:`POST_S` of blocks (the shift grows by then, as
 offline) and hands the mean shift to the model-based ranking
 (:meth:`~drafttwin.diagnosis.diagnose.Diagnoser.rank`), which the service runs in a separate
 process (:class:`Locator`): a second of SciPy fits must not hold up any machine's samples.
@@ -64,20 +66,23 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
-def save_detector(path: Path, detector: FaultDetector, model: Path, fitted_on: list[str]) -> None:
-    """Write the fitted detector (atomic), tied to ``model`` by its SHA-256."""
+def save_detector(path: Path, detector: FaultDetector, model: Path, fitted_on: list[str],
+                  post_s: float = POST_S) -> None:  # fmt: skip
+    """Write the fitted detector (atomic), tied to ``model`` by its SHA-256, with the live
+    post-alarm window ``post_s``."""
     from drafttwin._io import atomic_path
     from drafttwin._json import dumps_strict
 
     doc = {"format": FORMAT, "version": VERSION, "model_file": model.name,
-           "model_sha256": file_sha256(model), "fitted_on": fitted_on,
+           "model_sha256": file_sha256(model), "fitted_on": fitted_on, "post_s": post_s,
            "detector": detector.to_state(), "describe": detector.describe()}  # fmt: skip
     with atomic_path(path) as tmp:
         tmp.write_text(dumps_strict(doc), encoding="utf-8")
 
 
-def load_detector(path: Path, model: Path) -> FaultDetector:
-    """Read a detector back, refusing one of another format or fitted for another model."""
+def load_detector(path: Path, model: Path) -> tuple[FaultDetector, float]:
+    """Read a detector (and its post-alarm window, s) back, refusing one of another format or
+    fitted for another model."""
     fix = f"fit it again: drafttwin twin fit-detector --model {model} --healthy FILES"
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
@@ -93,10 +98,13 @@ def load_detector(path: Path, model: Path) -> FaultDetector:
         raise DataError(f"the detector was fitted for another model file "
                         f"({doc.get('model_file')!r}, a different SHA-256)", source=path,
                         where="model_sha256", fix=fix)  # fmt: skip
-    state = doc.get("detector")
+    state, post = doc.get("detector"), doc.get("post_s")
     if not isinstance(state, dict):
         raise DataError("the detector file has no fitted detector", source=path, fix=fix)
-    return FaultDetector.from_state(state, source=str(path))
+    if not (isinstance(post, int | float) and math.isfinite(post) and 0 < post <= 3600):
+        raise DataError(f"post_s = {post!r} is not a number of seconds in (0, 3600]",
+                        source=path, where="post_s", fix=fix)  # fmt: skip
+    return FaultDetector.from_state(state, source=str(path)), float(post)
 
 
 @dataclass(frozen=True)
@@ -142,6 +150,7 @@ class LiveFaultWatch:
         self.pending: tuple[Alarm, np.ndarray, list[np.ndarray]] | None = None
         self.blocks = 0
         self.restarts = 0
+        self.sensor_active: set[str] = set()
         self.levels: deque[tuple[float, np.ndarray]] = deque(maxlen=self.post + self.n_ref)
 
     def restart(self) -> None:
@@ -174,6 +183,10 @@ class LiveFaultWatch:
         self.blocks += 1
         self.levels.append((float(f.time_s[0]), level))
         alarms = self.state.update(float(f.time_s[0]), level, lost, run)
+        # a sensor rule fires on every block while the fault lasts: raise it once per episode
+        sensor = {a.test for a in alarms if a.direction == 0}
+        alarms = [a for a in alarms if a.direction != 0 or a.test not in self.sensor_active]
+        self.sensor_active = sensor
         causes, requests = [], []
         if self.pending is not None and np.isfinite(level).all():
             alarm, base, after = self.pending

@@ -23,10 +23,12 @@ import json
 import math
 import socket
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from drafttwin.errors import ConfigError
+from drafttwin.plant.faults import FaultSpec
 from drafttwin.twin.mapping import MachineMap
 from drafttwin.twin.sources import BACKOFF_S, Emit, Report, Sample, Source
 
@@ -224,7 +226,8 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
                      duration_s: float | None = None, ready: Any = None,
                      username: str | None = None, password: str | None = None,
                      cert_dir: Path | None = None, broker_mode: str = "auto",
-                     on_sample: Any = None) -> dict[str, int]:  # fmt: skip
+                     on_sample: Any = None,
+                     faults: Sequence[FaultSpec] = ()) -> dict[str, int]:  # fmt: skip
     """Publish ``names`` live plants to the broker at ``address``; set-points arrive on
     ``drafttwin/NAME/setpoint``. ``broker_mode``: ``auto`` starts the embedded broker when none
     answers on a local address, ``external`` never starts one (a broker must answer),
@@ -251,7 +254,8 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
                               fix="start one there, or use 127.0.0.1 to start the embedded one")  # fmt: skip
         users = None if username is None else {username: password or ""}
         broker = await start_broker(host, port, users, cert_dir)
-    plants = {n: LivePlant(seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s)
+    plants = {n: LivePlant(seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s,
+                           faults=faults)
               for k, n in enumerate(names)}  # fmt: skip
     pending: dict[str, float] = {}
 

@@ -20,12 +20,13 @@ import asyncio
 import contextlib
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from drafttwin.errors import ConfigError
+from drafttwin.plant.faults import FaultSpec
 from drafttwin.plant.live import LivePlant, LiveSample
 
 NAMESPACE = "urn:drafttwin:plant"
@@ -84,6 +85,7 @@ async def serve_opcua(
     ready: Callable[[], None] | None = None,
     cert_dir: Path | None = None,
     history_s: float = 0.0,
+    faults: Sequence[FaultSpec] = (),
 ) -> dict[str, int]:
     """Serve ``names`` live plants at ``url`` until ``duration_s`` (or cancelled); returns
     the samples published per machine. With ``history_s`` the server keeps each machine's
@@ -108,7 +110,9 @@ async def serve_opcua(
     folder = await server.nodes.objects.add_folder(_nid(idx, "Machines"), f"{idx}:Machines")
     machines = []
     for k, name in enumerate(names):
-        plant = LivePlant(seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s)
+        plant = LivePlant(
+            seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s, faults=faults
+        )
         machines.append(await _add_machine(server, idx, folder, name, plant))
     async with server:
         if history_s > 0:

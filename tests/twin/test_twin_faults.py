@@ -1,0 +1,234 @@
+"""Faults in the live path: the incremental detector decides as the offline one, the detector
+file round-trips and refuses what it must, the live plant injects faults, and end to end a
+faulted plant served over OPC UA raises an alarm with a plausible probable cause."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+
+import numpy as np
+import pytest
+
+from drafttwin.diagnosis.detect import FaultDetector
+from drafttwin.diagnosis.residuals import block_features
+from drafttwin.errors import ConfigError, DataError
+from drafttwin.twin.faultwatch import LiveFaultWatch, load_detector, save_detector
+from drafttwin.twin.store import SampleRow
+
+from ._twin import cli, env, free_port
+
+RATE = 100.0
+ROLLER_RPM = np.array([300.0, 250.0, 100.0, 60.0, 1450.0])
+
+
+def samples(seed: int, n_s: float, shift: np.ndarray | None = None, at_s: float = 0.0,
+            lose: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Measured and predicted speeds (rollers + motor) with AR(1) common-mode level noise per
+    block and white sample noise; ``shift`` (relative) from ``at_s``; channel ``lose`` drops
+    half its samples in the last 5 s."""
+    rng = np.random.default_rng(seed)
+    n = int(n_s * RATE)
+    t = 1000.0 + np.arange(1, n + 1) / RATE
+    common = np.zeros(n)
+    for i in range(100, n, 100):  # one AR(1) step per block
+        common[i : i + 100] = 0.8 * common[i - 1] + rng.standard_normal() * 6e-5
+    rel = common[:, None] * np.array([1, 1, 1, 1, 0.9]) + rng.standard_normal((n, 5)) * 2e-4
+    if shift is not None:
+        rel[t - t[0] >= at_s] += shift
+    yhat = np.tile(ROLLER_RPM, (n, 1))
+    y = yhat * (1 + rel)
+    if lose is not None:
+        y[-500::2, lose] = np.nan
+    return t, y, yhat
+
+
+def rows(t: np.ndarray, y: np.ndarray, yhat: np.ndarray) -> list[SampleRow]:
+    nan4 = np.full(4, np.nan)
+    return [SampleRow("m", int(round(ti * 1e6)), i, 50.0, yi[:4], yh[:4], nan4, nan4,
+                      float(yi[4]), float(yh[4]))
+            for i, (ti, yi, yh) in enumerate(zip(t, y, yhat, strict=True))]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def detector() -> FaultDetector:
+    healthy = [block_features(y, yh, t, 1.0) for t, y, yh in (samples(s, 120) for s in range(3))]
+    return FaultDetector(reference_s=10.0).fit(healthy)
+
+
+def test_the_live_watch_decides_block_by_block_as_the_offline_detector(detector):
+    step = np.array([1, 1, 1, 1, 0]) * -8e-4  # the rollers slow, the motor does not: belt-like
+    t, y, yhat = samples(7, 90, shift=step, at_s=40.0, lose=2)
+    offline = detector.run(block_features(y, yhat, t, 1.0), stop_at_first=False).alarms
+    watch = LiveFaultWatch(detector, "m", ("front", "second", "third", "back"), RATE, post_s=5)
+    live, requests, causes = [], [], []
+    for r in rows(t, y, yhat):
+        a, c, q = watch.add(r)
+        live += a
+        causes += c
+        requests += q
+
+    def key(alarms):  # block times from us stamps (live) and from float times (offline)
+        return [(round(a.time_s, 6), a.test, a.direction, round(a.change_s, 6)) for a in alarms]
+
+    cusum = [a for a in offline if a.direction != 0]
+    assert cusum and key([a for a in live if a.direction != 0]) == key(cusum)
+    first = live[0]
+    assert first.test == "belt" and first.direction == -1 and 1040 < first.time_s <= 1045
+    assert len(requests) == 1 and requests[0].alarm == first and requests[0].n_blocks == 5
+    # the shift handed to the ranking is the step (within the block noise)
+    assert requests[0].shift[:4] == pytest.approx(step[:4], abs=2e-4)
+    assert abs(requests[0].shift[4]) < 2e-4
+    sensor = [a for a in live if a.direction == 0]  # once, where offline lists every block
+    assert [a.test for a in offline if a.direction == 0] == ["lost_third"] * 5
+    assert [a.test for a in sensor] == ["lost_third"] and causes[0]["element"] == "third"
+    assert causes[0]["kind"] == "dropout" and causes[0]["severity"] == pytest.approx(0.5)
+
+
+def test_healthy_rows_raise_nothing_and_a_gap_restarts_the_baseline(detector):
+    watch = LiveFaultWatch(detector, "m", ("front", "second", "third", "back"), RATE)
+    t, y, yhat = samples(11, 100)
+    out = [watch.add(r)[0] for r in rows(t, y, yhat)]
+    assert not any(out) and watch.blocks == 100 and watch.restarts == 0
+    later = rows(t + 500.0, y, yhat)  # 400 s of silence: the physics restarted
+    watch.add(later[0])
+    assert watch.restarts == 1 and not watch.state.ready
+    with pytest.raises(ConfigError, match="four rollers"):
+        LiveFaultWatch(detector, "m", ("front", "back"), RATE)
+
+
+def test_the_detector_file_round_trips_and_refuses_another_model(detector, tmp_path):
+    model = tmp_path / "m.dtm"
+    model.write_bytes(b"model bytes")
+    path = tmp_path / "m.dtm.detector.json"
+    save_detector(path, detector, model, ["a.parquet"], post_s=7.0)
+    back, post = load_detector(path, model)
+    assert post == 7.0 and back.h_ == detector.h_
+    assert np.array_equal(back.sigma_, detector.sigma_)
+    assert np.array_equal(back.level_cov_, detector.level_cov_)
+    t, y, yhat = samples(3, 80, shift=np.full(5, -6e-4), at_s=30)
+    f = block_features(y, yhat, t, 1.0)
+    assert back.run(f).alarms == detector.run(f).alarms != []
+    model.write_bytes(b"refitted")
+    with pytest.raises(DataError, match="another model"):
+        load_detector(path, model)
+    doc = json.loads(path.read_text())
+    model.write_bytes(b"model bytes")
+    for key, value in (("format", "x"), ("post_s", float("nan")), ("post_s", -1)):
+        path.write_text(json.dumps({**doc, key: value}))
+        with pytest.raises(DataError):
+            load_detector(path, model)
+    doc["detector"]["sigma"][0] = -1.0
+    path.write_text(json.dumps(doc))
+    with pytest.raises(DataError, match="sigma"):
+        load_detector(path, model)
+
+
+def test_the_live_plant_injects_machine_and_sensor_faults():
+    from drafttwin.plant.faults import FaultSpec
+    from drafttwin.plant.live import LivePlant
+
+    def run(*faults: str) -> np.ndarray:
+        p = LivePlant(3, RATE, faults=[FaultSpec.parse(f) for f in faults])
+        out = []
+        for _ in range(300):
+            s = p.step()
+            out.append(np.append(s.true_rpm, s.rollers_rpm))
+        return np.array(out)
+
+    healthy = run()
+    belt = run("main_belt:belt_wear:severity=0.5:onset=1")
+    assert np.array_equal(belt[:90], healthy[:90])  # nothing before the onset
+    slip = belt[200:, :4].mean(axis=0) / healthy[200:, :4].mean(axis=0) - 1
+    assert np.all((slip < -3e-4) & (slip > -3e-3))  # the creep grows: every roller slower
+    gain = run("third:gain:severity=0.01:onset=1")
+    assert np.array_equal(gain[:, :4], healthy[:, :4])  # the truth is untouched
+    ratio = np.nanmean(gain[200:, 6]) / np.nanmean(healthy[200:, 6])
+    assert ratio == pytest.approx(1.01, abs=5e-4)
+    with pytest.raises(ConfigError, match="live plant"):
+        LivePlant(3, RATE, faults=[FaultSpec.parse("motor:rotor_resistance:severity=0.1:onset=1")])
+    with pytest.raises(ConfigError, match="full physics"):
+        LivePlant(3, RATE, physics="reduced",
+                  faults=[FaultSpec.parse("main_belt:belt_wear:severity=0.5:onset=1")])  # fmt: skip
+
+
+def test_cli_refuses_bad_fault_and_detector_input(twin_files, tmp_path):
+    record, model = twin_files
+    code, _, err = invoke("plant", "serve", "--opcua", "opc.tcp://127.0.0.1:1", "--duration",
+                       "0.1", "--fault", "nowhere:belt_wear:severity=0.5:onset=1")  # fmt: skip
+    assert code == 2 and "nowhere" in err and "--fault" in err
+    code, _, err = invoke("plant", "serve", "--opcua", "opc.tcp://127.0.0.1:1", "--duration",
+                       "0.1", "--fault", "motor:rotor_resistance:severity=0.1:onset=1")  # fmt: skip
+    assert code == 2 and "cannot be injected into the live plant" in err
+    replay = f"replay:{record}?speed=inf"
+    code, _, err = invoke("twin", "run", "--model", str(model), "--source", replay,
+                       "--detector", str(tmp_path / "none.json"))  # fmt: skip
+    assert code == 2 and "--detector" in err and "no detector file" in err
+    bad = tmp_path / "bad.json"
+    bad.write_text("{}")
+    code, _, err = invoke("twin", "run", "--model", str(model), "--source", replay,
+                       "--detector", str(bad))  # fmt: skip
+    assert code == 2 and "not a drafttwin live detector" in err
+    code, _, err = invoke("twin", "fit-detector", "--model", str(model), "--healthy", str(record))
+    assert code == 2 and "longer" in err  # 6 s is not longer than the 15-s baseline
+    assert not (tmp_path / "tiny.dtm.detector.json").exists()
+
+
+def invoke(*args: str) -> tuple[int, str, str]:
+    """The CLI in this process (no interpreter start-up): exit code, stdout, stderr."""
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    res = CliRunner().invoke(app, list(args))
+    assert res.exception is None or isinstance(res.exception, SystemExit), res.exception
+    return res.exit_code, res.stdout, res.stderr
+
+
+@pytest.mark.slow
+def test_a_faulted_plant_served_live_raises_an_alarm_naming_the_belt(tmp_path, twin_files):
+    """Thresholds from two healthy records; the plant served over OPC UA with a belt wearing
+    from 6 s; the twin's store names the belt; a healthy replay raises nothing."""
+    from drafttwin.plant import Plant
+
+    _, model_src = twin_files
+    model = tmp_path / "m.dtm"
+    model.write_bytes(model_src.read_bytes())
+    healthy = []
+    for seed in (1, 2):
+        healthy.append(tmp_path / f"h{seed}.parquet")
+        Plant().run(10.0, 100.0, seed=seed).write(healthy[-1])
+    code, _, err = invoke("twin", "fit-detector", "--model", str(model), "--healthy",
+                          ",".join(map(str, healthy)), "--reference", "3", "--post", "3")  # fmt: skip
+    assert code == 0, err
+    port = free_port()
+    plant = subprocess.Popen(cli("plant", "serve", "--opcua", f"opc.tcp://127.0.0.1:{port}",
+                                 "--duration", "20", "--seed", "5",
+                                 "--fault", "main_belt:belt_wear:severity=0.6:onset=6"),
+                             env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                             text=True)  # fmt: skip
+    try:
+        assert plant.stderr is not None and "serving" in plant.stderr.readline()
+        code, out, err = invoke("twin", "run", "--model", str(model), "--source",
+                                f"opcua:opc.tcp://127.0.0.1:{port}", "--store",
+                                str(tmp_path / "st"), "--duration", "11", "--quiet", "--json")  # fmt: skip
+    finally:
+        plant.kill()
+        plant.wait()
+    assert code == 0, err
+    assert json.loads(out)["machines"]["fa320a"]["fault_detector"] is True
+    import duckdb
+
+    con = duckdb.connect(str(tmp_path / "st" / "twin.duckdb"), read_only=True)
+    events = con.execute("SELECT kind, detail FROM events WHERE kind LIKE '%fault%' "
+                         "ORDER BY ts_us, kind").fetchall()  # fmt: skip
+    con.close()
+    assert [k for k, _ in events][:2] == ["fault", "fault-cause"], events
+    cause = json.loads(events[1][1])
+    top = cause["causes"][0]
+    assert "main_belt:belt_wear" in [f"{top['element']}:{top['kind']}", *top["group"]], cause
+    # healthy: a healthy record replayed raises nothing
+    code, out, err = invoke("twin", "run", "--model", str(model), "--source",
+                            f"replay:{healthy[0]}?speed=inf", "--quiet", "--json")  # fmt: skip
+    assert code == 0, err
+    assert json.loads(out)["machines"]["h1"]["fault_alarms"] == 0
