@@ -1,6 +1,7 @@
 """Live twin load: machines at 100 Hz in one process, ramped until it saturates.
 
     python benchmarks/bench_twin.py [--model M.dtm] [--seconds 5] [--machines 1,2,5,10,20,50]
+                                    [--detector]
 
 An in-process feed ticks at 100 Hz and hands every machine one sample per tick (rows of a
 plant record, the set-point included), as a source would; each machine runs the whole live
@@ -10,7 +11,9 @@ page's WebSocket hub, and the Prometheus metrics count it. Latency: sample hande
 row queued for the store and pushed to the hub (the commit adds at most one commit interval
 plus the commit's own time, reported apart). Saturation: fewer than 95 % of the offered
 samples processed, or p99 above 100 ms. Without --model a parallel hybrid is fitted on a
-20 s plant record first (quick profile, 2 epochs). Prints a table and writes
+20 s plant record first (quick profile, 2 epochs). With --detector every machine also runs
+the live fault watch (a detector fitted on the record itself, 5 s baseline; the feed carries
+the motor speed) and the results go to twin_detector.json. Prints a table and writes
 benchmarks/results/twin.json.
 """
 
@@ -30,7 +33,9 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 from _machine import write_results  # noqa: E402
 from drafttwin.data.io import read_measurements  # noqa: E402
+from drafttwin.diagnosis.detect import FaultDetector  # noqa: E402
 from drafttwin.models.base import BaseModel  # noqa: E402
+from drafttwin.twin.faultwatch import LiveFaultWatch  # noqa: E402
 from drafttwin.twin.live import MachineTwin, physics_train  # noqa: E402
 from drafttwin.twin.mapping import MachineMap  # noqa: E402
 from drafttwin.twin.service import MachineState, TwinService  # noqa: E402
@@ -49,6 +54,7 @@ class Feed(Source):
         self.spec = "in-process feed"
         s = read_measurements(record)
         self.values, self.setpoint = s.values, s.inputs["supply_hz"]
+        self.motor = s.motor_rpm if s.motor_rpm is not None else np.full(len(s.values), np.nan)
 
     async def run(self, emit: Emit, report: Report) -> None:
         self._set("live", report)
@@ -63,10 +69,12 @@ class Feed(Source):
             i = k % n
             ts = t0 + k * 10_000
             for m in self.machines:
-                emit(Sample(m.name, ts, k, self.values[i], float(self.setpoint[i])))
+                emit(Sample(m.name, ts, k, self.values[i], float(self.setpoint[i]),
+                            float(self.motor[i])))  # fmt: skip
 
 
-async def _step(model: BaseModel, record: Path, n: int, seconds: float, folder: Path) -> dict:
+async def _step(model: BaseModel, record: Path, n: int, seconds: float, folder: Path,
+                detector: FaultDetector | None = None) -> dict:  # fmt: skip
     names = [f"m{j:03d}" for j in range(n)]
     feed = Feed(names, record)
     states = {}
@@ -74,10 +82,14 @@ async def _step(model: BaseModel, record: Path, n: int, seconds: float, folder: 
     for m in feed.machines:
         twin = MachineTwin(m.name, model, RATE, train=train)
         twin.warm_up()
-        states[m.name] = MachineState(twin, m, feed.spec)
+        states[m.name] = MachineState(twin, m, feed.spec, model_key="bench")
+        if detector is not None:
+            states[m.name].watch = LiveFaultWatch(detector, m.name, m.channels, RATE)
     store = TwinStore(folder / f"store{n}")
     writer = StoreWriter(store, 200.0)
     service = TwinService(states, [feed], writer)
+    if detector is not None:
+        service.locator.register("bench", physics_train(model, "full"), detector)
     app = create_app(service)
     client: asyncio.Queue[str] = asyncio.Queue()
     app.state.hub.clients.add(client)
@@ -114,6 +126,7 @@ async def _step(model: BaseModel, record: Path, n: int, seconds: float, folder: 
         "cpu_s_per_s": cpu / wall,
         "commit_p99_ms": float(np.percentile(commits, 99)) if commits.size else None,
         "committed_rows": writer.committed,
+        "fault_alarms": sum(st.faults for st in states.values()),
     }
 
 
@@ -137,6 +150,7 @@ def main() -> None:
     parser.add_argument("--model", default=None)
     parser.add_argument("--seconds", type=float, default=5.0)
     parser.add_argument("--machines", default="1,2,5,10,20,35,50")
+    parser.add_argument("--detector", action="store_true", help="run the live fault watch too")
     args = parser.parse_args()
     import torch
 
@@ -145,11 +159,17 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         model, record = _model(args.model, folder)
+        detector = None
+        if args.detector:
+            from drafttwin.diagnosis.residuals import record_features
+
+            feats = record_features(physics_train(model, "reduced"), read_measurements(record))
+            detector = FaultDetector(reference_s=5.0).fit([feats])
         rows = []
         print(f"{'machines':>8} {'offered/s':>10} {'done/s':>8} {'p50 ms':>7} {'p99 ms':>7} "
               f"{'max ms':>7} {'cpu s/s':>7} {'commit p99 ms':>13}")  # fmt: skip
         for n in counts:
-            r = asyncio.run(_step(model, record, n, args.seconds, folder))
+            r = asyncio.run(_step(model, record, n, args.seconds, folder, detector))
             rows.append(r)
             print(f"{n:>8} {r['offered_samples_per_s']:>10.0f} {r['processed_samples_per_s']:>8.0f} "
                   f"{r['latency_p50_ms']:>7.2f} {r['latency_p99_ms']:>7.2f} {r['latency_max_ms']:>7.1f} "
@@ -169,7 +189,10 @@ def main() -> None:
                                      ("latency_p99_ms", "ms"), ("cpu_s_per_s", "core s/s"))
           for v in [r[k]]),
     ]  # fmt: skip
-    print(f"wrote {write_results('twin', figures)}")
+    if args.detector:
+        figures += [{"figure": f"{r['machines']} machines: fault alarms", "value": r["fault_alarms"],
+                     "unit": "alarms"} for r in rows]  # fmt: skip
+    print(f"wrote {write_results('twin_detector' if args.detector else 'twin', figures)}")
 
 
 if __name__ == "__main__":

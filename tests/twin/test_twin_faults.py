@@ -232,3 +232,37 @@ def test_a_faulted_plant_served_live_raises_an_alarm_naming_the_belt(tmp_path, t
                             f"replay:{healthy[0]}?speed=inf", "--quiet", "--json")  # fmt: skip
     assert code == 0, err
     assert json.loads(out)["machines"]["h1"]["fault_alarms"] == 0
+
+
+def test_the_hall_page_shows_every_shard_and_guards_its_token():
+    import urllib.error
+    import urllib.request
+
+    from drafttwin.twin.hallweb import HallServer, HallView
+
+    def get(url: str, headers: dict[str, str] | None = None) -> tuple[int, str]:
+        req = urllib.request.Request(url, headers=headers or {})
+        try:
+            with urllib.request.urlopen(req, timeout=10) as r:  # noqa: S310  a local test server
+                return r.status, r.read().decode()
+        except urllib.error.HTTPError as exc:
+            return exc.code, ""
+
+    view = HallView(2)
+    fault = {"kind": "fault-cause", "time": 5.0, "test": "belt", "causes": [
+        {"element": "main_belt", "kind": "belt_wear", "severity": 0.5, "probability": 0.9}]}  # fmt: skip
+    machine = {"state": "live", "received": 10, "processed": 10, "dropped": 0,
+               "fault_alarms": 1, "fault_detector": True, "last_fault": fault, "source": "x"}  # fmt: skip
+    view.update([{"rows": 10, "latency_ms": {"p99": 1.5, "p50": 1.0, "max": 2.0},
+                  "machines": {"m-1": machine}}, None])  # fmt: skip
+    token, port = "t" * 20, free_port()
+    base = f"http://127.0.0.1:{port}"
+    with HallServer(view, ("127.0.0.1", port), token):
+        assert get(f"{base}/api/hall")[0] == 401
+        code, text = get(f"{base}/api/hall?token={token}")
+        page = get(f"{base}/", {"Authorization": f"Bearer {token}"})
+    hall = json.loads(text)
+    assert code == 200 and [s["state"] for s in hall["shards"]] == ["running", "starting"]
+    m = hall["shards"][0]["machines"]["m-1"]
+    assert m["last_fault"]["causes"][0]["element"] == "main_belt" and "source" not in m
+    assert page[0] == 200 and "api/hall" in page[1]

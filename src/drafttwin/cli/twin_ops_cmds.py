@@ -17,7 +17,7 @@ from rich.table import Table
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._oserrors import input_path, output_dir
 from drafttwin.cli.app import console, err_console, print_json
-from drafttwin.cli.twin_cmds import _need_twin_extra, sigterm_as_interrupt, twin_app
+from drafttwin.cli.twin_cmds import _need_twin_extra, parse_bind, sigterm_as_interrupt, twin_app
 from drafttwin.errors import ConfigError, DrafttwinError
 
 RUNS_SHOWN = 10
@@ -129,6 +129,20 @@ def twin_hall(
         ),
     ] = None,  # fmt: skip
     quiet: Annotated[bool, typer.Option(help="No status line every 10 s on stderr.")] = False,
+    http: Annotated[
+        str | None,
+        typer.Option(
+            help="Serve the hall's page on HOST:PORT: every shard's machines at a glance "
+            "(state, samples, fault alarms and their probable cause), refreshed every second.",
+        ),
+    ] = None,  # fmt: skip
+    token: Annotated[
+        str | None,
+        typer.Option(
+            envvar="DRAFTTWIN_TOKEN",
+            help="Token every request to the page must carry (required off 127.0.0.1).",
+        ),
+    ] = None,  # fmt: skip
     as_json: Annotated[
         bool, typer.Option("--json", help="Print each shard's status as JSON.")
     ] = False,
@@ -144,6 +158,7 @@ def twin_hall(
     if physics not in ("reduced", "full"):
         raise ConfigError(f"unknown physics {physics!r}", where="--physics",
                           fix="use reduced or full")  # fmt: skip
+    bind = None if http is None else parse_bind(http, token)
     check_store(store, shards)
     n = check_hall(model, source, mapping, shards)
     _import_ray()
@@ -155,9 +170,16 @@ def twin_hall(
     err_console.print(f"hall: {n} machines over {shards} twins on "
                       f"{ray_address or 'a private Ray'}")  # fmt: skip
 
-    def status(shard_status: list) -> None:  # noqa: ANN001  one line per 10 s
-        if quiet:
+    from drafttwin.twin.hallweb import HallServer, HallView
+
+    view = HallView(shards)
+    printed = [0.0]
+
+    def status(shard_status: list) -> None:  # noqa: ANN001  the page's, and a line per 10 s
+        view.update(shard_status)
+        if quiet or time.monotonic() - printed[0] < 10.0:
             return
+        printed[0] = time.monotonic()
         parts = []
         for i, st in enumerate(shard_status):
             if st is None:
@@ -172,10 +194,20 @@ def twin_hall(
     try:
         # Ray prints its own notes (a shard's process died and is started again) on stdout:
         # they go to stderr, so that stdout holds only the result (strict JSON with --json)
-        with sigterm_as_interrupt(), contextlib.redirect_stdout(sys.stderr):
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(sigterm_as_interrupt())
+            stack.enter_context(contextlib.redirect_stdout(sys.stderr))
+            if bind is not None:
+                try:
+                    stack.enter_context(HallServer(view, bind, token))
+                except OSError as exc:
+                    raise ConfigError(f"cannot serve the hall page on {http} "
+                                      f"({exc.strerror or exc})", where="--http",
+                                      fix="choose a free port") from None  # fmt: skip
+                err_console.print(f"hall page on http://{bind[0]}:{bind[1]}/")
             results = run_hall(model, source, mapping, store, shards, address=ray_address,
                                commit_ms=commit_ms, physics=physics, duration_s=duration,
-                               on_status=status)  # fmt: skip
+                               on_status=status, status_every_s=1.0)  # fmt: skip
     except KeyboardInterrupt:
         err_console.print("interrupted: every shard committed what it received")
         return

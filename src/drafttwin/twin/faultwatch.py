@@ -221,19 +221,31 @@ class LiveFaultWatch:
 _DIAGNOSERS: dict[str, Diagnoser] = {}
 
 
-def _rank(key: str, train: dict[str, Any], detector: dict[str, Any], shift: list[float],
-          n_blocks: int) -> list[dict[str, Any]]:  # fmt: skip
-    """Worker side: the top causes (the diagnoser built once per model and kept)."""
+def _diagnoser(key: str, train: dict[str, Any], detector: dict[str, Any]) -> Diagnoser:
+    """Worker side: the model's diagnoser, built once and kept."""
     dx = _DIAGNOSERS.get(key)
     if dx is None:
         dx = Diagnoser(DriveTrain.from_dict(train, source=f"model {key}"),
                        FaultDetector.from_state(detector))  # fmt: skip
         _DIAGNOSERS[key] = dx
+    return dx
+
+
+def _prepare(key: str, train: dict[str, Any], detector: dict[str, Any]) -> None:
+    """Worker side, at the twin's start: build the diagnoser and its healthy operating point
+    (the first alarm then waits for the ranking only, not for a process start)."""
+    _ = _diagnoser(key, train, detector).signatures.healthy
+
+
+def _rank(key: str, train: dict[str, Any], detector: dict[str, Any], shift: list[float],
+          n_blocks: int) -> list[dict[str, Any]]:  # fmt: skip
+    """Worker side: the top causes."""
+    dx = _diagnoser(key, train, detector)
     return [c.to_dict() for c in dx.rank(np.asarray(shift, dtype=np.float64), n_blocks)[:TOP]]
 
 
 class Locator:
-    """Runs the rankings in one worker process (spawned on the first alarm), at most
+    """Runs the rankings in one worker process (started with the twin, :meth:`warm`), at most
     :data:`MAX_PENDING` at a time; ``done(request, causes, error)`` is called from the
     executor's thread."""
 
@@ -245,17 +257,25 @@ class Locator:
     def register(self, key: str, train: DriveTrain, detector: FaultDetector) -> None:
         self.models[key] = (train.to_dict(), detector.to_state())
 
+    def _executor(self) -> ProcessPoolExecutor:
+        if self.executor is None:
+            import multiprocessing
+
+            self.executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+        return self.executor
+
+    def warm(self) -> None:
+        """Start the worker and build every model's diagnoser there, in the background."""
+        for key, (train, det) in self.models.items():
+            self._executor().submit(_prepare, key, train, det)
+
     def submit(self, key: str, req: Localise,
                done: Callable[[Localise, list[dict[str, Any]] | None, str | None], None]) -> bool:  # fmt: skip
         """Queue one ranking; ``False`` (nothing queued) when :data:`MAX_PENDING` are."""
         if self.in_flight >= MAX_PENDING:
             return False
-        if self.executor is None:
-            import multiprocessing
-
-            self.executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
         train, det = self.models[key]
-        fut = self.executor.submit(_rank, key, train, det, req.shift.tolist(), req.n_blocks)
+        fut = self._executor().submit(_rank, key, train, det, req.shift.tolist(), req.n_blocks)
         self.in_flight += 1
 
         def finished(f: Future[list[dict[str, Any]]]) -> None:

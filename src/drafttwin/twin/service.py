@@ -10,6 +10,7 @@ released; the others run on.
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import time
 from collections import deque
@@ -52,6 +53,7 @@ class MachineState:
     watch: LiveFaultWatch | None = None  # the fault detector, when the model has one
     model_key: str = ""  # the model file (the locator's key for its diagnoser)
     faults: int = 0
+    last_fault: EventRow | None = None  # the latest alarm or its cause (status, hall page)
 
 
 class TwinService:
@@ -224,6 +226,8 @@ class TwinService:
 
     def _event(self, st: MachineState, ev: EventRow) -> None:
         st.alarms.append(ev)
+        if ev.kind in ("fault", "fault-cause", "sensor-fault"):
+            st.last_fault = ev
         for hook in self.event_hooks:
             hook(ev)
         if self.writer is not None:
@@ -246,6 +250,7 @@ class TwinService:
     async def run(self, *, duration_s: float | None = None, max_rows: int | None = None) -> None:
         """Run until every source ended, ``duration_s`` passed or ``max_rows`` were processed."""
         self._loop = asyncio.get_running_loop()
+        self.locator.warm()  # a worker process: the first alarm must not wait for its start
         tasks = [asyncio.create_task(src.run(self.on_sample, self.report)) for src in self.sources]
         watch = asyncio.create_task(self._watch())
         deadline = math.inf if duration_s is None else time.monotonic() + duration_s
@@ -295,9 +300,21 @@ class TwinService:
                                 "duplicate": st.twin.reorder.duplicate,
                                 "spikes_rejected": st.twin.filter.rejected,
                                 "source": st.source, "fault_alarms": st.faults,
-                                "fault_detector": st.watch is not None}
+                                "fault_detector": st.watch is not None,
+                                "last_fault": _fault(st.last_fault)}
                          for name, st in self.states.items()},
         }  # fmt: skip
+
+
+def _fault(ev: EventRow | None) -> dict[str, Any] | None:
+    """An alarm event as status shows it: its kind and time, and its detail parsed."""
+    if ev is None:
+        return None
+    try:
+        detail = json.loads(ev.detail)
+    except ValueError:
+        detail = {"text": ev.detail}
+    return {"kind": ev.kind, "time": ev.ts_us / 1e6, **detail}
 
 
 __all__ = ["MachineState", "TwinService"]

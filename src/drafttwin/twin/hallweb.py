@@ -1,0 +1,115 @@
+"""The page of a whole hall (``drafttwin twin hall --http``): every shard's machines at a glance.
+
+The hall's driver polls each shard actor's status every second (:func:`~drafttwin.twin.hall.run_hall`)
+and keeps the latest in a :class:`HallView`; this app serves it as ``GET /api/hall`` and a page
+(``static/hall.html``, no chart library, nothing from the internet) that redraws a tile per
+machine from it: its shard, state, samples, p99 latency of its shard and its latest fault
+alarm with the probable cause. The same token rule as the twin's page: any bind address but
+127.0.0.1 needs a token, checked on every request.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from importlib import resources
+from typing import Any
+
+from drafttwin._json import to_strict
+from drafttwin.twin.web import _check, _given
+
+
+class HallView:
+    """The latest status of each shard (``None``: starting or not answering), thread-safe."""
+
+    def __init__(self, shards: int) -> None:
+        self.lock = threading.Lock()
+        self.shards: list[dict[str, Any] | None] = [None] * shards
+        self.updated = 0.0
+
+    def update(self, statuses: list[dict[str, Any] | None]) -> None:
+        with self.lock:
+            self.shards, self.updated = list(statuses), time.time()
+
+    def snapshot(self) -> dict[str, Any]:
+        with self.lock:
+            shards, updated = list(self.shards), self.updated
+        out = []
+        for i, st in enumerate(shards):
+            if st is None:
+                out.append({"shard": i, "state": "starting", "machines": {}})
+                continue
+            out.append({"shard": i, "state": "running", "rows": st.get("rows"),
+                        "latency_ms": st.get("latency_ms"),
+                        "machines": {name: {k: m.get(k) for k in MACHINE_KEYS}
+                                     for name, m in st.get("machines", {}).items()}})  # fmt: skip
+        return to_strict({"updated": updated, "shards": out})
+
+
+MACHINE_KEYS = ("state", "received", "processed", "dropped", "fault_alarms", "fault_detector",
+                "last_fault")  # fmt: skip
+
+
+def create_hall_app(view: HallView, token: str | None = None) -> Any:
+    from fastapi import FastAPI, Request
+    from fastapi.responses import HTMLResponse, Response
+    from starlette.middleware.base import BaseHTTPMiddleware
+
+    app = FastAPI(title="drafttwin hall", docs_url=None, redoc_url=None)
+    static = resources.files("drafttwin.twin") / "static"
+
+    class TokenGuard(BaseHTTPMiddleware):
+        async def dispatch(self, request: Request, call_next: Any) -> Any:
+            if not _check(token, _given(request.headers, request.query_params, request.cookies)):
+                return Response("token required", status_code=401)
+            response = await call_next(request)
+            if token is not None and request.query_params.get("token"):
+                response.set_cookie("drafttwin_token", token, httponly=True, samesite="strict")
+            return response
+
+    app.add_middleware(TokenGuard)
+
+    @app.get("/", response_class=HTMLResponse)
+    def page() -> str:
+        return (static / "hall.html").read_text(encoding="utf-8")
+
+    @app.get("/api/hall")
+    def hall() -> Any:
+        return view.snapshot()
+
+    return app
+
+
+class HallServer:
+    """uvicorn in a thread of the driver (the driver's own thread waits on Ray)."""
+
+    def __init__(self, view: HallView, bind: tuple[str, int], token: str | None) -> None:
+        import socket
+
+        import uvicorn
+
+        family = socket.AF_INET6 if ":" in bind[0] else socket.AF_INET
+        self.sock = socket.socket(family, socket.SOCK_STREAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.sock.bind(bind)  # an address in use fails here, as an OSError the CLI reports
+        config = uvicorn.Config(create_hall_app(view, token), log_level="warning", lifespan="off")
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]},
+                                       name="hall-page", daemon=True)  # fmt: skip
+
+    def __enter__(self) -> HallServer:
+        self.thread.start()
+        deadline = time.monotonic() + 10
+        while not self.server.started and self.thread.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if not self.server.started:
+            raise OSError("the hall page did not start")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=5)
+        self.sock.close()
+
+
+__all__ = ["HallServer", "HallView", "create_hall_app"]
