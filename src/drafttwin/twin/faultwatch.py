@@ -264,10 +264,11 @@ class Locator:
             self.executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
         return self.executor
 
-    def warm(self) -> None:
-        """Start the worker and build every model's diagnoser there, in the background."""
-        for key, (train, det) in self.models.items():
-            self._executor().submit(_prepare, key, train, det)
+    def warm(self) -> list[Future[None]]:
+        """Start the worker and build every model's diagnoser there, in the background (the
+        futures tell when it is ready; a second call finds them built)."""
+        return [self._executor().submit(_prepare, key, train, det)
+                for key, (train, det) in self.models.items()]  # fmt: skip
 
     def submit(self, key: str, req: Localise,
                done: Callable[[Localise, list[dict[str, Any]] | None, str | None], None]) -> bool:  # fmt: skip
