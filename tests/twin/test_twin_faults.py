@@ -220,7 +220,10 @@ def test_a_faulted_plant_served_live_raises_an_alarm_naming_the_belt(tmp_path, t
     import duckdb
 
     con = duckdb.connect(str(tmp_path / "st" / "twin.duckdb"), read_only=True)
-    events = con.execute("SELECT kind, detail FROM events WHERE kind LIKE '%fault%' "
+    # machine-fault alarms only: thresholds from recorded-plant records can raise a 'stuck'
+    # sensor alarm on the live plant, whose steadier speeds repeat encoder values longer
+    # (docs/twin.md; fit on a 'plant serve --log' to avoid it)
+    events = con.execute("SELECT kind, detail FROM events WHERE kind IN ('fault', 'fault-cause') "
                          "ORDER BY ts_us, kind").fetchall()  # fmt: skip
     con.close()
     assert [k for k, _ in events][:2] == ["fault", "fault-cause"], events
@@ -266,3 +269,24 @@ def test_the_hall_page_shows_every_shard_and_guards_its_token():
     m = hall["shards"][0]["machines"]["m-1"]
     assert m["last_fault"]["causes"][0]["element"] == "main_belt" and "source" not in m
     assert page[0] == 200 and "api/hall" in page[1]
+
+
+def test_a_plant_log_gives_one_healthy_record_per_machine(tmp_path, twin_files):
+    from drafttwin.plant.live import LivePlant
+    from drafttwin.twin.faultwatch import plant_log_series
+    from drafttwin.twin.plantlog import open_plant_log
+
+    path = tmp_path / "log.parquet"
+    plants = {"a": LivePlant(1, RATE), "b": LivePlant(2, RATE)}
+    with open_plant_log(path) as log:
+        assert log is not None
+        for _ in range(150):
+            for name, p in plants.items():
+                log.add(name, p.step())
+    records = plant_log_series(path)
+    assert records is not None and len(records) == 2
+    a = records[0]
+    assert len(a.time_s) == 150 and a.time_s[1] == pytest.approx(0.01)
+    assert a.motor_rpm is not None and np.nanmedian(a.motor_rpm) > 1000
+    assert a.inputs["supply_hz"][0] == pytest.approx(48.47, abs=1.0)
+    assert plant_log_series(twin_files[0]) is None  # a recorded file is not a log

@@ -24,8 +24,9 @@ def twin_fit_detector(
     healthy: Annotated[
         str,
         typer.Option(
-            help="Healthy records of the machine(s) (comma-separated .csv/.parquet with a motor "
-            "column, e.g. from 'drafttwin generate'): they set the thresholds.",
+            help="Healthy records of the machine(s), comma-separated: .csv/.parquet with a motor "
+            "column (e.g. 'drafttwin generate'), or logs of 'plant serve --log' (each machine "
+            "in it a record): they set the thresholds.",
             callback=input_paths("--healthy"),
         ),
     ],
@@ -72,7 +73,7 @@ def twin_fit_detector(
     from drafttwin.diagnosis.detect import FaultDetector
     from drafttwin.diagnosis.residuals import record_features
     from drafttwin.twin.build import load_twin_model
-    from drafttwin.twin.faultwatch import detector_path, save_detector
+    from drafttwin.twin.faultwatch import detector_path, plant_log_series, save_detector
     from drafttwin.twin.live import physics_train
 
     files = [p.strip() for p in healthy.split(",") if p.strip()]
@@ -80,7 +81,11 @@ def twin_fit_detector(
         raise ConfigError("no healthy record", where="--healthy", fix="give one or more files")
     fitted = load_twin_model(model)
     train = physics_train(fitted, "reduced")  # the physics the live twin steps
-    features = [record_features(train, Channels().read(p)) for p in files]
+    series = []
+    for p in files:  # a plant log holds one record per machine; anything else is one record
+        logged = plant_log_series(Path(p))
+        series += logged if logged is not None else [Channels().read(p)]
+    features = [record_features(train, s) for s in series]
     detector = FaultDetector(far_per_day=far_per_day, reference_s=reference).fit(features)
     target = out if out is not None else detector_path(model)
     save_detector(target, detector, model, files, post)
@@ -89,7 +94,7 @@ def twin_fit_detector(
     if as_json:
         print_json(result)
         return
-    console.print(f"fitted on {len(files)} record(s): CUSUM threshold h = {detector.h_:.2f} "
+    console.print(f"fitted on {len(series)} record(s): CUSUM threshold h = {detector.h_:.2f} "
                   f"(k = {detector.k:g}, {far_per_day:g} false alarm(s) per 24 h), "
                   f"blocks of {detector.block_s_:g} s, baseline {reference:g} s")  # fmt: skip
     console.print(f"wrote {target} ('twin run --model {model}' uses it)")

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from drafttwin._constants import ROLLERS
+from drafttwin.data.series import MeasurementSeries
 from drafttwin.diagnosis.detect import Alarm, CusumState, FaultDetector
 from drafttwin.diagnosis.diagnose import Diagnoser, sensor_cause
 from drafttwin.diagnosis.residuals import CHANNELS, block_features
@@ -105,6 +106,30 @@ def load_detector(path: Path, model: Path) -> tuple[FaultDetector, float]:
         raise DataError(f"post_s = {post!r} is not a number of seconds in (0, 3600]",
                         source=path, where="post_s", fix=fix)  # fmt: skip
     return FaultDetector.from_state(state, source=str(path)), float(post)
+
+
+def plant_log_series(path: Path) -> list[MeasurementSeries] | None:
+    """Each machine's record in a ``plant serve --log`` file (``None``: not a plant log), to
+    fit a detector on the live plant's own healthy running."""
+    from drafttwin.twin.plantlog import read_plant_log
+
+    try:
+        frame = read_plant_log(path)
+    except DataError:
+        return None
+    out = []
+    for name, rows in frame.sort_values(["machine", "seq"]).groupby("machine", sort=True):
+        seq = rows["seq"].to_numpy(dtype=np.int64)
+        # the plant's sample times are t0 + seq / rate: rebuilt from the counter, exactly uniform
+        period_s = (
+            float(np.median(np.diff(rows["ts_us"].to_numpy()))) / 1e6 if len(seq) > 1 else 0.01
+        )
+        out.append(MeasurementSeries(
+            time_s=(seq - seq[0]) * period_s, values=rows[list(ROLLERS)].to_numpy(dtype=np.float64),
+            inputs={"supply_hz": rows["supply_hz"].to_numpy(dtype=np.float64)},
+            motor_rpm=rows["motor"].to_numpy(dtype=np.float64),
+            metadata={"source": f"{path} (machine {name})"}))  # fmt: skip
+    return out
 
 
 @dataclass(frozen=True)
