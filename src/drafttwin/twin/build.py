@@ -6,6 +6,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import DriveTrain
@@ -59,12 +61,15 @@ def build_service(
     default = MachineMap("fa320a", channels)
     built: list[Source] = [parse_source(text, default, mapped) for text in sources]
     maps: dict[str, tuple[MachineMap, str]] = {}
+    no_motor: set[str] = set()
     for src in built:
         for m in src.machines:
             if m.name in maps:
                 raise ConfigError(f"machine {m.name!r} comes from two sources", where="--source",
                                   fix="name each replayed machine: replay:FILE?machine=NAME")  # fmt: skip
             maps[m.name] = (m, src.spec)
+            if isinstance(src, ReplaySource) and not np.isfinite(src.motor).any():
+                no_motor.add(m.name)  # a file without a motor column
     store = None if store_dir is None else TwinStore(store_dir)
     states: dict[str, MachineState] = {}
     trains: dict[Path, DriveTrain] = {}
@@ -87,8 +92,8 @@ def build_service(
             found = detectors[path]
             if found is not None:
                 det, post_s = found
-                st.watch = LiveFaultWatch(det, name, m.channels, m.rate_hz, has_motor=m.has_motor,
-                                          post_s=post_s)  # fmt: skip
+                st.watch = LiveFaultWatch(det, name, m.channels, m.rate_hz, post_s=post_s,
+                                          has_motor=m.has_motor and name not in no_motor)  # fmt: skip
                 if str(path) not in service_models:
                     service_models[str(path)] = (physics_train(model, "full"), det)
             if store is not None:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import threading
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -277,6 +278,7 @@ class Locator:
     def __init__(self) -> None:
         self.executor: ProcessPoolExecutor | None = None
         self.in_flight = 0
+        self._lock = threading.Lock()  # in_flight: counted up here, down in the executor's thread
         self.models: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {}
 
     def register(self, key: str, train: DriveTrain, detector: FaultDetector) -> None:
@@ -298,14 +300,16 @@ class Locator:
     def submit(self, key: str, req: Localise,
                done: Callable[[Localise, list[dict[str, Any]] | None, str | None], None]) -> bool:  # fmt: skip
         """Queue one ranking; ``False`` (nothing queued) when :data:`MAX_PENDING` are."""
-        if self.in_flight >= MAX_PENDING:
-            return False
+        with self._lock:
+            if self.in_flight >= MAX_PENDING:
+                return False
+            self.in_flight += 1
         train, det = self.models[key]
         fut = self._executor().submit(_rank, key, train, det, req.shift.tolist(), req.n_blocks)
-        self.in_flight += 1
 
         def finished(f: Future[list[dict[str, Any]]]) -> None:
-            self.in_flight -= 1
+            with self._lock:
+                self.in_flight -= 1
             exc = f.exception() if not f.cancelled() else None
             if f.cancelled() or exc is not None:
                 done(req, None, "cancelled" if exc is None else f"{type(exc).__name__}: {exc}")

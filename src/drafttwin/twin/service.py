@@ -301,6 +301,7 @@ class TwinService:
                                 "spikes_rejected": st.twin.filter.rejected,
                                 "source": st.source, "fault_alarms": st.faults,
                                 "fault_detector": st.watch is not None,
+                                "fault_motor": st.watch is not None and st.watch.has_motor,
                                 "last_fault": _fault(st.last_fault)}
                          for name, st in self.states.items()},
         }  # fmt: skip
