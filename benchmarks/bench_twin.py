@@ -35,7 +35,7 @@ from _machine import write_results  # noqa: E402
 from drafttwin.data.io import read_measurements  # noqa: E402
 from drafttwin.diagnosis.detect import FaultDetector  # noqa: E402
 from drafttwin.models.base import BaseModel  # noqa: E402
-from drafttwin.twin.faultwatch import LiveFaultWatch  # noqa: E402
+from drafttwin.twin.faultwatch import LiveFaultWatch, block_phase  # noqa: E402
 from drafttwin.twin.live import MachineTwin, physics_train  # noqa: E402
 from drafttwin.twin.mapping import MachineMap  # noqa: E402
 from drafttwin.twin.service import MachineState, TwinService  # noqa: E402
@@ -84,7 +84,8 @@ async def _step(model: BaseModel, record: Path, n: int, seconds: float, folder: 
         twin.warm_up()
         states[m.name] = MachineState(twin, m, feed.spec, model_key="bench")
         if detector is not None:
-            states[m.name].watch = LiveFaultWatch(detector, m.name, m.channels, RATE)
+            phase = block_phase(m.name, RATE, detector.block_s_)  # as twin run does
+            states[m.name].watch = LiveFaultWatch(detector, m.name, m.channels, RATE, phase=phase)
     store = TwinStore(folder / f"store{n}")
     writer = StoreWriter(store, 200.0)
     service = TwinService(states, [feed], writer)

@@ -290,3 +290,15 @@ def test_a_plant_log_gives_one_healthy_record_per_machine(tmp_path, twin_files):
     assert a.motor_rpm is not None and np.nanmedian(a.motor_rpm) > 1000
     assert a.inputs["supply_hz"][0] == pytest.approx(48.47, abs=1.0)
     assert plant_log_series(twin_files[0]) is None  # a recorded file is not a log
+
+
+def test_machines_close_their_blocks_on_different_samples(detector):
+    from drafttwin.twin.faultwatch import block_phase
+
+    phases = [block_phase(f"df-{i:02d}", RATE, 1.0) for i in range(20)]
+    assert all(0 <= p < 100 for p in phases) and len(set(phases)) > 12
+    watch = LiveFaultWatch(detector, "m", ("front", "second", "third", "back"), RATE, phase=37)
+    t, y, yhat = samples(4, 3)
+    closed = [i for i, r in enumerate(rows(t, y, yhat)) if watch.add(r) is not None and watch.k == 0
+              and i >= 37]  # fmt: skip
+    assert closed[:2] == [136, 236] and watch.blocks == 2

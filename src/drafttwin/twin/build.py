@@ -12,7 +12,7 @@ from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import DriveTrain
 from drafttwin.models.base import BaseModel
-from drafttwin.twin.faultwatch import LiveFaultWatch, detector_path, load_detector
+from drafttwin.twin.faultwatch import LiveFaultWatch, block_phase, detector_path, load_detector
 from drafttwin.twin.live import MachineTwin, physics_train
 from drafttwin.twin.mapping import MachineMap, read_mapping
 from drafttwin.twin.service import MachineState, TwinService
@@ -93,7 +93,8 @@ def build_service(
             if found is not None:
                 det, post_s = found
                 st.watch = LiveFaultWatch(det, name, m.channels, m.rate_hz, post_s=post_s,
-                                          has_motor=m.has_motor and name not in no_motor)  # fmt: skip
+                                          has_motor=m.has_motor and name not in no_motor,
+                                          phase=block_phase(name, m.rate_hz, det.block_s_))  # fmt: skip
                 if str(path) not in service_models:
                     service_models[str(path)] = (physics_train(model, "full"), det)
             if store is not None:

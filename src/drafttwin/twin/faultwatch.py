@@ -153,10 +153,12 @@ class LiveFaultWatch:
         rate_hz: the machine's sample rate.
         has_motor: the samples carry the motor speed; without it the motor's residual is
             taken as zero (see docs/twin.md: motor-side faults and belt wear then look alike).
+        phase: rows left out before the first block (see :func:`block_phase`).
     """
 
     def __init__(self, detector: FaultDetector, machine: str, channels: tuple[str, ...],
-                 rate_hz: float, *, has_motor: bool = True, post_s: float = POST_S) -> None:  # fmt: skip
+                 rate_hz: float, *, has_motor: bool = True, post_s: float = POST_S,
+                 phase: int = 0) -> None:  # fmt: skip
         if tuple(channels) != ROLLERS:
             raise ConfigError(f"the fault detector needs the channels {', '.join(ROLLERS)}, the "
                               f"model has {', '.join(channels)}", where="--detector",
@@ -171,6 +173,7 @@ class LiveFaultWatch:
         self.yhat = np.full((self.per, len(CHANNELS)), np.nan)
         self.t = np.zeros(self.per)
         self.k = 0
+        self.skip = phase % self.per
         self.last_us: int | None = None
         self.state = CusumState(detector, self.n_ref, self.block_s)
         self.pending: tuple[Alarm, np.ndarray, list[np.ndarray]] | None = None
@@ -191,6 +194,9 @@ class LiveFaultWatch:
         if self.last_us is not None and row.ts_us - self.last_us > 1.5 * self.period_us:
             self.restart()
         self.last_us = row.ts_us
+        if self.skip:
+            self.skip -= 1
+            return [], [], []
         k = self.k
         self.y[k, :4], self.y[k, 4] = row.measured, row.motor
         self.yhat[k, :4], self.yhat[k, 4] = row.physics, row.motor_physics
@@ -241,6 +247,15 @@ class LiveFaultWatch:
         if not after:
             return []
         return [Localise(self.machine, alarm, np.mean(after, axis=0) - base, len(after))]
+
+
+def block_phase(machine: str, rate_hz: float, block_s: float) -> int:
+    """A fixed offset per machine for its block boundaries: machines started together would
+    otherwise close their blocks on the same sample, and the feature rows of all of them in
+    one tick add up on the latency of that tick's samples (measured with bench_twin)."""
+    import zlib
+
+    return zlib.crc32(machine.encode()) % max(1, int(round(block_s * rate_hz)))
 
 
 # ---- the ranking, in a worker process ---------------------------------------------------------
@@ -348,4 +363,11 @@ def _short(c: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-__all__ = ["LiveFaultWatch", "Locator", "detector_path", "load_detector", "save_detector"]
+__all__ = [
+    "LiveFaultWatch",
+    "Locator",
+    "block_phase",
+    "detector_path",
+    "load_detector",
+    "save_detector",
+]
