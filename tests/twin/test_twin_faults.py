@@ -188,7 +188,7 @@ def invoke(*args: str) -> tuple[int, str, str]:
 @pytest.mark.slow
 def test_a_faulted_plant_served_live_raises_an_alarm_naming_the_belt(tmp_path, twin_files):
     """Thresholds from two healthy records; the plant served over OPC UA with a belt wearing
-    from 6 s; the twin's store names the belt; a healthy replay raises nothing."""
+    from 9 s; the twin's store names the belt; a healthy replay raises nothing."""
     from drafttwin.plant import Plant
 
     _, model_src = twin_files
@@ -203,15 +203,15 @@ def test_a_faulted_plant_served_live_raises_an_alarm_naming_the_belt(tmp_path, t
     assert code == 0, err
     port = free_port()
     plant = subprocess.Popen(cli("plant", "serve", "--opcua", f"opc.tcp://127.0.0.1:{port}",
-                                 "--duration", "20", "--seed", "5",
-                                 "--fault", "main_belt:belt_wear:severity=0.6:onset=6"),
+                                 "--duration", "23", "--seed", "5",
+                                 "--fault", "main_belt:belt_wear:severity=0.6:onset=9"),
                              env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                              text=True)  # fmt: skip
     try:
         assert plant.stderr is not None and "serving" in plant.stderr.readline()
         code, out, err = invoke("twin", "run", "--model", str(model), "--source",
                                 f"opcua:opc.tcp://127.0.0.1:{port}", "--store",
-                                str(tmp_path / "st"), "--duration", "11", "--quiet", "--json")  # fmt: skip
+                                str(tmp_path / "st"), "--duration", "14", "--quiet", "--json")  # fmt: skip
     finally:
         plant.kill()
         plant.wait()
