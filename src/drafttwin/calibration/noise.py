@@ -120,7 +120,7 @@ def mean_sd(noise: ChannelNoise, duration_s: float, block_s: float) -> float:
     """Standard deviation of the plain mean of a new record's residual over ``duration_s``:
     the wander's ``2 s^2 tau / T (1 - tau / T (1 - exp(-T / tau)))`` (an OU process's mean over
     ``T``) plus the white part over the record's blocks. A record's own wander moves its mean
-    error by this much whatever the calibration (the floor of its bias)."""
+    error by this much whatever the calibration (the wander's share of its bias)."""
     t, tau = float(duration_s), noise.tau_s
     if t <= 0:
         raise ValueError("a record mean needs a positive duration")
