@@ -17,7 +17,11 @@ torque at the motor over the nominal one, summed over the members); the nominal,
 and true ("oracle": the machine's own parameters and thermal state) physics' bias and RMSE per
 roller on the test record (full model, following the record's set-points, scored as
 ``drafttwin evaluate`` scores: the measured samples that are not outliers); the
-nominal physics' RMSE over the first 5 s of the start-up record; the calibration's wall time.
+nominal physics' RMSE over the first 5 s of the start-up record; the calibration's wall time;
+with ``--wander``, the wander's share of the spread (1 SD) of the front roller's bias, as the
+wander model predicts it: the calibration records' level (``level_sd``) and the test record's
+own wander mean (a floor: the drafting force's slow fluctuation and the parameters left at
+nominal add to it).
 Writes benchmarks/results/calibrate.json (``calibrate_seeds_K[_wander].json`` for other
 first seeds or with the supply-wander model of ``calibrate --wander``).
 """
@@ -41,6 +45,8 @@ import drafttwin as dt  # noqa: E402
 from _machine import write_results  # noqa: E402
 from drafttwin import ROLLERS  # noqa: E402
 from drafttwin.calibration import calibrate, select, with_factors  # noqa: E402
+from drafttwin.calibration.fit import motor_gains  # noqa: E402
+from drafttwin.calibration.noise import ChannelNoise, mean_sd  # noqa: E402
 from drafttwin.mechanics import DriveTrain, operating_point, simulate_channels  # noqa: E402
 from drafttwin.plant import Machine, Plant, PlantConfig  # noqa: E402
 
@@ -145,14 +151,30 @@ def one_machine(seed: int, args: argparse.Namespace, folder: Path, model) -> dic
     sim = simulate_channels(plant.train, startup.time_s, inputs=startup.inputs, channels=ROLLERS)
     startup_rmse = np.sqrt(np.nanmean((sim[first] - startup.values[first]) ** 2, axis=0))
     steady_speed = np.nanmean(test.values[: len(test) // 4], axis=0)
+    band = predicted_band(cal, plant.train, args.test_s)
     return {"machine_seed": seed, "parameters": params, "others": others, "wall_s": wall,
-            "simulations": cal.evaluations,
+            "simulations": cal.evaluations, "wander_front_bias_sd": band,
             "test_bias_nominal": bias0.tolist(), "test_bias_calibrated": bias1.tolist(),
             "test_rmse_nominal": rmse0.tolist(), "test_rmse_calibrated": rmse1.tolist(),
             "test_bias_oracle": bias2.tolist(), "test_rmse_oracle": rmse2.tolist(),
             "notes": cal.notes, "collinearity_index": cal.collinearity,
             "startup_rmse_first_5s": startup_rmse.tolist(),
             "startup_rmse_share_of_steady": (startup_rmse / steady_speed).tolist()}  # fmt: skip
+
+
+def predicted_band(cal, train: DriveTrain, test_s: float) -> dict[str, float] | None:
+    """With the wander model (``--wander``): how far the wander alone moves the front roller's
+    bias on the test record, 1 SD, in rpm: the calibration records' level
+    (``level_sd`` at the motor) and the test record's own wander mean (its length), both
+    carried to the front roller by its speed per motor rpm."""
+    motor = cal.residual_model.get("motor")
+    if motor is None:
+        return None
+    gain = float(motor_gains(train, ("front",), {"front": "rpm"})[0])
+    noise = ChannelNoise(motor["white_sd"] ** 2, motor["wander_sd"] ** 2, motor["correlation_s"])
+    level = gain * motor["level_sd"]
+    own = gain * mean_sd(noise, test_s, cal.block_s)
+    return {"calibration_level": level, "test_record_mean": own, "total": math.hypot(level, own)}
 
 
 def _row(e, verdict: str, true_factor: float, name: str | None = None) -> dict[str, Any]:
@@ -181,6 +203,14 @@ def report(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                   f"{row['test_bias_calibrated'][j]:>11.3f} {row['test_bias_oracle'][j]:>8.3f} "
                   f"{row['test_rmse_nominal'][j]:>13.3f} {row['test_rmse_calibrated'][j]:>11.3f} "
                   f"{row['test_rmse_oracle'][j]:>8.3f}")  # fmt: skip
+        band = row["wander_front_bias_sd"]
+        if band is not None:
+            print(f"  front bias, the wander's share of its spread (1 SD): calibration level "
+                  f"{band['calibration_level']:.3f}, test record's own mean "
+                  f"{band['test_record_mean']:.3f}, together {band['total']:.3f} rpm; "
+                  f"calibrated - oracle {row['test_bias_calibrated'][0] - row['test_bias_oracle'][0]:+.3f}")  # fmt: skip
+            figures.append({"figure": f"machine {k}: the wander's share of the front bias spread",
+                            "value": band, "unit": "rpm"})  # fmt: skip
         share = max(row["startup_rmse_share_of_steady"])
         print(f"  nominal physics on the start-up's first 5 s: RMSE up to {share:.2%} of steady")
         figures += [

@@ -167,6 +167,28 @@ def test_wild_blocks_are_set_aside_and_channels_weighted_by_their_residual_scale
     assert out.noise[1] == pytest.approx(7.0, rel=0.1)
 
 
+def test_a_motor_block_set_aside_takes_the_outputs_scored_against_it():
+    """A steady supply leaves the motor's residual so tight that a start-up's blocks fall
+    outside 10 robust deviations; the outputs scored relative to the motor there cannot be
+    scored and must go too (they were NaN residuals that stopped the refit)."""
+    from drafttwin.calibration.fit import Blocks, Objective, reweighted
+
+    rng = np.random.default_rng(6)
+    errors = rng.standard_normal((300, 3))
+    errors[10:14, 2] = 400.0  # motor blocks far off
+    gains = np.array([1.2, 0.0, 0.0])  # channel 0 scored against the motor, channel 1 not
+    measured = np.full((300, 3), 100.0)
+    data = Blocks(None, ("front", "aux", "motor"), {}, 10, measured, [(0, 300)], np.ones(3), gains)  # type: ignore[arg-type]
+    out, wild = reweighted(data, errors)
+    assert wild == 4
+    assert np.isnan(out.measured[10:14, [0, 2]]).all() and np.isfinite(out.measured[10:14, 1]).all()
+    assert np.isfinite(out.measured).sum() == 900 - 8
+    objective = Objective(None, out, [], [])  # type: ignore[arg-type]
+    objective._cache[()] = measured + 0.5
+    residuals = objective.residuals([])
+    assert residuals.size == 892 and np.isfinite(residuals).all()
+
+
 def test_block_means_drop_sparse_blocks():
     v = np.arange(10.0)[:, None]
     v[5:9] = np.nan

@@ -126,3 +126,31 @@ def test_the_wander_model_refuses_records_without_a_motor_speed():
                                inputs={"supply_hz": np.full(n, 50.0)})  # fmt: skip
     with pytest.raises(DataError, match="motor"):
         calibrate(DriveTrain.preset("fa320a"), series, coloured=("motor",))
+
+
+def test_offset_error_of_several_records_is_the_dense_gls_one():
+    """The level shared by two records (one with a gap) is known to (sum 1' C_r^-1 1)^-1/2,
+    C_r each record's dense covariance; the plain mean of a 60 s record is not much worse."""
+    noise = N.ChannelNoise(white_var=0.2, ou_var=1.0, tau_s=5.0)
+    a = np.arange(0.5, 60.0, BLOCK_S)
+    b = np.delete(np.arange(0.0, 40.0, BLOCK_S), np.s_[100:130])
+    dense = sum(np.ones(len(t)) @ np.linalg.solve(noise.covariance(t), np.ones(len(t)))
+                for t in (a, b))  # fmt: skip
+    assert N.offset_sd(noise, [a, b]) == pytest.approx(1.0 / np.sqrt(dense), rel=1e-9)
+    assert N.offset_sd(noise, [a]) > N.offset_sd(noise, [a, b])
+    assert N.offset_sd(noise, []) == float("inf")
+
+
+def test_a_records_mean_moves_by_the_ou_formula():
+    """Var of a T-mean: the closed form against the block covariance summed (1' C 1 / n^2)
+    and against the spread of simulated records' means."""
+    noise = N.ChannelNoise(white_var=0.04, ou_var=1.0, tau_s=5.0)
+    t = np.arange(0.0, 60.0, BLOCK_S)
+    summed = np.sqrt(noise.covariance(t).sum()) / len(t)
+    assert N.mean_sd(noise, 60.0, BLOCK_S) == pytest.approx(summed, rel=0.01)
+    rng = np.random.default_rng(21)
+    means = [r.mean() for r in _records(rng, 400, len(t), ou_sd=1.0, tau=5.0, white_sd=0.2)]
+    assert np.std(means) == pytest.approx(N.mean_sd(noise, 60.0, BLOCK_S), rel=0.12)
+    assert N.mean_sd(noise, 240.0, BLOCK_S) < 0.55 * N.mean_sd(noise, 60.0, BLOCK_S)
+    with pytest.raises(ValueError):
+        N.mean_sd(noise, 0.0, BLOCK_S)

@@ -87,6 +87,17 @@ def test_the_supply_wander_model_finds_the_plants_jitter_and_keeps_the_truth_wit
     assert 0.3 * plant.config.supply.correlation_s < motor["correlation_s"] < 30.0
     assert set(cal.residual_model) == {"motor"}
     assert "residual_model" in cal.to_dict()
+    # the steady level the two records pin against the wander: about a record mean's spread
+    # over sqrt(2) (GLS is little better than the plain mean for a level), and a new minute's
+    # own mean moves by the OU formula for 60 s
+    from drafttwin.calibration.noise import ChannelNoise, mean_sd
+
+    model = ChannelNoise(motor["white_sd"] ** 2, motor["wander_sd"] ** 2, motor["correlation_s"])
+    scored = SECONDS - 1.5  # the start-up stands still for 1 s; 0.5 s after the start not scored
+    expected_level = math.hypot(mean_sd(model, scored, 0.1), mean_sd(model, SECONDS, 0.1)) / 2
+    assert motor["level_sd"] == pytest.approx(expected_level, rel=0.15)
+    assert motor["mean_sd_60s"] == pytest.approx(mean_sd(model, 60.0, 0.1), rel=1e-9)
+    assert motor["mean_sd_60s"] < motor["wander_sd"]
 
 
 @pytest.mark.slow

@@ -287,7 +287,9 @@ def _fit_and_prune(
                 model_of = _residual_model(plain.data, noises)
                 notes.append("residual model of the weighted fit: " + "; ".join(
                     f"{c}: wander {m['wander_sd']:.3g} {plain.data.units.get(c, '')} over "
-                    f"{m['correlation_s']:.3g} s, white {m['white_sd']:.3g}"
+                    f"{m['correlation_s']:.3g} s, white {m['white_sd']:.3g}; steady level "
+                    f"known to {m['level_sd']:.3g}, a new minute's own mean moves by "
+                    f"{m['mean_sd_60s']:.3g} (1 SD)"
                     for c, m in model_of.items()))  # fmt: skip
                 if residual is not None:
                     residual.update(model_of)
@@ -327,12 +329,23 @@ def _residual_model(
     data: F.Blocks, noises: Sequence[N.ChannelNoise | None]
 ) -> dict[str, dict[str, float]]:
     """Each modelled channel's wander and white standard deviation per block (in the
-    channel's unit) and the wander's correlation time."""
-    return {
-        c: {"wander_sd": float(np.sqrt(n.ou_var) * data.noise[j]), "correlation_s": n.tau_s,
-            "white_sd": float(np.sqrt(n.white_var) * data.noise[j])}
-        for j, (c, n) in enumerate(zip(data.channels, noises, strict=True)) if n is not None
-    }  # fmt: skip
+    channel's unit), the wander's correlation time, how well the calibration records pin the
+    channel's steady level against the wander (``level_sd``: a constant offset's standard
+    error) and how far a new minute-long record's own wander moves its mean (``mean_sd_60s``).
+    Together they bound the steady bias a calibration from these records can promise."""
+    mask = np.isfinite(data.measured)
+    block_s = data.block / data.series.sample_rate_hz
+    out = {}
+    for j, (c, n) in enumerate(zip(data.channels, noises, strict=True)):
+        if n is None:
+            continue
+        times = [t for t, _ in N.channel_segments(np.zeros(mask.shape), mask, data.record_rows,
+                                                   j, block_s)]  # fmt: skip
+        out[c] = {"wander_sd": float(np.sqrt(n.ou_var) * data.noise[j]), "correlation_s": n.tau_s,
+                  "white_sd": float(np.sqrt(n.white_var) * data.noise[j]),
+                  "level_sd": N.offset_sd(n, times) * float(data.noise[j]),
+                  "mean_sd_60s": N.mean_sd(n, 60.0, block_s) * float(data.noise[j])}  # fmt: skip
+    return out
 
 
 def _estimates(

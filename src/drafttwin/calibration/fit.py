@@ -77,11 +77,24 @@ class Blocks:
         return _differential(simulated - self.measured, self) / self.noise
 
 
+def _unscorable(
+    measured: np.ndarray, channels: Sequence[str], gains: np.ndarray | None
+) -> np.ndarray:
+    """``measured`` with the motor-relative outputs set aside wherever the motor's block is
+    (missing, or set aside as an outlier): an output scored against the motor cannot be scored
+    without it (a NaN residual that the optimiser refuses)."""
+    if gains is None:
+        return measured
+    gone = ~np.isfinite(measured[:, channels.index("motor")])
+    return np.where(gone[:, None] & (gains != 0)[None, :], np.nan, measured)
+
+
 def _differential(err: np.ndarray, data: Blocks) -> np.ndarray:
     if data.motor_gain is None:
         return err
     motor = err[:, data.channels.index("motor")]
-    return err - data.motor_gain[None, :] * motor[:, None]
+    scored = data.motor_gain != 0  # a channel not scored against the motor keeps its error
+    return err - np.where(scored[None, :], data.motor_gain[None, :] * motor[:, None], 0.0)
 
 
 def block_means(values: np.ndarray, block: int) -> np.ndarray:
@@ -146,6 +159,7 @@ def blocks(
     measured = np.vstack(parts)
     units = {c: ("rpm" if c == "motor" else series.unit(c)) for c in names}
     gains = motor_gains(train, names, units) if train is not None and "motor" in names else None
+    measured = _unscorable(measured, names, gains)
     draft = Blocks(series, names, units, block, measured, rows, np.ones(len(names)), gains)
     scored = _differential(measured, draft)  # the measurement through the scoring transform
     steps = np.vstack([np.diff(scored[a:b], axis=0) for a, b in rows])
@@ -248,8 +262,8 @@ def reweighted(data: Blocks, errors: np.ndarray) -> tuple[Blocks, int]:
     centre = np.nanmedian(errors, axis=0)
     scale = 1.4826 * np.nanmedian(np.abs(errors - centre), axis=0)
     wild = np.abs(errors - centre) > OUTLIER_SCALES * np.maximum(scale, 1e-12)
-    measured = np.where(wild, np.nan, data.measured)
-    kept = np.where(wild, np.nan, errors)
+    measured = _unscorable(np.where(wild, np.nan, data.measured), data.channels, data.motor_gain)
+    kept = np.where(np.isfinite(measured), errors, np.nan)
     rms = np.sqrt(np.nanmean(kept**2, axis=0))
     noise = data.noise * np.where(np.isfinite(rms) & (rms > 0), rms, 1.0)
     return replace(data, measured=measured, noise=noise), int(wild.sum())

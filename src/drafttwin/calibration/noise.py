@@ -102,6 +102,32 @@ def fit_noise(segments: Sequence[tuple[np.ndarray, np.ndarray]], block_s: float)
     return ChannelNoise(*(float(v) for v in np.exp(best.x)))
 
 
+def offset_sd(noise: ChannelNoise, times_s: Sequence[np.ndarray]) -> float:
+    """Standard error of a constant offset shared by records (its generalised least-squares
+    estimate) under ``noise``, on each record's scored block times: ``(sum 1' C_r^-1 1)^-1/2``,
+    with ``1' C^-1 1 = |L^-1 1|^2`` by the same filter as the residual. For the motor channel
+    this is how well the calibration records pin the steady level against the wander: the
+    part of slip times load that no fit on these records can know better."""
+    precision = sum(
+        float(np.sum(_innovations(t, np.ones(len(t)), noise.white_var, noise.ou_var,
+                                  noise.tau_s)[0] ** 2))
+        for t in times_s if len(t)
+    )  # fmt: skip
+    return float(1.0 / np.sqrt(precision)) if precision > 0 else float("inf")
+
+
+def mean_sd(noise: ChannelNoise, duration_s: float, block_s: float) -> float:
+    """Standard deviation of the plain mean of a new record's residual over ``duration_s``:
+    the wander's ``2 s^2 tau / T (1 - tau / T (1 - exp(-T / tau)))`` (an OU process's mean over
+    ``T``) plus the white part over the record's blocks. A record's own wander moves its mean
+    error by this much whatever the calibration (the wander's share of its bias)."""
+    t, tau = float(duration_s), noise.tau_s
+    if t <= 0:
+        raise ValueError("a record mean needs a positive duration")
+    ou = 2.0 * noise.ou_var * tau / t * (1.0 - tau / t * (1.0 - np.exp(-t / tau)))
+    return float(np.sqrt(ou + noise.white_var / max(t / block_s, 1.0)))
+
+
 class Whitener:
     """Replaces each (record, channel) residual by its standardised innovations under that
     channel's noise model (``L^-1 r``, ``L`` the Cholesky factor of its covariance on the

@@ -7,7 +7,7 @@ handled by the command group in :mod:`drafttwin.cli.app`.
 
 from __future__ import annotations
 
-from drafttwin.cli.app import app
+from drafttwin.cli.app import app, reflow_help
 
 # Importing the command modules registers their commands on ``app``.
 from drafttwin.cli import mechanics_cmds  # noqa: E402,F401  isort: skip
@@ -22,6 +22,8 @@ from drafttwin.cli import twin_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import twin_ops_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import twin_fault_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import plant_serve_cmds  # noqa: E402,F401  isort: skip
+
+reflow_help(app)
 
 
 def main() -> None:

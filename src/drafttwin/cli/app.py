@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import inspect
 from collections.abc import Iterator
 from typing import Any
 
@@ -114,3 +115,22 @@ def print_json(obj: Any) -> None:
     from drafttwin._json import dumps_strict
 
     typer.echo(dumps_strict(obj))
+
+
+def reflow_help(typer_app: typer.Typer) -> None:
+    """Join the single line breaks inside each paragraph of every command's help.
+
+    Typer joins them in a help text's first paragraph only; rich then wraps the later
+    paragraphs' source lines again at the terminal width, which leaves ragged half-lines.
+    Paragraphs marked ``\\b`` (click's "keep as is") keep their breaks.
+    """
+    for info in typer_app.registered_commands:
+        text = info.help if info.help is not None else inspect.getdoc(info.callback)
+        if text:
+            info.help = "\n\n".join(
+                p if p.startswith("\b") else " ".join(line.strip() for line in p.splitlines())
+                for p in inspect.cleandoc(text).split("\n\n")
+            )
+    for group in typer_app.registered_groups:
+        if group.typer_instance is not None:
+            reflow_help(group.typer_instance)

@@ -87,7 +87,10 @@ def calibrate(
             help="Model the motor channel's error as white noise plus a slow wander (the "
             "VFD's supply frequency, which only the motor sees; size and correlation time "
             "by maximum likelihood) and refit by generalised least squares; standstill and "
-            "the first 0.5 s after a start are then not scored. Needs a recorded motor speed.",
+            "the first 0.5 s after a start are then not scored. Needs a recorded motor speed. "
+            "The report's residual_model also says how well the records pin the steady level "
+            "(level_sd) and how far a new minute's own wander moves its mean (mean_sd_60s): "
+            "the wander's share of the bias on another record.",
         ),
     ] = WANDER_DEFAULT,  # fmt: skip
     as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,

@@ -34,7 +34,7 @@ from drafttwin.mechanics.components import (
 from drafttwin.mechanics.config import TrainSpec, load_toml, preset_path, spec_from_dict
 
 if TYPE_CHECKING:
-    from drafttwin.mechanics.reduced import Reduction
+    from drafttwin.mechanics.reduction import Reduction
 
 Coupling = Belt | ChainDrive | GearMesh | Shaft
 

@@ -31,7 +31,7 @@ accumulators are the same code.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -42,6 +42,7 @@ from drafttwin.errors import ConfigError
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics.assembly import DriveTrain, Tables
 from drafttwin.mechanics.kinematics import coupling_stiffness
+from drafttwin.mechanics.reduction import Reduction
 
 DEFAULT_CUTOFF_HZ = 200.0
 """Default cut-off (Hz): above the FA320A's belt mode (55 Hz), below its roller-torsion modes
@@ -54,41 +55,6 @@ OMEGA_DT = 0.5
 
 MAX_STEP_S = 2e-3
 """Upper bound (s) on the default step, whatever the rates (set-point ramps, output grid)."""
-
-
-@dataclass(frozen=True, eq=False)
-class Reduction:
-    """How a train is reduced (built by :func:`reduce`; arrays are per original node).
-
-    Attributes:
-        cutoff_hz: cut-off frequency, Hz.
-        cluster: super-node of each node, shape ``(n,)``.
-        ratio: speed of each node over its super-node's speed (nominal, no creep).
-        rigid: names of the couplings made rigid.
-        highest_hz: highest eigenfrequency of the reduced linearised train, Hz (0 if none).
-        dt_s: default RK4 step, s (see :data:`OMEGA_DT`).
-        keep: per coupling kind (``chain``, ``gear``, ``shaft``), which table rows stay.
-    """
-
-    cutoff_hz: float
-    cluster: np.ndarray
-    ratio: np.ndarray
-    rigid: tuple[str, ...]
-    highest_hz: float
-    dt_s: float
-    keep: dict[str, np.ndarray]
-
-    @property
-    def n_super(self) -> int:
-        """Number of super-nodes (degrees of freedom of the reduced train)."""
-        return int(self.cluster.max()) + 1
-
-    def summary(self) -> str:
-        """One line: super-nodes, rigid couplings, highest remaining mode and default step."""
-        belt = " (in the belts, which stay compliant)" if self.highest_hz > self.cutoff_hz else ""
-        return (f"reduced train: {self.n_super} super-node(s), {len(self.rigid)} rigid "
-                f"coupling(s) above {self.cutoff_hz:g} Hz, highest remaining mode "
-                f"{self.highest_hz:.1f} Hz{belt}, step {self.dt_s:.2e} s")  # fmt: skip
 
 
 # ---- which couplings go rigid ------------------------------------------------------------

@@ -18,7 +18,14 @@ import torch
 from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.models.features import fit_scaler, scale_inputs
 from drafttwin.models.networks import RecurrentRegressor
-from drafttwin.models.training import FitProgress, History, Training, debias_head, train_network
+from drafttwin.models.training import (
+    FitProgress,
+    History,
+    Training,
+    cpu_threads,
+    debias_head,
+    train_network,
+)
 from drafttwin.models.windows import (
     causal_ffill,
     finite_rows,
@@ -151,7 +158,7 @@ def _free_run(
     lengths = np.array([len(seg) for seg in ys])
     net = model.net_
     device = next(net.parameters()).device
-    with torch.inference_mode():
+    with cpu_threads(device, limit=1), torch.inference_mode():
         for t in range(init, int(lengths.max())):
             active = np.flatnonzero(lengths > t)
             x = torch.as_tensor(feats[active, t - w : t], device=device)

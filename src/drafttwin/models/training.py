@@ -172,11 +172,15 @@ def resolve_device(name: str) -> torch.device:
 
 
 @contextlib.contextmanager
-def cpu_threads(device: torch.device) -> Iterator[None]:
-    """Cap intra-op CPU threads at :data:`MAX_THREADS` (small nets), restored afterwards."""
+def cpu_threads(device: torch.device, limit: int = MAX_THREADS) -> Iterator[None]:
+    """Cap intra-op CPU threads at ``limit`` (small nets), restored afterwards.
+
+    Step-by-step loops over a few windows pass ``limit=1``: each call is too small to share
+    out, and waking a second thread per step cost 4-7x its time on a busy 2-core machine.
+    """
     threads = torch.get_num_threads()
     if device.type == "cpu":
-        torch.set_num_threads(min(threads, MAX_THREADS))
+        torch.set_num_threads(min(threads, limit))
     try:
         yield
     finally:
