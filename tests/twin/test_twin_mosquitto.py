@@ -177,7 +177,7 @@ def test_a_hall_spread_over_two_twins_by_shared_subscription_and_by_shard(
 def test_share_and_shard_options_are_checked() -> None:
     from drafttwin.errors import ConfigError
     from drafttwin.twin.mapping import MachineMap
-    from drafttwin.twin.sources import parse_source
+    from drafttwin.twin.source_spec import parse_source
 
     chans = ("front", "second", "third", "back")
     hall = tuple(MachineMap(f"m{k}", chans) for k in range(5))

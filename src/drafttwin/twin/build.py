@@ -16,7 +16,8 @@ from drafttwin.twin.faultwatch import LiveFaultWatch, block_phase, detector_path
 from drafttwin.twin.live import MachineTwin, physics_train
 from drafttwin.twin.mapping import MachineMap, read_mapping
 from drafttwin.twin.service import MachineState, TwinService
-from drafttwin.twin.sources import OpcUaSource, ReplaySource, Source, parse_source
+from drafttwin.twin.source_spec import parse_source
+from drafttwin.twin.sources import OpcUaSource, ReplaySource, Source
 from drafttwin.twin.store import StoreWriter, TwinStore
 
 

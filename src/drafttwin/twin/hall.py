@@ -60,7 +60,7 @@ def check_hall(model: Path, source: str, mapping: Path, shards: int) -> int:
     """Check the pieces before any actor starts; returns the number of machines."""
     from drafttwin.twin.build import load_twin_model
     from drafttwin.twin.mapping import MachineMap, read_mapping
-    from drafttwin.twin.sources import parse_source
+    from drafttwin.twin.source_spec import parse_source
 
     kind = source.partition(":")[0]
     if kind not in ("opcua", "mqtt", "mqtts"):
