@@ -93,6 +93,14 @@ def test_block_features_telescope_and_find_dropouts():
     assert np.all(f.lost[:, [0, 2, 3, 4]] == 0)
 
 
+def with_lags(cov5, lag_sd=0.1):
+    """A level covariance extended by independent angle-lag noise (mrad) of one part."""
+    cov = np.zeros((8, 8))
+    cov[:5, :5] = cov5
+    cov[5:, 5:] = np.diag([lag_sd**2] * 3)
+    return cov
+
+
 @pytest.fixture(scope="module")
 def signatures():
     return SignatureModel(DriveTrain.preset("fa320a"))
@@ -112,13 +120,15 @@ def test_signatures_follow_the_torque_balance(signatures):
     assert rotor[4] == pytest.approx(rotor[0], rel=1e-4) and rotor[0] < 0
     belt = signatures.signature("main_belt", "belt_wear", 0.5)
     assert abs(belt[4]) < 1e-3 * abs(belt[0]) and belt[0] < 0  # the motor does not see it
-    np.testing.assert_array_equal(signatures.signature("third", "gain", 0.01), [0, 0, 0.01, 0, 0])
+    # five levels, then the three angle lags (no time since the change: no lag from a gain)
+    np.testing.assert_array_equal(signatures.signature("third", "gain", 0.01),
+                                  [0, 0, 0.01, 0, 0, 0, 0, 0])  # fmt: skip
 
 
 def test_ranking_finds_belt_and_sensor_and_reports_bearing_groups(signatures):
     # common-mode noise (supply, drafting force) shared by all channels, as in the plant,
     # for the mean of a 30-s window
-    cov = (3e-5) ** 2 * np.ones((5, 5)) + np.diag([1e-6**2] * 4 + [3e-6**2])
+    cov = with_lags((3e-5) ** 2 * np.ones((5, 5)) + np.diag([1e-6**2] * 4 + [3e-6**2]))
     belt = rank_causes(signatures, signatures.signature("main_belt", "belt_wear", 0.4), cov)
     assert belt[0].name == "main_belt:belt_wear"
     assert belt[0].interval[0] <= 0.4 <= belt[0].interval[1]
@@ -193,7 +203,11 @@ def test_cli_diagnose_names_the_encoder_and_writes_a_page(records):
     res = CliRunner().invoke(app, args)
     assert res.exit_code == 0, res.output
     out = json.loads(res.stdout)
-    assert 40 < out["alarm"]["time_s"] < 50 and out["alarm"]["test"] == "parity_third"
+    # the third encoder's own streams: its parity, or its counted angle running away
+    assert 40 < out["alarm"]["time_s"] < 50 and out["alarm"]["test"] in (
+        "parity_third",
+        "lag_third",
+    )
     assert out["causes"][0]["element"] == "third" and out["causes"][0]["kind"] == "gain"
     assert out["causes"][0]["interval"][0] <= 0.003 <= out["causes"][0]["interval"][1] * 1.1
     browser = next((p for n in ("chromium", "chromium-browser", "google-chrome")

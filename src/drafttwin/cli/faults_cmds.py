@@ -120,6 +120,11 @@ def diagnose(
     after an alarm every candidate fault is simulated with the physics and ranked by how well
     it explains the shift of the four rollers and the motor, with its severity and a 95 %
     interval, and the group of candidates these sensors cannot tell apart.
+
+    Gear wear and chain elongation are seen in the rollers' angles (cumulative counts): the
+    driven roller trails by the wear depth over the gear's base radius. That needs the record
+    to span the change (the angle before and after it; a steady 100-Hz record does), since an
+    angle offset alone has no healthy reference. Gear cracks and run-outs are not assessed.
     """
     from drafttwin._json import dumps_strict
     from drafttwin.cli._data import Channels
@@ -170,6 +175,12 @@ def _head(series, n: int):  # noqa: ANN001, ANN202  (a MeasurementSeries)
 def _print_diagnosis(result: dict, report: Path | None) -> None:
     alarm = result["alarm"]
     console.print(f"thresholds from {result['thresholds_from']}")
+    if not all(s["watched"] for s in result["detector"]["streams"].values()):
+        d = result["detector"]
+        need = d["reference_s"] + d["long_run_blocks"] * d["block_s"]
+        console.print(f"angle lags not watched (gear wear, chain elongation): the healthy "
+                      f"records are too short to measure their slow wander; give one of at "
+                      f"least {need:.0f} s")  # fmt: skip
     if alarm is None:
         console.print("no alarm: the residuals stayed within the thresholds")
     else:

@@ -97,4 +97,6 @@ def twin_fit_detector(
     console.print(f"fitted on {len(series)} record(s): CUSUM threshold h = {detector.h_:.2f} "
                   f"(k = {detector.k:g}, {far_per_day:g} false alarm(s) per 24 h), "
                   f"blocks of {detector.block_s_:g} s, baseline {reference:g} s")  # fmt: skip
+    if (note := detector.lags_note()) is not None:
+        console.print(note)
     console.print(f"wrote {target} ('twin run --model {model}' uses it)")

@@ -1,8 +1,11 @@
 """Causal change detection on block features, thresholds from healthy data.
 
-Streams (linear in the five channel levels, see :data:`STREAMS`): the mean roller level, the
-motor level, the belt (rollers minus motor) and each roller's parity (its level minus the
-mean of the other three: positive drives keep it at zero unless that encoder is wrong).
+Streams (linear in the block features, see :data:`STREAMS` and :func:`stream_matrix`): the
+mean roller level, the motor level, the belt (rollers minus motor), each roller's parity (its
+level minus the mean of the other three: positive drives keep it at zero unless that encoder
+is wrong), and the angle lag of the second, third and back roller behind the front (a worn
+mesh's larger backlash or an elongated chain makes the driven roller trail by a fixed angle;
+research/faults.md 2.2, 2.5).
 
 Each stream is compared with a per-record baseline (the mean of the first ``reference_s``,
 then an EWMA with time constant ``drift_tau_s`` while nothing is suspicious: slow thermal slip
@@ -25,23 +28,33 @@ from typing import Any
 import numpy as np
 from scipy.optimize import brentq
 
-from drafttwin.diagnosis.residuals import CHANNELS, BlockFeatures
+from drafttwin.diagnosis.residuals import CHANNELS, LAGGED, BlockFeatures
 from drafttwin.errors import ConfigError, DataError
 
-STREAMS = ("rollers", "motor", "belt", *(f"parity_{c}" for c in CHANNELS[:4]))
+STREAMS = ("rollers", "motor", "belt", *(f"parity_{c}" for c in CHANNELS[:4]),
+           *(f"lag_{c}" for c in LAGGED))  # fmt: skip
+FEATURES = (*CHANNELS, *(f"lag_{c}" for c in LAGGED))
+"""The block feature vector: five relative levels, then three angle lags (mrad)."""
 SIEGMUND_OFFSET = 1.166
 
 
 def stream_matrix() -> np.ndarray:
-    """``(7, 5)``: each stream as a combination of the five channel levels."""
-    a = np.zeros((len(STREAMS), len(CHANNELS)))
+    """``(10, 8)``: each stream as a combination of the block features (:data:`FEATURES`)."""
+    a = np.zeros((len(STREAMS), len(FEATURES)))
     a[0, :4] = 0.25
     a[1, 4] = 1.0
     a[2, :4], a[2, 4] = 0.25, -1.0
     for i in range(4):
         a[3 + i, :4] = -1.0 / 3.0
         a[3 + i, i] = 1.0
+    for i in range(len(LAGGED)):
+        a[7 + i, len(CHANNELS) + i] = 1.0
     return a
+
+
+def feature_matrix(f: BlockFeatures) -> np.ndarray:
+    """``(blocks, 8)``: the levels and the angle lags of each block."""
+    return np.hstack([f.level, f.lags])
 
 
 def siegmund_arl(h: float, k: float, mean: float = 0.0) -> float:
@@ -73,7 +86,7 @@ class Detection:
     """Result of :meth:`FaultDetector.run` on one record."""
 
     time_s: np.ndarray
-    deviation: np.ndarray  # (blocks, 5) level minus baseline
+    deviation: np.ndarray  # (blocks, 8) features (FEATURES) minus baseline
     statistic: np.ndarray  # (blocks, streams) larger CUSUM side over h (1 = alarm)
     alarms: list[Alarm] = field(default_factory=list)
     baseline_at_alarm: np.ndarray | None = None
@@ -91,10 +104,12 @@ class FaultDetector:
         k: CUSUM reference (half the shift, in whitened units, it is tuned for).
         reference_s: start of each record used as its baseline (no decisions there).
         drift_tau_s: time constant of the baseline's tracking of slow normal drift.
+        long_run_blocks: lags (blocks) of the long-run variance that widens each stream's
+            scale (0: off); see :meth:`_long_run_factor`.
     """
 
     def __init__(self, far_per_day: float = 1.0, k: float = 0.5, reference_s: float = 15.0,
-                 drift_tau_s: float = 120.0) -> None:  # fmt: skip
+                 drift_tau_s: float = 120.0, long_run_blocks: int = 60) -> None:  # fmt: skip
         for name, v in (("far_per_day", far_per_day), ("k", k), ("reference_s", reference_s),
                         ("drift_tau_s", drift_tau_s)):  # fmt: skip
             if not (math.isfinite(v) and v > 0):
@@ -103,6 +118,10 @@ class FaultDetector:
                 )
         self.far_per_day, self.k = far_per_day, k
         self.reference_s, self.drift_tau_s = reference_s, drift_tau_s
+        if long_run_blocks < 0:
+            raise ConfigError(f"long_run_blocks = {long_run_blocks} is < 0", where="long_run_blocks",
+                              fix="give 0 (off) or a number of blocks, e.g. 60")  # fmt: skip
+        self.long_run_blocks = long_run_blocks
 
     # ---- fitting on healthy tuning records ----------------------------------------------
     def fit(self, healthy: Sequence[BlockFeatures]) -> FaultDetector:
@@ -122,10 +141,11 @@ class FaultDetector:
         if len(d_all) < 10:
             raise DataError("healthy tuning data too short (fewer than 10 blocks after the "
                             "reference window)", where="tuning", fix="give longer records")  # fmt: skip
-        self.level_cov_ = np.cov(d_all.T)
+        self.feature_cov_ = np.cov(d_all.T)
+        self.level_cov_ = self.feature_cov_[: len(CHANNELS), : len(CHANNELS)]
         # each record's belt level against the physics (not its deviation): how far the
         # physics' belt creep is off on these machines (see locate.creep_mismatch)
-        self.belt_level_ = np.array([np.nanmean(f.level @ a[2]) for f in healthy])
+        self.belt_level_ = np.array([np.nanmean(feature_matrix(f) @ a[2]) for f in healthy])
         s_all = d_all @ a.T
         x0 = np.vstack([p[0] for p in pairs])
         x1 = np.vstack([p[1] for p in pairs])
@@ -133,6 +153,8 @@ class FaultDetector:
         num = (x0[good] * x1[good]).sum(axis=0)
         self.phi_ = np.clip(num / np.maximum((x0[good] ** 2).sum(axis=0), 1e-300), 0.0, 0.95)
         self.sigma_ = np.maximum(s_all.std(axis=0), 1e-12)
+        self.long_run_ = self._long_run_factor([p[1] for p in pairs])
+        self.watched_ = self._watched(healthy)
         blocks_per_day = 86400.0 / self.block_s_
         arl = 2 * len(STREAMS) * blocks_per_day / self.far_per_day
         self.h_ = threshold_for_arl(arl, self.k)
@@ -140,10 +162,55 @@ class FaultDetector:
         self.lost_limit_ = np.max(np.vstack([f.lost for f in healthy]), axis=0) + 0.02
         return self
 
+    def _watched(self, healthy: Sequence[BlockFeatures]) -> np.ndarray:
+        """Which streams decide: the angle lags only when a tuning record runs at least
+        :attr:`long_run_blocks` blocks past its reference window. Their slow wander is what
+        the long-run factor measures; shorter records cannot see it, and the lags then raise
+        false alarms (on 2 x 10-s tuning records, one healthy replay in three)."""
+        after = max(len(f.level) - self._n_ref(f) for f in healthy)
+        lags_ok = self.long_run_blocks == 0 or after >= self.long_run_blocks
+        return np.array([lags_ok or not s.startswith("lag_") for s in STREAMS])
+
+    @property
+    def lags_watched(self) -> bool:
+        """The angle-lag streams decide (see :meth:`_watched`)."""
+        return bool(self.watched_[STREAMS.index(f"lag_{LAGGED[0]}")])
+
+    def lags_note(self) -> str | None:
+        """A line for the user when the angle lags are not watched, else ``None``."""
+        if self.lags_watched:
+            return None
+        need = self.reference_s + self.long_run_blocks * self.block_s_
+        return (
+            f"angle lags not watched (gear wear, chain elongation): the healthy records "
+            f"are too short to measure their slow wander; give one of at least {need:.0f} s"
+        )
+
     def _reference_deviation(self, f: BlockFeatures) -> np.ndarray:
         n_ref = self._n_ref(f)
-        base = np.nanmean(f.level[:n_ref], axis=0)
-        return f.level[n_ref:] - base
+        x = feature_matrix(f)
+        return x[n_ref:] - np.nanmean(x[:n_ref], axis=0)
+
+    def _long_run_factor(self, streams: Sequence[np.ndarray]) -> np.ndarray:
+        """Long-run variance of the AR(1)-whitened streams over their variance, pooled over
+        the tuning records (Bartlett weights up to :attr:`long_run_blocks` lags; at least
+        1). Slow wander that an AR(1) does not whiten (supply, drafting force over minutes)
+        leaves the innovations correlated; the CUSUM sums them, so its random walk grows
+        with the long-run variance, which Siegmund's approximation then needs as its unit."""
+        lags = self.long_run_blocks
+        if lags < 1:
+            return np.ones(len(STREAMS))
+        num, den = np.zeros((lags, len(STREAMS))), np.zeros(len(STREAMS))
+        for s in streams:
+            e = s[1:] - self.phi_ * s[:-1]
+            e = e - np.nanmean(e, axis=0)
+            e = np.where(np.isfinite(e), e, 0.0)
+            den += (e**2).sum(axis=0)
+            for k in range(1, min(lags, len(e) - 1) + 1):
+                num[k - 1] += (e[k:] * e[:-k]).sum(axis=0)
+        rho = num / np.maximum(den, 1e-300)
+        weights = 1.0 - np.arange(1, lags + 1) / (lags + 1.0)
+        return np.maximum(1.0, 1.0 + 2.0 * (weights[:, None] * rho).sum(axis=0))
 
     def _n_ref(self, f: BlockFeatures) -> int:
         n_ref = max(2, int(round(self.reference_s / f.block_s)))
@@ -159,13 +226,14 @@ class FaultDetector:
         (after each, the CUSUMs restart from a new reference window, as at a record's
         start), for counting false alarms."""
         n_ref = self._n_ref(f)
-        nb, ns = len(f.level), len(STREAMS)
-        dev = np.full((nb, len(CHANNELS)), np.nan)
+        x = feature_matrix(f)
+        nb, ns = len(x), len(STREAMS)
+        dev = np.full((nb, len(FEATURES)), np.nan)
         stat = np.zeros((nb, ns))
         det = Detection(f.time_s, dev, stat)
         state = CusumState(self, n_ref, f.block_s)
         for j in range(nb):
-            alarms = state.update(float(f.time_s[j]), f.level[j], f.lost[j], f.run[j])
+            alarms = state.update(float(f.time_s[j]), x[j], f.lost[j], f.run[j])
             sensor_first = stop_at_first and alarms and alarms[0].direction == 0
             if state.deviation is not None and not sensor_first:  # (it stopped before them)
                 dev[j], stat[j] = state.deviation, state.statistic
@@ -192,7 +260,10 @@ class FaultDetector:
         return {"far_per_day": self.far_per_day, "k": self.k, "h": self.h_,
                 "block_s": self.block_s_, "reference_s": self.reference_s,
                 "drift_tau_s": self.drift_tau_s, "belt_level": self.belt_level_.tolist(),
-                "streams": {s: {"sigma": float(self.sigma_[i]), "phi": float(self.phi_[i])}
+                "long_run_blocks": self.long_run_blocks,
+                "streams": {s: {"sigma": float(self.sigma_[i]), "phi": float(self.phi_[i]),
+                                "long_run_factor": float(self.long_run_[i]),
+                                "watched": bool(self.watched_[i])}
                             for i, s in enumerate(STREAMS)},
                 "run_limit": dict(zip(CHANNELS, map(float, self.run_limit_), strict=True)),
                 "lost_limit": dict(zip(CHANNELS, map(float, self.lost_limit_), strict=True))}  # fmt: skip
@@ -202,8 +273,10 @@ class FaultDetector:
         """Everything :meth:`from_state` needs, JSON-able (the settings and fitted values)."""
         return {"far_per_day": self.far_per_day, "k": self.k, "reference_s": self.reference_s,
                 "drift_tau_s": self.drift_tau_s, "block_s": self.block_s_, "h": self.h_,
-                "level_cov": self.level_cov_.tolist(), "belt_level": self.belt_level_.tolist(),
+                "feature_cov": self.feature_cov_.tolist(), "belt_level": self.belt_level_.tolist(),
                 "phi": self.phi_.tolist(), "sigma": self.sigma_.tolist(),
+                "long_run_blocks": self.long_run_blocks, "long_run": self.long_run_.tolist(),
+                "watched": self.watched_.tolist(),
                 "run_limit": self.run_limit_.tolist(), "lost_limit": self.lost_limit_.tolist()}  # fmt: skip
 
     @classmethod
@@ -212,11 +285,17 @@ class FaultDetector:
         where a scale or threshold)."""
         try:
             det = cls(float(state["far_per_day"]), float(state["k"]),
-                      float(state["reference_s"]), float(state["drift_tau_s"]))  # fmt: skip
-            ns, nc = len(STREAMS), len(CHANNELS)
+                      float(state["reference_s"]), float(state["drift_tau_s"]),
+                      int(state["long_run_blocks"]))  # fmt: skip
+            ns, nc, nf = len(STREAMS), len(CHANNELS), len(FEATURES)
             det.block_s_ = _positive(state["block_s"], "block_s", source)
             det.h_ = _positive(state["h"], "h", source)
-            det.level_cov_ = _array(state["level_cov"], (nc, nc), "level_cov", source)
+            det.feature_cov_ = _array(state["feature_cov"], (nf, nf), "feature_cov", source)
+            det.level_cov_ = det.feature_cov_[:nc, :nc]
+            det.long_run_ = _array(state["long_run"], (ns,), "long_run", source)
+            det.watched_ = np.asarray(state["watched"], dtype=bool)
+            if det.watched_.shape != (ns,):
+                raise ValueError(f"watched has shape {det.watched_.shape}, not ({ns},)")
             det.belt_level_ = np.asarray(state["belt_level"], dtype=np.float64)
             det.phi_ = _array(state["phi"], (ns,), "phi", source)
             det.sigma_ = _array(state["sigma"], (ns,), "sigma", source)
@@ -225,8 +304,9 @@ class FaultDetector:
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"not a fitted detector ({type(exc).__name__}: {exc})",
                             source=source, fix="fit it again (drafttwin twin fit-detector)") from None  # fmt: skip
-        if (det.sigma_ <= 0).any() or not (det.phi_ >= 0).all() or not (det.phi_ < 1).all():
-            raise DataError("detector scales out of range (sigma > 0, 0 <= phi < 1)",
+        if ((det.sigma_ <= 0).any() or not (det.phi_ >= 0).all() or not (det.phi_ < 1).all()
+                or (det.long_run_ < 1).any()):  # fmt: skip
+            raise DataError("detector scales out of range (sigma > 0, 0 <= phi < 1, long_run >= 1)",
                             source=source, fix="fit it again (drafttwin twin fit-detector)")  # fmt: skip
         if det.belt_level_.ndim != 1 or not np.isfinite(det.belt_level_).all():
             raise DataError("detector belt levels not finite", source=source,
@@ -262,7 +342,7 @@ class CusumState:
         ns = len(STREAMS)
         self.det, self.n_ref, self.block_s = detector, n_ref, block_s
         self.a = stream_matrix()
-        self.scale = detector.sigma_ * np.sqrt(1 - detector.phi_**2)
+        self.scale = detector.sigma_ * np.sqrt((1 - detector.phi_**2) * detector.long_run_)
         self.alpha = min(1.0, detector.block_s_ / detector.drift_tau_s)
         self.up, self.down, self.prev = np.zeros(ns), np.zeros(ns), np.zeros(ns)
         self.up_start, self.down_start = np.zeros(ns), np.zeros(ns)  # block end times
@@ -282,7 +362,8 @@ class CusumState:
 
     def update(self, time_s: float, level: np.ndarray, lost: np.ndarray,
                run: np.ndarray) -> list[Alarm]:  # fmt: skip
-        """One block's features; the alarms it raises (a sensor rule and a CUSUM may both
+        """One block's features (``level``: a :data:`FEATURES` row, the five levels then the
+        angle lags); the alarms it raises (a sensor rule and a CUSUM may both
         fire on one block)."""
         j = self.block
         self.block += 1
@@ -314,7 +395,7 @@ class CusumState:
         det = self.det
         self.deviation = level - self.base
         s = self.deviation @ self.a.T
-        e = (s - det.phi_ * self.prev) / self.scale
+        e = np.where(det.watched_, (s - det.phi_ * self.prev) / self.scale, 0.0)
         self.prev = s
         for arr, start, sign in ((self.up, self.up_start, 1.0),
                                  (self.down, self.down_start, -1.0)):  # fmt: skip

@@ -16,17 +16,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.diagnosis.detect import Alarm, Detection, FaultDetector
+from drafttwin.diagnosis.detect import STREAMS, Alarm, Detection, FaultDetector, feature_matrix
 from drafttwin.diagnosis.locate import (
-    NOT_FROM_LEVELS,
+    NOT_ASSESSED,
     Cause,
     SignatureModel,
     creep_mismatch,
     rank_causes,
 )
-from drafttwin.diagnosis.residuals import CHANNELS, BlockFeatures, record_features
+from drafttwin.diagnosis.residuals import CHANNELS, LAGGED, BlockFeatures, record_features
 from drafttwin.diagnosis.spectrum import LineEvidence, line_evidence
 from drafttwin.mechanics import DriveTrain
 
@@ -41,7 +42,7 @@ class Diagnosis:
     features: BlockFeatures
     detection: Detection
     causes: list[Cause] = field(default_factory=list)
-    shift: np.ndarray | None = None  # relative level change per channel
+    shift: np.ndarray | None = None  # relative level change per channel, then lags (mrad)
     lines: list[LineEvidence] = field(default_factory=list)
 
     @property
@@ -61,9 +62,12 @@ class Diagnosis:
             },  # fmt: skip
             "shift_percent": None
             if self.shift is None
-            else dict(zip(CHANNELS, (100 * self.shift).tolist(), strict=True)),
+            else dict(zip(CHANNELS, (100 * self.shift[: len(CHANNELS)]).tolist(), strict=True)),
+            "lag_shift_mrad": None  # over the last part of the window
+            if self.shift is None
+            else dict(zip(LAGGED, self.shift[-len(LAGGED) :].tolist(), strict=True)),
             "causes": [c.to_dict() for c in self.causes[:top]],
-            "not_assessed_from_levels": list(NOT_FROM_LEVELS),
+            "not_assessed": list(NOT_ASSESSED),
             "lines": [ln.to_dict() for ln in self.lines],
         }
 
@@ -104,27 +108,71 @@ class Diagnoser:
             return dx
         base = det.baseline_at_alarm
         assert base is not None
-        after = np.arange(len(f.level)) > alarm.block
-        det.deviation[after] = f.level[after] - base  # evidence past the alarm, for the page
+        x = feature_matrix(f)
+        after = np.arange(len(x)) > alarm.block
+        det.deviation[after] = x[after] - base  # evidence past the alarm, for the page
         # the shift after the alarm (a ramp has grown by then); the record up to the alarm
         # when too little follows it
-        finite = np.isfinite(f.level).all(axis=1)
+        finite = np.isfinite(x).all(axis=1)
         window = (f.time_s > alarm.time_s) & (f.time_s <= alarm.time_s + POST_S) & finite
         if window.sum() < MIN_BLOCKS:
             window = (f.time_s > alarm.change_s) & (f.time_s <= alarm.time_s + POST_S) & finite
         if not window.any():
             return dx
-        dx.shift = (f.level[window] - base).mean(axis=0)
-        dx.causes = self.rank(dx.shift, int(window.sum()))
+        blocks = np.flatnonzero(window)
+        dx.shift, dx.causes = self.rank(f.time_s[blocks], blocks, x[window] - base, alarm.change_s)
         return dx
 
-    def rank(self, shift: np.ndarray, n_blocks: int) -> list[Cause]:
-        """The candidates ranked for a level ``shift`` (5 channels) measured as the mean of
-        ``n_blocks`` blocks (the live twin calls this on its post-alarm window)."""
-        phi = float(self.detector.phi_[0])
-        inflation = (1 + phi) / (1 - phi)
-        cov = self.detector.level_cov_ * inflation / n_blocks
-        return rank_causes(self.signatures, shift, cov, self.creep_rel_sd)
+    def rank(self, time_s: np.ndarray, blocks: np.ndarray, dev: np.ndarray,
+             change_s: float) -> tuple[np.ndarray, list[Cause]]:  # fmt: skip
+        """The shift (see :meth:`_shift`) of the window's blocks (their end times, their
+        indices, their features minus the baseline at the alarm) and the candidates ranked
+        for it; the live twin calls this on its post-alarm window."""
+        shift, cov, elapsed = self._shift(time_s, dev, blocks, change_s)
+        self.signatures.elapsed_s = elapsed
+        return shift, rank_causes(self.signatures, shift, cov, self.creep_rel_sd)
+
+    def _shift(self, time_s: np.ndarray, dev: np.ndarray, blocks: np.ndarray,
+               change_s: float) -> tuple[np.ndarray, np.ndarray, dict[str, tuple[float, ...]]]:  # fmt: skip
+        """The shift vector (mean levels over the window, then the mean lags over each half
+        of it), its covariance, and per roller each half's mean time since the change an
+        encoder gain on that roller would have run for (:func:`_gain_start`)."""
+        det, nc = self.detector, len(CHANNELS)
+        halves = np.array_split(np.arange(len(blocks)), 2) if len(blocks) >= 2 else [np.arange(1)]
+        phi = det.phi_
+        # levels: the covariance of a mean of AR(1) blocks, variance x (1 + phi)/(1 - phi)/n
+        cov_l = det.level_cov_ * (1 + phi[0]) / (1 - phi[0]) / len(blocks)
+        # lags: AR(1) covariances between the halves' means (a lag wanders slowly, so the
+        # halves are correlated), with the lag streams' mean phi: Kronecker product of the
+        # halves' correlation and the healthy lag covariance, positive definite by
+        # construction
+        lag0 = STREAMS.index(f"lag_{LAGGED[0]}")
+        rho = float(np.mean(phi[lag0 : lag0 + len(LAGGED)]))
+        t = blocks.astype(float)
+        parts = np.array([[np.mean(rho ** np.abs(t[ha][:, None] - t[hb][None, :]))
+                           for hb in halves] for ha in halves])  # fmt: skip
+        cov = block_diag(cov_l, np.kron(parts, det.feature_cov_[nc:, nc:]))
+        shift = np.concatenate([dev[:, :nc].mean(axis=0),
+                                *(dev[h, nc:].mean(axis=0) for h in halves)])  # fmt: skip
+        t = np.asarray(time_s, dtype=np.float64)
+        elapsed = {}
+        for j, ch in enumerate(CHANNELS[:4]):  # a front gain moves every lag: take the first
+            start = _gain_start(t, dev[:, nc + max(j - 1, 0)], change_s)
+            elapsed[ch] = tuple(float(np.mean(t[h] - start)) for h in halves)
+        return shift, cov, elapsed
+
+
+def _gain_start(t: np.ndarray, lag: np.ndarray, change_s: float) -> float:
+    """When an encoder gain error would have started for the lag to grow as observed: the
+    time a straight line through the window's lag crosses zero (a ramp counts from about
+    its middle, possibly after the alarm), kept between the detector's change estimate and
+    the window's end."""
+    hi = float(t[-1]) if len(t) else change_s
+    if len(t) < 2 or np.ptp(t) == 0:
+        return change_s
+    slope, icpt = np.polyfit(t, lag, 1)
+    cross = -icpt / slope if slope != 0 else change_s
+    return float(np.clip(cross, change_s, max(change_s, hi)))
 
 
 def sensor_cause(alarm: Alarm, lost: np.ndarray, run: np.ndarray) -> Cause:

@@ -1,10 +1,16 @@
 """Model-based localisation: which element's fault explains the residual shift, how severe.
 
 For every candidate (each bearing, roller load, the belt, the motor's rotor resistance and
-torque, each encoder's gain) the mechanistic model gives the steady-state change of the five
-channel levels the fault would cause (torque balance, :func:`drafttwin.mechanics.operating_point`
-of the physics with that fault's parameter changed). The observed shift (post-change mean of
-the block levels minus the baseline) is matched to each by SciPy ``least_squares`` over the
+torque, each gear mesh's wear, the chain's elongation, each encoder's gain) the mechanistic
+model gives the steady-state change of the block features the fault would cause: the five
+channel levels (torque balance, :func:`drafttwin.mechanics.operating_point` of the physics
+with that fault's parameter changed) and the three roller angle lags behind the front roller
+(static node angles, :func:`drafttwin.mechanics.static_angles`: a worn mesh's backlash grows
+by twice the wear depth and its driven gear, resting on the loaded flank, trails by the depth
+over its base radius; an elongated chain's driven sprocket trails by half the extra loop; an
+encoder gain error makes its roller's counted angle run away at ``gain x speed``). The
+observed shift (post-change mean of the block features minus the baseline) is matched to
+each by SciPy ``least_squares`` over the
 fault's parameter within its physical range, whitened by the healthy covariance; the
 candidates are ranked by chi-square plus a severity prior (exponential with the kind's
 moderate level as its mean: of two candidates that explain the shift equally, the one that
@@ -12,9 +18,10 @@ needs the more plausible severity ranks first; a tie-break, not evidence), with 
 interval on the severity from the Jacobian.
 
 Candidates whose whitened signatures point the same way (cosine > :data:`SAME_DIRECTION`)
-cannot be told apart by these sensors: each cause carries that group. Faults that leave the
-mean speeds unchanged (gear crack, wear and run-out, chain elongation, roller run-out) are not
-assessed from levels: :data:`NOT_FROM_LEVELS` lists them in the result.
+cannot be told apart by these sensors: each cause carries that group (e.g. wear of C-D and
+of E-F: both make only the second roller trail). Faults that leave both the mean speeds and
+the angles unchanged (gear crack and run-out, roller run-out) are not assessed:
+:data:`NOT_ASSESSED` lists them in the result.
 """
 
 from __future__ import annotations
@@ -27,13 +34,15 @@ from typing import Any
 import numpy as np
 from scipy.optimize import least_squares
 
-from drafttwin.diagnosis.residuals import CHANNELS
-from drafttwin.mechanics import DriveTrain, Signal, operating_point
-from drafttwin.plant.faults import KINDS, catalogue
+from drafttwin.diagnosis.residuals import CHANNELS, LAGGED
+from drafttwin.mechanics import DriveTrain, Signal, operating_point, static_angles
+from drafttwin.plant.faults import CHAIN_LINKS, KINDS, catalogue
 
 LEVEL_KINDS = ("bearing_friction", "load_loss", "belt_wear", "rotor_resistance", "torque_loss",
                "gain")  # fmt: skip
-NOT_FROM_LEVELS = ("crack", "wear", "runout", "elongation", "eccentricity")
+ANGLE_KINDS = ("wear", "elongation")  # seen in the roller angle lags, not in levels
+NOT_ASSESSED = ("crack", "runout", "eccentricity")
+WEAR_STIFFNESS_FLOOR = 0.5  # the plant's floor on a worn mesh's stiffness factor
 SAME_DIRECTION = 0.99
 
 
@@ -63,38 +72,107 @@ class Cause:
 
 
 class SignatureModel:
-    """Steady-state channel-level signatures of candidate faults on one physics train."""
+    """Steady-state signatures (channel levels, roller angle lags) of candidate faults on
+    one physics train.
 
-    def __init__(self, train: DriveTrain) -> None:
-        self.train = train
+    Args:
+        train: the physics.
+        elapsed_s: mean time since the change over each part of the window the shift is
+            measured on (the lags are compared part by part: a worn mesh's lag is a step, the
+            same in every part; an encoder gain error's grows with the time since the change),
+            one tuple for all channels or one per roller channel.
+    """
+
+    def __init__(self, train: DriveTrain,
+                 elapsed_s: tuple[float, ...] | dict[str, tuple[float, ...]] = (0.0,)) -> None:  # fmt: skip
+        self.train, self.elapsed_s = train, elapsed_s
         self.raw = train.to_dict()
+        self._units: dict[tuple[str, str], np.ndarray] = {}
+        self._roller_nodes = [train.node_index(r.node) for r in sorted(
+            train.spec.roller, key=lambda r: CHANNELS.index(str(r.name)))]  # fmt: skip
 
     @cached_property
+    def _healthy_state(self) -> tuple[np.ndarray, np.ndarray]:
+        return self._state(self.train)
+
+    @property
     def healthy(self) -> np.ndarray:
-        return self._levels(self.train)
+        return self._healthy_state[0]
+
+    @property
+    def healthy_angles(self) -> np.ndarray:
+        return self._healthy_state[1]
 
     @cached_property
     def candidates(self) -> list[tuple[str, str]]:
         cat = catalogue(self.train)
-        return sorted((e, k) for e, kinds in cat.items() for k in kinds if k in LEVEL_KINDS)
+        return sorted((e, k) for e, kinds in cat.items() for k in kinds
+                      if k in LEVEL_KINDS + ANGLE_KINDS)  # fmt: skip
 
-    def _levels(self, train: DriveTrain) -> np.ndarray:
+    def _state(self, train: DriveTrain,
+               chain_slack_m: dict[str, float] | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """Speeds of the four rollers and the motor (rpm), and the static angle of each
+        roller (``CHANNELS[:4]`` order, rad), at the train's operating point."""
         op = operating_point(train)
-        return np.array([*(op.roller_rpm[c] for c in CHANNELS[:4]), op.motor_rpm])
+        levels = np.array([*(op.roller_rpm[c] for c in CHANNELS[:4]), op.motor_rpm])
+        return levels, static_angles(train, chain_slack_m, op)[self._roller_nodes]
+
+    def _lags(self, d_theta: np.ndarray) -> np.ndarray:
+        """Angle changes of the four rollers -> lag changes of ``LAGGED``, mrad."""
+        ratio = self.healthy[1:4] / self.healthy[0]
+        return 1e3 * (d_theta[1:] - ratio * d_theta[0])
 
     def signature(self, element: str, kind: str, severity: float) -> np.ndarray:
-        """Relative change of the five channel levels under the fault."""
+        """Change of the block features under the fault: relative change of the five
+        channel levels, then the angle lags (mrad) of ``LAGGED`` behind the front roller."""
+        el = self.elapsed_s
+        nc, parts = len(CHANNELS), len(el if isinstance(el, tuple) else next(iter(el.values())))
+        out = np.zeros(nc + len(LAGGED) * parts)
         if kind == "gain":
-            out = np.zeros(len(CHANNELS))
-            out[CHANNELS.index(element)] = severity
+            j = CHANNELS.index(element)
+            out[j] = severity
+            if j < 4:  # the counted angle runs away at gain x speed since the change
+                rate = np.zeros(4)
+                rate[j] = severity * self.healthy[j] * 2 * math.pi / 60.0
+                times = el if isinstance(el, tuple) else el[element]
+                out[nc:] = np.concatenate([self._lags(rate * e) for e in times])
             return out
-        return self._levels(self._faulted(element, kind, severity)) / self.healthy - 1.0
+        if kind in ANGLE_KINDS:  # linear in the depth / elongation: one model run, scaled
+            unit = self._unit(element, kind)
+            out[:nc] = unit[:nc] * severity
+            out[nc:] = np.tile(unit[nc:] * severity, parts)
+            return out
+        levels, angles = self._state(self._faulted(element, kind, severity))
+        out[:nc] = levels / self.healthy - 1.0
+        out[nc:] = np.tile(self._lags(angles - self.healthy_angles), parts)
+        return out
+
+    def _unit(self, element: str, kind: str) -> np.ndarray:
+        """Levels and lags per unit severity of a wear or an elongation, from the model at
+        the kind's moderate level (backlash and slack add angle in proportion; the worn
+        mesh's lower stiffness changes its deflection by nanometres)."""
+        key = (element, kind)
+        if key not in self._units:
+            s = KINDS[kind].levels[1]
+            slack = None
+            if kind == "elongation":
+                chain = next(c for c in self.train.spec.chain if c.name == element)
+                slack = {element: s / 100.0 * CHAIN_LINKS * chain.pitch_mm * 1e-3}
+                faulted = self.train
+            else:
+                faulted = self._faulted(element, kind, s)
+            levels, angles = self._state(faulted, slack)
+            self._units[key] = np.concatenate([levels / self.healthy - 1.0,
+                                               self._lags(angles - self.healthy_angles)]) / s  # fmt: skip
+        return self._units[key]
 
     def _faulted(self, element: str, kind: str, s: float) -> DriveTrain:
         if kind == "rotor_resistance":
             return self.train.with_rotor_resistance(Signal(0.0, 1.0, np.array([1.0 + s] * 2)))
         raw: dict[str, Any] = dict(self.raw)
-        if kind == "bearing_friction":
+        if kind == "wear":  # as the plant injects it: backlash + 2 depth, stiffness falls
+            raw["gear"] = [_worn(g, s) if g["name"] == element else g for g in raw["gear"]]
+        elif kind == "bearing_friction":
             raw["bearing"] = [dict(b) for b in raw["bearing"]]
             for b in raw["bearing"]:
                 if b["node"] == element:
@@ -113,8 +191,18 @@ class SignatureModel:
         return DriveTrain.from_dict(raw, source="fault candidate")
 
 
-BELT_DIRECTION = np.array([1.0, 1.0, 1.0, 1.0, 0.0])
-"""A wrong belt creep moves the four rollers together and leaves the motor where it is."""
+def _worn(gear: dict[str, Any], depth_um: float) -> dict[str, Any]:
+    factor = 1.0 - min(WEAR_STIFFNESS_FLOOR, depth_um / (100.0 * gear["module_mm"]))
+    return dict(gear, backlash_um=gear["backlash_um"] + 2.0 * depth_um,
+                mesh_stiffness_n_per_m=gear["mesh_stiffness_n_per_m"] * factor)  # fmt: skip
+
+
+def belt_direction(size: int) -> np.ndarray:
+    """A wrong belt creep moves the four rollers together and leaves the motor and the
+    angle lags where they are (``size``: length of the feature vector)."""
+    d = np.zeros(size)
+    d[:4] = 1.0
+    return d
 
 
 def _belt(sig: np.ndarray) -> float:
@@ -148,7 +236,7 @@ def rank_causes(model: SignatureModel, shift: np.ndarray, cov: np.ndarray,
     """Candidates ranked by how well each explains ``shift`` (5 relative level changes) with
     noise covariance ``cov``; the best first. ``creep_rel_sd`` adds the model mismatch of a
     wrong belt creep: each machine candidate's covariance gets ``(sd * b) d d'`` with ``b`` the
-    belt part of its fitted signature and ``d`` :data:`BELT_DIRECTION` (refitted once with it);
+    belt part of its fitted signature and ``d`` :func:`belt_direction` (refitted once with it);
     a sensor gain does not pass the belt and gets none."""
     chol = _chol(cov)
 
@@ -156,10 +244,19 @@ def rank_causes(model: SignatureModel, shift: np.ndarray, cov: np.ndarray,
         return np.linalg.solve(chol, v)
 
     fits = []
+    nc = len(CHANNELS)
     for element, kind in model.candidates:
+        if kind == "gain" and len(shift) > nc:
+            # an encoder gain is sized by the level it shifts (what it is); its angle lag
+            # depends on how it came on (step or ramp), so the lags only judge it
+            s, interval, _, x0 = _fit(model, element, kind, shift[:nc], _chol(cov[:nc, :nc]))
+            cost = float(np.sum(white(shift - model.signature(element, kind, s)) ** 2))
+            direction = white(model.signature(element, kind, s if s != 0 else x0))
+            fits.append((element, kind, s, interval, cost, direction))
+            continue
         s, interval, cost, x0 = _fit(model, element, kind, shift, chol)
         if creep_rel_sd > 0 and kind != "gain":
-            m = creep_rel_sd * _belt(model.signature(element, kind, s)) * BELT_DIRECTION
+            m = creep_rel_sd * _belt(model.signature(element, kind, s)) * belt_direction(len(shift))
             s, interval, cost, x0 = _fit(model, element, kind, shift, _chol(cov + np.outer(m, m)))
         direction = white(model.signature(element, kind, s if s != 0 else x0))
         fits.append((element, kind, s, interval, cost, direction))
@@ -189,7 +286,8 @@ def _fit(model: SignatureModel, element: str, kind: str, shift: np.ndarray,
     k = KINDS[kind]
     lo, hi = (-k.high, k.high) if k.signed else (0.0, k.high)
     x0 = k.levels[0] * (1.0 if not k.signed or shift[CHANNELS.index(element)] >= 0 else -1.0)
-    res = least_squares(lambda x: np.linalg.solve(chol, shift - model.signature(element, kind, x[0])),
+    n = len(shift)
+    res = least_squares(lambda x: np.linalg.solve(chol, shift - model.signature(element, kind, x[0])[:n]),
                         [x0], bounds=([lo], [hi]), diff_step=1e-3)  # fmt: skip
     s = float(res.x[0])
     jtj = float(res.jac[:, 0] @ res.jac[:, 0])

@@ -8,7 +8,12 @@ relative residual of each channel is ``y / yhat - 1``; per block of ``block_s`` 
   path, > 1 % from the block median, are left out; a block needs half its samples);
 * ``lost_<ch>``: fraction of the block's samples lost on that channel alone (the logger row
   kept by the other channels);
-* ``run_<ch>``: the longest run of identical consecutive values (samples).
+* ``run_<ch>``: the longest run of identical consecutive values (samples);
+* ``lag_<roller>``: mean angle of the second, third and back roller against the front's
+  through the kinematic ratio, mrad of that roller, from the cumulative counts (gaps and
+  spikes bridged by interpolation). Gears and chain are positive drives, so it stays put on a
+  healthy machine and steps when a mesh's backlash grows (worn teeth: the driven gear trails
+  by the wear depth over its base radius) or a chain elongates (research/faults.md 2.2, 2.5).
 
 Block means of pulse counts telescope (their error falls as 1/n), which is what makes 0.01 %
 visible in a second (research/faults.md, section 1).
@@ -28,7 +33,10 @@ from drafttwin.errors import DataError
 from drafttwin.mechanics import DriveTrain, reduce, simulate_channels
 
 CHANNELS = (*ROLLERS, "motor")
+LAGGED = ROLLERS[1:]  # rollers whose angle is compared with the front roller's
 SPIKE = 0.01  # relative distance from the block median that marks a data-path spike
+ANCHOR = 25  # rows each side of a gap whose mean lags are matched (0.25 s at 100 Hz)
+MOVING_RPM = 1.0  # below this predicted speed a roller counts as stopped (no spike test)
 
 
 @dataclass(frozen=True)
@@ -41,6 +49,8 @@ class BlockFeatures:
         lost: fraction of samples lost on the channel alone.
         run: longest run of identical consecutive values, samples.
         block_s: block length, s.
+        lag: mean angle of each of ``LAGGED`` against the front roller, mrad (see module);
+            zeros when not measured (older feature files).
     """
 
     time_s: np.ndarray
@@ -48,6 +58,12 @@ class BlockFeatures:
     lost: np.ndarray
     run: np.ndarray
     block_s: float
+    lag: np.ndarray | None = None
+
+    @property
+    def lags(self) -> np.ndarray:
+        """``lag``, or zeros of shape ``(blocks, 3)`` without it."""
+        return np.zeros((len(self.level), len(LAGGED))) if self.lag is None else self.lag
 
 
 def physics_prediction(train: DriveTrain, series: MeasurementSeries) -> np.ndarray:
@@ -68,9 +84,10 @@ def measured(series: MeasurementSeries) -> np.ndarray:
     return np.column_stack([series.values, series.motor_rpm])
 
 
-def block_features(y: np.ndarray, yhat: np.ndarray, time_s: np.ndarray,
-                   block_s: float) -> BlockFeatures:  # fmt: skip
-    """Block features of measured ``y`` against predicted ``yhat`` (both ``(n, 5)``)."""
+def block_features(y: np.ndarray, yhat: np.ndarray, time_s: np.ndarray, block_s: float,
+                   carry: LagCarry | None = None) -> BlockFeatures:  # fmt: skip
+    """Block features of measured ``y`` against predicted ``yhat`` (both ``(n, 5)``);
+    ``carry``: the angle lags go on from the rows fed before (a record fed block by block)."""
     dt = float(np.median(np.diff(time_s)))
     per = max(1, int(round(block_s / dt)))
     nb = len(time_s) // per
@@ -92,7 +109,103 @@ def block_features(y: np.ndarray, yhat: np.ndarray, time_s: np.ndarray,
     finite = np.isfinite(yb)
     row_kept = finite.any(axis=2, keepdims=True)
     lost = (~finite & row_kept).sum(axis=1) / per
-    return BlockFeatures(time_s[per - 1 : n : per], level, lost, _longest_runs(yb), per * dt)
+    stopped = (yhat[:n] < MOVING_RPM).reshape(nb, per, -1)
+    good = (ok | (stopped & finite)).reshape(n, -1)
+    if carry is None:
+        lag = angle_lag(y[:n], yhat[:n], good, dt)
+    else:
+        lag = carry.extend(y[:n], yhat[:n], good, dt)
+    return BlockFeatures(time_s[per - 1 : n : per], level, lost, _longest_runs(yb), per * dt,
+                         lag.reshape(nb, per, -1).mean(axis=1))  # fmt: skip
+
+
+class LagCarry:
+    """The angle lags of a record fed block by block (the live twin), as :func:`angle_lag`
+    gives them over the whole record: each block is computed after the last :data:`ANCHOR`
+    rows of the rows before it, so the lags go on where they stopped and a gap at a block's
+    edge is bridged with rows on both sides, not lost with its counts (a lost edge on every
+    such gap would add up to a random walk, and to false alarms on the lag streams)."""
+
+    def __init__(self) -> None:
+        self.y: np.ndarray | None = None
+        self.yhat = self.good = self.lag = np.zeros((0, 0))
+
+    def extend(self, y: np.ndarray, yhat: np.ndarray, good: np.ndarray,
+               dt: float) -> np.ndarray:  # fmt: skip
+        """Lags of the new rows ``(n, 3)``, continuing the rows fed before."""
+        if self.y is None:
+            lag = angle_lag(y, yhat, good, dt)
+            y_all, yhat_all, good_all, lag_all = y, yhat, good, lag
+        else:
+            m = len(self.y)
+            y_all, yhat_all = np.vstack([self.y, y]), np.vstack([self.yhat, yhat])
+            good_all = np.vstack([self.good, good])
+            lag_all = angle_lag(y_all, yhat_all, good_all, dt)
+            ref = _reference_rows(np.asarray(self.good[:, : len(LAGGED) + 1].all(axis=1)))
+            lag_all += (self.lag[ref] - lag_all[:m][ref]).mean(axis=0)
+            lag = lag_all[m:]
+        self.y, self.yhat = y_all[-ANCHOR:].copy(), yhat_all[-ANCHOR:].copy()
+        self.good, self.lag = good_all[-ANCHOR:].copy(), lag_all[-ANCHOR:].copy()
+        return lag
+
+
+def _reference_rows(row_ok: np.ndarray) -> np.ndarray:
+    """Rows of the carried context whose lags the new computation is matched to: the good
+    rows before its first gap (their lags were bridged with rows on both sides), else the
+    good rows after its last gap, else its last row."""
+    bad = np.flatnonzero(~row_ok)
+    if bad.size == 0:
+        return np.flatnonzero(row_ok)
+    before, after = (
+        np.flatnonzero(row_ok[: bad[0]]),
+        bad[-1] + 1 + np.flatnonzero(row_ok[bad[-1] + 1 :]),
+    )
+    for rows in (before, after):
+        if rows.size:
+            return rows
+    return np.array([len(row_ok) - 1])
+
+
+def angle_lag(y: np.ndarray, yhat: np.ndarray, good: np.ndarray, dt: float) -> np.ndarray:
+    """Angle of each of ``LAGGED`` minus the front roller's times the kinematic ratio (the
+    prediction's median speed ratio), mrad of that roller, per sample ``(n, 3)``.
+
+    The angle is the running sum of the counted speeds over rows where all four rollers
+    are ``good``. A lost row (or a spike) loses its counts, unknowable to +-1 edge of
+    quantisation each, which would add up to a random walk of several edges over minutes;
+    instead each run of lost rows is bridged by re-anchoring: the lag's mean over the
+    :data:`ANCHOR` rows after the gap is set to its mean over the rows before (positive
+    drives keep it continuous; the means average the quantisation out).
+    """
+    k = len(LAGGED) + 1
+    moving = yhat[:, 0] >= MOVING_RPM
+    if not moving.any():
+        return np.zeros((len(y), k - 1))
+    ratio = np.median(yhat[moving, 1:k] / yhat[moving, :1], axis=0)
+    row_ok = good[:, :k].all(axis=1)
+    step = (y[:, 1:k] - y[:, :1] * ratio) * (dt * 2e3 * np.pi / 60.0)  # mrad per row
+    step[~row_ok] = 0.0
+    lag = np.cumsum(step, axis=0)
+    bad = np.flatnonzero(~row_ok)
+    if bad.size == 0:
+        return lag
+    # runs of lost rows: [start, end) each
+    new_run = np.concatenate([[True], np.diff(bad) > 1])
+    starts = bad[new_run]
+    ends = np.concatenate([bad[np.flatnonzero(new_run)[1:] - 1], bad[-1:]]) + 1
+    offset = np.zeros(k - 1)
+    nxt = np.concatenate([starts[1:], [len(y)]])
+    prev_end = 0
+    for s0, e0, s1 in zip(starts, ends, nxt, strict=True):
+        lag[prev_end:s0] += offset
+        before = lag[max(prev_end, s0 - ANCHOR) : s0]
+        after = lag[e0 : min(s1, e0 + ANCHOR)] + offset
+        if len(before) and len(after):
+            offset = offset + before.mean(axis=0) - after.mean(axis=0)
+        lag[s0:e0] = lag[s0 - 1] if s0 > 0 else 0.0
+        prev_end = e0
+    lag[prev_end:] += offset
+    return lag
 
 
 def _longest_runs(yb: np.ndarray) -> np.ndarray:

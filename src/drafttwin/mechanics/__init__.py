@@ -39,6 +39,7 @@ from drafttwin.mechanics.simulate import (
     simulate_chunks,
     simulate_reference,
     starts_at_rest,
+    static_angles,
 )
 
 __all__ = [
@@ -71,4 +72,5 @@ __all__ = [
     "simulate_on_grid",
     "simulate_reference",
     "starts_at_rest",
+    "static_angles",
 ]

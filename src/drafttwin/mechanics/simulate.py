@@ -104,7 +104,21 @@ class SimulationResult:
         return {n: float(self.energy_j[-1, k] / span) for k, n in enumerate(ENERGY_NAMES)}
 
 
-def _initial_state(train: DriveTrain, op: OperatingPoint) -> np.ndarray:
+def static_angles(train: DriveTrain, chain_slack_m: dict[str, float] | None = None,
+                  op: OperatingPoint | None = None) -> np.ndarray:  # fmt: skip
+    """Node angles (rad, ``train.node_names`` order, motor rotor at 0) at the operating point:
+    the static twist of shafts, belt stretch, mesh deflection plus half the backlash (the
+    driven gear rests on its loaded flank) and chain stretch. ``chain_slack_m`` adds slack to
+    named chains (an elongated chain's driven sprocket trails by half the extra loop length:
+    the slack span takes up the other half). Diagnosis compares these between a train and the
+    same train with a fault, e.g. a worn mesh's larger backlash. ``op``: the train's
+    operating point if already at hand."""
+    op = operating_point(train) if op is None else op
+    return _initial_state(train, op, chain_slack_m)[: len(train.node_names)]
+
+
+def _initial_state(train: DriveTrain, op: OperatingPoint,
+                   chain_slack_m: dict[str, float] | None = None) -> np.ndarray:  # fmt: skip
     """Steady-speed state with static deflections from the transmitted torques."""
     n = len(train.node_names)
     tab = train.tables()
@@ -128,6 +142,7 @@ def _initial_state(train: DriveTrain, op: OperatingPoint) -> np.ndarray:
         else:
             rb = chain_pitch_radius_m(c.pitch_mm, c.driven_teeth)
             stretch = torque / rb / (2 * c.span_stiffness_n_per_m)
+            stretch += 0.5 * (chain_slack_m or {}).get(c.name, 0.0)
             y[e.child] = _chain_angle_for_feed(c, y[e.parent], stretch)
     y[2 * n + nb : 2 * n + nb + nm] = op.motor_torque_nm
     return y

@@ -30,18 +30,23 @@ RED, ORANGE, GREY = "#d62728", "#ff9f1c", "#b0b7c3"
 
 def timeline_png(dx: Diagnosis) -> bytes:
     f, det = dx.features, dx.detection
-    fig, (ax, bx) = plt.subplots(2, 1, figsize=(10, 5.2), sharex=True)
-    streams = det.deviation @ stream_matrix().T * 100
+    fig, (ax, lx, bx) = plt.subplots(3, 1, figsize=(10, 7.0), sharex=True)
+    streams = det.deviation @ stream_matrix().T
     for i, name in enumerate(STREAMS[:3]):
-        ax.plot(f.time_s, streams[:, i], lw=1, label=name)
+        ax.plot(f.time_s, 100 * streams[:, i], lw=1, label=name)
     ax.set_ylabel("level vs baseline, %")
     ax.legend(fontsize=8, ncol=3, loc="upper left")
+    for i, name in enumerate(STREAMS):  # the rollers' angle lags behind the front roller
+        if name.startswith("lag_"):
+            lx.plot(f.time_s, streams[:, i], lw=1, label=name)
+    lx.set_ylabel("angle lag vs baseline, mrad")
+    lx.legend(fontsize=8, ncol=3, loc="upper left")
     bx.plot(f.time_s, det.statistic.max(axis=1), color="#1f5f8b", lw=1, label="max CUSUM / h")
     bx.axhline(1.0, color="k", ls="--", lw=0.8, label="threshold")
     bx.set_ylabel("CUSUM / threshold")
     bx.set_xlabel("time, s")
     if dx.alarm is not None:
-        for a in (ax, bx):
+        for a in (ax, lx, bx):
             a.axvline(dx.alarm.time_s, color=RED, lw=1.5)
             a.axvspan(dx.alarm.change_s, dx.alarm.time_s, color=RED, alpha=0.1)
     bx.legend(fontsize=8, loc="upper left")
@@ -171,9 +176,10 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
         tag("h1", title), para(str(info.get("data", "")), cls="sub"), verdict,
         section("ranked", "Ranked causes", causes, para(
             "Causes in one group move the measured channels the same way: with roller and motor "
-            "speeds alone they cannot be told apart (only their severities differ). Gear cracks, "
-            "wear and run-out, chain elongation and roller run-out leave the mean speeds unchanged "
-            "and are not ranked from levels.", cls="note")),
+            "speeds alone they cannot be told apart (only their severities differ). Gear wear and "
+            "chain elongation are ranked from the rollers' angle lags (the driven roller trails "
+            "by a fixed angle); gear cracks and run-out and roller run-out leave speeds and "
+            "angles unchanged and are not ranked.", cls="note")),
         section("timeline", "Residual timeline", figure(timeline_png(dx), "fig-timeline",
                 "Stream levels against the record's baseline, and the largest CUSUM statistic over "
                 "its threshold; the alarm in red, the estimated change shaded.", "residual timeline")),

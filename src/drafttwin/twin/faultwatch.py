@@ -39,7 +39,7 @@ from drafttwin._constants import ROLLERS
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.diagnosis.detect import Alarm, CusumState, FaultDetector
 from drafttwin.diagnosis.diagnose import Diagnoser, sensor_cause
-from drafttwin.diagnosis.residuals import CHANNELS, block_features
+from drafttwin.diagnosis.residuals import CHANNELS, LagCarry, block_features
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain
 from drafttwin.twin.store import SampleRow
@@ -135,12 +135,23 @@ def plant_log_series(path: Path) -> list[MeasurementSeries] | None:
 
 @dataclass(frozen=True)
 class Localise:
-    """A request for the ranking: the alarm, the mean level shift and its block count."""
+    """A request for the ranking: the alarm and its window's blocks (end times, indices, and
+    features minus the baseline at the alarm, :data:`~drafttwin.diagnosis.detect.FEATURES`)."""
 
     machine: str
     alarm: Alarm
-    shift: np.ndarray
-    n_blocks: int
+    time_s: np.ndarray
+    blocks: np.ndarray
+    deviation: np.ndarray
+
+    @property
+    def n_blocks(self) -> int:
+        return len(self.blocks)
+
+    @property
+    def shift(self) -> np.ndarray:
+        """The window's mean deviation (levels, then lags)."""
+        return np.asarray(self.deviation.mean(axis=0))
 
 
 class LiveFaultWatch:
@@ -176,16 +187,18 @@ class LiveFaultWatch:
         self.skip = phase % self.per
         self.last_us: int | None = None
         self.state = CusumState(detector, self.n_ref, self.block_s)
-        self.pending: tuple[Alarm, np.ndarray, list[np.ndarray]] | None = None
+        self.lag = LagCarry()  # the angle lags go on from block to block
+        self.pending: tuple[Alarm, np.ndarray, list[Window]] | None = None
         self.blocks = 0
         self.restarts = 0
         self.sensor_active: set[str] = set()
-        self.levels: deque[tuple[float, np.ndarray]] = deque(maxlen=self.post + self.n_ref)
+        self.levels: deque[Window] = deque(maxlen=self.post + self.n_ref)
 
     def restart(self) -> None:
         """A new baseline (after a gap the physics restarts: the old one no longer holds)."""
         self.state = CusumState(self.detector, self.n_ref, self.block_s)
         self.k, self.pending = 0, None
+        self.lag = LagCarry()
         self.restarts += 1
 
     def add(self, row: SampleRow) -> tuple[list[Alarm], list[dict[str, Any]], list[Localise]]:
@@ -210,11 +223,13 @@ class LiveFaultWatch:
         return self._block()
 
     def _block(self) -> tuple[list[Alarm], list[dict[str, Any]], list[Localise]]:
-        f = block_features(self.y, self.yhat, self.t, self.block_s)
-        level, lost, run = f.level[0], f.lost[0], f.run[0]
+        f = block_features(self.y, self.yhat, self.t, self.block_s, self.lag)
+        lost, run = f.lost[0], f.run[0]
+        level = np.concatenate([f.level[0], f.lags[0]])
+        here = Window(float(f.time_s[0]), self.blocks, level)
         self.blocks += 1
-        self.levels.append((float(f.time_s[0]), level))
-        alarms = self.state.update(float(f.time_s[0]), level, lost, run)
+        self.levels.append(here)
+        alarms = self.state.update(here.time_s, level, lost, run)
         # a sensor rule fires on every block while the fault lasts: raise it once per episode
         sensor = {a.test for a in alarms if a.direction == 0}
         alarms = [a for a in alarms if a.direction != 0 or a.test not in self.sensor_active]
@@ -222,10 +237,9 @@ class LiveFaultWatch:
         causes, requests = [], []
         if self.pending is not None and np.isfinite(level).all():
             alarm, base, after = self.pending
-            after.append(level)
+            after.append(here)
             if len(after) >= self.post:
-                shift = np.mean(after, axis=0) - base
-                requests.append(Localise(self.machine, alarm, shift, len(after)))
+                requests.append(_request(self.machine, alarm, base, after))
                 self.pending = None
         for a in alarms:
             if a.direction == 0:
@@ -242,11 +256,25 @@ class LiveFaultWatch:
         alarm, base, after = self.pending
         self.pending = None
         if not after:
-            after = [lv for t, lv in self.levels
-                     if alarm.change_s < t <= alarm.time_s and np.isfinite(lv).all()]  # fmt: skip
+            after = [w for w in self.levels
+                     if alarm.change_s < w.time_s <= alarm.time_s and np.isfinite(w.row).all()]  # fmt: skip
         if not after:
             return []
-        return [Localise(self.machine, alarm, np.mean(after, axis=0) - base, len(after))]
+        return [_request(self.machine, alarm, base, after)]
+
+
+@dataclass(frozen=True)
+class Window:
+    """One block of the live watch: its end time (s), index and feature row."""
+
+    time_s: float
+    block: int
+    row: np.ndarray
+
+
+def _request(machine: str, alarm: Alarm, base: np.ndarray, after: list[Window]) -> Localise:
+    return Localise(machine, alarm, np.array([w.time_s for w in after]),
+                    np.array([w.block for w in after]), np.vstack([w.row for w in after]) - base)  # fmt: skip
 
 
 def block_phase(machine: str, rate_hz: float, block_s: float) -> int:
@@ -278,11 +306,11 @@ def _prepare(key: str, train: dict[str, Any], detector: dict[str, Any]) -> None:
     _ = _diagnoser(key, train, detector).signatures.healthy
 
 
-def _rank(key: str, train: dict[str, Any], detector: dict[str, Any], shift: list[float],
-          n_blocks: int) -> list[dict[str, Any]]:  # fmt: skip
+def _rank(key: str, train: dict[str, Any], detector: dict[str, Any], req: Localise) -> list[dict[str, Any]]:  # fmt: skip
     """Worker side: the top causes."""
     dx = _diagnoser(key, train, detector)
-    return [c.to_dict() for c in dx.rank(np.asarray(shift, dtype=np.float64), n_blocks)[:TOP]]
+    _, causes = dx.rank(req.time_s, req.blocks, req.deviation, req.alarm.change_s)
+    return [c.to_dict() for c in causes[:TOP]]
 
 
 class Locator:
@@ -320,7 +348,7 @@ class Locator:
                 return False
             self.in_flight += 1
         train, det = self.models[key]
-        fut = self._executor().submit(_rank, key, train, det, req.shift.tolist(), req.n_blocks)
+        fut = self._executor().submit(_rank, key, train, det, req)
 
         def finished(f: Future[list[dict[str, Any]]]) -> None:
             with self._lock:

@@ -2,7 +2,9 @@
 
 Three sets, each of its own machines and recording seeds (none shared):
 
-* ``tuning``: healthy records that set the thresholds (and nothing else);
+* ``tuning``: healthy records that set the thresholds (and nothing else); as long as the
+  healthy test records in the full profile, so the slow wander of a 10-min run (its long-run
+  variance, :class:`~drafttwin.diagnosis.detect.FaultDetector`) is in them;
 * ``faults``: one record per fault kind x severity level x profile (abrupt step, or an
   incipient ramp), the element cycling through :data:`ELEMENTS`;
 * ``healthy``: healthy running of several machines, for false alarms.
@@ -60,7 +62,7 @@ class Profile:
 
 PROFILES = {
     "full": Profile("full", tuple(ELEMENTS), (0, 1, 2), ("step", "ramp"), 40.0, (18.0, 22.0),
-                    10.0, (4, 60.0), (12, HEALTHY_RECORD_S)),
+                    10.0, (4, HEALTHY_RECORD_S), (12, HEALTHY_RECORD_S)),
     "quick": Profile("quick", QUICK_KINDS, (1,), ("step",), 30.0, (18.0, 20.0), 5.0,
                      (2, 40.0), (2, 60.0)),
 }  # fmt: skip
@@ -127,5 +129,6 @@ def run_record(config: dict[str, Any]) -> dict[str, Any]:
     physics = physics_prediction(DriveTrain.preset("fa320a"), rec.series)
     f = block_features(measured(rec.series), physics, rec.series.time_s, BLOCK_S)
     return {"time_s": f.time_s.tolist(), "level": f.level.tolist(), "lost": f.lost.tolist(),
-            "run": f.run.tolist(), "block_s": f.block_s, "labels": rec.info["faults"],
+            "run": f.run.tolist(), "block_s": f.block_s, "lag": f.lags.tolist(),
+            "labels": rec.info["faults"],
             "raw": raw_record(rec.series, physics)}  # fmt: skip

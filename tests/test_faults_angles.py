@@ -1,0 +1,162 @@
+"""Roller angle lags: a worn mesh or an elongated chain makes the driven roller trail by a
+fixed angle, which the cumulative encoder counts show and the physics ranking names."""
+
+import math
+
+import numpy as np
+import pytest
+
+from drafttwin.diagnosis.locate import SignatureModel, rank_causes
+from drafttwin.diagnosis.residuals import LagCarry, block_features
+from drafttwin.mechanics import DriveTrain
+from drafttwin.plant.config import Sensors
+from drafttwin.plant.sensors import encoder_rpm
+
+RPM = np.array([1815.65, 434.66, 426.12, 355.10, 1450.0])
+COUNTS = 10_000  # edges per revolution (2 500 ppr, quadrature)
+
+
+def counted(step_mrad: float, at_s: float, n: int = 6000, seed: int = 0) -> np.ndarray:
+    """Counted speeds of five channels at 100 Hz, the second roller's angle stepping back by
+    ``step_mrad`` at ``at_s`` (spread over 0.1 s), with +-0.01 % common speed wander."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.01
+    wander = 1 + 1e-4 * np.sin(2 * np.pi * t / 37.0)
+    true = RPM[None, :] * wander[:, None]
+    ramp = np.clip((t - at_s) / 0.1, 0, 1)
+    true[:, 1] -= (
+        np.diff(np.concatenate([[0.0], ramp])) * step_mrad * 1e-3 / (2 * np.pi) * 60 / 0.01
+    )
+    return encoder_rpm(true, 0.01, Sensors(clock_jitter_s=0.0), rng), true
+
+
+def lost_rows(y: np.ndarray, seed: int) -> np.ndarray:
+    """Whole logger rows lost as the plant loses them: 0.2 % single rows and a burst of 30
+    a minute."""
+    rng = np.random.default_rng(seed)
+    y = y.copy()
+    y[rng.random(len(y)) < 0.002] = np.nan
+    for start in rng.integers(0, len(y) - 40, size=1):
+        y[start : start + 30] = np.nan
+    return y
+
+
+def test_lag_bridges_lost_rows_and_shows_a_step():
+    t = np.arange(6000) * 0.01
+    healthy, true = counted(0.0, 1e9)
+    stepped, _ = counted(1.25, 30.0, seed=1)
+    for y, step in ((healthy, 0.0), (stepped, -1.25)):
+        f = block_features(lost_rows(y, 2), true, t, 1.0)
+        lag = f.lag - f.lag[:20].mean(axis=0)
+        assert lag.shape == (60, 3)
+        # after the step: the second roller trails by it, to half an edge (0.63 mrad: a block
+        # mean of counts keeps part of the quantisation, its phase moving with the speed);
+        # the others stay put
+        assert lag[35:, 0].mean() == pytest.approx(step, abs=0.3)
+        assert np.abs(lag[:29]).max() < 0.3 and np.abs(lag[:, 1:]).max() < 0.3
+
+
+def test_lags_fed_block_by_block_go_on_as_over_the_whole_record():
+    """The live twin computes one block at a time: lost rows at a block's edges are bridged
+    with the rows before it (carried), so the lags match the whole record's (before: each
+    block started from its own first row, and a gap at a block's start lost its counts)."""
+    t = np.arange(6000) * 0.01
+    y, true = counted(1.25, 30.0, seed=3)
+    y = lost_rows(y, 4)
+    for start in (1000, 1998, 2399, 3100):  # gaps at a block's start, across, at its end
+        y[start : start + 3] = np.nan
+    whole = block_features(y, true, t, 1.0).lag
+    carry = LagCarry()
+    fed = np.vstack([block_features(y[i : i + 100], true[i : i + 100], t[i : i + 100], 1.0,
+                                    carry).lag for i in range(0, 6000, 100)])  # fmt: skip
+    # the same to a tenth of an edge (0.06 mrad of the second roller), everywhere
+    assert np.abs((fed - fed[:10].mean(axis=0)) - (whole - whole[:10].mean(axis=0))).max() < 0.1
+
+
+@pytest.fixture(scope="module")
+def signatures():
+    return SignatureModel(DriveTrain.preset("fa320a"))
+
+
+def base_radius_m(gear: dict, teeth: int) -> float:
+    return gear["module_mm"] * 1e-3 * teeth / 2 * math.cos(math.radians(gear["pressure_angle_deg"]))
+
+
+def test_worn_mesh_trails_by_depth_over_base_radius(signatures):
+    gears = {g["name"]: g for g in DriveTrain.preset("fa320a").to_dict()["gear"]}
+    ef, cd = gears["E-F"], gears["C-D"]
+    sig = signatures.signature("E-F", "wear", 60.0)
+    assert np.abs(sig[:5]).max() < 1e-9  # no mean speed changes: a positive drive
+    expected = -60e-6 / base_radius_m(ef, ef["driven_teeth"]) * 1e3  # mrad of the second roller
+    assert sig[5] == pytest.approx(expected, rel=0.01) and sig[6] == sig[7] == 0
+    # C-D wear: gear D trails, and the second roller by the ratio of E-F behind it
+    sig = signatures.signature("C-D", "wear", 60.0)
+    ratio = ef["driver_teeth"] / ef["driven_teeth"]
+    assert sig[5] == pytest.approx(-60e-6 / base_radius_m(cd, cd["driven_teeth"]) * 1e3 * ratio,
+                                   rel=0.01)  # fmt: skip
+    # G-H wear: the back roller (H) and the third (driven from the same shaft) trail
+    sig = signatures.signature("G-H", "wear", 60.0)
+    assert sig[5] == 0 and sig[6] < 0 and sig[7] < 0
+    # the model is linear in the depth (the ranking scales one run): a 150-um wear computed
+    # directly from the static angles of the worn train
+    from drafttwin.mechanics import static_angles
+
+    train = DriveTrain.preset("fa320a")
+    raw = train.to_dict()
+    factor = 1 - min(0.5, 150 / (100 * ef["module_mm"]))
+    raw["gear"] = [dict(g, backlash_um=g["backlash_um"] + 300,
+                        mesh_stiffness_n_per_m=g["mesh_stiffness_n_per_m"] * factor)
+                   if g["name"] == "E-F" else g for g in raw["gear"]]  # fmt: skip
+    node = train.node_index("second_roller")
+    direct = static_angles(DriveTrain.from_dict(raw))[node] - static_angles(train)[node]
+    assert signatures.signature("E-F", "wear", 150.0)[5] == pytest.approx(1e3 * direct, rel=0.01)
+    # a chain elongated by 1 %: half the extra loop at the rear sprocket, mrad, tens of them
+    sig = signatures.signature("rear_chain", "elongation", 1.0)
+    assert sig[5] == 0 and -40 < sig[7] < -10
+
+
+def test_ranking_names_the_worn_mesh_not_an_encoder(signatures):
+    cov = np.zeros((11, 11))
+    cov[:5, :5] = (3e-5) ** 2 * np.ones((5, 5)) + np.diag([1e-6**2] * 4 + [3e-6**2])
+    cov[5:, 5:] = 0.1**2 * (0.5 * np.eye(6) + 0.5)  # the two halves' lags, correlated
+    signatures.elapsed_s = (8.0, 23.0)
+    try:
+        shift = signatures.signature("E-F", "wear", 60.0)
+        causes = rank_causes(signatures, shift, cov)
+        assert causes[0].name == "E-F:wear" and "C-D:wear" in causes[0].group
+        assert causes[0].interval[0] <= 60 <= causes[0].interval[1]
+        assert "second:gain" not in {c.name for c in causes[:2]}  # a gain's lag would grow
+        gain = rank_causes(signatures, signatures.signature("second", "gain", 2e-4), cov)
+        assert gain[0].name == "second:gain"
+        assert gain[0].severity == pytest.approx(2e-4, rel=0.05)
+        back = rank_causes(signatures, signatures.signature("G-H", "wear", 150.0), cov)
+        assert {back[0].name, *back[0].group} >= {"G-H:wear", "rear_chain:elongation"}
+    finally:
+        signatures.elapsed_s = (0.0,)
+
+
+@pytest.mark.slow
+def test_diagnose_names_the_worn_ef_mesh_on_plant_records():
+    from drafttwin.diagnosis.detect import FaultDetector
+    from drafttwin.diagnosis.diagnose import Diagnoser
+    from drafttwin.diagnosis.residuals import record_features
+    from drafttwin.plant import Machine, Plant
+    from drafttwin.plant.faults import FaultSpec
+
+    plant, train = Plant(), DriveTrain.preset("fa320a")
+    machine = Machine.draw(plant.train, plant.config, 5)
+
+    def record(seed, *faults, duration=30.0):
+        return plant.run(duration, seed=seed, machine=machine,
+                         faults=[FaultSpec.parse(f) for f in faults])  # fmt: skip
+
+    # the lags are watched only when a tuning record outlasts the reference window by the
+    # long-run variance's 60 blocks; shorter ones leave them off (and say so)
+    short = FaultDetector().fit([record_features(train, record(1).series)])
+    assert not short.lags_watched and "at least 75 s" in (short.lags_note() or "")
+    det = FaultDetector().fit([record_features(train, record(1, duration=80.0).series)])
+    assert det.lags_watched and det.lags_note() is None
+    dx = Diagnoser(train, det).diagnose(record(3, "E-F:wear:severity=150:onset=17").series)
+    assert dx.alarm is not None and 17 <= dx.alarm.time_s < 21
+    assert dx.alarm.test == "lag_second"
+    assert dx.causes[0].name == "E-F:wear" and "C-D:wear" in dx.causes[0].group
