@@ -160,3 +160,37 @@ def test_diagnose_names_the_worn_ef_mesh_on_plant_records():
     assert dx.alarm is not None and 17 <= dx.alarm.time_s < 21
     assert dx.alarm.test == "lag_second"
     assert dx.causes[0].name == "E-F:wear" and "C-D:wear" in dx.causes[0].group
+
+
+def test_a_stuck_encoder_seen_first_by_a_cusum_is_named_not_a_machine_element():
+    """A held value corrupts its channel's block level (and its counted angle) before its
+    run is long enough for the stuck rule: in the benchmark a 1-s stuck back encoder from
+    18.78 s moved the back roller's parity in block 18 (a run of 23 samples against a limit
+    of 26) and the rule fired a block later, so the ranking blamed a machine element. The
+    sensor rule in the alarm's window names the encoder instead."""
+    from dataclasses import replace
+
+    from drafttwin.diagnosis.detect import FaultDetector
+    from drafttwin.diagnosis.diagnose import Diagnoser
+
+    n = 10_000
+    t = np.arange(n) * 0.01
+    healthy = []
+    for seed in (11, 12):
+        y, true = counted(0.0, 1e9, n, seed)
+        healthy.append(block_features(lost_rows(y, seed), true, t, 1.0))
+    det = FaultDetector().fit(healthy)
+    y, true = counted(0.0, 1e9, n, seed=13)
+    f = block_features(y, true, t, 1.0)
+    level, run = f.level.copy(), f.run.copy()
+    level[40:42, 3] += 4e-4  # the held value's block means
+    run[41, 3] = 2 * det.run_limit_[3]  # the rule fires one block after the CUSUM
+    f = replace(f, level=level, run=run)
+    first = det.run(f).first
+    assert first is not None and first.test == "parity_back" and first.block == 40
+    dx = Diagnoser(DriveTrain.preset("fa320a"), det).from_features(f)
+    assert dx.causes[0].name == "back:stuck" and dx.causes[0].family == "sensor"
+    # without the stuck run the same shift is ranked as a machine or encoder-gain cause
+    run[41, 3] = 1
+    dx = Diagnoser(DriveTrain.preset("fa320a"), det).from_features(replace(f, run=run))
+    assert dx.causes and dx.causes[0].kind != "stuck"

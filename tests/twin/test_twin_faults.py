@@ -302,3 +302,27 @@ def test_machines_close_their_blocks_on_different_samples(detector):
     closed = [i for i, r in enumerate(rows(t, y, yhat)) if watch.add(r) is not None and watch.k == 0
               and i >= 37]  # fmt: skip
     assert closed[:2] == [136, 236] and watch.blocks == 2
+
+
+def test_a_sensor_rule_in_the_window_cancels_the_machine_ranking(detector):
+    """The back encoder freezes on a wrong value (0.9 % high) for about 1 s: its parity
+    alarms on the 25 held samples at a block's end, the stuck rule (limit 30 samples, as
+    long healthy tuning records give it) a block later. The live
+    watch names the encoder and asks for no machine ranking (as offline), and after the
+    episode a new baseline takes up the counted angle the held values moved: no lag alarm."""
+    import copy
+
+    detector = copy.copy(detector)
+    detector.run_limit_ = np.full(5, 30.0)
+    t, y, yhat = samples(5, 60)
+    y[3175:3300, 3] = y[3174, 3] * 1.009
+    watch = LiveFaultWatch(detector, "m", ("front", "second", "third", "back"), RATE, post_s=5)
+    alarms, causes, requests = [], [], []
+    for r in rows(t, y, yhat):
+        a, c, q = watch.add(r)
+        alarms, causes, requests = alarms + a, causes + c, requests + q
+    requests += watch.flush()
+    assert [a.test for a in alarms] == ["parity_back", "stuck_back"]
+    assert alarms[1].block == alarms[0].block + 1
+    assert causes and causes[0]["element"] == "back" and causes[0]["kind"] == "stuck"
+    assert requests == []

@@ -378,6 +378,13 @@ class CusumState:
         if sensor is not None:
             out.append(sensor)
             self.baseline_at_alarm = self.base.copy()
+            if sensor.test.startswith("stuck_"):
+                # held values moved the channel's counted angle (and lag) for good: decide
+                # again on a new reference window once it counts again (lost rows are
+                # bridged, so a dropout needs none)
+                self.up[:], self.down[:], self.prev[:] = 0.0, 0.0, 0.0
+                self.rebase, self.rebasing = [], True
+                return out
         if not np.isfinite(level).all():
             return out
         if self.rebasing:  # after an alarm: a new reference window, no decisions

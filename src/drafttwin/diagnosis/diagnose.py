@@ -120,8 +120,25 @@ class Diagnoser:
         if not window.any():
             return dx
         blocks = np.flatnonzero(window)
+        sensor = self._sensor_in_window(f, alarm, int(blocks[-1]))
+        if sensor is not None:  # a stuck or dropped encoder explains the shift: name it
+            dx.causes = [sensor]
+            return dx
         dx.shift, dx.causes = self.rank(f.time_s[blocks], blocks, x[window] - base, alarm.change_s)
         return dx
+
+    def _sensor_in_window(self, f: BlockFeatures, alarm: Alarm, last: int) -> Cause | None:
+        """A sensor rule firing from the change estimate to the window's end. A stuck or
+        dropped encoder corrupts its channel's level and, through the lost or held counts,
+        its angle lag at once, so a CUSUM can alarm a block before the sensor rule does (a
+        1-s stuck value moved the back roller's lag by tens of mrad); the ranking would then
+        blame a machine element for the sensor's fault."""
+        first = int(np.searchsorted(f.time_s, alarm.change_s))
+        for j in range(min(first, alarm.block), last + 1):
+            a = self.detector.sensor_alarm(float(f.time_s[j]), j, f.lost[j], f.run[j], f.block_s)
+            if a is not None:
+                return sensor_cause(a, f.lost[j], f.run[j])
+        return None
 
     def rank(self, time_s: np.ndarray, blocks: np.ndarray, dev: np.ndarray,
              change_s: float) -> tuple[np.ndarray, list[Cause]]:  # fmt: skip

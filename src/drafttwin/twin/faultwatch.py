@@ -235,6 +235,8 @@ class LiveFaultWatch:
         alarms = [a for a in alarms if a.direction != 0 or a.test not in self.sensor_active]
         self.sensor_active = sensor
         causes, requests = [], []
+        if sensor:  # a stuck or dropped encoder explains a pending alarm: no machine ranking
+            self.pending = None  # (as offline, Diagnoser._sensor_in_window)
         if self.pending is not None and np.isfinite(level).all():
             alarm, base, after = self.pending
             after.append(here)
@@ -244,7 +246,7 @@ class LiveFaultWatch:
         for a in alarms:
             if a.direction == 0:
                 causes.append(sensor_cause(a, lost, run).to_dict())
-            elif self.state.baseline_at_alarm is not None and self.pending is None:
+            elif self.state.baseline_at_alarm is not None and self.pending is None and not sensor:
                 self.pending = (a, self.state.baseline_at_alarm.copy(), [])
         return alarms, causes, requests
 
