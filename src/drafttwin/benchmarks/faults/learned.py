@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -99,10 +100,13 @@ class LearnedResiduals:
         raise ValueError(f"unknown learned method {method!r}")
 
     def features(self, method: str, raw: dict[str, np.ndarray]) -> BlockFeatures:
-        """Block features of the record's residual against the method's prediction."""
-        y = np.asarray(raw["y"])
-        return block_features(y, self.prediction(method, raw), np.asarray(raw["time_s"]),
-                              self.block_s)  # fmt: skip
+        """Block features of the record's residual against the method's prediction; the
+        angle lags against the physics (they measure the gears' positive drive, so their
+        kinematic ratio comes from the physics: a network's prediction has a ratio off by
+        about 1e-4, and the lag then drifts by mrad per second)."""
+        y, t = np.asarray(raw["y"]), np.asarray(raw["time_s"])
+        f = block_features(y, self.prediction(method, raw), t, self.block_s)
+        return replace(f, lag=block_features(y, np.asarray(raw["physics"]), t, self.block_s).lag)
 
     def describe(self) -> dict[str, Any]:
         """Sizes, training settings and fit results, JSON-able."""
