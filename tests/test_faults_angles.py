@@ -194,3 +194,33 @@ def test_a_stuck_encoder_seen_first_by_a_cusum_is_named_not_a_machine_element():
     run[41, 3] = 1
     dx = Diagnoser(DriveTrain.preset("fa320a"), det).from_features(replace(f, run=run))
     assert dx.causes and dx.causes[0].kind != "stuck"
+
+
+def test_a_lag_step_alarms_in_its_block_by_the_jump_rule():
+    """A worn mesh steps the lag at once. Whitened with a coefficient near its cap, the step
+    is all in one block's innovation, which the CUSUM (widened for the lags' slow wander)
+    need not reach; the one-block jump rule (twice the largest innovation in tuning) does."""
+    from drafttwin.diagnosis.detect import STREAMS, FaultDetector
+
+    n = 10_000
+    t = np.arange(n) * 0.01
+
+    def feats(step: float, seed: int) -> object:
+        y, true = counted(step, 50.0, n, seed)
+        return block_features(lost_rows(y, seed), true, t, 1.0)
+
+    det = FaultDetector().fit([feats(0.0, s) for s in (21, 22)])
+    i = STREAMS.index("lag_second")
+    assert det.jump_limit_[i] > 0 and not det.jump_limit_[: STREAMS.index("lag_second")].any()
+    # these synthetic counts of a constant speed repeat one value through the step's 0.1-s
+    # dip (6 samples against a healthy longest run of 2): the stuck rule is not under test
+    det.run_limit_ = det.run_limit_ * 10
+    assert det.run(feats(0.0, 23)).first is None
+    first = det.run(feats(3.0, 24)).first
+    assert first is not None and first.test == "lag_second" and first.direction == -1
+    assert 50.0 <= first.time_s <= 51.5
+    # the jump rule's alarm: the statistic it raised is not a CUSUM's (below h)
+    det2 = FaultDetector().fit([feats(0.0, s) for s in (21, 22)])
+    det2.run_limit_ = det2.run_limit_ * 10
+    stat = det2.run(feats(3.0, 24)).statistic
+    assert stat[int(first.block), i] < 1.0

@@ -36,6 +36,7 @@ STREAMS = ("rollers", "motor", "belt", *(f"parity_{c}" for c in CHANNELS[:4]),
 FEATURES = (*CHANNELS, *(f"lag_{c}" for c in LAGGED))
 """The block feature vector: five relative levels, then three angle lags (mrad)."""
 SIEGMUND_OFFSET = 1.166
+JUMP_MARGIN = 2.0  # a lag's one-block jump rule: this many times the largest in tuning
 
 
 def stream_matrix() -> np.ndarray:
@@ -155,12 +156,27 @@ class FaultDetector:
         self.sigma_ = np.maximum(s_all.std(axis=0), 1e-12)
         self.long_run_ = self._long_run_factor([p[1] for p in pairs])
         self.watched_ = self._watched(healthy)
+        self.jump_limit_ = self._jump_limit(x0[good], x1[good])
         blocks_per_day = 86400.0 / self.block_s_
         arl = 2 * len(STREAMS) * blocks_per_day / self.far_per_day
         self.h_ = threshold_for_arl(arl, self.k)
         self.run_limit_ = 2 * np.max(np.vstack([f.run for f in healthy]), axis=0)
         self.lost_limit_ = np.max(np.vstack([f.lost for f in healthy]), axis=0) + 0.02
         return self
+
+    def _jump_limit(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
+        """Per stream, the one-block jump rule's limit on the AR(1) innovation (in units of
+        its own scale, not widened): :data:`JUMP_MARGIN` times the largest in the tuning
+        records, on the angle lags only (0 elsewhere: no rule). A worn mesh steps its lag
+        at once; whitened with a coefficient near its 0.95 cap, the step is all in one
+        block's innovation (then 5 % of it per block), which the CUSUM, widened for the
+        lags' slow wander, does not reach. The limit comes from healthy data like the
+        sensor rules' (twice the longest healthy run)."""
+        unit = self.sigma_ * np.sqrt(1 - self.phi_**2)
+        e = np.abs(x1 - self.phi_ * x0) / unit
+        top = e.max(axis=0) if len(e) else np.zeros(len(STREAMS))
+        return np.array([JUMP_MARGIN * top[i] if s.startswith("lag_") else 0.0
+                         for i, s in enumerate(STREAMS)])  # fmt: skip
 
     def _watched(self, healthy: Sequence[BlockFeatures]) -> np.ndarray:
         """Which streams decide: the angle lags only when a tuning record runs at least
@@ -263,7 +279,8 @@ class FaultDetector:
                 "long_run_blocks": self.long_run_blocks,
                 "streams": {s: {"sigma": float(self.sigma_[i]), "phi": float(self.phi_[i]),
                                 "long_run_factor": float(self.long_run_[i]),
-                                "watched": bool(self.watched_[i])}
+                                "watched": bool(self.watched_[i]),
+                                "jump_limit": float(self.jump_limit_[i])}
                             for i, s in enumerate(STREAMS)},
                 "run_limit": dict(zip(CHANNELS, map(float, self.run_limit_), strict=True)),
                 "lost_limit": dict(zip(CHANNELS, map(float, self.lost_limit_), strict=True))}  # fmt: skip
@@ -276,7 +293,7 @@ class FaultDetector:
                 "feature_cov": self.feature_cov_.tolist(), "belt_level": self.belt_level_.tolist(),
                 "phi": self.phi_.tolist(), "sigma": self.sigma_.tolist(),
                 "long_run_blocks": self.long_run_blocks, "long_run": self.long_run_.tolist(),
-                "watched": self.watched_.tolist(),
+                "watched": self.watched_.tolist(), "jump_limit": self.jump_limit_.tolist(),
                 "run_limit": self.run_limit_.tolist(), "lost_limit": self.lost_limit_.tolist()}  # fmt: skip
 
     @classmethod
@@ -293,6 +310,7 @@ class FaultDetector:
             det.feature_cov_ = _array(state["feature_cov"], (nf, nf), "feature_cov", source)
             det.level_cov_ = det.feature_cov_[:nc, :nc]
             det.long_run_ = _array(state["long_run"], (ns,), "long_run", source)
+            det.jump_limit_ = _array(state["jump_limit"], (ns,), "jump_limit", source)
             det.watched_ = np.asarray(state["watched"], dtype=bool)
             if det.watched_.shape != (ns,):
                 raise ValueError(f"watched has shape {det.watched_.shape}, not ({ns},)")
@@ -305,7 +323,7 @@ class FaultDetector:
             raise DataError(f"not a fitted detector ({type(exc).__name__}: {exc})",
                             source=source, fix="fit it again (drafttwin twin fit-detector)") from None  # fmt: skip
         if ((det.sigma_ <= 0).any() or not (det.phi_ >= 0).all() or not (det.phi_ < 1).all()
-                or (det.long_run_ < 1).any()):  # fmt: skip
+                or (det.long_run_ < 1).any() or (det.jump_limit_ < 0).any()):  # fmt: skip
             raise DataError("detector scales out of range (sigma > 0, 0 <= phi < 1, long_run >= 1)",
                             source=source, fix="fit it again (drafttwin twin fit-detector)")  # fmt: skip
         if det.belt_level_.ndim != 1 or not np.isfinite(det.belt_level_).all():
@@ -345,6 +363,7 @@ class CusumState:
         self.scale = detector.sigma_ * np.sqrt((1 - detector.phi_**2) * detector.long_run_)
         self.alpha = min(1.0, detector.block_s_ / detector.drift_tau_s)
         self.up, self.down, self.prev = np.zeros(ns), np.zeros(ns), np.zeros(ns)
+        self.fresh = True  # no decided block since the (re)baseline: ``prev`` is not one
         self.up_start, self.down_start = np.zeros(ns), np.zeros(ns)  # block end times
         self.reference: list[np.ndarray] = []
         self.base: np.ndarray | None = None
@@ -383,6 +402,7 @@ class CusumState:
                 # again on a new reference window once it counts again (lost rows are
                 # bridged, so a dropout needs none)
                 self.up[:], self.down[:], self.prev[:] = 0.0, 0.0, 0.0
+                self.fresh = True
                 self.rebase, self.rebasing = [], True
                 return out
         if not np.isfinite(level).all():
@@ -397,13 +417,34 @@ class CusumState:
             out.append(alarm)
         return out
 
+    def _raise(self, alarm: Alarm) -> Alarm:
+        assert self.base is not None
+        self.baseline_at_alarm = self.base.copy()
+        self.up[:], self.down[:], self.prev[:] = 0.0, 0.0, 0.0
+        self.fresh = True
+        # restart like a record's start: the mean of the next reference window (one block
+        # alone is too noisy a baseline: it set off a cascade of alarms)
+        self.rebase, self.rebasing = [], True
+        return alarm
+
     def _cusum(self, time_s: float, j: int, level: np.ndarray) -> Alarm | None:
         assert self.base is not None
         det = self.det
         self.deviation = level - self.base
         s = self.deviation @ self.a.T
         e = np.where(det.watched_, (s - det.phi_ * self.prev) / self.scale, 0.0)
+        jump = e * np.sqrt(det.long_run_)  # the innovation in its own (unwidened) unit
         self.prev = s
+        # the first block after a (re)baseline has no block before it: its "innovation" is
+        # its whole deviation, so the jump rule waits a block
+        ok = (det.jump_limit_ > 0) & (not self.fresh)
+        self.fresh = False
+        over = np.flatnonzero(ok & (np.abs(jump) > det.jump_limit_))
+        if over.size:  # a one-block jump of an angle lag (a worn mesh steps it at once)
+            i = int(over[np.argmax(np.abs(jump[over]) / det.jump_limit_[over])])
+            self.statistic = np.maximum(self.up, self.down) / det.h_
+            return self._raise(Alarm(time_s, j, STREAMS[i], 1 if jump[i] > 0 else -1,
+                                     time_s - self.block_s))  # fmt: skip
         for arr, start, sign in ((self.up, self.up_start, 1.0),
                                  (self.down, self.down_start, -1.0)):  # fmt: skip
             was_zero = arr <= 0
@@ -415,13 +456,7 @@ class CusumState:
             i = int(hit[np.argmax(stat[hit])])
             side = 1 if self.up[i] >= self.down[i] else -1
             begin = (self.up_start if side > 0 else self.down_start)[i]
-            alarm = Alarm(time_s, j, STREAMS[i], side, float(begin - self.block_s))
-            self.baseline_at_alarm = self.base.copy()
-            self.up[:], self.down[:], self.prev[:] = 0.0, 0.0, 0.0
-            # restart like a record's start: the mean of the next reference window (one
-            # block alone is too noisy a baseline: it set off a cascade of alarms)
-            self.rebase, self.rebasing = [], True
-            return alarm
+            return self._raise(Alarm(time_s, j, STREAMS[i], side, float(begin - self.block_s)))
         if stat.max() < 0.5:  # nothing suspicious: follow slow normal drift
             self.base = self.base + self.alpha * (level - self.base)
         return None
