@@ -45,3 +45,19 @@ def test_describe_reports_both_fits(fitted):
     assert d["data-driven"]["task"] == "prediction" and d["hybrid"]["task"] == "simulation"
     with pytest.raises(ValueError, match="unknown learned method"):
         fitted.prediction("persistence", _record(4, 0.0, duration_s=5.0))
+
+
+def test_the_angle_lags_are_the_physics_not_the_networks(fitted):
+    """The lags measure the gears' positive drive through the kinematic ratio: a network's
+    predicted ratio is off by ~1e-4, which made the lag drift by mrad per second and the
+    hybrid's ranking blame gear wear (benchmark, 2026-11-26). Both learned methods take the
+    lags against the physics."""
+    from drafttwin.diagnosis.residuals import block_features
+
+    rec = _record(4, 0.0)
+    physics = block_features(rec["y"], rec["physics"], rec["time_s"], 1.0).lag
+    for method in LEARNED:
+        pred = fitted.prediction(method, rec)
+        own = block_features(rec["y"], pred, rec["time_s"], 1.0).lag
+        np.testing.assert_array_equal(fitted.features(method, rec).lag, physics)
+        assert np.abs(own - physics).max() > np.abs(physics).max()  # the network's would drift
