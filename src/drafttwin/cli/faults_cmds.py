@@ -159,7 +159,7 @@ def diagnose(
     if as_json:
         typer.echo(dumps_strict(result))
         return
-    _print_diagnosis(result, report)
+    _print_diagnosis(result, report, detector.lags_note())
 
 
 def _head(series, n: int):  # noqa: ANN001, ANN202  (a MeasurementSeries)
@@ -172,15 +172,11 @@ def _head(series, n: int):  # noqa: ANN001, ANN202  (a MeasurementSeries)
                    metadata={})  # fmt: skip
 
 
-def _print_diagnosis(result: dict, report: Path | None) -> None:
+def _print_diagnosis(result: dict, report: Path | None, lags_note: str | None) -> None:
     alarm = result["alarm"]
     console.print(f"thresholds from {result['thresholds_from']}")
-    if not all(s["watched"] for s in result["detector"]["streams"].values()):
-        d = result["detector"]
-        need = d["reference_s"] + d["long_run_blocks"] * d["block_s"]
-        console.print(f"angle lags not watched (gear wear, chain elongation): the healthy "
-                      f"records are too short to measure their slow wander; give one of at "
-                      f"least {need:.0f} s")  # fmt: skip
+    if lags_note is not None:
+        console.print(lags_note)
     if alarm is None:
         console.print("no alarm: the residuals stayed within the thresholds")
     else:

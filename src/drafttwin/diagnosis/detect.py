@@ -324,7 +324,8 @@ class FaultDetector:
                             source=source, fix="fit it again (drafttwin twin fit-detector)") from None  # fmt: skip
         if ((det.sigma_ <= 0).any() or not (det.phi_ >= 0).all() or not (det.phi_ < 1).all()
                 or (det.long_run_ < 1).any() or (det.jump_limit_ < 0).any()):  # fmt: skip
-            raise DataError("detector scales out of range (sigma > 0, 0 <= phi < 1, long_run >= 1)",
+            raise DataError("detector scales out of range (sigma > 0, 0 <= phi < 1, long_run >= 1, "
+                            "jump_limit >= 0)",
                             source=source, fix="fit it again (drafttwin twin fit-detector)")  # fmt: skip
         if det.belt_level_.ndim != 1 or not np.isfinite(det.belt_level_).all():
             raise DataError("detector belt levels not finite", source=source,
@@ -401,9 +402,7 @@ class CusumState:
                 # held values moved the channel's counted angle (and lag) for good: decide
                 # again on a new reference window once it counts again (lost rows are
                 # bridged, so a dropout needs none)
-                self.up[:], self.down[:], self.prev[:] = 0.0, 0.0, 0.0
-                self.fresh = True
-                self.rebase, self.rebasing = [], True
+                self._restart()
                 return out
         if not np.isfinite(level).all():
             return out
@@ -420,12 +419,16 @@ class CusumState:
     def _raise(self, alarm: Alarm) -> Alarm:
         assert self.base is not None
         self.baseline_at_alarm = self.base.copy()
+        self._restart()
+        return alarm
+
+    def _restart(self) -> None:
+        """Restart like a record's start: CUSUMs at zero, the mean of the next reference
+        window as the baseline (one block alone is too noisy a baseline: it set off a
+        cascade of alarms)."""
         self.up[:], self.down[:], self.prev[:] = 0.0, 0.0, 0.0
         self.fresh = True
-        # restart like a record's start: the mean of the next reference window (one block
-        # alone is too noisy a baseline: it set off a cascade of alarms)
         self.rebase, self.rebasing = [], True
-        return alarm
 
     def _cusum(self, time_s: float, j: int, level: np.ndarray) -> Alarm | None:
         assert self.base is not None

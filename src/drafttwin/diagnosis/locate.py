@@ -36,13 +36,12 @@ from scipy.optimize import least_squares
 
 from drafttwin.diagnosis.residuals import CHANNELS, LAGGED
 from drafttwin.mechanics import DriveTrain, Signal, operating_point, static_angles
-from drafttwin.plant.faults import CHAIN_LINKS, KINDS, catalogue
+from drafttwin.plant.faults import CHAIN_LINKS, KINDS, catalogue, worn_stiffness_factor
 
 LEVEL_KINDS = ("bearing_friction", "load_loss", "belt_wear", "rotor_resistance", "torque_loss",
                "gain")  # fmt: skip
 ANGLE_KINDS = ("wear", "elongation")  # seen in the roller angle lags, not in levels
 NOT_ASSESSED = ("crack", "runout", "eccentricity")
-WEAR_STIFFNESS_FLOOR = 0.5  # the plant's floor on a worn mesh's stiffness factor
 SAME_DIRECTION = 0.99
 
 
@@ -192,7 +191,7 @@ class SignatureModel:
 
 
 def _worn(gear: dict[str, Any], depth_um: float) -> dict[str, Any]:
-    factor = 1.0 - min(WEAR_STIFFNESS_FLOOR, depth_um / (100.0 * gear["module_mm"]))
+    factor = worn_stiffness_factor(depth_um, gear["module_mm"])
     return dict(gear, backlash_um=gear["backlash_um"] + 2.0 * depth_um,
                 mesh_stiffness_n_per_m=gear["mesh_stiffness_n_per_m"] * factor)  # fmt: skip
 

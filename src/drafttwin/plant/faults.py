@@ -298,6 +298,11 @@ class FaultSchedule:
                        motor_f=motor_f)  # fmt: skip
 
 
+def worn_stiffness_factor(depth_um: float, module_mm: float) -> float:
+    """A worn mesh's stiffness over its healthy one: thinner flanks, down to half."""
+    return 1.0 - min(0.5, depth_um / (100.0 * module_mm))
+
+
 def _gear_fault(row: np.ndarray, gear: Any, kind: str, s: float) -> None:
     """Apply a tooth fault to one gear table row (in place)."""
     if kind == "crack":
@@ -306,7 +311,7 @@ def _gear_fault(row: np.ndarray, gear: Any, kind: str, s: float) -> None:
         row[K.G_CRACK_SPAN] = gear.contact_ratio * 2 * math.pi / gear.driver_teeth
     elif kind == "wear":
         row[K.G_B] += 1e-6 * s  # half of the backlash growth 2 x depth
-        factor = 1.0 - min(0.5, s / (100.0 * gear.module_mm))
+        factor = worn_stiffness_factor(s, gear.module_mm)
         row[K.G_K] *= factor
         row[K.G_COEF : K.G_CRACK] *= factor  # the stiffness wave scales with its mean
         row[K.G_C] *= math.sqrt(factor)  # c = 2 zeta sqrt(k m)
