@@ -23,7 +23,17 @@ from drafttwin.diagnosis.residuals import CHANNELS  # noqa: E402
 from drafttwin.diagnosis.spectrum import kinematic_lines, residual_samples, spectrum  # noqa: E402
 from drafttwin.mechanics import DriveTrain  # noqa: E402
 from drafttwin.report.figures import _png  # noqa: E402
-from drafttwin.report.html import figure, join, kv_table, page, para, section, table, tag  # noqa: E402
+from drafttwin.report.html import (  # noqa: E402
+    Cell,
+    figure,
+    join,
+    kv_table,
+    page,
+    para,
+    section,
+    table,
+    tag,
+)
 
 RED, ORANGE, GREY = "#d62728", "#ff9f1c", "#b0b7c3"
 
@@ -163,13 +173,14 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
                                               f"estimated at {a.change_s:.1f} s: {what}.")]),
                       cls="banner")  # fmt: skip
     rows = [[f"{i + 1}", c.name, c.family, f"{c.severity:.4g}",
-             f"[{c.interval[0]:.3g}, {c.interval[1]:.3g}]", c.parameter, f"{c.probability:.2f}",
-             ", ".join(c.group) or "-"] for i, c in enumerate(dx.causes[:8])]  # fmt: skip
-    causes = table([["rank", "cause", "family", "severity", "95 % interval", "unit",
-                     "probability", "cannot be told apart from"]], rows, id="causes")  # fmt: skip
+             f"[{c.interval[0]:.3g}, {c.interval[1]:.3g}]", Cell(c.parameter, cls="wrap"), f"{c.probability:.2f}",
+             Cell(", ".join(c.group) or "-", cls="wrap")]  # the look-alikes wrap: no sideways scroll
+            for i, c in enumerate(dx.causes[:8])]  # fmt: skip
+    causes = table([["rank", "cause", "family", "severity", "95 % interval", Cell("unit", cls="wrap", header=True),
+                     "probability", Cell("cannot be told apart from", cls="wrap", header=True)]], rows, id="causes")  # fmt: skip
     lines = (table([["line", "Hz", "channel", "before %", "after %", "elements"]],
                    [[ln.name, f"{ln.freq_hz:.2f}", ln.channel, f"{100 * ln.before:.4f}",
-                     f"{100 * ln.after:.4f}", ", ".join(ln.elements)] for ln in dx.lines], id="lines")
+                     f"{100 * ln.after:.4f}", Cell(", ".join(ln.elements), cls="wrap")] for ln in dx.lines], id="lines")
              if dx.lines else para("No kinematic line grew after the change."))  # fmt: skip
     suspect, group = _suspects(dx, train)
     body = join([
