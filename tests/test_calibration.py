@@ -94,6 +94,25 @@ def test_parallel_columns_are_one_combination_and_collinearity_sees_it():
     assert I.collinearity(jac) > 100 and I.collinearity(jac[:, [0, 2]]) < 2
 
 
+def test_precision_not_the_collinearity_index_decides_what_is_identified():
+    # two near-collinear columns (index ~40, as slip, belt and load on 180 s of plant records)
+    # estimated from many rows: precise, so both identified; the same design from few rows is
+    # not; a numerically dependent pair is refused however many rows there are
+    rng = np.random.default_rng(2)
+    a, b = rng.standard_normal((2, 20000))
+    jac = np.column_stack([a, a + 0.035 * b])
+    gamma = I.collinearity(jac)
+    assert 30 < gamma < 60
+    for rows, kept in ((20000, True), (20, False)):
+        noise = rng.standard_normal(rows) * 0.05
+        se = I.standard_errors(jac[:rows], noise)
+        assert (I.least_determined(se / 1.0, gamma) is None) is kept, (rows, se)
+    dependent = np.column_stack([a, a + 1e-5 * b])
+    se = I.standard_errors(dependent, 1e-9 * rng.standard_normal(20000))
+    assert I.collinearity(dependent) > I.MAX_COLLINEARITY
+    assert I.least_determined(se, I.collinearity(dependent)) is not None
+
+
 def test_whitening_removes_the_colour_of_an_ar_process():
     rng = np.random.default_rng(2)
     e = rng.standard_normal(4000)

@@ -115,3 +115,33 @@ def test_calibrated_physics_beats_the_nominal_on_another_record(case):
     nominal, calibrated = np.abs(bias(plant.train)), np.abs(bias(cal.train))
     assert (calibrated < nominal).all(), (nominal, calibrated)
     assert calibrated[0] < 0.5 * nominal[0]
+
+
+def test_cli_models_the_wander_by_default_only_where_a_motor_speed_is_recorded(tmp_path):
+    import json
+
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    plant = Plant()
+    machine = Machine.draw(plant.train, plant.config, SEED)
+    path = plant.run(10.0, 100.0, seed=1, scenario="steady", machine=machine).write(
+        tmp_path / "steady.parquet"
+    )[0]
+    without_motor = tmp_path / "rollers.csv"
+    frame = __import__("pandas").read_parquet(path)
+    frame.drop(columns=["motor"]).to_csv(without_motor, index=False)
+    runner = CliRunner()
+    weighting = {}
+    for name, data, extra in (("default", path, []), ("off", path, ["--no-wander"]),
+                              ("no motor", without_motor, [])):  # fmt: skip
+        result = runner.invoke(app, ["calibrate", "--preset", "fa320a", "--data", str(data),
+                                     "--params", "motor.rated_slip", "--json",
+                                     "--out", str(tmp_path / f"{len(weighting)}.toml"), *extra])  # fmt: skip
+        assert result.exit_code == 0, result.output
+        report = json.loads(result.output)
+        weighting[name] = (report["weighting"], "residual_model" in report)
+    assert weighting["default"] == ("generalised least squares, white noise + wander on motor",
+                                    True)  # fmt: skip
+    assert weighting["off"] == weighting["no motor"] == ("least squares", False)

@@ -17,9 +17,9 @@ Stages (on the records cleaned as everywhere in drafttwin: gaps filled, spikes s
    longer read as motor slip. Standard errors by the sandwich formula with an AR model of
    the (whitened) residuals and, where whitened, no smaller than the leverage-corrected
    heteroscedasticity-consistent ones (HC3: a few blocks of the ramp carry most of it).
-3. **Identifiability**: while the free set's collinearity index exceeds 30 or an estimate's
-   relative standard error exceeds 10 %, the least determined entry goes back to nominal
-   ("not separable in this data") and the rest is refitted.
+3. **Identifiability**: while an estimate's relative standard error exceeds 10 % (or the free
+   set is numerically rank-deficient: collinearity index over 1000), the least determined
+   entry goes back to nominal ("not separable in this data") and the rest is refitted.
 
 The result holds the calibrated train, each parameter's nominal value, estimate, standard
 error and verdict, and the fit's bias and RMSE per channel before and after; optionally the
@@ -105,6 +105,7 @@ class Calibration:
     # the weighted fit's residual model per channel (calibrate(coloured=...)): standard
     # deviations of the wander and of the white part in the channel's unit, correlation time
     residual_model: dict[str, dict[str, float]] = field(default_factory=dict)
+    weighting: str = "least squares"  # or the channels given a wander model
 
     @staticmethod
     def _overall(per_channel: dict[str, float]) -> float:
@@ -131,6 +132,7 @@ class Calibration:
             "block_s": self.block_s,
             "records": self.records,
             "model": self.model,
+            "weighting": self.weighting,
             "simulations": self.evaluations,
             "wall_s": self.wall_s,
             "notes": list(self.notes),
@@ -195,6 +197,8 @@ def calibrate(
         evaluations=screen.evaluations + runs, wall_s=time.perf_counter() - start,
         model=model_name, notes=notes,
         lines=_lines(train, data, final, say) if lines else None, residual_model=residual,
+        weighting=(f"generalised least squares, white noise + wander on {', '.join(coloured)}"
+                   if coloured else "least squares"),
     )  # fmt: skip
 
 
@@ -282,7 +286,8 @@ def _fit_and_prune(
             se = np.maximum(se, I.hc3_standard_errors(jac, resid))
         gamma = I.collinearity(jac)
         rel = se / np.maximum(np.abs(x), 1e-12)
-        if not free or (rel.max() <= I.MAX_RELATIVE_SE and gamma <= I.MAX_COLLINEARITY):
+        worst = I.least_determined(rel, gamma)
+        if worst is None:
             if coloured:
                 model_of = _residual_model(plain.data, noises)
                 notes.append("residual model of the weighted fit: " + "; ".join(
@@ -297,7 +302,6 @@ def _fit_and_prune(
                 notes.append(f"{wild} block(s) set aside as outliers (over "
                              f"{F.OUTLIER_SCALES:g} robust standard deviations off)")  # fmt: skip
             return x, jac, se, gamma, plain, len(cache)
-        worst = int(np.argmax(rel))
         for i in free[worst]:
             verdicts[i] = "not separable in this data"
         say(f"{', '.join(chosen[i].name for i in free[worst])}: relative SE {rel[worst]:.0%}, "

@@ -18,8 +18,6 @@ from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 from drafttwin.errors import ConfigError
 
-WANDER_DEFAULT = False
-
 if TYPE_CHECKING:
     from drafttwin.calibration import Calibration
 
@@ -81,7 +79,7 @@ def calibrate(
         ),
     ] = False,  # fmt: skip
     wander: Annotated[
-        bool,
+        bool | None,
         typer.Option(
             "--wander/--no-wander",
             help="Model the motor channel's error as white noise plus a slow wander (the "
@@ -90,9 +88,11 @@ def calibrate(
             "the first 0.5 s after a start are then not scored. Needs a recorded motor speed. "
             "The report's residual_model also says how well the records pin the steady level "
             "(level_sd) and how far a new minute's own wander moves its mean (mean_sd_60s): "
-            "the wander's share of the bias on another record.",
+            "the wander's share of the bias on another record. Default: on when the records "
+            "have a motor speed, plain least squares otherwise (docs/calibration.md).",
+            show_default=False,
         ),
-    ] = WANDER_DEFAULT,  # fmt: skip
+    ] = None,  # fmt: skip
     as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
     quiet: Annotated[bool, typer.Option(help="No progress messages.")] = False,
 ) -> None:
@@ -118,6 +118,11 @@ def calibrate(
     model, name = _model(full_model)
     names = None if params is None else [p.strip() for p in params.split(",") if p.strip()]
     say = None if (quiet or as_json) else (lambda msg: err_console.print(escape(msg)))
+    if wander is None:  # the wander model needs the motor channel; plain least squares without
+        wander = series.motor_rpm is not None or "motor" in series.channels
+        if say:
+            say("supply-wander model " + ("on (a motor speed is recorded; --no-wander: plain "
+                "least squares)" if wander else "off (no motor speed recorded)"))  # fmt: skip
     result = run(train, series, names, block_s=block, model=model, model_name=name,
                  progress=say, lines=lines,
                  coloured=("motor",) if wander else ())  # fmt: skip
@@ -167,7 +172,8 @@ def _print(result: Calibration) -> None:
     if result.lines is not None:
         _print_lines(result.lines)
     console.print(f"collinearity index of the free set {result.collinearity:.3g}; "
-                  f"{result.evaluations} simulations ({result.model} model), "
+                  f"{result.evaluations} simulations ({result.model} model, "
+                  f"{result.weighting}), "
                   f"{result.wall_s:.0f} s")  # fmt: skip
 
 
