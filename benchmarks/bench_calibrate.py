@@ -185,7 +185,7 @@ def _row(e, verdict: str, true_factor: float, name: str | None = None) -> dict[s
             "within_3se": bool(abs(e.factor - true_factor) <= 3 * e.factor_se)}  # fmt: skip
 
 
-def verdict(row: dict[str, Any]) -> dict[str, bool]:
+def targets_met(row: dict[str, Any]) -> dict[str, bool]:
     """The issue's targets on one machine: at least two parameters identified and every one
     within 3 standard errors of the truth, the calibrated bias under 0.1 rpm and its RMSE below
     the nominal physics' on every roller of the test record; and the oracle's own bias."""
@@ -228,7 +228,7 @@ def report(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
                   f"calibrated - oracle {row['test_bias_calibrated'][0] - row['test_bias_oracle'][0]:+.3f}")  # fmt: skip
             figures.append({"figure": f"machine {k}: the wander's share of the front bias spread",
                             "value": band, "unit": "rpm"})  # fmt: skip
-        targets = verdict(row)
+        targets = targets_met(row)
         print("  Done-when targets: " + ", ".join(f"{k} {'yes' if v else 'NO'}"
                                                  for k, v in targets.items()))  # fmt: skip
         figures.append({"figure": f"machine {k}: targets met", "value": targets, "unit": ""})
