@@ -25,6 +25,7 @@ from drafttwin.mechanics import DriveTrain  # noqa: E402
 from drafttwin.report.figures import _png  # noqa: E402
 from drafttwin.report.html import (  # noqa: E402
     Cell,
+    Row,
     figure,
     join,
     kv_table,
@@ -172,15 +173,20 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
         verdict = tag("div", join([tag("strong", f"Alarm at {a.time_s:.1f} s ({a.test}); change "
                                               f"estimated at {a.change_s:.1f} s: {what}.")]),
                       cls="banner")  # fmt: skip
-    rows = [[f"{i + 1}", c.name, c.family, f"{c.severity:.4g}",
-             f"[{c.interval[0]:.3g}, {c.interval[1]:.3g}]", Cell(c.parameter, cls="wrap"), f"{c.probability:.2f}",
-             Cell(", ".join(c.group) or "-", cls="wrap")]  # the look-alikes wrap: no sideways scroll
-            for i, c in enumerate(dx.causes[:8])]  # fmt: skip
-    causes = table([["rank", "cause", "family", "severity", "95 % interval", Cell("unit", cls="wrap", header=True),
-                     "probability", Cell("cannot be told apart from", cls="wrap", header=True)]], rows, id="causes")  # fmt: skip
-    lines = (table([["line", "Hz", "channel", "before %", "after %", "elements"]],
-                   [[ln.name, f"{ln.freq_hz:.2f}", ln.channel, f"{100 * ln.before:.4f}",
-                     f"{100 * ln.after:.4f}", Cell(", ".join(ln.elements), cls="wrap")] for ln in dx.lines], id="lines")
+    wrap = "wrap"  # the unit and look-alike columns wrap: no sideways scroll at 1280 px
+    rows: list[Row] = [[f"{i + 1}", c.name, c.family, f"{c.severity:.4g}",
+                        f"[{c.interval[0]:.3g}, {c.interval[1]:.3g}]", Cell(c.parameter, cls=wrap),
+                        f"{c.probability:.2f}", Cell(", ".join(c.group) or "-", cls=wrap)]
+                       for i, c in enumerate(dx.causes[:8])]  # fmt: skip
+    head: list[Row] = [["rank", "cause", "family", "severity", "95 % interval",
+                        Cell("unit", cls=wrap, header=True), "probability",
+                        Cell("cannot be told apart from", cls=wrap, header=True)]]  # fmt: skip
+    causes = table(head, rows, id="causes")
+    grown: list[Row] = [[ln.name, f"{ln.freq_hz:.2f}", ln.channel, f"{100 * ln.before:.4f}",
+                         f"{100 * ln.after:.4f}", Cell(", ".join(ln.elements), cls=wrap)]
+                        for ln in dx.lines]  # fmt: skip
+    lines = (table([["line", "Hz", "channel", "before %", "after %", "elements"]], grown,
+                   id="lines")
              if dx.lines else para("No kinematic line grew after the change."))  # fmt: skip
     suspect, group = _suspects(dx, train)
     body = join([
