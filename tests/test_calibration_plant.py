@@ -145,3 +145,8 @@ def test_cli_models_the_wander_by_default_only_where_a_motor_speed_is_recorded(t
     assert weighting["default"] == ("generalised least squares, white noise + wander on motor",
                                     True)  # fmt: skip
     assert weighting["off"] == weighting["no motor"] == ("least squares", False)
+    refused = tmp_path / "refused.toml"
+    result = runner.invoke(app, ["calibrate", "--preset", "fa320a", "--data", str(without_motor),
+                                 "--wander", "--out", str(refused)])  # fmt: skip
+    assert result.exit_code == 2 and "rollers.csv" in result.output and "motor" in result.output
+    assert "Traceback" not in result.output and not refused.exists()

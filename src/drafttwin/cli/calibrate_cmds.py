@@ -16,7 +16,7 @@ from drafttwin.cli._groups import with_group
 from drafttwin.cli._oserrors import input_paths, output_file
 from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
-from drafttwin.errors import ConfigError
+from drafttwin.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from drafttwin.calibration import Calibration
@@ -118,8 +118,13 @@ def calibrate(
     model, name = _model(full_model)
     names = None if params is None else [p.strip() for p in params.split(",") if p.strip()]
     say = None if (quiet or as_json) else (lambda msg: err_console.print(escape(msg)))
+    has_motor = series.motor_rpm is not None or "motor" in series.channels
+    if wander and not has_motor:
+        raise DataError("no recorded motor speed to model the supply's wander on", source=data,
+                        where="motor column",
+                        fix="record the motor speed (a 'motor' column) or use --no-wander")  # fmt: skip
     if wander is None:  # the wander model needs the motor channel; plain least squares without
-        wander = series.motor_rpm is not None or "motor" in series.channels
+        wander = has_motor
         if say:
             say("supply-wander model " + ("on (a motor speed is recorded; --no-wander: plain "
                 "least squares)" if wander else "off (no motor speed recorded)"))  # fmt: skip
