@@ -216,7 +216,7 @@ def coherent_motion(y: np.ndarray, good: np.ndarray) -> np.ndarray:
     data-path spike is one sample of one channel; independent spikes on two channels in two
     consecutive rows come about once in 1e12 rows at the plant's rate of 5e-4 per sample."""
     counted = np.isfinite(y).all(axis=1)
-    together = counted & ((~good & np.isfinite(y)).sum(axis=1) >= 2)
+    together = counted & ((~good).sum(axis=1) >= 2)
     before = np.concatenate([[False], together[:-1]])
     after = np.concatenate([together[1:], [False]])
     return together & (before | after)

@@ -99,14 +99,18 @@ class LearnedResiduals:
             return self.hybrid_.predict_values(series, physics)
         raise ValueError(f"unknown learned method {method!r}")
 
-    def features(self, method: str, raw: dict[str, np.ndarray]) -> BlockFeatures:
+    def features(self, method: str, raw: dict[str, np.ndarray],
+                 physics_lag: np.ndarray | None = None) -> BlockFeatures:  # fmt: skip
         """Block features of the record's residual against the method's prediction; the
         angle lags against the physics (they measure the gears' positive drive, so their
         kinematic ratio comes from the physics: a network's prediction has a ratio off by
-        about 1e-4, and the lag then drifts by mrad per second)."""
+        about 1e-4, and the lag then drifts by mrad per second). ``physics_lag``: those lags
+        when the record's physics features already hold them (computed here otherwise)."""
         y, t = np.asarray(raw["y"]), np.asarray(raw["time_s"])
         f = block_features(y, self.prediction(method, raw), t, self.block_s)
-        return replace(f, lag=block_features(y, np.asarray(raw["physics"]), t, self.block_s).lag)
+        if physics_lag is None:
+            physics_lag = block_features(y, np.asarray(raw["physics"]), t, self.block_s).lag
+        return replace(f, lag=physics_lag)
 
     def describe(self) -> dict[str, Any]:
         """Sizes, training settings and fit results, JSON-able."""

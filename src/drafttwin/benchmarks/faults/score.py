@@ -106,7 +106,8 @@ def evaluate(tasks: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]],
     learned.fit(
         [_head(r["raw"], NETWORK_FIT_S) for r, tu in zip(results, tuning, strict=True) if tu]
     )
-    feats = {"physics": physics, **{m: [learned.features(m, r["raw"]) for r in results]
+    feats = {"physics": physics, **{m: [learned.features(m, r["raw"], p.lag)
+                                        for r, p in zip(results, physics, strict=True)]
                                     for m in LEARNED}}  # fmt: skip
     dets = {m: FaultDetector(far_per_day=far_per_day).fit([f for f, tu in zip(fs, tuning, strict=True) if tu])
             for m, fs in feats.items()}  # fmt: skip
