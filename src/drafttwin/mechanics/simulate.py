@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from fractions import Fraction
 from typing import Any
 
 import numpy as np
@@ -68,6 +69,9 @@ class SimulationResult:
         rollers: roller name -> column in ``node_rpm``; ``motor_node``: the motor's column.
         dt_s: integration step used; ``wall_s``: wall-clock time of the integration;
         ``compile_s``: time to compile the kernel or load it from numba's cache (first call).
+        angle_rad: node angles, rad, shape ``(n + 1, nodes)``: row 0 at the start of
+            recording, row ``i`` at the end of interval ``i`` (``node_rpm`` is
+            :func:`interval_means` of it, bit for bit); None unless asked for (``angles``).
     """
 
     time_s: np.ndarray
@@ -80,6 +84,7 @@ class SimulationResult:
     dt_s: float
     wall_s: float
     compile_s: float = 0.0
+    angle_rad: np.ndarray | None = None
 
     def roller_rpm(self, rollers: tuple[str, ...] = ROLLERS) -> np.ndarray:
         """Interval-mean roller speeds, rpm, shape ``(n, len(rollers))``."""
@@ -187,6 +192,12 @@ def _grid(rate_hz: float, dt_s: float) -> tuple[int, float]:
     return steps, 1.0 / (rate_hz * steps)
 
 
+def interval_means(angle_rad: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Interval-mean speeds, rpm, shape ``(n, nodes)``, from the angles (rad) at the ``n + 1``
+    ends of consecutive intervals of ``1 / rate_hz`` s: the simulator's own arithmetic."""
+    return np.diff(angle_rad, axis=0) * rate_hz * RPM
+
+
 class NonFiniteSimulationError(DrafttwinError):
     """A simulation produced NaN or an infinite value (an unstable step, implausible
     parameters): it stops at the first such output, naming the node and the time."""
@@ -195,13 +206,17 @@ class NonFiniteSimulationError(DrafttwinError):
 @dataclass(frozen=True)
 class SimulationPiece:
     """Consecutive output rows ``start_row .. start_row + len(time_s) - 1`` of a simulation
-    (the fields as in :class:`SimulationResult`)."""
+    (the fields as in :class:`SimulationResult`). ``angle_rad`` (only with ``angles``): node
+    angles, rad, shape ``(rows + 1, nodes)``, row 0 at the piece's start (the previous
+    piece's last row), so each piece's ``node_rpm`` is :func:`interval_means` of its own
+    angles."""
 
     start_row: int
     time_s: np.ndarray
     node_rpm: np.ndarray
     point_rpm: np.ndarray
     energy_j: np.ndarray
+    angle_rad: np.ndarray | None = None
 
 
 BLOCK_S = 0.25
@@ -222,7 +237,9 @@ class SimulationStream:
                  output_rate_hz: float | None, dt_s: float | None, settle_s: float | None,
                  t_start_s: float, from_rest: bool,
                  progress: Callable[[float], None] | None,
-                 tables_at: Callable[[float], Tables] | None = None) -> None:  # fmt: skip
+                 tables_at: Callable[[float], Tables] | None = None,
+                 angles: bool = False) -> None:  # fmt: skip
+        self.angles = angles
         solver = train.spec.solver
         if tables_at is not None and train.reduction is not None:
             raise ConfigError("time-varying parameters need the full train, not a reduced one",
@@ -266,14 +283,14 @@ class SimulationStream:
         self.compile_s = _time.perf_counter() - start
         start = _time.perf_counter()
         if self.settle_s > 0:
-            n_settle = max(1, int(round(self.settle_s * rate)))
+            n_settle = self.settle_rows
             settled = integrate(y, t0, dt, n_settle, steps, *args)
             self._check_finite(settled, t0, 0, settling=True)
             t0 += n_settle / rate
         y[-K.N_ENERGY :] = 0.0
         theta = y[: len(train.node_names)] if train.reduction is None else R.expand_angles(y, args)
         last_theta = theta.copy()
-        block = max(1, int(rate * BLOCK_S))
+        block = self.block_rows
         pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         emitted = done = 0
         while done < self.n_rows:
@@ -292,6 +309,16 @@ class SimulationStream:
             if self.progress is not None:
                 self.progress(m / rate)
         self.wall_s = _time.perf_counter() - start
+
+    @property
+    def settle_rows(self) -> int:
+        """Output intervals of the settling run (one kernel call; 0 without settling)."""
+        return max(1, int(round(self.settle_s * self.rate_hz))) if self.settle_s > 0 else 0
+
+    @property
+    def block_rows(self) -> int:
+        """Output rows per kernel call (:data:`BLOCK_S` of machine time)."""
+        return max(1, int(self.rate_hz * BLOCK_S))
 
     def _args_at(self, t: float, args: tuple) -> tuple:
         """The kernel's tables for the block starting at ``t``: the train's own, or those of
@@ -312,9 +339,10 @@ class SimulationStream:
         piece = SimulationPiece(
             start_row=first,
             time_s=t0 + np.arange(first + 1, first + rows + 1) / self.rate_hz,
-            node_rpm=np.diff(theta, axis=0) * self.rate_hz * RPM,
+            node_rpm=interval_means(theta, self.rate_hz),
             point_rpm=om[:rows] * RPM,
             energy_j=en[:rows],
+            angle_rad=theta if self.angles else None,
         )
         return piece, rest, th[rows - 1].copy()
 
@@ -351,15 +379,18 @@ def simulate_chunks(
     from_rest: bool = False,
     progress: Callable[[float], None] | None = None,
     tables_at: Callable[[float], Tables] | None = None,
+    angles: bool = False,
 ) -> SimulationStream:
     """:func:`simulate` in pieces of ``chunk_s`` machine seconds (the last one shorter):
     iterate the returned stream for :class:`SimulationPiece` s. Memory holds one piece, so a
     run of hours takes no more than one of a minute; the pieces join bit-identically to one
-    long run. Raises :class:`NonFiniteSimulationError` at the first NaN or infinity."""
+    long run. ``angles``: each piece also carries its node angles (``angle_rad``, its first
+    row repeating the previous piece's last). Raises :class:`NonFiniteSimulationError` at the
+    first NaN or infinity."""
     return SimulationStream(train, duration_s, chunk_s=chunk_s, output_rate_hz=output_rate_hz,
                             dt_s=dt_s, settle_s=settle_s, t_start_s=t_start_s,
                             from_rest=from_rest, progress=progress,
-                            tables_at=tables_at)  # fmt: skip
+                            tables_at=tables_at, angles=angles)  # fmt: skip
 
 
 def simulate(
@@ -373,6 +404,7 @@ def simulate(
     from_rest: bool = False,
     progress: Callable[[float], None] | None = None,
     tables_at: Callable[[float], Tables] | None = None,
+    angles: bool = False,
 ) -> SimulationResult:
     """Integrate the train with fixed-step RK4 and return interval-mean speeds.
 
@@ -389,6 +421,8 @@ def simulate(
         tables_at: time-varying parameters (e.g. a growing fault): called with the start
             time of each kernel call (blocks of :data:`BLOCK_S`, and the settling run), it
             returns the tables to integrate that block with (same shapes as the train's).
+        angles: also return the node angles at the start and every interval end
+            (``angle_rad``); the other fields are the same either way.
 
     Raises:
         NonFiniteSimulationError: at the first NaN or infinite output (node and time named).
@@ -396,7 +430,7 @@ def simulate(
     stream = simulate_chunks(train, duration_s, chunk_s=math.inf, output_rate_hz=output_rate_hz,
                              dt_s=dt_s, settle_s=settle_s, t_start_s=t_start_s,
                              from_rest=from_rest, progress=progress,
-                             tables_at=tables_at)  # fmt: skip
+                             tables_at=tables_at, angles=angles)  # fmt: skip
     pieces = list(stream)
     return SimulationResult(
         time_s=np.concatenate([p.time_s for p in pieces]),
@@ -409,7 +443,38 @@ def simulate(
         dt_s=stream.dt_s,
         wall_s=stream.wall_s,
         compile_s=stream.compile_s,
+        angle_rad=_joined_angles(pieces) if angles else None,
     )
+
+
+def _joined_angles(pieces: list[SimulationPiece]) -> np.ndarray:
+    """The pieces' angles as one array, each shared boundary row once."""
+    angles = [p.angle_rad for p in pieces if p.angle_rad is not None]
+    return np.vstack([angles[0], *(a[1:] for a in angles[1:])])
+
+
+def decimation_factor(coarse: SimulationStream, fine: SimulationStream) -> int | None:
+    """``m`` if every ``m``-th output row of ``fine`` comes from exactly the RK4 arithmetic of
+    ``coarse``'s rows (so its angles there, and the interval means of them at ``coarse``'s
+    rate, are bit-identical), else None. Both must be the same train, start, settling and
+    tables; what is checked is the grid: ``fine``'s rate is ``m`` times ``coarse``'s exactly,
+    with the same RK4 step, ``m`` times fewer steps per output, ``m`` times the rows, the
+    settling run and the kernel calls (:data:`BLOCK_S`) cut at the same instants, so every
+    kernel call starts at the same time stamp and takes the same steps."""
+    ratio = Fraction(fine.rate_hz) / Fraction(coarse.rate_hz)
+    if ratio.denominator != 1 or ratio < 1:
+        return None
+    m = int(ratio)
+    same = (
+        fine.dt_s == coarse.dt_s
+        and fine.steps * m == coarse.steps
+        and fine.n_rows == m * coarse.n_rows
+        and fine.settle_rows == m * coarse.settle_rows
+        and fine.block_rows == m * coarse.block_rows
+        and fine.settle_s == coarse.settle_s
+        and fine.t_start_s == coarse.t_start_s
+    )
+    return m if same else None
 
 
 def simulate_reference(

@@ -58,6 +58,9 @@ class Eccentricity(_Cfg):
     gear_runout_um: NonNeg = 35.0  # F_r 25-45 um, ISO 1328 grade 7-8, d 50-125 mm [d3]
     # the eccentricity is half the radial run-out; each gear gets a random phase
     roller_load_modulation: Frac = 0.05  # assumption: TIR 10-30 um on the cot's compliance
+    # radius eccentricity of every bottom roller, the same run-out as roller_load_modulation
+    # (long radius where the load is highest): it moves the surface speed once per revolution
+    roller_eccentricity_um: NonNeg = 10.0  # assumption: half of a TIR of 10-30 um
 
 
 class ThermalDrift(_Cfg):

@@ -14,7 +14,7 @@ same seed is an exact prefix of a longer one.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -86,6 +86,9 @@ class Disturbances:
     supply_hz: Signal  # actual VFD output frequency (set-point + jitter)
     rotor_resistance: Signal  # factor, 1 = cold nominal
     torques: dict[str, Signal]  # node -> external torque (N m)
+    # roller name -> random phase (rad) of its run-out: the load modulation is
+    # -L m sin(2 pi cumsum(rev_hz) dt + phase), the radius r + e sin(theta + phase)
+    roller_phase_rad: dict[str, float] = field(default_factory=dict)
 
 
 def _grid(t_start: float, t_end: float, step: float) -> np.ndarray:
@@ -118,12 +121,11 @@ def disturbances(
     t_f = _grid(t_start_s, t_end_s, FORCE_GRID_S)
     speed_scale = np.interp(t_f, t_sup, set_hz) / max(float(setpoint.values.max()), 1e-9)
     torques = _drafting_torques(train, cfg, t_f, speed_scale, streams["drafting"])
-    for node, tq in _roller_load_modulation(
-        train, cfg, t_f, speed_scale, streams["runout"]
-    ).items():
+    modulation, phases = _roller_load_modulation(train, cfg, t_f, speed_scale, streams["runout"])
+    for node, tq in modulation.items():
         torques[node] = torques.get(node, 0.0) + tq
     signals = {node: Signal(t_start_s, FORCE_GRID_S, tq) for node, tq in torques.items()}
-    return Disturbances(supply, rotor, signals)
+    return Disturbances(supply, rotor, signals, phases)
 
 
 def _drafting_torques(train, cfg, t, speed_scale, rng) -> dict[str, np.ndarray]:
@@ -151,15 +153,22 @@ def _drafting_torques(train, cfg, t, speed_scale, rng) -> dict[str, np.ndarray]:
     return out
 
 
-def _roller_load_modulation(train, cfg, t, speed_scale, rng) -> dict[str, np.ndarray]:
-    """Once-per-revolution modulation of each roller's friction load (bottom-roller run-out)."""
+def _roller_load_modulation(
+    train, cfg, t, speed_scale, rng
+) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Once-per-revolution modulation of each roller's friction load (bottom-roller run-out),
+    N m by node, and the random phase (rad) drawn for each roller (by roller name), one draw
+    per roller in declaration order. The phase of the load is open loop (the operating
+    point's speed times the set-point's scale), not the simulated angle."""
     op = operating_point(train)
     out: dict[str, np.ndarray] = {}
+    phases: dict[str, float] = {}
     dt = t[1] - t[0]
     for r in train.spec.roller:
         node = train.node_index(r.node)
         rev_hz = op.node_speed_rad_s[node] / (2 * math.pi) * speed_scale
-        phase = 2 * math.pi * np.cumsum(rev_hz) * dt + rng.uniform(0, 2 * math.pi)
+        phases[str(r.name)] = float(rng.uniform(0, 2 * math.pi))
+        phase = 2 * math.pi * np.cumsum(rev_hz) * dt + phases[str(r.name)]
         load = r.friction_coefficient * 2 * r.top_load_per_side_n * r.diameter_mm * 5e-4
         out[r.node] = -load * cfg.eccentricity.roller_load_modulation * np.sin(phase)
-    return out
+    return out, phases

@@ -39,6 +39,14 @@ from drafttwin.plant.faults import (
 from drafttwin.plant.machine import Machine
 from drafttwin.plant.scenarios import get_scenario
 from drafttwin.plant.sensors import encoder_rpm, inject_defects, quantisation_step_rpm
+from drafttwin.plant.surface import (
+    RollerSurface,
+    roller_surface,
+    run_outs,
+    simulate_surface,
+    surface_factor,
+    surface_info,
+)
 
 STREAMS = (
     "mismatch", "supply", "drafting", "runout", "encoder", "missing", "outlier", "motor_encoder",
@@ -60,6 +68,9 @@ class PlantRecording:
         true_motor_rpm: true interval-mean motor speed (rpm).
         missing, outlier: where the data path dropped samples / put spikes, bool ``(n, 4)``.
         info: seed, scenario, configuration, true parameters (JSON-able).
+        surface: the bottom rollers' true surface lengths at a fine rate (with their radius
+            run-out), only where the run asked for them (``surface_rate_hz``); not written
+            to files (``info["surface"]`` records how they were made).
     """
 
     series: MeasurementSeries
@@ -68,6 +79,7 @@ class PlantRecording:
     missing: np.ndarray
     outlier: np.ndarray
     info: dict[str, Any] = field(default_factory=dict)
+    surface: RollerSurface | None = None
 
     def truth_frame(self) -> pd.DataFrame:
         cols: dict[str, np.ndarray] = {"time": self.series.time_s}
@@ -147,6 +159,7 @@ class Plant:
         progress: Callable[[float], None] | None = None,
         machine: Machine | None = None,
         faults: Sequence[FaultSpec] = (),
+        surface_rate_hz: float | None = None,
     ) -> PlantRecording:
         """Run the plant for ``duration_s`` seconds, sampled at ``rate_hz``.
 
@@ -155,8 +168,13 @@ class Plant:
         true parameters; default: the one :meth:`machine` draws from ``seed``), so two
         recordings of one machine share ``machine`` and differ in ``seed``. ``faults`` are
         injected machine and sensor faults (:mod:`drafttwin.plant.faults`), labelled in
-        ``info["faults"]``; none leaves the run exactly as it was.
+        ``info["faults"]``; none leaves the run exactly as it was. ``surface_rate_hz`` (a
+        whole multiple of ``rate_hz``) adds the rollers' true surface lengths at that rate
+        (``surface``, :mod:`drafttwin.plant.surface`); every other output stays bit for bit
+        what it is without it.
         """
+        if surface_rate_hz is not None:
+            surface_factor(surface_rate_hz, rate_hz)
         scen = get_scenario(scenario)
         streams = _streams(seed)
         if machine is None:
@@ -176,11 +194,20 @@ class Plant:
         settle = 0.0 if scen.from_rest else SETTLE_S
         dist = disturbances(plant_train, self.config, setpoint, -settle, duration_s, streams)
         faults = check_faults(faults, plant_train)
-        driven, schedule = _driven_train(plant_train, dist, faults, setpoint, -settle,
-                                         duration_s, streams["fault"])  # fmt: skip
-        res = simulate(driven, duration_s, output_rate_hz=rate_hz, settle_s=settle,
-                       from_rest=scen.from_rest, progress=progress,
-                       tables_at=schedule)  # fmt: skip
+        driven, schedule, ecc_phase = _driven_train(plant_train, dist, faults, setpoint, -settle,
+                                                    duration_s, streams["fault"])  # fmt: skip
+        surface, surface_record = None, None
+        if surface_rate_hz is None:
+            res = simulate(driven, duration_s, output_rate_hz=rate_hz, settle_s=settle,
+                           from_rest=scen.from_rest, progress=progress,
+                           tables_at=schedule)  # fmt: skip
+        else:
+            res, angles = simulate_surface(driven, duration_s, rate_hz=rate_hz,
+                                           surface_rate_hz=surface_rate_hz, settle_s=settle,
+                                           from_rest=scen.from_rest, progress=progress,
+                                           tables_at=schedule)  # fmt: skip
+            surface, surface_record = _surface(plant_train, self.config, dist, faults, ecc_phase,
+                                               angles, surface_rate_hz)  # fmt: skip
         true_rpm = res.roller_rpm()
         sensors = self.config.sensors
         counted = encoder_rpm(true_rpm, 1.0 / rate_hz, sensors, streams["encoder"])
@@ -200,7 +227,7 @@ class Plant:
             "scenario_description": scen.description,
             "duration_s": duration_s,
             "rate_hz": rate_hz,
-            "plant_config": self.config.model_dump(mode="json"),
+            "plant_config": _config_record(self.config, surface=surface is not None),
             "true_train": plant_train.to_dict(),
             "mismatch_draws": draws,
             "machine": machine.describe(),
@@ -211,6 +238,8 @@ class Plant:
                 "outliers": {r: int(measured.outlier[:, j].sum()) for j, r in enumerate(ROLLERS)},
             },
         }
+        if surface_record is not None:
+            info["surface"] = surface_record
         series = MeasurementSeries(
             time_s=res.time_s,
             values=measured.rpm,
@@ -220,15 +249,37 @@ class Plant:
             metadata={"source": "drafttwin plant", "seed": seed, "scenario": scenario},
         )
         return PlantRecording(
-            series, true_rpm, res.motor_rpm, measured.missing, measured.outlier, info
+            series, true_rpm, res.motor_rpm, measured.missing, measured.outlier, info, surface
         )
 
 
-def _driven_train(train: DriveTrain, dist: Disturbances, faults: Sequence[FaultSpec],
-                  setpoint: Signal, t0: float, t1: float,
-                  rng: np.random.Generator) -> tuple[DriveTrain, FaultSchedule | None]:  # fmt: skip
+def _surface(train: DriveTrain, cfg: PlantConfig, dist: Disturbances, faults: Sequence[FaultSpec],
+             ecc_phase: dict[str, float], angles: np.ndarray,
+             rate_hz: float) -> tuple[RollerSurface, dict[str, Any]]:  # fmt: skip
+    """The rollers' surfaces from their fine angles (rad, ``(n + 1, 4)``) at ``rate_hz`` with
+    the true radii and every run-out (healthy and faulty), and the sidecar's record of them."""
+    radius = {str(r.name): r.diameter_mm * 5e-4 for r in train.spec.roller}
+    outs = run_outs(cfg, dist.roller_phase_rad, faults, ecc_phase)
+    surface = roller_surface(angles, rate_hz, radius, outs)
+    return surface, surface_info(rate_hz, radius, outs, surface)
+
+
+def _config_record(cfg: PlantConfig, *, surface: bool) -> dict[str, Any]:
+    """The sidecar's plant configuration. The rollers' radius run-out acts only on the
+    surfaces, so it is recorded only with them: sidecars without surfaces stay as they were
+    before the setting existed."""
+    if surface:
+        return cfg.model_dump(mode="json")
+    return cfg.model_dump(mode="json", exclude={"eccentricity": {"roller_eccentricity_um"}})
+
+
+def _driven_train(
+    train: DriveTrain, dist: Disturbances, faults: Sequence[FaultSpec], setpoint: Signal,
+    t0: float, t1: float, rng: np.random.Generator,
+) -> tuple[DriveTrain, FaultSchedule | None, dict[str, float]]:  # fmt: skip
     """The true train with its inputs attached and the machine faults applied: time signals
-    for the rotor resistance and roller run-out, a table schedule for the rest."""
+    for the rotor resistance and roller run-out, a table schedule for the rest; and the phase
+    (rad) of each roller eccentricity fault (roller name -> phase)."""
     rotor = [f for f in faults if f.kind == "rotor_resistance"]
     rotor_sig = (rotor_resistance_signal(dist.rotor_resistance, rotor, FORCE_GRID_S * 10)
                  if rotor else dist.rotor_resistance)  # fmt: skip
@@ -236,12 +287,13 @@ def _driven_train(train: DriveTrain, dist: Disturbances, faults: Sequence[FaultS
     for node, sig in dist.torques.items():
         driven = driven.with_torque(node, sig)
     ecc = [f for f in faults if f.kind == "eccentricity"]
+    phases: dict[str, float] = {}
     if ecc:
-        for node, sig in eccentricity_torques(train, ecc, setpoint, t0, t1, FORCE_GRID_S,
-                                              rng).items():  # fmt: skip
+        torques, phases = eccentricity_torques(train, ecc, setpoint, t0, t1, FORCE_GRID_S, rng)
+        for node, sig in torques.items():
             driven = driven.with_torque(node, sig)
     schedule = FaultSchedule(driven, faults)
-    return driven, schedule if schedule.faults else None
+    return driven, schedule if schedule.faults else None, phases
 
 
 def _streams(seed: int) -> dict[str, np.random.Generator]:

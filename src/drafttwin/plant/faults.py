@@ -28,7 +28,10 @@ Physical mapping of each kind (assumptions marked; docs/faults.md has the table)
   ``1 + severity``.
 * roller ``load_loss``: the top-roller load (pressure arm) falls by the fraction ``severity``.
 * roller ``eccentricity``: the once-per-revolution modulation of the roller's friction load
-  grows by ``severity`` x its mean load (bottom-roller run-out, see plant effects).
+  grows by ``severity`` x its mean load (bottom-roller run-out, see plant effects); the
+  roller's surface (:mod:`drafttwin.plant.surface`, only where a run asks for it) gets the
+  radius eccentricity that goes with that load through the healthy roller's compliance,
+  ``severity / roller_load_modulation x roller_eccentricity_um``.
 * motor ``rotor_resistance``: rotor resistance x (1 + severity) (on top of warm-up).
 * motor ``torque_loss``: breakdown torque x (1 - severity).
 * sensor ``gain`` (relative gain error), ``stuck`` (the channel repeats its value for
@@ -332,22 +335,26 @@ def rotor_resistance_signal(rotor: Signal, faults: Sequence[FaultSpec], step_s: 
 
 def eccentricity_torques(train: DriveTrain, faults: Sequence[FaultSpec], setpoint: Signal,
                          t0: float, t1: float, step_s: float,
-                         rng: np.random.Generator) -> dict[str, Signal]:  # fmt: skip
-    """Extra once-per-revolution load torque of each faulty roller, N m (node -> signal)."""
+                         rng: np.random.Generator) -> tuple[dict[str, Signal], dict[str, float]]:  # fmt: skip
+    """Extra once-per-revolution load torque of each faulty roller, N m (node -> signal), and
+    the random phase (rad) drawn for each fault (roller name -> phase; one draw per fault, in
+    order): the torque is ``-L severity profile(t) sin(2 pi cumsum(rev_hz) dt + phase)``."""
     op = operating_point(train)
     t = t0 + step_s * np.arange(int(math.ceil((t1 - t0) / step_s)) + 2)
     set_hz = np.asarray(setpoint.at(t), dtype=np.float64)
     speed_scale = set_hz / max(float(setpoint.values.max()), 1e-9)
     rollers = {str(r.name): r for r in train.spec.roller}
     out: dict[str, Signal] = {}
+    phases: dict[str, float] = {}
     for f in faults:
         r = rollers[f.element]
         rev_hz = op.node_speed_rad_s[train.node_index(r.node)] / (2 * math.pi) * speed_scale
-        phase = 2 * math.pi * np.cumsum(rev_hz) * step_s + rng.uniform(0, 2 * math.pi)
+        phases[f.element] = float(rng.uniform(0, 2 * math.pi))
+        phase = 2 * math.pi * np.cumsum(rev_hz) * step_s + phases[f.element]
         load = r.friction_coefficient * 2 * r.top_load_per_side_n * r.diameter_mm * 5e-4
         tq = -load * f.severity * f.profile(t) * np.sin(phase)
         out[r.node] = Signal(t0, step_s, tq)
-    return out
+    return out, phases
 
 
 def apply_sensor_faults(rpm: np.ndarray, motor_rpm: np.ndarray, time_s: np.ndarray,

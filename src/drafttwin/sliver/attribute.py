@@ -1,0 +1,160 @@
+"""Chimney to element: which rotating element explains each chimney of a spectrogram.
+
+For every chimney the wavelength table (:mod:`drafttwin.sliver.wavelengths`) is searched for
+elements whose line or harmonic falls within the channel (its band widened by a quarter
+channel each side for the running point's uncertainty). Each candidate is scored by:
+
+* the drafting transfer (:mod:`drafttwin.sliver.transfer`): an element can leave a chimney
+  only through the rollers it moves; what relative speed modulation (%) would it need for the
+  chimney's excess over the base? An element whose gain at that wavelength is below
+  :data:`MIN_GAIN` (e.g. the motor, which moves every roller alike) cannot explain it;
+* the harmonic order (the fundamental first) and the other chimneys at its harmonics (a
+  non-sinusoidal defect such as a damaged flute leaves a comb);
+* the distance from the channel's centre.
+
+Elements whose lines fall within one channel of each other cannot be told apart by the
+sliver (e.g. the front roller and the gears on its drive shaft): they are named as
+look-alikes. A chimney that no drive element explains comes from the feed: its wavelength
+divided by the total draft is where the defect sits on the fed sliver.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from drafttwin.sliver.staple import StapleDiagram
+from drafttwin.sliver.transfer import mass_gain
+from drafttwin.sliver.wavelengths import Element, WavelengthTable
+
+MIN_GAIN = 0.05
+"""Below this |gain| from speed to mass an element cannot make a visible chimney."""
+TOLERANCE_OCTAVES = 1 / 20 + 1 / 40
+"""A line counts as in a channel within half a channel plus a quarter channel."""
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """One element that may explain a chimney."""
+
+    element: str
+    kind: str
+    harmonic: int
+    wavelength_m: float
+    gain: float  # |speed-to-mass gain| at the chimney's wavelength
+    required_modulation_pct: float  # speed modulation the element would need (inf: cannot)
+    plausible: bool
+    harmonics_seen: int  # chimneys at this element's other harmonics
+    lookalikes: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class ChimneyCause:
+    """A chimney and its ranked causes."""
+
+    wavelength_m: float
+    amplitude_pct: float
+    base_pct: float
+    excess_pct: float
+    candidates: tuple[Candidate, ...]
+    verdict: str
+    fed_wavelength_m: float = math.nan
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def attribute(chimneys: list[dict[str, Any]], table: WavelengthTable,
+              gauges_mm: tuple[float, float, float], drafts: dict[str, float],
+              staple: StapleDiagram, harmonics: int = 4) -> list[ChimneyCause]:  # fmt: skip
+    """Rank the elements behind each chimney (rows with ``wavelength_m``, ``amplitude_pct``,
+    ``base_pct``, as :meth:`Spectrogram.chimneys` gives them)."""
+    waves = [float(c["wavelength_m"]) for c in chimneys]
+    out = []
+    for c in chimneys:
+        lam, amp, base = float(c["wavelength_m"]), float(c["amplitude_pct"]), float(c["base_pct"])
+        excess = math.sqrt(max(amp**2 - base**2, 0.0))
+        cands = [_candidate(e, h, lam, excess, table, gauges_mm, drafts, staple, waves,
+                            harmonics) for e, h in _matches(table, lam, harmonics)]  # fmt: skip
+        cands = _with_lookalikes(sorted(cands, key=_rank))
+        out.append(ChimneyCause(lam, amp, base, excess, tuple(cands),
+                                _verdict(cands, lam, drafts), lam / drafts["total"]))  # fmt: skip
+    return out
+
+
+def _matches(table: WavelengthTable, lam: float, harmonics: int) -> list[tuple[Element, int]]:
+    tol = 2.0**TOLERANCE_OCTAVES - 1.0
+    return table.near(lam, tol, harmonics)
+
+
+def _candidate(e: Element, h: int, lam: float, excess: float, table: WavelengthTable,
+               gauges_mm: tuple[float, float, float], drafts: dict[str, float],
+               staple: StapleDiagram, waves: list[float], harmonics: int) -> Candidate:  # fmt: skip
+    moved = {e.rollers[0]: 1.0} if e.kind == "roller" else {r: 1.0 for r in e.rollers}
+    gain = float(abs(mass_gain(moved, lam, gauges_mm, drafts, staple)[0]))
+    plausible = gain >= MIN_GAIN
+    required = excess / gain if plausible else math.inf
+    tol = 2.0**TOLERANCE_OCTAVES
+    seen = sum(1 for k in range(1, harmonics + 1) if k != h and any(
+        abs(math.log2(e.wavelength_m / k / w)) <= math.log2(tol) for w in waves))  # fmt: skip
+    return Candidate(e.name, e.kind, h, e.wavelength_m / h, gain, required, plausible, seen)
+
+
+KIND_PRIOR = ("roller", "gear", "sprocket", "pulley", "chain", "belt", "mesh", "shaft", "motor")
+"""At equal evidence (one wavelength, one gain), the kind of element more often behind such a
+chimney in practice comes first: an eccentric or damaged roller, then the gears on its shaft;
+the others stay named as look-alikes."""
+
+
+def _rank(c: Candidate) -> tuple:
+    # plausible first; a comb of harmonics; the fundamental; the smallest modulation needed
+    # (to 1 %: equal within the spectrum's own scatter); then the prior of the kind
+    prior = KIND_PRIOR.index(c.kind) if c.kind in KIND_PRIOR else len(KIND_PRIOR)
+    required = round(math.log(c.required_modulation_pct), 2) if c.plausible else math.inf
+    return (not c.plausible, -c.harmonics_seen, c.harmonic, required, prior)
+
+
+def _with_lookalikes(cands: list[Candidate]) -> list[Candidate]:
+    """Name, for each candidate, the others whose line lies within a quarter channel."""
+    out = []
+    for c in cands:
+        twins = tuple(o.element for o in cands if o is not c and o.plausible == c.plausible
+                      and abs(math.log2(o.wavelength_m / c.wavelength_m)) <= 1 / 40)  # fmt: skip
+        out.append(Candidate(**{**asdict(c), "lookalikes": twins}))
+    return out
+
+
+def _verdict(cands: list[Candidate], lam: float, drafts: dict[str, float]) -> str:
+    plausible = [c for c in cands if c.plausible]
+    if not plausible:
+        fed = lam / drafts["total"]
+        why = " (the elements at this wavelength move every roller alike)" if cands else ""
+        return (
+            f"no drive element explains it{why}: from the feed, a defect at "
+            f"{_fmt_m(fed)} on the fed sliver"
+        )
+    top = plausible[0]
+    same = [top.element, *top.lookalikes]
+    if len(same) > 1:
+        return (
+            f"{top.element} (harmonic {top.harmonic}) or its look-alikes "
+            f"{', '.join(top.lookalikes)}: one wavelength, the sliver cannot tell them apart"
+        )
+    return f"{top.element} (harmonic {top.harmonic}), about {top.required_modulation_pct:.2g} % speed modulation"
+
+
+def _fmt_m(x: float) -> str:
+    return f"{x * 100:.3g} cm" if x < 1 else f"{x:.3g} m"
+
+
+def ranked_elements(causes: list[ChimneyCause]) -> list[str]:
+    """Elements in order of their best placement over all chimneys (for summaries)."""
+    best: dict[str, tuple] = {}
+    for i, cause in enumerate(sorted(causes, key=lambda c: -c.excess_pct)):
+        for j, c in enumerate(cause.candidates):
+            key = (not c.plausible, i, j)
+            if c.element not in best or key < best[c.element]:
+                best[c.element] = key
+    return [e for e, _ in sorted(best.items(), key=lambda kv: kv[1])]
