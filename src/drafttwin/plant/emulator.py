@@ -39,6 +39,13 @@ from drafttwin.plant.faults import (
 from drafttwin.plant.machine import Machine
 from drafttwin.plant.scenarios import get_scenario
 from drafttwin.plant.sensors import encoder_rpm, inject_defects, quantisation_step_rpm
+from drafttwin.plant.sliver_channel import (
+    SURFACE_RATE_HZ,
+    SliverChannel,
+    SliverSettings,
+    make_sliver,
+    sliver_paths,
+)
 from drafttwin.plant.surface import (
     RollerSurface,
     roller_surface,
@@ -50,7 +57,7 @@ from drafttwin.plant.surface import (
 
 STREAMS = (
     "mismatch", "supply", "drafting", "runout", "encoder", "missing", "outlier", "motor_encoder",
-    "fault",
+    "fault", "sliver",
 )  # fmt: skip
 """One random stream per effect, spawned from the seed in this order: a stream added at the
 end leaves the earlier ones (and so the files older versions wrote) unchanged."""
@@ -80,6 +87,7 @@ class PlantRecording:
     outlier: np.ndarray
     info: dict[str, Any] = field(default_factory=dict)
     surface: RollerSurface | None = None
+    sliver: SliverChannel | None = None
 
     def truth_frame(self) -> pd.DataFrame:
         cols: dict[str, np.ndarray] = {"time": self.series.time_s}
@@ -110,8 +118,18 @@ class PlantRecording:
             )
         truth = path.with_name(f"{path.stem}.truth{path.suffix}")
         sidecar = path.with_suffix(".json")
-        info = {**self.info, "files": {"measured": path.name, "truth": truth.name}}
+        files = {"measured": path.name, "truth": truth.name}
+        written = [path, truth, sidecar]
+        if self.sliver is not None:
+            files |= {
+                "sliver": sliver_paths(path)[0].name,
+                "sliver_truth": sliver_paths(path)[1].name,
+            }
+            written += list(sliver_paths(path))
+        info = {**self.info, "files": files}
         with contextlib.ExitStack() as stack:
+            if self.sliver is not None:
+                self.sliver.write(*sliver_paths(path), stack)
             tmp_sidecar = stack.enter_context(atomic_path(sidecar))
             tmp_truth = stack.enter_context(atomic_path(truth))
             measured = replace(self.series, metadata={"sidecar": sidecar.name})
@@ -122,7 +140,7 @@ class PlantRecording:
             else:
                 frame.to_csv(tmp_truth, index=False, float_format="%.17g")
             tmp_sidecar.write_text(dumps_strict(info, sort_keys=True) + "\n", encoding="utf-8")
-        return [path, truth, sidecar]
+        return written
 
 
 class Plant:
@@ -160,6 +178,7 @@ class Plant:
         machine: Machine | None = None,
         faults: Sequence[FaultSpec] = (),
         surface_rate_hz: float | None = None,
+        sliver: SliverSettings | None = None,
     ) -> PlantRecording:
         """Run the plant for ``duration_s`` seconds, sampled at ``rate_hz``.
 
@@ -171,8 +190,12 @@ class Plant:
         ``info["faults"]``; none leaves the run exactly as it was. ``surface_rate_hz`` (a
         whole multiple of ``rate_hz``) adds the rollers' true surface lengths at that rate
         (``surface``, :mod:`drafttwin.plant.surface`); every other output stays bit for bit
-        what it is without it.
+        what it is without it. ``sliver`` makes sliver (:mod:`drafttwin.plant.sliver_channel`):
+        the true rollers' surfaces at 2 kHz (unless ``surface_rate_hz`` says otherwise)
+        draft the fed slivers, the delivery and infeed sensors read them (``sliver``).
         """
+        if sliver is not None and surface_rate_hz is None:
+            surface_rate_hz = SURFACE_RATE_HZ
         if surface_rate_hz is not None:
             surface_factor(surface_rate_hz, rate_hz)
         scen = get_scenario(scenario)
@@ -240,6 +263,11 @@ class Plant:
         }
         if surface_record is not None:
             info["surface"] = surface_record
+        channel = None
+        if sliver is not None and surface is not None:
+            channel = make_sliver(surface.time_s, surface.length_m, sliver, streams["sliver"],
+                                  seed)  # fmt: skip
+            info["sliver"] = channel.summary
         series = MeasurementSeries(
             time_s=res.time_s,
             values=measured.rpm,
@@ -249,7 +277,14 @@ class Plant:
             metadata={"source": "drafttwin plant", "seed": seed, "scenario": scenario},
         )
         return PlantRecording(
-            series, true_rpm, res.motor_rpm, measured.missing, measured.outlier, info, surface
+            series,
+            true_rpm,
+            res.motor_rpm,
+            measured.missing,
+            measured.outlier,
+            info,
+            surface,
+            channel,
         )
 
 

@@ -28,6 +28,8 @@ from drafttwin.sliver.staple import StapleDiagram
 from drafttwin.sliver.transfer import mass_gain
 from drafttwin.sliver.wavelengths import Element, WavelengthTable
 
+__all__ = ["Candidate", "ChimneyCause", "Element", "attribute", "ranked_elements"]
+
 MIN_GAIN = 0.05
 """Below this |gain| from speed to mass an element cannot make a visible chimney."""
 TOLERANCE_OCTAVES = 1 / 20 + 1 / 40
@@ -70,50 +72,50 @@ def attribute(chimneys: list[dict[str, Any]], table: WavelengthTable,
               gauges_mm: tuple[float, float, float], drafts: dict[str, float],
               staple: StapleDiagram, harmonics: int = 4) -> list[ChimneyCause]:  # fmt: skip
     """Rank the elements behind each chimney (rows with ``wavelength_m``, ``amplitude_pct``,
-    ``base_pct``, as :meth:`Spectrogram.chimneys` gives them)."""
-    waves = [float(c["wavelength_m"]) for c in chimneys]
+    ``base_pct``, as :meth:`Spectrogram.chimneys` gives them). A row with ``peak_m`` (the
+    periodogram's peak within the channel) and ``tolerance`` (relative) is matched on that
+    wavelength within that tolerance, not on the channel."""
+    waves = [float(c.get("peak_m", c["wavelength_m"])) for c in chimneys]
     out = []
     for c in chimneys:
         lam, amp, base = float(c["wavelength_m"]), float(c["amplitude_pct"]), float(c["base_pct"])
+        at = float(c.get("peak_m", lam))
+        tol = float(c.get("tolerance", 2.0**TOLERANCE_OCTAVES - 1.0))
         excess = math.sqrt(max(amp**2 - base**2, 0.0))
-        cands = [_candidate(e, h, lam, excess, table, gauges_mm, drafts, staple, waves,
-                            harmonics) for e, h in _matches(table, lam, harmonics)]  # fmt: skip
+        cands = [_candidate(e, h, at, excess, table, gauges_mm, drafts, staple, waves,
+                            harmonics, tol) for e, h in table.near(at, tol, harmonics)]  # fmt: skip
         cands = _with_lookalikes(sorted(cands, key=_rank))
-        out.append(ChimneyCause(lam, amp, base, excess, tuple(cands),
-                                _verdict(cands, lam, drafts), lam / drafts["total"]))  # fmt: skip
+        out.append(ChimneyCause(at, amp, base, excess, tuple(cands),
+                                _verdict(cands, at, drafts), at / drafts["total"],
+                                {"channel_m": lam, "tolerance": tol}))  # fmt: skip
     return out
-
-
-def _matches(table: WavelengthTable, lam: float, harmonics: int) -> list[tuple[Element, int]]:
-    tol = 2.0**TOLERANCE_OCTAVES - 1.0
-    return table.near(lam, tol, harmonics)
 
 
 def _candidate(e: Element, h: int, lam: float, excess: float, table: WavelengthTable,
                gauges_mm: tuple[float, float, float], drafts: dict[str, float],
-               staple: StapleDiagram, waves: list[float], harmonics: int) -> Candidate:  # fmt: skip
+               staple: StapleDiagram, waves: list[float], harmonics: int,
+               tol: float) -> Candidate:  # fmt: skip
     moved = {e.rollers[0]: 1.0} if e.kind == "roller" else {r: 1.0 for r in e.rollers}
     gain = float(abs(mass_gain(moved, lam, gauges_mm, drafts, staple)[0]))
     plausible = gain >= MIN_GAIN
     required = excess / gain if plausible else math.inf
-    tol = 2.0**TOLERANCE_OCTAVES
     seen = sum(1 for k in range(1, harmonics + 1) if k != h and any(
-        abs(math.log2(e.wavelength_m / k / w)) <= math.log2(tol) for w in waves))  # fmt: skip
+        abs(math.log(e.wavelength_m / k / w)) <= math.log1p(tol) for w in waves))  # fmt: skip
     return Candidate(e.name, e.kind, h, e.wavelength_m / h, gain, required, plausible, seen)
 
 
 KIND_PRIOR = ("roller", "gear", "sprocket", "pulley", "chain", "belt", "mesh", "shaft", "motor")
-"""At equal evidence (one wavelength, one gain), the kind of element more often behind such a
-chimney in practice comes first: an eccentric or damaged roller, then the gears on its shaft;
-the others stay named as look-alikes."""
+"""At equal evidence the kind of element more often behind such a chimney in practice comes
+first: an eccentric or damaged roller, then the gears on its shaft; the others stay named as
+look-alikes. The modulation an element would need only rules it in or out: real defects
+differ by more than the gains do."""
 
 
 def _rank(c: Candidate) -> tuple:
-    # plausible first; a comb of harmonics; the fundamental; the smallest modulation needed
-    # (to 1 %: equal within the spectrum's own scatter); then the prior of the kind
+    # plausible first; a comb of harmonics; the fundamental; the prior of the kind; then the
+    # smallest speed modulation needed
     prior = KIND_PRIOR.index(c.kind) if c.kind in KIND_PRIOR else len(KIND_PRIOR)
-    required = round(math.log(c.required_modulation_pct), 2) if c.plausible else math.inf
-    return (not c.plausible, -c.harmonics_seen, c.harmonic, required, prior)
+    return (not c.plausible, -c.harmonics_seen, c.harmonic, prior, c.required_modulation_pct)
 
 
 def _with_lookalikes(cands: list[Candidate]) -> list[Candidate]:

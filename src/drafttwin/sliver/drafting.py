@@ -104,7 +104,7 @@ def draft(speeds: SurfaceSpeeds, feed: Feed, zones: DraftingZones | None = None,
         raise ConfigError(f"the speeds deliver only {speeds.delivered_length_m:.3g} m of "
                           "sliver", where="--duration", fix="give a longer record")  # fmt: skip
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
-    quantiles, cum, p0 = _tables(feed, surface, zones, rng)
+    quantiles, cum, p0, relative = _tables(feed, surface, zones, rng)
     lead = K.transport_map(surface, zones.array(), p0 + FED_STEP_MM * np.arange(cum.size))
     run = _Run(seed, lead, quantiles, cum, p0, fibre_scale, zones, h, n_bins, keep_fibres,
                progress, real is not None)  # fmt: skip
@@ -120,7 +120,7 @@ def draft(speeds: SurfaceSpeeds, feed: Feed, zones: DraftingZones | None = None,
                         "drafts": speeds.drafts(), "feed_ktex": feed.total_ktex,
                         "doublings": feed.doublings,
                         "drafting": "ideal" if real is None else "real"},
-                  fibres=kept)  # fmt: skip
+                  fibres=kept, fed=(p0, FED_STEP_MM, relative))  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -184,15 +184,16 @@ def _times(speeds: SurfaceSpeeds, surface: np.ndarray) -> np.ndarray:
 
 
 def _tables(feed: Feed, surface: np.ndarray, zones: DraftingZones,
-            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float]:  # fmt: skip
-    """Inverse CDFs (length, fineness), the feed's cumulative rate on the fed-length grid
-    and the grid's start, mm."""
+            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:  # fmt: skip
+    """Inverse CDFs (length, fineness), the feed's cumulative rate on the fed-length grid,
+    the grid's start (mm) and the feed's relative rate on it."""
     p0 = float(surface[0, K.BACK]) - zones.break_mm
     size = int(math.ceil((float(surface[-1, K.BACK]) - p0) / FED_STEP_MM)) + 2
-    rate = feed.intensity(p0, FED_STEP_MM, size, rng) * feed.fibres_per_mm()
+    relative = feed.intensity(p0, FED_STEP_MM, size, rng)
+    rate = relative * feed.fibres_per_mm()
     cum = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * FED_STEP_MM)])
     quantiles = np.vstack([feed.staple.length_quantiles(), feed.staple.fineness_quantiles()])
-    return quantiles, cum, p0
+    return quantiles, cum, p0, relative
 
 
 def _drift_table(real: RealDrafting, diff: np.ndarray, speeds: SurfaceSpeeds,

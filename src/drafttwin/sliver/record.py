@@ -38,6 +38,9 @@ class Sliver:
         info: provenance (seed, speeds, drafts, fibres drawn, ...).
         fibres: drafted fibres kept for a later passage, ``(r, 3)``: leading end (mm on this
             sliver's grid), length (mm), linear density (tex); None if not kept.
+        fed: the feed's relative rate as drafted: ``(start_mm, step_mm, values)`` on the
+            fed-length grid (the back roller's surface length, 0 at the record's start), for
+            an infeed sensor; None if unknown.
     """
 
     linear_density_ktex: np.ndarray
@@ -48,6 +51,7 @@ class Sliver:
     fibre_scale: float = 1.0
     info: dict[str, Any] = field(default_factory=dict)
     fibres: np.ndarray | None = None
+    fed: tuple[float, float, np.ndarray] | None = None
 
     @property
     def delivered_length_m(self) -> np.ndarray:

@@ -1,0 +1,125 @@
+"""The plant makes sliver: the delivered sliver drafted by the true roller surfaces, and the
+readings of the drawframe's delivery and infeed sensors.
+
+The plant's rollers turn as its simulation says, at 2 kHz (:mod:`drafttwin.plant.surface`:
+radius run-out included); the drafting simulator (:mod:`drafttwin.sliver`) draws the fed
+slivers' fibres and drafts them through those surfaces. The delivery sensor reads the true
+sliver; the infeed scanning rollers read the fed slivers before the back roller.
+
+Default feed (assumptions, docs/sliver.md): six cotton card slivers of 5.5 ktex each, with
+an extra irregularity of 3.5 % per card sliver above the random sliver (correlation length
+5 cm on the card sliver): trade figures put card sliver at a CV of 3-4.5 %, far above its
+Martindale limit (about 0.24 % for 34 000 fibres), but no published nomogram was found.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from drafttwin._io import atomic_path
+from drafttwin.sliver import DraftingZones, Feed, FeedFault, Sliver, StapleDiagram, SurfaceSpeeds
+from drafttwin.sliver import draft as draft_sliver
+from drafttwin.sliver.evenness import evenness
+from drafttwin.sliver.sensor import SliverSensor, infeed_reading
+
+SURFACE_RATE_HZ = 2000.0
+"""Rate of the true roller surfaces that draft the plant's sliver (2 mm of sliver)."""
+SCAN_AHEAD_MM = 600.0
+"""Distance from the infeed scanning rollers to the back nip along the sliver (assumption)."""
+
+
+def sliver_paths(path: Path) -> tuple[Path, Path]:
+    """The sliver files beside a plant record: ``<stem>.sliver<suffix>`` (sensors) and
+    ``<stem>.sliver.truth<suffix>`` (the true sliver)."""
+    return (path.with_name(f"{path.stem}.sliver{path.suffix}"),
+            path.with_name(f"{path.stem}.sliver.truth{path.suffix}"))  # fmt: skip
+
+
+def default_feed(faults: tuple[FeedFault, ...] = ()) -> Feed:
+    return Feed(StapleDiagram.preset("cotton"), doublings=6, count_ktex=5.5, faults=faults,
+                extra_cv=0.035, extra_correlation_m=0.05)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SliverSettings:
+    """What the plant drafts and how it measures it."""
+
+    feed: Feed = field(default_factory=default_feed)
+    zones: DraftingZones = field(default_factory=DraftingZones)
+    delivery: SliverSensor = field(default_factory=SliverSensor)
+    infeed: SliverSensor = field(
+        default_factory=lambda: SliverSensor(averaging_mm=20.0, lag_mm=0.0, noise=0.003)
+    )
+    fibre_scale: float = 1.0
+    step_mm: float = 1.0
+
+    def record(self) -> dict[str, Any]:
+        feed = self.feed
+        return {"staple": feed.staple.describe(), "doublings": feed.doublings,
+                "feed_ktex": feed.count_ktex, "feed_extra_cv": feed.extra_cv,
+                "feed_extra_correlation_m": feed.extra_correlation_m,
+                "feed_faults": [asdict(f) for f in feed.faults],
+                "gauges_mm": asdict(self.zones), "delivery_sensor": asdict(self.delivery),
+                "infeed_sensor": asdict(self.infeed), "fibre_scale": self.fibre_scale,
+                "step_mm": self.step_mm, "scan_ahead_mm": SCAN_AHEAD_MM}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SliverChannel:
+    """The plant's sliver: the true sliver and the sensors' readings.
+
+    Attributes:
+        true: the delivered sliver on its fine grid (ktex).
+        delivery: the delivery sensor's readings (ktex) on its pitch.
+        infeed_ktex: the infeed sensor's readings of all fed slivers (ktex) at the delivery
+            readings' times.
+        summary: count, CV and the drafting's provenance (JSON-able).
+    """
+
+    true: Sliver
+    delivery: Sliver
+    infeed_ktex: np.ndarray
+    summary: dict[str, Any]
+
+    def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
+        measured = self.delivery.to_frame()
+        measured["infeed_ktex"] = self.infeed_ktex
+        return measured, self.true.to_frame()
+
+    def write(self, path: Path, truth: Path, stack: contextlib.ExitStack) -> None:
+        """Write both frames to temporary files in ``stack`` (renamed when it closes)."""
+        measured, true = self.frames()
+        for frame, target in ((measured, path), (true, truth)):
+            tmp = stack.enter_context(atomic_path(target))
+            if target.suffix.lower() == ".parquet":
+                frame.to_parquet(tmp, index=False)
+            else:
+                frame.to_csv(tmp, index=False, float_format="%.10g")
+
+
+def make_sliver(time_s: np.ndarray, length_m: np.ndarray, settings: SliverSettings,
+                rng: np.random.Generator, seed: int) -> SliverChannel:  # fmt: skip
+    """Draft the plant's sliver from its true roller surfaces (``length_m`` ``(n, 4)`` on
+    ``time_s``) and read it with the sensors."""
+    speeds = SurfaceSpeeds.from_lengths(time_s, length_m, "plant: true roller surfaces")
+    true = draft_sliver(speeds, settings.feed, settings.zones, step_mm=settings.step_mm,
+                        seed=seed, fibre_scale=settings.fibre_scale)  # fmt: skip
+    delivery = settings.delivery.read(true, rng)
+    assert true.fed is not None and delivery.time_s is not None
+    back_mm = np.interp(delivery.time_s, time_s, (length_m[:, 3] - length_m[0, 3]) * 1e3)
+    start, step, relative = true.fed
+    infeed = infeed_reading(relative, start, step, back_mm, settings.feed.total_ktex,
+                            settings.infeed, SCAN_AHEAD_MM, rng)  # fmt: skip
+    ev = evenness(true.linear_density_ktex, true.step_m, settings.feed.staple,
+                  settings.fibre_scale)  # fmt: skip
+    summary = {**settings.record(), "fibres": true.info.get("fibres"),
+               "delivered_m": true.length_m, "true_count_ktex": ev.count_ktex,
+               "true_cv_pct": ev.cv_pct, "martindale_cv_pct": ev.martindale_cv_pct,
+               "drafts": speeds.drafts()}  # fmt: skip
+    return SliverChannel(true, delivery, infeed, summary)
