@@ -83,6 +83,16 @@ BOUNDS: dict[str, Bound] = {
     "--history": Bound(0, 86_400, "s", low_inclusive=True),
     "--ramp": Bound(0, 1e4, "Hz/s"),
     "--reference": Bound(0, 3600, "s"),
+    "--doublings": Bound(1, 16, "slivers", low_inclusive=True),
+    "--feed-ktex": Bound(0.05, 100, "ktex", low_inclusive=True),
+    "--feed-cv": Bound(0, 0.49, "(fraction)", low_inclusive=True),
+    "--feed-correlation": Bound(0.01, 1e4, "m", low_inclusive=True),
+    "--fineness-dtex": Bound(0, 100, "dtex"),
+    "--fineness-cv": Bound(0, 1.5, "(fraction)", low_inclusive=True),
+    "--step-mm": Bound(0.05, 50, "mm", low_inclusive=True),
+    "--fibre-scale": Bound(1, 1e6, "fibres per drawn fibre", low_inclusive=True),
+    "--harmonics": Bound(1, 20, "harmonics", low_inclusive=True),
+    "--sensor-mm": Bound(0, 1000, "mm", low_inclusive=True),
     "--post": Bound(0, 3600, "s"),
 }
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import numpy as np
 import typer
@@ -69,6 +69,30 @@ def generate(
             "Kinds and severity units: docs/faults.md; a wrong element or kind lists the valid ones.",
         ),
     ] = None,
+    sliver: Annotated[
+        bool,
+        typer.Option(
+            "--sliver",
+            help="Make sliver too: the true rollers draft six cotton card slivers "
+            "(docs/sliver.md); writes OUT's .sliver file (delivery sensor, infeed sensor) and "
+            ".sliver.truth file (the true sliver, 1 mm grid).",
+        ),
+    ] = False,  # fmt: skip
+    feed_fault: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--feed-fault",
+            help="With --sliver: a periodic fault of the card slivers, "
+            "wavelength=M:amplitude=A[:slivers=one|all][:phase=random|same] (repeatable).",
+        ),
+    ] = None,  # fmt: skip
+    fibre_scale: Annotated[
+        float,
+        typer.Option(
+            help="With --sliver: fibres lumped into one (1: every fibre, about 1.3e8 per 100 m).",
+            callback=bounded("--fibre-scale"),
+        ),
+    ] = 1.0,  # fmt: skip
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
 ) -> None:
     """Run the plant emulator: measured roller speeds with the machine's real imperfections.
@@ -76,7 +100,7 @@ def generate(
     Writes OUT (time, front, second, third, back in rpm, gaps as empty cells, and the VFD
     set-point supply_hz and the motor speed motor in rpm), OUT's .truth file (true speeds,
     where samples were dropped or spiked) and OUT's .json sidecar (seeds, the machine's true
-    parameters, effects).
+    parameters, effects); with --sliver the sliver files too.
     """
     from drafttwin.plant import Machine, Plant
     from drafttwin.plant.faults import FaultSpec, check_faults
@@ -89,6 +113,7 @@ def generate(
                           where="--machine", fix="give one of them")  # fmt: skip
     plant = Plant(load_train(preset, config))
     faults = check_faults([FaultSpec.parse(f) for f in fault or []], plant.train)
+    settings = _sliver_settings(sliver, feed_fault, fibre_scale, out)
     # refuse a run that would never end (or write tens of GB) before anything starts
     check_samples(duration, rate, where="--duration, --rate")
     check_rk4_steps(duration, plant.train.spec.solver.dt_s, where="--duration")
@@ -101,7 +126,8 @@ def generate(
     with progress_bar("plant (machine s)", duration, quiet=quiet) as bar:
         task = bar.task_ids[0]
         rec = plant.run(duration, rate, seed=seed, scenario=scenario, machine=chosen,
-                        progress=lambda s: bar.advance(task, s), faults=faults)  # fmt: skip
+                        progress=lambda s: bar.advance(task, s), faults=faults,
+                        sliver=settings)  # fmt: skip
     paths = rec.write(out)
     table = Table(title=f"plant, scenario '{scenario}', seed {seed}, machine "
                   f"{chosen.source}: {duration:g} s at {rate:g} Hz")  # fmt: skip
@@ -119,4 +145,36 @@ def generate(
         console.print(f"fault {label['element']}:{label['kind']} severity {label['severity']:g} "
                       f"({label['parameter']}) from {label['onset_s']:g} s, "
                       f"{'ramp ' + format(label['ramp_s'], 'g') + ' s' if label['ramp_s'] else 'abrupt'}")  # fmt: skip
+    if rec.sliver is not None:
+        summary = rec.sliver.summary
+        console.print(f"sliver: {summary['delivered_m']:.1f} m, count "
+                      f"{summary['true_count_ktex']:.4f} ktex, CV {summary['true_cv_pct']:.3f} % "
+                      f"(Martindale {summary['martindale_cv_pct']:.3f} %), "
+                      f"{summary['fibres']:,} fibres")  # fmt: skip
     console.print("wrote " + ", ".join(str(p) for p in paths))
+
+
+def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: float,
+                     out: Path) -> Any:  # fmt: skip
+    """The plant's sliver settings, or None; refuses sliver files beside --out that an
+    earlier plant record of this name did not write (they are not the user's to lose)."""
+    if not sliver:
+        if feed_fault or fibre_scale != 1.0:
+            raise ConfigError("--feed-fault and --fibre-scale shape the sliver",
+                              where="--feed-fault", fix="add --sliver")  # fmt: skip
+        return None
+    from dataclasses import replace
+
+    from drafttwin.plant.sliver_channel import SliverSettings, default_feed, sliver_paths
+    from drafttwin.sliver import FeedFault
+    from drafttwin.sliver.record import sliver_beside
+
+    ours = sliver_beside(out)
+    for p in sliver_paths(out):
+        if p.exists() and (ours is None or p.name not in (ours.sliver.name,
+                                                          f"{out.stem}.sliver.truth{out.suffix}")):  # fmt: skip
+            raise ConfigError(f"{p.name} exists and is not the sliver of an earlier plant "
+                              "record of this name", source=p, where="--out",
+                              fix="choose another --out or move the file")  # fmt: skip
+    faults = tuple(FeedFault.parse(f) for f in feed_fault or [])
+    return replace(SliverSettings(), feed=default_feed(faults), fibre_scale=fibre_scale)

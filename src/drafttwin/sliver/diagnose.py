@@ -230,7 +230,9 @@ def rerank(diagnosis: SliverDiagnosis, checks: dict[str, list[EncoderCheck]],
            shares: dict[str, float]) -> SliverDiagnosis:  # fmt: skip
     """Re-rank each chimney's look-alikes with the encoders: where they explain little of
     the chimney (share < 0.3) a roller's own surface comes first; where they explain most of
-    it (> 0.6) the drive elements they confirm come first; those they rule out go last."""
+    it (> 0.6) the drive elements come first, those whose moved rollers match the rollers
+    that carry the line and that the encoders confirm ahead; in between the sliver's own
+    order stands."""
     order = {"confirmed": 0, "consistent": 1, "not": 1, "an": 2, "ruled": 3}
     causes = []
     for cause in diagnosis.causes:
@@ -241,13 +243,14 @@ def rerank(diagnosis: SliverDiagnosis, checks: dict[str, list[EncoderCheck]],
 
         def rank(c: Candidate, share: float = share, verdicts: dict = verdicts,
                  misfit: dict = misfit) -> tuple:  # fmt: skip
-            surface_first = 0 if (c.kind == "roller") == (share < 0.3) else 1
-            decided = surface_first if math.isfinite(share) and not 0.3 <= share <= 0.6 else 0
-            drive = decided == 0 and share > 0.6
+            if not math.isfinite(share) or 0.3 <= share <= 0.6:
+                return (not c.plausible,)  # undecided: the sliver's own order stands
+            if share < 0.3:
+                return (not c.plausible, c.kind != "roller")
             return (
                 not c.plausible,
-                decided,
-                misfit.get(c.element, 0) if drive else 0,
+                c.kind == "roller",
+                misfit.get(c.element, 0),
                 order.get(verdicts.get(c.element, "not"), 1),
             )
 
@@ -281,7 +284,8 @@ def drive_share(diagnosis: SliverDiagnosis, sliver: Sliver, time_s: np.ndarray,
                 rpm: dict[str, np.ndarray], staple: StapleDiagram,
                 zones: DraftingZones | None = None) -> dict[str, float]:  # fmt: skip
     """For each chimney (keyed by its wavelength in cm), the share of it (0-1) that the
-    rollers' measured angular speeds explain: each roller's line at the chimney's order is
+    rollers' measured angular speeds explain in phase (the projection of the predicted line on
+    the sliver's, over the sliver's power): each roller's line at the chimney's order is
     fitted in the encoders' speeds (phase taken from the sliver's own delivered length at the
     encoders' times, so both share one reference), carried through the drafting transfer
     (:func:`drafttwin.sliver.transfer.roller_gains`, the fibre-length filter) and compared
@@ -310,7 +314,8 @@ def drive_share(diagnosis: SliverDiagnosis, sliver: Sliver, time_s: np.ndarray,
                       for r in ("front", "second", "third", "back")])  # fmt: skip
         gains = roller_gains(lam, transit)[0]
         c_pr = complex(np.dot(gains, u)) * complex(fibre_length_gain(staple, lam)[0])
-        out[f"{lam * 100:.2f} cm"] = float(min(1.0, max(0.0, 1.0 - abs(c_sl - c_pr) / abs(c_sl))))
+        share = (c_pr * c_sl.conjugate()).real / abs(c_sl) ** 2  # the in-phase part explained
+        out[f"{lam * 100:.2f} cm"] = float(min(1.0, max(0.0, share)))
     return out
 
 

@@ -114,6 +114,24 @@ class Feed:
         """Linear density of all fed slivers together, ktex."""
         return self.doublings * self.count_ktex
 
+    def expected_cv_pct(self, draft: float, fibre_scale: float = 1.0) -> float:
+        """The delivered sliver's CV (%) that these settings imply under ideal drafting at
+        constant speeds: Martindale's limit of the delivered count (times ``sqrt(fibre_scale)``)
+        plus each fed sliver's extra irregularity over the doublings and the feed faults'
+        variance (in phase: a^2/2; random phases on all slivers: a^2/(2k); on one sliver:
+        (a/k)^2/2). Left out: the fibre-length smoothing of the extra irregularity (under 3 %
+        of its variance for correlation lengths above 0.1 m delivered)."""
+        out_ktex = self.total_ktex / draft
+        var = (self.staple.martindale_cv_pct(out_ktex) / 100) ** 2 * fibre_scale
+        var += self.extra_cv**2 / self.doublings
+        k = self.doublings
+        for f in self.faults:
+            if f.slivers == "one":
+                var += (f.amplitude / k) ** 2 / 2
+            else:
+                var += f.amplitude**2 / 2 / (1 if f.phase == "same" else k)
+        return 100 * var**0.5
+
     def fibres_per_mm(self) -> float:
         """Mean number of fibre leading ends per mm of fed length (all slivers)."""
         n = self.staple.fibres_in_cross_section(self.total_ktex)

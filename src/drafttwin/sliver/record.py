@@ -119,3 +119,34 @@ def read_sliver(path: str | Path, column: str = DENSITY_COLUMN, option: str = "-
     time = frame["time"].to_numpy(np.float64) if "time" in frame.columns else None
     return Sliver(rho, h, start_m=float(s[0] - h / 2), time_s=time, staple=staple,
                   info={"file": path.name, "column": column})  # fmt: skip
+
+
+@dataclass(frozen=True)
+class SliverBeside:
+    """A sliver channel recorded beside a speed record (named in its ``.json`` sidecar)."""
+
+    sliver: Path
+    speeds: Path
+    sensor_mm: float
+
+
+def sliver_beside(path: str | Path) -> SliverBeside | None:
+    """The sliver channel of a speed record ``x.csv`` (its sidecar ``x.json`` names
+    ``x.sliver.csv``), or of that sliver file itself; None if there is none. The sidecar is
+    checked before it is trusted: a file it names must exist beside it."""
+    import json
+
+    path = Path(path)
+    stem = path.stem[: -len(".sliver")] if path.stem.endswith(".sliver") else path.stem
+    speeds = path.with_name(stem + path.suffix)
+    sidecar = path.with_name(stem + ".json")
+    try:
+        info = json.loads(sidecar.read_text(encoding="utf-8"))
+        name = info["files"]["sliver"]
+        sensor = float(info["sliver"]["delivery_sensor"]["averaging_mm"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    sliver = path.with_name(str(name))
+    if Path(str(name)).name != str(name) or not sliver.is_file() or not speeds.is_file():
+        return None
+    return SliverBeside(sliver, speeds, sensor)

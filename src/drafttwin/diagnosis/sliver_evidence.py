@@ -1,0 +1,58 @@
+"""The sliver as one more evidence stream of a record's diagnosis.
+
+Where a record has a sliver channel beside it (``generate --sliver``, or a drawframe's
+delivery sensor logged on the same clock), :func:`sliver_evidence` watches it as it was
+delivered (:class:`drafttwin.sliver.watch.SliverWatch`: running count and CV, a spectrogram
+every 50 m over the last 100 m, an alarm when a chimney appears) and diagnoses the whole
+channel with the record's own encoders (:func:`drafttwin.sliver.diagnose.with_encoders`). It
+sees what the speed residuals cannot: gear run-out, roller eccentricity and other
+once-per-revolution defects, which leave chimneys in the sliver.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.mechanics import DriveTrain
+from drafttwin.sliver import StapleDiagram, read_sliver
+from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver, with_encoders
+from drafttwin.sliver.record import sliver_beside
+from drafttwin.sliver.watch import SliverWatch
+
+CHUNK = 2000
+"""Readings pushed into the watch at a time (as a live twin would receive them)."""
+
+
+def sliver_evidence(path: str | Path, train: DriveTrain, series: MeasurementSeries,
+                    staple: StapleDiagram | None = None
+                    ) -> tuple[dict[str, Any], SliverDiagnosis] | None:  # fmt: skip
+    """The sliver's evidence for the record at ``path`` (None if it has no sliver channel):
+    a JSON-able summary and the whole channel's diagnosis."""
+    beside = sliver_beside(path)
+    if beside is None:
+        return None
+    staple = staple or StapleDiagram.preset("cotton")
+    sliver = read_sliver(beside.sliver, staple=staple, option="--data (its sliver channel)")
+    watch = SliverWatch(train, staple, sensor_length_m=beside.sensor_mm * 1e-3)
+    s, x = sliver.delivered_length_m, sliver.linear_density_ktex
+    t = sliver.time_s if sliver.time_s is not None else s
+    for i in range(0, x.size, CHUNK):
+        watch.push(s[i : i + CHUNK], x[i : i + CHUNK], t[i : i + CHUNK])
+    dx = diagnose_sliver(sliver, train, staple, sensor_length_m=beside.sensor_mm * 1e-3)
+    rpm = {r: series.values[:, j] for j, r in enumerate(series.channels)}
+    if {"front", "second", "third", "back"} <= rpm.keys():
+        dx = with_encoders(dx, sliver, series.time_s, rpm, staple)
+    summary = {
+        "file": beside.sliver.name,
+        "count_ktex": watch.count_ktex,
+        "cv_pct": watch.cv_pct,
+        "alarms": [a.to_dict() for a in watch.alarms],
+        "chimneys": [{"wavelength_m": c.wavelength_m, "amplitude_pct": c.amplitude_pct,
+                      "base_pct": c.base_pct, "verdict": c.verdict,
+                      "elements": [k.element for k in c.candidates if k.plausible][:4],
+                      "encoder_share": c.extra.get("encoder_share")} for c in dx.causes],
+        "elements": dx.elements,
+    }  # fmt: skip
+    return summary, dx

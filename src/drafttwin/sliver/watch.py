@@ -1,0 +1,130 @@
+"""Watching the sliver as it is delivered: running count and CV, the spectrogram every few
+hundred metres, an alarm when a chimney appears, named with its element.
+
+:class:`SliverWatch` takes the delivery sensor's readings in order (any number at a time) and
+keeps the last ``window_m`` metres; every ``every_m`` metres it diagnoses that window
+(:func:`drafttwin.sliver.diagnose.diagnose_sliver`) and raises a :class:`SliverAlarm` the first
+time a chimney appears at a wavelength where none was before (the watch remembers each
+channel it has alarmed on, so one fault alarms once). The offline ``diagnose`` and the live
+twin use the same watch.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from drafttwin.mechanics import DriveTrain
+from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver
+from drafttwin.sliver.drafting import DraftingZones
+from drafttwin.sliver.record import Sliver
+from drafttwin.sliver.staple import StapleDiagram
+from drafttwin.sliver.wavelengths import wavelength_table
+
+
+@dataclass(frozen=True)
+class SliverAlarm:
+    """A chimney that appeared: when, where on the sliver, and its first cause."""
+
+    time_s: float
+    delivered_m: float
+    wavelength_m: float
+    amplitude_pct: float
+    base_pct: float
+    element: str
+    lookalikes: tuple[str, ...]
+    verdict: str
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(vars(self))
+
+
+@dataclass
+class SliverWatch:
+    """Incremental watch of one machine's delivered sliver (see the module docstring)."""
+
+    train: DriveTrain
+    staple: StapleDiagram
+    zones: DraftingZones = field(default_factory=DraftingZones)
+    window_m: float = 100.0
+    every_m: float = 50.0
+    sensor_length_m: float = 0.0
+    _s: list[np.ndarray] = field(default_factory=list, repr=False)
+    _x: list[np.ndarray] = field(default_factory=list, repr=False)
+    _t: list[np.ndarray] = field(default_factory=list, repr=False)
+    _sum: float = 0.0
+    _sum2: float = 0.0
+    _n: int = 0
+    _next_m: float = math.nan
+    _alarmed: set[int] = field(default_factory=set, repr=False)
+    alarms: list[SliverAlarm] = field(default_factory=list)
+    last: SliverDiagnosis | None = None
+
+    def __post_init__(self) -> None:
+        self._table = wavelength_table(self.train)
+
+    @property
+    def count_ktex(self) -> float:
+        """Running mean linear density of everything seen, ktex."""
+        return self._sum / self._n if self._n else math.nan
+
+    @property
+    def cv_pct(self) -> float:
+        """Running CV of every reading seen, %."""
+        if self._n < 2:
+            return math.nan
+        mean = self._sum / self._n
+        return 100 * math.sqrt(max(self._sum2 / self._n - mean * mean, 0.0)) / mean
+
+    def push(self, delivered_m: Sequence[float] | np.ndarray, ktex: Sequence[float] | np.ndarray,
+             time_s: Sequence[float] | np.ndarray) -> list[SliverAlarm]:  # fmt: skip
+        """Add readings in delivery order; returns the alarms they raised."""
+        s, x, t = (np.asarray(a, dtype=np.float64) for a in (delivered_m, ktex, time_s))
+        ok = np.isfinite(s) & np.isfinite(x) & np.isfinite(t) & (x > 0)
+        s, x, t = s[ok], x[ok], t[ok]
+        if s.size == 0:
+            return []
+        self._s.append(s)
+        self._x.append(x)
+        self._t.append(t)
+        self._sum += float(x.sum())
+        self._sum2 += float(np.dot(x, x))
+        self._n += x.size
+        if math.isnan(self._next_m):
+            self._next_m = float(s[0]) + self.window_m
+        raised: list[SliverAlarm] = []
+        while float(s[-1]) >= self._next_m:
+            raised += self._check(self._next_m)
+            self._next_m += self.every_m
+        return raised
+
+    def _check(self, end_m: float) -> list[SliverAlarm]:
+        s, x, t = (np.concatenate(a) for a in (self._s, self._x, self._t))
+        keep = s > end_m - self.window_m - 1.0  # drop what no window needs again
+        self._s, self._x, self._t = [s[keep]], [x[keep]], [t[keep]]
+        inside = (s > end_m - self.window_m) & (s <= end_m)
+        if inside.sum() < 100:
+            return []
+        step = float(np.median(np.diff(s[inside])))
+        record = Sliver(x[inside], step, start_m=float(s[inside][0]) - step / 2,
+                        time_s=t[inside], staple=self.staple)  # fmt: skip
+        dx = diagnose_sliver(record, self.train, self.staple, self.zones,
+                             sensor_length_m=self.sensor_length_m, table=self._table)  # fmt: skip
+        self.last = dx
+        raised = []
+        for c in dx.causes:
+            channel = int(round(10 * math.log2(c.wavelength_m / 0.01)))
+            if channel in self._alarmed:
+                continue
+            self._alarmed.add(channel)
+            top = c.candidates[0] if c.candidates and c.candidates[0].plausible else None
+            raised.append(SliverAlarm(float(t[inside][-1]), end_m, c.wavelength_m,
+                                      c.amplitude_pct, c.base_pct,
+                                      top.element if top else "feed",
+                                      top.lookalikes if top else (), c.verdict))  # fmt: skip
+        self.alarms += raised
+        return raised

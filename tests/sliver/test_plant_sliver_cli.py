@@ -1,0 +1,129 @@
+"""The plant makes sliver, and the sliver commands read it (issue 26's done-when, fixed seeds).
+
+Full fibre counts (1e8 fibres per record), so each record takes seconds: module fixtures.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin.cli import app
+from drafttwin.sliver import Feed, StapleDiagram
+
+runner = CliRunner()
+pytestmark = pytest.mark.slow
+
+
+def _run(*args: str) -> str:
+    result = runner.invoke(app, list(args))
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+def _refused(*args: str) -> str:
+    result = runner.invoke(app, list(args))
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    return result.output
+
+
+@pytest.fixture(scope="module")
+def records(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("sliver")
+    runs = {"healthy": ("6", None), "eccentric": ("4", "front:eccentricity:severity=0.3:onset=0"),
+            "gear": ("5", "A-B:runout:severity=80:onset=0")}  # fmt: skip
+    out = {}
+    for name, (seed, fault) in runs.items():
+        args = ["generate", "--duration", "25", "--seed", seed, "--sliver", "--quiet",
+                "--out", str(d / f"{name}.csv")]  # fmt: skip
+        if fault:
+            args += ["--fault", fault]
+        _run(*args)
+        out[name] = d / f"{name}.csv"
+    return out
+
+
+def _diagnose(path: Path) -> dict:
+    return json.loads(_run("sliver", "diagnose", "--data", str(path), "--json"))
+
+
+def test_generate_writes_the_sliver_channel_beside_the_record(records):
+    path = records["healthy"]
+    sliver = pd.read_csv(path.with_name("healthy.sliver.csv"))
+    truth = pd.read_csv(path.with_name("healthy.sliver.truth.csv"))
+    assert list(sliver.columns) == ["delivered_length_m", "time", "linear_density_ktex",
+                                    "infeed_ktex"]  # fmt: skip
+    assert truth["delivered_length_m"].diff().iloc[1:].round(9).eq(0.001).all()
+    info = json.loads(path.with_suffix(".json").read_text())
+    assert info["files"]["sliver"] == "healthy.sliver.csv"
+    # count = fed count x doublings / draft (the true sliver, drafted by the true rollers)
+    drafts = info["sliver"]["drafts"]
+    assert truth["linear_density_ktex"].mean() == pytest.approx(33.0 / drafts["total"], rel=3e-3)
+    # the infeed sensor reads the six card slivers together
+    assert sliver["infeed_ktex"].mean() == pytest.approx(33.0, rel=0.01)
+
+
+def test_a_healthy_record_has_no_chimney_and_the_cv_its_settings_imply(records):
+    dx = _diagnose(records["healthy"])
+    assert dx["chimneys"] == []
+    info = json.loads(records["healthy"].with_suffix(".json").read_text())
+    feed = Feed(StapleDiagram.preset("cotton"), 6, 5.5, extra_cv=0.035, extra_correlation_m=0.05)
+    implied = feed.expected_cv_pct(info["sliver"]["drafts"]["total"])
+    assert dx["evenness"]["cv_pct"] == pytest.approx(implied, rel=0.10)
+
+
+def test_an_eccentric_front_roller_leaves_its_chimney_and_is_named_first(records):
+    dx = _diagnose(records["eccentric"])
+    circumference = math.pi * 0.045
+    near = [
+        c for c in dx["chimneys"] if abs(math.log2(c["wavelength_m"] / circumference)) <= 0.1
+    ]  # within one channel
+    assert near, dx["chimneys"]
+    assert near[0]["candidates"][0]["element"] == "roller front"
+    assert dx["elements"][0] == "roller front"
+
+
+def test_a_gear_run_out_is_named_with_the_encoders(records):
+    dx = _diagnose(records["gear"])
+    first = dx["chimneys"][0]
+    assert abs(math.log2(first["wavelength_m"] / (math.pi * 0.045))) <= 0.1
+    names = [c["element"] for c in first["candidates"]]
+    assert names[0] == "gear B (A-B)"
+    assert first["extra"]["encoder_share"] > 0.6  # the encoders see this one
+
+
+def test_sliver_simulate_from_the_plants_true_speeds_and_a_tester_table(records, tmp_path):
+    out = tmp_path / "s.csv"
+    _run("sliver", "simulate", "--speeds", str(records["eccentric"]), "--truth",
+         "--fibre-scale", "4", "--out", str(out), "--quiet")  # fmt: skip
+    table = tmp_path / "tester.csv"
+    _run("sliver", "spectrogram", "--data", str(out), "--fibre-scale", "4", "--out", str(table))
+    frame = pd.read_csv(table)
+    frame = frame.rename(columns={"wavelength_m": "wavelength_cm"})
+    frame["wavelength_cm"] *= 100
+    frame[["wavelength_cm", "amplitude_pct", "significant"]].to_csv(table, index=False)
+    dx = json.loads(_run("sliver", "diagnose", "--spectrogram", str(table), "--json"))
+    assert dx["evenness"] is None
+    assert all("wavelength_m" in c for c in dx["chimneys"])
+
+
+def test_sliver_commands_refuse_bad_input(records, tmp_path):
+    _refused("sliver", "diagnose")
+    _refused("sliver", "diagnose", "--data", str(records["healthy"]), "--gauges", "44,40")
+    _refused("sliver", "simulate", "--out", str(tmp_path / "a.csv"), "--staple", "wool")
+    _refused("generate", "--duration", "2", "--feed-fault", "wavelength=0.5:amplitude=0.05",
+             "--out", str(tmp_path / "g.csv"))  # fmt: skip
+    mine = tmp_path / "x.sliver.csv"
+    mine.write_text("a user's file\n")
+    text = _refused("generate", "--duration", "2", "--sliver", "--out", str(tmp_path / "x.csv"))
+    assert "x.sliver.csv" in text
+    assert mine.read_text() == "a user's file\n"
+    bad = tmp_path / "bad.csv"
+    bad.write_text("delivered_length_m,linear_density_ktex\n0.001,5\n0.002,x\n")
+    _refused("sliver", "spectrogram", "--data", str(bad))
