@@ -35,11 +35,11 @@ def test_count_is_the_fed_count_times_doublings_over_the_draft():
 
 def test_ideal_drafting_of_a_random_feed_is_a_random_sliver():
     """T4: constant speeds; the output's CV is Martindale's limit of the output count
-    (bin averaging over 1 mm lowers the variance by B(1 mm) = 1 - 1/(3 * 26.6) for cotton)."""
+    (bin averaging over 1 mm lowers the variance by B(1 mm) = 1 - 1/(3 E[l]) for cotton)."""
     sp = speeds(60.0, rate_hz=1000.0)
     sl = draft(sp, Feed(COTTON, 6, 5.5), seed=3, fibre_scale=50)
     limit = COTTON.martindale_cv_pct(sl.count_ktex) * math.sqrt(50)
-    bin_factor = math.sqrt(1 - 1.0 / (3 * COTTON.mass_mean_length_mm))
+    bin_factor = math.sqrt(1 - 1.0 / (3 * COTTON.mean_length_mm))
     assert _cv(sl.linear_density_ktex) == pytest.approx(limit * bin_factor, rel=0.03)
 
 

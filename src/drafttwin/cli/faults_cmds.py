@@ -152,7 +152,8 @@ def diagnose(
     result = {**info, **dx.to_dict()}
     from drafttwin.diagnosis.sliver_evidence import sliver_evidence
 
-    sliver = sliver_evidence(data, train, series)
+    sliver = sliver_evidence(data, train, series,
+                             healthy=[p.strip() for p in (healthy or "").split(",") if p.strip()])  # fmt: skip
     if sliver is not None:
         result["sliver"] = sliver[0]
     if report is not None:
@@ -323,14 +324,21 @@ def _sliver_variant(out: Path, quick: bool, seed: int, workers: int, as_json: bo
         typer.echo(dumps_strict(scores))
         return
     table = Table(title="the sliver places (records: detected / top-1 / group)")
-    for col in ("fault", "records", "detected", "element first", "element or look-alike"):
+    for col in ("fault", "records", "detected", "element first", "element or look-alike",
+                "new vs before onset: detected", "named first"):  # fmt: skip
         table.add_column(col, justify="left" if col == "fault" else "right")
     for key, s in scores["per_kind_level"].items():
-        table.add_row(key, str(s["records"]), str(s["detected"]), str(s["top1"]), str(s["group"]))
+        table.add_row(key, str(s["records"]), str(s["detected"]), str(s["top1"]), str(s["group"]),
+                      str(s["new_detected"]), str(s["new_top1"]))  # fmt: skip
     console.print(table)
-    console.print(f"healthy: {scores['false_chimneys']} chimneys in "
-                  f"{scores['healthy_sliver_m']:.0f} m of sliver; the encoders' diagnosis "
-                  "leaves these kinds not assessed (docs/faults.md)")  # fmt: skip
+    console.print(f"healthy machines: {scores['healthy_chimneys']} chimneys in "
+                  f"{scores['healthy_sliver_m']:.0f} m of sliver "
+                  f"({scores['healthy_records_with_chimney']} of {scores['healthy_records']} "
+                  "records; their own gears' lines at "
+                  + ", ".join(f"{w * 100:.2f} cm" for w in scores["healthy_wavelengths_m"])
+                  + f"); new against the record's own first {10:g} s: "
+                  f"{scores['healthy_new_chimneys']}; the encoders' diagnosis leaves these kinds "
+                  "not assessed (docs/faults.md)")  # fmt: skip
     console.print(f"wrote {out / 'faults_sliver.json'}")
 
 
@@ -345,5 +353,8 @@ def _print_sliver(ev: dict) -> None:
                       + (f" (look-alikes {', '.join(a['lookalikes'])})" if a["lookalikes"] else ""))  # fmt: skip
     for c in ev["chimneys"]:
         console.print(f"  whole record: {c['wavelength_m'] * 100:.2f} cm: {c['verdict']}")
+    for c in ev["known_lines"]:
+        console.print(f"  the machine's own line (in its healthy reference): "
+                      f"{c['wavelength_m'] * 100:.2f} cm, {c['amplitude_pct']:.3f} %")  # fmt: skip
     if not ev["chimneys"] and not ev["alarms"]:
         console.print("  no significant chimney")

@@ -11,6 +11,7 @@ once-per-revolution defects, which leave chimneys in the sliver.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -26,21 +27,30 @@ CHUNK = 2000
 
 
 def sliver_evidence(path: str | Path, train: DriveTrain, series: MeasurementSeries,
-                    staple: StapleDiagram | None = None
+                    staple: StapleDiagram | None = None, healthy: Sequence[str | Path] = ()
                     ) -> tuple[dict[str, Any], SliverDiagnosis] | None:  # fmt: skip
     """The sliver's evidence for the record at ``path`` (None if it has no sliver channel):
-    a JSON-able summary and the whole channel's diagnosis."""
+    a JSON-able summary and the whole channel's diagnosis. The first of ``healthy`` with a
+    sliver channel is the machine's reference: its own lines are named, not alarmed."""
     beside = sliver_beside(path)
     if beside is None:
         return None
     staple = staple or StapleDiagram.preset("cotton")
     sliver = read_sliver(beside.sliver, staple=staple, option="--data (its sliver channel)")
-    watch = SliverWatch(train, staple, sensor_length_m=beside.sensor_mm * 1e-3)
+    reference = None
+    for h in healthy:
+        ref = sliver_beside(h)
+        if ref is not None:
+            reference = read_sliver(ref.sliver, staple=staple, option="--healthy (its sliver)")
+            break
+    watch = SliverWatch(train, staple, sensor_length_m=beside.sensor_mm * 1e-3,
+                        reference=reference)  # fmt: skip
     s, x = sliver.delivered_length_m, sliver.linear_density_ktex
     t = sliver.time_s if sliver.time_s is not None else s
     for i in range(0, x.size, CHUNK):
         watch.push(s[i : i + CHUNK], x[i : i + CHUNK], t[i : i + CHUNK])
-    dx = diagnose_sliver(sliver, train, staple, sensor_length_m=beside.sensor_mm * 1e-3)
+    dx = diagnose_sliver(sliver, train, staple, sensor_length_m=beside.sensor_mm * 1e-3,
+                         reference=reference)  # fmt: skip
     rpm = {r: series.values[:, j] for j, r in enumerate(series.channels)}
     if {"front", "second", "third", "back"} <= rpm.keys():
         dx = with_encoders(dx, sliver, series.time_s, rpm, staple)
@@ -54,5 +64,8 @@ def sliver_evidence(path: str | Path, train: DriveTrain, series: MeasurementSeri
                       "elements": [k.element for k in c.candidates if k.plausible][:4],
                       "encoder_share": c.extra.get("encoder_share")} for c in dx.causes],
         "elements": dx.elements,
+        "reference": None if reference is None else reference.info.get("file"),
+        "known_lines": [{"wavelength_m": c.wavelength_m, "amplitude_pct": c.amplitude_pct,
+                         "verdict": c.verdict} for c in dx.known],
     }  # fmt: skip
     return summary, dx

@@ -49,6 +49,7 @@ class Candidate:
     plausible: bool
     harmonics_seen: int  # chimneys at this element's other harmonics
     lookalikes: tuple[str, ...] = ()
+    offset: float = 0.0  # |ln(line / chimney)| over the matching tolerance (0 = on it)
 
 
 @dataclass(frozen=True)
@@ -101,7 +102,9 @@ def _candidate(e: Element, h: int, lam: float, excess: float, table: WavelengthT
     required = excess / gain if plausible else math.inf
     seen = sum(1 for k in range(1, harmonics + 1) if k != h and any(
         abs(math.log(e.wavelength_m / k / w)) <= math.log1p(tol) for w in waves))  # fmt: skip
-    return Candidate(e.name, e.kind, h, e.wavelength_m / h, gain, required, plausible, seen)
+    offset = abs(math.log(e.wavelength_m / h / lam)) / math.log1p(tol)
+    return Candidate(e.name, e.kind, h, e.wavelength_m / h, gain, required, plausible, seen,
+                     offset=offset)  # fmt: skip
 
 
 KIND_PRIOR = ("roller", "gear", "sprocket", "pulley", "chain", "belt", "mesh", "shaft", "motor")
@@ -112,10 +115,13 @@ differ by more than the gains do."""
 
 
 def _rank(c: Candidate) -> tuple:
-    # plausible first; a comb of harmonics; the fundamental; the prior of the kind; then the
-    # smallest speed modulation needed
+    # plausible first; a comb of harmonics; the fundamental; the line nearest the chimney (in
+    # halves of the tolerance: equal lines tie); the prior of the kind; the smallest
+    # speed modulation needed
     prior = KIND_PRIOR.index(c.kind) if c.kind in KIND_PRIOR else len(KIND_PRIOR)
-    return (not c.plausible, -c.harmonics_seen, c.harmonic, prior, c.required_modulation_pct)
+    near = math.floor(2 * c.offset)
+    return (not c.plausible, -c.harmonics_seen, c.harmonic, near, prior,
+            c.required_modulation_pct)  # fmt: skip
 
 
 def _with_lookalikes(cands: list[Candidate]) -> list[Candidate]:

@@ -4,14 +4,14 @@
 spectrogram, the drive train and the fibres, and returns a :class:`SliverDiagnosis`. For a
 record, each chimney is located at the periodogram's peak within its channel (resolution
 ``lambda / L``), so elements are matched on their wavelength within
-``max(2 lambda / L, 1 %)`` (1 %: the running point's belt creep and speed), not on the
+``max(lambda / L, 1 %)`` (1 %: the running point's belt creep and speed), not on the
 channel (7 % wide); a tester's table has only its channels.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -39,6 +39,8 @@ class SliverDiagnosis:
     causes: list[ChimneyCause]
     table: WavelengthTable
     drafts: dict[str, float]
+    known: list[ChimneyCause] = field(default_factory=list)
+    """Chimneys already in the machine's healthy reference (its own lines), not new."""
 
     @property
     def elements(self) -> list[str]:
@@ -49,6 +51,7 @@ class SliverDiagnosis:
         return {
             "evenness": None if self.evenness is None else self.evenness.to_dict(),
             "chimneys": [c.to_dict() for c in self.causes],
+            "known_lines": [c.to_dict() for c in self.known],
             "elements": self.elements,
             "drafts": self.drafts,
             "spectrogram": self.spectrogram.to_frame().to_dict(orient="list"),
@@ -68,10 +71,13 @@ def running_drafts(table: WavelengthTable, train: DriveTrain) -> dict[str, float
 
 def diagnose_sliver(record: Sliver | Spectrogram, train: DriveTrain, staple: StapleDiagram,
                     zones: DraftingZones | None = None, *, sensor_length_m: float = 0.0,
-                    harmonics: int = 4, table: WavelengthTable | None = None
-                    ) -> SliverDiagnosis:  # fmt: skip
+                    harmonics: int = 4, table: WavelengthTable | None = None,
+                    reference: Sliver | None = None) -> SliverDiagnosis:  # fmt: skip
     """Evenness, spectrogram and the chimneys' causes of a sliver record or a tester's
-    spectrogram, for the drive train ``train`` at its running point."""
+    spectrogram, for the drive train ``train`` at its running point. ``reference``: a
+    healthy sliver of the same machine; a chimney no higher there than the chimney rule
+    allows (amplitude at most 1.5 x the reference's in that channel) is one of the machine's
+    own lines (``known``), not a new one."""
     zones = zones or DraftingZones()
     table = table or wavelength_table(train, harmonics=harmonics)
     drafts = running_drafts(table, train)
@@ -85,7 +91,22 @@ def diagnose_sliver(record: Sliver | Spectrogram, train: DriveTrain, staple: Sta
         spec, chimneys = record, record.chimneys()
     gauges = (zones.main_mm, zones.middle_mm, zones.break_mm)
     causes = attribute(chimneys, table, gauges, drafts, staple, harmonics)
-    return SliverDiagnosis(ev, spec, causes, table, drafts)
+    known: list[ChimneyCause] = []
+    if reference is not None:
+        ref = spectrogram(reference.linear_density_ktex, reference.step_m, staple,
+                          fibre_scale=reference.fibre_scale, sensor_length_m=sensor_length_m)  # fmt: skip
+        known = [c for c in causes if not _above_reference(c, ref)]
+        causes = [c for c in causes if _above_reference(c, ref)]
+    return SliverDiagnosis(ev, spec, causes, table, drafts, known)
+
+
+def _above_reference(cause: ChimneyCause, ref: Spectrogram) -> bool:
+    """The chimney rule against the reference: above 1.5 x the reference's channel."""
+    lam = float(cause.extra.get("channel_m", cause.wavelength_m))
+    j = int(np.argmin(np.abs(np.log(ref.wavelength_m / lam)))) if ref.wavelength_m.size else -1
+    if j < 0 or abs(math.log(ref.wavelength_m[j] / lam)) > 0.04:
+        return True  # the reference does not reach this wavelength
+    return cause.amplitude_pct > 1.5 * float(ref.amplitude_pct[j])
 
 
 def _refined_frequency(x: np.ndarray, step_m: float, f0: float, df: float) -> float:
@@ -118,7 +139,7 @@ def _with_peaks(chimneys: list[dict[str, Any]], record: Sliver) -> list[dict[str
         k = int(inside[np.argmax(power[inside])])
         peak = 1.0 / _refined_frequency(x, record.step_m, k / length, 1.0 / length)
         out.append({**c, "peak_m": peak,
-                    "tolerance": max(2 * peak / length, SPEED_TOLERANCE)})  # fmt: skip
+                    "tolerance": max(peak / length, SPEED_TOLERANCE)})  # fmt: skip
     return out
 
 
@@ -266,7 +287,7 @@ def rerank(diagnosis: SliverDiagnosis, checks: dict[str, list[EncoderCheck]],
                                    {**cause.extra, "encoder_share": share,
                                     "encoders": [vars(k) for k in checks.get(key, [])]}))  # fmt: skip
     return SliverDiagnosis(diagnosis.evenness, diagnosis.spectrogram, causes, diagnosis.table,
-                           diagnosis.drafts)  # fmt: skip
+                           diagnosis.drafts, diagnosis.known)  # fmt: skip
 
 
 def with_encoders(diagnosis: SliverDiagnosis, sliver: Sliver, time_s: np.ndarray,

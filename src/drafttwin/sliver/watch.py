@@ -53,6 +53,8 @@ class SliverWatch:
     window_m: float = 100.0
     every_m: float = 50.0
     sensor_length_m: float = 0.0
+    reference: Sliver | None = None
+    """A healthy sliver of this machine: its own lines do not alarm (only new chimneys)."""
     _s: list[np.ndarray] = field(default_factory=list, repr=False)
     _x: list[np.ndarray] = field(default_factory=list, repr=False)
     _t: list[np.ndarray] = field(default_factory=list, repr=False)
@@ -96,11 +98,45 @@ class SliverWatch:
         self._n += x.size
         if math.isnan(self._next_m):
             self._next_m = float(s[0]) + self.window_m
+        self._last_m = float(s[-1])
+        return self.check() if self.checks_now else []
+
+    checks_now: bool = True
+    """``push`` runs the due checks itself; a live twin sets it False and runs :meth:`check`
+    in a worker thread when :meth:`due` says so (a check takes a fraction of a second)."""
+    _last_m: float = math.nan
+
+    def due(self) -> bool:
+        """A window is complete and not yet checked."""
+        return not math.isnan(self._next_m) and self._last_m >= self._next_m
+
+    def check(self) -> list[SliverAlarm]:
+        """Run every due check; returns the alarms raised."""
         raised: list[SliverAlarm] = []
-        while float(s[-1]) >= self._next_m:
+        while self.due():
             raised += self._check(self._next_m)
             self._next_m += self.every_m
         return raised
+
+    def summary(self) -> dict[str, Any]:
+        """Running count and CV, the alarms, and the last window's chimneys (for a page)."""
+        last = self.last
+        return {"count_ktex": self.count_ktex, "cv_pct": self.cv_pct,
+                "delivered_m": self._last_m, "alarms": len(self.alarms),
+                "last_alarm": self.alarms[-1].to_dict() if self.alarms else None,
+                "chimneys": [] if last is None else [
+                    {"wavelength_m": c.wavelength_m, "amplitude_pct": c.amplitude_pct,
+                     "element": c.candidates[0].element if c.candidates else "feed"}
+                    for c in last.causes]}  # fmt: skip
+
+    def text(self, alarm: SliverAlarm) -> str:
+        """One line for an event list."""
+        like = f" (look-alikes {', '.join(alarm.lookalikes)})" if alarm.lookalikes else ""
+        return (
+            f"sliver chimney at {alarm.wavelength_m * 100:.2f} cm, "
+            f"{alarm.amplitude_pct:.3f} % (base {alarm.base_pct:.3f} %) after "
+            f"{alarm.delivered_m:.0f} m: {alarm.element}{like}"
+        )
 
     def _check(self, end_m: float) -> list[SliverAlarm]:
         s, x, t = (np.concatenate(a) for a in (self._s, self._x, self._t))
@@ -113,7 +149,8 @@ class SliverWatch:
         record = Sliver(x[inside], step, start_m=float(s[inside][0]) - step / 2,
                         time_s=t[inside], staple=self.staple)  # fmt: skip
         dx = diagnose_sliver(record, self.train, self.staple, self.zones,
-                             sensor_length_m=self.sensor_length_m, table=self._table)  # fmt: skip
+                             sensor_length_m=self.sensor_length_m, table=self._table,
+                             reference=self.reference)  # fmt: skip
         self.last = dx
         raised = []
         for c in dx.causes:

@@ -15,12 +15,15 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from drafttwin.models.online import forecast_many
+from drafttwin.sliver import StapleDiagram
+from drafttwin.sliver.watch import SliverAlarm, SliverWatch
 from drafttwin.twin.faultwatch import LiveFaultWatch, Localise, Locator, alarm_detail
 from drafttwin.twin.live import Begun, MachineTwin
 from drafttwin.twin.mapping import MachineMap
@@ -33,6 +36,8 @@ HISTORY_ROWS = 3000
 """Rows per machine kept in memory for the page (30 s at 100 Hz)."""
 LOCATE_WAIT_S = 30.0
 """At the end of a run, how long the rankings still running may take to finish (stored)."""
+SLIVER_SENSOR_M = 0.005
+"""Averaging length of a delivery sensor (the plant's, docs/sliver.md), m: its ideal curve."""
 
 
 @dataclass
@@ -54,6 +59,8 @@ class MachineState:
     model_key: str = ""  # the model file (the locator's key for its diagnoser)
     faults: int = 0
     last_fault: EventRow | None = None  # the latest alarm or its cause (status, hall page)
+    sliver: SliverWatch | None = None  # the sliver channel's watch, once the source sends one
+    sliver_busy: bool = False  # a check runs in the worker thread
 
 
 class TwinService:
@@ -70,6 +77,7 @@ class TwinService:
         self.event_hooks: list[Callable[[EventRow], None]] = []
         self.started = time.monotonic()
         self.locator = Locator()
+        self._sliver_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sliver")
         self._loop: asyncio.AbstractEventLoop | None = None
         self._stop = asyncio.Event()
         self._batch: list[Sample] = []
@@ -109,6 +117,8 @@ class TwinService:
             if any(r[0] is st for r in rnd):  # a second sample of a machine: finish the first
                 self._finish(rnd)
                 rnd = []
+            if s.sliver is not None:
+                self._sliver(st, s.sliver)
             rows, begun = st.twin.receive_deferred(s.ts_us, s.seq, s.values, s.setpoint,
                                                    s.received, s.motor)  # fmt: skip
             self._out(st, rows, s.received)
@@ -146,6 +156,37 @@ class TwinService:
             self.latency_s.append(lat)
             if self.metrics is not None:
                 self.metrics.observe(st.twin.name, len(rows), lat)
+
+    # ---- the sliver -----------------------------------------------------------------------
+    def _sliver(self, st: MachineState, readings: tuple[np.ndarray, ...]) -> None:
+        """Feed the machine's sliver watch; its checks (a spectrogram of the last 100 m every
+        50 m) run in a worker thread, so the samples keep their pace."""
+        if st.sliver is None:
+            st.sliver = SliverWatch(st.twin.train, StapleDiagram.preset("cotton"),
+                                    sensor_length_m=SLIVER_SENSOR_M, checks_now=False)  # fmt: skip
+        st.sliver.push(*readings)
+        if st.sliver.due() and not st.sliver_busy:
+            st.sliver_busy = True
+            watch = st.sliver
+
+            def checked(fut: Any) -> None:
+                alarms = [] if fut.exception() is not None else fut.result()
+                if self._loop is not None and self._loop.is_running():
+                    self._loop.call_soon_threadsafe(self._sliver_alarms, st, alarms)
+                else:
+                    self._sliver_alarms(st, alarms)
+
+            self._sliver_pool.submit(watch.check).add_done_callback(checked)
+
+    def _sliver_alarms(self, st: MachineState, alarms: list[SliverAlarm]) -> None:
+        st.sliver_busy = False
+        for a in alarms:
+            assert st.sliver is not None
+            ev = EventRow(st.twin.name, "sliver-chimney", int(round(a.time_s * 1e6)),
+                          st.sliver.text(a))  # fmt: skip
+            self._event(st, ev)
+            for push in self.subscribers:
+                push(st.twin.name, [], [ev])
 
     # ---- faults -------------------------------------------------------------------------
     def _watch_rows(self, st: MachineState, rows: list[SampleRow]) -> list[EventRow]:
@@ -208,6 +249,7 @@ class TwinService:
             await asyncio.sleep(0.05)
         await asyncio.sleep(0)  # the callbacks scheduled from the worker's thread
         self.locator.close()
+        self._sliver_pool.shutdown(wait=True, cancel_futures=True)
 
     def report(self, machine: str, kind: str, detail: str, count: int = 1) -> None:
         """A source's state change, or ``count`` dropped payloads."""
@@ -302,7 +344,8 @@ class TwinService:
                                 "source": st.source, "fault_alarms": st.faults,
                                 "fault_detector": st.watch is not None,
                                 "fault_motor": st.watch is not None and st.watch.has_motor,
-                                "last_fault": _fault(st.last_fault)}
+                                "last_fault": _fault(st.last_fault),
+                                "sliver": None if st.sliver is None else st.sliver.summary()}
                          for name, st in self.states.items()},
         }  # fmt: skip
 

@@ -45,6 +45,9 @@ class Sample:
     setpoint: float
     motor: float = math.nan  # rpm, for the fault detector (NaN: the source has none)
     received: float = field(default_factory=time.perf_counter)
+    sliver: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    """Delivery-sensor readings since the previous sample (delivered m, ktex, time s), where
+    the source has a sliver channel."""
 
 
 Emit = Callable[[Sample], None]
@@ -91,6 +94,7 @@ class ReplaySource(Source):
         self.motor = (np.full(len(self.ts_us), np.nan) if series.motor_rpm is None
                       else np.asarray(series.motor_rpm, dtype=np.float64))  # fmt: skip
         self.first = 0
+        self.sliver = _sliver_channel(path)
 
     def skip_to(self, after_us: int | None) -> None:
         """Start after ``after_us`` (a restart: those rows are stored already)."""
@@ -111,8 +115,31 @@ class ReplaySource(Source):
             elif i % 50 == 0:
                 await asyncio.sleep(0)  # let the other machines and the page run
             emit(Sample(name, int(self.ts_us[i]), i, self.values[i], float(self.setpoints[i]),
-                        float(self.motor[i])))  # fmt: skip
+                        float(self.motor[i]), sliver=self._sliver_until(i)))  # fmt: skip
         self._set("ended", report)
+
+    def _sliver_until(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """The sliver readings delivered after sample ``i - 1`` up to sample ``i``."""
+        if self.sliver is None:
+            return None
+        s, x, t = self.sliver
+        lo = 0 if i == 0 else int(np.searchsorted(t, self.ts_us[i - 1] / 1e6, "right"))
+        hi = int(np.searchsorted(t, self.ts_us[i] / 1e6, "right"))
+        return (s[lo:hi], x[lo:hi], t[lo:hi]) if hi > lo else None
+
+
+def _sliver_channel(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """The delivery sensor's readings recorded beside a replayed file, if any."""
+    from drafttwin.sliver import read_sliver
+    from drafttwin.sliver.record import sliver_beside
+
+    beside = sliver_beside(path)
+    if beside is None:
+        return None
+    sl = read_sliver(beside.sliver, option="--source replay (its sliver channel)")
+    if sl.time_s is None:
+        return None
+    return sl.delivered_length_m, sl.linear_density_ktex, np.asarray(sl.time_s)
 
 
 # ---- OPC UA -------------------------------------------------------------------------------

@@ -56,6 +56,10 @@ class Metrics:
         self.causes = Counter("drafttwin_fault_causes", "Fault alarms localised, by the most "
                               "probable cause (element:kind; none when not localised)",
                               ["machine", "cause"], registry=self.registry)  # fmt: skip
+        self.sliver_count = Gauge("drafttwin_sliver_count_ktex", "Running mean count of the "
+                                  "delivered sliver, ktex", ["machine"], registry=self.registry)  # fmt: skip
+        self.sliver_cv = Gauge("drafttwin_sliver_cv_percent", "Running CV of the delivery "
+                               "sensor's readings, %", ["machine"], registry=self.registry)  # fmt: skip
 
     def cause(self, machine: str, cause: str) -> None:
         self.causes.labels(machine, cause).inc()
@@ -75,6 +79,9 @@ class Metrics:
 
         for name, st in service.states.items():
             self.source_up.labels(name).set(1.0 if st.state == "live" else 0.0)
+            if st.sliver is not None and st.sliver.cv_pct == st.sliver.cv_pct:
+                self.sliver_count.labels(name).set(st.sliver.count_ktex)
+                self.sliver_cv.labels(name).set(st.sliver.cv_pct)
         return bytes(generate_latest(self.registry))
 
 

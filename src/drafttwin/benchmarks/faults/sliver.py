@@ -8,12 +8,15 @@ abrupt) is recorded here with the sliver channel (``generate --sliver``); the pa
 sliver delivered after the onset is diagnosed (``sliver diagnose`` with the record's own
 encoders), and scored: a significant chimney (detected), the faulty element named first
 (top-1), or within the first candidate's look-alikes (group: elements that share a
-wavelength, which the sliver cannot tell apart). Healthy records of other machines give the
-false chimneys per 100 m of sliver.
+wavelength, which the sliver cannot tell apart); and the same counted only for chimneys that
+are new against the record's own sliver before the onset (its machine's healthy reference:
+a healthy machine has lines of its own, its gears' eccentricity). Healthy records of other
+machines give the chimneys per 100 m of sliver, absolute and new.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import replace
 from typing import Any
@@ -25,7 +28,7 @@ from drafttwin.mechanics import DriveTrain
 from drafttwin.plant import Machine, Plant
 from drafttwin.plant.fault_cases import make_fault
 from drafttwin.plant.sliver_channel import SliverSettings
-from drafttwin.sliver import StapleDiagram
+from drafttwin.sliver import StapleDiagram, wavelength_table
 from drafttwin.sliver.diagnose import diagnose_sliver, with_encoders
 
 KINDS = ("runout", "eccentricity", "crack")
@@ -81,25 +84,35 @@ def run_record(config: dict[str, Any]) -> dict[str, Any]:
     after = replace(sl, linear_density_ktex=sl.linear_density_ktex[keep],
                     time_s=sl.time_s[keep],
                     start_m=sl.start_m + sl.step_m * int(np.argmax(keep)))  # fmt: skip
+    before = replace(sl, linear_density_ktex=sl.linear_density_ktex[~keep],
+                     time_s=sl.time_s[~keep])  # fmt: skip
     staple = StapleDiagram.preset("cotton")
     train = DriveTrain.preset("fa320a")
     dx = diagnose_sliver(after, train, staple, sensor_length_m=0.005)
+    new = diagnose_sliver(after, train, staple, sensor_length_m=0.005, reference=before)
     rpm = {r: rec.series.values[:, j] for j, r in enumerate(rec.series.channels)}
     dx = with_encoders(dx, after, rec.series.time_s, rpm, staple)
-    causes = [{"wavelength_m": c.wavelength_m, "amplitude_pct": c.amplitude_pct,
+    causes: list[dict[str, Any]] = [{"wavelength_m": c.wavelength_m, "amplitude_pct": c.amplitude_pct,
                "base_pct": c.base_pct, "verdict": c.verdict,
                "share": c.extra.get("encoder_share"),
                "candidates": [x.element for x in c.candidates if x.plausible],
                "lookalikes": list(c.candidates[0].lookalikes) if c.candidates else []}
               for c in dx.causes]  # fmt: skip
     assert dx.evenness is not None
+    new_at = {round(c.wavelength_m, 5) for c in new.causes}
     return {"name": config["name"], "set": config["set"], "level": config["level"],
             "faults": config["faults"], "sliver_m": after.length_m,
-            "cv_pct": dx.evenness.cv_pct, "causes": causes}  # fmt: skip
+            "cv_pct": dx.evenness.cv_pct, "causes": causes,
+            "new_causes": [c for c in causes if round(float(c["wavelength_m"]), 5) in new_at]}  # fmt: skip
 
 
 def score(rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """Detected / top-1 / group per kind and level, false chimneys per 100 m healthy."""
+    """Per kind and level: detected (a chimney at the faulty element's wavelength or one of
+    its harmonics, within 1 %), top-1 (named first there), group (among the first
+    candidate's look-alikes); healthy: chimneys per 100 m and their wavelengths (a healthy
+    machine's own lines: its gears' eccentricity)."""
+    table = wavelength_table(DriveTrain.preset("fa320a"), harmonics=4)
+    lines = {e.name: e.wavelength_m for e in table.elements}
     per: dict[str, dict[str, int]] = {}
     for r in rows:
         if r["set"] != "faults":
@@ -107,10 +120,15 @@ def score(rows: list[dict[str, Any]]) -> dict[str, Any]:
         f = r["faults"][0]
         want = expected_element(f["element"], f["kind"])
         key = f"{f['kind']}:{('light', 'moderate', 'severe')[r['level']]}"
-        s = per.setdefault(key, {"records": 0, "detected": 0, "top1": 0, "group": 0})
+        s = per.setdefault(key, {"records": 0, "detected": 0, "top1": 0, "group": 0,
+                                 "new_detected": 0, "new_top1": 0})  # fmt: skip
         s["records"] += 1
-        hit = _best(r["causes"], want)
-        if r["causes"]:
+        at = [c for c in r["causes"] if _on_line(c["wavelength_m"], lines[want])]
+        new_at = [c for c in r["new_causes"] if _on_line(c["wavelength_m"], lines[want])]
+        s["new_detected"] += bool(new_at)
+        s["new_top1"] += _best(new_at, want) == "top1"
+        hit = _best(at, want)
+        if at:
             s["detected"] += 1
         if hit == "top1":
             s["top1"] += 1
@@ -119,8 +137,19 @@ def score(rows: list[dict[str, Any]]) -> dict[str, Any]:
     healthy = [r for r in rows if r["set"] == "healthy"]
     metres = sum(r["sliver_m"] for r in healthy)
     false = sum(len(r["causes"]) for r in healthy)
-    return {"per_kind_level": per, "healthy_sliver_m": metres, "false_chimneys": false,
-            "false_per_100m": false / metres * 100 if metres else None}  # fmt: skip
+    seen = sorted({round(c["wavelength_m"], 4) for r in healthy for c in r["causes"]})
+    new = sum(len(r["new_causes"]) for r in healthy)
+    return {"per_kind_level": per, "healthy_sliver_m": metres, "healthy_chimneys": false,
+            "healthy_records": len(healthy),
+            "healthy_records_with_chimney": sum(1 for r in healthy if r["causes"]),
+            "healthy_chimneys_per_100m": false / metres * 100 if metres else None,
+            "healthy_wavelengths_m": seen, "healthy_new_chimneys": new,
+            "healthy_new_per_100m": new / metres * 100 if metres else None}  # fmt: skip
+
+
+def _on_line(wavelength_m: float, line_m: float, harmonics: int = 4) -> bool:
+    return any(abs(math.log(wavelength_m * h / line_m)) <= math.log(1.01)
+               for h in range(1, harmonics + 1))  # fmt: skip
 
 
 def _best(causes: list[dict[str, Any]], want: str) -> str:

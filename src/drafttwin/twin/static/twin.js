@@ -64,7 +64,7 @@ function describe(a) {
 }
 
 function faulted(name) {
-  return state.alarms.some(a => a.machine === name && a.fault);
+  return state.alarms.some(a => a.machine === name && (a.fault || a.kind === "sliver-chimney"));
 }
 
 function tiles() {
@@ -136,7 +136,7 @@ function draw() {
   const box = document.getElementById("alarms");
   if (box) {
     box.replaceChildren(...state.alarms.slice(-100).reverse().map(a =>
-      el("div", { class: a.fault ? "fault" : "" },
+      el("div", { class: a.fault || a.kind === "sliver-chimney" ? "fault" : "" },
          `${new Date(a.time * 1000).toISOString().slice(11, 23)} ${a.machine} ${a.kind}: ${describe(a)}`)));
   }
 }
