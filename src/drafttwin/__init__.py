@@ -10,6 +10,11 @@ The public API in one place (``import drafttwin as dt``)::
     frame = model.predict(part.test, physics)        # time + one column per output channel
     print(dt.evaluate(model, part, mechanistic=physics).to_frame())
 
+    # the sliver: fibres drafted through the rollers' surface speeds, evenness, chimneys
+    speeds = dt.SurfaceSpeeds.from_rpm(series.time_s, rpm, {"front": 45.0, ...})
+    sliver = dt.draft_sliver(speeds, dt.Feed(dt.StapleDiagram.preset("cotton"), 6, 5.5))
+    dx = dt.diagnose_sliver(sliver, dt.DriveTrain.preset("fa320a"), sliver.staple)
+
 Names are loaded on first use, so ``import drafttwin`` stays light (PyTorch and numba load
 with the models and the mechanics).
 """
@@ -51,6 +56,18 @@ _EXPORTS: dict[str, str] = {
     "fit": "drafttwin.evaluation.protocol",
     "evaluate": "drafttwin.evaluation.protocol",
     "Evaluation": "drafttwin.evaluation.protocol",
+    # the sliver
+    "StapleDiagram": "drafttwin.sliver",
+    "Feed": "drafttwin.sliver",
+    "FeedFault": "drafttwin.sliver",
+    "SurfaceSpeeds": "drafttwin.sliver",
+    "Sliver": "drafttwin.sliver",
+    "read_sliver": "drafttwin.sliver",
+    "draft_sliver": "drafttwin.sliver",
+    "evenness": "drafttwin.sliver",
+    "spectrogram": "drafttwin.sliver",
+    "wavelength_table": "drafttwin.sliver",
+    "diagnose_sliver": "drafttwin.sliver",
     # errors
     "DrafttwinError": "drafttwin.errors",
     "ConfigError": "drafttwin.errors",
@@ -86,6 +103,17 @@ __all__ = [
     "fit",
     "evaluate",
     "Evaluation",
+    "StapleDiagram",
+    "Feed",
+    "FeedFault",
+    "SurfaceSpeeds",
+    "Sliver",
+    "read_sliver",
+    "draft_sliver",
+    "evenness",
+    "spectrogram",
+    "wavelength_table",
+    "diagnose_sliver",
     "DrafttwinError",
     "ConfigError",
     "DataError",
@@ -127,4 +155,17 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load lazi
         Training,
         load_model,
         make_model,
+    )
+    from drafttwin.sliver import (
+        Feed,
+        FeedFault,
+        Sliver,
+        StapleDiagram,
+        SurfaceSpeeds,
+        diagnose_sliver,
+        draft_sliver,
+        evenness,
+        read_sliver,
+        spectrogram,
+        wavelength_table,
     )

@@ -323,9 +323,10 @@ def _sliver_variant(out: Path, quick: bool, seed: int, workers: int, as_json: bo
     if as_json:
         typer.echo(dumps_strict(scores))
         return
-    table = Table(title="the sliver places (records: detected / top-1 / group)")
-    for col in ("fault", "records", "detected", "element first", "element or look-alike",
-                "new vs before onset: detected", "named first"):  # fmt: skip
+    table = Table(title="the sliver places: a chimney at the element's line (found), named "
+                  "first, or among the first's look-alikes (group); 'new': against the record's "
+                  "own sliver before the onset")  # fmt: skip
+    for col in ("fault", "n", "found", "first", "group", "new: found", "new: first"):
         table.add_column(col, justify="left" if col == "fault" else "right")
     for key, s in scores["per_kind_level"].items():
         table.add_row(key, str(s["records"]), str(s["detected"]), str(s["top1"]), str(s["group"]),

@@ -418,6 +418,17 @@ def diagnose_cmd(
             callback=input_path("--speeds"),
         ),
     ] = None,  # fmt: skip
+    reference: Annotated[
+        Path | None,
+        typer.Option(
+            help="A healthy sliver record of the same machine (or a speed record with one beside "
+            "it): chimneys no higher than 1.5 x its channel are the machine's own lines, named "
+            "but not counted as new.",
+            dir_okay=False,
+            readable=False,
+            callback=input_path("--reference"),
+        ),
+    ] = None,  # fmt: skip
     column: Annotated[str, typer.Option(help="Density column of --data.")] = "linear_density_ktex",
     preset: PresetOpt = None,
     config: ConfigOpt = None,
@@ -476,8 +487,13 @@ def diagnose_cmd(
     else:
         assert spectrogram_file is not None
         record = read_tester_spectrogram(spectrogram_file, staple=fibres)
+    ref = None
+    if reference is not None:
+        ref_beside = sliver_beside(reference)
+        ref = read_sliver(ref_beside.sliver if ref_beside else reference, column,
+                          option="--reference", staple=fibres)  # fmt: skip
     dx = diagnose_sliver(record, train, fibres, zones, harmonics=harmonics,
-                         sensor_length_m=(sensor_mm or 0.0) * 1e-3)  # fmt: skip
+                         sensor_length_m=(sensor_mm or 0.0) * 1e-3, reference=ref)  # fmt: skip
     if speeds is not None and data is not None:
         dx = _with_speeds(dx, record, speeds, fibres, zones)
     if report is not None:
@@ -493,9 +509,12 @@ def diagnose_cmd(
     if dx.evenness is not None:
         console.print(_evenness_table(dx.evenness, f"{Path(str(data)).name}"))
     if not dx.causes:
-        console.print("no significant chimney")
+        console.print("no significant chimney" + (" beyond the reference" if ref else ""))
     else:
         console.print(_causes_table(dx.causes))
+    for c in dx.known:
+        console.print(f"the machine's own line (in --reference): {c.wavelength_m * 100:.2f} cm, "
+                      f"{c.amplitude_pct:.3f} %: {c.verdict}")  # fmt: skip
     if report is not None:
         console.print(f"wrote {report}")
 

@@ -18,27 +18,40 @@ the data layer.
 """
 
 from drafttwin.sliver.attribute import Candidate, ChimneyCause, attribute
+from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver
 from drafttwin.sliver.drafting import DraftingZones, RealDrafting, draft
+from drafttwin.sliver.evenness import Evenness, evenness
 from drafttwin.sliver.feed import Feed, FeedFault
 from drafttwin.sliver.record import Sliver, read_sliver
+from drafttwin.sliver.spectrogram import Spectrogram, spectrogram
 from drafttwin.sliver.speeds import SurfaceSpeeds
 from drafttwin.sliver.staple import StapleDiagram
 from drafttwin.sliver.wavelengths import Element, WavelengthTable, wavelength_table
+
+draft_sliver = draft
+"""The drafting simulator under the name the top-level API gives it (``dt.draft_sliver``)."""
 
 __all__ = [
     "Candidate",
     "ChimneyCause",
     "DraftingZones",
     "Element",
+    "Evenness",
     "Feed",
     "FeedFault",
     "RealDrafting",
     "Sliver",
+    "SliverDiagnosis",
+    "Spectrogram",
     "StapleDiagram",
     "SurfaceSpeeds",
     "WavelengthTable",
     "attribute",
+    "diagnose_sliver",
     "draft",
+    "draft_sliver",
+    "evenness",
     "read_sliver",
+    "spectrogram",
     "wavelength_table",
 ]
