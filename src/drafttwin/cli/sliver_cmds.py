@@ -222,6 +222,13 @@ def simulate_cmd(
             "mill's spectrograms; default: ideal drafting."
         ),
     ] = None,  # fmt: skip
+    leveller: Annotated[
+        str | None,
+        typer.Option(
+            help="An open-loop autoleveller: INTENSITY[,ACTION_OFFSET_MM] (1,0: full levelling at "
+            "the true action point; the offset in mm of fed sliver is a setting's error)."
+        ),
+    ] = None,  # fmt: skip
     seed: Annotated[int, typer.Option(help="Seed of the fibres.", callback=bounded("--seed"))] = 0,
     as_json: JsonOpt = False,
     quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
@@ -245,13 +252,15 @@ def simulate_cmd(
             raise ConfigError(f"'{real_drafting}' is not ACCELERATION_MM,COUPLING",
                               where="--real-drafting", fix="e.g. 8,1") from None  # fmt: skip
         real = RealDrafting(acc, coupling)
+    levelling = _leveller(leveller)
     train = load_train(preset, config)
     sp = _speeds(speeds, truth, duration, train, detail, quiet or as_json)
     fed_m = sp.delivered_length_m / sp.drafts()["total"] * (2 if real else 1)
     with progress_bar("drafting (fed m)", round(fed_m, 1), quiet=quiet or as_json) as bar:
         task = bar.task_ids[0]
         sl = draft(sp, feed, zones, step_mm=step_mm, seed=seed, fibre_scale=fibre_scale,
-                   real=real, progress=lambda m: bar.advance(task, m))  # fmt: skip
+                   real=real, leveller=levelling,
+                   progress=lambda m: bar.advance(task, m))  # fmt: skip
     sl.write(out)
     ev = evenness(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale)
     chimneys = spectrogram(sl.linear_density_ktex, sl.step_m, fibres,
@@ -267,6 +276,21 @@ def simulate_cmd(
                   f"significant chimneys: {len(chimneys)} (drafttwin sliver diagnose names "
                   "their elements)")  # fmt: skip
     console.print(f"wrote {out}")
+
+
+def _leveller(text: str | None) -> Any:
+    from drafttwin.sliver.leveller import Autoleveller
+
+    if text is None:
+        return None
+    try:
+        parts = [float(x) for x in text.split(",")]
+    except ValueError:
+        parts = []
+    if len(parts) not in (1, 2):
+        raise ConfigError(f"'{text}' is not INTENSITY[,ACTION_OFFSET_MM]", where="--leveller",
+                          fix="e.g. 1 or 1,15")  # fmt: skip
+    return Autoleveller(parts[0], parts[1] if len(parts) == 2 else 0.0)
 
 
 @sliver_app.command("spectrogram")

@@ -21,6 +21,7 @@ import numpy as np
 from drafttwin.errors import ConfigError
 from drafttwin.sliver import kernel as K
 from drafttwin.sliver.feed import Feed
+from drafttwin.sliver.leveller import Autoleveller
 from drafttwin.sliver.record import Sliver
 from drafttwin.sliver.speeds import SurfaceSpeeds
 
@@ -87,10 +88,12 @@ class RealDrafting:
 def draft(speeds: SurfaceSpeeds, feed: Feed, zones: DraftingZones | None = None, *,
           step_mm: float = 1.0, seed: int = 0, fibre_scale: float = 1.0,
           real: RealDrafting | None = None, keep_fibres: int = 0,
+          leveller: Autoleveller | None = None,
           progress: Callable[[float], None] | None = None) -> Sliver:  # fmt: skip
     """Draft ``feed`` through the zones at ``speeds``; the delivered sliver on a grid of
     ``step_mm`` from the front roller's position at the first time point.
 
+    ``leveller`` levels the feed through the main draft (:mod:`drafttwin.sliver.leveller`).
     ``fibre_scale`` lumps that many fibres into one heavier fibre (faster; the random part's
     variance grows by the same factor, which the sliver records for its evenness and its
     ideal curve). ``keep_fibres`` keeps the first so many drafted fibres for a later passage
@@ -104,8 +107,13 @@ def draft(speeds: SurfaceSpeeds, feed: Feed, zones: DraftingZones | None = None,
         raise ConfigError(f"the speeds deliver only {speeds.delivered_length_m:.3g} m of "
                           "sliver", where="--duration", fix="give a longer record")  # fmt: skip
     rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
-    quantiles, cum, p0, relative = _tables(feed, surface, zones, rng)
-    lead = K.transport_map(surface, zones.array(), p0 + FED_STEP_MM * np.arange(cum.size))
+    quantiles, cum, p0, relative = _tables(feed, surface, zones, rng,
+                                           extra=0.0 if leveller is None else 1.0)  # fmt: skip
+    p_grid = p0 + FED_STEP_MM * np.arange(cum.size)
+    if leveller is not None:
+        surface = leveller.levelled(surface, p_grid, relative,
+                                    lambda sf: K.transport_map(sf, zones.array(), p_grid))  # fmt: skip
+    lead = K.transport_map(surface, zones.array(), p_grid)
     run = _Run(seed, lead, quantiles, cum, p0, fibre_scale, zones, h, n_bins, keep_fibres,
                progress, real is not None)  # fmt: skip
     diff, kept, count = run(np.empty(0))
@@ -119,7 +127,8 @@ def draft(speeds: SurfaceSpeeds, feed: Feed, zones: DraftingZones | None = None,
                   info={"fibres": count, "seed": seed, "speeds": speeds.source,
                         "drafts": speeds.drafts(), "feed_ktex": feed.total_ktex,
                         "doublings": feed.doublings,
-                        "drafting": "ideal" if real is None else "real"},
+                        "drafting": "ideal" if real is None else "real",
+                        "leveller": None if leveller is None else vars(leveller)},
                   fibres=kept, fed=(p0, FED_STEP_MM, relative))  # fmt: skip
 
 
@@ -183,12 +192,13 @@ def _times(speeds: SurfaceSpeeds, surface: np.ndarray) -> np.ndarray:
     return speeds.time_s[0] + speeds.step_s * (np.arange(surface.shape[0]) - n_before)
 
 
-def _tables(feed: Feed, surface: np.ndarray, zones: DraftingZones,
-            rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:  # fmt: skip
+def _tables(feed: Feed, surface: np.ndarray, zones: DraftingZones, rng: np.random.Generator,
+            extra: float = 0.0) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:  # fmt: skip
     """Inverse CDFs (length, fineness), the feed's cumulative rate on the fed-length grid,
-    the grid's start (mm) and the feed's relative rate on it."""
+    the grid's start (mm) and the feed's relative rate on it; ``extra``: that fraction more
+    fed length (a leveller may run the feeding rollers faster)."""
     p0 = float(surface[0, K.BACK]) - zones.break_mm
-    size = int(math.ceil((float(surface[-1, K.BACK]) - p0) / FED_STEP_MM)) + 2
+    size = int(math.ceil((float(surface[-1, K.BACK]) - p0) * (1 + extra) / FED_STEP_MM)) + 2
     relative = feed.intensity(p0, FED_STEP_MM, size, rng)
     rate = relative * feed.fibres_per_mm()
     cum = np.concatenate([[0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * FED_STEP_MM)])

@@ -96,6 +96,9 @@ class Feed:
     faults: tuple[FeedFault, ...] = field(default_factory=tuple)
     extra_cv: float = 0.0
     extra_correlation_m: float = 1.0
+    runs_out_m: tuple[float, float] | None = None
+    """One sliver runs out between these fed lengths (m from the record's start): a step of
+    ``-1/doublings`` in the fed count (an autoleveller's test, research/sliver.md T10)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.doublings <= 16:
@@ -154,6 +157,8 @@ class Feed:
             if self.extra_cv > 0:
                 m += _gauss_markov(rng, size, step_mm * 1e-3, self.extra_correlation_m,
                                    self.extra_cv)  # fmt: skip
+            if j == 0 and self.runs_out_m is not None:
+                m[(p_m >= self.runs_out_m[0]) & (p_m < self.runs_out_m[1])] = 0.0
             total += m
         return np.maximum(total / self.doublings, 0.05)
 
