@@ -164,3 +164,27 @@ def test_surface_rate_must_be_a_whole_multiple_of_the_rate():
     with pytest.raises(ConfigError, match="step differently") as err:
         Plant().run(1.0, rate_hz=100.0, surface_rate_hz=3000.0)
     assert err.value.where == "surface_rate_hz"
+
+
+def test_a_damaged_flute_slows_the_surface_over_its_arc_once_per_revolution():
+    """A flute fault acts on the roller's surface only (the encoders' speeds stay as they
+    are) and is non-sinusoidal: its surface speed has a comb of harmonics of the roller's
+    rotation, each about ``2 severity arc sinc(h arc)`` (arc = 1/20)."""
+    import math
+
+    from drafttwin.plant import Plant
+    from drafttwin.plant.faults import FaultSpec
+
+    plant = Plant()
+    healthy = plant.run(4.0, 100.0, seed=2, surface_rate_hz=2000.0)
+    flute = plant.run(4.0, 100.0, seed=2, surface_rate_hz=2000.0,
+                      faults=[FaultSpec.parse("front:flute:severity=0.15:onset=0")])  # fmt: skip
+    assert np.array_equal(healthy.series.values, flute.series.values, equal_nan=True)
+    dv = np.diff(flute.surface.length_m[:, 0] - healthy.surface.length_m[:, 0]) * 2000.0
+    v = np.diff(healthy.surface.length_m[:, 0]).mean() * 2000.0
+    rev_hz = v / (math.pi * 0.045)
+    t = flute.surface.time_s[1:] - 0.00025
+    for h in (1, 2, 3, 5):
+        z = 2 * np.mean(dv / v * np.exp(-2j * np.pi * h * rev_hz * t))
+        expected = 2 * 0.15 / 20 * np.sinc(h / 20)
+        assert abs(z) == pytest.approx(expected, rel=0.05)

@@ -470,7 +470,7 @@ def diagnose_cmd(
     ] = None,  # fmt: skip
     harmonics: Annotated[
         int, typer.Option(help="Harmonics matched per element.", callback=bounded("--harmonics"))
-    ] = 4,  # fmt: skip
+    ] = 8,  # fmt: skip
     fibre_scale: FibreScaleReadOpt = 1.0,
     report: Annotated[
         Path | None,

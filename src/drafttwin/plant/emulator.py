@@ -295,7 +295,8 @@ def _surface(train: DriveTrain, cfg: PlantConfig, dist: Disturbances, faults: Se
     the true radii and every run-out (healthy and faulty), and the sidecar's record of them."""
     radius = {str(r.name): r.diameter_mm * 5e-4 for r in train.spec.roller}
     outs = run_outs(cfg, dist.roller_phase_rad, faults, ecc_phase)
-    surface = roller_surface(angles, rate_hz, radius, outs)
+    surface = roller_surface(angles, rate_hz, radius, outs,
+                             [f for f in faults if f.kind == "flute"])  # fmt: skip
     return surface, surface_info(rate_hz, radius, outs, surface)
 
 

@@ -32,6 +32,10 @@ Physical mapping of each kind (assumptions marked; docs/faults.md has the table)
   roller's surface (:mod:`drafttwin.plant.surface`, only where a run asks for it) gets the
   radius eccentricity that goes with that load through the healthy roller's compliance,
   ``severity / roller_load_modulation x roller_eccentricity_um``.
+* roller ``flute``: a damaged flute: over an arc of 1/20 of the circumference (at the
+  roller's zero angle) the surface moves slower by the fraction ``severity``, once per
+  revolution: a non-sinusoidal defect that leaves a comb of harmonics in the sliver. It acts
+  on the roller's surface only (``drafttwin.plant.surface``), not on the drive train.
 * motor ``rotor_resistance``: rotor resistance x (1 + severity) (on top of warm-up).
 * motor ``torque_loss``: breakdown torque x (1 - severity).
 * sensor ``gain`` (relative gain error), ``stuck`` (the channel repeats its value for
@@ -93,6 +97,8 @@ KINDS: dict[str, FaultKind] = {k.name: k for k in (
               (0.1, 0.3, 0.6)),
     FaultKind("eccentricity", "roller", "added once-per-revolution load modulation (fraction "
               "of the roller's friction load)", 0.0, 1.0, (0.05, 0.15, 0.3)),
+    FaultKind("flute", "roller", "surface speed lost over a damaged flute, an arc of 1/20 of "
+              "the circumference (fraction)", 0.0, 0.5, (0.02, 0.05, 0.15)),
     FaultKind("rotor_resistance", "motor", "relative rise of rotor resistance", 0.0, 2.0,
               (0.05, 0.15, 0.3)),
     FaultKind("torque_loss", "motor", "breakdown torque lost (fraction)", 0.0, 0.6,
@@ -255,7 +261,7 @@ class FaultSchedule:
     def __init__(self, train: DriveTrain, faults: Sequence[FaultSpec]) -> None:
         self.train = train
         self.faults = tuple(f for f in faults if f.spec_kind.family in MACHINE_FAMILIES
-                            and f.kind not in ("rotor_resistance", "eccentricity"))  # fmt: skip
+                            and f.kind not in ("rotor_resistance", "eccentricity", "flute"))  # fmt: skip
         self.base = train.tables()
         self._cache: tuple[tuple[float, ...], Tables] | None = None
 

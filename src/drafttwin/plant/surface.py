@@ -197,7 +197,8 @@ def _decimated(piece: SimulationPiece, m: int, cols: list[int]) -> tuple[np.ndar
 
 
 def roller_surface(angles: np.ndarray, surface_rate_hz: float, radius_m: dict[str, float],
-                   runouts: Sequence[RunOut]) -> RollerSurface:  # fmt: skip
+                   runouts: Sequence[RunOut],
+                   flutes: Sequence[FaultSpec] = ()) -> RollerSurface:  # fmt: skip
     """Cumulative surface lengths from the rollers' angles (rad, ``(n + 1, 4)``, row 0 at the
     start of recording, rows ``1 / surface_rate_hz`` apart) and true radii (m).
 
@@ -220,7 +221,24 @@ def roller_surface(angles: np.ndarray, surface_rate_hz: float, radius_m: dict[st
             length[:, k] += _runout_length(th, e, ro.phase_rad)
             e_end = ro.eccentricity_um if ro.fault is None else ro.eccentricity_m(t[-1]) * 1e6
             end[r] = end.get(r, 0j) + cmath.rect(float(e_end), ro.phase_rad)
+        for f in (f for f in flutes if f.element == r):
+            arc = np.diff(_flute_arc(th - th[0]))
+            lost = radius_m[r] * f.severity * f.profile(t_mid) * arc
+            length[1:, k] -= np.cumsum(lost)
     return RollerSurface(t, length, {r: abs(end.get(r, 0j)) for r in ROLLERS})
+
+
+FLUTE_ARC = 1.0 / 20.0
+"""A damaged flute's share of the circumference (assumption: a few flutes of a 45-mm roller's
+about 40)."""
+
+
+def _flute_arc(theta: np.ndarray) -> np.ndarray:
+    """Angle (rad) turned within the damaged arc ``[0, 2 pi FLUTE_ARC)`` of each revolution,
+    cumulative from ``theta = 0``."""
+    turns = np.floor(theta / (2 * math.pi))
+    within = theta - 2 * math.pi * turns
+    return turns * 2 * math.pi * FLUTE_ARC + np.minimum(within, 2 * math.pi * FLUTE_ARC)
 
 
 def _runout_length(theta: np.ndarray, e: float | np.ndarray, phase: float) -> np.ndarray:

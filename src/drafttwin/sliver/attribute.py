@@ -30,6 +30,9 @@ from drafttwin.sliver.wavelengths import Element, WavelengthTable
 
 __all__ = ["Candidate", "ChimneyCause", "Element", "attribute", "ranked_elements"]
 
+HARMONICS = 8
+"""Harmonics of each element matched: a damaged flute's comb reaches the 7th and 8th (2 cm
+on the front roller) before the fibre lengths bury it."""
 MIN_GAIN = 0.05
 """Below this |gain| from speed to mass an element cannot make a visible chimney."""
 TOLERANCE_OCTAVES = 1 / 20 + 1 / 40
@@ -71,7 +74,7 @@ class ChimneyCause:
 
 def attribute(chimneys: list[dict[str, Any]], table: WavelengthTable,
               gauges_mm: tuple[float, float, float], drafts: dict[str, float],
-              staple: StapleDiagram, harmonics: int = 4) -> list[ChimneyCause]:  # fmt: skip
+              staple: StapleDiagram, harmonics: int = HARMONICS) -> list[ChimneyCause]:  # fmt: skip
     """Rank the elements behind each chimney (rows with ``wavelength_m``, ``amplitude_pct``,
     ``base_pct``, as :meth:`Spectrogram.chimneys` gives them). A row with ``peak_m`` (the
     periodogram's peak within the channel) and ``tolerance`` (relative) is matched on that

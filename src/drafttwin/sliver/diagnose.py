@@ -17,7 +17,13 @@ from typing import Any
 import numpy as np
 
 from drafttwin.mechanics import DriveTrain
-from drafttwin.sliver.attribute import Candidate, ChimneyCause, attribute, ranked_elements
+from drafttwin.sliver.attribute import (
+    HARMONICS,
+    Candidate,
+    ChimneyCause,
+    attribute,
+    ranked_elements,
+)
 from drafttwin.sliver.drafting import DraftingZones
 from drafttwin.sliver.evenness import Evenness, evenness
 from drafttwin.sliver.record import Sliver
@@ -71,7 +77,7 @@ def running_drafts(table: WavelengthTable, train: DriveTrain) -> dict[str, float
 
 def diagnose_sliver(record: Sliver | Spectrogram, train: DriveTrain, staple: StapleDiagram,
                     zones: DraftingZones | None = None, *, sensor_length_m: float = 0.0,
-                    harmonics: int = 4, table: WavelengthTable | None = None,
+                    harmonics: int = HARMONICS, table: WavelengthTable | None = None,
                     reference: Sliver | None = None) -> SliverDiagnosis:  # fmt: skip
     """Evenness, spectrogram and the chimneys' causes of a sliver record or a tester's
     spectrogram, for the drive train ``train`` at its running point. ``reference``: a

@@ -31,7 +31,8 @@ from drafttwin.plant.sliver_channel import SliverSettings
 from drafttwin.sliver import StapleDiagram, wavelength_table
 from drafttwin.sliver.diagnose import diagnose_sliver, with_encoders
 
-KINDS = ("runout", "eccentricity", "crack")
+KINDS = ("runout", "eccentricity", "flute", "crack")
+FLUTE_ROLLERS = ("front", "third", "back")
 DURATION_S = 40.0
 ONSET_S = 10.0
 QUICK: tuple[tuple[str, ...], tuple[int, ...], int] = (("runout", "eccentricity"), (2,), 1)
@@ -48,7 +49,7 @@ def plan(seed: int, quick: bool) -> list[dict[str, Any]]:
     tasks = []
     for kind in kinds:
         for level in levels:
-            for element in ELEMENTS[kind]:
+            for element in FLUTE_ROLLERS if kind == "flute" else ELEMENTS[kind]:
                 m, s = (int(x) for x in rng.integers(0, 2**31, size=2))
                 f = make_fault(element, kind, level, True, ONSET_S, DURATION_S)
                 tasks.append({"set": "faults", "name": f"{element}:{kind}:{level}",
@@ -63,7 +64,7 @@ def plan(seed: int, quick: bool) -> list[dict[str, Any]]:
 
 def expected_element(element: str, kind: str) -> str:
     """The wavelength-table name of the faulty element."""
-    if kind == "eccentricity":
+    if kind in ("eccentricity", "flute"):
         return f"roller {element}"
     return (CRACKED_GEAR if kind == "crack" else GEAR_OF_MESH)[element]
 
