@@ -76,6 +76,20 @@ BASE: dict[str, list[str]] = {
         "{tmp}/none.parquet",
     ],  # fmt: skip
     "plant serve": ["plant", "serve", "--opcua", "opc.tcp://127.0.0.1:1", "--duration", "0.1"],
+    "sliver simulate": [
+        "sliver",
+        "simulate",
+        "--duration",
+        "0.5",
+        "--fibre-scale",
+        "100",
+        "--quiet",
+        "--out",
+        "{tmp}/sl.csv",
+    ],
+    "sliver spectrogram": ["sliver", "spectrogram", "--data", "{tmp}/none.csv"],
+    "sliver wavelengths": ["sliver", "wavelengths", "--json"],
+    "sliver diagnose": ["sliver", "diagnose", "--data", "{tmp}/none.csv"],
     "twin hall": [
         "twin",
         "hall",
@@ -97,7 +111,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "kinematics": ["--motor-rpm"],
     "simulate": ["--duration", "--rate", "--dt", "--settle", "--cutoff-hz"],
     "inspect": ["--rate-tolerance", "--rate", "--threshold"],
-    "generate": ["--duration", "--rate", "--seed", "--machine-seed"],
+    "generate": ["--duration", "--rate", "--seed", "--machine-seed", "--fibre-scale"],
     "generate-faults": ["--cases", "--seed", "--duration", "--rate"],
     "diagnose": ["--far-per-day"],
     "benchmark faults": ["--seed", "--workers", "--healthy-hours"],
@@ -121,11 +135,32 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "twin fit-detector": ["--far-per-day", "--reference", "--post"],
     "plant serve": ["--machines", "--seed", "--rate", "--ramp", "--duration", "--history"],
     "twin hall": ["--shards", "--commit-ms", "--duration"],
+    "sliver simulate": [
+        "--duration",
+        "--fineness-dtex",
+        "--fineness-cv",
+        "--doublings",
+        "--feed-ktex",
+        "--feed-cv",
+        "--feed-correlation",
+        "--step-mm",
+        "--fibre-scale",
+        "--seed",
+    ],
+    "sliver spectrogram": ["--fineness-dtex", "--fineness-cv", "--sensor-mm", "--fibre-scale"],
+    "sliver wavelengths": ["--motor-rpm", "--harmonics"],
+    "sliver diagnose": [
+        "--fineness-dtex",
+        "--fineness-cv",
+        "--sensor-mm",
+        "--harmonics",
+        "--fibre-scale",
+    ],
 }
 
 #: values inside the range of options that may be zero (these are not hostile there)
 ZERO_OK = {"--settle", "--rate-tolerance", "--threshold", "--seed", "--machine-seed", "--from",
-           "--to", "--history"}  # fmt: skip
+           "--to", "--history", "--feed-cv", "--fineness-cv", "--sensor-mm"}  # fmt: skip
 
 
 def numeric_cases() -> list[tuple[str, str, str]]:

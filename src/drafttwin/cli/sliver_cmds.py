@@ -109,6 +109,7 @@ def _speeds(speeds: str, truth: bool, duration: float, train: Any, detail: bool,
     from drafttwin.sliver.physics import physics_speeds, roller_diameters_mm, with_physics_detail
     from drafttwin.sliver.speeds import ROLLER_ORDER, SurfaceSpeeds
 
+    roller_diameters_mm(train)  # a train without the four rollers: refused before any work
     if speeds == "physics":
         with progress_bar("physics at 2 kHz (machine s)", duration, quiet=quiet) as bar:
             task = bar.task_ids[0]

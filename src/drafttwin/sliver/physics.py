@@ -23,16 +23,17 @@ def roller_diameters_mm(train: DriveTrain) -> dict[str, float]:
     if missing:
         raise ConfigError(f"the train declares no roller {', '.join(missing)}: the sliver needs "
                           "front, second, third and back", source=train.source,
-                          where="[[roller]]")  # fmt: skip
+                          where="[[roller]]",
+                          fix="a drafting train with these four rollers, e.g. --preset fa320a")  # fmt: skip
     return found
 
 
 def physics_speeds(train: DriveTrain, duration_s: float, rate_hz: float = DETAIL_RATE_HZ,
                    progress: Callable[[float], None] | None = None) -> SurfaceSpeeds:  # fmt: skip
     """Surface speeds of the train's rollers simulated for ``duration_s`` at ``rate_hz``."""
+    diameters = roller_diameters_mm(train)  # refuse a train without the four rollers first
     res = simulate(train, duration_s, output_rate_hz=rate_hz, progress=progress)
-    return SurfaceSpeeds.from_rpm(res.time_s, res.roller_rpm(ROLLER_ORDER),
-                                  roller_diameters_mm(train),
+    return SurfaceSpeeds.from_rpm(res.time_s, res.roller_rpm(ROLLER_ORDER), diameters,
                                   f"physics of {train.spec.train.name} at {rate_hz:g} Hz")  # fmt: skip
 
 
