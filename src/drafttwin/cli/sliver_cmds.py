@@ -10,7 +10,7 @@ from rich.table import Table
 
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import check_output_suffix, load_train
-from drafttwin.cli._oserrors import input_path, output_file
+from drafttwin.cli._oserrors import output_file
 from drafttwin.cli.app import app, console, print_json, progress_bar
 from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 from drafttwin.errors import ConfigError
@@ -75,7 +75,7 @@ def zones_from(gauges: str) -> Any:
     return DraftingZones(*parts)
 
 
-def _evenness_table(ev: Any, title: str) -> Table:
+def evenness_table(ev: Any, title: str) -> Table:
     table = Table(title=title)
     table.add_column("measure")
     table.add_column("value", justify="right")
@@ -90,7 +90,7 @@ def _evenness_table(ev: Any, title: str) -> Table:
     return table
 
 
-def _causes_table(causes: list[Any]) -> Table:
+def causes_table(causes: list[Any]) -> Table:
     table = Table(title="chimneys and the elements behind them")
     for col in ("wavelength", "amplitude %", "base %", "first cause", "look-alikes / verdict"):
         table.add_column(col, overflow="fold")
@@ -270,7 +270,7 @@ def simulate_cmd(
         print_json({"out": str(out), "evenness": ev.to_dict(), "info": sl.info,
                     "chimneys": chimneys})  # fmt: skip
         return
-    console.print(_evenness_table(ev, f"{sl.length_m:.1f} m of sliver from {sp.source}; "
+    console.print(evenness_table(ev, f"{sl.length_m:.1f} m of sliver from {sp.source}; "
                                   f"{sl.info['fibres']:,} fibres drawn"))  # fmt: skip
     console.print(f"count expected from the feed: {feed.total_ktex / sp.drafts()['total']:.4f} "
                   f"ktex (fed {feed.total_ktex:g} ktex / draft {sp.drafts()['total']:.4f}); "
@@ -292,262 +292,3 @@ def _leveller(text: str | None) -> Any:
         raise ConfigError(f"'{text}' is not INTENSITY[,ACTION_OFFSET_MM]", where="--leveller",
                           fix="e.g. 1 or 1,15")  # fmt: skip
     return Autoleveller(parts[0], parts[1] if len(parts) == 2 else 0.0)
-
-
-@sliver_app.command("spectrogram")
-def spectrogram_cmd(
-    data: Annotated[
-        Path,
-        typer.Option(
-            help="Sliver record: delivered_length_m and a density "
-            "column (drafttwin sliver simulate, generate --sliver).",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--data"),
-        ),
-    ],  # fmt: skip
-    column: Annotated[str, typer.Option(help="Density column.")] = "linear_density_ktex",
-    staple: StapleOpt = "cotton",
-    fineness_dtex: FinenessOpt = None,
-    fineness_cv: FinenessCvOpt = None,
-    sensor_mm: Annotated[
-        float,
-        typer.Option(
-            help="Averaging length of the sensor that read the record, mm (for the ideal curve).",
-            callback=bounded("--sensor-mm"),
-        ),
-    ] = 0.0,  # fmt: skip
-    fibre_scale: FibreScaleReadOpt = 1.0,
-    out: Annotated[
-        Path | None,
-        typer.Option(help="The channel table (.csv or .parquet).", callback=output_file("--out")),
-    ] = None,  # fmt: skip
-    as_json: JsonOpt = False,
-) -> None:
-    """Count, CV %, U %, CV at cut lengths and the spectrogram as evenness testers draw it
-    (10 channels per octave, ideal curve of a random sliver of the same fibres, significant
-    channels, chimneys)."""
-    from drafttwin.cli._common import write_frame
-    from drafttwin.sliver import read_sliver
-    from drafttwin.sliver.evenness import evenness
-    from drafttwin.sliver.spectrogram import spectrogram
-
-    if out is not None:
-        check_output_suffix(out)
-    fibres = staple_from(staple, fineness_dtex, fineness_cv)
-    sl = read_sliver(data, column, staple=fibres)
-    ev = evenness(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale)
-    spec = spectrogram(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale=fibre_scale,
-                       sensor_length_m=sensor_mm * 1e-3)  # fmt: skip
-    frame = spec.to_frame()
-    if out is not None:
-        write_frame(frame, out)
-    if as_json:
-        print_json({"evenness": ev.to_dict(), "spectrogram": frame.to_dict(orient="list")})
-        return
-    console.print(_evenness_table(ev, f"{data.name}: {sl.length_m:.1f} m"))
-    table = Table(title="spectrogram (significant channels; * chimney)")
-    for col in ("wavelength", "amplitude %", "ideal %", "base %", ""):
-        table.add_column(col, justify="right")
-    for _, r in frame[frame["significant"]].iterrows():
-        ideal = "" if r["ideal_pct"] != r["ideal_pct"] else f"{r['ideal_pct']:.3f}"
-        table.add_row(f"{r['wavelength_m'] * 100:.2f} cm", f"{r['amplitude_pct']:.3f}", ideal,
-                      f"{r['base_pct']:.3f}", "*" if r["chimney"] else "")  # fmt: skip
-    console.print(table)
-    if out is not None:
-        console.print(f"wrote {out}")
-
-
-@sliver_app.command("wavelengths")
-def wavelengths_cmd(
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    motor_rpm: Annotated[
-        float | None,
-        typer.Option(
-            help="Motor speed, rpm (default: the running point by torque balance).",
-            callback=bounded("--motor-rpm"),
-        ),
-    ] = None,  # fmt: skip
-    harmonics: Annotated[
-        int, typer.Option(help="Harmonics listed per element.", callback=bounded("--harmonics"))
-    ] = 3,  # fmt: skip
-    out: Annotated[
-        Path | None,
-        typer.Option(help="The table (.csv or .parquet).", callback=output_file("--out")),
-    ] = None,  # fmt: skip
-    as_json: JsonOpt = False,
-) -> None:
-    """Every rotating element of the drive train (motor, shafts, pulleys, belt pass,
-    sprockets, chain pass and teeth, each gear and mesh, each roller) with its frequency and
-    its wavelength on the delivered sliver, and the rollers it moves."""
-    from drafttwin.cli._common import write_frame
-    from drafttwin.sliver import wavelength_table
-
-    if out is not None:
-        check_output_suffix(out)
-    table = wavelength_table(load_train(preset, config), motor_rpm=motor_rpm, harmonics=harmonics)
-    if out is not None:
-        write_frame(table.to_frame(), out)
-    if as_json:
-        print_json(table.to_dict())
-        return
-    shown = Table(title=f"{table.train}: delivery {table.delivery_m_min:.2f} m/min, motor "
-                  f"{table.motor_rpm:.1f} rpm")  # fmt: skip
-    for col in ("element", "kind", "Hz", "wavelength", "harmonics", "moves"):
-        shown.add_column(col, justify="right" if col in ("Hz", "wavelength") else "left",
-                         overflow="fold")  # fmt: skip
-    for e in table.elements:
-        harm = ", ".join(_cm(w) for w in e.harmonics_m(harmonics)[1:])
-        shown.add_row(e.name, e.kind, f"{e.frequency_hz:.3f}", _cm(e.wavelength_m), harm,
-                      ",".join(e.rollers))  # fmt: skip
-    console.print(shown)
-    if out is not None:
-        console.print(f"wrote {out}")
-
-
-def _cm(x: float) -> str:
-    return f"{x * 100:.2f} cm" if x < 1 else f"{x:.3f} m"
-
-
-@sliver_app.command("diagnose")
-def diagnose_cmd(
-    data: Annotated[
-        Path | None,
-        typer.Option(
-            help="A sliver record, or a speed record with a sliver channel beside it (generate "
-            "--sliver): its speeds then count as --speeds.",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--data"),
-        ),
-    ] = None,  # fmt: skip
-    spectrogram_file: Annotated[
-        Path | None,
-        typer.Option(
-            "--spectrogram",
-            help="An evenness tester's spectrogram table instead: wavelength_m | "
-            "wavelength_cm | wavelength_mm and amplitude_pct (optional significant).",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--spectrogram"),
-        ),
-    ] = None,  # fmt: skip
-    speeds: Annotated[
-        Path | None,
-        typer.Option(
-            help="The roller speeds recorded with the sliver (same clock): the encoders' word on "
-            "each look-alike.",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--speeds"),
-        ),
-    ] = None,  # fmt: skip
-    reference: Annotated[
-        Path | None,
-        typer.Option(
-            help="A healthy sliver record of the same machine (or a speed record with one beside "
-            "it): chimneys no higher than 1.5 x its channel are the machine's own lines, named "
-            "but not counted as new.",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--reference"),
-        ),
-    ] = None,  # fmt: skip
-    column: Annotated[str, typer.Option(help="Density column of --data.")] = "linear_density_ktex",
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    staple: StapleOpt = "cotton",
-    fineness_dtex: FinenessOpt = None,
-    fineness_cv: FinenessCvOpt = None,
-    gauges: GaugesOpt = "44,40,46",
-    sensor_mm: Annotated[
-        float | None,
-        typer.Option(
-            help="Averaging length of the sensor that read --data, mm (default: the plant's "
-            "sidecar, else 0).",
-            callback=bounded("--sensor-mm"),
-        ),
-    ] = None,  # fmt: skip
-    harmonics: Annotated[
-        int, typer.Option(help="Harmonics matched per element.", callback=bounded("--harmonics"))
-    ] = 8,  # fmt: skip
-    fibre_scale: FibreScaleReadOpt = 1.0,
-    report: Annotated[
-        Path | None,
-        typer.Option(
-            help="An HTML page for the quality engineer.", callback=output_file("--report")
-        ),
-    ] = None,  # fmt: skip
-    as_json: JsonOpt = False,
-) -> None:
-    """Name the drive element behind each chimney of a sliver record or a tester's
-    spectrogram: wavelength match with the machine's kinematics, harmonics, the drafting
-    transfer (what speed modulation each element would need), look-alikes that share a
-    wavelength, feed faults; with --speeds, the roller encoders' share of each chimney."""
-    from dataclasses import replace
-
-    from drafttwin.sliver import read_sliver
-    from drafttwin.sliver.diagnose import diagnose_sliver
-    from drafttwin.sliver.record import sliver_beside
-    from drafttwin.sliver.spectrogram import read_tester_spectrogram
-
-    if (data is None) == (spectrogram_file is None):
-        raise ConfigError("give one of --data and --spectrogram", where="--data",
-                          fix="a sliver record (--data) or a tester's table (--spectrogram)")  # fmt: skip
-    if report is not None and report.suffix.lower() not in (".html", ".htm"):
-        raise ConfigError(f"'{report.name}' is not an .html file", where="--report",
-                          fix="name the page *.html")  # fmt: skip
-    fibres = staple_from(staple, fineness_dtex, fineness_cv)
-    zones = zones_from(gauges)
-    train = load_train(preset, config)
-    record: Any
-    if data is not None:
-        beside = sliver_beside(data)
-        if beside is not None:
-            speeds = speeds if speeds is not None else beside.speeds
-            sensor_mm = beside.sensor_mm if sensor_mm is None else sensor_mm
-        record = read_sliver(beside.sliver if beside else data, column, staple=fibres)
-        record = replace(record, fibre_scale=fibre_scale)
-    else:
-        assert spectrogram_file is not None
-        record = read_tester_spectrogram(spectrogram_file, staple=fibres)
-    ref = None
-    if reference is not None:
-        ref_beside = sliver_beside(reference)
-        ref = read_sliver(ref_beside.sliver if ref_beside else reference, column,
-                          option="--reference", staple=fibres)  # fmt: skip
-    dx = diagnose_sliver(record, train, fibres, zones, harmonics=harmonics,
-                         sensor_length_m=(sensor_mm or 0.0) * 1e-3, reference=ref)  # fmt: skip
-    if speeds is not None and data is not None:
-        dx = _with_speeds(dx, record, speeds, fibres, zones)
-    if report is not None:
-        from drafttwin._io import atomic_path
-        from drafttwin.report.sliver import sliver_page
-
-        with atomic_path(report) as tmp:
-            tmp.write_text(sliver_page(dx, title="What the sliver says",
-                                       source=str(data or spectrogram_file)), encoding="utf-8")  # fmt: skip
-    if as_json:
-        print_json(dx.to_dict())
-        return
-    if dx.evenness is not None:
-        console.print(_evenness_table(dx.evenness, f"{Path(str(data)).name}"))
-    if not dx.causes:
-        console.print("no significant chimney" + (" beyond the reference" if ref else ""))
-    else:
-        console.print(_causes_table(dx.causes))
-    for c in dx.known:
-        console.print(f"the machine's own line (in --reference): {c.wavelength_m * 100:.2f} cm, "
-                      f"{c.amplitude_pct:.3f} %: {c.verdict}")  # fmt: skip
-    if report is not None:
-        console.print(f"wrote {report}")
-
-
-def _with_speeds(dx: Any, record: Any, speeds: Path, fibres: Any, zones: Any) -> Any:
-    from drafttwin.data.io import read_measurements
-    from drafttwin.sliver.diagnose import with_encoders
-
-    series = read_measurements(speeds)
-    rpm = {r: series.values[:, series.channels.index(r)] for r in series.channels}
-    return with_encoders(dx, record, series.time_s, rpm, fibres, zones)
