@@ -21,7 +21,7 @@ from drafttwin.report.studies import agreement_section
 from ._results_fixture import build
 
 CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
-N_FIGURES = 5
+N_FIGURES = 6  # the headline figure, RMSE, predictions, residuals, grid, ablation
 HOSTILE = "<b>raw</b> & <script>alert(1)</script>"
 
 

@@ -75,6 +75,27 @@ def _paper_lower(a: str, b: str) -> tuple[list[str], list[str]]:
     return lower, tied
 
 
+@dataclass(frozen=True)
+class Directions:
+    """A claim per roller: where ours supports it, where the paper's does, where both point
+    the same way (supported in both, or in neither)."""
+
+    ours: list[str]
+    paper: list[str]
+    same: list[str]
+
+
+def _directions(ours: list[str], paper_side: list[str]) -> Directions:
+    same = [r for r in ROLLERS if (r in ours) == (r in paper_side)]
+    return Directions(ours, paper_side, same)
+
+
+def beats_directions(results: Mapping[str, Any], a: str, b: str) -> Directions:
+    """Rollers where ``a`` has the lower mean relative error than ``b``: ours and the
+    paper's Table 2 (the paper's metric)."""
+    return _directions(_lower(results, a, b, "mean_rel_err_pct"), _paper_lower(a, b)[0])
+
+
 def beats(results: Mapping[str, Any], a: str, b: str) -> Claim:
     """Is model ``a`` more accurate than ``b`` per roller, by RMSE and mean relative error?
 
@@ -82,17 +103,16 @@ def beats(results: Mapping[str, Any], a: str, b: str) -> Claim:
     agrees when ``a`` has the lower mean relative error in both, or in neither.
     """
     by_rmse = _lower(results, a, b, "rmse")
-    by_rel = _lower(results, a, b, "mean_rel_err_pct")
-    p_lower, p_tied = _paper_lower(a, b)
-    paper_text = f"lower mean relative error on {count_text(p_lower)}"
+    d = beats_directions(results, a, b)
+    p_tied = _paper_lower(a, b)[1]
+    paper_text = f"lower mean relative error on {count_text(d.paper)}"
     if p_tied:
         paper_text += f", equal on {', '.join(p_tied)}"
-    ours = f"lower RMSE on {count_text(by_rmse)}, lower mean relative error on {count_text(by_rel)}"
-    same = [r for r in ROLLERS if (r in p_lower) == (r in by_rel)]
-    if 0 < len(same) < len(ROLLERS):
-        ours += f"; same direction as the paper on {count_text(same)}"
+    ours = f"lower RMSE on {count_text(by_rmse)}, lower mean relative error on {count_text(d.ours)}"
+    if 0 < len(d.same) < len(ROLLERS):
+        ours += f"; same direction as the paper on {count_text(d.same)}"
     topic = f"{label(a)} more accurate than the {label(b)}?"
-    return Claim(topic, paper_text, ours, verdict(len(same)), key=f"{a}>{b}")
+    return Claim(topic, paper_text, ours, verdict(len(d.same)), key=f"{a}>{b}")
 
 
 def skill_claim(results: Mapping[str, Any], models: list[str]) -> Claim:
@@ -195,6 +215,24 @@ def _diff(results: Mapping[str, Any], a: str, b: str, roller: str) -> tuple[floa
     return None
 
 
+def ablation_diffs(results: Mapping[str, Any], a: str, b: str) -> list[float]:
+    """Our mean accuracy of ``a`` minus ``b`` per roller (points), where the study has it."""
+    return [d[0] for r in ROLLERS if (d := _diff(results, a, b, r)) is not None]
+
+
+def paper_ablation_diffs(a: str, b: str) -> list[float]:
+    """The paper's Table 3 mean accuracy of ``a`` minus ``b`` per roller (points)."""
+    return [paper_table3_stats(r, a)[0] - paper_table3_stats(r, b)[0] for r in ROLLERS]
+
+
+def ablation_directions(results: Mapping[str, Any], a: str, b: str) -> Directions:
+    """Rollers where ``a`` is more accurate than ``b``: ours by more than the spread of the
+    repeats, the paper's by its Table 3 means (whose differences all exceed its spread)."""
+    beyond = [r for r in ROLLERS if (x := _diff(results, a, b, r)) and x[0] > 0 and x[1]]
+    p_higher = [r for r, d in zip(ROLLERS, paper_ablation_diffs(a, b), strict=True) if d > 0]
+    return _directions(beyond, p_higher)
+
+
 def ablation_claim(results: Mapping[str, Any], a: str, b: str, what: str) -> Claim:
     """Is variant ``a`` more accurate than ``b`` by more than the spread of the repeats?
 
@@ -202,29 +240,18 @@ def ablation_claim(results: Mapping[str, Any], a: str, b: str, what: str) -> Cla
     higher in the paper's Table 3 (whose differences all exceed its test-to-test spread), or
     neither.
     """
-    higher, beyond, diffs = [], [], []
-    for r in ROLLERS:
-        d = _diff(results, a, b, r)
-        if d is None:
-            continue
-        diffs.append(d[0])
-        if d[0] > 0:
-            higher.append(r)
-            if d[1]:
-                beyond.append(r)
-    p_diffs = [paper_table3_stats(r, a)[0] - paper_table3_stats(r, b)[0] for r in ROLLERS]
-    p_higher = [r for r, d in zip(ROLLERS, p_diffs, strict=True) if d > 0]
+    higher = [r for r in ROLLERS if (x := _diff(results, a, b, r)) and x[0] > 0]
+    d = ablation_directions(results, a, b)
     p_std = [paper_table3_stats(r, v)[1] for r in ROLLERS for v in (a, b)]
     paper_text = (
-        f"{label(a)} higher accuracy on {count_text(p_higher)}, by {span(p_diffs, 2)} points "
-        f"(test-to-test std {span(p_std, 3)})"
+        f"{label(a)} higher accuracy on {count_text(d.paper)}, by "
+        f"{span(paper_ablation_diffs(a, b), 2)} points (test-to-test std {span(p_std, 3)})"
     )
     ours = (
-        f"{label(a)} higher on {count_text(higher)}, by {span(diffs, 4)} points; larger than "
-        f"the spread on {count_text(beyond)}"
+        f"{label(a)} higher on {count_text(higher)}, by {span(ablation_diffs(results, a, b), 4)} "
+        f"points; larger than the spread on {count_text(d.ours)}"
     )
-    same = [r for r in ROLLERS if (r in beyond) == (r in p_higher)]
-    return Claim(what, paper_text, ours, verdict(len(same)), key=f"{a}>{b}")
+    return Claim(what, paper_text, ours, verdict(len(d.same)), key=f"{a}>{b}")
 
 
 def claims(results: Mapping[str, Any]) -> list[Claim]:
@@ -251,26 +278,6 @@ def claims(results: Mapping[str, Any]) -> list[Claim]:
     out += [
         ablation_claim(results, a, b, t) for a, b, t in tests if a in variants and b in variants
     ]
-    return out
-
-
-VERDICT_WORDS = {
-    AGREES: "agrees with the paper",
-    PARTLY: "agrees with the paper only in part",
-    DISAGREES: "does not agree with the paper",
-}
-
-
-def headline(results: Mapping[str, Any]) -> list[str]:
-    """The key comparisons as short plain sentences, for the top of the report."""
-    found = {c.key: c for c in claims(results)}
-    keys = ("md-s-l>parallel", "md-s-l>gru", "skill", "floor", "md-s-l>md-l", "md-s-l>md-s")
-    out = []
-    for c in (found[k] for k in keys if k in found):
-        if c.verdict in VERDICT_WORDS:
-            out.append(f"{c.topic} Ours: {c.ours}; paper: {c.paper} — {VERDICT_WORDS[c.verdict]}.")
-        else:
-            out.append(f"{c.topic} {c.ours}.")
     return out
 
 

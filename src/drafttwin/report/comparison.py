@@ -167,7 +167,7 @@ def metrics_html(results: Mapping[str, Any]) -> Raw:
 
 
 def comparison_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) -> Raw:
-    """Section 2: Table 2 analogue, honest metrics, RMSE figure."""
+    """Section 2: RMSE figure, Table 2 analogue, honest metrics."""
     extra = compared_models(results)[1]
     data = results["data"]
     source = "plant-emulator data" if is_plant(results) else f"data set {data.get('name')}"
@@ -188,6 +188,19 @@ def comparison_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) ->
         ),
         metrics_html(results),
     ]
+    if "rmse" in figs:
+        parts.insert(
+            0,
+            figure(
+                figs["rmse"],
+                "fig-rmse",
+                "RMSE per model and roller against the measured speed (filled dots) and "
+                "the plant's true speed (open dots); dashed line: the floor of one-step "
+                "prediction of the measured speed; dotted line: the encoders' own error "
+                "(measured vs true). Log scale.",
+                "RMSE per model and roller",
+            ),
+        )
     notes = _rel_notes(results)
     if notes:
         parts.append(para("Relative errors omitted: " + "; ".join(notes) + ".", cls="note"))
@@ -199,18 +212,6 @@ def comparison_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) ->
                 "also sees the current disagreement ŷ_d(t) − ŷ_m(t) of the data-driven "
                 "and mechanistic models.",
                 cls="note",
-            )
-        )
-    if "rmse" in figs:
-        parts.append(
-            figure(
-                figs["rmse"],
-                "fig-rmse",
-                "RMSE per model and roller against the measured speed (filled dots) and "
-                "the plant's true speed (open dots); dashed line: the floor of one-step "
-                "prediction of the measured speed; dotted line: the encoders' own error "
-                "(measured vs true). Log scale.",
-                "RMSE per model and roller",
             )
         )
     return section("comparison", "2. Model comparison (Table 2 analogue)", *parts)

@@ -44,18 +44,26 @@ def _png(fig: Figure) -> bytes:
     return buf.getvalue()
 
 
-def _png_with_legend_on_top(fig: Figure, legend_from: Axes, top: float = 0.965) -> bytes:
+def _png_with_legend_on_top(
+    fig: Figure, legend_from: Axes | Sequence[Axes], top: float = 0.965
+) -> bytes:
     """The figure as PNG with one row of legend above the axes (the entries of
     ``legend_from``); the axes fill the figure up to ``top`` (a fraction of its height)."""
-    handles, labels = legend_from.get_legend_handles_labels()
+    handles, labels = [], []
+    for ax in [legend_from] if isinstance(legend_from, Axes) else legend_from:
+        h, lab = ax.get_legend_handles_labels()
+        handles += h
+        labels += lab
     fig.tight_layout(rect=(0, 0, 1, top))
     fig.legend(handles, labels, loc="upper center", ncol=len(labels), fontsize=8, frameon=False)
     return _png(fig)
 
 
-def _log_axis_plain(axis) -> None:
-    """Log axis ticks at 1, 1.5, 2, 3, 5, 7 × 10^k written as plain numbers."""
-    axis.set_major_locator(LogLocator(base=10, subs=(1.0, 1.5, 2.0, 3.0, 5.0, 7.0)))
+def _log_axis_plain(axis, sparse: bool = False) -> None:
+    """Log axis ticks at 1, 1.5, 2, 3, 5, 7 × 10^k (``sparse``: 1, 2, 5 × 10^k) written as
+    plain numbers."""
+    subs = (1.0, 2.0, 5.0) if sparse else (1.0, 1.5, 2.0, 3.0, 5.0, 7.0)
+    axis.set_major_locator(LogLocator(base=10, subs=subs))
     axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     axis.set_minor_formatter(NullFormatter())
 
@@ -151,34 +159,42 @@ def residuals(
 
 
 def ablation_spread(
-    accuracy: Mapping[str, np.ndarray], paper_means: Mapping[str, Sequence[float]]
+    accuracy: Mapping[str, np.ndarray],
+    paper_means: Mapping[str, Sequence[float]],
+    labels: Mapping[str, str] | None = None,
 ) -> bytes:
-    """Table 3 analogue: accuracy of each variant over the repeated tests, per roller."""
+    """Table 3 analogue: accuracy of each variant in each repeated test (dots) and their mean
+    ± one standard deviation (bar), per roller; the paper's means on a second axis (its own
+    scale). ``labels`` gives the variants' display names."""
     variants = list(accuracy)
-    fig, axes = plt.subplots(1, len(ROLLERS), figsize=(13, 3.4), sharey=False)
+    fig, axes = plt.subplots(1, len(ROLLERS), figsize=(13, 3.6))
+    insets = []
     for j, roller in enumerate(ROLLERS):
         ax = axes[j]
         for k, v in enumerate(variants):
-            vals = np.asarray(accuracy[v])[:, j]
-            ax.scatter(np.full(len(vals), k) + np.linspace(-0.15, 0.15, len(vals)), vals, s=12,
-                       color=COLORS.get(v), label="ours" if k == 0 else None)  # fmt: skip
-            ax.hlines(np.mean(vals), k - 0.3, k + 0.3, color="black", lw=1)
-        ax.set_xticks(range(len(variants)))
-        ax.set_xticklabels(variants)
-        ax.set_title(roller)
+            _repeats(ax, k, np.asarray(accuracy[v], dtype=float)[:, j], COLORS.get(v), k == 0)
+        ax.set_xticks(range(len(variants)), [(labels or {}).get(v, v) for v in variants])
+        ax.set_xlim(-0.5, len(variants) - 0.5)
+        ax.set_title(f"{roller} roller", fontsize=10)
         ax.set_ylabel("ours: accuracy (%)" if j == 0 else "")
         ax.ticklabel_format(axis="y", useOffset=False)
         inset = ax.twinx()
-        inset.plot(
-            range(len(variants)), paper_means[roller], "kx", ms=7, label="paper mean (right axis)"
-        )
+        inset.plot(range(len(variants)), paper_means[roller], "kx", ms=7,
+                   label="paper: mean of its 10 tests (right axis)")  # fmt: skip
         inset.tick_params(labelsize=7, colors="#6b5f45")
         inset.ticklabel_format(axis="y", useOffset=False)
-        if j == len(ROLLERS) - 1:
-            inset.set_ylabel("paper: accuracy (%)", color="#6b5f45")
-            inset.legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
-    return _png(fig)
+        insets.append(inset)
+    insets[-1].set_ylabel("paper: accuracy (%)", color="#6b5f45")
+    return _png_with_legend_on_top(fig, [axes[0], insets[0]], top=0.9)
+
+
+def _repeats(ax: Axes, k: int, vals: np.ndarray, color: str | None, legend: bool) -> None:
+    """One variant's repeats at x = k: the dots, and the mean ± std as a bar beside them."""
+    ax.scatter(k - 0.1 + np.linspace(-0.12, 0.12, len(vals)), vals, s=12, color=color,
+               label="ours: each repeated test" if legend else None)  # fmt: skip
+    std = float(np.std(vals, ddof=1)) if len(vals) > 1 else 0.0
+    ax.errorbar([k + 0.2], [float(np.mean(vals))], yerr=[std], fmt="_", ms=12, capsize=4,
+                color="black", lw=1.2, label="ours: mean ± std" if legend else None)  # fmt: skip
 
 
 def rmse_overview(
@@ -220,3 +236,79 @@ def rmse_overview(
         ax.set_title(roller)
         ax.set_xlabel(with_unit("RMSE", unit))
     return _png_with_legend_on_top(fig, axes[0], top=0.9)
+
+
+REFERENCE_STYLE = {
+    "floor": {"color": "black", "ls": "--", "lw": 1.1},
+    "persistence": {"color": COLORS["persistence"], "ls": "-", "lw": 1.6, "alpha": 0.7},
+    "physics": {"color": COLORS["mechanistic"], "ls": "-.", "lw": 1.3},
+}
+
+
+def headline_rmse(
+    rmse: Mapping[str, Sequence[float]],
+    references: Mapping[str, Sequence[float]],
+    notes: Mapping[str, Sequence[str]],
+    colors: Mapping[str, str | None],
+    unit: str = "",
+) -> bytes:
+    """The report's first figure: each model's test RMSE per roller (a dot; log scale), a note
+    beside each dot (the paper's rank), and reference lines per roller.
+
+    ``rmse`` maps a model's display name to its four per-roller values; ``references`` maps a
+    reference's display name to four values, drawn as vertical lines (style from
+    :data:`REFERENCE_STYLE` by its first word; NaN: not drawn); ``notes`` maps a model's
+    display name to four short texts, ``colors`` to its colour.
+    """
+    models = list(rmse)
+    y = np.arange(len(models))[::-1]
+    fig, axes = plt.subplots(1, len(ROLLERS), figsize=(12, 0.42 * len(models) + 1.45), sharey=True)
+    for j, roller in enumerate(ROLLERS):
+        ax = axes[j]
+        for name, values in references.items():
+            if np.isfinite(values[j]):
+                style = REFERENCE_STYLE.get(name.split()[0], {"color": "#444444"})
+                ax.axvline(values[j], label=name, **style)
+        for k, m in enumerate(models):
+            if not np.isfinite(rmse[m][j]):
+                continue
+            ax.plot([rmse[m][j]], [y[k]], "o", ms=8, color=colors.get(m), zorder=3)
+            ax.annotate(notes.get(m, [""] * len(ROLLERS))[j], (rmse[m][j], y[k]),
+                        xytext=(0, 8), textcoords="offset points", ha="center", fontsize=7.5,
+                        color="#6b5f45")  # fmt: skip
+        ax.set_xscale("log")
+        _log_axis_plain(ax.xaxis)
+        ax.margins(x=0.12)
+        ax.grid(axis="x", which="major", color="#e5e5e5", lw=0.6)
+        ax.set_yticks(y, models)
+        ax.set_ylim(-0.5, len(models) - 0.2)
+        ax.set_title(f"{roller} roller", fontsize=10)
+        ax.set_xlabel(with_unit("test RMSE", unit), fontsize=9)
+    return _png_with_legend_on_top(fig, axes[0], top=0.93)
+
+
+def speed_change(
+    curves: Mapping[str, Mapping[str, Sequence[tuple[float, float]]]],
+    colors: Mapping[str, str | None],
+    unit: str = "",
+) -> bytes:
+    """RMSE against the speed change from the training point (%), one panel per task, one
+    line per model, log scale; ``curves`` maps a task's title to ``{model: [(pct, rmse)]}``."""
+    fig, axes = plt.subplots(1, len(curves), figsize=(12, 3.6), squeeze=False)
+    for ax, (title, by_model) in zip(axes[0], curves.items(), strict=True):
+        for model, points in by_model.items():
+            pts = sorted(points)
+            ax.plot([p[0] for p in pts], [p[1] for p in pts], "o-", ms=5, lw=1.3,
+                    color=colors.get(model), label=model)  # fmt: skip
+        ax.axvline(0.0, color="#999999", ls=":", lw=1)
+        ax.annotate("trained here", (0.0, 1.0), xycoords=("data", "axes fraction"), xytext=(3, -10),
+                    textcoords="offset points", fontsize=7.5, color="#777777")  # fmt: skip
+        ax.set_yscale("log")
+        low, high = ax.get_ylim()
+        _log_axis_plain(ax.yaxis, sparse=high > 20 * low)
+        ax.grid(axis="y", which="major", color="#e5e5e5", lw=0.6)
+        ax.set_title(title, fontsize=10)
+        ax.set_xlabel("speed change from the training point (%)")
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:+.0f}" if v else "0"))
+        ax.set_ylabel(with_unit("RMSE, mean over rollers", unit))
+    return _png_with_legend_on_top(fig, axes[0][0], top=0.9)

@@ -24,6 +24,16 @@ def sig(x: Any, digits: int = 3) -> str:
     return f"{x:.{digits}g}" if is_num(x) else DASH
 
 
+def sig_fixed(x: Any, digits: int = 3) -> str:
+    """A number to ``digits`` significant digits, trailing zeros kept (``2.00``, ``0.720``,
+    ``118``); a dash for None / NaN."""
+    if not is_num(x):
+        return DASH
+    if x == 0:
+        return "0"
+    return f"{x:.{max(0, digits - 1 - math.floor(math.log10(abs(x))))}f}"
+
+
 def seconds(s: Any) -> str:
     """A duration: ``12.3 s``, ``4 min 05 s``, ``1 h 02 min``."""
     if not is_num(s):

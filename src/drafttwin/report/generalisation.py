@@ -24,8 +24,26 @@ import matplotlib.pyplot as plt  # noqa: E402
 from drafttwin._constants import ROLLERS  # noqa: E402
 from drafttwin._io import write_text_atomic  # noqa: E402
 from drafttwin._json import dumps_strict  # noqa: E402
-from drafttwin.benchmarks.generalisation.records import SCENARIOS  # noqa: E402
+from drafttwin.benchmarks.generalisation.records import (  # noqa: E402
+    MACHINE_SEED,
+    SCENARIOS,
+    TEST_RECORDS,
+)
+from drafttwin.report import figures  # noqa: E402
 from drafttwin.report.figures import COLORS  # noqa: E402
+from drafttwin.report.fmt import sig_fixed  # noqa: E402
+from drafttwin.report.html import (  # noqa: E402
+    Cell,
+    Raw,
+    Row,
+    bullets,
+    figure,
+    join,
+    para,
+    section,
+    table,
+    tag,
+)
 
 MODELS = ("mechanistic", "mechanistic (calibrated)", "persistence", "gru", "parallel", "md-s-l")
 LABELS = {
@@ -291,7 +309,8 @@ def scenario_means(doc: Mapping[str, Any], task: str) -> tuple[list[str], list[l
         if r["task"] == task and r["rmse"]["mean"] is not None:
             groups.setdefault((r["scenario"], r["model"]), []).append(r["rmse"]["mean"])
     models = [m for m in MODELS if any(k[1] == m for k in groups)]
-    rows = [[s, *(_num(sum(v) / len(v)) if (v := groups.get((s, m))) else "" for m in models)]
+    rows = [[s, *(sig_fixed(sum(v) / len(v)) if (v := groups.get((s, m))) else ""
+                  for m in models)]
             for s in SCENARIOS if any((s, m) in groups for m in models)]  # fmt: skip
     return ["scenario", *(LABELS[m] for m in models)], rows
 
@@ -302,24 +321,85 @@ def study_summary(doc: Mapping[str, Any]) -> dict[str, Any]:
     return {k: doc[k] for k in keys}
 
 
+STEADY_SPEED = {
+    name: round(100.0 * (spec.speed_scale - 1.0), 6)
+    for name, spec in TEST_RECORDS.items()
+    if spec.plant_scenario == "steady" and not spec.draft_gears
+    and spec.machine_seed == MACHINE_SEED
+}  # fmt: skip
+"""Speed change from the training point (%) of the records that differ from it in speed only
+(steady running of the training machine; ``little-data`` is at the training set-point)."""
+
+
+def speed_curves(doc: Mapping[str, Any], task: str) -> dict[str, list[tuple[float, float]]]:
+    """Per model (display name): (speed change %, RMSE averaged over the rollers) on the
+    records of :data:`STEADY_SPEED`, the same numbers as :func:`scenario_means`."""
+    groups: dict[tuple[str, str], list[float]] = {}
+    for r in doc["extrapolation"]:
+        if r["task"] == task and r["scenario"] in STEADY_SPEED and r["rmse"]["mean"] is not None:
+            groups.setdefault((r["model"], r["scenario"]), []).append(r["rmse"]["mean"])
+    out: dict[str, list[tuple[float, float]]] = {}
+    for model in MODELS:
+        points = [(STEADY_SPEED[s], sum(v) / len(v)) for (m, s), v in groups.items() if m == model]
+        if len(points) > 1:
+            out[LABELS[model]] = sorted(points)
+    return out
+
+
+def speed_figure(doc: Mapping[str, Any]) -> Raw:
+    """RMSE against the speed change from the training point, free run and one step ahead."""
+    titles = {"simulation": "free-run simulation", "prediction": "one-step prediction"}
+    curves = {titles[t]: c for t in TASKS if (c := speed_curves(doc, t))}
+    if not curves:
+        return Raw("")
+    colors = {LABELS[m]: _color(m) for m in MODELS}
+    caption = (
+        "RMSE (rpm, mean over the four rollers, log scale) against the speed change from the "
+        "training point: the training machine at steady running with its set-point scaled; "
+        "0 %: the training set-point (another recording). The learned models were trained at "
+        "0 % only."
+    )
+    png = figures.speed_change(curves, colors, unit="rpm")
+    return figure(png, "fig-speed-change", caption, "RMSE against speed change")
+
+
+def _study_table(head: list[str], rows: list[list[str]], wrap: int | None = None) -> Raw:
+    """A benchmark table in the study page's style; column ``wrap`` wraps its text."""
+    body: list[Row] = [
+        [
+            Cell(c, cls="wrap" if k == wrap else ("name" if k == 0 else None))
+            for k, c in enumerate(r)
+        ]
+        for r in rows
+    ]
+    return table([[Cell(h, header=True) for h in head]], body)
+
+
 def physics_pays_section(results: Mapping[str, Any]) -> str:
     """The study report's "Where does the physics pay?" section (empty without results)."""
     doc = results.get("generalisation")
     if not doc:
         return ""
     cfg = doc["config"]
-    lines = "".join(f"<li>{html.escape(s)}</li>" for s in check_lines(doc))
-    return (
-        '<section id="generalisation"><h2>Where does the physics pay?</h2>'
-        "<p>The generalisation benchmark's quick subset (<code>drafttwin benchmark "
-        "generalisation --quick</code>): every learned model trained on "
+    intro = join([
+        "The generalisation benchmark's quick subset (", tag("code", "drafttwin benchmark "
+        "generalisation --quick"), "): every learned model trained on "
         f"{max(cfg['train_lengths_s']):g} s of steady running of one plant machine at one "
-        f"set-point (networks {cfg['layers']} x {cfg['hidden']}, {cfg['epochs']} epochs: a "
+        f"set-point (networks {cfg['layers']} × {cfg['hidden']}, {cfg['epochs']} epochs: a "
         "smoke-test budget, far below the study's), then tested where its training never went. "
-        "Mean RMSE over the four rollers, rpm. The full benchmark's figures are in "
-        "docs/generalisation.md.</p>"
-        f"<h3>Free-run simulation</h3>{html_table(*scenario_means(doc, 'simulation'))}"
-        f"<h3>One-step prediction</h3>{html_table(*scenario_means(doc, 'prediction'))}"
-        f"<h3>Hybrid structure chosen on validation records</h3>{html_table(*structure_rows(doc))}"
-        f"<ul>{lines}</ul></section>"
-    )
+        "The full benchmark's figures are in docs/generalisation.md.",
+    ])  # fmt: skip
+    unit = "RMSE (rpm), mean over the four rollers"
+    return section(
+        "generalisation",
+        "Where does the physics pay?",
+        para(intro),
+        speed_figure(doc),
+        tag("h3", f"Free-run simulation: {unit}"),
+        _study_table(*scenario_means(doc, "simulation")),
+        tag("h3", f"One-step prediction: {unit}"),
+        _study_table(*scenario_means(doc, "prediction")),
+        tag("h3", "Hybrid structure chosen on validation records"),
+        _study_table(*structure_rows(doc), wrap=3),
+        bullets(check_lines(doc)),
+    ).html

@@ -174,15 +174,31 @@ CSS = """
 body { font: 15px/1.5 system-ui, -apple-system, "Segoe UI", Roboto, sans-serif; color: var(--ink);
        margin: 0; background: #fafbfc; }
 main { max-width: 1180px; margin: 0 auto; padding: 24px 28px 60px; background: #fff; }
-h1 { font-size: 26px; margin: 0 0 4px; }
+h1 { font-size: 22px; margin: 0 0 2px; }
 h2 { font-size: 20px; border-bottom: 2px solid var(--accent); padding-bottom: 4px; margin-top: 40px; }
 h3 { font-size: 16px; margin: 22px 0 6px; }
 p, li { max-width: 92ch; }
-.sub { color: var(--muted); margin: 0 0 14px; }
-.banner { background: var(--warn); border-left: 5px solid #d9a400; padding: 10px 14px; margin: 14px 0; }
-.banner strong { font-size: 16px; }
-nav ol { columns: 2; margin: 6px 0 0; padding-left: 20px; }
+.sub { color: var(--muted); margin: 0 0 6px; font-size: 13px; }
+.banner { background: var(--warn); border-left: 5px solid #d9a400; padding: 8px 14px;
+          margin: 14px 0; }
+.banner details { margin-top: 4px; }
+.banner summary { cursor: pointer; color: var(--accent); }
+nav.toc { position: sticky; top: 0; z-index: 5; display: flex; gap: 14px; align-items: baseline;
+          background: #fff; border-bottom: 1px solid var(--line); padding: 6px 0; font-size: 13px; }
+nav.toc ol { display: flex; flex-wrap: wrap; gap: 2px 16px; list-style: none; margin: 0;
+             padding: 0; }
 nav a { color: var(--accent); text-decoration: none; }
+nav a:hover { text-decoration: underline; }
+[id] { scroll-margin-top: 44px; }
+section.glance h2 { font-size: 18px; margin: 10px 0 4px; }
+section.glance figure { margin: 4px 0 6px; }
+table.verdicts { width: 100%; }
+table.verdicts td { white-space: normal; text-align: left; vertical-align: top; }
+table.verdicts td.q { font-weight: 600; min-width: 230px; }
+table.verdicts .pair { display: block; font-weight: 400; color: var(--muted); font-size: 12px; }
+table.verdicts td.name { white-space: nowrap; }
+table.verdicts td.verdict { font-weight: 700; text-align: center; white-space: nowrap; }
+td.v-not-run { color: var(--muted); }
 .scroll { overflow-x: auto; margin: 8px 0 14px; }
 table { border-collapse: collapse; font-size: 13px; font-variant-numeric: tabular-nums; }
 th, td { border: 1px solid var(--line); padding: 3px 7px; text-align: right; white-space: nowrap; }

@@ -7,7 +7,6 @@ from typing import Any
 
 from drafttwin._constants import ROLLERS
 from drafttwin.evaluation.metrics import DEFAULT_REL_FLOOR
-from drafttwin.report import agreement
 from drafttwin.report.fmt import DASH, is_num, seconds
 from drafttwin.report.html import (
     Cell,
@@ -109,32 +108,26 @@ def _run_items(results: Mapping[str, Any]) -> dict[str, Any]:
     }
 
 
-def _data_banner(results: Mapping[str, Any]) -> Raw:
+def data_notice(results: Mapping[str, Any]) -> Raw:
+    """Where the data come from, in two lines; the plant's details folded away."""
     data = results["data"]
     if not is_plant(results):
         name = data.get("name") or "measured data"
         return tag("div", tag("strong", f"Data: {name} (measurements read from a file)."),
                    cls="banner")  # fmt: skip
     summary = [str(s) for s in data.get("plant_summary") or []]
-    parts = [
-        tag("strong", "Data: plant emulator, not a real FA320A."),
-        para(
-            "No public FA320A roller-speed measurements exist. The numbers below come from "
-            "drafttwin's plant emulator, which plays the machine; the paper's numbers come from "
-            "a real FA320A. Compare trends, not absolute values."
-        ),
+    adds = join([tag("strong", "What the plant adds"), " to the nominal model: ", PLANT_ADDS, "."])
+    details: list[Raw | str] = [
+        tag("summary", "What the plant adds and what it leaves out"),
         bullets(summary) if summary else "",
-        para(
-            join(
-                [
-                    tag("strong", "What the plant adds"),
-                    " to the nominal mechanistic model: ",
-                    PLANT_ADDS,
-                    ".",
-                ]
-            )
-        ),  # fmt: skip
+        para(adds),
         para(join([tag("strong", "What it leaves out: "), PLANT_LEAVES_OUT, "."])),
+    ]
+    parts: list[Raw | str] = [
+        tag("strong", "Data: plant emulator, not a real FA320A."),
+        " No public FA320A roller-speed measurements exist: our numbers come from drafttwin's "
+        "plant emulator, the paper's from a real FA320A. Compare trends, not absolute values.",
+        tag("details", join(details)),
     ]
     return tag("div", join(parts), cls="banner")
 
@@ -215,24 +208,20 @@ def _timing_tables(timings: Mapping[str, Any]) -> Raw:
     return join(parts)
 
 
-def _toc(entries: list[tuple[str, str]]) -> Raw:
+def toc(entries: list[tuple[str, str]]) -> Raw:
+    """The table of contents: one bar that stays at the top of the window."""
     items = [tag("li", tag("a", title, href=f"#{sid}")) for sid, title in entries]
-    return tag("nav", join([tag("strong", "Contents"), tag("ol", join(items))]))
+    return tag("nav", join([tag("strong", "Contents"), tag("ol", join(items))]), cls="toc")
 
 
-def header(results: Mapping[str, Any], toc: list[tuple[str, str]]) -> Raw:
-    """Title, data banner, the headline findings and the table of contents."""
+def header(results: Mapping[str, Any]) -> Raw:
+    """Title and the run's one-line identity."""
     prof = results["profile"].get("name", DASH)
     sub = (
         f"drafttwin {results.get('drafttwin_version', DASH)} · profile {prof} · "
         f"created {results.get('created_utc', DASH)} (UTC)"
     )
-    parts = [tag("h1", TITLE), para(sub, cls="sub"), _data_banner(results)]
-    lines = agreement.headline(results)
-    if lines:
-        parts += [tag("h3", "In short"), bullets(lines)]
-    parts.append(_toc(toc))
-    return tag("header", join(parts))
+    return tag("header", join([tag("h1", TITLE), para(sub, cls="sub")]))
 
 
 def run_section(results: Mapping[str, Any]) -> Raw:

@@ -416,7 +416,7 @@ def wavelength_details(diagnosis: SliverDiagnosis) -> Raw:
         for c in cause.candidates:
             if c.plausible and label not in named.setdefault(c.element, []):
                 named[c.element].append(label)
-    harmonics = range(2, wt.harmonics + 1)
+    harmonics = range(2, min(wt.harmonics, 4) + 1)  # the first three: the table fits
     head: list[Row] = [[Cell("element", cls="name", header=True), "kind", "turns with",
                         "frequency, Hz", "wavelength, cm",
                         *[f"λ/{h}, cm" for h in harmonics],

@@ -11,7 +11,7 @@ import numpy as np
 from drafttwin._constants import ROLLERS
 from drafttwin.report import agreement, paper
 from drafttwin.report.agreement import label
-from drafttwin.report.fmt import DASH, is_num, num, sig
+from drafttwin.report.fmt import DASH, is_num, num, sig, sig_fixed
 from drafttwin.report.html import (
     Cell,
     Raw,
@@ -149,7 +149,7 @@ def _table3_html(abl: Mapping[str, Any]) -> Raw:
         for r in ROLLERS:
             for v in variants:
                 x = summ[v][r][key]
-                text = sig(x, 2) if key == "std" else num(x, 4)
+                text = sig_fixed(x, 2) if key == "std" else num(x, 4)
                 cells.append(Cell(text, cls="best" if key == "mean" and best[r] == v else None))
         body.append(("summary", cells))
     for title, k in (("paper: mean", 0), ("paper: std", 1)):
@@ -216,19 +216,20 @@ def ablation_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) -> R
             f"{len(abl['seeds'])} repeated tests (one seed each). MD-L drops the SKNet, MD-S "
             f"drops the LSTM. {_shared_text(abl.get('shared_data_model'))}"
         ),
+        figure(
+            figs["ablation"],
+            "fig-ablation",
+            f"Accuracy of each variant in each of the {len(abl['seeds'])} repeated tests (dots) "
+            "and their mean ± one standard deviation (bar), per roller; crosses: the paper's "
+            "means, on the right axis (its own scale).",
+            "ablation accuracy per test",
+        ),
         _table3_html(abl),
         tag(
             "details",
             join(
                 [tag("summary", "The paper's Table 3, test by test (real FA320A)"), _paper_table3()]
             ),
-        ),
-        figure(
-            figs["ablation"],
-            "fig-ablation",
-            "Accuracy of each variant in each repeated test (dots; bar = mean), per roller; "
-            "crosses: the paper's means, on the right axis (its own scale).",
-            "ablation accuracy per test",
         ),
         tag("h3", "Are the differences larger than the spread?"),
         para(

@@ -15,22 +15,25 @@ from drafttwin._constants import ROLLERS
 from drafttwin._io import atomic_path, write_text_atomic
 from drafttwin._json import dumps_strict
 from drafttwin.report import figures, paper, tables
+from drafttwin.report.agreement import label
 from drafttwin.report.comparison import comparison_section, figures_section
 from drafttwin.report.generalisation import physics_pays_section
+from drafttwin.report.glance import glance_section, headline_png
 from drafttwin.report.html import Raw, join, page, tag
-from drafttwin.report.overview import TITLE, header, run_section
+from drafttwin.report.overview import TITLE, data_notice, header, run_section, toc
 from drafttwin.report.physics import calibration_section
 from drafttwin.report.studies import ablation_section, agreement_section, grid_section
 
 TOC = [
-    ("run", "What was run"),
-    ("comparison", "Model comparison (Table 2)"),
-    ("predictions", "Predictions and residuals (Fig. 8)"),
-    ("grid", "Grid search (Fig. 7)"),
-    ("ablation", "Ablation (Table 3)"),
+    ("glance", "At a glance"),
+    ("run", "1 Run"),
+    ("comparison", "2 Comparison"),
+    ("predictions", "3 Predictions"),
+    ("grid", "4 Grid search"),
+    ("ablation", "5 Ablation"),
     ("calibration", "Calibrated physics"),
-    ("agreement", "Agreement with the paper"),
-    ("generalisation", "Where does the physics pay?"),
+    ("agreement", "6 Agreement"),
+    ("generalisation", "Where the physics pays"),
 ]
 CSV_FLOAT = "%.10g"
 
@@ -102,8 +105,14 @@ def _summary_figures(results: Mapping[str, Any]) -> dict[str, bytes]:
             unit=tables.metric_unit(results),
         ),
         "grid": figures.grid_losses(grid),
-        "ablation": figures.ablation_spread(acc, paper_means),
+        "ablation": figures.ablation_spread(acc, paper_means, {v: label(v) for v in acc}),
+        "headline": headline_png(results),
     }
+
+
+def _toc(results: Mapping[str, Any]) -> list[tuple[str, str]]:
+    optional = ("calibration", "generalisation")
+    return [t for t in TOC if t[0] not in optional or results.get(t[0])]
 
 
 def render_html(results: Mapping[str, Any], predictions: pd.DataFrame) -> str:
@@ -112,16 +121,17 @@ def render_html(results: Mapping[str, Any], predictions: pd.DataFrame) -> str:
     main, _ = tables.compared_models(results)
     plotted = [m for m in main if m != "persistence" and _matrix(predictions, m) is not None]
     zoom = zoom_window(predictions["time"].to_numpy(dtype=np.float64))
+    footer = tag(
+        "footer",
+        f"Written by drafttwin {results.get('drafttwin_version', '')} from the "
+        "study's results.json; tables as CSV beside this file.",
+    )
     body = join(
         [
-            header(
-                results,
-                [
-                    t
-                    for t in TOC
-                    if t[0] not in ("calibration", "generalisation") or t[0] in results
-                ],
-            ),  # fmt: skip
+            header(results),
+            toc(_toc(results)),
+            glance_section(results, figs["headline"]),
+            data_notice(results),
             run_section(results),
             comparison_section(results, figs),
             figures_section(figs, plotted, zoom),
@@ -130,11 +140,7 @@ def render_html(results: Mapping[str, Any], predictions: pd.DataFrame) -> str:
             calibration_section(results),
             agreement_section(results),
             Raw(physics_pays_section(results)),
-            tag(
-                "footer",
-                f"Written by drafttwin {results.get('drafttwin_version', '')} from the "
-                "study's results.json; tables as CSV beside this file.",
-            ),
+            footer,
         ]
     )
     return page(TITLE, body)
