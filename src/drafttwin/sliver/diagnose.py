@@ -208,7 +208,7 @@ def check_with_encoders(diagnosis: SliverDiagnosis, time_s: np.ndarray,
             measured = max(encoder_line_pct(time_s, rpm[r], orders[r]) for r in moved)
             near = [encoder_line_pct(time_s, rpm[r], orders[r] * (1 + d)) for r in moved
                     for d in (-0.06, -0.045, -0.03, -0.02, 0.02, 0.03, 0.045, 0.06)]  # fmt: skip
-            noise = float(np.sqrt(np.nanmean(np.square(near)))) if near else math.nan
+            noise = _rms(near)
             expected = 0.0 if e.kind == "roller" else c.required_modulation_pct
             seen = _rollers_with_line(time_s, rpm, e, by_name)
             checks.append(EncoderCheck(c.element, expected, measured, noise,
@@ -233,10 +233,16 @@ def _rollers_with_line(time_s: np.ndarray, rpm: dict[str, np.ndarray], e: Elemen
         near = [
             encoder_line_pct(time_s, rpm[r], order * (1 + d)) for d in (-0.04, -0.02, 0.02, 0.04)
         ]
-        noise[r] = float(np.sqrt(np.nanmean(np.square(near))))
+        noise[r] = _rms(near)
     ok = {r: a for r, a in amp.items() if math.isfinite(a) and a > 3 * noise[r]}
     top = max(ok.values(), default=0.0)
     return [r for r, a in ok.items() if a >= 0.3 * top]
+
+
+def _rms(values: list[float]) -> float:
+    """RMS of the finite values (NaN if none: above the encoders' Nyquist frequency)."""
+    finite = [v for v in values if math.isfinite(v)]
+    return float(np.sqrt(np.mean(np.square(finite)))) if finite else math.nan
 
 
 def _encoder_verdict(expected: float, measured: float, noise: float) -> str:
