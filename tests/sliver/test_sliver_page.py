@@ -20,7 +20,8 @@ import pytest
 from drafttwin.mechanics import DriveTrain
 from drafttwin.report.sliver import sliver_page
 from drafttwin.sliver import Feed, StapleDiagram, draft
-from drafttwin.sliver.diagnose import EncoderCheck, SliverDiagnosis, diagnose_sliver, rerank
+from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver
+from drafttwin.sliver.encoders import EncoderCheck, rerank
 from drafttwin.sliver.spectrogram import read_tester_spectrogram
 
 from ._speeds import speeds

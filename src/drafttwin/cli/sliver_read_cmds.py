@@ -281,7 +281,7 @@ def diagnose_cmd(
 
 def _with_speeds(dx: Any, record: Any, speeds: Path, fibres: Any, zones: Any) -> Any:
     from drafttwin.data.io import read_measurements
-    from drafttwin.sliver.diagnose import with_encoders
+    from drafttwin.sliver.encoders import with_encoders
 
     series = read_measurements(speeds)
     rpm = {r: series.values[:, series.channels.index(r)] for r in series.channels}

@@ -18,7 +18,8 @@ from typing import Any
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.mechanics import DriveTrain
 from drafttwin.sliver import StapleDiagram, read_sliver
-from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver, with_encoders
+from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver
+from drafttwin.sliver.encoders import with_encoders
 from drafttwin.sliver.record import sliver_beside
 from drafttwin.sliver.watch import SliverWatch
 

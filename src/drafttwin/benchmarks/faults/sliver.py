@@ -29,7 +29,8 @@ from drafttwin.plant import Machine, Plant
 from drafttwin.plant.fault_cases import make_fault
 from drafttwin.plant.sliver_channel import SliverSettings
 from drafttwin.sliver import StapleDiagram, wavelength_table
-from drafttwin.sliver.diagnose import diagnose_sliver, with_encoders
+from drafttwin.sliver.diagnose import diagnose_sliver
+from drafttwin.sliver.encoders import with_encoders
 
 KINDS = ("runout", "eccentricity", "flute", "crack")
 FLUTE_ROLLERS = ("front", "third", "back")
