@@ -111,6 +111,9 @@ KINDS: dict[str, FaultKind] = {k.name: k for k in (
               (0.05, 0.3, 1.0)),
 )}  # fmt: skip
 MACHINE_FAMILIES = ("gear", "belt", "chain", "bearing", "roller", "motor")
+SURFACE_ONLY = ("flute",)
+"""Kinds that act on a roller's surface only: no speed an encoder counts changes, so the
+encoder fault benchmark leaves them out and its sliver variant has them."""
 
 
 def catalogue(train: DriveTrain) -> dict[str, tuple[str, ...]]:
