@@ -129,7 +129,7 @@ using only the first {proto["init_samples"]} measured test samples, RMSE over th
 (the official metric). Prediction: one step ahead from the measured history (drafttwin's
 protocol), scored from row {PREDICTION_START}; not
 comparable with the simulation-mode literature. Profile <b>{html.escape(res["profile"])}</b>,
-seeds {res["seeds"]}, drafttwin {html.escape(res["drafttwin_version"])},
+seeds {", ".join(str(s) for s in res["seeds"])}, drafttwin {html.escape(res["drafttwin_version"])},
 wall time {res["wall_s"]:.0f} s.</p>{partial}
 {_html_table(res)}
 <h2>Published numbers (simulation task)</h2><ul>{sources}</ul>
