@@ -164,6 +164,15 @@ def simulate_cmd(
     ] = 25.0,  # fmt: skip
     preset: PresetOpt = None,
     config: ConfigOpt = None,
+    reduced: Annotated[
+        bool,
+        typer.Option(
+            "--reduced",
+            help="With --speeds physics: the reduced drive train (couplings above "
+            "200 Hz rigid, belts compliant: its mesh lines are gone, its once-per-revolution ones "
+            "stay); faster.",
+        ),
+    ] = False,  # fmt: skip
     detail: Annotated[
         bool,
         typer.Option(
@@ -255,6 +264,10 @@ def simulate_cmd(
         real = RealDrafting(acc, coupling)
     levelling = _leveller(leveller)
     train = load_train(preset, config)
+    if reduced:
+        from drafttwin.mechanics import reduce
+
+        train = reduce(train)
     sp = _speeds(speeds, truth, duration, train, detail, quiet or as_json)
     fed_m = sp.delivered_length_m / sp.drafts()["total"] * (2 if real else 1)
     with progress_bar("drafting (fed m)", round(fed_m, 1), quiet=quiet or as_json) as bar:

@@ -64,7 +64,11 @@ def spectrogram_cmd(
     channels, chimneys)."""
     from drafttwin.cli._common import write_frame
     from drafttwin.sliver import read_sliver
-    from drafttwin.sliver.evenness import evenness
+    from drafttwin.sliver.evenness import (
+        evenness,
+        ideal_variance_length_cv_pct,
+        variance_length_curve,
+    )
     from drafttwin.sliver.spectrogram import spectrogram
 
     if out is not None:
@@ -78,7 +82,11 @@ def spectrogram_cmd(
     if out is not None:
         write_frame(frame, out)
     if as_json:
-        print_json({"evenness": ev.to_dict(), "spectrogram": frame.to_dict(orient="list")})
+        lengths, cv = variance_length_curve(sl.linear_density_ktex, sl.step_m)
+        ideal_cv = ideal_variance_length_cv_pct(fibres, sl.count_ktex, lengths, fibre_scale)
+        print_json({"evenness": ev.to_dict(), "spectrogram": frame.to_dict(orient="list"),
+                    "variance_length": {"length_m": lengths.tolist(), "cv_pct": cv.tolist(),
+                                        "ideal_cv_pct": ideal_cv.tolist()}})  # fmt: skip
         return
     console.print(evenness_table(ev, f"{data.name}: {sl.length_m:.1f} m"))
     table = Table(title="spectrogram (significant channels; * chimney)")
