@@ -169,8 +169,7 @@ def simulate_cmd(
         typer.Option(
             "--reduced",
             help="With --speeds physics: the reduced drive train (couplings above "
-            "200 Hz rigid, belts compliant: its mesh lines are gone, its once-per-revolution ones "
-            "stay); faster.",
+            "200 Hz rigid, belts compliant: their mesh lines are gone); faster.",
         ),
     ] = False,  # fmt: skip
     detail: Annotated[
