@@ -120,16 +120,14 @@ class PlantRecording:
         sidecar = path.with_suffix(".json")
         files = {"measured": path.name, "truth": truth.name}
         written = [path, truth, sidecar]
+        sliver_files = sliver_paths(path)
         if self.sliver is not None:
-            files |= {
-                "sliver": sliver_paths(path)[0].name,
-                "sliver_truth": sliver_paths(path)[1].name,
-            }
-            written += list(sliver_paths(path))
+            files |= {"sliver": sliver_files[0].name, "sliver_truth": sliver_files[1].name}
+            written += list(sliver_files)
         info = {**self.info, "files": files}
         with contextlib.ExitStack() as stack:
             if self.sliver is not None:
-                self.sliver.write(*sliver_paths(path), stack)
+                self.sliver.write(*sliver_files, stack)
             tmp_sidecar = stack.enter_context(atomic_path(sidecar))
             tmp_truth = stack.enter_context(atomic_path(truth))
             measured = replace(self.series, metadata={"sidecar": sidecar.name})

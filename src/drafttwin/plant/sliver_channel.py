@@ -26,6 +26,7 @@ from drafttwin._io import atomic_path
 from drafttwin.sliver import DraftingZones, Feed, FeedFault, Sliver, StapleDiagram, SurfaceSpeeds
 from drafttwin.sliver import draft as draft_sliver
 from drafttwin.sliver.evenness import evenness
+from drafttwin.sliver.record import frame_to_file
 from drafttwin.sliver.sensor import SliverSensor, infeed_reading
 
 SURFACE_RATE_HZ = 2000.0
@@ -96,11 +97,7 @@ class SliverChannel:
         """Write both frames to temporary files in ``stack`` (renamed when it closes)."""
         measured, true = self.frames()
         for frame, target in ((measured, path), (true, truth)):
-            tmp = stack.enter_context(atomic_path(target))
-            if target.suffix.lower() == ".parquet":
-                frame.to_parquet(tmp, index=False)
-            else:
-                frame.to_csv(tmp, index=False, float_format="%.10g")
+            frame_to_file(frame, stack.enter_context(atomic_path(target)), target.suffix)
 
 
 def make_sliver(time_s: np.ndarray, length_m: np.ndarray, settings: SliverSettings,

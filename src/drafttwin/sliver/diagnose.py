@@ -76,7 +76,7 @@ def running_drafts(table: WavelengthTable, train: DriveTrain) -> dict[str, float
 def diagnose_sliver(record: Sliver | Spectrogram, train: DriveTrain, staple: StapleDiagram,
                     zones: DraftingZones | None = None, *, sensor_length_m: float = 0.0,
                     harmonics: int = HARMONICS, table: WavelengthTable | None = None,
-                    reference: Sliver | None = None) -> SliverDiagnosis:  # fmt: skip
+                    reference: Sliver | Spectrogram | None = None) -> SliverDiagnosis:  # fmt: skip
     """Evenness, spectrogram and the chimneys' causes of a sliver record or a tester's
     spectrogram, for the drive train ``train`` at its running point. ``reference``: a
     healthy sliver of the same machine; a chimney no higher there than the chimney rule
@@ -97,11 +97,25 @@ def diagnose_sliver(record: Sliver | Spectrogram, train: DriveTrain, staple: Sta
     causes = attribute(chimneys, table, gauges, drafts, staple, harmonics)
     known: list[ChimneyCause] = []
     if reference is not None:
-        ref = spectrogram(reference.linear_density_ktex, reference.step_m, staple,
-                          fibre_scale=reference.fibre_scale, sensor_length_m=sensor_length_m)  # fmt: skip
+        ref = reference_spectrogram(reference, staple, sensor_length_m)
         known = [c for c in causes if not _above_reference(c, ref)]
         causes = [c for c in causes if _above_reference(c, ref)]
     return SliverDiagnosis(ev, spec, causes, table, drafts, known)
+
+
+def reference_spectrogram(reference: Sliver | Spectrogram, staple: StapleDiagram,
+                          sensor_length_m: float = 0.0) -> Spectrogram:  # fmt: skip
+    """The spectrogram of a healthy reference sliver (a spectrogram passes as it is: a watch
+    computes it once, not at every check)."""
+    if isinstance(reference, Spectrogram):
+        return reference
+    return spectrogram(
+        reference.linear_density_ktex,
+        reference.step_m,
+        staple,
+        fibre_scale=reference.fibre_scale,
+        sensor_length_m=sensor_length_m,
+    )
 
 
 def _above_reference(cause: ChimneyCause, ref: Spectrogram) -> bool:

@@ -114,8 +114,8 @@ def draft(speeds: SurfaceSpeeds, feed: Feed, zones: DraftingZones | None = None,
         surface = leveller.levelled(surface, p_grid, relative,
                                     lambda sf: K.transport_map(sf, zones.array(), p_grid))  # fmt: skip
     lead = K.transport_map(surface, zones.array(), p_grid)
-    run = _Run(seed, lead, quantiles, cum, p0, fibre_scale, zones, h, n_bins, keep_fibres,
-               progress, real is not None)  # fmt: skip
+    run = _Run(seed, lead, quantiles, cum, p0, fibre_scale, h, n_bins, keep_fibres, progress,
+               real is not None)  # fmt: skip
     diff, kept, count = run(np.empty(0))
     if real is not None and real.acceleration_mm > 0:
         diff, kept, count = run(_drift_table(real, diff, speeds, zones, h))
@@ -142,7 +142,6 @@ class _Run:
     cum: np.ndarray
     p0: float
     fibre_scale: float
-    zones: DraftingZones
     h: float
     n_bins: int
     keep_fibres: int
@@ -152,19 +151,18 @@ class _Run:
     def __call__(self, drift: np.ndarray) -> tuple[np.ndarray, np.ndarray | None, int]:
         diff = np.zeros(self.n_bins + 2)
         keep = np.zeros((self.keep_fibres, 3))
-        state = np.zeros(8)
+        state = np.zeros(len(K.STATE))
         p_end = self.p0 + FED_STEP_MM * (self.cum.size - 1)
         p_stop = self.p0
         rng = np.random.default_rng(np.random.SeedSequence(self.seed).spawn(2)[1])
-        while state[7] == 0.0 and p_stop < p_end:
+        while state[K.STATE.index("done")] == 0.0 and p_stop < p_end:
             p_stop = min(p_stop + PIECE_M * 1e3, p_end)
-            feed = np.array([self.p0, FED_STEP_MM, self.fibre_scale, p_stop, *self.zones.array(),
-                             float(self.real)])  # fmt: skip
+            feed = np.array([self.p0, FED_STEP_MM, self.fibre_scale, p_stop, float(self.real)])
             K.draft_random(rng, self.lead, self.quantiles, self.cum, feed, drift, self.h,
                            diff, keep, state)  # fmt: skip
             if self.progress is not None:
                 self.progress(PIECE_M)
-        count = int(state[5])
+        count = int(state[K.STATE.index("count")])
         kept = keep[: min(count, self.keep_fibres)] if self.keep_fibres else None
         return diff, kept, count
 

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drafttwin.data.preprocess import interpolate_missing
 from drafttwin.sliver.attribute import Candidate, ChimneyCause
 from drafttwin.sliver.diagnose import SliverDiagnosis
 from drafttwin.sliver.drafting import DraftingZones
@@ -39,28 +40,73 @@ class EncoderCheck:
     unexplained: tuple[str, ...] = ()  # rollers with the line that the element does not move
 
 
+@dataclass(frozen=True)
+class _Channel:
+    """One roller's interval-mean speeds made ready once for many line fits: gaps filled,
+    the data path's spikes (beyond 1 % of the median) marked, and the roller's angle."""
+
+    time_s: np.ndarray
+    filled: np.ndarray  # gaps filled (the angle is counted from these)
+    good: np.ndarray  # finite and within the spike band: the samples a fit uses
+    median: float
+    step_s: float
+    revs: np.ndarray  # revolutions turned at each sample's end
+
+    @classmethod
+    def of(cls, time_s: np.ndarray, rpm: np.ndarray, min_samples: int = 100) -> _Channel | None:
+        x = np.asarray(rpm, np.float64)
+        ok = np.isfinite(x)
+        if ok.sum() < min_samples:
+            return None
+        step = float(np.median(np.diff(time_s)))
+        med = float(np.median(x[ok]))
+        filled = interpolate_missing(x)[0]
+        good = ok & (np.abs(x - med) < 0.01 * abs(med))  # spikes are not the line
+        return cls(time_s, filled, good, med, step, np.cumsum(filled / 60.0 * step))
+
+    def line_pct(self, order: float) -> float:
+        """Relative amplitude (%) of the line at ``order`` times the roller's rotation."""
+        f_hz = order * self.median / 60.0
+        if not 0 < f_hz < 0.45 / self.step_s:
+            return math.nan
+        th = 2 * math.pi * order * self.revs[self.good]
+        t = self.time_s[self.good]
+        design = np.column_stack([np.sin(th), np.cos(th), np.ones_like(t), t - t.mean()])
+        coef, *_ = np.linalg.lstsq(design, self.filled[self.good], rcond=None)
+        return float(math.hypot(coef[0], coef[1]) / abs(coef[2]) / np.sinc(f_hz * self.step_s)
+                     * 100)  # fmt: skip
+
+    def relative(self) -> np.ndarray:
+        """Relative fluctuation, spikes bridged like gaps."""
+        idx = np.arange(self.filled.size)
+        clean = np.interp(idx, idx[self.good], self.filled[self.good])
+        return clean / clean.mean() - 1.0
+
+
 def encoder_line_pct(time_s: np.ndarray, rpm: np.ndarray, order: float) -> float:
     """Relative amplitude (%) of the line at ``order`` times the roller's own rotation in its
     interval-mean speeds (one channel; gaps filled, the data path's spikes set aside),
     corrected for the interval averaging; NaN at or above the Nyquist frequency. The fit is
     in the roller's angle (order analysis), so the line stays coherent while the speed
     wanders."""
-    x = np.asarray(rpm, np.float64)
-    ok = np.isfinite(x)
-    if ok.sum() < 100:
-        return math.nan
-    step = float(np.median(np.diff(time_s)))
-    med = float(np.median(x[ok]))
-    filled = np.interp(np.arange(x.size), np.flatnonzero(ok), x[ok])
-    if not 0 < order * med / 60.0 < 0.45 / step:
-        return math.nan
-    theta = 2 * math.pi * order * np.cumsum(filled / 60.0 * step)
-    keep = ok & (np.abs(x - med) < 0.01 * abs(med))  # spikes are not the line
-    t, y, th = time_s[keep], x[keep], theta[keep]
-    design = np.column_stack([np.sin(th), np.cos(th), np.ones_like(t), t - t.mean()])
-    coef, *_ = np.linalg.lstsq(design, y, rcond=None)
-    fade = np.sinc(order * med / 60.0 * step)
-    return float(math.hypot(coef[0], coef[1]) / abs(coef[2]) / fade * 100)
+    channel = _Channel.of(time_s, rpm)
+    return math.nan if channel is None else channel.line_pct(order)
+
+
+class _Lines:
+    """Line fits of every roller channel, each channel prepared once and each (roller, order)
+    fitted once: the look-alikes of a chimney share their orders."""
+
+    def __init__(self, time_s: np.ndarray, rpm: dict[str, np.ndarray]) -> None:
+        self.channels = {r: _Channel.of(time_s, x) for r, x in rpm.items()}
+        self._done: dict[tuple[str, float], float] = {}
+
+    def pct(self, roller: str, order: float) -> float:
+        key = (roller, order)
+        if key not in self._done:
+            ch = self.channels.get(roller)
+            self._done[key] = math.nan if ch is None else ch.line_pct(order)
+        return self._done[key]
 
 
 def check_with_encoders(diagnosis: SliverDiagnosis, time_s: np.ndarray,
@@ -71,6 +117,7 @@ def check_with_encoders(diagnosis: SliverDiagnosis, time_s: np.ndarray,
     angular speed. Noise: the RMS of the same fit at eight nearby orders."""
     out: dict[str, list[EncoderCheck]] = {}
     by_name = {e.name: e for e in diagnosis.table.elements}
+    lines = _Lines(time_s, rpm)
     for cause in diagnosis.causes:
         checks = []
         for c in cause.candidates:
@@ -81,12 +128,12 @@ def check_with_encoders(diagnosis: SliverDiagnosis, time_s: np.ndarray,
             if not moved:
                 continue
             orders = {r: e.frequency_hz / by_name[f"roller {r}"].frequency_hz for r in moved}
-            measured = max(encoder_line_pct(time_s, rpm[r], orders[r]) for r in moved)
-            near = [encoder_line_pct(time_s, rpm[r], orders[r] * (1 + d)) for r in moved
+            measured = max(lines.pct(r, orders[r]) for r in moved)
+            near = [lines.pct(r, orders[r] * (1 + d)) for r in moved
                     for d in (-0.06, -0.045, -0.03, -0.02, 0.02, 0.03, 0.045, 0.06)]  # fmt: skip
             noise = _rms(near)
             expected = 0.0 if e.kind == "roller" else c.required_modulation_pct
-            seen = _rollers_with_line(time_s, rpm, e, by_name)
+            seen = _rollers_with_line(lines, e, by_name)
             checks.append(EncoderCheck(c.element, expected, measured, noise,
                                        _encoder_verdict(expected, measured, noise),
                                        tuple(r for r in seen if r not in e.rollers
@@ -95,21 +142,17 @@ def check_with_encoders(diagnosis: SliverDiagnosis, time_s: np.ndarray,
     return out
 
 
-def _rollers_with_line(time_s: np.ndarray, rpm: dict[str, np.ndarray], e: Element,
-                       by_name: dict[str, Element]) -> list[str]:  # fmt: skip
+def _rollers_with_line(lines: _Lines, e: Element, by_name: dict[str, Element]) -> list[str]:
     """Rollers whose angular speed carries the element's line: above three times the noise
     and at least 0.3 of the largest."""
     amp, noise = {}, {}
-    for r in rpm:
+    for r in lines.channels:
         ref = by_name.get(f"roller {r}")
         if ref is None:
             continue
         order = e.frequency_hz / ref.frequency_hz
-        amp[r] = encoder_line_pct(time_s, rpm[r], order)
-        near = [
-            encoder_line_pct(time_s, rpm[r], order * (1 + d)) for d in (-0.04, -0.02, 0.02, 0.04)
-        ]
-        noise[r] = _rms(near)
+        amp[r] = lines.pct(r, order)
+        noise[r] = _rms([lines.pct(r, order * (1 + d)) for d in (-0.04, -0.02, 0.02, 0.04)])
     ok = {r: a for r, a in amp.items() if math.isfinite(a) and a > 3 * noise[r]}
     top = max(ok.values(), default=0.0)
     return [r for r, a in ok.items() if a >= 0.3 * top]
@@ -211,6 +254,7 @@ def drive_share(diagnosis: SliverDiagnosis, sliver: Sliver, time_s: np.ndarray,
     x = sliver.linear_density_ktex / sliver.linear_density_ktex.mean() - 1.0
     gauges = (zones.main_mm, zones.middle_mm, zones.break_mm)
     transit = transit_lengths_m(gauges, diagnosis.drafts)
+    relative = {r: _relative(time_s, rpm[r]) for r in ("front", "second", "third", "back")}
     out = {}
     for cause in diagnosis.causes:
         lam = cause.wavelength_m
@@ -219,7 +263,7 @@ def drive_share(diagnosis: SliverDiagnosis, sliver: Sliver, time_s: np.ndarray,
         fade = float(np.sinc(f_hz * step))
         if not 0 < f_hz < 0.45 / step:
             continue  # above the encoders' Nyquist frequency: they cannot say
-        u = np.array([_line(_relative(rpm[r])[inside], s_enc, lam) / fade
+        u = np.array([_line(relative[r][inside], s_enc, lam) / fade
                       for r in ("front", "second", "third", "back")])  # fmt: skip
         gains = roller_gains(lam, transit)[0]
         c_pr = complex(np.dot(gains, u)) * complex(fibre_length_gain(staple, lam)[0])
@@ -236,15 +280,11 @@ def _line(x: np.ndarray, s: np.ndarray, lam: float) -> complex:
     return complex(coef[0], coef[1])
 
 
-def _relative(x: np.ndarray) -> np.ndarray:
-    """Relative fluctuation of a speed channel, gaps filled, spikes (> 1 %) set aside."""
-    x = np.asarray(x, np.float64)
-    ok = np.isfinite(x)
-    med = float(np.median(x[ok]))
-    good = ok & (np.abs(x - med) < 0.01 * abs(med))
-    idx = np.arange(x.size)
-    filled = np.interp(idx, idx[good], x[good])
-    return filled / filled.mean() - 1.0
+def _relative(time_s: np.ndarray, rpm: np.ndarray) -> np.ndarray:
+    """Relative fluctuation of a speed channel, gaps and spikes (> 1 %) bridged."""
+    channel = _Channel.of(time_s, rpm, min_samples=1)
+    assert channel is not None
+    return channel.relative()
 
 
 def _front_hz(rpm: dict[str, np.ndarray]) -> float:

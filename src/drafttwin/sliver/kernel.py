@@ -1,18 +1,18 @@
 """The fibre-level drafting kernel (numba): ideal drafting through three zones.
 
-Each fibre is drawn (leading end, length, linear density), carried through the zones by the
-rollers' cumulative surface lengths and deposited on the delivered-length grid, one at a time,
-so memory does not grow with the number of fibres (1e8 fibres per 100 m of a 5 ktex sliver).
+Each fibre is drawn (leading end, length, linear density), carried through the zones and
+deposited on the delivered-length grid, one at a time, so memory does not grow with the
+number of fibres (1e8 fibres per 100 m of a 5 ktex sliver).
 
 Ideal drafting: a fibre moves with the slower roller until its leading end reaches the next
 nip, then with that roller. On a common time grid every roller's cumulative surface length
 ``S_k`` is non-decreasing, so "the time the leading end reaches a nip" is a walk along that
-grid; fibres come in order of their leading ends, so every walk only moves forward.
+grid; fed positions in order give walks that only move forward (:func:`transport_map`
+tabulates them once; :func:`draft_random` interpolates in that table).
 
 Arrays (lengths in mm): ``surface`` ``(m, 4)`` the cumulative surface lengths of front,
 second, third, back on a uniform time grid; ``gauges`` ``(3,)`` main (front-second), middle
-(second-third), break (third-back); ``tables`` ``(3, q)`` the inverse CDFs of length (mm),
-fibre linear density (tex) and the feed's cumulative rate (fibres, on the fed-length grid).
+(second-third), break (third-back).
 """
 
 from __future__ import annotations
@@ -21,6 +21,10 @@ import numpy as np
 from numba import njit
 
 FRONT, SECOND, THIRD, BACK = 0, 1, 2, 3
+STATE = ("u", "k", "count", "pending", "done")
+"""Slots of :func:`draft_random`'s ``state``: the unit Poisson process's position, the fed
+grid interval, fibres drafted, a drawn leading end not yet used (1), the feed or the record
+ended (1)."""
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -112,48 +116,45 @@ def draft_random(rng: np.random.Generator, lead: np.ndarray, quantiles: np.ndarr
     (:func:`transport_map`; NaN: not delivered within the record), interpolated linearly
     within a grid step (a step of 0.1 mm fed is 0.66 mm delivered at the FA320A's draft,
     finer than any speed grid the rollers are given on).
-    ``feed = (p0, dp, fibre_scale, p_stop, gauge_main, gauge_middle, gauge_break, real)``:
-    the
-    fed-length grid of ``cum`` starts at ``p0`` mm with step
-    ``dp``; each drawn fibre stands for ``fibre_scale`` fibres (its weight is scaled, the
-    number drawn divided); the call returns at the first leading end past ``p_stop``, and a
-    later call with the same ``rng`` (NumPy's Generator, its state advanced in place) goes on
-    from ``state`` (u, k, three walk positions, fibres
-    drafted, a pending draw, done): pieces give the same sliver as one call. ``drift`` is the
+    ``feed = (p0, dp, fibre_scale, p_stop, real)``: the fed-length grid of ``cum`` starts at
+    ``p0`` mm with step ``dp``; each drawn fibre stands for ``fibre_scale`` fibres (its weight
+    is scaled, the number drawn divided); the call returns at the first leading end past
+    ``p_stop``, and a later call with the same ``rng`` (NumPy's Generator, its state advanced
+    in place) goes on from ``state`` (:data:`STATE`): pieces give the same sliver as one
+    call. ``real``: draw each fibre's acceleration number (real drafting, both passes). ``drift`` is the
     real-drafting table (:func:`_early`; empty: ideal drafting). ``keep`` ``(r, 3)`` receives
     the first ``r`` fibres (delivered leading end mm, length mm, tex) for a later passage.
     Every fibre draws the same random numbers with or without real drafting, so both passes
     of the real-drafting model see one set of fibres.
     """
     q = quantiles.shape[1] - 1
-    p0, dp, scale, p_stop = feed[0], feed[1], feed[2], feed[3]
-    real = feed[7] > 0
-    u, k, count = state[0], int(state[1]), int(state[5])
+    p0, dp, scale, p_stop, real = feed[0], feed[1], feed[2], feed[3], feed[4] > 0
+    u, k, count = state[0], int(state[1]), int(state[2])
     s_end = (diff.shape[0] - 2) * h
     if drift.shape[0] > 0:  # fibres landing early may come from beyond the grid's end
         s_end += (drift[2] - 1.0) * drift[4]
     n_cum = cum.shape[0]
     while True:
-        if state[6] > 0:
-            state[6] = 0.0
+        if state[3] > 0:
+            state[3] = 0.0
         else:
             u += rng.exponential(scale)
         while k < n_cum - 1 and cum[k + 1] < u:
             k += 1
         if k >= n_cum - 1:
-            state[7] = 1.0
+            state[4] = 1.0
             break
         den = cum[k + 1] - cum[k]
         frac = (u - cum[k]) / den if den > 0 else 0.0
         if p0 + dp * (k + frac) > p_stop:
-            state[6] = 1.0
+            state[3] = 1.0
             break
         length = _quantile(quantiles[0], q, rng.random())
         tex = _quantile(quantiles[1], q, rng.random()) * scale
         u_x = rng.random() if real else 0.0
         s_lead = lead[k] + frac * (lead[k + 1] - lead[k])
         if not s_lead <= s_end:  # beyond the record, or not delivered within it (NaN)
-            state[7] = 1.0
+            state[4] = 1.0
             break
         s_lead -= _early(drift, s_lead, length, h, u_x)
         if s_lead + length > 0.0:
@@ -161,7 +162,7 @@ def draft_random(rng: np.random.Generator, lead: np.ndarray, quantiles: np.ndarr
         if count < keep.shape[0]:
             keep[count, 0], keep[count, 1], keep[count, 2] = s_lead, length, tex
         count += 1
-    state[0], state[1], state[5] = u, float(k), float(count)
+    state[0], state[1], state[2] = u, float(k), float(count)
 
 
 @njit(cache=True, inline="always", error_model="numpy")

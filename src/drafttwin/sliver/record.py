@@ -77,13 +77,17 @@ class Sliver:
     def write(self, path: str | Path) -> Path:
         """Write CSV or Parquet atomically (temporary file, then rename)."""
         path = Path(path)
-        frame = self.to_frame()
         with atomic_path(path) as tmp:
-            if path.suffix.lower() == ".parquet":
-                frame.to_parquet(tmp, index=False)
-            else:
-                frame.to_csv(tmp, index=False, float_format="%.10g")
+            frame_to_file(self.to_frame(), tmp, path.suffix)
         return path
+
+
+def frame_to_file(frame: pd.DataFrame, tmp: Path, suffix: str) -> None:
+    """A sliver frame to ``tmp`` as Parquet or CSV by the final file's ``suffix``."""
+    if suffix.lower() == ".parquet":
+        frame.to_parquet(tmp, index=False)
+    else:
+        frame.to_csv(tmp, index=False, float_format="%.10g")
 
 
 def read_sliver(path: str | Path, column: str = DENSITY_COLUMN, option: str = "--data",

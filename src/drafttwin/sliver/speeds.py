@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from drafttwin.data.preprocess import interpolate_missing
 from drafttwin.errors import DataError
 
 ROLLER_ORDER = ("front", "second", "third", "back")
@@ -129,11 +130,8 @@ class SurfaceSpeeds:
 
 
 def _fill(x: np.ndarray, source: str, name: str) -> np.ndarray:
-    ok = np.isfinite(x)
-    if ok.sum() < 2:
+    """The roller's speeds with their gaps filled (paper eq. 12, the data layer's filling)."""
+    if np.isfinite(x).sum() < 2:
         raise DataError(f"roller '{name}' has fewer than two valid speeds", source=source or None,
                         fix="give a record with the roller's speed")  # fmt: skip
-    if ok.all():
-        return x
-    idx = np.arange(x.size)
-    return np.interp(idx, idx[ok], x[ok])
+    return interpolate_missing(x)[0]

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from drafttwin.mechanics import DriveTrain
-from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver
+from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver, reference_spectrogram
 from drafttwin.sliver.drafting import DraftingZones
 from drafttwin.sliver.record import Sliver
 from drafttwin.sliver.staple import StapleDiagram
@@ -68,6 +68,9 @@ class SliverWatch:
 
     def __post_init__(self) -> None:
         self._table = wavelength_table(self.train)
+        self._reference = (None if self.reference is None else
+                           reference_spectrogram(self.reference, self.staple,
+                                                 self.sensor_length_m))  # fmt: skip
 
     @property
     def count_ktex(self) -> float:
@@ -150,7 +153,7 @@ class SliverWatch:
                         time_s=t[inside], staple=self.staple)  # fmt: skip
         dx = diagnose_sliver(record, self.train, self.staple, self.zones,
                              sensor_length_m=self.sensor_length_m, table=self._table,
-                             reference=self.reference)  # fmt: skip
+                             reference=self._reference)  # fmt: skip
         self.last = dx
         raised = []
         for c in dx.causes:
