@@ -3,7 +3,7 @@ its own log of every published sample (docs/twin.md)."""
 
 from __future__ import annotations
 
-import asyncio
+import signal
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -12,7 +12,7 @@ import typer
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._oserrors import input_path, output_file
 from drafttwin.cli.app import console, err_console
-from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app, sigterm_as_interrupt
+from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app
 from drafttwin.errors import ConfigError
 
 
@@ -137,21 +137,32 @@ def plant_serve(
     names = [name] if machines == 1 else [f"{name}-{k + 1}" for k in range(machines)]
     opts: dict[str, Any] = {"seed": seed, "rate_hz": rate, "physics": physics,
                             "ramp_hz_per_s": ramp, "duration_s": duration, "faults": faults}  # fmt: skip
+    published = dict.fromkeys(names, 0)
     with open_plant_log(log) as plant_log:
-        opts["on_sample"] = None if plant_log is None else plant_log.add
+
+        def on_sample(machine: str, sample: Any) -> None:
+            published[machine] += 1
+            if plant_log is not None:
+                plant_log.add(machine, sample)
+
+        opts["on_sample"] = on_sample
         if history:
             opts["history_s"] = history
-        counts = _serve_plant(opcua, mqtt, names, opts, mqtt_user, cert, broker)
-    if counts is not None:
-        console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in counts.items()))
+        signum = _serve_plant(opcua, mqtt, names, opts, mqtt_user, cert, broker)
+    if signum is not None:
+        err_console.print(f"stopped by {signal.Signals(signum).name}")
+    console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in published.items()))
     if log is not None:
         console.print(f"wrote {log}")
 
 
 def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: dict[str, Any],
-                 mqtt_user: str | None, cert: Path | None, broker: str) -> dict[str, int] | None:  # fmt: skip
-    """Run the plant until its duration, Ctrl-C or SIGTERM (then ``None``: nothing to
-    report; the log is written either way)."""
+                 mqtt_user: str | None, cert: Path | None, broker: str) -> int | None:  # fmt: skip
+    """Run the plant until its duration (then ``None``), Ctrl-C or SIGTERM (the signal's
+    number): the signal cancels the serving task at its next ``await``, never inside a step
+    of the physics, so the log is written and nothing is printed but the summary."""
+    from drafttwin.twin.aio import run_until_signal
+
     if opcua is not None:
         from drafttwin.twin.plantserver import parse_opcua_url, serve_opcua
 
@@ -162,10 +173,9 @@ def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: di
                               "ns=2;s=NAME.sample (Ctrl-C stops)")  # fmt: skip
 
         try:
-            with sigterm_as_interrupt():
-                return asyncio.run(serve_opcua(opcua, names, ready=ready, cert_dir=cert, **opts))
-        except KeyboardInterrupt:
-            return None
+            return run_until_signal(serve_opcua(opcua, names, ready=ready, cert_dir=cert, **opts))[
+                1
+            ]
         except OSError as exc:
             raise ConfigError(f"cannot serve on {opcua} ({exc.strerror or exc})", where="--opcua",
                               fix="choose a free port") from None  # fmt: skip
@@ -179,12 +189,9 @@ def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: di
                               "drafttwin/NAME/sample (Ctrl-C stops)")  # fmt: skip
 
         try:
-            with sigterm_as_interrupt():
-                return asyncio.run(serve_mqtt(str(mqtt), names, ready=said, username=mqtt_user,
-                                              password=_mqtt_password(mqtt_user), cert_dir=cert,
-                                              broker_mode=broker, **opts))  # fmt: skip
-        except KeyboardInterrupt:
-            return None
+            return run_until_signal(serve_mqtt(str(mqtt), names, ready=said, username=mqtt_user,
+                                               password=_mqtt_password(mqtt_user), cert_dir=cert,
+                                               broker_mode=broker, **opts))[1]  # fmt: skip
         except OSError as exc:
             raise ConfigError(f"cannot reach or start a broker at {mqtt} ({exc.strerror or exc})",
                               where="--mqtt", fix="choose a free port or a running broker") from None  # fmt: skip

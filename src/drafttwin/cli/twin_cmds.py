@@ -195,17 +195,17 @@ def twin_run(
                             detector=detector)  # fmt: skip
     start = time.monotonic()
     try:
-        from drafttwin.twin.aio import run_bounded
+        from drafttwin.twin.aio import run_until_signal
 
         # SIGTERM ends the twin like Ctrl-C: what was received is committed; only SIGKILL
         # loses the rows of the open commit interval
-        with sigterm_as_interrupt():
-            run_bounded(_serve(service, bind, token, duration, max_samples, quiet))
+        _, signum = run_until_signal(_serve(service, bind, token, duration, max_samples, quiet))
+        if signum is not None:
+            err_console.print(f"stopped by {signal.Signals(signum).name}: committing what "
+                              "was received")  # fmt: skip
     except OSError as exc:
         raise ConfigError(f"cannot serve the page on {http} ({exc.strerror or exc})",
                           where="--http", fix="choose a free port") from None  # fmt: skip
-    except KeyboardInterrupt:
-        err_console.print("interrupted: committing what was received")
     finally:
         if service.writer is not None:
             service.writer.close()
