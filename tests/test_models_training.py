@@ -116,3 +116,26 @@ def test_history_is_kept(series) -> None:
     model.fit(series, MechanisticModel(mechanistic))
     assert len(model.history_.train_loss) == 3
     assert len(model.data_model_.history_.train_loss) == 3
+
+
+def test_networks_train_on_one_thread_unless_drafttwin_threads_says_otherwise(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Spin-waiting OpenMP threads made a shared machine's fit 6x dearer in CPU time: the
+    default is one thread; DRAFTTWIN_THREADS asks for more and is checked."""
+    import torch
+
+    from drafttwin.errors import ConfigError
+    from drafttwin.models.training import cpu_threads, training_threads
+
+    monkeypatch.delenv("DRAFTTWIN_THREADS", raising=False)
+    before = torch.get_num_threads()
+    with cpu_threads(torch.device("cpu")):
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == before
+    monkeypatch.setenv("DRAFTTWIN_THREADS", "3")
+    assert training_threads() == 3
+    for bad in ("0", "two", "-1", "1e3"):
+        monkeypatch.setenv("DRAFTTWIN_THREADS", bad)
+        with pytest.raises(ConfigError, match="DRAFTTWIN_THREADS"):
+            training_threads()

@@ -27,8 +27,28 @@ from torch import nn
 
 from drafttwin.errors import ConfigError, DataError
 
-MAX_THREADS = 4
-"""Upper bound on intra-op CPU threads while training/predicting small recurrent nets."""
+THREADS_ENV = "DRAFTTWIN_THREADS"
+"""Environment variable: intra-op CPU threads for training and predicting the networks."""
+
+DEFAULT_THREADS = 1
+"""One thread unless :data:`THREADS_ENV` asks for more. The nets are small (a batch step takes
+a few ms): a second OpenMP thread gained little on an idle 2-core machine, and its
+spin-waiting turned a shared machine's fit from 44 to 258 CPU-seconds
+(``fit --model parallel --data default`` beside other work; benchmarks/bench_fit.py)."""
+
+
+def training_threads() -> int:
+    """Intra-op threads for the networks: ``DRAFTTWIN_THREADS`` (an integer from 1 to 256) or
+    :data:`DEFAULT_THREADS`."""
+    import os
+
+    text = os.environ.get(THREADS_ENV, "").strip()
+    if not text:
+        return DEFAULT_THREADS
+    if not text.isdigit() or not 1 <= int(text) <= 256:
+        raise ConfigError(f"{THREADS_ENV}={text!r} is not a thread count",
+                          where=THREADS_ENV, fix="set it to an integer from 1 to 256, or unset it")  # fmt: skip
+    return int(text)
 
 
 _TRAINING_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
@@ -172,15 +192,16 @@ def resolve_device(name: str) -> torch.device:
 
 
 @contextlib.contextmanager
-def cpu_threads(device: torch.device, limit: int = MAX_THREADS) -> Iterator[None]:
-    """Cap intra-op CPU threads at ``limit`` (small nets), restored afterwards.
+def cpu_threads(device: torch.device, limit: int | None = None) -> Iterator[None]:
+    """Set intra-op CPU threads to ``limit`` (default :func:`training_threads`), restored
+    afterwards.
 
     Step-by-step loops over a few windows pass ``limit=1``: each call is too small to share
     out, and waking a second thread per step cost 4-7x its time on a busy 2-core machine.
     """
     threads = torch.get_num_threads()
     if device.type == "cpu":
-        torch.set_num_threads(min(threads, limit))
+        torch.set_num_threads(training_threads() if limit is None else limit)
     try:
         yield
     finally:
