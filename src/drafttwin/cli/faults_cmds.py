@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
+from rich import box
 from rich.table import Table
 
 from drafttwin._limits import check_rk4_steps, check_samples
@@ -119,7 +120,12 @@ def diagnose(
     by CUSUM tests whose thresholds come from healthy data for the false-alarm rate asked;
     after an alarm every candidate fault is simulated with the physics and ranked by how well
     it explains the shift of the four rollers and the motor, with its severity and a 95 %
-    interval, and the group of candidates these sensors cannot tell apart.
+    interval, and the group of candidates these sensors cannot tell apart. p is relative
+    among the candidates; each cause's fit (chi-square on its degrees of freedom, p-value)
+    is absolute, and when none fits the verdict says that no candidate explains the record.
+    An interval cut by a kind's range reads "at least" / "at most"; a fault still growing at
+    the record's end is given with its rate and its severity there. Sensor faults are sized
+    in their own unit (a stuck encoder in seconds).
 
     Gear wear and chain elongation are seen in the rollers' angles (cumulative counts): the
     driven roller trails by the wear depth over the gear's base radius. That needs the record
@@ -190,25 +196,34 @@ def _print_diagnosis(result: dict, report: Path | None, lags_note: str | None) -
     else:
         console.print(f"[bold red]alarm[/] at {alarm['time_s']:.1f} s ({alarm['test']}), change "
                       f"estimated at {alarm['onset_s']:.1f} s")  # fmt: skip
-        table = Table(title="ranked causes")
-        for col in (
-            "rank",
-            "cause",
-            "family",
-            "severity",
-            "95 % interval",
-            "p",
-            "same signature as",
-        ):
-            table.add_column(col)
+        table = Table(title="ranked causes (p: relative among the candidates; fit: absolute)",
+                      box=box.SIMPLE_HEAD, pad_edge=False)  # fmt: skip
+        for col in ("#", "cause", "severity", "95 % interval", "p rel.", "fit chi2/dof (p)"):
+            # full cause names on one line; the rest wraps inside its cell, never cut
+            table.add_column(col, overflow="fold", no_wrap=col == "cause")
         for i, c in enumerate(result["causes"]):
-            table.add_row(str(i + 1), f"{c['element']}:{c['kind']}", c["family"],
-                          f"{c['severity']:.4g}", f"[{c['interval'][0]:.3g}, {c['interval'][1]:.3g}]",
-                          f"{c['probability']:.2f}", ", ".join(c["group"][:4])
-                          + (" ..." if len(c["group"]) > 4 else ""))  # fmt: skip
+            fit = ("rule" if c["fit_p"] is None else
+                   f"{c['chi2']:.3g}/{c['dof']} ({c['fit_p']:.2g})" + ("" if c["fits"] else " no fit"))  # fmt: skip
+            table.add_row(str(i + 1), f"{c['element']}:{c['kind']}", f"{c['severity']:.4g}",
+                          c["interval_text"], f"{c['probability']:.2f}", fit)  # fmt: skip
         console.print(table)
+        for i, c in enumerate(result["causes"]):  # below the table: long lists wrap as text
+            if c["group"]:
+                console.print(f"{i + 1} {c['element']}:{c['kind']}: same signature as "
+                              f"{', '.join(c['group'])}")  # fmt: skip
         if result["causes"]:
             console.print(f"severity unit of the first: {result['causes'][0]['parameter']}")
+        if result.get("verdict"):
+            colour = "green" if result["explained"] else "bold red"
+            console.print(f"[{colour}]{result['verdict']}[/]")
+        for c in result["causes"]:
+            g = c.get("growth")
+            if g is not None and g["growing"]:
+                console.print(f"{c['element']}:{c['kind']} is still growing: "
+                              f"{g['rate_per_s']:.3g} per s [{g['rate_interval'][0]:.3g}, "
+                              f"{g['rate_interval'][1]:.3g}], {g['severity_at_end']:.4g} "
+                              f"[{g['interval_at_end'][0]:.4g}, {g['interval_at_end'][1]:.4g}] "
+                              f"at {g['at_time_s']:.1f} s")  # fmt: skip
     if report is not None:
         console.print(f"wrote {report}")
 

@@ -71,26 +71,39 @@ def threshold_for_arl(arl: float, k: float) -> float:
     return float(brentq(lambda h: siegmund_arl(h, k) - arl, 0.0, 200.0))
 
 
+RULES = {
+    "cusum": "CUSUM: the stream's whitened deviation summed past its threshold h",
+    "jump": "lag jump: one block's innovation of an angle lag past its jump limit",
+    "sensor": "sensor rule: a channel losing samples alone, or repeating one value",
+}
+"""The rules that raise an alarm (:attr:`Alarm.rule`), each with its own statistic and limit
+(:class:`Detection`)."""
+
+
 @dataclass(frozen=True)
 class Alarm:
-    """One alarm: when, which test, which way, and the estimated change time."""
+    """One alarm: when, which test, which way, the estimated change time, and the rule."""
 
     time_s: float
     block: int
     test: str  # a stream name, or lost_<channel> / stuck_<channel>
     direction: int  # +1 up, -1 down, 0 for the sensor rules
     change_s: float  # estimated onset: the last time the CUSUM left zero
+    rule: str = "cusum"  # which rule fired, a key of RULES
 
 
 @dataclass
 class Detection:
-    """Result of :meth:`FaultDetector.run` on one record."""
+    """Result of :meth:`FaultDetector.run` on one record: per block each rule's statistic
+    over its limit (1 = alarm), so a page can show the rule that fired with its own."""
 
     time_s: np.ndarray
     deviation: np.ndarray  # (blocks, 8) features (FEATURES) minus baseline
     statistic: np.ndarray  # (blocks, streams) larger CUSUM side over h (1 = alarm)
     alarms: list[Alarm] = field(default_factory=list)
     baseline_at_alarm: np.ndarray | None = None
+    jump: np.ndarray | None = None  # (blocks, streams) |innovation| over the jump limit (lags)
+    sensor: np.ndarray | None = None  # (blocks, 2 x channels) lost, then run, over its limit
 
     @property
     def first(self) -> Alarm | None:
@@ -246,13 +259,15 @@ class FaultDetector:
         nb, ns = len(x), len(STREAMS)
         dev = np.full((nb, len(FEATURES)), np.nan)
         stat = np.zeros((nb, ns))
-        det = Detection(f.time_s, dev, stat)
+        jump = np.zeros((nb, ns))
+        det = Detection(f.time_s, dev, stat, jump=jump, sensor=self.sensor_ratio(f.lost, f.run))
         state = CusumState(self, n_ref, f.block_s)
         for j in range(nb):
             alarms = state.update(float(f.time_s[j]), x[j], f.lost[j], f.run[j])
             sensor_first = stop_at_first and alarms and alarms[0].direction == 0
             if state.deviation is not None and not sensor_first:  # (it stopped before them)
                 dev[j], stat[j] = state.deviation, state.statistic
+                jump[j] = state.jump_ratio
             if alarms:
                 det.baseline_at_alarm = state.baseline_at_alarm
                 det.alarms.extend(alarms[:1] if stop_at_first else alarms)
@@ -268,8 +283,15 @@ class FaultDetector:
             bad = np.flatnonzero(values > limit)
             if bad.size:
                 ch = int(bad[np.argmax(values[bad] / np.maximum(limit[bad], 1e-12))])
-                return Alarm(time_s, block, f"{kind}_{CHANNELS[ch]}", 0, time_s - block_s)
+                return Alarm(time_s, block, f"{kind}_{CHANNELS[ch]}", 0, time_s - block_s,
+                             "sensor")  # fmt: skip
         return None
+
+    def sensor_ratio(self, lost: np.ndarray, run: np.ndarray) -> np.ndarray:
+        """The sensor rules' statistics over their limits, ``(blocks, 2 x channels)``: each
+        channel's lost fraction, then its longest run (a rule fires above 1)."""
+        return np.hstack([lost / np.maximum(self.lost_limit_, 1e-12),
+                          run / np.maximum(self.run_limit_, 1e-12)])  # fmt: skip
 
     def describe(self) -> dict[str, Any]:
         """The fitted settings, JSON-able."""
@@ -373,6 +395,7 @@ class CusumState:
         self.block = 0
         self.deviation: np.ndarray | None = None
         self.statistic: np.ndarray | None = None
+        self.jump_ratio = np.zeros(ns)  # the block's |innovation| over its jump limit
         self.baseline_at_alarm: np.ndarray | None = None
 
     @property
@@ -442,12 +465,13 @@ class CusumState:
         # its whole deviation, so the jump rule waits a block
         ok = (det.jump_limit_ > 0) & (not self.fresh)
         self.fresh = False
-        over = np.flatnonzero(ok & (np.abs(jump) > det.jump_limit_))
+        self.jump_ratio = np.where(ok, np.abs(jump) / np.where(ok, det.jump_limit_, 1.0), 0.0)
+        over = np.flatnonzero(self.jump_ratio > 1.0)
         if over.size:  # a one-block jump of an angle lag (a worn mesh steps it at once)
-            i = int(over[np.argmax(np.abs(jump[over]) / det.jump_limit_[over])])
+            i = int(over[np.argmax(self.jump_ratio[over])])
             self.statistic = np.maximum(self.up, self.down) / det.h_
             return self._raise(Alarm(time_s, j, STREAMS[i], 1 if jump[i] > 0 else -1,
-                                     time_s - self.block_s))  # fmt: skip
+                                     time_s - self.block_s, "jump"))  # fmt: skip
         for arr, start, sign in ((self.up, self.up_start, 1.0),
                                  (self.down, self.down_start, -1.0)):  # fmt: skip
             was_zero = arr <= 0

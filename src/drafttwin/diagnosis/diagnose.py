@@ -12,7 +12,7 @@ fault can produce, because gears and chain are positive drives.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -20,14 +20,18 @@ from scipy.linalg import block_diag
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.diagnosis.detect import STREAMS, Alarm, Detection, FaultDetector, feature_matrix
+from drafttwin.diagnosis.growth import block_severities, severity_trend
 from drafttwin.diagnosis.locate import (
+    ANGLE_KINDS,
     NOT_ASSESSED,
     Cause,
     SignatureModel,
     creep_mismatch,
+    explained,
     rank_causes,
 )
 from drafttwin.diagnosis.residuals import CHANNELS, LAGGED, BlockFeatures, record_features
+from drafttwin.diagnosis.sensors import size_sensor_fault
 from drafttwin.diagnosis.spectrum import LineEvidence, line_evidence
 from drafttwin.mechanics import DriveTrain
 
@@ -49,6 +53,20 @@ class Diagnosis:
     def alarm(self) -> Alarm | None:
         return self.detection.first
 
+    @property
+    def verdict(self) -> str | None:
+        """In words: which cause explains the shift, or that none of the candidates does
+        (None without ranked causes)."""
+        if not self.causes:
+            return None
+        if not explained(self.causes):
+            best = self.causes[0]
+            return (f"no candidate explains this (the best, {best.name}, misfits with chi2 "
+                    f"{best.chi2:.4g} on {best.dof} degrees of freedom)")  # fmt: skip
+        first = next(c for c in self.causes if c.fits)
+        grows = first.growth is not None and first.growth.growing
+        return f"explained by {first.name}" + (", still growing" if grows else "")
+
     def to_dict(self, top: int = 5) -> dict[str, Any]:
         a = self.alarm
         return {
@@ -57,6 +75,7 @@ class Diagnosis:
             else {
                 "time_s": a.time_s,
                 "test": a.test,
+                "rule": a.rule,
                 "direction": a.direction,
                 "onset_s": a.change_s,
             },  # fmt: skip
@@ -66,6 +85,10 @@ class Diagnosis:
             "lag_shift_mrad": None  # over the last part of the window
             if self.shift is None
             else dict(zip(LAGGED, self.shift[-len(LAGGED) :].tolist(), strict=True)),
+            "verdict": self.verdict,
+            "explained": None if not self.causes else explained(self.causes),
+            "probability_is": "relative: among the ranked candidates, summing to 1; whether a "
+            "cause fits at all is its fit_p (chi2 on dof)",
             "causes": [c.to_dict() for c in self.causes[:top]],
             "not_assessed": list(NOT_ASSESSED),
             "lines": [ln.to_dict() for ln in self.lines],
@@ -92,8 +115,19 @@ class Diagnoser:
         """Detect, locate and size (with spectral evidence) in one record."""
         f = record_features(self.train, series, self.detector.block_s_)
         dx = self.from_features(f)
-        if dx.alarm is not None:
-            dx.lines = line_evidence(self.train, series, dx.alarm.change_s, dx.alarm.time_s)
+        a = dx.alarm
+        if a is not None:
+            dx.lines = line_evidence(self.train, series, a.change_s, a.time_s)
+        if (
+            a is not None
+            and dx.causes
+            and dx.causes[0].family == "sensor"
+            and dx.causes[0].kind != "gain"
+        ):
+            j = CHANNELS.index(dx.causes[0].element)
+            healthy_run = float(self.detector.run_limit_[j]) / 2  # the longest in tuning
+            dx.causes[0] = size_sensor_fault(series, dx.causes[0], a.time_s, a.change_s,
+                                             f.block_s, healthy_run)  # fmt: skip
         return dx
 
     def from_features(self, f: BlockFeatures) -> Diagnosis:
@@ -125,7 +159,37 @@ class Diagnoser:
             dx.causes = [sensor]
             return dx
         dx.shift, dx.causes = self.rank(f.time_s[blocks], blocks, x[window] - base, alarm.change_s)
+        # the trend of the cause the verdict names: the first that fits, else the first
+        i = next((i for i, c in enumerate(dx.causes) if c.fits), 0)
+        if dx.causes:
+            dx.causes[i] = self._with_growth(dx.causes[i], f, x - base, alarm)
         return dx
+
+    def _with_growth(self, cause: Cause, f: BlockFeatures, dev: np.ndarray, alarm: Alarm) -> Cause:
+        """``cause`` with the trend of its severity over the record's last :data:`POST_S`
+        seconds after the alarm (:mod:`drafttwin.diagnosis.growth`)."""
+        finite = np.isfinite(dev).all(axis=1) & (f.time_s > alarm.time_s)
+        if not finite.any():
+            return cause
+        end = float(f.time_s[finite][-1])
+        blocks = np.flatnonzero(finite & (f.time_s > end - POST_S))
+        det = self.detector
+        sev = block_severities(self.signatures, cause, dev[blocks], det.feature_cov_)
+        lag0 = STREAMS.index(f"lag_{LAGGED[0]}")
+        phi = det.phi_[lag0:] if cause.kind in ANGLE_KINDS else det.phi_[:lag0]
+        mid = f.time_s[blocks] - f.block_s / 2
+        growth = severity_trend(sev, mid, float(np.max(phi)), 1.0 if cause.severity >= 0 else -1.0)
+        if growth is None:
+            return cause
+        # the block scatter does not see the model's own error (a machine's belt creep off
+        # the physics' scales every block alike): add the ranked interval's half width,
+        # scaled to the severity at the end
+        half_rank = (cause.interval[1] - cause.interval[0]) / 2
+        scale = abs(growth.severity / cause.severity) if cause.severity != 0 else 1.0
+        stat = (growth.interval[1] - growth.interval[0]) / 2
+        half = float(np.hypot(stat, half_rank * max(1.0, scale)))
+        at_end = (growth.severity - half, growth.severity + half)
+        return replace(cause, growth=replace(growth, interval=at_end))
 
     def _sensor_in_window(self, f: BlockFeatures, alarm: Alarm, last: int) -> Cause | None:
         """A sensor rule firing from the change estimate to the window's end. A stuck or
@@ -147,7 +211,10 @@ class Diagnoser:
         for it; the live twin calls this on its post-alarm window."""
         shift, cov, elapsed = self._shift(time_s, dev, blocks, change_s)
         self.signatures.elapsed_s = elapsed
-        return shift, rank_causes(self.signatures, shift, cov, self.creep_rel_sd)
+        # the absolute fit judges the lags only where the tuning records measured their slow
+        # wander (the detector watches them); else their noise is underestimated several fold
+        judged = np.arange(len(shift)) < len(CHANNELS) if not self.detector.lags_watched else None
+        return shift, rank_causes(self.signatures, shift, cov, self.creep_rel_sd, judged)
 
     def _shift(self, time_s: np.ndarray, dev: np.ndarray, blocks: np.ndarray,
                change_s: float) -> tuple[np.ndarray, np.ndarray, dict[str, tuple[float, ...]]]:  # fmt: skip
@@ -192,15 +259,21 @@ def _gain_start(t: np.ndarray, lag: np.ndarray, change_s: float) -> float:
     return float(np.clip(cross, change_s, max(change_s, hi)))
 
 
-def sensor_cause(alarm: Alarm, lost: np.ndarray, run: np.ndarray) -> Cause:
-    """The cause a sensor rule names: the channel, from its block's ``lost`` and ``run``."""
+def sensor_cause(
+    alarm: Alarm, lost: np.ndarray, run: np.ndarray, rate_hz: float | None = None
+) -> Cause:
+    """The cause a sensor rule names: the channel, from its block's ``lost`` and ``run``;
+    with ``rate_hz`` a stuck run is given in seconds, the unit the fault is injected with."""
     rule, channel = alarm.test.split("_", 1)
     kind = "dropout" if rule == "lost" else "stuck"
     j = CHANNELS.index(channel)
-    if kind == "dropout":
+    if kind == "dropout":  # (a record's samples size it further: diagnosis.sensors)
         sev = float(lost[j])
         parameter = "fraction of the channel's samples lost (in the alarm block)"
     else:
         sev = float(run[j])
         parameter = "identical consecutive values (samples, in the alarm block)"
+        if rate_hz is not None:  # at least: the run may have begun before the block
+            sev /= rate_hz
+            parameter = "time the channel repeats one value (s, at least: in the alarm block)"
     return Cause(channel, kind, "sensor", sev, (sev, sev), parameter, 0.0, 1.0, ())

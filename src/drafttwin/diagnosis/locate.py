@@ -33,21 +33,56 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.stats import chi2 as chi2_dist
 
 from drafttwin.diagnosis.residuals import CHANNELS, LAGGED
 from drafttwin.mechanics import DriveTrain, Signal, operating_point, static_angles
-from drafttwin.plant.faults import CHAIN_LINKS, KINDS, catalogue, worn_stiffness_factor
+from drafttwin.mechanics.faults import KINDS, FaultKind, catalogue, chain_slack_m, worn_gear
 
 LEVEL_KINDS = ("bearing_friction", "load_loss", "belt_wear", "rotor_resistance", "torque_loss",
                "gain")  # fmt: skip
 ANGLE_KINDS = ("wear", "elongation")  # seen in the roller angle lags, not in levels
 NOT_ASSESSED = ("crack", "runout", "eccentricity")
 SAME_DIRECTION = 0.99
+FIT_P = 1e-3
+"""A cause fits when a misfit at least as large as its own would come from the healthy
+noise with at least this chance (chi-square on its degrees of freedom)."""
+
+
+@dataclass(frozen=True)
+class Growth:
+    """A cause's severity still changing at the end of the record (see
+    :func:`drafttwin.diagnosis.growth.severity_trend`): the rate, and the severity at
+    ``at_time_s`` (the middle of the record's last block), each with a 95 % interval."""
+
+    growing: bool
+    rate_per_s: float
+    rate_interval: tuple[float, float]
+    severity: float
+    interval: tuple[float, float]
+    at_time_s: float
+    blocks: int
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"growing": self.growing, "rate_per_s": self.rate_per_s,
+                "rate_interval": list(self.rate_interval), "severity_at_end": self.severity,
+                "interval_at_end": list(self.interval), "at_time_s": self.at_time_s,
+                "blocks": self.blocks}  # fmt: skip
 
 
 @dataclass(frozen=True)
 class Cause:
-    """One candidate explanation, as ranked."""
+    """One candidate explanation, as ranked.
+
+    ``chi2`` is the whitened misfit of the cause at its fitted severity, on ``dof`` degrees
+    of freedom (features measured minus the one severity); ``fit_p`` the chance of a misfit
+    at least this large if the cause were the truth (absolute: ``fits`` when >= :data:`FIT_P`);
+    ``probability`` is relative, among the candidates ranked (they sum to 1), by ``score``
+    (``chi2`` plus the severity prior). ``bound`` says where the interval reaches a range
+    limit of the kind: ``"at_least"`` (the severity is at least ``interval[0]``; the upper
+    end is the range's), ``"at_most"``, or ``"anywhere"``. A sensor rule's cause has no fit
+    (``fit_p`` None).
+    """
 
     element: str
     kind: str
@@ -58,16 +93,37 @@ class Cause:
     chi2: float
     probability: float
     group: tuple[str, ...] = field(default=())
+    dof: int = 0
+    fit_p: float | None = None
+    score: float = 0.0
+    bound: str | None = None
+    growth: Growth | None = None
 
     @property
     def name(self) -> str:
         return f"{self.element}:{self.kind}"
 
+    @property
+    def fits(self) -> bool:
+        """The cause explains the shift within the healthy noise (a rule's cause does)."""
+        return self.fit_p is None or self.fit_p >= FIT_P
+
+    @property
+    def interval_text(self) -> str:
+        """The interval in words where it reaches a range limit."""
+        lo, hi = self.interval
+        return {"at_least": f"at least {lo:.4g}", "at_most": f"at most {hi:.4g}",
+                "anywhere": f"anywhere in [{lo:.4g}, {hi:.4g}]"}.get(
+                    str(self.bound), f"[{lo:.4g}, {hi:.4g}]")  # fmt: skip
+
     def to_dict(self) -> dict[str, Any]:
         return {"element": self.element, "kind": self.kind, "family": self.family,
                 "severity": self.severity, "interval": list(self.interval),
-                "parameter": self.parameter, "chi2": self.chi2,
-                "probability": self.probability, "group": list(self.group)}  # fmt: skip
+                "interval_bound": self.bound, "interval_text": self.interval_text,
+                "parameter": self.parameter, "chi2": self.chi2, "dof": self.dof,
+                "fit_p": self.fit_p, "fits": self.fits, "score": self.score,
+                "probability": self.probability, "group": list(self.group),
+                "growth": None if self.growth is None else self.growth.to_dict()}  # fmt: skip
 
 
 class SignatureModel:
@@ -156,7 +212,7 @@ class SignatureModel:
             slack = None
             if kind == "elongation":
                 chain = next(c for c in self.train.spec.chain if c.name == element)
-                slack = {element: s / 100.0 * CHAIN_LINKS * chain.pitch_mm * 1e-3}
+                slack = {element: chain_slack_m(s, chain.pitch_mm * 1e-3)}
                 faulted = self.train
             else:
                 faulted = self._faulted(element, kind, s)
@@ -170,7 +226,7 @@ class SignatureModel:
             return self.train.with_rotor_resistance(Signal(0.0, 1.0, np.array([1.0 + s] * 2)))
         raw: dict[str, Any] = dict(self.raw)
         if kind == "wear":  # as the plant injects it: backlash + 2 depth, stiffness falls
-            raw["gear"] = [_worn(g, s) if g["name"] == element else g for g in raw["gear"]]
+            raw["gear"] = [worn_gear(g, s) if g["name"] == element else g for g in raw["gear"]]
         elif kind == "bearing_friction":
             raw["bearing"] = [dict(b) for b in raw["bearing"]]
             for b in raw["bearing"]:
@@ -188,12 +244,6 @@ class SignatureModel:
             motor["rated_power_w"] *= 1.0 - s  # T_k = lambda P / w_rated; breakdown slip kept
             raw["motor"] = motor
         return DriveTrain.from_dict(raw, source="fault candidate")
-
-
-def _worn(gear: dict[str, Any], depth_um: float) -> dict[str, Any]:
-    factor = worn_stiffness_factor(depth_um, gear["module_mm"])
-    return dict(gear, backlash_um=gear["backlash_um"] + 2.0 * depth_um,
-                mesh_stiffness_n_per_m=gear["mesh_stiffness_n_per_m"] * factor)  # fmt: skip
 
 
 def belt_direction(size: int) -> np.ndarray:
@@ -231,13 +281,23 @@ def creep_mismatch(model: SignatureModel, belt_levels: np.ndarray) -> float:
 
 
 def rank_causes(model: SignatureModel, shift: np.ndarray, cov: np.ndarray,
-                creep_rel_sd: float = 0.0) -> list[Cause]:  # fmt: skip
-    """Candidates ranked by how well each explains ``shift`` (5 relative level changes) with
-    noise covariance ``cov``; the best first. ``creep_rel_sd`` adds the model mismatch of a
-    wrong belt creep: each machine candidate's covariance gets ``(sd * b) d d'`` with ``b`` the
-    belt part of its fitted signature and ``d`` :func:`belt_direction` (refitted once with it);
-    a sensor gain does not pass the belt and gets none."""
+                creep_rel_sd: float = 0.0, judged: np.ndarray | None = None) -> list[Cause]:  # fmt: skip
+    """Candidates ranked by how well each explains ``shift`` (5 relative level changes, then
+    the angle lags) with noise covariance ``cov``; the best first. ``creep_rel_sd`` adds the
+    model mismatch of a wrong belt creep: each machine candidate's covariance gets
+    ``(sd * b) d d'`` with ``b`` the belt part of its fitted signature and ``d``
+    :func:`belt_direction` (refitted once with it); a sensor gain does not pass the belt and
+    gets none.
+
+    Each cause carries its absolute fit: ``chi2`` of its misfit on the features ``judged``
+    (a mask; default: those with healthy variance), on ``dof`` = their number - 1, and
+    ``fit_p``; its interval is widened by ``sqrt(chi2 / dof)`` where that exceeds 1 (as
+    weighted least squares scales its standard errors by the residual variance)."""
     chol = _chol(cov)
+    judged = (
+        np.diag(cov) > 0 if judged is None else np.asarray(judged, dtype=bool) & (np.diag(cov) > 0)
+    )
+    dof = max(1, int(np.count_nonzero(judged)) - 1)
 
     def white(v: np.ndarray) -> np.ndarray:
         return np.linalg.solve(chol, v)
@@ -248,42 +308,67 @@ def rank_causes(model: SignatureModel, shift: np.ndarray, cov: np.ndarray,
         if kind == "gain" and len(shift) > nc:
             # an encoder gain is sized by the level it shifts (what it is); its angle lag
             # depends on how it came on (step or ramp), so the lags only judge it
-            s, interval, _, x0 = _fit(model, element, kind, shift[:nc], _chol(cov[:nc, :nc]))
+            s, half, _, x0 = _fit(model, element, kind, shift[:nc], _chol(cov[:nc, :nc]))
             cost = float(np.sum(white(shift - model.signature(element, kind, s)) ** 2))
-            direction = white(model.signature(element, kind, s if s != 0 else x0))
-            fits.append((element, kind, s, interval, cost, direction))
-            continue
-        s, interval, cost, x0 = _fit(model, element, kind, shift, chol)
-        if creep_rel_sd > 0 and kind != "gain":
-            m = creep_rel_sd * _belt(model.signature(element, kind, s)) * belt_direction(len(shift))
-            s, interval, cost, x0 = _fit(model, element, kind, shift, _chol(cov + np.outer(m, m)))
+            # its absolute fit allows for the uncertainty the level leaves on its size: the
+            # lags measure a gain's run-away far more finely than the level sizes it
+            g = model.signature(element, kind, 1e-3) / 1e-3  # linear in the gain
+            sd = half / 1.96 if math.isfinite(half) else 0.0
+            fit_cov = cov + sd**2 * np.outer(g, g)
+        else:
+            s, half, cost, x0 = _fit(model, element, kind, shift, chol)
+            fit_cov = cov
+            if creep_rel_sd > 0 and kind != "gain":
+                m = (
+                    creep_rel_sd
+                    * _belt(model.signature(element, kind, s))
+                    * belt_direction(len(shift))
+                )
+                fit_cov = cov + np.outer(m, m)
+                s, half, cost, x0 = _fit(model, element, kind, shift, _chol(fit_cov))
+        r = (shift - model.signature(element, kind, s)[: len(shift)])[judged]
+        chi2 = float(
+            r @ np.linalg.solve(fit_cov[np.ix_(judged, judged)] + 1e-30 * np.eye(len(r)), r)
+        )
         direction = white(model.signature(element, kind, s if s != 0 else x0))
-        fits.append((element, kind, s, interval, cost, direction))
-    chi = np.array([f[4] + 2 * abs(f[2]) / KINDS[f[1]].levels[1] for f in fits])
-    prob = np.exp(-(chi - chi.min()) / 2)
+        fits.append((element, kind, s, half, cost, direction, chi2))
+    score = np.array([f[4] + 2 * abs(f[2]) / KINDS[f[1]].levels[1] for f in fits])
+    prob = np.exp(-(score - score.min()) / 2)
     prob /= prob.sum()
-    order = np.argsort(chi)
+    order = np.argsort(score)
     causes = []
     for i in order:
-        element, kind, s, interval, _, d = fits[i]
-        c2 = float(chi[i])
+        element, kind, s, half, _, d, chi2 = fits[i]
         group = tuple(f"{fits[j][0]}:{fits[j][1]}" for j in order if j != i
                       and _cos(d, fits[j][5]) > SAME_DIRECTION)  # fmt: skip
         k = KINDS[kind]
-        causes.append(Cause(element, kind, k.family, s, interval, k.parameter, c2,
-                            float(prob[i]), group))  # fmt: skip
+        interval, bound = _interval(k, s, half * math.sqrt(max(1.0, chi2 / dof)))
+        causes.append(Cause(element, kind, k.family, s, interval, k.parameter, chi2,
+                            float(prob[i]), group, dof, float(chi2_dist.sf(chi2, dof)),
+                            float(score[i]), bound))  # fmt: skip
     return causes
+
+
+def explained(causes: list[Cause]) -> bool:
+    """Whether any ranked cause fits (the verdict: else no candidate explains the shift)."""
+    return any(c.fits for c in causes)
 
 
 def _chol(cov: np.ndarray) -> np.ndarray:
     return np.linalg.cholesky(cov + 1e-30 * np.eye(len(cov)))
 
 
-def _fit(model: SignatureModel, element: str, kind: str, shift: np.ndarray,
-         chol: np.ndarray) -> tuple[float, tuple[float, float], float, float]:  # fmt: skip
-    """Severity, its 95 % interval, chi-square and start value of one candidate."""
+def _range(kind: str) -> tuple[float, float]:
     k = KINDS[kind]
-    lo, hi = (-k.high, k.high) if k.signed else (0.0, k.high)
+    return (-k.high, k.high) if k.signed else (0.0, k.high)
+
+
+def _fit(model: SignatureModel, element: str, kind: str, shift: np.ndarray,
+         chol: np.ndarray) -> tuple[float, float, float, float]:  # fmt: skip
+    """Severity, the half width of its 95 % interval (Jacobian), chi-square and start value
+    of one candidate."""
+    k = KINDS[kind]
+    lo, hi = _range(kind)
     x0 = k.levels[0] * (1.0 if not k.signed or shift[CHANNELS.index(element)] >= 0 else -1.0)
     n = len(shift)
     res = least_squares(lambda x: np.linalg.solve(chol, shift - model.signature(element, kind, x[0])[:n]),
@@ -291,7 +376,17 @@ def _fit(model: SignatureModel, element: str, kind: str, shift: np.ndarray,
     s = float(res.x[0])
     jtj = float(res.jac[:, 0] @ res.jac[:, 0])
     half = 1.96 / math.sqrt(jtj) if jtj > 0 else math.inf
-    return s, (max(lo, s - half), min(hi, s + half)), float(2 * res.cost), x0
+    return s, half, float(2 * res.cost), x0
+
+
+def _interval(kind: FaultKind, s: float, half: float) -> tuple[tuple[float, float], str | None]:
+    """The interval ``s +- half`` within the kind's range, and which end the range cut: the
+    severity is then "at least" the lower end (or "at most" the upper), not in a closed
+    interval."""
+    lo, hi = _range(kind.name)
+    below, above = s - half < lo, s + half > hi
+    bound = {(False, True): "at_least", (True, False): "at_most", (True, True): "anywhere"}
+    return (max(lo, s - half), min(hi, s + half)), bound.get((below, above))
 
 
 def _cos(a: np.ndarray, b: np.ndarray) -> float:

@@ -47,7 +47,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Annotated, Any
 
 import numpy as np
@@ -58,85 +58,18 @@ from drafttwin.errors import ConfigError, unknown_choice
 from drafttwin.mechanics import DriveTrain, Signal, operating_point
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics.assembly import Tables
+from drafttwin.mechanics.faults import CHAIN_LINKS as CHAIN_LINKS
+from drafttwin.mechanics.faults import (  # the catalogue and a fault's physics live there
+    KINDS,
+    MACHINE_FAMILIES,
+    SENSOR_CHANNELS,
+    catalogue,
+    chain_slack_m,
+    worn_stiffness_factor,
+)
+from drafttwin.mechanics.faults import SURFACE_ONLY as SURFACE_ONLY
+from drafttwin.mechanics.faults import FaultKind as FaultKind
 from drafttwin.mechanics.simulate import BLOCK_S
-
-CHAIN_LINKS = 62
-"""Pitches in the chain loop (assumption: a 25T + 50T drive needs >= 37.5 pitches for the wraps
-alone; research/faults.md 2.5)."""
-SENSOR_CHANNELS = (*ROLLERS, "motor")
-
-
-@dataclass(frozen=True)
-class FaultKind:
-    """One kind of fault: what its severity means and the range it may take."""
-
-    name: str
-    family: str  # gear | belt | chain | bearing | roller | motor | sensor
-    parameter: str  # what the severity is, with its unit
-    low: float  # severity must be > low (or >= -high for signed kinds)
-    high: float
-    levels: tuple[float, float, float]  # light, moderate, severe (benchmarks, generate-faults)
-    signed: bool = False
-    ramp_allowed: bool = True
-
-
-KINDS: dict[str, FaultKind] = {k.name: k for k in (
-    FaultKind("crack", "gear", "mesh stiffness lost while the cracked tooth meshes (fraction)",
-              0.0, 0.95, (0.2, 0.5, 0.8)),
-    FaultKind("wear", "gear", "wear depth on the working flanks (um)", 0.0, 500.0,
-              (20.0, 60.0, 150.0)),
-    FaultKind("runout", "gear", "added eccentricity of the driven gear (um)", 0.0, 500.0,
-              (10.0, 30.0, 80.0)),
-    FaultKind("belt_wear", "belt", "loss of belt axial rigidity (fraction)", 0.0, 0.9,
-              (0.2, 0.5, 0.8)),
-    FaultKind("elongation", "chain", "chain elongation (% of its length)", 0.0, 5.0,
-              (0.5, 1.5, 3.0)),
-    FaultKind("bearing_friction", "bearing", "relative rise of bearing drag (1 = doubled)",
-              0.0, 100.0, (2.0, 5.0, 10.0)),
-    FaultKind("load_loss", "roller", "top-roller load lost (fraction)", 0.0, 1.0,
-              (0.1, 0.3, 0.6)),
-    FaultKind("eccentricity", "roller", "added once-per-revolution load modulation (fraction "
-              "of the roller's friction load)", 0.0, 1.0, (0.05, 0.15, 0.3)),
-    FaultKind("flute", "roller", "surface speed lost over a damaged flute, an arc of 1/20 of "
-              "the circumference (fraction)", 0.0, 0.5, (0.02, 0.05, 0.15)),
-    FaultKind("rotor_resistance", "motor", "relative rise of rotor resistance", 0.0, 2.0,
-              (0.05, 0.15, 0.3)),
-    FaultKind("torque_loss", "motor", "breakdown torque lost (fraction)", 0.0, 0.6,
-              (0.05, 0.15, 0.3)),
-    FaultKind("gain", "sensor", "relative gain error of the channel", 0.0, 0.5,
-              (0.001, 0.005, 0.02), signed=True),
-    FaultKind("stuck", "sensor", "time the channel repeats one value (s)", 0.0, 1e6,
-              (1.0, 5.0, 30.0), ramp_allowed=False),
-    FaultKind("dropout", "sensor", "fraction of the channel's samples lost", 0.0, 1.0,
-              (0.05, 0.3, 1.0)),
-)}  # fmt: skip
-MACHINE_FAMILIES = ("gear", "belt", "chain", "bearing", "roller", "motor")
-SURFACE_ONLY = ("flute",)
-"""Kinds that act on a roller's surface only: no speed an encoder counts changes, so the
-encoder fault benchmark leaves them out and its sliver variant has them."""
-
-
-def catalogue(train: DriveTrain) -> dict[str, tuple[str, ...]]:
-    """Every element of ``train`` that can fail, with its fault kinds."""
-    spec = train.spec
-    out: dict[str, list[str]] = {}
-    fam_kinds = {f: [k.name for k in KINDS.values() if k.family == f]
-                 for f in (*MACHINE_FAMILIES, "sensor")}  # fmt: skip
-    for g in spec.gear:
-        out.setdefault(g.name, []).extend(fam_kinds["gear"])
-    for b in spec.belt:
-        out.setdefault(b.name, []).extend(fam_kinds["belt"])
-    for c in spec.chain:
-        out.setdefault(c.name, []).extend(fam_kinds["chain"])
-    for node in sorted({b.node for b in spec.bearing}):
-        out.setdefault(node, []).extend(fam_kinds["bearing"])
-    for r in spec.roller:
-        out.setdefault(r.name, []).extend(fam_kinds["roller"])
-    if spec.motor is not None:
-        out.setdefault("motor", []).extend(fam_kinds["motor"])
-    for ch in SENSOR_CHANNELS:
-        out.setdefault(ch, []).extend(fam_kinds["sensor"])
-    return {e: tuple(k) for e, k in out.items()}
 
 
 class FaultSpec(BaseModel):
@@ -292,7 +225,7 @@ class FaultSchedule:
                 belt_f[[b_.name for b_ in spec.belt].index(f.element), K.BELT_INV_EA] /= 1.0 - s
             elif f.kind == "elongation":
                 row = [c.name for c in spec.chain].index(f.element)
-                extra = s / 100.0 * CHAIN_LINKS * chain_f[row, K.CH_P]
+                extra = chain_slack_m(s, chain_f[row, K.CH_P])
                 chain_f[row, K.CH_T0] -= chain_f[row, K.CH_K] * 0.5 * extra
             elif f.kind == "bearing_friction":
                 rows = (b.drag_i[:, 0] == self.train.node_index(f.element)) & (
@@ -308,11 +241,6 @@ class FaultSchedule:
                 motor_f[:, K.MOT_TK] *= 1.0 - s
         return replace(b, gear_f=gear_f, belt_f=belt_f, chain_f=chain_f, drag_f=drag_f,
                        motor_f=motor_f)  # fmt: skip
-
-
-def worn_stiffness_factor(depth_um: float, module_mm: float) -> float:
-    """A worn mesh's stiffness over its healthy one: thinner flanks, down to half."""
-    return 1.0 - min(0.5, depth_um / (100.0 * module_mm))
 
 
 def _gear_fault(row: np.ndarray, gear: Any, kind: str, s: float) -> None:

@@ -1,8 +1,11 @@
 """The diagnosis page a maintenance engineer reads: alarm, ranked causes, evidence.
 
-Three figures: the residual timeline with the CUSUM statistics and the alarm; the spectrum
-after the change with every kinematic line marked (the implicated ones in red); the drive
-train with the suspected element highlighted (its non-separable group in orange).
+The summary says which rule raised the alarm (CUSUM, lag jump, sensor rule), the top cause
+with its look-alike group and whether it fits. Three figures: the residual timeline with the
+statistic of the rule that fired against its own limit; the spectrum after the change with
+every kinematic line marked (the implicated ones in red); the drive train with the suspected
+element highlighted (its non-separable group in orange). The detector's settings as a short
+table of its three rules.
 """
 
 from __future__ import annotations
@@ -17,18 +20,19 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from drafttwin.data.series import MeasurementSeries  # noqa: E402
-from drafttwin.diagnosis.detect import STREAMS, stream_matrix  # noqa: E402
+from drafttwin.diagnosis.detect import STREAMS, Alarm, stream_matrix  # noqa: E402
 from drafttwin.diagnosis.diagnose import Diagnosis  # noqa: E402
+from drafttwin.diagnosis.locate import Cause  # noqa: E402
 from drafttwin.diagnosis.residuals import CHANNELS  # noqa: E402
 from drafttwin.diagnosis.spectrum import kinematic_lines, residual_samples, spectrum  # noqa: E402
 from drafttwin.mechanics import DriveTrain  # noqa: E402
 from drafttwin.report.figures import _png  # noqa: E402
 from drafttwin.report.html import (  # noqa: E402
     Cell,
+    Raw,
     Row,
     figure,
     join,
-    kv_table,
     page,
     para,
     section,
@@ -37,6 +41,38 @@ from drafttwin.report.html import (  # noqa: E402
 )
 
 RED, ORANGE, GREY = "#d62728", "#ff9f1c", "#b0b7c3"
+RULE_NAMES = {"cusum": "CUSUM", "jump": "lag jump rule", "sensor": "sensor rule"}
+
+
+def _decided(dx: Diagnosis) -> np.ndarray:
+    """Blocks the streams' rules decided: not a reference window, not after the alarm."""
+    decided = np.isfinite(dx.detection.deviation).all(axis=1)
+    if dx.alarm is not None:
+        decided &= np.arange(len(decided)) <= dx.alarm.block
+    return decided
+
+
+def rule_statistic(dx: Diagnosis) -> tuple[np.ndarray, str, str]:
+    """The statistic of the rule that raised the alarm over its own limit, per block (1 =
+    the limit; NaN where it did not decide), its label and the limit's name; with no alarm,
+    the largest CUSUM."""
+    det, a = dx.detection, dx.alarm
+    rule = a.rule if a is not None else "cusum"
+    if rule == "sensor" and a is not None and det.sensor is not None:
+        kind, channel = a.test.split("_", 1)
+        j = CHANNELS.index(channel) + (len(CHANNELS) if kind == "stuck" else 0)
+        what = "longest run of one value" if kind == "stuck" else "samples lost alone"
+        return det.sensor[:, j], f"{channel}: {what} / its limit", "limit from healthy records"
+    if rule == "jump" and a is not None and det.jump is not None:
+        i = STREAMS.index(a.test)
+        value, label = det.jump[:, i], f"{a.test}: |one-block innovation| / jump limit"
+        limit = "jump limit"
+    elif a is not None and a.test in STREAMS:
+        i = STREAMS.index(a.test)
+        value, label, limit = det.statistic[:, i], f"{a.test}: CUSUM / h", "threshold h"
+    else:
+        value, label, limit = det.statistic.max(axis=1), "largest CUSUM / h", "threshold h"
+    return np.where(_decided(dx), value, np.nan), label, limit
 
 
 def timeline_png(dx: Diagnosis) -> bytes:
@@ -52,9 +88,16 @@ def timeline_png(dx: Diagnosis) -> bytes:
             lx.plot(f.time_s, streams[:, i], lw=1, label=name)
     lx.set_ylabel("angle lag vs baseline, mrad")
     lx.legend(fontsize=8, ncol=3, loc="upper left")
-    bx.plot(f.time_s, det.statistic.max(axis=1), color="#1f5f8b", lw=1, label="max CUSUM / h")
-    bx.axhline(1.0, color="k", ls="--", lw=0.8, label="threshold")
-    bx.set_ylabel("CUSUM / threshold")
+    value, label, limit = rule_statistic(dx)
+    rule = RULE_NAMES[dx.alarm.rule] if dx.alarm is not None else "CUSUM"
+    bx.plot(f.time_s, value, color="#1f5f8b", lw=1.2, marker=".", ms=3, label=label)
+    if dx.alarm is not None and dx.alarm.rule != "cusum":  # the CUSUMs, for comparison
+        cusum = np.where(_decided(dx), det.statistic.max(axis=1), np.nan)
+        bx.plot(f.time_s, cusum, color=GREY, lw=0.8, label="largest CUSUM / h (did not fire)")
+    bx.axhline(1.0, color="k", ls="--", lw=0.8, label=limit)
+    bx.set_yscale("symlog", linthresh=1.0)  # the limit and a jump many times it, both legible
+    bx.set_ylim(bottom=0.0)
+    bx.set_ylabel(f"{rule}: statistic / limit")
     bx.set_xlabel("time, s")
     if dx.alarm is not None:
         for a in (ax, lx, bx):
@@ -157,29 +200,127 @@ def _suspects(dx: Diagnosis, train: DriveTrain) -> tuple[set[str], set[str]]:
     return suspect, group - suspect
 
 
+def _fit_text(c: Cause) -> str:
+    """The cause's absolute fit, where the ranking gives one (read defensively: older
+    causes have none)."""
+    fit_p, chi2, dof = getattr(c, "fit_p", None), getattr(c, "chi2", None), getattr(c, "dof", 0)
+    if fit_p is None or chi2 is None or not dof:
+        return "-"
+    verdict = "fits" if getattr(c, "fits", True) else "does not fit"
+    return f"{verdict}, p {fit_p:.2g} (χ² {chi2:.3g} on {dof})"
+
+
+def _interval_text(c: Cause) -> str:
+    """The interval as the ranking words it ("at least" at a range limit), else ``[lo, hi]``."""
+    text = getattr(c, "interval_text", None)
+    text = text() if callable(text) else text
+    return text if isinstance(text, str) else f"[{c.interval[0]:.3g}, {c.interval[1]:.3g}]"
+
+
+def _growth_text(c: Cause) -> str | None:
+    """A line for a fault still growing at the end of the record, where the ranking says so."""
+    g = getattr(c, "growth", None)
+    if g is None or not getattr(g, "growing", False):
+        return None
+    return (f"Still growing: {g.rate_per_s:.3g} per s; {g.severity:.4g} [{g.interval[0]:.3g}, "
+            f"{g.interval[1]:.3g}] at {g.at_time_s:.1f} s.")  # fmt: skip
+
+
+def why_text(a: Alarm, dx: Diagnosis) -> str:
+    """Which rule raised the alarm, on what, and by how much over its limit."""
+    value, _, limit = rule_statistic(dx)
+    over = float(value[a.block]) if 0 <= a.block < len(value) else float("nan")
+    by = f", {over:.3g} times its {limit}" if np.isfinite(over) and over > 0 else ""
+    return (f"Alarm at {a.time_s:.1f} s raised by the {RULE_NAMES.get(a.rule, a.rule)} on "
+            f"{a.test}{by}; change estimated at {a.change_s:.1f} s.")  # fmt: skip
+
+
+def summary(dx: Diagnosis) -> Raw:
+    """The banner: the rule that fired, the top cause, its look-alike group and its fit."""
+    a = dx.alarm
+    if a is None:
+        return para("No alarm: the residuals stayed within the thresholds set from healthy data.")
+    top = dx.causes[0] if dx.causes else None
+    lines = [tag("strong", why_text(a, dx))]
+    if top is None:
+        lines.append(para("No candidate was evaluated (too little of the record after the alarm)."))
+    else:
+        fit = _fit_text(top)
+        lines.append(para(f"Most likely {top.name} ({top.family}), severity {top.severity:.4g} "
+                          f"{_interval_text(top)} {top.parameter}"
+                          + ("." if fit == "-" else f"; {fit}.")))  # fmt: skip
+        grows = _growth_text(top)
+        if grows:
+            lines.append(para(grows))
+        lines.append(para(
+            f"Cannot be told apart from {', '.join(top.group)} with these sensors: read the "
+            "group, not the first name." if top.group else
+            "No other candidate moves the measured channels the same way."))  # fmt: skip
+    verdict = getattr(dx, "verdict", None)
+    if isinstance(verdict, str) and verdict:
+        lines.append(para(f"Verdict: {verdict}."))
+    return tag("div", join(lines), cls="banner")
+
+
+def _rule_rows(d: Mapping[str, Any]) -> list[list[str]]:
+    """Per rule: its name, what it watches, when it alarms, where its limit comes from."""
+    nan = float("nan")
+    streams = d.get("streams") or {}
+    watched = [s for s, v in streams.items() if v.get("watched", True)]
+    lags = [s for s in watched if s.startswith("lag_")]
+    levels = ", ".join(s for s in watched if not s.startswith("lag_"))
+    jumps = ", ".join(f"{s} {streams[s].get('jump_limit', 0):.3g}" for s in lags
+                      if streams[s].get("jump_limit", 0) > 0) or "off"  # fmt: skip
+    runs = ", ".join(f"{c} {v:.0f}" for c, v in (d.get("run_limit") or {}).items())
+    losts = ", ".join(f"{c} {100 * v:.1f} %" for c, v in (d.get("lost_limit") or {}).items())
+    return [
+        ["CUSUM", levels + (f"; angle lags {', '.join(lags)}" if lags else ""),
+         f"h = {d.get('h', nan):.3g} (k = {d.get('k', nan):.3g}) in whitened units",
+         f"Siegmund's run length for {d.get('far_per_day', nan):g} false alarm(s) per 24 h "
+         "over all streams; scales, AR(1) and long-run variance from the healthy records"],
+        ["lag jump", ", ".join(lags) or "off (healthy records too short)",
+         f"one block's innovation over: {jumps} (its own units)",
+         "twice the largest in the healthy records"],
+        ["sensor rules", "every channel",
+         f"longest run of one value (samples): {runs}; samples lost alone: {losts}",
+         "twice the longest healthy run; the most lost in a healthy block + 2 %"],
+    ]  # fmt: skip
+
+
+def detector_table(info: Mapping[str, Any]) -> Raw:
+    """The detector's three rules as a short table (what each watches, its limit, where the
+    limit comes from), read from :meth:`FaultDetector.describe` in ``info``, and a line on
+    its baseline and where its thresholds came from."""
+    d, nan = info.get("detector") or {}, float("nan")
+    rows: list[Row] = [[Cell(name, cls="name"), *(Cell(x, cls="wrap") for x in rest)]
+                       for name, *rest in _rule_rows(d)]  # fmt: skip
+    head: list[Row] = [["rule", *(Cell(h, cls="wrap", header=True)
+                                  for h in ("watches", "alarms above", "limit from"))]]  # fmt: skip
+    unwatched = [s for s, v in (d.get("streams") or {}).items() if not v.get("watched", True)]
+    creep = info.get("creep_rel_sd")
+    base = (f"Blocks of {d.get('block_s', nan):g} s; each record's baseline is its first "
+            f"{d.get('reference_s', nan):g} s, then follows slow drift (EWMA, "
+            f"{d.get('drift_tau_s', nan):g} s) while nothing is suspicious. Thresholds from "
+            f"{info.get('thresholds_from', '-')}; physics {info.get('physics', '-')}"
+            + (f"; belt-creep mismatch {100 * creep:.0f} % of the physics' creep"
+               if isinstance(creep, float) else "")
+            + (f". Not watched: {', '.join(unwatched)}." if unwatched else "."))  # fmt: skip
+    return join([table(head, rows, id="detector"), para(base, cls="note")])
+
+
 def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries,
                      info: Mapping[str, Any], title: str = "Fault diagnosis") -> str:  # fmt: skip
     """The whole self-contained page."""
-    a = dx.alarm
-    if a is None:
-        verdict = para(
-            "No alarm: the residuals stayed within the thresholds set from healthy data."
-        )
-    else:
-        top = dx.causes[0] if dx.causes else None
-        what = (f"most likely {top.element}:{top.kind} ({top.family}), severity {top.severity:.4g} "
-                f"[{top.interval[0]:.3g}, {top.interval[1]:.3g}] {top.parameter}"
-                if top else "no candidate evaluated")  # fmt: skip
-        verdict = tag("div", join([tag("strong", f"Alarm at {a.time_s:.1f} s ({a.test}); change "
-                                              f"estimated at {a.change_s:.1f} s: {what}.")]),
-                      cls="banner")  # fmt: skip
-    wrap = "wrap"  # the unit and look-alike columns wrap: no sideways scroll at 1280 px
-    rows: list[Row] = [[f"{i + 1}", c.name, c.family, f"{c.severity:.4g}",
-                        f"[{c.interval[0]:.3g}, {c.interval[1]:.3g}]", Cell(c.parameter, cls=wrap),
-                        f"{c.probability:.2f}", Cell(", ".join(c.group) or "-", cls=wrap)]
+    verdict = summary(dx)
+    wrap = "wrap"  # the cause (its unit below it), fit and look-alike columns wrap: no
+    # sideways scroll at 1280 px
+    rows: list[Row] = [[f"{i + 1}", Cell(join([c.name, tag("div", c.parameter, cls="note")]),
+                                         cls=wrap),
+                        c.family, f"{c.severity:.4g}", _interval_text(c), f"{c.probability:.2f}",
+                        Cell(_fit_text(c), cls=wrap), Cell(", ".join(c.group) or "-", cls=wrap)]
                        for i, c in enumerate(dx.causes[:8])]  # fmt: skip
-    head: list[Row] = [["rank", "cause", "family", "severity", "95 % interval",
-                        Cell("unit", cls=wrap, header=True), "probability",
+    head: list[Row] = [["rank", Cell("cause (severity unit)", cls=wrap, header=True), "family",
+                        "severity", "95 % interval", "p (relative)", "fit",
                         Cell("cannot be told apart from", cls=wrap, header=True)]]  # fmt: skip
     causes = table(head, rows, id="causes")
     grown: list[Row] = [[ln.name, f"{ln.freq_hz:.2f}", ln.channel, f"{100 * ln.before:.4f}",
@@ -198,14 +339,16 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
             "by a fixed angle); gear cracks and run-out and roller run-out leave speeds and "
             "angles unchanged and are not ranked.", cls="note")),
         section("timeline", "Residual timeline", figure(timeline_png(dx), "fig-timeline",
-                "Stream levels against the record's baseline, and the largest CUSUM statistic over "
-                "its threshold; the alarm in red, the estimated change shaded.", "residual timeline")),
+                "Stream levels and angle lags against the record's baseline; below, the statistic "
+                "of the rule that raised the alarm over its own limit (for a lag jump or a sensor "
+                "rule the CUSUMs, which did not fire, in grey); the alarm in red, the estimated "
+                "change shaded.", "residual timeline")),
         section("spectrum", "Spectrum after the change", figure(spectrum_png(dx, train, series),
                 "fig-spectrum", "Relative residual spectra of each channel after the alarm.",
                 "spectrum"), lines),
         section("train", "Drive train", figure(train_png(train, suspect, group), "fig-train",
                 "The suspected element in red, the elements it cannot be told apart from in orange.",
                 "drive train")),
-        section("settings", "Detector", kv_table({k: v for k, v in info.items() if k != "data"})),
+        section("settings", "Detector", detector_table(info)),
     ])  # fmt: skip
     return page(title, body)
