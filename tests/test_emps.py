@@ -164,8 +164,8 @@ def test_simulation_mode_ignores_test_outputs_after_the_window(records) -> None:
     )
     np.testing.assert_array_equal(model.predict_values(noisy, mech), base)
     # the physics itself is causal: a 20-sample record gives the first 20 rows of a long one
-    np.testing.assert_allclose(mech.predict(noisy.slice(0, 20)), mech.predict(series)[:20],
-                               rtol=1e-12, atol=0)  # fmt: skip
+    np.testing.assert_allclose(mech.predict_values(noisy.slice(0, 20)),
+                               mech.predict_values(series)[:20], rtol=1e-12, atol=0)  # fmt: skip
 
 
 @needs_data

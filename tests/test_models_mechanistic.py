@@ -32,11 +32,11 @@ def test_file_source_is_interpolated_onto_the_grid(suffix: str, series, tmp_path
     frame = _sim_frame(coarse)
     path = tmp_path / f"sim{suffix}"
     frame.to_parquet(path) if suffix == ".parquet" else frame.to_csv(path, index=False)
-    got = MechanisticModel(path).predict(series)
+    got = MechanisticModel(path).predict_values(series)
     want = np.column_stack([np.interp(series.time_s, coarse, frame[r]) for r in ROLLERS])
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9)
     # any subset of channels, by name, in the order asked
-    np.testing.assert_allclose(MechanisticModel(path).predict(series, ["back", "front"]),
+    np.testing.assert_allclose(MechanisticModel(path).predict_values(series, ["back", "front"]),
                                want[:, [3, 0]], atol=1e-9)  # fmt: skip
 
 
@@ -52,7 +52,7 @@ def test_drafttwin_simulate_output_is_a_source_for_data_on_the_same_time_axis(tm
     frame[["time", *ROLLERS]].to_csv(tmp_path / "measured.csv", index=False)
     data = read_measurements(tmp_path / "measured.csv")
     assert data.time_s[0] == pytest.approx(0.01)
-    got = MechanisticModel(sim).predict(data)
+    got = MechanisticModel(sim).predict_values(data)
     np.testing.assert_allclose(got, frame[list(ROLLERS)].to_numpy(), rtol=0, atol=1e-9)
 
 
@@ -62,19 +62,19 @@ def test_one_step_beyond_the_table_is_held_further_is_refused(series, tmp_path: 
     step = 0.01
     late = tmp_path / "late.csv"
     _sim_frame(series.time_s + step).to_csv(late, index=False)  # starts one step late
-    got = MechanisticModel(late).predict(series)
+    got = MechanisticModel(late).predict_values(series)
     np.testing.assert_allclose(got[0], mechanistic(series.time_s[:1] + step)[0], atol=1e-9)
     later = tmp_path / "later.csv"
     _sim_frame(series.time_s + 2.5 * step).to_csv(later, index=False)
     with pytest.raises(DataError, match=r"covers 0.025 s to 2.015 s but the data span 0 s"):
-        MechanisticModel(later).predict(series)
+        MechanisticModel(later).predict_values(series)
 
 
 def test_file_source_not_covering_the_span_is_refused(series, tmp_path: Path) -> None:
     path = tmp_path / "short.csv"
     _sim_frame(np.arange(0, 1.0, 0.01)).to_csv(path, index=False)
     with pytest.raises(DataError, match="covers 0 s to 0.99 s") as err:
-        MechanisticModel(path).predict(series)
+        MechanisticModel(path).predict_values(series)
     assert str(path) in str(err.value)
 
 
@@ -83,7 +83,7 @@ def test_file_source_problems_are_named(series, tmp_path: Path) -> None:
     rows = "".join(f"{0.01 * k:.2f},1,{'x' if k == 5 else 2},3,4\n" for k in range(300))
     bad.write_text("time,front,second,third,back\n" + rows)
     with pytest.raises(DataError, match=r"row 7 \(data row 5\), column 'second'"):
-        MechanisticModel(bad).predict(series)
+        MechanisticModel(bad).predict_values(series)
     back = tmp_path / "back.csv"
     back.write_text("time,front,second,third,back\n0,1,2,3,4\n0,1,2,3,4\n")
     with pytest.raises(DataError, match="not strictly increasing"):
@@ -97,24 +97,24 @@ def test_file_source_problems_are_named(series, tmp_path: Path) -> None:
     two = tmp_path / "two.csv"
     _sim_frame(series.time_s)[["time", "front", "back"]].to_csv(two, index=False)
     with pytest.raises(DataError, match=r"no column\(s\) \['second', 'third'\]"):
-        MechanisticModel(two).predict(series)
+        MechanisticModel(two).predict_values(series)
 
 
 def test_column_mapping(series) -> None:
     frame = _sim_frame(series.time_s).rename(columns={"front": "v1", "back": "v4"})
     model = MechanisticModel(frame, columns={"front": "v1", "back": "v4"})
-    np.testing.assert_allclose(model.predict(series), mechanistic(series.time_s), atol=1e-9)
+    np.testing.assert_allclose(model.predict_values(series), mechanistic(series.time_s), atol=1e-9)
 
 
 def test_array_and_callable_sources_are_checked(series) -> None:
     arr = mechanistic(series.time_s)
-    np.testing.assert_array_equal(MechanisticModel(arr).predict(series), arr)
+    np.testing.assert_array_equal(MechanisticModel(arr).predict_values(series), arr)
     with pytest.raises(DataError, match="rows but the series has"):
-        MechanisticModel(arr[:-1]).predict(series)
+        MechanisticModel(arr[:-1]).predict_values(series)
     with pytest.raises(DataError, match="shape"):
-        MechanisticModel(lambda t: np.zeros((len(t), 3))).predict(series)
+        MechanisticModel(lambda t: np.zeros((len(t), 3))).predict_values(series)
     with pytest.raises(DataError, match="finite"):
-        MechanisticModel(lambda t: np.full((len(t), 4), np.nan)).predict(series)
+        MechanisticModel(lambda t: np.full((len(t), 4), np.nan)).predict_values(series)
     with pytest.raises(DataError, match="cannot use"):
         MechanisticModel(42)
 
@@ -128,7 +128,7 @@ def test_a_callable_may_take_the_records_inputs(series) -> None:
         seen.append(inputs["u"].copy())
         return pd.DataFrame({r: 100.0 * inputs["u"] + k for k, r in enumerate(ROLLERS)})
 
-    got = MechanisticModel(physics).predict(with_u)
+    got = MechanisticModel(physics).predict_values(with_u)
     np.testing.assert_allclose(got[:, 2], 100.0 * u + 2)
     np.testing.assert_array_equal(seen[0], u)
 
@@ -144,15 +144,15 @@ def test_sources_run_record_by_record(series, tmp_path: Path) -> None:
         files.append(tmp_path / f"r{k}.csv")
         _sim_frame(part.time_s).to_csv(files[-1], index=False)
     want = np.vstack([mechanistic(a.time_s), mechanistic(b.time_s)])
-    np.testing.assert_allclose(MechanisticModel(files).predict(two), want, atol=1e-9)
+    np.testing.assert_allclose(MechanisticModel(files).predict_values(two), want, atol=1e-9)
     both = pd.concat([pd.read_csv(f).assign(record=k + 1) for k, f in enumerate(files)])
     both.to_csv(tmp_path / "both.csv", index=False)
-    np.testing.assert_allclose(MechanisticModel(tmp_path / "both.csv").predict(two), want,
+    np.testing.assert_allclose(MechanisticModel(tmp_path / "both.csv").predict_values(two), want,
                                atol=1e-9)  # fmt: skip
     with pytest.raises(DataError, match="2 simulator output files for 3 records"):
-        MechanisticModel(files).predict(MeasurementSeries.concat([a, b, b]))
+        MechanisticModel(files).predict_values(MeasurementSeries.concat([a, b, b]))
     calls = []
-    MechanisticModel(lambda t: calls.append(t[0]) or mechanistic(t)).predict(two)
+    MechanisticModel(lambda t: calls.append(t[0]) or mechanistic(t)).predict_values(two)
     assert calls == [a.time_s[0], 0.0]
 
 
@@ -174,7 +174,7 @@ def test_a_preset_follows_the_recorded_set_point() -> None:
     from drafttwin.plant.emulator import Plant
 
     rec = Plant().run(12.0, rate_hz=100.0, seed=5, scenario="startup")
-    physics = MechanisticModel.from_preset("fa320a").predict(rec.series)
+    physics = MechanisticModel.from_preset("fa320a").predict_values(rec.series)
     err = physics - rec.true_rpm
     running = rec.true_rpm[-100:].mean(axis=0)
     assert np.all(np.sqrt(np.mean(err**2, axis=0)) < 0.002 * running)

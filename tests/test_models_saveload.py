@@ -190,7 +190,9 @@ def test_a_drive_train_source_is_stored_whole(tmp_path) -> None:
     t = np.arange(1, 301) * 0.01
     u = np.where(t < 1.0, 6.0, 8.0)
     physics = MechanisticModel.from_train(train)
-    truth = physics.predict(MeasurementSeries(t, np.zeros(300), channels=("y",), inputs={"u": u}))
+    truth = physics.predict_values(
+        MeasurementSeries(t, np.zeros(300), channels=("y",), inputs={"u": u})
+    )
     y = truth[:, 0] * 1.01
     data = MeasurementSeries(t, y, channels=("y",), units={"y": "rad/s"}, inputs={"u": u})
     model = make_model("mechanistic").fit(data, MechanisticModel.from_config(toml))

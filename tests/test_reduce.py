@@ -14,6 +14,7 @@ from drafttwin.mechanics import (
     simulate,
     simulate_channels,
 )
+from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
 from drafttwin.mechanics.assembly import Belt
 
@@ -92,7 +93,7 @@ def test_energy_balance(train):
     assert red is not None
     y0 = np.zeros(2 * len(train.node_names) + 1 + 2 + 5)
     y, args = R.reduced_start(red_train, y0)
-    R.integrate(y, 0.0, 1e-3, 3000, 1, *args)
+    K.integrate_reduced(y, 0.0, 1e-3, 3000, 1, args)
     m = red.n_super
     inv_jc = args[3]
     kinetic = 0.5 * float(np.sum(y[m : 2 * m] ** 2 / inv_jc))

@@ -8,7 +8,13 @@ Public API::
     res = simulate(train, duration_s=10.0)       # numba RK4, interval-mean speeds
     res.to_frame()                               # time, front, second, third, back, motor
     fast = simulate(reduce(train), 10.0)         # stiff couplings rigid: ~100x faster
-    y = simulate_channels(train, time_s, inputs={"supply_hz": hz})   # recorded set-points
+    rec = simulate(train, time_s=time_s, inputs={"supply_hz": hz})  # on a measurement grid
+    y = rec.channels(["front", "motor"])         # mapped output channels, in their units
+
+``simulate`` is the one way to simulate (a duration or a measurement grid, always a
+:class:`SimulationResult`); ``simulate_chunks`` gives the same run in pieces and
+``simulate_reference`` is SciPy's DOP853 for tests. ``simulate_channels``,
+``simulate_on_grid`` and ``simulate_nodes_on_grid`` are deprecated one-line shortcuts.
 """
 
 from drafttwin.mechanics.assembly import DriveTrain, Signal
@@ -16,11 +22,11 @@ from drafttwin.mechanics.channels import OutputMap, convert_rpm
 from drafttwin.mechanics.components import InputChannel, OutputChannel
 from drafttwin.mechanics.config import PRESETS, TrainSpec
 from drafttwin.mechanics.grid import (
-    drive_from_inputs,
     simulate_channels,
     simulate_nodes_on_grid,
     simulate_on_grid,
 )
+from drafttwin.mechanics.inputs import drive_from_inputs
 from drafttwin.mechanics.kinematics import (
     Kinematics,
     OperatingPoint,

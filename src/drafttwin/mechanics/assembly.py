@@ -115,7 +115,8 @@ def mesh_stiffness_fourier(g: GearMesh) -> tuple[np.ndarray, np.ndarray]:
 
 @dataclass
 class Tables:
-    """Arrays for :func:`drafttwin.mechanics.kernel.integrate` (see its column layout)."""
+    """The element tables of a train (column layouts in :mod:`drafttwin.mechanics.kernel`);
+    :meth:`kernel` bundles them for the integrator."""
 
     inv_j: np.ndarray
     motor_i: np.ndarray
@@ -138,6 +139,10 @@ class Tables:
 
     def args(self) -> tuple[np.ndarray, ...]:
         return tuple(getattr(self, f) for f in self.__dataclass_fields__)
+
+    def kernel(self) -> K.TrainTables:
+        """The same arrays (not copies) as the kernels' one bundle."""
+        return K.TrainTables(*self.args())
 
 
 @dataclass(frozen=True)

@@ -22,10 +22,11 @@ the deflections and vibrations of the rigid couplings (mesh-stiffness variation,
 transmission error, eccentricity, chain polygon effect and backlash of rigid gears and
 chains), i.e. the lines above the cut-off; interval means over several mesh periods keep.
 
-The reduced right-hand side is the full model's :func:`~drafttwin.mechanics.kernel.rhs`
-evaluated on the expanded state with the rigid couplings' rows removed, so motor (Kloss curve,
-rotor resistance, VFD schedule, torque lag and ripple), belt creep, friction and the energy
-accumulators are the same code.
+The reduced right-hand side (:func:`~drafttwin.mechanics.kernel.reduced_rhs`) is the full
+model's :func:`~drafttwin.mechanics.kernel.rhs` evaluated on the expanded state with the rigid
+couplings' rows removed, so motor (Kloss curve, rotor resistance, VFD schedule, torque lag and
+ripple), belt creep, friction and the energy accumulators are the same code; the same RK4
+loop integrates both (:func:`~drafttwin.mechanics.kernel.integrate_reduced`).
 """
 
 from __future__ import annotations
@@ -35,7 +36,6 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
-from numba import njit
 from scipy.linalg import eigh
 
 from drafttwin.errors import ConfigError
@@ -207,10 +207,8 @@ def reduced_tables(tab: Tables, red: Reduction) -> Tables:
                    spring_i=tab.spring_i[shaft], spring_f=tab.spring_f[shaft])  # fmt: skip
 
 
-def reduced_start(
-    train: DriveTrain, y_full: np.ndarray
-) -> tuple[np.ndarray, tuple[np.ndarray, ...]]:
-    """Reduced state and kernel arguments from a full start state (rest or operating point).
+def reduced_start(train: DriveTrain, y_full: np.ndarray) -> tuple[np.ndarray, K.ReducedTables]:
+    """Reduced state and the kernel's bundle from a full start state (rest or operating point).
 
     Super-node angle and speed are those of its representative; the other nodes' offsets
     keep the static deflections of the start state (preloads of the compliant couplings).
@@ -222,85 +220,15 @@ def reduced_start(
     y = np.concatenate([y_full[rep], y_full[n + rep], y_full[2 * n :]])
     offset = y_full[:n] - red.ratio * y[red.cluster]
     inv_jc = 1.0 / np.bincount(red.cluster, weights=train.inertias * red.ratio**2)
-    tab = reduced_tables(train.tables(), red)
-    return y, (red.cluster, red.ratio, offset, inv_jc, *tab.args()[1:])  # no inv_j
+    # inv_j all ones: the full right-hand side returns node torques, reflected onto super-nodes
+    tab = replace(reduced_tables(train.tables(), red), inv_j=np.ones(n)).kernel()
+    work = np.zeros((2, len(y_full)))
+    return y, K.ReducedTables(red.cluster, red.ratio, offset, inv_jc, tab, work)
 
 
-def expand_angles(y: np.ndarray, args: tuple[np.ndarray, ...]) -> np.ndarray:
-    """Node angles (rad) of a reduced state ``y`` (``args`` from :func:`reduced_start`)."""
-    cluster, ratio, offset = args[0], args[1], args[2]
-    return ratio * y[cluster] + offset
-
-
-# ---- kernel -------------------------------------------------------------------------------
-@njit(cache=True, error_model="numpy")
-def _reduced_rhs(t, y, dy, full, dfull, cluster, ratio, offset, inv_jc, ones, motor_i,
-                 motor_f, belt_i, belt_f, chain_i, chain_f, gear_i, gear_f, spring_i,
-                 spring_f, drag_i, drag_f, torque_i, torque_f, sig_i, sig_f, sig_v):  # fmt: skip
-    """Expand ``y`` onto the nodes, take the full rhs (node torques), reflect them back."""
-    n = cluster.shape[0]
-    m = inv_jc.shape[0]
-    for i in range(n):
-        c = cluster[i]
-        full[i] = ratio[i] * y[c] + offset[i]
-        full[n + i] = ratio[i] * y[m + c]
-    for k in range(y.shape[0] - 2 * m):
-        full[2 * n + k] = y[2 * m + k]
-    K.rhs(t, full, dfull, ones, motor_i, motor_f, belt_i, belt_f, chain_i, chain_f,
-          gear_i, gear_f, spring_i, spring_f, drag_i, drag_f, torque_i, torque_f,
-          sig_i, sig_f, sig_v)  # fmt: skip
-    for c in range(m):
-        dy[c] = y[m + c]
-        dy[m + c] = 0.0
-    for i in range(n):
-        dy[m + cluster[i]] += ratio[i] * dfull[n + i]
-    for c in range(m):
-        dy[m + c] *= inv_jc[c]
-    for k in range(y.shape[0] - 2 * m):
-        dy[2 * m + k] = dfull[2 * n + k]
-
-
-@njit(cache=True, error_model="numpy")
-def integrate(y, t0, dt, n_out, steps_per_out, cluster, ratio, offset, inv_jc, motor_i,
-              motor_f, belt_i, belt_f, chain_i, chain_f, gear_i, gear_f, spring_i, spring_f,
-              drag_i, drag_f, torque_i, torque_f, sig_i, sig_f, sig_v):  # fmt: skip
-    """RK4 of the reduced state, as :func:`drafttwin.mechanics.kernel.integrate`: returns the
-    angles (rad) and speeds (rad/s) of all original nodes and the energy accumulators (J) at
-    the end of each output interval."""
-    n = cluster.shape[0]
-    m = inv_jc.shape[0]
-    size = y.shape[0]
-    extra = size - 2 * m
-    full = np.zeros(2 * n + extra)
-    dfull = np.zeros(2 * n + extra)
-    ones = np.ones(n)
-    theta_out = np.empty((n_out, n))
-    omega_out = np.empty((n_out, n))
-    energy_out = np.empty((n_out, K.N_ENERGY))
-    k = np.empty((4, size))
-    tmp = np.empty(size)
-    half = 0.5 * dt
-    offsets = (0.0, half, half, dt)
-    for j in range(n_out):
-        for step in range(steps_per_out):
-            t = t0 + (j * steps_per_out + step) * dt
-            for stage in range(4):
-                if stage > 0:
-                    for i in range(size):
-                        tmp[i] = y[i] + offsets[stage] * k[stage - 1, i]
-                _reduced_rhs(t + offsets[stage], y if stage == 0 else tmp, k[stage], full,
-                             dfull, cluster, ratio, offset, inv_jc, ones, motor_i, motor_f,
-                             belt_i, belt_f, chain_i, chain_f, gear_i, gear_f, spring_i,
-                             spring_f, drag_i, drag_f, torque_i, torque_f, sig_i, sig_f,
-                             sig_v)  # fmt: skip
-            for i in range(size):
-                y[i] += dt / 6.0 * (k[0, i] + 2.0 * k[1, i] + 2.0 * k[2, i] + k[3, i])
-        for i in range(n):
-            theta_out[j, i] = ratio[i] * y[cluster[i]] + offset[i]
-            omega_out[j, i] = ratio[i] * y[m + cluster[i]]
-        for i in range(K.N_ENERGY):
-            energy_out[j, i] = y[size - K.N_ENERGY + i]
-    return theta_out, omega_out, energy_out
+def expand_angles(y: np.ndarray, model: K.ReducedTables) -> np.ndarray:
+    """Node angles (rad) of a reduced state ``y`` (``model`` from :func:`reduced_start`)."""
+    return model.ratio * y[model.cluster] + model.offset
 
 
 def describe(train: DriveTrain) -> dict[str, Any]:

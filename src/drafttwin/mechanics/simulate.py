@@ -11,8 +11,8 @@ precedes it (inputs held at their first values), so the recorded data start in s
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from fractions import Fraction
 from typing import Any
 
@@ -25,34 +25,20 @@ from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.errors import ConfigError, DrafttwinError
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
-from drafttwin.mechanics.assembly import (
-    DriveTrain,
-    Tables,
-    chain_mean_radius_m,
-    chain_pitch_radius_m,
-    gear_base_radii_m,
+from drafttwin.mechanics.assembly import DriveTrain, Tables
+from drafttwin.mechanics.inputs import (
+    InputColumns,
+    channel_values,
+    drive_from_inputs,
+    grid_step_s,
+    select_outputs,
 )
-from drafttwin.mechanics.components import Belt, ChainDrive, GearMesh, Shaft
-from drafttwin.mechanics.kinematics import RPM, OperatingPoint, operating_point
+from drafttwin.mechanics.kinematics import RPM
+from drafttwin.mechanics.start import STOPPED_SUPPLY_HZ as STOPPED_SUPPLY_HZ
+from drafttwin.mechanics.start import _start_state, starts_at_rest
+from drafttwin.mechanics.start import static_angles as static_angles
 
 ENERGY_NAMES = ("motor", "roller_loads", "bearings", "coupling_losses", "external")
-
-STOPPED_SUPPLY_HZ = 0.5
-"""Below this supply frequency (Hz) the machine counts as stopped and a simulation starts from
-rest. A VFD does not start its output below its starting frequency (e.g. the "starting
-frequency" parameter Pr. 13 of Mitsubishi FR inverters; 0.5 Hz is an assumed typical setting),
-and a torque-balance operating point at a few rpm would sit inside the friction
-regularisation of the rollers and bearings."""
-
-
-def starts_at_rest(train: DriveTrain, t_s: float) -> bool:
-    """True if a simulation starting at ``t_s`` (s) starts at standstill: the train has no motor,
-    or the motor's supply at ``t_s`` is below :data:`STOPPED_SUPPLY_HZ`."""
-    motor = train.spec.motor
-    if motor is None:
-        return True
-    supply = motor.supply_hz if train.supply_hz is None else float(train.supply_hz.at(t_s))
-    return supply < STOPPED_SUPPLY_HZ
 
 
 @dataclass(frozen=True)
@@ -85,6 +71,20 @@ class SimulationResult:
     wall_s: float
     compile_s: float = 0.0
     angle_rad: np.ndarray | None = None
+    train: DriveTrain | None = field(default=None, repr=False, compare=False)
+    """The (driven) train simulated: :meth:`channels` reads its output channels."""
+
+    def channels(
+        self, channels: Sequence[str] | None = None, units: Mapping[str, str] | None = None
+    ) -> np.ndarray:
+        """The train's mapped output channels (default: all, see
+        :meth:`~drafttwin.mechanics.assembly.DriveTrain.output_channels`), each in its unit
+        or the one ``units`` names, shape ``(n, len(channels))``."""
+        if self.train is None:
+            raise ConfigError("this result does not carry its train",
+                              fix="take it from simulate()")  # fmt: skip
+        maps = select_outputs(self.train, channels, units)
+        return channel_values(self.train, self.node_rpm, maps)
 
     def roller_rpm(self, rollers: tuple[str, ...] = ROLLERS) -> np.ndarray:
         """Interval-mean roller speeds, rpm, shape ``(n, len(rollers))``."""
@@ -109,82 +109,16 @@ class SimulationResult:
         return {n: float(self.energy_j[-1, k] / span) for k, n in enumerate(ENERGY_NAMES)}
 
 
-def static_angles(train: DriveTrain, chain_slack_m: dict[str, float] | None = None,
-                  op: OperatingPoint | None = None) -> np.ndarray:  # fmt: skip
-    """Node angles (rad, ``train.node_names`` order, motor rotor at 0) at the operating point:
-    the static twist of shafts, belt stretch, mesh deflection plus half the backlash (the
-    driven gear rests on its loaded flank) and chain stretch. ``chain_slack_m`` adds slack to
-    named chains (an elongated chain's driven sprocket trails by half the extra loop length:
-    the slack span takes up the other half). Diagnosis compares these between a train and the
-    same train with a fault, e.g. a worn mesh's larger backlash. ``op``: the train's
-    operating point if already at hand."""
-    op = operating_point(train) if op is None else op
-    return _initial_state(train, op, chain_slack_m)[: len(train.node_names)]
+KernelModel = K.TrainTables | K.ReducedTables
 
 
-def _initial_state(train: DriveTrain, op: OperatingPoint,
-                   chain_slack_m: dict[str, float] | None = None) -> np.ndarray:  # fmt: skip
-    """Steady-speed state with static deflections from the transmitted torques."""
-    n = len(train.node_names)
-    tab = train.tables()
-    nb, nm = tab.belt_i.shape[0], tab.motor_i.shape[0]
-    y = np.zeros(2 * n + nb + 2 * nm + K.N_ENERGY)
-    y[n : 2 * n] = op.node_speed_rad_s
-    belt_row = {b.name: k for k, b in enumerate(train.spec.belt)}
-    for e in train.edges:
-        c, torque = e.coupling, op.transmitted[e.coupling.name]
-        if isinstance(c, Shaft):
-            sign = 1.0 if c.a == train.node_names[e.parent] else -1.0
-            y[e.child] = y[e.parent] - torque / c.stiffness_nm_per_rad * sign
-        elif isinstance(c, Belt):
-            rb = c.driven_diameter_mm * 5e-4
-            y[2 * n + belt_row[c.name]] = torque / rb / c.span_stiffness_n_per_m
-            y[e.child] = y[e.parent] * e.ratio
-        elif isinstance(c, GearMesh):
-            rba, rbb = gear_base_radii_m(c)
-            delta = torque / rbb / c.mesh_stiffness_n_per_m + 0.5e-6 * c.backlash_um
-            y[e.child] = (rba * y[e.parent] - delta) / rbb
-        else:
-            rb = chain_pitch_radius_m(c.pitch_mm, c.driven_teeth)
-            stretch = torque / rb / (2 * c.span_stiffness_n_per_m)
-            stretch += 0.5 * (chain_slack_m or {}).get(c.name, 0.0)
-            y[e.child] = _chain_angle_for_feed(c, y[e.parent], stretch)
-    y[2 * n + nb : 2 * n + nb + nm] = op.motor_torque_nm
-    return y
-
-
-def _start_state(train: DriveTrain, t0: float, from_rest: bool) -> np.ndarray:
-    """Standstill if asked or if the train is stopped at ``t0``, else the operating point."""
-    if from_rest or starts_at_rest(train, t0):
-        return _rest_state(train)
-    return _initial_state(train, operating_point(train, t=t0))
-
-
-def _rest_state(train: DriveTrain) -> np.ndarray:
-    tab = train.tables()
-    n = len(train.node_names)
-    return np.zeros(2 * n + tab.belt_i.shape[0] + 2 * tab.motor_i.shape[0] + K.N_ENERGY)
-
-
-def _chain_angle_for_feed(c: ChainDrive, theta_driver: float, stretch: float) -> float:
-    """Driven-sprocket angle whose chain feed trails the driver's by ``stretch`` (Newton)."""
-    ra = chain_pitch_radius_m(c.pitch_mm, c.driver_teeth)
-    rb = chain_pitch_radius_m(c.pitch_mm, c.driven_teeth)
-    target = K._chain_feed(theta_driver, c.driver_teeth, c.pitch_mm * 1e-3, ra)[0] - stretch
-    theta = target / chain_mean_radius_m(c.pitch_mm, c.driven_teeth)
-    for _ in range(20):
-        x, dx = K._chain_feed(theta, c.driven_teeth, c.pitch_mm * 1e-3, rb)
-        theta -= (x - target) / dx
-    return theta
-
-
-def _integrator(train: DriveTrain, y_full: np.ndarray) -> tuple[Any, np.ndarray, tuple]:
-    """Kernel, start state and its table arguments: the full train's, or the reduced
+def _integrator(train: DriveTrain, y_full: np.ndarray) -> tuple[Any, np.ndarray, KernelModel]:
+    """Kernel, start state and the bundle it steps: the full train's tables, or the reduced
     train's (:mod:`drafttwin.mechanics.reduced`) when it carries a reduction."""
     if train.reduction is None:
-        return K.integrate, y_full, train.tables().args()
-    y, args = R.reduced_start(train, y_full)
-    return R.integrate, y, args
+        return K.integrate, y_full, train.tables().kernel()
+    y, model = R.reduced_start(train, y_full)
+    return K.integrate_reduced, y, model
 
 
 def _grid(rate_hz: float, dt_s: float) -> tuple[int, float]:
@@ -276,27 +210,30 @@ class SimulationStream:
 
         train, rate, dt, steps = self.train, self.rate_hz, self.dt_s, self.steps
         t0 = self.t_start_s - self.settle_s
-        integrate, y, args = _integrator(train, _start_state(train, t0, self.from_rest))
-        args = self._args_at(t0, args)
+        integrate, y, model = _integrator(train, _start_state(train, t0, self.from_rest))
+        model = self._model_at(t0, model)
         start = _time.perf_counter()
-        integrate(y.copy(), t0, dt, 1, 1, *args)  # compile / load from cache outside the timing
+        integrate(y.copy(), t0, dt, 1, 1, model)  # compile / load from cache outside the timing
         self.compile_s = _time.perf_counter() - start
         start = _time.perf_counter()
         if self.settle_s > 0:
             n_settle = self.settle_rows
-            settled = integrate(y, t0, dt, n_settle, steps, *args)
+            settled = integrate(y, t0, dt, n_settle, steps, model)
             self._check_finite(settled, t0, 0, settling=True)
             t0 += n_settle / rate
         y[-K.N_ENERGY :] = 0.0
-        theta = y[: len(train.node_names)] if train.reduction is None else R.expand_angles(y, args)
+        if isinstance(model, K.TrainTables):
+            theta = y[: len(train.node_names)]
+        else:
+            theta = R.expand_angles(y, model)
         last_theta = theta.copy()
         block = self.block_rows
         pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         emitted = done = 0
         while done < self.n_rows:
             m = min(block, self.n_rows - done)
-            args = self._args_at(t0 + done / rate, args)
-            out = integrate(y, t0 + done / rate, dt, m, steps, *args)
+            model = self._model_at(t0 + done / rate, model)
+            out = integrate(y, t0 + done / rate, dt, m, steps, model)
             self._check_finite(out, t0, done, settling=False)
             pending.append(out)
             done += m
@@ -320,13 +257,14 @@ class SimulationStream:
         """Output rows per kernel call (:data:`BLOCK_S` of machine time)."""
         return max(1, int(self.rate_hz * BLOCK_S))
 
-    def _args_at(self, t: float, args: tuple) -> tuple:
+    def _model_at(self, t: float, model: KernelModel) -> KernelModel:
         """The kernel's tables for the block starting at ``t``: the train's own, or those of
         ``tables_at`` (parameters held constant over each block of :data:`BLOCK_S`)."""
         if self.tables_at is None:
-            return args
-        new = self.tables_at(t).args()
-        if any(a.shape != b.shape for a, b in zip(new, args, strict=True)):
+            return model
+        assert isinstance(model, K.TrainTables)  # refused for a reduced train in __init__
+        new = self.tables_at(t).kernel()
+        if any(a.shape != b.shape for a, b in zip(new, model, strict=True)):
             raise ConfigError("tables_at changed the shape of the train's tables",
                               fix="vary parameter values only, not elements")  # fmt: skip
         return new
@@ -395,28 +333,42 @@ def simulate_chunks(
 
 def simulate(
     train: DriveTrain,
-    duration_s: float,
+    duration_s: float | None = None,
     *,
+    time_s: Any = None,
+    inputs: InputColumns | None = None,
     output_rate_hz: float | None = None,
     dt_s: float | None = None,
     settle_s: float | None = None,
-    t_start_s: float = 0.0,
-    from_rest: bool = False,
+    t_start_s: float | None = None,
+    from_rest: bool | None = None,
     progress: Callable[[float], None] | None = None,
     tables_at: Callable[[float], Tables] | None = None,
     angles: bool = False,
 ) -> SimulationResult:
-    """Integrate the train with fixed-step RK4 and return interval-mean speeds.
+    """Integrate the train with fixed-step RK4 and return interval-mean speeds: for
+    ``duration_s`` from ``t_start_s``, or on the measurement grid ``time_s`` driven by the
+    recorded ``inputs`` (the one way to simulate; :func:`simulate_chunks` delivers the same
+    run in pieces).
 
     Args:
-        duration_s: recorded machine time, s.
+        duration_s: recorded machine time, s (or give ``time_s``).
+        time_s: a uniform measurement time grid, s: row ``k`` is the mean over
+            ``(time_s[k] - T, time_s[k]]`` with ``T`` the grid step, which sets the output
+            rate and the start of recording (so no ``output_rate_hz`` or ``t_start_s``).
+        inputs: input columns on that grid (a dict of arrays, a DataFrame), mapped by the
+            train's ``[[input]]`` tables (:func:`~drafttwin.mechanics.inputs.drive_from_inputs`);
+            NaN bridged linearly in time. Without a supply column the motor runs at its
+            configured ``supply_hz``.
         output_rate_hz: output samples per second (default: the train's solver setting).
         dt_s: integration step, s (rounded down so a whole number of steps fills an interval).
         settle_s: machine time simulated and discarded before recording, s.
-        t_start_s: time of the start of recording, s (inputs are functions of this time).
+        t_start_s: time of the start of recording, s (default 0; inputs are functions of
+            this time).
         from_rest: start at standstill, unloaded (e.g. a start-up), instead of at the
             torque-balance operating point with static preloads. A train without a motor, or
-            whose supply at the start is below :data:`STOPPED_SUPPLY_HZ`, always starts at rest.
+            whose supply at the start is below :data:`STOPPED_SUPPLY_HZ`, always starts at rest
+            (on a grid, with no settling run unless ``settle_s`` asks for one).
         progress: called with the machine seconds completed since the last call.
         tables_at: time-varying parameters (e.g. a growing fault): called with the start
             time of each kernel call (blocks of :data:`BLOCK_S`, and the settling run), it
@@ -426,10 +378,35 @@ def simulate(
 
     Raises:
         NonFiniteSimulationError: at the first NaN or infinite output (node and time named).
+        ConfigError: neither or both of ``duration_s`` and ``time_s``; a non-uniform grid.
+        DataError: a required input channel is missing, all-NaN or of the wrong length.
     """
+    if (duration_s is None) == (time_s is None):
+        raise ConfigError("give the simulation a duration or a time grid, one of the two",
+                          where="duration_s, time_s",
+                          fix="pass duration_s=SECONDS, or time_s=GRID with its inputs")  # fmt: skip
+    if time_s is not None:
+        if output_rate_hz is not None or t_start_s is not None:
+            raise ConfigError("a time grid sets the output rate and the start of recording",
+                              where="output_rate_hz, t_start_s",
+                              fix="leave them out when giving time_s")  # fmt: skip
+        time_s = np.asarray(time_s, dtype=np.float64)
+        step = grid_step_s(time_s)
+        train = drive_from_inputs(train, time_s, inputs)
+        duration_s, output_rate_hz = len(time_s) * step, 1.0 / step
+        t_start_s = float(time_s[0]) - step
+        if from_rest is None:
+            from_rest = starts_at_rest(train, t_start_s)
+        if from_rest and settle_s is None:
+            settle_s = 0.0  # nothing to settle: the recording starts at standstill
+    elif inputs is not None:
+        raise ConfigError("input columns need their time grid", where="inputs",
+                          fix="pass time_s with the inputs")  # fmt: skip
+    assert duration_s is not None
     stream = simulate_chunks(train, duration_s, chunk_s=math.inf, output_rate_hz=output_rate_hz,
-                             dt_s=dt_s, settle_s=settle_s, t_start_s=t_start_s,
-                             from_rest=from_rest, progress=progress,
+                             dt_s=dt_s, settle_s=settle_s,
+                             t_start_s=0.0 if t_start_s is None else t_start_s,
+                             from_rest=bool(from_rest), progress=progress,
                              tables_at=tables_at, angles=angles)  # fmt: skip
     pieces = list(stream)
     return SimulationResult(
@@ -444,6 +421,7 @@ def simulate(
         wall_s=stream.wall_s,
         compile_s=stream.compile_s,
         angle_rad=_joined_angles(pieces) if angles else None,
+        train=train,
     )
 
 
@@ -491,14 +469,14 @@ def simulate_reference(
     (tens of seconds per simulated second), so keep runs short.
     """
     rate = train.spec.solver.output_rate_hz if output_rate_hz is None else output_rate_hz
-    args = train.tables().args()
+    tab = train.tables().kernel()
     n = len(train.node_names)
     t0 = -settle_s
     y0 = _start_state(train, t0, from_rest=False)
 
     def f(t: float, y: np.ndarray) -> np.ndarray:
         dy = np.empty_like(y)
-        K.rhs(t, y, dy, *args)
+        K.rhs(t, y, dy, tab)
         return dy
 
     n_out = int(round(duration_s * rate))

@@ -20,6 +20,7 @@ import math
 import numpy as np
 
 from drafttwin.errors import ConfigError
+from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
 from drafttwin.mechanics.assembly import DriveTrain, Signal
 from drafttwin.mechanics.kinematics import RPM
@@ -58,9 +59,11 @@ class LiveStepper:
         self.steps, self.dt_s = _grid(self.rate_hz, default_dt if dt_s is None else dt_s)
         settle = train.spec.solver.settle_s if settle_s is None else float(settle_s)
         y_full = _start_state(self.train, t0_s - settle, from_rest=False)
+        # the kernel's bundle; its arrays are read on every call, so writing into them (the
+        # supply below, a plant's fault tables) changes what the next step integrates
         self._integrate, self.y, self._args = _integrator(self.train, y_full)
-        # sig_i, sig_f, sig_v: the kernel's last three arguments (the motor row names its row)
-        self._sig_i, self._sig_f, self._sig_v = self._args[-3:]
+        tab = self._tables
+        self._sig_i, self._sig_f, self._sig_v = tab.sig_i, tab.sig_f, tab.sig_v
         k = self._motor_signal_index()
         self._start = int(self._sig_i[k, 0])
         self._k = k
@@ -73,14 +76,19 @@ class LiveStepper:
         self.rollers = dict(train.roller_nodes)
         self.motor_node = train.node_index(train.spec.root_node)
 
+    @property
+    def _tables(self) -> K.TrainTables:
+        """The element tables the kernel reads (a reduced train's remaining ones)."""
+        model = self._args
+        return model if isinstance(model, K.TrainTables) else model.tables
+
     def _motor_signal_index(self) -> int:
         """Row of the supply schedule in the kernel's signal table (the motor row names it)."""
-        motor_i = self._args[1] if self.train.reduction is None else self._args[4]
-        return int(motor_i[0, 1])
+        return int(self._tables.motor_i[0, 1])
 
     def _angles(self) -> np.ndarray:
         n = len(self.train.node_names)
-        if self.train.reduction is None:
+        if isinstance(self._args, K.TrainTables):
             return self.y[:n].copy()
         return R.expand_angles(self.y, self._args)
 
@@ -92,7 +100,7 @@ class LiveStepper:
         self._sig_f[self._k, 1] = span
         self._sig_v[self._start] = supply_from
         self._sig_v[self._start + 1] = supply_to
-        out = self._integrate(self.y, self.t_s, self.dt_s, n_out, self.steps, *self._args)
+        out = self._integrate(self.y, self.t_s, self.dt_s, n_out, self.steps, self._args)
         if not np.isfinite(out[1][-1]).all():
             raise NonFiniteSimulationError(
                 f"the live physics produced a non-finite speed at t = {self.t_s + span:.6g} s",

@@ -19,7 +19,8 @@ including the target time. Sources:
 * a precomputed ``(n, channels)`` array aligned row by row with the series.
 
 :meth:`MechanisticModel.predict` returns the requested channels (by default the series'),
-computed record by record.
+computed record by record, as a labelled frame like every model's; :meth:`~MechanisticModel.predict_values`
+returns them as an array (what the estimators and hybrids combine with).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import numpy as np
 import pandas as pd
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.errors import ConfigError, DataError
+from drafttwin.errors import DataError
 
 if TYPE_CHECKING:
     from drafttwin.mechanics import DriveTrain
@@ -115,8 +116,9 @@ class MechanisticModel:
     @classmethod
     def from_train(cls, train: DriveTrain, *, name: str | None = None) -> MechanisticModel:
         """A drive train simulated on each record's grid, following its input channels."""
-        from drafttwin.mechanics import simulate_channels
+        from drafttwin.mechanics import simulate
         from drafttwin.mechanics.components import OUTPUT_UNITS
+        from drafttwin.mechanics.inputs import select_outputs
 
         cache: dict[bytes, np.ndarray] = {}
 
@@ -127,8 +129,9 @@ class MechanisticModel:
                              *(np.ascontiguousarray(v).tobytes() for _, v in sorted(inputs.items()))])  # fmt: skip
             if key not in cache:
                 cache.clear()  # one record at a time is what fit/predict re-use
-                cache[key] = simulate_channels(train, time_s, inputs=inputs, channels=channels,
-                                               units=speed)  # fmt: skip
+                select_outputs(train, channels, speed)  # refused before the simulation runs
+                res = simulate(train, time_s=time_s, inputs=inputs)
+                cache[key] = res.channels(channels, speed)
             return cache[key]
 
         spec = {"kind": "train", "name": train.spec.train.name, "source": str(train.source),
@@ -176,15 +179,14 @@ class MechanisticModel:
     def from_option(cls, text: str) -> MechanisticModel:
         """The source named by a command-line value: ``preset``, ``preset:NAME``,
         ``config:FILE.toml`` or a simulator output file (``FILE[,FILE...]``, one per record)."""
-        kind, _, rest = text.partition(":")
-        if text == "preset" or kind == "preset":
-            return cls.from_preset(rest or "fa320a")
-        if kind == "config":
-            if not rest:
-                raise ConfigError("config: needs a file", where="--mechanistic",
-                                  fix="write --mechanistic config:my_train.toml")  # fmt: skip
-            return cls.from_config(rest)
-        return cls([p.strip() for p in text.split(",") if p.strip()])
+        from drafttwin.models.source import parse_source
+
+        source = parse_source(text, "--mechanistic")
+        if source.kind == "preset":
+            return cls.from_preset(source.preset)
+        if source.kind == "config":
+            return cls.from_config(source.paths[0])
+        return cls([str(p) for p in source.paths])
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any] | None) -> MechanisticModel | None:
@@ -224,6 +226,27 @@ class MechanisticModel:
 
     # ----- prediction ---------------------------------------------------------------------
     def predict(
+        self, series: MeasurementSeries, channels: Sequence[str] | None = None
+    ) -> pd.DataFrame:
+        """The mechanistic values as a labelled frame, as every model's ``predict`` gives it:
+        the time (s; the column named as the data file named it, else ``time``), one column
+        per channel (default: the series' output channels), ``record`` for a series of several
+        records; ``frame.attrs["units"]`` holds the channel units. :meth:`predict_values`
+        gives the same values as an array."""
+        from drafttwin.models.base import time_column  # base imports this module
+
+        values = self.predict_values(series, channels)
+        names = tuple(series.channels if channels is None else channels)
+        frame = pd.DataFrame({time_column(series): series.time_s})
+        for j, name in enumerate(names):
+            frame[name] = values[:, j]
+        if series.n_records > 1:
+            frame["record"] = series.record_ids()
+        frame.attrs["units"] = {name: series.unit(name) for name in names}
+        frame.attrs["model"] = self.name
+        return frame
+
+    def predict_values(
         self, series: MeasurementSeries, channels: Sequence[str] | None = None
     ) -> np.ndarray:
         """The mechanistic values of ``channels`` (default: the series' output channels) on
