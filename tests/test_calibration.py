@@ -244,6 +244,8 @@ def test_cli_writes_train_and_report_and_refuses_bad_requests(records, tmp_path)
     common = ["calibrate", "--config", str(BELT), "--data", str(records), "--outputs", "y",
               "--inputs", "u", "--units", "y=rad/s,u=V", "--time-column", "t"]  # fmt: skip
     out = tmp_path / "cal.toml"
+    sidecar = tmp_path / "cal.json"  # a plant record cal.csv's sidecar: not calibrate's to write
+    sidecar.write_text('{"files": {"truth": "cal.truth.csv"}}')
     result = runner.invoke(app, [*common, "--params", "motor.rated_slip,bearing.flywheel",
                                  "--out", str(out), "--json"])  # fmt: skip
     assert result.exit_code == 0, result.output
@@ -253,7 +255,9 @@ def test_cli_writes_train_and_report_and_refuses_bad_requests(records, tmp_path)
         report["parameters"][0]
     )
     assert report["rmse_after"] < report["rmse_before"]
-    assert json.loads(out.with_suffix(".json").read_text())["parameters"] == report["parameters"]
+    written = json.loads((tmp_path / "cal.calibration.json").read_text())
+    assert written["parameters"] == report["parameters"]
+    assert sidecar.read_text() == '{"files": {"truth": "cal.truth.csv"}}'  # left intact
     calibrated = DriveTrain.from_toml(out)
     slip = next(p for p in report["parameters"] if p["name"] == "motor.rated_slip")
     m = calibrated.to_dict()["motor"]
@@ -274,6 +278,11 @@ def test_cli_writes_train_and_report_and_refuses_bad_requests(records, tmp_path)
     assert "Traceback" not in result.output and not bad.exists()
     result = runner.invoke(app, [*common, "--out", str(tmp_path / "cal.txt")])
     assert result.exit_code == 2 and "toml" in result.output
+    taken = tmp_path / "taken.calibration.json"  # e.g. the sidecar of taken.calibration.csv
+    taken.write_text("{}")
+    result = runner.invoke(app, [*common, "--out", str(tmp_path / "taken.toml")])
+    assert result.exit_code == 2 and "not a report of drafttwin calibrate" in result.output
+    assert taken.read_text() == "{}" and not (tmp_path / "taken.toml").exists()
 
 
 def test_supply_wander_cancels_from_the_scored_errors():

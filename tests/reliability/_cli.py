@@ -125,7 +125,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
         "--epochs",
     ],
     "predict": ["--init-samples", "--rate-tolerance"],
-    "evaluate": ["--init-samples", "--rate-tolerance", "--train-fraction"],
+    "evaluate": ["--init-samples", "--rate-tolerance", "--train-fraction", "--score-from"],
     "calibrate": ["--rate-tolerance", "--block"],
     "reproduce": ["--workers"],
     "grid-search": ["--workers"],
@@ -133,7 +133,16 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "twin run": ["--commit-ms", "--retention-hours", "--silent", "--duration", "--max-samples"],
     "twin query": ["--from", "--to"],
     "twin fit-detector": ["--far-per-day", "--reference", "--post"],
-    "plant serve": ["--machines", "--seed", "--rate", "--ramp", "--duration", "--history"],
+    "plant serve": [
+        "--machines",
+        "--seed",
+        "--rate",
+        "--ramp",
+        "--duration",
+        "--history",
+        "--qos",
+        "--max-lag",
+    ],
     "twin hall": ["--shards", "--commit-ms", "--duration"],
     "sliver simulate": [
         "--duration",
@@ -160,7 +169,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
 
 #: values inside the range of options that may be zero (these are not hostile there)
 ZERO_OK = {"--settle", "--rate-tolerance", "--threshold", "--seed", "--machine-seed", "--from",
-           "--to", "--history", "--feed-cv", "--fineness-cv", "--sensor-mm"}  # fmt: skip
+           "--to", "--history", "--feed-cv", "--fineness-cv", "--sensor-mm", "--qos", "--score-from"}  # fmt: skip
 
 
 def numeric_cases() -> list[tuple[str, str, str]]:

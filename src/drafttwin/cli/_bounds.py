@@ -66,6 +66,7 @@ BOUNDS: dict[str, Bound] = {
     "--init-samples": Bound(1, 1e7, "samples", low_inclusive=True),
     "--train-fraction": Bound(0.05, 1.0, low_inclusive=True),
     "--horizon": Bound(1, 1e5, "samples", low_inclusive=True),
+    "--score-from": Bound(0, 1e9, "samples", low_inclusive=True),
     "--epochs": Bound(1, 1e6, low_inclusive=True),
     "--block": Bound(0.001, 3600, "s", low_inclusive=True),
     "--workers": Bound(1, 1024, low_inclusive=True),
@@ -94,6 +95,8 @@ BOUNDS: dict[str, Bound] = {
     "--harmonics": Bound(1, 20, "harmonics", low_inclusive=True),
     "--sensor-mm": Bound(0, 1000, "mm", low_inclusive=True),
     "--post": Bound(0, 3600, "s"),
+    "--qos": Bound(0, 1, "(MQTT QoS)", low_inclusive=True),
+    "--max-lag": Bound(0, 3600, "s"),
 }
 
 

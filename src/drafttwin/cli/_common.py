@@ -9,7 +9,7 @@ from drafttwin.errors import ConfigError
 
 def load_train(preset: str | None, config: Path | None):
     """The drive train named by ``--preset`` or ``--config`` (exactly one may be given)."""
-    from drafttwin.mechanics import DriveTrain
+    from drafttwin.models.source import PhysicsSource, drive_train
 
     if preset and config:
         raise ConfigError(
@@ -18,8 +18,8 @@ def load_train(preset: str | None, config: Path | None):
             fix="give one of them",
         )
     if config is not None:
-        return DriveTrain.from_toml(config)
-    return DriveTrain.preset(preset or "fa320a")
+        return drive_train(PhysicsSource("config", paths=(Path(config),)), where="--config")
+    return drive_train(PhysicsSource("preset", preset=preset or "fa320a"), where="--preset")
 
 
 def check_output_suffix(path: Path, option: str = "--out") -> None:

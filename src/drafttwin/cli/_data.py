@@ -46,8 +46,10 @@ InputsOpt = Annotated[
     str | None,
     typer.Option(
         "--inputs",
-        help="Exogenous input channels NAME[,NAME...] that the networks see (set-points, a drive "
-        "voltage). Set-point columns (supply_hz, setpoint_*) are always read for the physics.",
+        help="Exogenous input channels NAME[,NAME...] of the data (set-points, a drive "
+        "voltage): the networks see them; a model that takes none (the physics alone, "
+        "persistence) reads them only. Set-point columns (supply_hz, setpoint_*) are always "
+        "read for the physics.",
     ),
 ]
 TimeColumnOpt = Annotated[
@@ -200,7 +202,6 @@ class Channels:
 
             return load_default()
         from drafttwin.data.io import read_measurements
-        from drafttwin.plant.emulator import attach_truth
 
         paths = [Path(p.strip()) for p in spec.split(",") if p.strip()]
         # a column given a unit is read too (as an input unless it is an output)
@@ -211,7 +212,7 @@ class Channels:
                                   "setpoints": True, "columns": self.columns,
                                   "check_units": self.check_units,
                                   "rate_tolerance": self.rate_tolerance}  # fmt: skip
-        parts = [attach_truth(read_measurements(p, **kwargs), p) for p in paths]
+        parts = [read_measurements(p, **kwargs) for p in paths]  # plant records: with truth
         if len(parts) == 1:
             return parts[0]
         from drafttwin.data.records import join_files

@@ -57,6 +57,7 @@ class _UserErrorsExit2(typer.core.TyperGroup):
         except NoArgsIsHelpError:
             raise
         except ClickException as exc:  # a bad value, a missing option, an unknown command
+            _closest_only(exc)
             where = getattr(getattr(exc, "ctx", None), "command_path", None) or ctx.command_path
             print_error(f"{exc.format_message()}{_range_hint(exc)}; fix: see '{where} --help'")
             raise typer.Exit(2) from None
@@ -65,6 +66,19 @@ class _UserErrorsExit2(typer.core.TyperGroup):
                 raise
             print_error(describe(exc).message)
             raise typer.Exit(2) from None
+
+
+def _closest_only(exc: Exception) -> None:
+    """An unknown option's hint names the one closest option, and only a close one (click
+    lists every option loosely like it: --units for --quiet)."""
+    import difflib
+
+    possible = getattr(exc, "possibilities", None)
+    name = getattr(exc, "option_name", None)
+    if possible and name:
+        started = sorted(p for p in possible if p.startswith(name))[:1]
+        close = difflib.get_close_matches(name, possible, n=1, cutoff=0.8)
+        exc.possibilities = started or close  # type: ignore[attr-defined]
 
 
 def _range_hint(exc: Exception) -> str:

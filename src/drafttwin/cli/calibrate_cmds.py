@@ -30,7 +30,8 @@ def calibrate(
         typer.Option(
             help="The calibrated drive train, .toml (usable with "
             "--config and --mechanistic config:FILE); the report goes beside it as "
-            ".json.",
+            "NAME.calibration.json (refused where a file not written by calibrate has that "
+            "name).",
             callback=output_file("--out"),
         ),
     ],  # fmt: skip
@@ -111,6 +112,7 @@ def calibrate(
     if out.suffix.lower() != ".toml":
         raise ConfigError(f"unsupported output file type '{out.suffix or '(none)'}'",
                           source=out, where="--out", fix="name it *.toml")  # fmt: skip
+    report_file = report_path(out)
     train = load_train(preset, config)
     parsed = channels.parse()
     needs = tuple(c.channel for c in train.spec.input)
@@ -131,17 +133,43 @@ def calibrate(
     result = run(train, series, names, block_s=block, model=model, model_name=name,
                  progress=say, lines=lines,
                  coloured=("motor",) if wander else ())  # fmt: skip
-    report = {**result.to_dict(), "data": data, "drive_train": train.spec.train.name}
+    report = {"report": REPORT_KIND, **result.to_dict(), "data": data,
+              "drive_train": train.spec.train.name}  # fmt: skip
     # the train and its report are renamed into place together, or neither is
     write_texts_atomic({
         out: train_toml(result.train, f"calibrated by drafttwin calibrate on {data}"),
-        out.with_suffix(".json"): dumps_strict(report),
+        report_file: dumps_strict(report),
     })  # fmt: skip
     if as_json:
         print_json(report)
         return
     _print(result)
-    console.print(f"wrote {escape(str(out))} and {escape(str(out.with_suffix('.json')))}")
+    console.print(f"wrote {escape(str(out))} and {escape(str(report_file))}")
+
+
+REPORT_KIND = "drafttwin calibrate"
+"""The report's first field: what marks a file as a report this command may replace."""
+
+
+def report_path(out: Path) -> Path:
+    """Where the report of ``--out NAME.toml`` goes: ``NAME.calibration.json``, a name of its
+    own (a plant record ``NAME.csv`` keeps its ``NAME.json`` sidecar). A file of that name
+    that an earlier calibrate did not write (a sidecar of a record ``NAME.calibration.csv``,
+    the user's own) is refused, never overwritten."""
+    import json
+
+    path = out.with_name(f"{out.stem}.calibration.json")
+    if not path.exists():
+        return path
+    try:
+        ours = json.loads(path.read_text(encoding="utf-8")).get("report") == REPORT_KIND
+    except (OSError, ValueError, AttributeError):
+        ours = False
+    if not ours:
+        raise ConfigError(f"{path.name} exists and is not a report of drafttwin calibrate",
+                          source=path, where="--out",
+                          fix="choose another --out name, or move that file")  # fmt: skip
+    return path
 
 
 def _model(full: bool):

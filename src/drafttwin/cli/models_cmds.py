@@ -15,7 +15,6 @@ from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import write_frame
 from drafttwin.cli._data import (
     ChannelOptions,
-    Channels,
     DataOpt,
     InitOpt,
     MechanisticOpt,
@@ -23,6 +22,7 @@ from drafttwin.cli._data import (
     TestDataOpt,
 )
 from drafttwin.cli._groups import with_group
+from drafttwin.cli._modelopts import SetOpt, cli_terms, new_model, parse_settings, setting_names
 from drafttwin.cli._oserrors import input_path, output_file
 from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.errors import ConfigError, DataError
@@ -55,6 +55,24 @@ JsonOpt = Annotated[
     bool,
     typer.Option("--json", help="Print one JSON object: metrics per channel (null: not "
                  "computable), the task and the options chosen on validation data."),
+]  # fmt: skip
+
+
+QuietOpt = Annotated[
+    bool, typer.Option("--quiet", help="No progress bar and no notes; results only.")
+]
+ScoreFromOpt = Annotated[
+    int,
+    typer.Option("--score-from", callback=bounded("--score-from"),
+                 help="Score each test record from this sample on (0-based: the first N "
+                 "samples are not scored), as a published protocol says."),
+]  # fmt: skip
+FreeRunOpt = Annotated[
+    str,
+    typer.Option("--free-run-from",
+                 help="Simulation after a chronological split: 'test' (default) runs free from "
+                 "the test part's own first --init-samples samples; 'start' from the start of "
+                 "the record (the training rows run free too; the test part is scored)."),
 ]  # fmt: skip
 
 
@@ -117,32 +135,6 @@ def _check_rate(model: BaseModel, series: MeasurementSeries, source: str) -> Non
         )
 
 
-def _new_model(name: str, profile: str | None, task: str | None, init: int | None,
-               horizon: int, channels: Channels, seed: int | None, quiet: bool,
-               epochs: int | None) -> BaseModel:  # fmt: skip
-    from drafttwin.models import make_model
-    from drafttwin.models.registry import model_class
-
-    options: dict[str, Any] = {"task": task or "prediction", "inputs": channels.inputs or ()}
-    if channels.outputs is not None:
-        options["outputs"] = channels.outputs
-    if init is not None:
-        options["init_samples"] = init
-    if horizon != 1:
-        options["horizon"] = horizon
-    accepted = set(model_class(name).param_names())
-    networks = {"--profile": profile, "--seed": seed, "--epochs": epochs}
-    given = [opt for opt, value in networks.items() if value is not None]
-    if given and "training" not in accepted:
-        raise ConfigError(f"the {name} model trains no network: {', '.join(given)} do(es) not "
-                          "apply", where=", ".join(given), fix="leave them out")  # fmt: skip
-    if "training" in accepted:
-        options |= {"seed": seed or 0, "quiet": quiet}
-    if epochs is not None:
-        options["epochs"] = epochs
-    return make_model(name, profile or "quick", **options)
-
-
 def _selection_lines(selection: dict[str, Any]) -> list[str]:
     lines = []
     choice = selection.get("accumulate")
@@ -152,7 +144,26 @@ def _selection_lines(selection: dict[str, Any]) -> list[str]:
                            if v is not None)  # fmt: skip
         how = f"chosen on validation data (free-run NRMSE: {scores})" if scores else "set"
         lines.append(f"residual model predicts the {what}: {how}")
+    correction = selection.get("correction")
+    if correction:
+        scores = ", ".join(f"{_CANDIDATE.get(k, k)} {v:.3g}"
+                           for k, v in correction.get("validation_nrmse", {}).items()
+                           if v is not None)  # fmt: skip
+        kept = correction["kept"]
+        lines.append(
+            ("no correction: the physics alone predicts (the residual model did not beat it"
+             if kept == "none" else f"correction kept: {_CANDIDATE.get(kept, kept)} ("
+             + ("beats the physics alone" if correction["chosen_by"] == "validation"
+                else "kept by --set fallback=false" if correction["chosen_by"] == "user"
+                else "no validation part to test it on"))
+            + (f"; validation NRMSE: {scores})" if scores else ")")
+        )  # fmt: skip
     return lines
+
+
+_CANDIDATE = {"none": "physics alone", "level": "residual level",
+              "accumulate": "accumulated changes", "residual": "residual model"}  # fmt: skip
+"""How the validation candidates of a hybrid read in the report."""
 
 
 @dataclass(frozen=True)
@@ -226,7 +237,8 @@ def fit(
             "a small number gives a quick first look.",
         ),
     ] = None,  # fmt: skip
-    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    settings: SetOpt = None,
+    quiet: QuietOpt = False,
     as_json: JsonOpt = False,
 ) -> None:
     """Fit a model and save it. Trains on the first --train-fraction of --data (preprocessed as
@@ -236,29 +248,32 @@ def fit(
 
     source.refuse_fraction_with_test_data(train_fraction)
     parsed = channels.parse()
-    estimator = _new_model(model, profile, source.task, source.init_samples, horizon, parsed,
-                           seed, quiet, epochs)  # fmt: skip
+    estimator, notes = new_model(model, profile=profile, task=source.task,
+                                 init=source.init_samples, horizon=horizon, channels=parsed,
+                                 seed=seed, quiet=quiet, epochs=epochs,
+                                 settings=parse_settings(settings))  # fmt: skip
+    if not quiet:
+        for note in notes:
+            err_console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
     physics = _source(source.mechanistic, estimator, parsed.outputs)
     needs = () if physics is None else physics.required_inputs()
     series = parsed.read(source.data, needs)
     test = None if source.test_data is None else parsed.read(source.test_data, needs)
     fraction = None if test is not None else (train_fraction or 0.7)
-    test_physics = physics
-    if test is not None and physics is not None:
-        physics, test_physics = physics.split_records(series.n_records, test.n_records)
-    part = protocol.fit(estimator, series, train_fraction=fraction, test=test,
-                        mechanistic=physics)  # fmt: skip
+    with cli_terms(setting_names(model)):
+        part = protocol.fit(estimator, series, train_fraction=fraction, test=test,
+                            mechanistic=physics)  # fmt: skip
     estimator.provenance_["data"] = source.data
     estimator.save(out)
     pre = part.summary["preprocessing"]["train"]
     filled, smoothed = sum(pre["filled"].values()), sum(pre["outliers"].values())
-    (err_console if as_json else console).print(  # --json: stdout holds the JSON alone
+    (err_console if as_json or quiet else console).print(  # --json: stdout holds the JSON
         f"fitted {estimator.name} ({estimator.task.kind}) on {part.summary['train_rows']} rows "
         f"in {part.summary['train_records']} record(s), channels {', '.join(estimator.channels_)} "
         f"({filled} samples filled, {smoothed} outliers smoothed); wrote {escape(str(out))}"
     )
     if test is not None:  # separate test records: score them now (else: drafttwin evaluate)
-        _report(protocol.evaluate(estimator, part, mechanistic=test_physics), as_json)
+        _report(protocol.evaluate(estimator, part, mechanistic=physics), as_json)
         return
     if as_json:
         print_json({"model": estimator.name, "selection": estimator.selection_,
@@ -307,15 +322,24 @@ def predict(
     ],
     source: SourceOptions,
     channels: ChannelOptions,
+    quiet: QuietOpt = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", help="Print what was written as one JSON object.")
+    ] = False,  # fmt: skip
 ) -> None:
-    """Predict every sample of a data set (time + one column per output channel). One-step
-    prediction uses earlier samples only; a simulation runs free over each record from its
-    first --init-samples measured samples. --test-data replaces --data."""
+    """Predict every sample of a data set (the time column named as in the file, + one column
+    per output channel). One-step prediction uses earlier samples only; a simulation runs free
+    over each record from its first --init-samples measured samples. --test-data replaces
+    --data."""
     estimator, physics, series = _fitted(model, source, channels)
     frame = estimator.predict(series, physics)
     write_frame(frame, out)
-    console.print(f"wrote {len(frame)} predictions of {', '.join(estimator.channels_)} to "
-                  f"{escape(str(out))}")  # fmt: skip
+    if as_json:
+        print_json({"model": estimator.name, "task": estimator.task.kind, "out": str(out),
+                    "rows": len(frame), "columns": list(frame.columns)})  # fmt: skip
+    elif not quiet:
+        console.print(f"wrote {len(frame)} predictions of {', '.join(estimator.channels_)} to "
+                      f"{escape(str(out))}")  # fmt: skip
 
 
 @app.command()
@@ -326,6 +350,9 @@ def evaluate(
     source: SourceOptions,
     channels: ChannelOptions,
     train_fraction: FractionOpt = None,
+    score_from: ScoreFromOpt = 0,
+    free_run_from: FreeRunOpt = "test",
+    quiet: QuietOpt = False,
     as_json: JsonOpt = False,
 ) -> None:
     """Score a model on the test part of --data (the chronological split it was fitted with)
@@ -338,12 +365,14 @@ def evaluate(
     from drafttwin.evaluation import protocol
 
     source.refuse_fraction_with_test_data(train_fraction)
+    if free_run_from not in protocol.FREE_RUN_FROM:
+        raise ConfigError(f"unknown free-run start {free_run_from!r}", where="--free-run-from",
+                          fix=f"use one of {', '.join(protocol.FREE_RUN_FROM)}")  # fmt: skip
     estimator, physics, series = _fitted(model, source, channels)
-    if source.test_data is not None:
-        result = protocol.evaluate(estimator, test=series, mechanistic=physics)
-    else:
-        result = protocol.evaluate(estimator, series, train_fraction=train_fraction,
-                                   mechanistic=physics)  # fmt: skip
+    data, test = (None, series) if source.test_data is not None else (series, None)
+    result = protocol.evaluate(estimator, data, test=test, train_fraction=train_fraction,
+                               mechanistic=physics, skip_rows=score_from,
+                               free_run_from=free_run_from)  # fmt: skip
     _report(result, as_json)
 
 

@@ -107,6 +107,7 @@ def generate(
     from drafttwin.plant.scenarios import get_scenario
 
     check_output_suffix(out)
+    _refuse_foreign_beside(out)
     get_scenario(scenario)
     if machine is not None and machine_seed is not None:
         raise ConfigError("--machine and --machine-seed both name the machine",
@@ -152,6 +153,27 @@ def generate(
                       f"(Martindale {summary['martindale_cv_pct']:.3f} %), "
                       f"{summary['fibres']:,} fibres")  # fmt: skip
     console.print("wrote " + ", ".join(str(p) for p in paths))
+
+
+def _refuse_foreign_beside(out: Path) -> None:
+    """Refuse a truth file or sidecar beside --out that an earlier plant record of this name
+    did not write (a user's own OUT.json is not the plant's to overwrite)."""
+    import json
+
+    sidecar = out.with_suffix(".json")
+    truth = out.with_name(f"{out.stem}.truth{out.suffix}")
+    files: dict = {}
+    if sidecar.exists():
+        try:
+            files = json.loads(sidecar.read_text(encoding="utf-8")).get("files") or {}
+        except (OSError, ValueError, AttributeError):
+            files = {}
+    ours = files.get("measured") == out.name if isinstance(files, dict) else False
+    for p in (sidecar, truth):
+        if p.exists() and not (ours and (p == sidecar or files.get("truth") == p.name)):
+            raise ConfigError(f"{p.name} exists and is not a file of an earlier plant record "
+                              f"{out.name}", source=p, where="--out",
+                              fix="choose another --out, or move that file")  # fmt: skip
 
 
 def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: float,

@@ -150,7 +150,8 @@ def read_measurements(
     Returns:
         A :class:`MeasurementSeries` on a regular grid per record (time in s as in the file,
         or from the first timestamp; values in each channel's unit, ``NaN`` = missing),
-        ``units`` per channel and input, and provenance in ``metadata``. A file with an
+        ``units`` per channel and input, and provenance in ``metadata``; for a record the
+        plant wrote, the true values too (:func:`attach_truth`). A file with an
         integer ``record`` column, or several files, give several records.
 
     Raises:
@@ -170,8 +171,39 @@ def read_measurements(
         nominal_rpm=nominal_rpm,
         diameters_mm=diameters_mm,
     )
-    parts = [_read_file(p, spec, opts) for p in paths]
+    parts = [attach_truth(_read_file(p, spec, opts), p) for p in paths]
     return parts[0] if len(parts) == 1 else join_files(parts, paths, rate_tolerance)
+
+
+def attach_truth(series: MeasurementSeries, path: str | Path) -> MeasurementSeries:
+    """If ``path`` was written by the plant (a ``<stem>.json`` sidecar naming a truth file sits
+    beside it, holding every channel of ``series``), return the series with ``truth`` (the
+    true values) and the defect masks in ``metadata``; else ``series`` unchanged.
+    :func:`read_measurements` calls it on every file it reads."""
+    path = Path(path)
+    sidecar = path.with_suffix(".json")
+    if not sidecar.is_file():
+        return series
+    try:
+        truth_name = json.loads(sidecar.read_text(encoding="utf-8"))["files"]["truth"]
+    except (ValueError, KeyError, TypeError, OSError):
+        return series  # not a plant sidecar (a report, the user's own file)
+    truth_path = path.with_name(str(truth_name))
+    if not truth_path.is_file():
+        return series
+    frame = (
+        pd.read_parquet(truth_path) if truth_path.suffix == ".parquet" else pd.read_csv(truth_path)
+    )
+    names = [f"{kind}_{r}" for kind in ("true", "missing", "outlier") for r in series.channels]
+    if "time" not in frame or any(n not in frame for n in names):
+        return series  # a truth file for other channels
+    if len(frame) != len(series) or not np.allclose(frame["time"].to_numpy(), series.time_s):
+        return series  # the measured file was edited: its truth no longer lines up
+    meta = dict(series.metadata)
+    truth = frame[[f"true_{r}" for r in series.channels]].to_numpy(np.float64)
+    meta["missing_mask"] = frame[[f"missing_{r}" for r in series.channels]].to_numpy(bool)
+    meta["outlier_mask"] = frame[[f"outlier_{r}" for r in series.channels]].to_numpy(bool)
+    return replace(series, metadata=meta, truth=truth)
 
 
 @dataclass(frozen=True)
@@ -224,6 +256,8 @@ def _read_file(source: Path, spec: ChannelSpec, opts: _Options) -> MeasurementSe
         "ignored_columns": ignored,
         "start_time": axis.start,
         "time_offset_s": axis.offset_s,
+        # predictions name their time column as the file did, where its values are the file's
+        "time_column": plan.time if axis.start is None and plan.time_scale == 1 else "time",
         "sample_step_s": records[0][1]["sample_step_s"],
         "rows_in_file": len(frame),
         "inserted_rows": sum(meta["inserted_rows"] for _, meta in records),

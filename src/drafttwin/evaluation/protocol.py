@@ -30,8 +30,9 @@ from drafttwin.errors import ConfigError, DataError
 from drafttwin.evaluation.limits import floor_oracle
 from drafttwin.evaluation.metrics import ChannelMetrics
 from drafttwin.evaluation.metrics import evaluate as score_channels
-from drafttwin.models.base import BaseModel
+from drafttwin.models.base import BaseModel, time_column
 from drafttwin.models.baselines import PersistenceModel
+from drafttwin.models.mechanistic import MechanisticModel
 
 OUTLIER_THRESHOLD = 0.10
 """The paper's outlier rule: a one-sample jump of more than 10 %."""
@@ -180,13 +181,29 @@ def clean_causally(
     return test.with_values(values), rejected
 
 
-def model_input(model: BaseModel, data: Split) -> tuple[MeasurementSeries, int]:
+FREE_RUN_FROM = ("test", "start")
+"""Where a simulation's free run starts after a chronological split: at the test part (from
+its own first measured rows) or at the start of the record (the test part scored)."""
+
+
+def model_input(
+    model: BaseModel, data: Split, free_run_from: str = "test"
+) -> tuple[MeasurementSeries, int]:
     """The series a model predicts on, and the row of it where the test part starts.
 
     One-step prediction after a chronological split sees the training rows as history (every
     prediction uses earlier rows only). A simulation runs free over the test records alone,
-    from their own measured starts."""
-    if data.joined is not None and not model.task.simulation:
+    from their own measured starts, or with ``free_run_from="start"`` over the whole record
+    from its first measured rows (the published protocol of many benchmarks)."""
+    if free_run_from not in FREE_RUN_FROM:
+        raise ConfigError(f"unknown free-run start {free_run_from!r}", where="--free-run-from",
+                          fix=f"use one of {', '.join(FREE_RUN_FROM)}")  # fmt: skip
+    if free_run_from == "start" and not model.task.simulation:
+        raise ConfigError("--free-run-from start applies to a simulation; the model predicts "
+                          "one step ahead (it sees every earlier row anyway)",
+                          where="--free-run-from", fix="leave --free-run-from out")  # fmt: skip
+    whole = not model.task.simulation or free_run_from == "start"
+    if data.joined is not None and whole:
         return data.joined, len(data.joined) - len(data.test_part())
     return data.test_part(), 0
 
@@ -264,37 +281,46 @@ def evaluate(
     train_fraction: float | None = None,
     mechanistic: object | None = None,
     skip_rows: int = 0,
+    free_run_from: str = "test",
 ) -> Evaluation:
     """Score a fitted model on the test part of ``data`` (chronological split, by default at
     the fraction the model was fitted with) or on the separate ``test`` records: the paper's
     relative errors and RMSE, NRMSE, skill against persistence, and where the data carry the
     true values the error against them, the sensor's own error and the task's floor. ``skip_rows``: rows at the start
     of each test record left unscored (so that models with different warm-ups are scored on
-    the same rows)."""
+    the same rows; the CLI's ``--score-from``). ``free_run_from``: see :func:`model_input`."""
     part = prepare(model, data, test, train_fraction)
-    series, first = model_input(model, part)
+    mechanistic = _test_physics(mechanistic, part)
+    series, first = model_input(model, part, free_run_from)
     pred = model.predict_values(series, mechanistic)[first:]
-    return score(part, pred, model, skip_rows=skip_rows)
+    return score(part, pred, model, skip_rows=skip_rows, free_run_from=free_run_from)
 
 
-def score(part: Split, pred: np.ndarray, model: BaseModel, *, skip_rows: int = 0) -> Evaluation:
+def score(
+    part: Split, pred: np.ndarray, model: BaseModel, *, skip_rows: int = 0,
+    free_run_from: str = "test",
+) -> Evaluation:  # fmt: skip
     """Score predictions ``pred`` of ``part``'s test rows made by ``model`` (its task sets the
     persistence baseline and, in a simulation, the unscored initialisation rows)."""
-    series, first = model_input(model, part)
+    series, first = model_input(model, part, free_run_from)
     test = part.test_part()
     baseline = PersistenceModel(task=model.task.replace(inputs=()))
     baseline.fit(test)
     pers = baseline.predict_values(series)[first:]
     target = part.target.copy()
-    unscored = max(skip_rows, model._init_rows() if model.task.simulation else 0)
-    for a, b in test.record_bounds():  # a simulation's measured start is no prediction
-        target[a : min(b, a + unscored)] = np.nan
+    if model.task.simulation:  # a free run's measured start is no prediction
+        measured = np.zeros(len(series), bool)
+        for a, b in series.record_bounds():
+            measured[a : min(b, a + model._init_rows())] = True
+        target[measured[first:]] = np.nan
+    for a, b in test.record_bounds():
+        target[a : min(b, a + skip_rows)] = np.nan
     units = {c: test.unit(c) for c in test.channels}
     truth = test.truth
     metrics = score_channels(target, pred, channels=test.channels, units=units,
                              persistence=pers, true_values=truth,
                              floor_values=_oracle(part, model, truth))  # fmt: skip
-    frame = pd.DataFrame({"time": test.time_s})
+    frame = pd.DataFrame({time_column(test): test.time_s})
     for j, name in enumerate(test.channels):
         frame[name] = pred[:, j]
     if test.n_records > 1:
@@ -307,8 +333,18 @@ def score(part: Split, pred: np.ndarray, model: BaseModel, *, skip_rows: int = 0
         predictions=frame,
         scored_rows=int(np.isfinite(target).any(axis=1).sum()),
         selection=dict(getattr(model, "selection_", {})),
-        split=part.summary,
-    )
+        split={**part.summary, "score_from": skip_rows,
+               **({"free_run_from": free_run_from} if model.task.simulation else {})},
+    )  # fmt: skip
+
+
+def _test_physics(mechanistic: object | None, part: Split) -> object | None:
+    """The physics of the test records: from simulator files for the training records then
+    the test records (as :func:`fit` was given them), the test records' ones."""
+    train_records = part.summary.get("train_records")
+    if part.mode != "records" or not train_records or not isinstance(mechanistic, MechanisticModel):
+        return mechanistic
+    return mechanistic.split_records(int(train_records), part.test_part().n_records)[1]
 
 
 def _oracle(part: Split, model: BaseModel, truth: np.ndarray | None) -> np.ndarray | None:
@@ -350,6 +386,9 @@ def fit(
     else:
         part = split(data, train_fraction=train_fraction, test=test)
     assert part.train is not None
+    if test is not None and isinstance(mechanistic, MechanisticModel):
+        # simulator files for the training records, then the test records: the first ones
+        mechanistic = mechanistic.split_records(part.train.n_records, test.n_records)[0]
     model.fit(part.train, mechanistic)
     model.provenance_.update({
         "split": part.mode,

@@ -122,7 +122,7 @@ def _mechanistic(series: MeasurementSeries, preset: str, cache_dir: Path) -> np.
     cached = integrity.read_checked(cache, lambda p: integrity.load_array(p, series.values.shape))
     if cached is not None:
         return cached
-    mech = MechanisticModel.from_preset(preset).predict(series)
+    mech = MechanisticModel.from_preset(preset).predict_values(series)
     integrity.save_npy_sealed(cache, mech)
     return mech
 
@@ -155,7 +155,7 @@ def _calibrated(
     if cached_sim is not None and cached_report is not None:
         return cached_sim, cached_report
     result = calibrate(DriveTrain.preset(preset), train, model=reduce, model_name="reduced")
-    sim = MechanisticModel.from_train(result.train).predict(series)
+    sim = MechanisticModel.from_train(result.train).predict_values(series)
     report = result.to_dict()
     integrity.save_npy_sealed(sim_path, sim)
     integrity.write_text_sealed(report_path, json.dumps(report, allow_nan=False))

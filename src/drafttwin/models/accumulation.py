@@ -112,3 +112,59 @@ def choose(scores: dict[bool, float], n_rows: int) -> Choice:
     best = min(scores, key=lambda k: (scores[k], not k))
     named = {("accumulate" if k else "level"): v for k, v in scores.items()}
     return Choice(best, "validation", named, n_rows)
+
+
+CORRECTION_NONE = "none"
+"""The validation candidate "no correction": the physics alone (the residual taken as 0)."""
+CORRECTION_MARGIN = 0.01
+"""A residual model is kept when its validation NRMSE is below the physics' by more than this
+share: on a residual that is white noise, a net that learnt its training mean beats zero on a
+short validation part by a few tenths of a percent, by chance."""
+
+
+@dataclass(frozen=True)
+class CorrectionChoice:
+    """Whether a hybrid keeps its residual model: only when the corrected prediction beats the
+    physics alone on the validation part of the training data (free-run / one-step NRMSE of
+    the output, in the output's units over the measured residual's spread)."""
+
+    kept: str  # the kept candidate ("level", "accumulate", "residual") or CORRECTION_NONE
+    chosen_by: str  # "validation", "user" (fallback off) or "no validation part" (kept untested)
+    scores: dict[str, float]
+    validation_rows: int
+
+    @property
+    def correct(self) -> bool:
+        return self.kept != CORRECTION_NONE
+
+    def to_dict(self) -> dict[str, object]:
+        return {
+            "kept": self.kept,
+            "chosen_by": self.chosen_by,
+            "validation_nrmse": {
+                k: (v if np.isfinite(v) else None) for k, v in self.scores.items()
+            },
+            "validation_rows": self.validation_rows,
+        }
+
+
+def choose_correction(
+    candidate: str,
+    correction: np.ndarray | None,
+    residual: np.ndarray | None,
+    test: bool = True,
+) -> CorrectionChoice:
+    """Keep the residual model's ``correction`` (validation rows, output units) only when it
+    fits the measured ``residual`` there better than no correction does, by more than
+    :data:`CORRECTION_MARGIN` (else: the physics alone). ``None``: no validation part, the correction is kept untested; ``test=False``: the
+    user kept it (scores still recorded)."""
+    if correction is None or residual is None or residual.shape[0] == 0:
+        return CorrectionChoice(candidate, "no validation part", {}, 0)
+    scale = np.nanstd(residual, axis=0)
+    scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
+    with_model = free_run_nrmse(correction, residual, scale)
+    physics = free_run_nrmse(np.zeros_like(residual), residual, scale)
+    better = with_model < (1.0 - CORRECTION_MARGIN) * physics
+    kept = candidate if better or not test else CORRECTION_NONE
+    return CorrectionChoice(kept, "validation" if test else "user", {CORRECTION_NONE: physics, candidate: with_model},
+                            int(residual.shape[0]))  # fmt: skip

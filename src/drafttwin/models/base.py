@@ -167,7 +167,7 @@ class BaseModel(abc.ABC):
         source = as_mechanistic(model)
         if fitting and not self.learns_from_mechanistic:
             return None, source  # e.g. the physics alone: nothing to fit, nothing to simulate
-        return source.predict(series, channels=series.channels), source
+        return source.predict_values(series, channels=series.channels), source
 
     def _window_lengths(self) -> list[int]:
         """The model's input windows, samples (a simulation needs as many measured rows)."""
@@ -198,11 +198,12 @@ class BaseModel(abc.ABC):
         return self
 
     def predict(self, series: MeasurementSeries, mechanistic: object | None = None) -> pd.DataFrame:
-        """Predictions as a labelled frame: ``time`` (s) and one column per output channel
+        """Predictions as a labelled frame: the time (s; the column named as the file named it,
+        else ``time``) and one column per output channel
         (plus ``record`` for a series of several records); ``frame.attrs["units"]`` holds the
         channel units. Same rows and rules as :meth:`predict_values`."""
         values = self.predict_values(series, mechanistic)
-        frame = pd.DataFrame({"time": series.time_s})
+        frame = pd.DataFrame({time_column(series): series.time_s})
         for j, name in enumerate(self.channels_):
             frame[name] = values[:, j]
         if series.n_records > 1:
@@ -324,6 +325,13 @@ class BaseModel(abc.ABC):
             "selection": self.selection_,
             "provenance": self.provenance_,
         }
+
+
+def time_column(series: MeasurementSeries) -> str:
+    """The name of the time column of predictions of ``series``: the data file's own (``t``
+    stays ``t``) where its values are that file's seconds, else ``time``."""
+    name = series.metadata.get("time_column")
+    return name if isinstance(name, str) and name and name not in series.channels else "time"
 
 
 def pack_module(prefix: str, module: nn.Module) -> dict[str, torch.Tensor]:

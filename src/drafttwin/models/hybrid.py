@@ -28,6 +28,11 @@ wherever such a channel leaves its training value, since nothing in training sho
 does there (MD-S-L's data-driven model, fed the set-point, returns garbage at another one).
 Which of these to use is chosen on validation records (``drafttwin benchmark
 generalisation``); the defaults keep the plain structure.
+
+Never worse than the physics on validation (``fallback``): every hybrid scores "no
+correction" (the physics alone) beside its residual model on the validation part of the
+training data, and keeps the residual model only when it beats the physics there; otherwise
+it predicts the physics' values exactly (``selection_["correction"]["kept"] == "none"``).
 """
 
 from __future__ import annotations
@@ -88,6 +93,7 @@ class _ResidualHybrid(_NeuralModel):
     accumulate: bool | None
     structure: str
     fade: bool | str
+    fallback: bool
 
     @property
     def use_sknet(self) -> bool:
@@ -133,7 +139,7 @@ class _ResidualHybrid(_NeuralModel):
                 raise ConfigError(
                     "accumulate=None chooses residual accumulation on the validation part of "
                     "the training data, but training.val_fraction is 0",
-                    fix="set val_fraction > 0, or fix accumulate=True or False",
+                    fix="set val_fraction=0.2 (any share above 0), or fix accumulate=True or False",
                 )
         else:
             self._refuse_for_task("accumulate", "one-step prediction sees measured residuals")
@@ -246,23 +252,49 @@ class _ResidualHybrid(_NeuralModel):
         self.scalers_ = {k: fit_scaler(v, f"{k} channels") for k, v in groups.items()}
         x, extra, scaled, rows = self._windows(groups, starts)
         if not self.task.simulation:
-            ok = _finite(x, scaled["em"][rows], extra)
-            self.net_, self.history_ = self._train(x, scaled["em"][rows], extra, ok, progress,
-                                                   accumulate=False)  # fmt: skip
-            return
-        candidates = [True, False] if self.accumulate is None else [self.accumulate]
+            candidates = [False]
+        else:
+            candidates = [True, False] if self.accumulate is None else [self.accumulate]
         fits = {}
         for accumulate in candidates:
             target = scaled["dem" if accumulate else "em"][rows]
             ok = _finite(x, target, extra)
             fits[accumulate] = (*self._train(x, target, extra, ok, progress, accumulate), ok)
-        if self.accumulate is None:
-            choice = self._choose(fits, x, extra, rows, groups["em"], starts)
-        else:
-            choice = acc.Choice(self.accumulate, "user", {}, 0)
-        self.accumulate_ = choice.accumulate
-        self.net_, self.history_, _ = fits[choice.accumulate]
-        self.selection_["accumulate"] = choice.to_dict()
+        val = self._validation(fits, x, extra, rows, groups["em"], starts)
+        kept = False
+        if self.task.simulation:
+            if self.accumulate is None:
+                if any(v is None for v in val.values()):
+                    raise DataError(
+                        "no validation samples to choose residual accumulation on",
+                        fix="use a longer training part, or fix accumulate=True or False",
+                    )
+                choice = acc.choose({k: v[0] for k, v in val.items() if v is not None},
+                                    max(len(v[1]) for v in val.values() if v is not None))  # fmt: skip
+            else:
+                choice = acc.Choice(self.accumulate, "user", {}, 0)
+            self.accumulate_ = kept = choice.accumulate
+            self.selection_["accumulate"] = choice.to_dict()
+        self.net_, self.history_, _ = fits[kept]
+        self._choose_correction(val[kept], y - mech, mech)
+
+    def _choose_correction(
+        self, val: tuple[float, np.ndarray, np.ndarray] | None, em: np.ndarray, mech: np.ndarray
+    ) -> None:
+        """Keep the residual model only when it beats the physics alone on validation rows
+        (compared in the output's units, whatever the structure)."""
+        name = (
+            ("accumulate" if self.accumulate_ else "level") if self.task.simulation else "residual"
+        )
+        correction = residual = None
+        if val is not None:
+            _, vrows, pred = val
+            level = self._level(mech)
+            correction = pred * (level[vrows] if isinstance(level, np.ndarray) else level)
+            residual = em[vrows]
+        choice = acc.choose_correction(name, correction, residual, test=self.fallback)
+        self.correct_ = choice.correct
+        self.selection_["correction"] = choice.to_dict()
 
     def _train(
         self, x: np.ndarray, target: np.ndarray, extra: np.ndarray | None, ok: np.ndarray,
@@ -286,38 +318,41 @@ class _ResidualHybrid(_NeuralModel):
             torch.manual_seed(self.seed)
             return self._new_net(n_out)
 
-    def _choose(
+    def _validation(
         self, fits: dict[bool, tuple[ResidualNet, History, np.ndarray]], x: np.ndarray,
         extra: np.ndarray | None, rows: np.ndarray, em: np.ndarray, starts: tuple[int, ...],
-    ) -> acc.Choice:  # fmt: skip
-        """Free-run error of each candidate over the validation part of the training rows."""
+    ) -> dict[bool, tuple[float, np.ndarray, np.ndarray] | None]:  # fmt: skip
+        """Per candidate, over the validation part of the training rows: the residual's
+        free-run (simulation) or one-step NRMSE, the rows and the predicted residual (``None``
+        without validation rows)."""
         tr = self.training
         scale = np.nanstd(em, axis=0)
         scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
         anchors = causal_ffill(em, starts)
-        scores, n_val = {}, 0
+        out: dict[bool, tuple[float, np.ndarray, np.ndarray] | None] = {}
         for accumulate, (net, _, ok) in fits.items():
             val = acc.validation_slice(int(ok.sum()), tr.val_fraction, tr.stride)
             vrows = rows[ok][val]
             if vrows.size == 0:
-                raise DataError(
-                    "no validation samples to choose residual accumulation on",
-                    fix="use a longer training part, or fix accumulate=True or False",
-                )
-            xv = x[ok][val]
+                out[accumulate] = None
+                continue
             ev = None if extra is None else extra[ok][val]
-            out = predict_network(net, xv, extra=ev, device=self._device())
-            key = "dem" if accumulate else "em"
-            pred = self.scalers_[key].inverse_transform(out)
+            net_out = predict_network(net, x[ok][val], extra=ev, device=self._device())
+            pred = self.scalers_["dem" if accumulate else "em"].inverse_transform(net_out)
             if accumulate:
                 pred = acc.accumulate_runs(pred, vrows, anchors, starts)
-            scores[accumulate] = acc.free_run_nrmse(pred, em[vrows], scale)
-            n_val = int(vrows.size)
-        return acc.choose(scores, n_val)
+            out[accumulate] = (acc.free_run_nrmse(pred, em[vrows], scale), vrows, pred)
+        return out
 
     # --- prediction -------------------------------------------------------------------
     def _predict(self, series: MeasurementSeries, mech: np.ndarray | None) -> np.ndarray:
         assert mech is not None
+        if not self.correct_:  # validation chose the physics alone
+            out = np.array(mech, dtype=np.float64)
+            if self.task.simulation:
+                for a, b in series.record_bounds():
+                    out[a : min(b, a + self._init_rows())] = np.nan
+            return out
         y, starts = series.values, series.record_starts
         u = input_matrix(series, self.task.inputs)
         groups = self._all_groups(y, mech, self._predict_data(y, u, starts), u, starts)
@@ -348,6 +383,7 @@ class _ResidualHybrid(_NeuralModel):
         state: dict[str, Any] = {
             "scalers": {k: s.to_dict() for k, s in self.scalers_.items()},
             "history": self.history_.to_dict(),
+            "correct": bool(self.correct_),
         }
         if self.task.simulation:
             state["accumulate"] = bool(self.accumulate_)
@@ -359,6 +395,7 @@ class _ResidualHybrid(_NeuralModel):
     def _set_state(self, state: dict[str, Any], tensors: dict[str, torch.Tensor]) -> None:
         self.scalers_ = {k: MinMaxScaler.from_dict(v) for k, v in state["scalers"].items()}
         self.history_ = History.from_dict(state["history"])
+        self.correct_ = bool(state.get("correct", True))  # files before the choice: kept
         if self.task.simulation:
             self.accumulate_ = bool(state["accumulate"])
         if self.structure == "relative":
@@ -415,6 +452,7 @@ class ParallelHybrid(_ResidualHybrid):
         accumulate: bool | None = None,
         structure: str = "absolute",
         fade: bool | str = False,
+        fallback: bool = True,
         task: Task = Task(),
         training: Training = Training(),
         seed: int = 0,

@@ -22,11 +22,13 @@ drifts far outside the range seen in training, its per-sample change does not.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
+from typing import Any, Self
 
 import numpy as np
 import torch
 
+from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.models.datadriven import GRUModel, _RecurrentModel
 from drafttwin.models.hybrid import VARIANTS, Groups, _ResidualHybrid
@@ -43,7 +45,7 @@ class MDSL(_ResidualHybrid):
         use_disagreement: add ``yhat_d(T) - yhat_m(T)`` as an input (reported as ``+d``).
         window: residual window, samples. hidden / layers: LSTM residual-model size.
         sk_channels: SKNet width (a multiple of 3; the residual channels are lifted to it).
-        dropout / skip / accumulate / structure / fade: as
+        dropout / skip / accumulate / structure / fade / fallback: as
             :class:`~drafttwin.models.ParallelHybrid`.
         folds: contiguous blocks for cross-fitting the data-driven model.
         data_model: the data-driven model's settings, as an unfitted
@@ -59,6 +61,8 @@ class MDSL(_ResidualHybrid):
     sk_channels: int
     folds: int
     data_model: _RecurrentModel | None
+    _shared_data: tuple[_RecurrentModel, np.ndarray, list[tuple[int, int]]] | None = None
+    """A fitted data-driven model and its cross-fitted predictions (:meth:`use_data_model`)."""
 
     def __init__(
         self,
@@ -73,6 +77,7 @@ class MDSL(_ResidualHybrid):
         accumulate: bool | None = None,
         structure: str = "absolute",
         fade: bool | str = False,
+        fallback: bool = True,
         folds: int = 3,
         data_model: _RecurrentModel | None = None,
         task: Task = Task(),
@@ -144,11 +149,60 @@ class MDSL(_ResidualHybrid):
         params = {**template.get_params(), "task": task, "seed": seed, "quiet": True}
         return type(template)(**params)
 
+    # --- public: fit the data-driven model alone, or give a fitted one -----------------
+    def fit_data_model(self, series: MeasurementSeries) -> np.ndarray:
+        """Fit only the data-driven model on the training ``series`` (as :meth:`fit` would:
+        cross-fitted folds and a refit on all of it) and return its cross-fitted predictions
+        ``(n, channels)``. The fitted model is ``data_model_``, a complete estimator (it can
+        be saved and loaded); pass it to :meth:`use_data_model` of other MD models trained on
+        the same rows to share it."""
+        self._check_params()
+        series = self._check_series(series)
+        u = input_matrix(series, self.task.inputs)
+        self._shared_data = None
+        with FitProgress("data model", quiet=bool(self.quiet)) as progress:
+            oof = self._fit_data(series.values, u, series.record_starts, progress)
+        dm = self.data_model_
+        dm.channels_ = tuple(series.channels)
+        dm.units_ = {n: series.unit(n) for n in (*series.channels, *self.task.inputs)}
+        dm.mechanistic_spec_, dm.selection_, dm.provenance_ = None, {}, {}
+        rate = series.sample_rate_hz
+        dm.sample_rate_hz_ = float(rate) if np.isfinite(rate) else None
+        return oof
+
+    def use_data_model(
+        self, model: _RecurrentModel, crossfit_pred: np.ndarray,
+        blocks: Sequence[Sequence[int]],
+    ) -> Self:  # fmt: skip
+        """Use a fitted data-driven ``model`` and its cross-fitted predictions over the
+        training rows (``crossfit_pred``, ``blocks``: what :meth:`fit_data_model` gave) in the
+        next :meth:`fit` instead of fitting one (an ablation shares one data-driven model
+        between its MD models). ``fit`` refuses predictions of another length."""
+        if not isinstance(model, _RecurrentModel) or not hasattr(model, "net_"):
+            raise ConfigError("use_data_model needs a fitted GRUModel or LSTMModel",
+                              fix="fit it first (fit_data_model, or load a saved one)")  # fmt: skip
+        pairs = [(int(a), int(b)) for a, b in blocks]
+        self._shared_data = (model, np.asarray(crossfit_pred, dtype=np.float64), pairs)
+        return self
+
     def _fit_data(
         self, y: np.ndarray, u: np.ndarray, starts: tuple[int, ...], progress: FitProgress
     ) -> np.ndarray:
         """Cross-fitted (out-of-sample) data-driven predictions on the training part; also
-        fits the data-driven model on the whole training part for prediction time."""
+        fits the data-driven model on the whole training part for prediction time (unless
+        :meth:`use_data_model` gave both)."""
+        shared = self._shared_data
+        if shared is not None:
+            model, oof, blocks = shared
+            if oof.shape != y.shape:
+                raise DataError(
+                    f"the shared data-driven predictions cover {oof.shape[0]} rows x "
+                    f"{oof.shape[1] if oof.ndim == 2 else 1} channels, the training part "
+                    f"{y.shape[0]} x {y.shape[1]}",
+                    fix="fit the data-driven model on the same training rows",
+                )
+            self.data_model_, self.crossfit_blocks_, self.crossfit_pred_ = model, blocks, oof
+            return oof
         data_window = self._template().window
         if self.task.simulation:
             init = self._init_rows()

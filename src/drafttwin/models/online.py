@@ -134,7 +134,7 @@ class OnlinePredictor:
         keep = self._yf.maxlen or 1
         self._yf.extend(causal_ffill(y)[-keep:])
         if self._mech is not None:
-            m = self._mech.predict(series, self.model.channels_)
+            m = self._mech.predict_values(series, self.model.channels_)
             self._em.extend(causal_ffill(y - m)[-keep:])
             if isinstance(self.model, MDSL):
                 d = self.model.data_model_._predict_arrays(y, np.zeros((len(y), 0)), (0,))
@@ -186,6 +186,8 @@ class OnlinePredictor:
         m = self._mech.values_at(np.array([float(time_s)]), self.model.channels_)[0]
         if isinstance(model, MechanisticBaseline):
             return m
+        if isinstance(model, _ResidualHybrid) and not model.correct_:
+            return m  # validation kept the physics alone (as predict_values does)
         if isinstance(model, _ResidualHybrid):
             return self._hybrid(model, target, m)
         raise ConfigError(f"no online mode for {type(model).__name__}")

@@ -52,6 +52,7 @@ CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "accumulate": (_optional_bool, "None (chosen on validation data), True or False"),
     "structure": (lambda v: v in ("absolute", "relative"), '"absolute" or "relative"'),
     "fade": (lambda v: isinstance(v, bool) or v == "strict", 'True, False or "strict"'),
+    "fallback": (lambda v: isinstance(v, bool), "True or False"),
     "quiet": (lambda v: isinstance(v, bool), "True or False"),
     "use_disagreement": (lambda v: isinstance(v, bool), "True or False"),
     "task": (lambda v: isinstance(v, Task), "a drafttwin.models.Task"),
@@ -60,7 +61,7 @@ CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
 """Per-hyperparameter rule and its wording for the error message."""
 
 
-ADDED_LATER: dict[str, Any] = {"structure": "absolute", "fade": False}
+ADDED_LATER: dict[str, Any] = {"structure": "absolute", "fade": False, "fallback": False}
 """Hyperparameters added after model files were first written, with the value that keeps the
 older behaviour: a file without them is read with these."""
 

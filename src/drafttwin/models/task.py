@@ -130,7 +130,7 @@ def check_windows(task: Task, **windows: int) -> None:
             raise ConfigError(
                 f"{name}={w} is longer than the {task.init_samples} measured rows a simulation "
                 "may use",
-                fix=f"set init_samples >= {w} or shorten {name}",
+                fix=f"set init_samples={w} or more, or {name}={task.init_samples} or less",
             )
 
 

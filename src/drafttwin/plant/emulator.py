@@ -10,7 +10,6 @@ the measured ones, so the sensor's error and the floor of any prediction are kno
 from __future__ import annotations
 
 import contextlib
-import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -22,6 +21,7 @@ import pandas as pd
 from drafttwin._constants import ROLLERS, __version__
 from drafttwin._io import atomic_path
 from drafttwin._json import dumps_strict
+from drafttwin.data.io import attach_truth as attach_truth  # re-exported (moved to data)
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain, Signal, simulate
@@ -333,29 +333,3 @@ def _driven_train(
 def _streams(seed: int) -> dict[str, np.random.Generator]:
     children = np.random.SeedSequence(seed).spawn(len(STREAMS))
     return {name: np.random.default_rng(c) for name, c in zip(STREAMS, children, strict=True)}
-
-
-def attach_truth(series: MeasurementSeries, path: str | Path) -> MeasurementSeries:
-    """If ``path`` was written by the plant (a ``<stem>.json`` sidecar naming a truth file sits
-    beside it), return the series with ``metadata["true_rpm"]`` and the defect masks."""
-    path = Path(path)
-    sidecar = path.with_suffix(".json")
-    if not sidecar.is_file():
-        return series
-    try:
-        truth_name = json.loads(sidecar.read_text(encoding="utf-8"))["files"]["truth"]
-    except (ValueError, KeyError, TypeError):
-        return series
-    truth_path = path.with_name(truth_name)
-    if not truth_path.is_file():
-        return series
-    frame = (
-        pd.read_parquet(truth_path) if truth_path.suffix == ".parquet" else pd.read_csv(truth_path)
-    )
-    if len(frame) != len(series) or not np.allclose(frame["time"].to_numpy(), series.time_s):
-        return series  # the measured file was edited: its truth no longer lines up
-    meta = dict(series.metadata)
-    truth = frame[[f"true_{r}" for r in series.channels]].to_numpy(np.float64)
-    meta["missing_mask"] = frame[[f"missing_{r}" for r in series.channels]].to_numpy(bool)
-    meta["outlier_mask"] = frame[[f"outlier_{r}" for r in series.channels]].to_numpy(bool)
-    return replace(series, metadata=meta, truth=truth)

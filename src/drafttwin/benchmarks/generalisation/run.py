@@ -177,7 +177,7 @@ def make_physics(config: GeneralisationConfig, records: dict[str, MeasurementSer
              for name in records}  # fmt: skip
     for i, (name, series) in enumerate(records.items()):
         train = R.nominal_train(gears[name])
-        physics[name] = {"nominal": MechanisticModel.from_train(train).predict(series)}
+        physics[name] = {"nominal": MechanisticModel.from_train(train).predict_values(series)}
         if progress:
             progress("physics", i + 1, len(records) + 1)
     start = time.perf_counter()
@@ -186,7 +186,7 @@ def make_physics(config: GeneralisationConfig, records: dict[str, MeasurementSer
                        config.calibrate_params, model=reduce, model_name="reduced")  # fmt: skip
     calibrated = MechanisticModel.from_train(result.train)
     for name in ("train", *(s for s in CALIBRATED_SCENARIOS if s in records)):
-        physics[name]["calibrated"] = calibrated.predict(records[name])
+        physics[name]["calibrated"] = calibrated.predict_values(records[name])
     info = {"calibrated_on_s": config.calibrate_s, "wall_s": time.perf_counter() - start,
             "rmse_before": result.rmse_before, "rmse_after": result.rmse_after,
             "parameters": [e.name for e in result.estimates]}  # fmt: skip

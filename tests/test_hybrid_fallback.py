@@ -1,0 +1,117 @@
+"""Never worse than the physics on validation (issue 27, item 1): "no correction" is a
+validation candidate of every hybrid, and the residual model is kept only when it beats the
+physics there."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.errors import DataError
+from drafttwin.models import MechanisticModel, load_model, make_model
+
+from ._synthetic import TINY, TINY_MDSL
+
+INIT = 8
+N = 400
+
+
+def _physics_values(u: np.ndarray, time_s: np.ndarray) -> np.ndarray:
+    return (np.sin(2 * np.pi * 0.4 * time_s) + 0.5 * u)[:, None]
+
+
+def _record(bias: float, seed: int = 3) -> MeasurementSeries:
+    """y = physics + ``bias`` + white noise: nothing but the bias can be learnt."""
+    rng = np.random.default_rng(seed)
+    time_s = np.arange(N) * 0.02
+    u = np.repeat(rng.normal(0.0, 1.0, N // 40 + 1), 40)[:N]
+    y = _physics_values(u, time_s) + bias + rng.normal(0.0, 0.05, (N, 1))
+    return MeasurementSeries(time_s, y, channels=("y",), inputs={"u": u})
+
+
+def physics() -> MechanisticModel:
+    def run(series: MeasurementSeries) -> np.ndarray:
+        return _physics_values(series.inputs["u"], series.time_s)
+
+    return MechanisticModel.from_series_function(run, channels=("y",), name="exact physics")
+
+
+def _fit(name: str, train: MeasurementSeries, task: str = "simulation"):
+    tiny = TINY_MDSL if name.startswith("md") else TINY
+    hyper = {**tiny, "epochs": 4, "task": task, "outputs": ("y",), "inputs": ("u",), "seed": 2}
+    if task == "simulation":
+        hyper["init_samples"] = INIT
+    return make_model(name, **hyper).fit(train, physics())
+
+
+def _rmse(pred: np.ndarray, y: np.ndarray) -> float:
+    ok = np.isfinite(pred[:, 0])
+    return float(np.sqrt(np.mean((pred[ok, 0] - y[ok, 0]) ** 2)))
+
+
+@pytest.mark.parametrize(("name", "task"), [("parallel", "simulation"),
+                                            ("parallel", "prediction"),
+                                            ("md-s-l", "simulation")])  # fmt: skip
+def test_white_noise_residual_leaves_the_physics_alone(name: str, task: str, tmp_path) -> None:
+    data = _record(bias=0.0)
+    train, test = data.slice(0, 280), data.slice(280)
+    model = _fit(name, train, task)
+    choice = model.selection_["correction"]
+    assert choice["kept"] == "none" and choice["chosen_by"] == "validation"
+    assert choice["validation_rows"] > 0 and set(choice["validation_nrmse"]) >= {"none"}
+    init = {"init_samples": INIT} if task == "simulation" else {}
+    alone = make_model("mechanistic", task=task, outputs=("y",), **init)
+    alone.fit(train, physics())
+    expected = alone.predict_values(test, physics())
+    np.testing.assert_array_equal(model.predict_values(test, physics()), expected)
+    model.save(tmp_path / "m.dtm")  # the choice survives the model file
+    again = load_model(tmp_path / "m.dtm")
+    np.testing.assert_array_equal(again.predict_values(test, physics()), expected)
+
+
+def test_a_learnable_residual_is_kept_and_beats_the_physics() -> None:
+    data = _record(bias=0.4)
+    train, test = data.slice(0, 280), data.slice(280)
+    model = _fit("parallel", train)
+    choice = model.selection_["correction"]
+    scores = choice["validation_nrmse"]
+    assert choice["kept"] in ("level", "accumulate") and choice["kept"] == (
+        "accumulate" if model.accumulate_ else "level"
+    )
+    assert scores[choice["kept"]] < scores["none"]
+    pred, mech = model.predict_values(test, physics()), physics().predict_values(test)
+    mech[:INIT] = np.nan
+    assert _rmse(pred, test.values) < 0.5 * _rmse(mech, test.values)
+
+
+def test_fallback_off_keeps_the_residual_model_untested_by_physics() -> None:
+    data = _record(bias=0.0)
+    model = make_model("parallel", **{**TINY, "task": "simulation", "outputs": ("y",),
+                                      "inputs": ("u",), "init_samples": INIT,
+                                      "fallback": False}).fit(data.slice(0, 280), physics())  # fmt: skip
+    choice = model.selection_["correction"]
+    assert choice["chosen_by"] == "user" and choice["kept"] != "none"
+    pred = model.predict_values(data.slice(280), physics())
+    assert not np.allclose(pred[INIT:], physics().predict_values(data.slice(280))[INIT:])
+
+
+def test_mdsl_shares_a_data_model_through_its_public_api() -> None:
+    """fit_data_model + use_data_model give the same hybrid as one fit (same seed); another
+    training part is refused."""
+    data = _record(bias=0.4)
+    train, test = data.slice(0, 160), data.slice(160, 220)
+    hyper = {**TINY_MDSL, "task": "simulation", "outputs": ("y",), "inputs": ("u",),
+             "init_samples": INIT, "seed": 4}  # fmt: skip
+    whole = make_model("md-s-l", **hyper).fit(train, physics())
+    donor = make_model("md-s-l", **hyper)
+    oof = donor.fit_data_model(train)
+    assert oof.shape == train.values.shape and donor.data_model_.channels_ == ("y",)
+    shared = make_model("md-s-l", **hyper)
+    shared.use_data_model(donor.data_model_, oof, donor.crossfit_blocks_).fit(train, physics())
+    np.testing.assert_array_equal(shared.predict_values(test, physics()),
+                                  whole.predict_values(test, physics()))  # fmt: skip
+    other = make_model("md-s-l", **hyper).use_data_model(donor.data_model_, oof[:-5],
+                                                          donor.crossfit_blocks_)  # fmt: skip
+    with pytest.raises(DataError, match="same training rows"):
+        other.fit(train, physics())
