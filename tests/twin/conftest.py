@@ -34,7 +34,7 @@ def mosquitto(tmp_path: Path) -> Iterator[int]:
     )
     if binary is None:
         pytest.skip("mosquitto is not installed (Debian: apt-get install mosquitto)")
-    from drafttwin.twin.mqtt import broker_answers
+    from drafttwin.plant.serve.mqtt import broker_answers
 
     port = free_port()
     conf = tmp_path / "mosquitto.conf"

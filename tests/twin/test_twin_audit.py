@@ -19,8 +19,8 @@ from drafttwin.cli import app
 from drafttwin.plant.live import LiveSample
 from drafttwin.twin.audit import audit
 from drafttwin.twin.history import read_events
-from drafttwin.twin.plantlog import PlantLog, read_plant_log
 from drafttwin.twin.store import SampleRow, TwinStore
+from drafttwin.wire.plantlog import PlantLog, read_plant_log
 
 from ._twin import CHANNELS, cli, env, free_port
 

@@ -274,7 +274,7 @@ def test_the_hall_page_shows_every_shard_and_guards_its_token():
 def test_a_plant_log_gives_one_healthy_record_per_machine(tmp_path, twin_files):
     from drafttwin.plant.live import LivePlant
     from drafttwin.twin.faultwatch import plant_log_series
-    from drafttwin.twin.plantlog import open_plant_log
+    from drafttwin.wire.plantlog import open_plant_log
 
     path = tmp_path / "log.parquet"
     plants = {"a": LivePlant(1, RATE), "b": LivePlant(2, RATE)}
@@ -327,4 +327,7 @@ def test_a_sensor_rule_in_the_window_cancels_the_machine_ranking(detector):
     assert [a.test for a in alarms] in (["parity_back", "stuck_back"], ["lag_back", "stuck_back"])
     assert alarms[1].block == alarms[0].block + 1
     assert causes and causes[0]["element"] == "back" and causes[0]["kind"] == "stuck"
+    # in seconds, the unit a stuck encoder is injected with: the held run the rule counted
+    # (over 30 samples, at most the 125 held) at RATE
+    assert 30 / RATE < causes[0]["severity"] <= 125 / RATE and "(s" in causes[0]["parameter"]
     assert requests == []

@@ -17,8 +17,8 @@ import pytest
 from drafttwin.twin.audit import audit
 from drafttwin.twin.build import build_service
 from drafttwin.twin.history import read_history
-from drafttwin.twin.plantlog import read_plant_log
 from drafttwin.twin.service import TwinService
+from drafttwin.wire.plantlog import read_plant_log
 
 from ._twin import cli, env
 

@@ -171,7 +171,7 @@ def test_mqtt_with_a_user_admits_only_that_user(twin_files: tuple[Path, Path]) -
 def test_mqtt_over_tls_with_the_generated_certificate(
     twin_files: tuple[Path, Path], tmp_path: Path
 ) -> None:
-    from drafttwin.twin.security import make_certificates
+    from drafttwin.wire.certs import make_certificates
 
     _, model = twin_files
     certs = tmp_path / "certs"

@@ -12,7 +12,7 @@ import pytest
 
 from drafttwin.twin.aio import run_bounded
 from drafttwin.twin.build import build_service
-from drafttwin.twin.security import make_certificates
+from drafttwin.wire.certs import make_certificates
 
 from ._twin import cli, env, free_port
 

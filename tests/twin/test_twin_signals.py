@@ -90,6 +90,8 @@ def test_signals_end_plant_and_twin_with_the_page_on(
         _visit(http)
         took, out, err = _stop(twin, signal.SIGTERM)
         _check(took, twin, out, err, "rows committed")
+        # a live source stamps its samples: the twin splits off the transport's share
+        assert "fa320a: source -> received" in out, out
         # the plant by SIGINT (Ctrl-C): the same clean end, and its log written
         took, out, err = _stop(plant, signal.SIGINT)
         _check(took, plant, out, err, "published fa320a")

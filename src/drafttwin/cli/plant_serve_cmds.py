@@ -3,6 +3,7 @@ its own log of every published sample (docs/twin.md)."""
 
 from __future__ import annotations
 
+import math
 import signal
 from pathlib import Path
 from typing import Annotated, Any
@@ -96,6 +97,22 @@ def plant_serve(
             "docs/faults.md). Not live: rotor_resistance, eccentricity.",
         ),
     ] = None,  # fmt: skip
+    qos: Annotated[
+        int,
+        typer.Option(
+            help="MQTT: QoS of the samples, 0 (at most once) or 1 (at least once).",
+            callback=bounded("--qos"),
+        ),
+    ] = 0,
+    max_lag: Annotated[
+        float | None,
+        typer.Option(
+            help="Behind the wall clock by more than SECONDS, skip samples to catch up (the "
+            "counter jumps; a twin counts them as dropped). Default: publish every sample, late "
+            "if need be; the lateness is logged, warned past 1 s and summed up either way.",
+            callback=bounded("--max-lag"),
+        ),
+    ] = None,
     log: Annotated[
         Path | None,
         typer.Option(
@@ -108,7 +125,8 @@ def plant_serve(
     """Run the plant emulator in real time as live machines: roller and motor speeds every
     sample, a writable supply set-point (write it and the plant changes speed)."""
     _need_twin_extra()
-    from drafttwin.twin.plantlog import open_plant_log
+    from drafttwin.plant.serve.pacing import Pacing
+    from drafttwin.wire.plantlog import open_plant_log
 
     if broker not in ("auto", "external", "embedded"):
         raise ConfigError(f"unknown broker mode {broker!r}", where="--broker",
@@ -125,6 +143,9 @@ def plant_serve(
     if history and opcua is None:
         raise ConfigError("--history is for OPC UA (MQTT keeps no history of QoS 0 samples)",
                           where="--history", fix="drop --history, or serve with --opcua")  # fmt: skip
+    if qos and mqtt is None:
+        raise ConfigError("--qos is for MQTT (OPC UA has no QoS)", where="--qos",
+                          fix="drop --qos, or serve with --mqtt")  # fmt: skip
     if log is not None and log.suffix.lower() not in (".parquet", ".csv"):
         raise ConfigError(f"unsupported log file type '{log.suffix or '(none)'}'", source=log,
                           where="--log", fix="name the log *.parquet or *.csv")  # fmt: skip
@@ -137,6 +158,11 @@ def plant_serve(
     names = [name] if machines == 1 else [f"{name}-{k + 1}" for k in range(machines)]
     opts: dict[str, Any] = {"seed": seed, "rate_hz": rate, "physics": physics,
                             "ramp_hz_per_s": ramp, "duration_s": duration, "faults": faults}  # fmt: skip
+    pacing = Pacing(rate, max_lag_s=math.inf if max_lag is None else max_lag,
+                    warn=lambda text: err_console.print(f"warning: {text}"))  # fmt: skip
+    opts["pacing"] = pacing
+    if qos:
+        opts["qos"] = qos
     published = dict.fromkeys(names, 0)
     with open_plant_log(log) as plant_log:
 
@@ -152,6 +178,7 @@ def plant_serve(
     if signum is not None:
         err_console.print(f"stopped by {signal.Signals(signum).name}")
     console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in published.items()))
+    console.print(pacing.summary())
     if log is not None:
         console.print(f"wrote {log}")
 
@@ -164,7 +191,7 @@ def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: di
     from drafttwin.twin.aio import run_until_signal
 
     if opcua is not None:
-        from drafttwin.twin.plantserver import parse_opcua_url, serve_opcua
+        from drafttwin.plant.serve.opcua import parse_opcua_url, serve_opcua
 
         parse_opcua_url(opcua)
 
@@ -180,7 +207,8 @@ def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: di
             raise ConfigError(f"cannot serve on {opcua} ({exc.strerror or exc})", where="--opcua",
                               fix="choose a free port") from None  # fmt: skip
     else:
-        from drafttwin.twin.mqtt import parse_hostport, serve_mqtt
+        from drafttwin.plant.serve.mqtt import serve_mqtt
+        from drafttwin.wire.conventions import parse_hostport
 
         parse_hostport(str(mqtt), "--mqtt")
 

@@ -136,6 +136,14 @@ def twin_run(
         ),
     ] = None,  # fmt: skip
     physics: Annotated[str, typer.Option(help="reduced (fast) | full drive train.")] = "reduced",
+    publish: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="Publish predictions, residuals, health and alarms: opcua:opc.tcp://HOST:PORT"
+            "[?hz=10] (the twin's own OPC UA server) | mqtt://HOST:PORT[?qos=1&hz=10&prefix="
+            "drafttwin/twin]; hz: predictions per machine and second; repeatable (docs/twin.md)."
+        ),
+    ] = None,  # fmt: skip
     detector: Annotated[
         str,
         typer.Option(
@@ -181,6 +189,9 @@ def twin_run(
         raise ConfigError(f"unknown physics {physics!r}", where="--physics",
                           fix="use reduced or full")  # fmt: skip
     bind = None if http is None else parse_bind(http, token)
+    from drafttwin.twin.publish import parse_publish
+
+    publishers = [parse_publish(text) for text in publish or []]
 
     def on_commit(rows: int, last_ts_us: int) -> None:
         if verbose:  # called by the writer thread just after the commit, with its duration
@@ -199,7 +210,8 @@ def twin_run(
 
         # SIGTERM ends the twin like Ctrl-C: what was received is committed; only SIGKILL
         # loses the rows of the open commit interval
-        _, signum = run_until_signal(_serve(service, bind, token, duration, max_samples, quiet))
+        _, signum = run_until_signal(_serve(service, bind, token, duration, max_samples, quiet,
+                                            publishers))  # fmt: skip
         if signum is not None:
             err_console.print(f"stopped by {signal.Signals(signum).name}: committing what "
                               "was received")  # fmt: skip
@@ -212,24 +224,31 @@ def twin_run(
             service.writer.store.close()
     status = service.status()
     status["wall_s"] = time.monotonic() - start
+    if publishers:
+        status["publish"] = [pub.summary() for pub in publishers]
     if as_json:
         print_json(status)
         return
     _print_status(status)
 
 
-async def _serve(service, bind, token, duration, max_samples, quiet) -> None:  # noqa: ANN001
+async def _serve(service, bind, token, duration, max_samples, quiet, publishers=()) -> None:  # noqa: ANN001
+    from drafttwin.twin.publish import publishing
+
     ticker = None if quiet else asyncio.create_task(_status_lines(service))
     try:
-        if bind is None:
-            await service.run(duration_s=duration, max_rows=max_samples)
-            return
-        from drafttwin.twin.web import serve_with
+        async with publishing(service, publishers):
+            for pub in publishers:
+                err_console.print(f"publishing on {pub.spec}")
+            if bind is None:
+                await service.run(duration_s=duration, max_rows=max_samples)
+                return
+            from drafttwin.twin.web import serve_with
 
-        def started(_: object) -> None:
-            err_console.print(f"page on http://{bind[0]}:{bind[1]}/")
+            def started(_: object) -> None:
+                err_console.print(f"page on http://{bind[0]}:{bind[1]}/")
 
-        await serve_with(service, bind, token, duration, max_samples, started)
+            await serve_with(service, bind, token, duration, max_samples, started)
     finally:
         if ticker is not None:
             ticker.cancel()
@@ -264,8 +283,16 @@ def _print_status(status: dict) -> None:
     if lat["p99"] is not None:
         console.print(f"latency received -> stored/pushed: p50 {lat['p50']:.2f} ms, "
                       f"p99 {lat['p99']:.2f} ms, max {lat['max']:.2f} ms")  # fmt: skip
+    for name, m in status["machines"].items():
+        if m.get("transport_ms") is not None:  # live sources: the source stamps each sample
+            tr = m["transport_ms"]
+            console.print(f"{name}: source -> received (transport and the source's own "
+                          f"lateness): p50 {tr['p50']:.1f} ms, p99 {tr['p99']:.1f} ms")  # fmt: skip
     if status["store"] is not None:
         console.print(f"store: {status['store']['committed']} rows committed")
+    for pub in status.get("publish", []):
+        console.print(f"published on {pub['spec']}: {pub['sent']} sent, {pub['dropped']} "
+                      f"dropped, {pub['failed']} failed")  # fmt: skip
 
 
 @twin_app.command("query")

@@ -153,6 +153,25 @@ class LivePlant:
                               fix=f"write a number from 0 to {MAX_SUPPLY_HZ:g} Hz")  # fmt: skip
         self.target_hz = float(hz)
 
+    def skip(self, n: int) -> None:
+        """Advance ``n`` samples in one integration, measuring none (a server that fell
+        behind its clock catches up; the counter jumps by ``n``, which a twin counts as
+        dropped samples). The encoders keep their position, so the next sample measures
+        only its own window. The supply ramps linearly across the span (a set-point reached
+        within it is spread over the whole span: an approximation of the catch-up only)."""
+        if n <= 0:
+            return
+        span = n / self.rate_hz
+        if self.schedule is not None:
+            self._apply_machine_faults(self.seq / self.rate_hz)
+        delta = self.target_hz - self.supply_hz
+        limit = self.ramp * span if self.ramp > 0 else math.inf
+        self.supply_hz += max(-limit, min(limit, delta))
+        node_rpm = self.stepper.step(self.supply_hz, span_s=span)
+        self._rev += node_rpm[[*self._rollers, self._motor]] / 60.0 * span
+        self._counts = np.floor(self._rev * self._cpr)
+        self.seq += n
+
     def step(self) -> LiveSample:
         """Advance one sample: ramp the supply, integrate, count encoder edges."""
         dt = 1.0 / self.rate_hz

@@ -4,6 +4,6 @@ sample in real time, a history that survives a crash, a page and Prometheus metr
 Modules: :mod:`~drafttwin.twin.live` (one machine's causal hybrid), :mod:`~drafttwin.twin.sources`
 and :mod:`~drafttwin.twin.mapping` (where samples come from), :mod:`~drafttwin.twin.store` and
 :mod:`~drafttwin.twin.history` (DuckDB history), :mod:`~drafttwin.twin.service` (the loop),
-:mod:`~drafttwin.twin.plantserver` (the plant emulator as a live OPC UA machine).
+the plant emulator served live is :mod:`drafttwin.plant.serve`.
 Needs the ``twin`` extra: ``pip install 'drafttwin[twin]'``.
 """

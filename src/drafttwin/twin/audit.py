@@ -21,7 +21,7 @@ import numpy as np
 import pandas as pd
 
 from drafttwin.errors import DataError
-from drafttwin.twin.plantlog import read_plant_log
+from drafttwin.wire.plantlog import read_plant_log
 
 LOG_CHANNELS = ("front", "second", "third", "back", "motor")
 """Channels a plant log carries (a stored channel of another name is not compared)."""

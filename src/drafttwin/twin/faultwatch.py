@@ -112,7 +112,7 @@ def load_detector(path: Path, model: Path) -> tuple[FaultDetector, float]:
 def plant_log_series(path: Path) -> list[MeasurementSeries] | None:
     """Each machine's record in a ``plant serve --log`` file (``None``: not a plant log), to
     fit a detector on the live plant's own healthy running."""
-    from drafttwin.twin.plantlog import read_plant_log
+    from drafttwin.wire.plantlog import read_plant_log
 
     try:
         frame = read_plant_log(path)
@@ -175,6 +175,7 @@ class LiveFaultWatch:
                               f"model has {', '.join(channels)}", where="--detector",
                               fix="run without a detector, or fit the model on the four rollers")  # fmt: skip
         self.detector, self.machine, self.has_motor = detector, machine, has_motor
+        self.rate_hz = rate_hz
         self.per = max(1, int(round(detector.block_s_ * rate_hz)))
         self.block_s = self.per / rate_hz
         self.period_us = int(round(1e6 / rate_hz))
@@ -245,7 +246,7 @@ class LiveFaultWatch:
                 self.pending = None
         for a in alarms:
             if a.direction == 0:
-                causes.append(sensor_cause(a, lost, run).to_dict())
+                causes.append(sensor_cause(a, lost, run, self.rate_hz).to_dict())
             elif self.state.baseline_at_alarm is not None and self.pending is None and not sensor:
                 self.pending = (a, self.state.baseline_at_alarm.copy(), [])
         return alarms, causes, requests

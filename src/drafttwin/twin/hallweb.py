@@ -15,8 +15,11 @@ import time
 from importlib import resources
 from typing import Any
 
+from fastapi import FastAPI
+from fastapi.responses import HTMLResponse
+
 from drafttwin._json import to_strict
-from drafttwin.twin.web import _check, _given
+from drafttwin.twin.web import guard, serve_static
 
 
 class HallView:
@@ -46,35 +49,24 @@ class HallView:
         return to_strict({"updated": updated, "shards": out})
 
 
-MACHINE_KEYS = ("state", "received", "processed", "dropped", "fault_alarms", "fault_detector",
-                "last_fault")  # fmt: skip
+MACHINE_KEYS = ("state", "received", "processed", "dropped", "late", "fault_alarms",
+                "fault_detector", "last_fault")  # fmt: skip
 
 
-def create_hall_app(view: HallView, token: str | None = None) -> Any:
-    from fastapi import FastAPI, Request
-    from fastapi.responses import HTMLResponse, Response
-    from starlette.middleware.base import BaseHTTPMiddleware
-
-    app = FastAPI(title="drafttwin hall", docs_url=None, redoc_url=None)
+def create_hall_app(view: HallView, token: str | None = None) -> FastAPI:
+    """The hall's app; its OpenAPI schema is ``/openapi.json``, the interactive docs ``/docs``."""
+    app = FastAPI(title="drafttwin hall", summary="Every shard's machines (docs/twin.md)")
     static = resources.files("drafttwin.twin") / "static"
+    guard(app, token)
+    serve_static(app, static)
 
-    class TokenGuard(BaseHTTPMiddleware):
-        async def dispatch(self, request: Request, call_next: Any) -> Any:
-            if not _check(token, _given(request.headers, request.query_params, request.cookies)):
-                return Response("token required", status_code=401)
-            response = await call_next(request)
-            if token is not None and request.query_params.get("token"):
-                response.set_cookie("drafttwin_token", token, httponly=True, samesite="strict")
-            return response
-
-    app.add_middleware(TokenGuard)
-
-    @app.get("/", response_class=HTMLResponse)
+    @app.get("/", response_class=HTMLResponse, include_in_schema=False)
     def page() -> str:
         return (static / "hall.html").read_text(encoding="utf-8")
 
     @app.get("/api/hall")
     def hall() -> Any:
+        """Each shard's state, rows and p99 latency, and per machine its counts and last alarm."""
         return view.snapshot()
 
     return app

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -142,4 +143,81 @@ def summary(folder: str | Path) -> list[dict[str, object]]:
             for r in rows]  # fmt: skip
 
 
-__all__ = ["machines_of", "read_events", "read_history", "store_folders", "summary"]
+# ---- queries of a running twin's store (its HTTP API; a connection of that process) -------
+def value_columns(k: int) -> list[str]:
+    """The per-channel values as plain columns (``measured[1]`` ...), in the row layout's order."""
+    return [f"{kind}[{j}]" for kind in KINDS for j in range(1, k + 1)]
+
+
+def stored_range(con: Any, machine: str) -> tuple[int, int, int] | None:
+    """``(first ts_us, last ts_us, rows)`` of ``machine`` in the store; ``None``: no sample."""
+    first, last, n = con.execute("SELECT min(ts_us), max(ts_us), count(*) FROM samples "
+                                 "WHERE machine = ?", [machine]).fetchall()[0]  # fmt: skip
+    return None if first is None else (int(first), int(last), int(n))
+
+
+def stored_channels(con: Any) -> dict[str, list[str]]:
+    """Every machine the store knows, with its channels."""
+    return {m: list(c) for m, c in con.execute("SELECT machine, channels FROM machines").fetchall()}
+
+
+def page_json(con: Any, machine: str, k: int, start_us: int, end_us: int,
+              limit: int) -> tuple[str, int | None, bool]:  # fmt: skip
+    """Up to ``limit`` samples of ``machine`` with ``start_us <= ts_us <= end_us``, oldest first,
+    as a JSON array of rows ``[time s, seq, set-point, values (:func:`value_columns`)]``, NaN as
+    null; with the last row's ts_us and whether more rows follow in the window. DuckDB writes
+    the JSON (exact round trip of every double) outside the GIL: a history page must not stall
+    the twin's processing thread."""
+    vals = ", ".join(f"if(isfinite({c}), {c}, NULL)" for c in ["setpoint", *value_columns(k)])
+    text, last = con.execute(
+        f"SELECT string_agg(json_array(ts_us / 1e6, seq, {vals})::VARCHAR, ',' ORDER BY ts_us), "
+        "max(ts_us) FROM (SELECT * FROM samples WHERE machine = ? AND ts_us BETWEEN ? AND ? "
+        "ORDER BY ts_us LIMIT ?)", [machine, start_us, end_us, limit],
+    ).fetchall()[0]  # fmt: skip
+    if last is None:
+        return "[]", None, False
+    more = con.execute("SELECT count(*) FROM (SELECT 1 FROM samples WHERE machine = ? AND "
+                       "ts_us > ? AND ts_us <= ? LIMIT 1)", [machine, last, end_us]).fetchall()  # fmt: skip
+    return f"[{text}]", int(last), more[0][0] > 0
+
+
+def minmax_rows(con: Any, machine: str, k: int, start_us: int, end_us: int,
+                bucket_us: int) -> np.ndarray:  # fmt: skip
+    """Each ``bucket_us`` bucket of the window as two rows in the layout of :func:`page_json`:
+    its minima at the bucket's first sample time, its maxima at the bucket's middle, as an
+    ``(n, 3 + 4k)`` array (times in µs). The seq of
+    the first is the bucket's first seq, of the second its last: a long range drawn with its
+    spikes and extremes, in a bounded number of rows."""
+    aggs = ", ".join(f"min({c}), max({c})" for c in ["setpoint", *value_columns(k)])
+    got = con.execute(
+        f"SELECT min(ts_us), min(seq), max(seq), {aggs} FROM samples WHERE machine = ? AND "
+        "ts_us BETWEEN ? AND ? GROUP BY (ts_us - ?) // ? ORDER BY 1",
+        [machine, start_us, end_us, start_us, bucket_us],
+    ).fetchall()  # fmt: skip
+    if not got:
+        return np.empty((0, 3 + 4 * k))
+    a = np.array(got, dtype=np.float64)
+    t0 = a[:, 0]
+    mid = start_us + ((t0 - start_us) // bucket_us + 0.5) * bucket_us
+    lows = np.column_stack([t0, a[:, 1], a[:, 3::2]])
+    highs = np.column_stack([np.maximum(mid, t0 + 1), a[:, 2], a[:, 4::2]])
+    return np.stack([lows, highs], axis=1).reshape(-1, lows.shape[1])
+
+
+def events_window(con: Any, machine: str | None, kinds: tuple[str, ...], exclude: bool,
+                  start_us: int, end_us: int, limit: int) -> list[tuple[str, str, int, str]]:  # fmt: skip
+    """The newest ``limit`` events (of ``kinds``, or all but them) in the window, oldest first."""
+    marks = ", ".join("?" * len(kinds))
+    where = f"kind {'NOT ' if exclude else ''}IN ({marks}) AND ts_us BETWEEN ? AND ?"
+    args: list[Any] = [*kinds, start_us, end_us]
+    if machine is not None:
+        where += " AND machine = ?"
+        args.append(machine)
+    rows = con.execute(f"SELECT machine, kind, ts_us, detail FROM events WHERE {where} "
+                       "ORDER BY ts_us DESC LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
+    return [(m, kd, int(t), d) for m, kd, t, d in reversed(rows)]
+
+
+__all__ = ["events_window", "machines_of", "minmax_rows", "page_json", "read_events",
+           "read_history", "store_folders", "stored_channels", "stored_range", "summary",
+           "value_columns"]  # fmt: skip

@@ -1,16 +1,8 @@
-"""OPC UA security: self-signed certificates for the plant server and the twin client, and
-Basic256Sha256 SignAndEncrypt on both ends.
+"""OPC UA security, the twin's side: its client certificate and Basic256Sha256 SignAndEncrypt.
 
-``drafttwin twin certs --out DIR`` writes, in DIR:
-
-* ``server_key.pem``, ``server_cert.der``: the plant server's key and certificate;
-* ``client_key.pem``, ``client_cert.der``: the twin's;
-* ``trusted/client_cert.der``: the client certificates the server accepts (add others here).
-
-The certificates are self-signed and valid for 365 days (asyncua's ``cert_gen``). With
-``plant serve --opcua URL --cert DIR`` the server offers only Basic256Sha256 SignAndEncrypt
-and accepts only clients whose certificate lies in ``DIR/trusted``. The twin connects with
-``--source "opcua:URL?cert=DIR"``.
+The certificates (``drafttwin twin certs --out DIR``) and the plant server's side live in
+:mod:`drafttwin.wire.certs` (the plant sits below the twin); what is written where is
+described there. The twin connects with ``--source "opcua:URL?cert=DIR"``.
 """
 
 from __future__ import annotations
@@ -18,97 +10,20 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from drafttwin.errors import ConfigError
+from drafttwin.wire.certs import (
+    CLIENT_URI,
+    SERVER_URI,
+    make_certificates,
+    need_files,
+    secure_server,
+)
 
-SERVER_URI = "urn:drafttwin:plant:server"
-CLIENT_URI = "urn:drafttwin:twin:client"
-FILES = ("server_key.pem", "server_cert.der", "client_key.pem", "client_cert.der")
-
-
-async def make_certificates(folder: Path, host: str = "127.0.0.1") -> list[Path]:
-    """Write the server's and the twin's keys and certificates (kept when still valid)."""
-    import shutil
-
-    from asyncua.crypto.cert_gen import setup_self_signed_certificate
-    from cryptography.x509.oid import ExtendedKeyUsageOID
-
-    folder.mkdir(parents=True, exist_ok=True)
-    for role, uri, use in (("server", SERVER_URI, ExtendedKeyUsageOID.SERVER_AUTH),
-                           ("client", CLIENT_URI, ExtendedKeyUsageOID.CLIENT_AUTH)):  # fmt: skip
-        await setup_self_signed_certificate(
-            folder / f"{role}_key.pem", folder / f"{role}_cert.der", uri, host, [use],
-            {"commonName": f"drafttwin {role}", "organizationName": "drafttwin"},
-        )  # fmt: skip
-    (folder / "trusted").mkdir(exist_ok=True)
-    shutil.copyfile(folder / "client_cert.der", folder / "trusted" / "client_cert.der")
-    _mqtt_tls_certificate(folder, host)
-    return [folder / f for f in (*FILES, "mqtt_cert.pem", "mqtt_key.pem")]
-
-
-def _mqtt_tls_certificate(folder: Path, host: str) -> None:
-    """A self-signed TLS certificate (PEM, 365 days) for the MQTT broker at ``host``; clients
-    trust exactly it (``tls_set(ca_certs=mqtt_cert.pem)``)."""
-    import datetime as dt
-    import ipaddress
-
-    from cryptography import x509
-    from cryptography.hazmat.primitives import hashes, serialization
-    from cryptography.hazmat.primitives.asymmetric import ec
-    from cryptography.x509.oid import NameOID
-
-    from drafttwin._io import write_bytes_atomic
-
-    key = ec.generate_private_key(ec.SECP256R1())
-    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, host)])
-    try:
-        alt: x509.GeneralName = x509.IPAddress(ipaddress.ip_address(host))
-    except ValueError:
-        alt = x509.DNSName(host)
-    now = dt.datetime.now(dt.UTC)
-    cert = (
-        x509.CertificateBuilder().subject_name(name).issuer_name(name)
-        .public_key(key.public_key()).serial_number(x509.random_serial_number())
-        .not_valid_before(now - dt.timedelta(days=1)).not_valid_after(now + dt.timedelta(days=365))
-        .add_extension(x509.SubjectAlternativeName([alt]), critical=False)
-        .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
-        .sign(key, hashes.SHA256())
-    )  # fmt: skip
-    write_bytes_atomic(folder / "mqtt_cert.pem", cert.public_bytes(serialization.Encoding.PEM))
-    pem = key.private_bytes(serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8,
-                            serialization.NoEncryption())  # fmt: skip
-    write_bytes_atomic(folder / "mqtt_key.pem", pem)
-    (folder / "mqtt_key.pem").chmod(0o600)
-
-
-def _need(folder: Path, *names: str) -> None:
-    missing = [n for n in names if not (folder / n).is_file()]
-    if missing:
-        raise ConfigError(f"no {', '.join(missing)} in {folder}", where="--cert",
-                          fix=f"make them with: drafttwin twin certs --out {folder}")  # fmt: skip
-
-
-async def secure_server(server: Any, folder: Path) -> None:
-    """Basic256Sha256 SignAndEncrypt only, the server's certificate, trusted clients only."""
-    from asyncua import ua
-    from asyncua.crypto.truststore import TrustStore
-    from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
-
-    _need(folder, "server_key.pem", "server_cert.der")
-    await server.set_application_uri(SERVER_URI)
-    server.set_security_policy([ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt])
-    await server.load_certificate(str(folder / "server_cert.der"))
-    await server.load_private_key(str(folder / "server_key.pem"))
-    store = TrustStore([folder / "trusted"], [])
-    await store.load()
-    options = (
-        CertificateValidatorOptions.TRUSTED_VALIDATION | CertificateValidatorOptions.PEER_CLIENT
-    )
-    server.set_certificate_validator(CertificateValidator(options, store))
+_need = need_files  # the name source_spec uses
 
 
 async def secure_client(client: Any, folder: Path) -> None:
     """The twin's side: its certificate, the server's, SignAndEncrypt."""
-    _need(folder, "client_key.pem", "client_cert.der", "server_cert.der")
+    need_files(folder, "client_key.pem", "client_cert.der", "server_cert.der")
     client.application_uri = CLIENT_URI
     await client.set_security_string(
         f"Basic256Sha256,SignAndEncrypt,{folder / 'client_cert.der'},"
@@ -116,4 +31,4 @@ async def secure_client(client: Any, folder: Path) -> None:
     )
 
 
-__all__ = ["make_certificates", "secure_client", "secure_server"]
+__all__ = ["SERVER_URI", "make_certificates", "secure_client", "secure_server"]

@@ -61,6 +61,22 @@ class MachineState:
     last_fault: EventRow | None = None  # the latest alarm or its cause (status, hall page)
     sliver: SliverWatch | None = None  # the sliver channel's watch, once the source sends one
     sliver_busy: bool = False  # a check runs in the worker thread
+    # source time -> received (wall clock), s: the transport's share of the latency, for
+    # live sources (a replay's times are the file's)
+    transport_s: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))
+    newest_source_s: float = math.nan  # the newest processed sample's source time
+
+    def transport_ms(self) -> dict[str, float] | None:
+        if not self.transport_s or self.source.startswith("replay"):
+            return None
+        lat = np.asarray(self.transport_s) * 1e3
+        return {"p50": float(np.percentile(lat, 50)), "p99": float(np.percentile(lat, 99))}
+
+    def data_age_s(self) -> float | None:
+        """Wall clock minus the newest sample's source time (live sources only)."""
+        if self.source.startswith("replay") or not math.isfinite(self.newest_source_s):
+            return None
+        return time.time() - self.newest_source_s
 
 
 class TwinService:
@@ -73,7 +89,7 @@ class TwinService:
         self.latency_s: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.rows = 0
         self.subscribers: list[Callable[[str, list[SampleRow], list[EventRow]], None]] = []
-        self.metrics: Any = None  # drafttwin.twin.web.Metrics when the page runs
+        self.metrics: Any = None  # drafttwin.twin.metrics.Metrics when the page runs
         self.event_hooks: list[Callable[[EventRow], None]] = []
         self.started = time.monotonic()
         self.locator = Locator()
@@ -151,8 +167,11 @@ class TwinService:
         for push in self.subscribers:
             push(st.twin.name, rows, events)
         self.rows += len(rows)
+        st.newest_source_s = float(np.fmax(st.newest_source_s, rows[-1].ts_us * 1e-6))
         if received is not None and math.isfinite(received):  # NaN: recovered, not live
             lat = time.perf_counter() - received
+            # the wall time it arrived, minus the time its source gave it
+            st.transport_s.append(time.time() - lat - rows[-1].ts_us * 1e-6)
             self.latency_s.append(lat)
             if self.metrics is not None:
                 self.metrics.observe(st.twin.name, len(rows), lat)
@@ -345,7 +364,9 @@ class TwinService:
                                 "fault_detector": st.watch is not None,
                                 "fault_motor": st.watch is not None and st.watch.has_motor,
                                 "last_fault": _fault(st.last_fault),
-                                "sliver": None if st.sliver is None else st.sliver.summary()}
+                                "sliver": None if st.sliver is None else st.sliver.summary(),
+                                "transport_ms": st.transport_ms(),
+                                "data_age_s": st.data_age_s()}
                          for name, st in self.states.items()},
         }  # fmt: skip
 

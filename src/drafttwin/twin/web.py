@@ -4,10 +4,13 @@ Routes (all under the token when one is set: ``Authorization: Bearer TOKEN``, ``
 or the ``drafttwin_token`` cookie the page sets):
 
 * ``GET /``: the page (charts by uPlot, shipped in the package: no CDN).
-* ``GET /api/machines``, ``/api/status``, ``/api/model/{machine}``, ``/api/alarms``,
-  ``/api/kinematics/{machine}``, ``/api/history/{machine}?seconds=30``.
-* ``WS /ws``: every processed row of every machine, batched every 50 ms.
-* ``GET /metrics``: Prometheus text (samples in, latency, dropped payloads, alarms, source state).
+* ``GET /api/machines``, ``/api/status``, ``/api/model/{machine}``, ``/api/alarms`` (alarms
+  only), ``/api/events`` (the other events), ``/api/kinematics/{machine}``,
+  ``/api/history/{machine}`` (the store's whole range, paged and bounded: webhistory.py).
+* ``GET /openapi.json`` and ``/docs``: the schema and FastAPI's interactive docs.
+* ``WS /ws``: every processed row of every machine, batched every 50 ms; what a client sends
+  is bounded (size and rate) and dropped.
+* ``GET /metrics``: Prometheus text (metrics.py).
 """
 
 from __future__ import annotations
@@ -22,83 +25,32 @@ import time
 from importlib import resources
 from typing import Any
 
-from fastapi import WebSocket  # at module level: FastAPI resolves the handler's annotation here
+# at module level: with postponed annotations FastAPI resolves the handlers' annotations in
+# this module's namespace (a Response imported inside create_app broke /openapi.json: 500)
+from fastapi import FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect
+from fastapi.responses import HTMLResponse, Response
+from starlette.middleware.base import BaseHTTPMiddleware
 
 from drafttwin._json import to_strict
+from drafttwin.twin.metrics import LATENCY_BUCKETS, Metrics
 from drafttwin.twin.service import TwinService
 from drafttwin.twin.store import EventRow, SampleRow
+from drafttwin.twin.webhistory import FAULT_KINDS, HistoryApi
+from drafttwin.twin.webhistory import event_dict as _event
 
 PUSH_S = 0.05
 """WebSocket batching interval, s (20 updates per second)."""
 MAX_WS_QUEUE = 2000
 """Batches kept per WebSocket client; a client too slow to read them loses the oldest."""
-LATENCY_BUCKETS = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.015, 0.02, 0.03, 0.05, 0.1, 0.25, 1.0)
-
-
-class Metrics:
-    """Prometheus metrics of one service, in their own registry."""
-
-    def __init__(self) -> None:
-        from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram
-
-        self.registry = CollectorRegistry()
-        self.samples = Counter("drafttwin_samples", "Samples processed", ["machine"],
-                               registry=self.registry)  # fmt: skip
-        self.drops = Counter("drafttwin_dropped_payloads", "Malformed payloads dropped",
-                             ["machine"], registry=self.registry)  # fmt: skip
-        self.alarms = Counter("drafttwin_events", "Events (gaps, reconnects, alarms)",
-                              ["machine", "kind"], registry=self.registry)  # fmt: skip
-        self.latency = Histogram("drafttwin_latency_seconds",
-                                 "Sample received to prediction stored and pushed",
-                                 buckets=LATENCY_BUCKETS, registry=self.registry)  # fmt: skip
-        self.source_up = Gauge("drafttwin_source_up", "1 while the machine's source delivers",
-                               ["machine"], registry=self.registry)  # fmt: skip
-        self.causes = Counter("drafttwin_fault_causes", "Fault alarms localised, by the most "
-                              "probable cause (element:kind; none when not localised)",
-                              ["machine", "cause"], registry=self.registry)  # fmt: skip
-        self.sliver_count = Gauge("drafttwin_sliver_count_ktex", "Running mean count of the "
-                                  "delivered sliver, ktex", ["machine"], registry=self.registry)  # fmt: skip
-        self.sliver_cv = Gauge("drafttwin_sliver_cv_percent", "Running CV of the delivery "
-                               "sensor's readings, %", ["machine"], registry=self.registry)  # fmt: skip
-
-    def cause(self, machine: str, cause: str) -> None:
-        self.causes.labels(machine, cause).inc()
-
-    def observe(self, machine: str, rows: int, latency_s: float) -> None:
-        self.samples.labels(machine).inc(rows)
-        self.latency.observe(latency_s)
-
-    def dropped(self, machine: str, count: int = 1) -> None:
-        self.drops.labels(machine).inc(count)
-
-    def event(self, ev: EventRow) -> None:
-        self.alarms.labels(ev.machine, ev.kind).inc()
-
-    def text(self, service: TwinService) -> bytes:
-        from prometheus_client import generate_latest
-
-        for name, st in service.states.items():
-            self.source_up.labels(name).set(1.0 if st.state == "live" else 0.0)
-            if st.sliver is not None and st.sliver.cv_pct == st.sliver.cv_pct:
-                self.sliver_count.labels(name).set(st.sliver.count_ktex)
-                self.sliver_cv.labels(name).set(st.sliver.cv_pct)
-        return bytes(generate_latest(self.registry))
+WS_IN_MAX_BYTES = 4096
+"""Largest message a WebSocket client may send (the page sends none); larger: closed, 1009."""
+WS_IN_RATE_HZ = 5.0
+WS_IN_BURST = 20
+"""Client messages: a burst of 20, then 5 per second; a client sending more is closed, 1008."""
 
 
 def _row(r: SampleRow) -> list[Any]:
     return [r.ts_us / 1e6, r.seq, r.setpoint, *r.measured, *r.physics, *r.twin, *r.residual]
-
-
-FAULT_KINDS = ("fault", "fault-cause", "sensor-fault")
-"""Events whose detail is JSON (the alarm and its probable cause): parsed into ``fault``."""
-
-
-def _event(e: EventRow) -> dict[str, Any]:
-    out = {"machine": e.machine, "kind": e.kind, "time": e.ts_us / 1e6, "detail": e.detail}
-    if e.kind in FAULT_KINDS:
-        with contextlib.suppress(ValueError):
-            out["fault"] = json.loads(e.detail)
-    return out
 
 
 class Hub:
@@ -138,19 +90,8 @@ def _given(headers: Any, query: Any, cookies: Any) -> str | None:
     return query.get("token") or cookies.get("drafttwin_token")
 
 
-def create_app(service: TwinService, token: str | None = None) -> Any:
-    """The FastAPI app of ``service`` (a token, if given, guards every route)."""
-    from fastapi import FastAPI, HTTPException, Request, WebSocketDisconnect
-    from fastapi.responses import HTMLResponse, Response
-    from starlette.middleware.base import BaseHTTPMiddleware
-
-    app = FastAPI(title="drafttwin live twin", docs_url=None, redoc_url=None)
-    hub = Hub()
-    metrics = Metrics()
-    service.metrics = metrics
-    service.subscribers.append(hub.add)
-    service.event_hooks.append(metrics.event)
-    static = resources.files("drafttwin.twin") / "static"
+def guard(app: FastAPI, token: str | None) -> None:
+    """Every HTTP route of ``app`` checks ``token`` (none: open); ``?token=`` sets the cookie."""
 
     class TokenGuard(BaseHTTPMiddleware):
         async def dispatch(self, request: Request, call_next: Any) -> Any:
@@ -163,36 +104,66 @@ def create_app(service: TwinService, token: str | None = None) -> Any:
 
     app.add_middleware(TokenGuard)
 
+
+MEDIA = {".js": "text/javascript", ".css": "text/css", ".html": "text/html",
+         ".png": "image/png", ".svg": "image/svg+xml", ".json": "application/json",
+         ".LICENSE": "text/plain"}  # fmt: skip
+"""The files of ``static/`` the page may load, by suffix."""
+
+
+def serve_static(app: FastAPI, static: Any) -> None:
+    """``GET /static/{name}``: the files of ``static/`` with a known suffix (both pages)."""
+
+    @app.get("/static/{name}", include_in_schema=False)
+    def asset(name: str) -> Response:
+        kind = next((m for suffix, m in MEDIA.items() if name.endswith(suffix)), None)
+        path = static / name
+        if kind is None or name.startswith(".") or not path.is_file():
+            raise HTTPException(404, "no such file")
+        return Response(path.read_bytes(), media_type=kind)
+
+
+def create_app(service: TwinService, token: str | None = None) -> FastAPI:
+    """The FastAPI app of ``service`` (a token, if given, guards every route). Its OpenAPI
+    schema is ``/openapi.json``, the interactive docs ``/docs``."""
+    app = FastAPI(title="drafttwin live twin", summary="The live twin's REST API, WebSocket "
+                  "and metrics (docs/twin.md)")  # fmt: skip
+    hub = Hub()
+    metrics = Metrics(service)
+    api = HistoryApi(service)
+    service.metrics = metrics
+    service.subscribers.append(hub.add)
+    service.event_hooks.append(metrics.event)
+    static = resources.files("drafttwin.twin") / "static"
+    guard(app, token)
+
     def state(machine: str) -> Any:
         st = service.states.get(machine)
         if st is None:
             raise HTTPException(404, f"no machine {machine!r}")
         return st
 
-    @app.get("/", response_class=HTMLResponse)
+    @app.get("/", response_class=HTMLResponse, include_in_schema=False)
     def page() -> str:
         return (static / "index.html").read_text(encoding="utf-8")
 
-    @app.get("/static/{name}")
-    def asset(name: str) -> Response:
-        kinds = {"uPlot.iife.min.js": "text/javascript", "uPlot.min.css": "text/css",
-                 "twin.js": "text/javascript", "uPlot.LICENSE": "text/plain"}  # fmt: skip
-        if name not in kinds:
-            raise HTTPException(404, "no such file")
-        return Response((static / name).read_bytes(), media_type=kinds[name])
+    serve_static(app, static)
 
     @app.get("/api/machines")
     def machines() -> list[dict[str, Any]]:
+        """Each machine: its channels, state, source and sample rate."""
         return [{"machine": n, "channels": list(st.mapping.channels), "state": st.state,
                  "source": st.source, "rate_hz": st.mapping.rate_hz}
                 for n, st in service.states.items()]  # fmt: skip
 
     @app.get("/api/status")
     def status() -> Any:
+        """Rows, latency percentiles, the store, and per machine its counts and last alarm."""
         return to_strict(service.status())
 
     @app.get("/api/model/{machine}")
     def model(machine: str) -> Any:
+        """The machine's model: class, channels, horizon, physics."""
         st = state(machine)
         m = st.twin.model
         return to_strict({"machine": machine, "model": m.name, "class": type(m).__name__,
@@ -203,12 +174,23 @@ def create_app(service: TwinService, token: str | None = None) -> Any:
                           "file": str(st.mapping.model) if st.mapping.model else None})  # fmt: skip
 
     @app.get("/api/alarms")
-    def alarms() -> list[dict[str, Any]]:
-        out = [_event(e) for st in service.states.values() for e in st.alarms]
-        return sorted(out, key=lambda e: e["time"])
+    async def alarms(machine: str | None = None, start: str | None = None,
+                     end: str | None = None, limit: int | None = None) -> Response:  # fmt: skip
+        """Alarms only (fault, its probable cause, sensor fault, sliver chimney), oldest first:
+        the newest ``limit`` (default 200, at most 1000) in ``start .. end`` (epoch seconds or
+        ISO 8601), from the store when the twin has one."""
+        return await api.events(True, machine, start, end, limit)
+
+    @app.get("/api/events")
+    async def events(machine: str | None = None, start: str | None = None,
+                     end: str | None = None, limit: int | None = None) -> Response:  # fmt: skip
+        """The other events (gaps, reconnects, dropped payloads, silent sources, history
+        recovered), as ``/api/alarms``."""
+        return await api.events(False, machine, start, end, limit)
 
     @app.get("/api/kinematics/{machine}")
     def kinematics(machine: str) -> Any:
+        """The operating point at the machine's current set-point."""
         from drafttwin.mechanics import Signal
         from drafttwin.mechanics.kinematics import operating_point
 
@@ -222,22 +204,21 @@ def create_app(service: TwinService, token: str | None = None) -> Any:
                           "slip": op.slip, "roller_rpm": op.roller_rpm})  # fmt: skip
 
     @app.get("/api/history/{machine}")
-    def history(machine: str, seconds: float = 30.0) -> Any:
-        st = state(machine)
-        if not (math.isfinite(seconds) and 0 < seconds <= 3600):
-            raise HTTPException(422, "seconds must be > 0 and <= 3600")
-        rows = list(st.recent)
-        if rows:
-            cut = rows[-1].ts_us - seconds * 1e6
-            rows = [r for r in rows if r.ts_us >= cut]
-        return to_strict({"machine": machine, "channels": list(st.mapping.channels),
-                          "columns": ["time", "seq", "supply_hz", "measured...", "physics...",
-                                      "twin...", "residual..."],
-                          "rows": [_row(r) for r in rows]})  # fmt: skip
+    async def history(machine: str, seconds: float | None = None, start: str | None = None,
+                      end: str | None = None, limit: int | None = None, cursor: str | None = None,
+                      points: int | None = None) -> Response:  # fmt: skip
+        """Samples from the store, its whole range: the newest ``seconds``, or ``start .. end``
+        (epoch seconds or ISO 8601); ``limit`` rows a page (default 5000, at most 10000), the
+        rest from ``cursor`` = the answer's ``next``; ``points`` = N gives min and max per
+        bucket (2N rows) for a long range. Without a store: the rows kept in memory."""
+        if seconds is None and start is None and end is None and cursor is None:
+            seconds = 30.0  # the page's first view
+        return await api.history(machine, seconds, start, end, limit, cursor, points)
 
     @app.get("/metrics")
-    def prometheus() -> Response:
-        return Response(metrics.text(service), media_type="text/plain; version=0.0.4")
+    async def prometheus() -> Response:
+        """Prometheus exposition (read in the event loop: the state does not move meanwhile)."""
+        return Response(metrics.text(), media_type="text/plain; version=0.0.4")
 
     @app.websocket("/ws")
     async def stream(ws: WebSocket) -> None:
@@ -247,16 +228,53 @@ def create_app(service: TwinService, token: str | None = None) -> Any:
         await ws.accept()
         q: asyncio.Queue[str] = asyncio.Queue()
         hub.clients.add(q)
+        send = asyncio.create_task(_send(ws, q))
+        read = asyncio.create_task(_read_bounded(ws))
         try:
-            while True:
-                await ws.send_text(await q.get())
-        except (WebSocketDisconnect, RuntimeError):
-            pass
+            done, _ = await asyncio.wait({send, read}, return_when=asyncio.FIRST_COMPLETED)
+            if read in done and not read.cancelled() and read.exception() is None:
+                closing = read.result()
+                if closing is not None:
+                    with contextlib.suppress(Exception):
+                        await ws.close(code=closing[0], reason=closing[1])
         finally:
             hub.clients.discard(q)
+            for task in (send, read):
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await task
 
     app.state.hub = hub
+    app.state.history = api
     return app
+
+
+async def _send(ws: WebSocket, q: asyncio.Queue[str]) -> None:
+    with contextlib.suppress(WebSocketDisconnect, RuntimeError):
+        while True:
+            await ws.send_text(await q.get())
+
+
+async def _read_bounded(ws: WebSocket) -> tuple[int, str] | None:
+    """Read what the client sends (and drop it): ``None`` when it leaves, or the close code
+    and reason when it sends a message over :data:`WS_IN_MAX_BYTES` or faster than the
+    token bucket allows (:data:`WS_IN_BURST`, then :data:`WS_IN_RATE_HZ`)."""
+    tokens, last = float(WS_IN_BURST), time.monotonic()
+    while True:
+        try:
+            msg = await ws.receive()
+        except (WebSocketDisconnect, RuntimeError):
+            return None
+        if msg["type"] == "websocket.disconnect":
+            return None
+        now = time.monotonic()
+        tokens, last = min(float(WS_IN_BURST), tokens + (now - last) * WS_IN_RATE_HZ), now
+        size = len(msg.get("text") or "") + len(msg.get("bytes") or b"")
+        if size > WS_IN_MAX_BYTES:
+            return 1009, f"message over {WS_IN_MAX_BYTES} bytes"
+        tokens -= 1.0
+        if tokens < 0:
+            return 1008, f"more than {WS_IN_RATE_HZ:g} messages per second"
 
 
 async def _pump(hub: Hub, stop: asyncio.Event) -> None:
@@ -292,6 +310,7 @@ async def serve_with(service: TwinService, bind: tuple[str, int], token: str | N
         await service.run(duration_s=duration_s, max_rows=max_rows)
     finally:
         stop.set()
+        app.state.history.close()
         server.should_exit = True
         start = time.monotonic()
         while not web.done() and time.monotonic() - start < 5:
@@ -302,4 +321,4 @@ async def serve_with(service: TwinService, bind: tuple[str, int], token: str | N
                 await task
 
 
-__all__ = ["Hub", "Metrics", "create_app", "serve_with"]
+__all__ = ["FAULT_KINDS", "LATENCY_BUCKETS", "Hub", "Metrics", "create_app", "guard", "serve_with"]

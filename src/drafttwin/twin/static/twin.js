@@ -1,9 +1,18 @@
-// drafttwin live page: one WebSocket for every machine; uPlot charts of the selected one.
+// drafttwin pages: the live twin (index.html) and the hall (hall.html) share this file.
+// Shared: formatting, the alarm book (active / acknowledged / returned to normal) and banner,
+// the health summary of a machine. Twin page: one WebSocket for every machine, uPlot charts of
+// the selected one on robust scales. Hall page: a tile per machine from /api/hall.
 "use strict";
-const WINDOW_S = 30;
-const token = new URLSearchParams(location.search).get("token");
-const q = token ? "?token=" + encodeURIComponent(token) : "";
-const state = { machines: {}, selected: null, charts: [], alarms: [], updates: 0 };
+const PARAMS = new URLSearchParams(location.search);
+const TOKEN = PARAMS.get("token");
+const RTN_S = Number(PARAMS.get("rtn")) > 0 ? Number(PARAMS.get("rtn")) : 60;  // s without alarm
+const ALARM_KINDS = ["fault", "fault-cause", "sensor-fault", "sliver-chimney"];
+const SPIKE_REL = 0.10;   // the twin's spike rule: 10 % from both neighbours
+const LIVE_KEEP_S = 600;  // live rows kept in the page, s
+const SPANS = [["1 min", 60], ["5 min", 300], ["10 min", 600], ["1 h", 3600], ["6 h", 21600],
+               ["24 h", 86400]];
+const C = { measured: "#6b7280", physics: "#1f6fd1", twin: "#d9480f", spike: "#c2185b",
+            limit: "#b00020", band: "#2e9d5b", setpoint: "#7b3fb5" };
 
 function el(tag, attrs, text) {
   const e = document.createElement(tag);
@@ -11,82 +20,244 @@ function el(tag, attrs, text) {
   if (text !== undefined) e.textContent = text;
   return e;
 }
-
-function fmt(x, d) { return x === null || x === undefined ? "–" : Number(x).toFixed(d); }
-
+function fmt(x, d) { return x === null || x === undefined || !isFinite(x) ? "–" : Number(x).toFixed(d); }
+function withUnit(x, d, unit) { return x === null || x === undefined || !isFinite(x) ? "–" : `${Number(x).toFixed(d)} ${unit}`; }
+// the plant's clock: epoch seconds from a live source (local wall time), a file's own time in replay
+function isEpoch(t) { return t > 1e9; }
+function clock(t, ms) {
+  if (t === null || t === undefined) return "–";
+  if (!isEpoch(t)) return `${t.toFixed(ms ? 2 : 1)} s`;
+  const d = new Date(t * 1000);
+  const s = d.toLocaleTimeString([], { hour12: false });
+  return ms ? `${s}.${String(d.getMilliseconds()).padStart(3, "0")}` : s;
+}
 async function api(path) {
   const url = new URL(path, location.href);
-  if (token) url.searchParams.set("token", token);
+  if (TOKEN) url.searchParams.set("token", TOKEN);
   const r = await fetch(url);
-  if (!r.ok) throw new Error(path + ": " + r.status);
+  if (!r.ok) throw new Error(`${path}: ${r.status}`);
   return r.json();
 }
 
-function buffers(channels) {
-  const k = channels.length;
-  return { channels, t: [], measured: channels.map(() => []), physics: channels.map(() => []),
-           twin: channels.map(() => []), residual: channels.map(() => []), k, last: null };
+// ---- alarms: the latest per machine, its cause, acknowledgement, return to normal ---------
+function causeText(f) {
+  if (!f) return "";
+  const c = f.causes && f.causes[0];
+  if (c) {
+    const sev = c.severity === null || c.severity === undefined ? "" : ` severity ${fmt(c.severity, 3)}`;
+    const p = c.probability === undefined ? "" : ` (p ${fmt(100 * c.probability, 0)} %)`;
+    return `probable cause: ${c.element} ${c.kind}${sev}${p}`;
+  }
+  return f.note ? f.note : "probable cause pending";
+}
+function alarmTitle(a) {
+  const f = a.fault;
+  if (!f) return `${a.kind}: ${a.detail || ""}`;
+  const way = f.direction > 0 ? " up" : f.direction < 0 ? " down" : "";
+  return `${a.kind === "sensor-fault" ? "sensor fault" : "fault"} ${f.test}${way}, onset ${clock(f.onset_s)}`;
+}
+// ack is kept in this browser (the API has no acknowledgement); key: machine and alarm time
+function ackKey(m, t) { return `drafttwin-ack:${m}:${t}`; }
+const book = {
+  alarms: {},  // machine -> {event, fault, time}
+  note(ev) {
+    if (!ALARM_KINDS.includes(ev.kind)) return;
+    const cur = this.alarms[ev.machine];
+    const t = ev.fault && ev.fault.alarm_s !== undefined ? ev.fault.alarm_s : ev.time;
+    if (ev.kind === "fault-cause" && cur && Math.abs(cur.time - t) < 1e-6) {
+      cur.fault = ev.fault; cur.event = ev;  // the cause of the alarm shown: same alarm
+      return;
+    }
+    if (cur && t < cur.time) return;
+    this.alarms[ev.machine] = { event: ev, fault: ev.fault, time: t };
+  },
+  // "active-unack", "active-ack", "rtn-unack" or "normal" at data time `now` (s)
+  state(m, now) {
+    const a = this.alarms[m];
+    if (!a) return "normal";
+    const acked = localStorage.getItem(ackKey(m, a.time)) !== null;
+    const active = now === null || now - a.time < RTN_S;
+    if (active) return acked ? "active-ack" : "active-unack";
+    return acked ? "normal" : "rtn-unack";
+  },
+  ack(m) { const a = this.alarms[m]; if (a) localStorage.setItem(ackKey(m, a.time), "1"); },
+};
+const BANNER = { "active-unack": "ALARM", "active-ack": "ALARM · acknowledged",
+                 "rtn-unack": `returned to normal (no alarm for ${RTN_S} s) · not acknowledged` };
+function banners(now, redraw) {
+  const box = document.getElementById("banner");
+  if (!box) return;
+  const out = [];
+  for (const [m, a] of Object.entries(book.alarms)) {
+    const s = book.state(m, now(m));
+    if (s === "normal") continue;
+    const b = el("div", { class: "banner " + s, "data-machine": m, role: "alert" });
+    b.append(el("b", {}, `${BANNER[s]} · ${m}`), el("span", { class: "what" }, alarmTitle(a.event)),
+             el("span", { class: "cause" }, a.fault ? causeText(a.fault) : ""),
+             el("span", { class: "when" }, `at ${clock(a.time)}`));
+    if (s !== "active-ack") {
+      const btn = el("button", { class: "ack" }, "Acknowledge");
+      btn.onclick = () => { book.ack(m); redraw(); };
+      b.append(btn);
+    }
+    out.push(b);
+  }
+  const html = out.map(b => b.outerHTML).join("");
+  if (box.dataset.shown !== html) { box.replaceChildren(...out); box.dataset.shown = html; }
 }
 
-function push(m, rows) {
-  const b = state.machines[m];
-  if (!b) return;
+// ---- health: live, late samples, data age, p99 latency -------------------------------------
+function health(name, m, p99, age, setpoint) {
+  const t = el("div", { class: "health" });
+  const fresh = age === null || age < 2;
+  t.append(el("span", { class: "state " + (m.state === "live" && fresh ? "ok" : "warn") }, m.state || "?"));
+  if (m.late !== undefined) t.append(el("span", { class: m.late ? "warn" : "" }, `late ${m.late}`));
+  t.append(el("span", { class: "age " + (fresh ? "" : "warn") }, `data age ${withUnit(age, age !== null && age < 10 ? 2 : 0, "s")}`));
+  t.append(el("span", { class: "p99" }, `p99 ${withUnit(p99, 1, "ms")}`));
+  if (setpoint !== undefined) t.append(el("span", {}, `set-point ${withUnit(setpoint, 2, "Hz")}`));
+  return t;
+}
+
+// ---- robust scales -----------------------------------------------------------------------
+function quantile(sorted, q) {
+  if (!sorted.length) return null;
+  const i = Math.min(sorted.length - 1, Math.max(0, Math.round(q * (sorted.length - 1))));
+  return sorted[i];
+}
+// the y range from the 0.5 and 99.5 % quantiles of what is drawn (spikes left out), a margin
+function robustRange(arrays, i0, i1, minSpan) {
+  const v = [];
+  for (const a of arrays) for (let i = i0; i < i1; i++) if (a[i] !== null && isFinite(a[i])) v.push(a[i]);
+  if (!v.length) return [-1, 1];
+  v.sort((x, y) => x - y);
+  const lo = quantile(v, 0.005), hi = quantile(v, 0.995);
+  const pad = Math.max(0.1 * (hi - lo), minSpan / 2);
+  return [lo - pad, hi + pad];
+}
+
+// ---- the twin page -----------------------------------------------------------------------
+const state = { machines: {}, selected: null, charts: [], events: [], updates: 0, status: null,
+                view: { live: true, span: 60, x0: null, x1: null }, history: null };
+window.twinPage = state;
+
+function buffers(channels) {
+  const n = channels.length;
+  const arr = () => channels.map(() => []);
+  return { channels, k: n, t: [], sp: [], meas: arr(), phys: arr(), twin: arr(), res: arr(),
+           spike: arr(), last: null };
+}
+function num(v) { return v === null || v === undefined || !isFinite(v) ? null : v; }
+// the paper's both-neighbours rule: a spike differs by more than SPIKE_REL from the nearest
+// good sample before it and the nearest after it (a level step is followed by its next sample);
+// the newest sample, with none after it yet, by the one before it alone until its next comes
+function neighbour(a, spike, i, step) {
+  for (let k = i + step, n = 0; k >= 0 && k < a.length && n < 5; k += step, n++) {
+    if (a[k] !== null && !(step < 0 && spike[k])) return a[k];
+  }
+  return null;
+}
+function isSpike(a, spike, i) {
+  const v = a[i], p = neighbour(a, spike, i, -1), n = neighbour(a, spike, i, 1);
+  if (v === null || p === null) return false;
+  const tol = SPIKE_REL * Math.max(Math.abs(p), n === null ? 0 : Math.abs(n), 1);
+  return Math.abs(v - p) > tol && (n === null || Math.abs(v - n) > tol);
+}
+function push(b, rows) {
   for (const r of rows) {
-    b.t.push(r[0]);
+    b.t.push(r[0]); b.sp.push(num(r[2]));
     for (let j = 0; j < b.k; j++) {
-      b.measured[j].push(r[3 + j]); b.physics[j].push(r[3 + b.k + j]);
-      b.twin[j].push(r[3 + 2 * b.k + j]); b.residual[j].push(r[3 + 3 * b.k + j]);
+      b.meas[j].push(num(r[3 + j])); b.phys[j].push(num(r[3 + b.k + j]));
+      b.twin[j].push(num(r[3 + 2 * b.k + j])); b.res[j].push(num(r[3 + 3 * b.k + j]));
+      const i = b.t.length - 1;
+      b.spike[j].push(false);
+      if (i >= 1) b.spike[j][i - 1] = isSpike(b.meas[j], b.spike[j], i - 1);
+      b.spike[j][i] = isSpike(b.meas[j], b.spike[j], i);
     }
     b.last = r;
   }
-  const cut = b.t.length ? b.t[b.t.length - 1] - WINDOW_S : 0;
+  const cut = b.t.length ? b.t[b.t.length - 1] - LIVE_KEEP_S : 0;
   let i = 0;
   while (i < b.t.length && b.t[i] < cut) i++;
   if (i > 0) {
-    b.t.splice(0, i);
-    for (const key of ["measured", "physics", "twin", "residual"]) b[key].forEach(a => a.splice(0, i));
+    b.t.splice(0, i); b.sp.splice(0, i);
+    for (const key of ["meas", "phys", "twin", "res", "spike"]) b[key].forEach(a => a.splice(0, i));
   }
 }
+function newest(b) { return b && b.t.length ? b.t[b.t.length - 1] : null; }
+function dataNow(m) {  // the machine's data time now (s): its newest sample
+  const b = state.machines[m];
+  return b ? newest(b) : null;
+}
 
-// an alarm's test and its probable cause (kinds fault, fault-cause, sensor-fault: JSON detail)
-function describe(a) {
-  const f = a.fault;
-  if (!f) return a.detail;
-  const way = f.direction > 0 ? " up" : f.direction < 0 ? " down" : "";
-  let text = `${f.test}${way}, onset ${new Date(f.onset_s * 1000).toISOString().slice(11, 19)}`;
-  if (f.causes && f.causes.length) {
-    text += " · probable cause: " + f.causes.map(c =>
-      `${c.element} ${c.kind} ${fmt(c.severity, 3)} [${fmt(c.interval[0], 3)}, ${fmt(c.interval[1], 3)}] ` +
-      `(p ${fmt(100 * c.probability, 0)} %)`).join("; ");
+function series(label, stroke, unit, extra) {
+  return Object.assign({ label, stroke, width: 1, spanGaps: false,
+                         value: (u, v) => withUnit(v, 1, unit) }, extra || {});
+}
+// a chart whose x and y come from the page (drawPage), with a hook for spike markers
+function chart(b, width, height, list, extra) {
+  const epoch = b.t.length ? isEpoch(b.t[0]) : true;
+  const opts = {
+    width, height, legend: { live: true },
+    scales: { x: { time: epoch, range: () => [state.view.x0, state.view.x1] },
+              y: { range: u => u.yRange || [-1, 1] } },
+    series: [{ label: epoch ? "time" : "record time", value: (u, v) => clock(v, true) }, ...list],
+    axes: [{ values: (u, s) => s.map(v => (epoch ? clock(v, s.length > 1 && s[1] - s[0] < 1) : `${v} s`)) },
+           { size: 64, label: extra.unit, labelSize: 14 }],
+    cursor: { sync: { key: "twin" }, drag: { x: true, y: false, setScale: false } },
+    hooks: { draw: [u => (extra.draw ? extra.draw(u) : null)],
+             setSelect: [u => zoomFromSelect(u)] },
+  };
+  const u = new uPlot(opts, [[], ...list.map(() => [])], null);
+  u.over.ondblclick = () => goLive(state.view.span);
+  return u;
+}
+function zoomFromSelect(u) {
+  if (u.select.width < 4) return;
+  const x0 = u.posToVal(u.select.left, "x"), x1 = u.posToVal(u.select.left + u.select.width, "x");
+  u.setSelect({ left: 0, top: 0, width: 0, height: 0 }, false);
+  Object.assign(state.view, { live: false, x0, x1 });
+  drawPage();
+}
+// spikes off the axis: a triangle at the edge they left by, with their value
+function markSpikes(u, b, j, values) {
+  const ctx = u.ctx, [y0, y1] = u.yRange || [0, 0];
+  const i0 = u.idx0 || 0, i1 = u.idx1 || 0;
+  ctx.save();
+  ctx.fillStyle = C.spike; ctx.font = `${Math.round(10 * devicePixelRatio)}px sans-serif`;
+  ctx.textAlign = "left"; ctx.textBaseline = "alphabetic";
+  let n = 0, labelled = -Infinity;
+  for (let i = i0; i < i1; i++) {
+    if (!b.spike[j][i] || values[i] === null) continue;
+    n++;
+    const x = u.valToPos(b.t[i], "x", true);
+    const up = values[i] > (y0 + y1) / 2;
+    const y = up ? u.bbox.top : u.bbox.top + u.bbox.height, s = 6 * devicePixelRatio;
+    ctx.beginPath();
+    ctx.moveTo(x - s, up ? y + s * 1.6 : y - s * 1.6); ctx.lineTo(x + s, up ? y + s * 1.6 : y - s * 1.6);
+    ctx.lineTo(x, y); ctx.closePath(); ctx.fill();
+    if (x - labelled > 40 * devicePixelRatio) {  // labels that would overlap: the first only
+      ctx.fillText(fmt(values[i], 0), x + s + 2, up ? y + s * 1.6 : y - 2);
+      labelled = x;
+    }
   }
-  if (f.note) text += " · " + f.note;
-  return text;
+  ctx.restore();
+  u.spikesShown = n;
 }
-
-function faulted(name) {
-  return state.alarms.some(a => a.machine === name && (a.fault || a.kind === "sliver-chimney"));
-}
-
-function tiles() {
-  const hall = document.getElementById("hall");
-  hall.replaceChildren();
-  for (const [name, b] of Object.entries(state.machines)) {
-    const t = el("div", { class: "tile " + (b.state || "") + (faulted(name) ? " fault" : "") +
-                                   (name === state.selected ? " sel" : ""),
-                          "data-machine": name });
-    t.append(el("b", {}, name), el("br"));
-    const r = b.last;
-    const res = r ? Math.max(...b.channels.map((_, j) => Math.abs(r[3 + 3 * b.k + j] ?? 0))) : null;
-    t.append(el("span", {}, `${b.state || "?"} · ${fmt(r && r[2], 2)} Hz · |res| ${fmt(res, 1)} rpm`));
-    t.onclick = () => { state.selected = name; build(); };
-    hall.append(t);
+// the residual's limits: the detector's (from /api/model, when it sends them) or a robust band
+function drawLimits(u, lim, label) {
+  if (!lim) return;
+  const ctx = u.ctx;
+  ctx.save();
+  ctx.strokeStyle = label.startsWith("detector") ? C.limit : C.band;
+  ctx.setLineDash([6 * devicePixelRatio, 4 * devicePixelRatio]); ctx.lineWidth = devicePixelRatio;
+  ctx.fillStyle = ctx.strokeStyle; ctx.font = `${Math.round(10 * devicePixelRatio)}px sans-serif`;
+  ctx.textAlign = "left"; ctx.textBaseline = "alphabetic";
+  for (const v of [lim, -lim]) {
+    const y = u.valToPos(v, "y", true);
+    ctx.beginPath(); ctx.moveTo(u.bbox.left, y); ctx.lineTo(u.bbox.left + u.bbox.width, y); ctx.stroke();
   }
-}
-
-function chart(title, series, width) {
-  const opts = { title: "", width, height: 200, scales: { x: { time: false } },
-                 series: [{ label: "s before newest" }, ...series], axes: [{}, { size: 60 }] };
-  return new uPlot(opts, [[], ...series.map(() => [])], null);
+  ctx.fillText(`${label} ±${fmt(lim, 2)} rpm`, u.bbox.left + 4, u.valToPos(lim, "y", true) - 3);
+  ctx.restore();
 }
 
 function build() {
@@ -95,81 +266,242 @@ function build() {
   state.charts = [];
   const b = state.machines[state.selected];
   if (!b) return;
-  const width = Math.max(520, Math.floor(main.clientWidth / 2) - 40);
+  const width = Math.max(520, Math.floor(main.clientWidth / 2) - 36);
   b.channels.forEach((c, j) => {
-    const card = el("div", { class: "card" });
-    const h = el("h2", {}, c + " roller (rpm)");
-    h.append(el("span", { class: "v", id: "value-" + c }, "–"));
-    const u = chart(c, [{ label: "measured", stroke: "#888" }, { label: "physics", stroke: "#4b7bd0" },
-                        { label: "twin", stroke: "#d9480f", width: 2 }], width);
-    card.append(h, u.root);
+    const card = el("div", { class: "card", "data-channel": c });
+    const h = el("h2", {}, `${c} roller`);
+    h.append(el("span", { class: "v", id: "spikes-" + c }, ""));
+    const speed = chart(b, width, 200, [
+      series("measured", C.measured, "rpm"),
+      series("twin", C.twin, "rpm", { width: 2 }),
+      series("physics", C.physics, "rpm", { width: 2, dash: [8, 5] })],  // dashed, on top
+      { unit: "speed, rpm", draw: u => markSpikes(u, b, j, b.meas[j]) });
+    const res = chart(b, width, 120, [series("measured − twin", C.twin, "rpm")],
+      { unit: "residual, rpm", draw: u => { drawLimits(u, u.limit, u.limitLabel); markSpikes(u, b, j, b.res[j]); } });
+    card.append(h, speed.root, res.root);
     main.append(card);
-    state.charts.push({ u, draw: x => u.setData([x, b.measured[j], b.physics[j], b.twin[j]]) });
+    state.charts.push({ kind: "speed", channel: c, u: speed, j }, { kind: "residual", channel: c, u: res, j });
   });
-  const card = el("div", { class: "card" });
-  card.append(el("h2", {}, "residuals: measured − twin (rpm)"));
-  const colours = ["#d9480f", "#2e9d5b", "#4b7bd0", "#8a4bd0"];
-  const u = chart("residual", b.channels.map((c, j) => ({ label: c, stroke: colours[j % 4] })), width);
-  card.append(u.root);
-  main.append(card);
-  state.charts.push({ u, draw: x => u.setData([x, ...b.residual]) });
-  const al = el("div", { class: "card" });
-  al.append(el("h2", {}, "alarms and events"), el("div", { id: "alarms" }));
-  main.append(al);
+  const sp = el("div", { class: "card" });
+  sp.append(el("h2", {}, "set-point (motor supply)"));
+  const u = chart(b, width, 120, [series("set-point", C.setpoint, "Hz", { width: 2 })], { unit: "supply, Hz" });
+  sp.append(u.root);
+  main.append(sp);
+  state.charts.push({ kind: "setpoint", u });
+  const ev = el("div", { class: "card" });
+  ev.append(el("h2", {}, "alarms and events"), el("div", { id: "events" }));
+  main.append(ev);
+  drawPage();
+}
+
+// the rows shown: live (the buffer's last span) or a range (history from the store, or a zoom)
+function shown(b) {
+  const h = state.history;
+  if (!state.view.live && h && h.machine === state.selected && state.view.x0 < (b.t[0] ?? Infinity)) return h.buf;
+  return b;
+}
+function drawPage() {
+  const live = state.machines[state.selected];
+  if (!live) return;
+  if (state.view.live) {
+    const t1 = newest(live) ?? 0;
+    const t0 = live.t.length ? live.t[0] : t1;  // the window grows until it is full
+    Object.assign(state.view, { x0: Math.max(t1 - state.view.span, Math.min(t0, t1 - 1)), x1: t1 });
+  }
+  const b = shown(live);
+  let i0 = 0;
+  while (i0 < b.t.length && b.t[i0] < state.view.x0) i0++;
+  let i1 = i0;
+  while (i1 < b.t.length && b.t[i1] <= state.view.x1) i1++;
+  for (const c of state.charts) {
+    const u = c.u, j = c.j;
+    u.idx0 = i0; u.idx1 = i1;
+    let data;
+    if (c.kind === "speed") {
+      const clean = b.meas[j].map((v, i) => (b.spike[j][i] ? null : v));
+      u.yRange = robustRange([clean, b.phys[j], b.twin[j]], i0, i1, 2);
+      data = [b.t, clean, b.twin[j], b.phys[j]];
+      const n = b.spike[j].slice(i0, i1).filter(Boolean).length;
+      const s = document.getElementById("spikes-" + c.channel);
+      if (s) s.textContent = n ? `${n} spike(s) marked ▲▼, off the axis` : "";
+    } else if (c.kind === "residual") {
+      const clean = b.res[j].map((v, i) => (b.spike[j][i] ? null : v));
+      const [lim, label] = limitOf(c.channel, clean, i0, i1);
+      const [lo, hi] = robustRange([clean], i0, i1, 1);
+      const half = Math.max(Math.abs(lo), Math.abs(hi), lim ? 1.25 * lim : 0, 0.5);
+      u.yRange = [-half, half]; u.limit = lim; u.limitLabel = label;
+      data = [b.t, clean];
+    } else {
+      u.yRange = robustRange([b.sp], i0, i1, 0.5);
+      data = [b.t, b.sp];
+    }
+    u.setData(data);
+    if (u.cursor.left === undefined || u.cursor.left < 0) u.setLegend({ idx: lastComplete(data, i0, i1) });
+  }
+  drawEvents();
   tiles();
-  draw();
+}
+// the legend off the cursor: the newest row in which every line has a value (the newest
+// itself may be a rejected spike, whose measured value is none)
+function lastComplete(data, i0, i1) {
+  for (let i = i1 - 1; i >= Math.max(i0, i1 - 200); i--) {
+    if (data.slice(1).every(col => col[i] !== null && col[i] !== undefined && isFinite(col[i]))) return i;
+  }
+  return i1 > i0 ? i1 - 1 : null;
+}
+function limitOf(channel, clean, i0, i1) {
+  const det = state.limits && state.limits[channel];
+  if (det) return [det, "detector limit"];
+  // no detector limits from the API: 4 standard deviations of the window's residual, trimmed
+  // to its 1-99 % quantiles (encoder counts are quantised: a MAD is often 0)
+  const v = clean.slice(i0, i1).filter(x => x !== null).sort((x, y) => x - y);
+  if (v.length < 20) return [null, ""];
+  const lo = quantile(v, 0.01), hi = quantile(v, 0.99);
+  const kept = v.filter(x => x >= lo && x <= hi);
+  const mean = kept.reduce((a, x) => a + x, 0) / kept.length;
+  const sd = Math.sqrt(kept.reduce((a, x) => a + (x - mean) ** 2, 0) / Math.max(1, kept.length - 1));
+  return [Math.max(4 * sd, 0.05), "4σ band of the window"];
 }
 
-function draw() {
-  const b = state.machines[state.selected];
-  if (!b) return;
-  // x: seconds before the newest sample (epoch or replay times alike read as "0 = now")
-  const newest = b.t.length ? b.t[b.t.length - 1] : 0;
-  const x = b.t.map(v => v - newest);
-  state.charts.forEach(c => c.draw(x));
-  if (b.last) {
-    b.channels.forEach((c, j) => {
-      const v = document.getElementById("value-" + c);
-      if (v) v.textContent = `measured ${fmt(b.last[3 + j], 1)} · twin ${fmt(b.last[3 + 2 * b.k + j], 1)}`;
-    });
-  }
-  const box = document.getElementById("alarms");
+function drawEvents() {
+  const box = document.getElementById("events");
   if (box) {
-    box.replaceChildren(...state.alarms.slice(-100).reverse().map(a =>
-      el("div", { class: a.fault || a.kind === "sliver-chimney" ? "fault" : "" },
-         `${new Date(a.time * 1000).toISOString().slice(11, 23)} ${a.machine} ${a.kind}: ${describe(a)}`)));
+    box.replaceChildren(...state.events.slice(-100).reverse().map(a =>
+      el("div", { class: ALARM_KINDS.includes(a.kind) ? "alarm" : "" },
+         `${clock(a.time)} ${a.machine} ${ALARM_KINDS.includes(a.kind) ? alarmTitle(a) : a.kind + ": " + a.detail}` +
+         (a.fault && a.kind !== "fault" ? " · " + causeText(a.fault) : ""))));
+  }
+  banners(dataNow, drawPage);
+}
+
+// a tile per machine, made once and updated in place (a click must not land on a replaced one)
+function tiles() {
+  const hall = document.getElementById("hall");
+  const s = state.status;
+  for (const [name, b] of Object.entries(state.machines)) {
+    let t = hall.querySelector(`.tile[data-machine="${CSS.escape(name)}"]`);
+    if (!t) {
+      t = el("div", { "data-machine": name });
+      t.append(el("b", {}, name), el("div"));
+      t.onclick = () => { state.selected = name; state.history = null; build(); };
+      hall.append(t);
+    }
+    const m = (s && s.machines[name]) || { state: b.state };
+    const n = newest(b);
+    const age = typeof m.data_age_s === "number" ? m.data_age_s : n !== null && isEpoch(n) ? Date.now() / 1000 - n : null;
+    const p99 = m.latency_ms ? m.latency_ms.p99 : s && s.latency_ms ? s.latency_ms.p99 : null;
+    t.className = `tile ${m.state || ""} alarm-${book.state(name, dataNow(name))}` + (name === state.selected ? " sel" : "");
+    t.lastChild.replaceWith(health(name, m, p99, age, b.last ? num(b.last[2]) : undefined));
   }
 }
 
-async function start() {
+// a machine's rows from the history API, every page of the answer (its `next` cursor)
+async function historyRows(m, query) {
+  const rows = [], path = `api/history/${encodeURIComponent(m)}?${query}`;
+  let h = await api(path);
+  rows.push(...h.rows);
+  for (let page = 1; h.next && page < 20; page++) {
+    h = await api(`${path}&cursor=${encodeURIComponent(h.next)}`);
+    rows.push(...h.rows);
+  }
+  return rows;
+}
+async function loadRange(span) {
+  const m = state.selected, b = state.machines[m];
+  const end = newest(b) ?? Date.now() / 1000, start = end - span;
+  const rows = await historyRows(m, `start=${start}&end=${end}&points=2000`);
+  const buf = buffers(b.channels);
+  push(buf, rows.filter(r => r[0] >= start));
+  state.history = { machine: m, buf };
+  Object.assign(state.view, { live: false, x0: start, x1: end });
+  drawPage();
+}
+function goLive(span) {
+  Object.assign(state.view, { live: true, span });
+  state.history = null;
+  drawPage();
+}
+function controls() {
+  const box = document.getElementById("range");
+  SPANS.forEach(([label, s]) => {
+    const btn = el("button", { "data-span": s }, label);
+    btn.onclick = () => (s <= LIVE_KEEP_S ? goLive(s) : loadRange(s).catch(e => status(String(e))));
+    box.append(btn);
+  });
+  box.append(el("span", { class: "hint" }, "drag on a chart to zoom, double-click for live"));
+}
+function status(text) { document.getElementById("status").textContent = text; }
+
+async function startTwin() {
   const list = await api("api/machines");
   for (const m of list) {
     state.machines[m.machine] = Object.assign(buffers(m.channels), { state: m.state });
-    const h = await api("api/history/" + encodeURIComponent(m.machine) + "?seconds=" + WINDOW_S);
-    push(m.machine, h.rows);
+    push(state.machines[m.machine], await historyRows(m.machine, "seconds=60"));
   }
-  state.alarms = await api("api/alarms");
+  const alarms = await api("api/alarms");
+  alarms.forEach(a => book.note(a));
+  const others = await api("api/events").catch(() => []);  // an older twin: alarms held all
+  state.events = [...alarms, ...others.filter(e => !ALARM_KINDS.includes(e.kind))].sort((a, b) => a.time - b.time);
+  // the detector's residual limits, rpm per channel, when the API sends them (else a 4σ band)
+  const model = list.length ? await api("api/model/" + encodeURIComponent(list[0].machine)).catch(() => ({})) : {};
+  state.limits = model.residual_limits_rpm || null;
   state.selected = list.length ? list[0].machine : null;
+  controls();
   build();
   const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host +
-                           location.pathname.replace(/[^/]*$/, "") + "ws" + q);
+                           location.pathname.replace(/[^/]*$/, "") + "ws" + (TOKEN ? "?token=" + encodeURIComponent(TOKEN) : ""));
   ws.onmessage = ev => {
     const msg = JSON.parse(ev.data);
-    for (const [m, rows] of Object.entries(msg.rows)) push(m, rows);
-    state.alarms.push(...msg.events);
+    for (const [m, rows] of Object.entries(msg.rows)) if (state.machines[m]) push(state.machines[m], rows);
+    for (const e of msg.events) { book.note(e); state.events.push(e); }
     state.updates++;
   };
-  ws.onclose = () => { document.getElementById("status").textContent = "disconnected"; };
-  setInterval(draw, 100);
-  setInterval(async () => {
+  ws.onclose = () => status("disconnected");
+  setInterval(drawPage, 250);
+  const poll = async () => {
     try {
       const s = await api("api/status");
+      state.status = s;
       for (const [m, st] of Object.entries(s.machines)) if (state.machines[m]) state.machines[m].state = st.state;
-      const lat = s.latency_ms;
-      document.getElementById("status").textContent =
-        `${Object.keys(s.machines).length} machine(s) · ${s.rows} samples · p99 ${fmt(lat.p99, 1)} ms · updates ${state.updates}`;
-      tiles();
-    } catch (e) { document.getElementById("status").textContent = String(e); }
-  }, 1000);
+      status(`${Object.keys(s.machines).length} machine(s) · ${s.rows} samples · p99 ${withUnit(s.latency_ms.p99, 1, "ms")} (all machines)`);
+    } catch (e) { status(String(e)); }
+  };
+  poll(); setInterval(poll, 1000);
 }
-start();
+
+// ---- the hall page -----------------------------------------------------------------------
+const hallState = { hall: null };
+async function drawHall() {
+  const h = await api("api/hall");
+  hallState.hall = h;
+  const root = document.getElementById("hall");
+  root.replaceChildren();
+  let machines = 0, alarms = 0;
+  const now = () => h.updated;  // the hall's status time (wall clock) stands for data time
+  for (const s of h.shards) {
+    const p99 = s.latency_ms ? s.latency_ms.p99 : null;
+    root.append(el("h2", {}, `shard ${s.shard}: ${s.state} · ${s.rows ?? 0} samples · p99 ${withUnit(p99, 1, "ms")}`));
+    const box = el("div", { class: "shard" });
+    for (const [name, m] of Object.entries(s.machines)) {
+      machines++;
+      if (m.last_fault) book.note({ machine: name, kind: m.last_fault.kind, time: m.last_fault.time, fault: m.last_fault });
+      const a = book.state(name, isEpoch(h.updated) && m.last_fault && isEpoch(m.last_fault.time) ? h.updated : null);
+      if (a !== "normal") alarms++;
+      const t = el("div", { class: `tile ${m.state} alarm-${a}`, "data-machine": name });
+      const age = typeof m.data_age_s === "number" ? m.data_age_s : null;
+      t.append(el("b", {}, name), health(name, m, m.latency_ms ? m.latency_ms.p99 : p99, age),
+               el("span", { class: "count" }, `${m.processed ?? 0} samples · ${m.fault_alarms ?? 0} alarm(s)`));
+      if (m.last_fault) t.append(el("span", { class: "cause" }, causeText(m.last_fault)));
+      box.append(t);
+    }
+    root.append(box);
+  }
+  banners(m => (book.alarms[m] && isEpoch(book.alarms[m].time) ? now() : null), () => drawHall());
+  status(`· ${machines} machine(s) · ${alarms} with alarms · updated ${clock(h.updated)}`);
+}
+function startHall() {
+  const tick = () => drawHall().catch(() => status("· disconnected"));
+  tick(); setInterval(tick, 1000);
+}
+
+if (document.body.dataset.page === "hall") startHall(); else startTwin();

@@ -2,8 +2,9 @@
 
 A twin's store is only as good as what it can be checked against. ``plant serve --log FILE``
 records each sample as it goes out (machine, counter, time, values, set-point and the wall
-time it was published), so that :func:`drafttwin.twin.audit.audit` can count, sample by sample,
-what a twin stored, what it lost, and what it stored twice.
+time it was published), so that ``drafttwin twin audit`` can count, sample by sample,
+what a twin stored, what it lost, and what it stored twice. ``lag_s`` says how late each sample went out (the
+wall time it was handed to the transport minus its own time; docs/twin.md, "Keeping time").
 
 The file is written in row groups to a temporary name beside the target and renamed onto it
 when the plant stops (:func:`drafttwin._io.atomic_path`): a reader sees the whole log or none,
@@ -22,12 +23,13 @@ from typing import Any
 import numpy as np
 
 from drafttwin.errors import ConfigError
-from drafttwin.plant.live import LiveSample
 
 COLUMNS = ("machine", "seq", "ts_us", "time", "front", "second", "third", "back", "motor",
            "supply_hz", "published")  # fmt: skip
-"""Columns of a plant log; ``ts_us`` is the sample time in µs as a twin stores it,
+"""Columns every plant log has; ``ts_us`` is the sample time in µs as a twin stores it,
 ``published`` the wall time (s since the epoch) the plant handed the sample to the transport."""
+WRITTEN = (*COLUMNS, "lag_s")
+"""Columns written: also ``lag_s`` = published - time, s (logs of older versions lack it)."""
 ROW_GROUP = 2000
 """Samples buffered before they are written (20 s of one machine at 100 Hz)."""
 
@@ -46,12 +48,13 @@ class PlantLog:
         self.path, self.rows = path, 0
         self._ctx = atomic_path(path)
         self._tmp = self._ctx.__enter__()
-        self._buf: dict[str, list[Any]] = {c: [] for c in COLUMNS}
+        self._buf: dict[str, list[Any]] = {c: [] for c in WRITTEN}
         self._writer: Any = None
         self._parquet = suffix == ".parquet"
 
-    def add(self, machine: str, s: LiveSample) -> None:
-        """Record one sample, just after it was published."""
+    def add(self, machine: str, s: Any) -> None:
+        """Record one sample (a :class:`drafttwin.plant.live.LiveSample`: ``seq``, ``time_s``,
+        ``rollers_rpm``, ...), just after it was published."""
         b = self._buf
         b["machine"].append(machine)
         b["seq"].append(s.seq)
@@ -61,7 +64,9 @@ class PlantLog:
             b[col].append(float(v))
         b["motor"].append(float(s.motor_rpm))
         b["supply_hz"].append(float(s.supply_hz))
-        b["published"].append(time.time())
+        now = time.time()
+        b["published"].append(now)
+        b["lag_s"].append(now - s.time_s)
         self.rows += 1
         if len(b["seq"]) >= ROW_GROUP:
             self._write()
@@ -72,11 +77,11 @@ class PlantLog:
         if not self._buf["seq"]:
             return
         schema = _schema()
-        table = pa.table({c: pa.array(self._buf[c], schema.field(c).type) for c in COLUMNS})
+        table = pa.table({c: pa.array(self._buf[c], schema.field(c).type) for c in WRITTEN})
         if self._writer is None:
             self._open(schema)
         self._writer.write_table(table)
-        self._buf = {c: [] for c in COLUMNS}
+        self._buf = {c: [] for c in WRITTEN}
 
     def _open(self, schema: Any) -> None:
         if self._parquet:
@@ -138,7 +143,7 @@ def _schema() -> Any:
             pa.string() if c == "machine" else pa.int64() if c in ("seq", "ts_us") else pa.float64()
         )
 
-    return pa.schema([(c, kind(c)) for c in COLUMNS])
+    return pa.schema([(c, kind(c)) for c in WRITTEN])
 
 
 def read_plant_log(path: Path) -> Any:
@@ -173,4 +178,4 @@ def read_plant_log(path: Path) -> Any:
     return frame
 
 
-__all__ = ["COLUMNS", "PlantLog", "open_plant_log", "read_plant_log"]
+__all__ = ["WRITTEN", "COLUMNS", "PlantLog", "open_plant_log", "read_plant_log"]

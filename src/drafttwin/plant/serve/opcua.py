@@ -1,0 +1,329 @@
+"""``drafttwin plant serve --opcua``: live plants published as an OPC UA server (asyncua).
+
+Address space (namespace ``urn:drafttwin:plant``, index 2; docs/twin.md, "The plant's OPC UA
+address space")::
+
+    Objects/Machines/NAME/                 one object per machine (OPC 40001 Machinery style)
+        Identification/                    Manufacturer, Model, SerialNumber, ProductInstanceUri,
+                                           SoftwareRevision, ComponentName
+        MachineryBuildingBlocks/MachineryItemState/CurrentState    Executing | NotExecuting
+        sample          ns=2;s=NAME.sample Double[8]: seq, time, front, second, third, back,
+                                           motor, supply_hz (ArrayDimensions [8]; FieldNames,
+                                           FieldUnits properties)
+        front_rpm ... back_rpm, motor_rpm, supply_hz     AnalogItemType: EngineeringUnits
+                                           (UNECE), EURange, ValuePrecision
+        supply_setpoint_hz                 AnalogItemType, writable: the VFD set-point
+        lag_s                              AnalogItemType: how late the last sample went out
+
+Every value of one tick carries the sample's own time as SourceTimestamp. The twin subscribes
+to ``sample`` (one notification per tick carrying the whole row and its counter); the scalars
+are for people and SCADA clients. A written set-point is checked (a number from 0 to 120 Hz)
+and applied at the next tick; anything else is refused and the node is set back.
+
+The node layout follows OPC 40001-1 (Machinery) where it applies, with browse names of its
+namespace's meaning but in this server's namespace: the Machinery and DI nodesets are not
+loaded (asyncua ships neither), so the objects are typed BaseObjectType, not
+MachineIdentificationType / MachineryItemState_StateMachineType.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import logging
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from drafttwin.errors import ConfigError
+from drafttwin.plant.faults import FaultSpec
+from drafttwin.plant.live import MAX_SUPPLY_HZ, LivePlant, LiveSample
+from drafttwin.plant.serve.channels import as_published, plant_channels, values_of
+from drafttwin.plant.serve.pacing import Pacing, catch_up
+from drafttwin.wire.certs import SERVER_URI
+from drafttwin.wire.conventions import (
+    HERTZ,
+    SAMPLE_FIELDS,
+    SECOND,
+    UNECE_NAMESPACE,
+    UNITLESS,
+    Channel,
+    utc,
+)
+
+NAMESPACE = "urn:drafttwin:plant"
+SCALARS = ("front_rpm", "second_rpm", "third_rpm", "back_rpm", "motor_rpm", "supply_hz")
+PRODUCT_URI = "urn:drafttwin:plant"
+MANUFACTURER = "drafttwin"
+MODEL = "FA320A drawing frame (emulated)"
+
+
+@dataclass
+class ServedMachine:
+    name: str
+    plant: LivePlant
+    sample_node: Any
+    setpoint_node: Any
+    scalars: list[Any]
+    last_setpoint: float
+    state_node: Any
+    lag_node: Any
+    channels: tuple[Channel, ...]
+    refused: int = 0
+    executing: bool | None = None
+
+
+def parse_opcua_url(text: str) -> tuple[str, int]:
+    if not text.startswith("opc.tcp://"):
+        raise ConfigError(f"bad OPC UA address {text!r}", where="--opcua",
+                          fix="write opc.tcp://127.0.0.1:4840")  # fmt: skip
+    host, _, port = text.removeprefix("opc.tcp://").rstrip("/").rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"bad OPC UA address {text!r}", where="--opcua",
+                          fix="write opc.tcp://HOST:PORT, e.g. opc.tcp://127.0.0.1:4840")  # fmt: skip
+    return host, int(port)
+
+
+async def analog_item(parent: Any, idx: int, node_id: str, name: str, value: float,
+                      unit: Any, eu_range: tuple[float, float], description: str,
+                      decimals: int | None = None) -> Any:  # fmt: skip
+    """An AnalogItemType variable (OPC UA Part 8 §5.3.2.2) of Double under ``parent``: EURange
+    (mandatory), EngineeringUnits (UNECE ``unit``), ValuePrecision (``decimals``), a
+    description. Instantiated from the type, so clients see TypeDefinition AnalogItemType."""
+    from asyncua import Node, ua
+    from asyncua.common.instantiate_util import instantiate
+
+    kind = Node(parent.session, _ns0(ua.ObjectIds.AnalogItemType))
+    log = logging.getLogger("asyncua.common.copy_node_util")
+    level = log.level
+    log.setLevel(logging.ERROR)  # it warns of attributes a type has no value for
+    try:
+        var, *_ = await instantiate(parent, kind, _nid(idx, node_id), f"{idx}:{name}",
+                                    ua.LocalizedText(name), instantiate_optional=False)  # fmt: skip
+    finally:
+        log.setLevel(level)
+    await var.write_attribute(ua.AttributeIds.DataType,
+                              ua.DataValue(ua.Variant(_ns0(ua.ObjectIds.Double))))  # fmt: skip
+    await var.write_attribute(ua.AttributeIds.ValueRank, ua.DataValue(ua.Variant(-1, ua.VariantType.Int32)))  # fmt: skip
+    await var.write_value(ua.Variant(float(value), ua.VariantType.Double))
+    await _describe(var, description)
+    rng = await var.get_child(["0:EURange"])
+    await rng.write_value(ua.Range(Low=float(eu_range[0]), High=float(eu_range[1])))
+    eu = ua.EUInformation(NamespaceUri=UNECE_NAMESPACE, UnitId=unit.unit_id,
+                          DisplayName=ua.LocalizedText(unit.symbol),
+                          Description=ua.LocalizedText(unit.name))  # fmt: skip
+    await var.add_property(_nid(idx, f"{node_id}.EngineeringUnits"), "0:EngineeringUnits", eu,
+                           datatype=_ns0(ua.ObjectIds.EUInformation))  # fmt: skip
+    if decimals is not None:
+        await var.add_property(_nid(idx, f"{node_id}.ValuePrecision"), "0:ValuePrecision",
+                               float(decimals), varianttype=ua.VariantType.Double)  # fmt: skip
+    return var
+
+
+async def _identification(obj: Any, idx: int, name: str, seed: int) -> None:
+    """OPC 40001-1 §8 identification (the mandatory Manufacturer, SerialNumber and
+    ProductInstanceUri, and Model, SoftwareRevision, ComponentName)."""
+    from asyncua import ua
+
+    from drafttwin._constants import __version__
+
+    ident = await obj.add_object(_nid(idx, f"{name}.Identification"), f"{idx}:Identification")
+    props: list[tuple[str, Any, Any]] = [
+        ("Manufacturer", ua.LocalizedText(MANUFACTURER), ua.VariantType.LocalizedText),
+        ("Model", ua.LocalizedText(MODEL), ua.VariantType.LocalizedText),
+        ("SerialNumber", f"{name}-seed-{seed}", ua.VariantType.String),
+        ("ProductInstanceUri", f"{PRODUCT_URI}:{name}", ua.VariantType.String),
+        ("SoftwareRevision", __version__, ua.VariantType.String),
+        ("ComponentName", ua.LocalizedText(name), ua.VariantType.LocalizedText),
+    ]
+    for prop, value, vtype in props:
+        await ident.add_property(_nid(idx, f"{name}.Identification.{prop}"), f"{idx}:{prop}",
+                                 value, varianttype=vtype)  # fmt: skip
+
+
+async def _add_machine(server: Any, idx: int, parent: Any, name: str, plant: LivePlant,
+                       seed: int) -> ServedMachine:  # fmt: skip
+    from asyncua import ua
+
+    channels = plant_channels(plant)
+    obj = await parent.add_object(_nid(idx, name), f"{idx}:{name}")
+    await _describe(obj, f"{MODEL} {name}, live (drafttwin plant serve)")
+    await _identification(obj, idx, name, seed)
+    blocks = await obj.add_object(_nid(idx, f"{name}.MachineryBuildingBlocks"),
+                                  f"{idx}:MachineryBuildingBlocks")  # fmt: skip
+    item_state = await blocks.add_object(_nid(idx, f"{name}.MachineryItemState"),
+                                         f"{idx}:MachineryItemState")  # fmt: skip
+    state = await item_state.add_variable(_nid(idx, f"{name}.MachineryItemState.CurrentState"),
+                                          f"{idx}:CurrentState", ua.LocalizedText("NotExecuting"))  # fmt: skip
+    sample = await obj.add_variable(_nid(idx, f"{name}.sample"), f"{idx}:sample",
+                                    [0.0] * len(SAMPLE_FIELDS), varianttype=ua.VariantType.Double)  # fmt: skip
+    await sample.write_array_dimensions([len(SAMPLE_FIELDS)])
+    await sample.write_value_rank(1)
+    await _describe(sample, "one sample: " + ", ".join(SAMPLE_FIELDS) + " (time: epoch s)")
+    units = {c.name: c.unit.symbol for c in channels} | {"seq": UNITLESS.symbol, "time": "s"}
+    await sample.add_property(_nid(idx, f"{name}.sample.FieldNames"), f"{idx}:FieldNames",
+                              list(SAMPLE_FIELDS), varianttype=ua.VariantType.String)  # fmt: skip
+    await sample.add_property(_nid(idx, f"{name}.sample.FieldUnits"), f"{idx}:FieldUnits",
+                              [units[f] for f in SAMPLE_FIELDS], varianttype=ua.VariantType.String)  # fmt: skip
+    scalars = [await analog_item(obj, idx, f"{name}.{s}", s, 0.0, c.unit, c.eu_range,
+                                 c.description, c.decimals)
+               for s, c in zip(SCALARS, channels, strict=True)]  # fmt: skip
+    sp = await analog_item(obj, idx, f"{name}.supply_setpoint_hz", "supply_setpoint_hz",
+                           plant.target_hz, HERTZ, (0.0, MAX_SUPPLY_HZ),
+                           "VFD supply set-point (write to change the speed)", 2)  # fmt: skip
+    await sp.set_writable()
+    lag = await analog_item(obj, idx, f"{name}.lag_s", "lag_s", 0.0, SECOND, (0.0, 10.0),
+                            "how late the last sample went out: wall clock minus its time")  # fmt: skip
+    return ServedMachine(name, plant, sample, sp, scalars, plant.target_hz, state, lag, channels)
+
+
+async def _identify_server(server: Any, secure: bool) -> None:
+    """The server's own identity: application URI, product URI, name, manufacturer, build."""
+    from drafttwin._constants import __version__
+
+    if not secure:  # secure_server sets the URI its certificate names
+        await server.set_application_uri(SERVER_URI)
+    await server.set_build_info(PRODUCT_URI, MANUFACTURER, "drafttwin plant", __version__,
+                                __version__, dt.datetime.now(dt.UTC))  # fmt: skip
+
+
+async def serve_opcua(
+    url: str,
+    names: list[str],
+    *,
+    seed: int = 0,
+    rate_hz: float = 100.0,
+    physics: str = "full",
+    ramp_hz_per_s: float = 10.0,
+    duration_s: float | None = None,
+    scalar_nodes: bool = True,
+    on_sample: Callable[[str, LiveSample], None] | None = None,
+    ready: Callable[[], None] | None = None,
+    cert_dir: Path | None = None,
+    history_s: float = 0.0,
+    faults: Sequence[FaultSpec] = (),
+    pacing: Pacing | None = None,
+) -> dict[str, int]:
+    """Serve ``names`` live plants at ``url`` until ``duration_s`` (or cancelled); returns
+    the samples published per machine. With ``history_s`` the server keeps each machine's
+    samples of the last ``history_s`` seconds for OPC UA HistoryRead (in memory), so that a
+    restarted twin recovers what was published while it was down. ``pacing`` keeps the wall
+    clock and records lateness (a default one when ``None``)."""
+    from asyncua import Server, ua
+
+    host, port = parse_opcua_url(url)
+    server = Server()
+    server.name, server.manufacturer_name, server.product_uri = (
+        "drafttwin plant", MANUFACTURER, PRODUCT_URI)  # fmt: skip
+    await server.init()
+    server.set_endpoint(f"opc.tcp://{host}:{port}/")
+    server.set_server_name("drafttwin plant")
+    if cert_dir is None:
+        server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
+    else:
+        from drafttwin.wire.certs import secure_server
+
+        await secure_server(server, cert_dir)
+    await _identify_server(server, cert_dir is not None)
+    idx = await server.register_namespace(NAMESPACE)
+    if idx != 2:
+        raise RuntimeError(f"namespace index {idx}, expected 2")
+    folder = await server.nodes.objects.add_folder(_nid(idx, "Machines"), f"{idx}:Machines")
+    machines = []
+    for k, name in enumerate(names):
+        plant = LivePlant(
+            seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s, faults=faults
+        )
+        machines.append(await _add_machine(server, idx, folder, name, plant, seed + k))
+    pacing = pacing if pacing is not None else Pacing(rate_hz)
+    async with server:
+        if history_s > 0:
+            period = dt.timedelta(seconds=history_s)
+            for m in machines:
+                await server.historize_node_data_change(m.sample_node, period=period)
+        t0 = pacing.start()  # the clocks start when the machines run, not while they were built
+        for m in machines:
+            m.plant.t0_s = t0
+        if ready is not None:
+            ready()
+        return await _tick(machines, pacing, duration_s, scalar_nodes, on_sample)
+
+
+async def _tick(machines: list[ServedMachine], pacing: Pacing, duration_s: float | None,
+                scalar_nodes: bool, on_sample: Callable[[str, LiveSample], None] | None) -> dict[str, int]:  # fmt: skip
+    """Step every plant at its sample instants (wall clock), publish, apply set-points."""
+    end = None if duration_s is None else round(duration_s * pacing.rate_hz)
+    pacing.end_tick = end
+    while end is None or pacing.tick < end:
+        skip = await pacing.next_tick()
+        t_s = 0.0
+        await catch_up([m.plant for m in machines], skip, pacing.rate_hz)
+        for m in machines:
+            await _apply_setpoint(m)
+            s = as_published(m.plant.step(), m.channels)
+            t_s = s.time_s
+            await _publish(m, s, scalar_nodes)
+            if on_sample is not None:
+                on_sample(m.name, s)
+        lag = pacing.published(t_s)
+        if skip or pacing.tick % max(1, round(pacing.rate_hz)) == 0:  # once a second
+            for m in machines:
+                await m.lag_node.write_value(round(lag, 4))
+    return {m.name: m.plant.seq for m in machines}
+
+
+async def _publish(m: ServedMachine, s: LiveSample, scalar_nodes: bool) -> None:
+    """Write one sample: the array and (optionally) the scalars, all stamped with its time."""
+    from asyncua import ua
+
+    stamp: Any = utc(s.time_s)  # asyncua's stubs name their own DateTime alias
+    row = [float(s.seq), s.time_s, *map(float, s.rollers_rpm), s.motor_rpm, s.supply_hz]
+    await m.sample_node.write_value(ua.DataValue(ua.Variant(row, ua.VariantType.Double),
+                                                 SourceTimestamp=stamp))  # fmt: skip
+    if scalar_nodes:
+        for node, v in zip(m.scalars, values_of(s).values(), strict=True):
+            await node.write_value(ua.DataValue(ua.Variant(v, ua.VariantType.Double),
+                                                SourceTimestamp=stamp))  # fmt: skip
+    executing = s.supply_hz > 0.0
+    if executing != m.executing:
+        m.executing = executing
+        await m.state_node.write_value(ua.DataValue(ua.Variant(ua.LocalizedText(
+            "Executing" if executing else "NotExecuting")), SourceTimestamp=stamp))  # fmt: skip
+
+
+async def _apply_setpoint(m: ServedMachine) -> None:
+    value = await m.setpoint_node.read_value()
+    if value == m.last_setpoint:
+        return
+    try:
+        m.plant.set_supply(float(value))
+        m.last_setpoint = value
+    except (ConfigError, TypeError, ValueError):
+        m.refused += 1
+        with contextlib.suppress(Exception):
+            await m.setpoint_node.write_value(float(m.last_setpoint))
+
+
+async def _describe(node: Any, text: str) -> None:
+    from asyncua import ua
+
+    value = ua.DataValue(ua.Variant(ua.LocalizedText(text)))
+    await node.write_attribute(ua.AttributeIds.Description, value)
+
+
+def _ns0(i: int) -> Any:
+    """A node of namespace 0 (the OPC UA standard's)."""
+    from asyncua import ua
+
+    return ua.NodeId.from_string(f"i={i}")
+
+
+def _nid(idx: int, name: str) -> Any:
+    from asyncua import ua
+
+    return ua.NodeId.from_string(f"ns={idx};s={name}")
+
+
+__all__ = ["NAMESPACE", "SCALARS", "SERVER_URI", "analog_item", "parse_opcua_url",
+           "serve_opcua"]  # fmt: skip
