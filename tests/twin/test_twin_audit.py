@@ -124,7 +124,11 @@ def _stop(proc: subprocess.Popen[str], sig: int = signal.SIGTERM) -> None:
 
 
 @pytest.mark.slow  # a plant and two twin start-ups: about 35 s each
-@pytest.mark.parametrize("history_s", [0, 60], ids=["no-history", "server-history"])
+@pytest.mark.parametrize(
+    "history_s",
+    [pytest.param(0, marks=pytest.mark.long), 60],  # the suite keeps the server-history variant
+    ids=["no-history", "server-history"],
+)
 def test_kill_9_of_a_live_twin_counted_against_the_plant_log(
     tmp_path: Path, twin_files: tuple[Path, Path], history_s: int
 ) -> None:

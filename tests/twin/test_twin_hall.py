@@ -46,7 +46,7 @@ def _kill_a_shard(hall: subprocess.Popen[str], store: Path, timeout: float = 120
     raise AssertionError(f"no process holds {target}")
 
 
-@pytest.mark.slow  # a plant, a private Ray, two twin actors and a restart: about 50 s
+@pytest.mark.long  # a plant, a private Ray, two twin actors and a restart: 32-50 s
 @pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="finds the shard through /proc")
 def test_a_hall_on_two_ray_actors_survives_a_killed_shard(
     twin_files: tuple[Path, Path], tmp_path: Path

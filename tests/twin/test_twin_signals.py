@@ -70,7 +70,9 @@ def _check(took: float, proc: subprocess.Popen[str], out: str, err: str, summary
 
 
 @pytest.mark.slow  # a plant and a twin start-up: about 15 s
-@pytest.mark.parametrize("kind", ["opcua", "mqtt"])
+# MQTT in the suite: plant serve --mqtt stopped by SIGTERM in test_twin_mosquitto.py, twin run
+# with MQTT publishers in test_twin_publish.py; the full variant with pytest -m long
+@pytest.mark.parametrize("kind", ["opcua", pytest.param("mqtt", marks=pytest.mark.long)])
 def test_signals_end_plant_and_twin_with_the_page_on(
     kind: str, twin_files: tuple[Path, Path], tmp_path: Path
 ) -> None:
