@@ -131,3 +131,37 @@ def test_the_hall_refuses_what_would_go_wrong_in_an_actor(
     _error(run(app, [*fresh, "--source", opcua, "--shards", "4"]), "is empty")  # 3 machines
     nobody = f"127.0.0.1:{free_port()}"
     _error(run(app, [*fresh, "--source", opcua, "--ray", nobody]), "--ray", "no Ray cluster")
+
+
+@pytest.mark.long  # a plant and a private Ray: about 30 s
+def test_sigterm_ends_a_hall_within_5_s(twin_files: tuple[Path, Path], tmp_path: Path) -> None:
+    """Ray's init puts in its own SIGTERM handler (a stack dump, no summary) and a signal
+    raised inside its calls left the driver waiting: the hall keeps its own handler, lets the
+    signal through between Ray's calls, and ends shards still starting."""
+    _, model = twin_files
+    mapping = tmp_path / "hall.toml"
+    mapping.write_text(HALL, encoding="utf-8")
+    url = f"opc.tcp://127.0.0.1:{free_port()}"
+    plant = subprocess.Popen(cli("plant", "serve", "--opcua", url, "--machines", "3", "--physics",
+                                 "reduced"), env=env(), stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True)  # fmt: skip
+    hall = None
+    try:
+        assert plant.stderr is not None and "serving" in plant.stderr.readline()
+        hall = subprocess.Popen(cli("twin", "hall", "--model", str(model), "--source", f"opcua:{url}",
+                                    "--mapping", str(mapping), "--store", str(tmp_path / "store"),
+                                    "--shards", "2"), env=env(), stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)  # fmt: skip
+        time.sleep(20.0)  # Ray up, the shards starting or running
+        start = time.monotonic()
+        hall.send_signal(signal.SIGTERM)
+        _, err = hall.communicate(timeout=60)
+        took = time.monotonic() - start
+        assert took < 5.0, f"{took:.1f} s: {err}"
+        assert hall.returncode == 0 and "stopped by SIGTERM" in err, err
+        assert "Traceback" not in err and "SIGTERM received" not in err, err
+    finally:
+        for p in (hall, plant):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.communicate(timeout=30)

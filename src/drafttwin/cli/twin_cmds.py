@@ -3,12 +3,9 @@
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import math
 import signal
-import threading
 import time
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Annotated
 
@@ -44,20 +41,6 @@ def _need_twin_extra() -> None:
     except ImportError as exc:
         raise ConfigError(f"the live twin needs the 'twin' extra ({exc.name} is missing)",
                           fix="pip install 'drafttwin[twin]'") from None  # fmt: skip
-
-
-@contextlib.contextmanager
-def sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM (a service manager stopping the process) raises KeyboardInterrupt, like Ctrl-C,
-    for the duration of the block (the previous handler is put back)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGTERM, signal.default_int_handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
 
 
 def parse_bind(text: str, token: str | None) -> tuple[str, int]:

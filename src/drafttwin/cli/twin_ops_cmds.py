@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import signal
 import sys
 import time
 from pathlib import Path
@@ -17,8 +18,9 @@ from rich.table import Table
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._oserrors import input_path, output_dir
 from drafttwin.cli.app import console, err_console, print_json
-from drafttwin.cli.twin_cmds import _need_twin_extra, parse_bind, sigterm_as_interrupt, twin_app
+from drafttwin.cli.twin_cmds import _need_twin_extra, parse_bind, twin_app
 from drafttwin.errors import ConfigError, DrafttwinError
+from drafttwin.execution.interrupt import Interrupted, stop_on_signals
 
 RUNS_SHOWN = 10
 """Runs of absent samples listed per machine (the JSON has them all)."""
@@ -195,7 +197,7 @@ def twin_hall(
         # Ray prints its own notes (a shard's process died and is started again) on stdout:
         # they go to stderr, so that stdout holds only the result (strict JSON with --json)
         with contextlib.ExitStack() as stack:
-            stack.enter_context(sigterm_as_interrupt())
+            stack.enter_context(stop_on_signals("the running shards committed what they received"))
             stack.enter_context(contextlib.redirect_stdout(sys.stderr))
             if bind is not None:
                 try:
@@ -208,8 +210,9 @@ def twin_hall(
             results = run_hall(model, source, mapping, store, shards, address=ray_address,
                                commit_ms=commit_ms, physics=physics, duration_s=duration,
                                on_status=status, status_every_s=1.0)  # fmt: skip
-    except KeyboardInterrupt:
-        err_console.print("interrupted: every shard committed what it received")
+    except Interrupted as exc:  # a service manager's stop is a clean end: exit code 0
+        err_console.print(f"stopped by {signal.Signals(exc.signum).name}: the running shards "
+                          "committed what they received (one still starting is ended)")  # fmt: skip
         return
     if as_json:
         print_json({"wall_s": time.monotonic() - start, "shards": results})

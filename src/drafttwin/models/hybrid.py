@@ -383,8 +383,9 @@ class _ResidualHybrid(_NeuralModel):
         state: dict[str, Any] = {
             "scalers": {k: s.to_dict() for k, s in self.scalers_.items()},
             "history": self.history_.to_dict(),
-            "correct": bool(self.correct_),
         }
+        if not self.correct_:  # written only when the physics alone was chosen, so that a
+            state["correct"] = False  # file from before the choice reads back as it was stored
         if self.task.simulation:
             state["accumulate"] = bool(self.accumulate_)
         if self.structure == "relative":

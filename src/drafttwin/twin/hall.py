@@ -31,8 +31,13 @@ from drafttwin.errors import ConfigError
 SHARD_DIR = re.compile(r"^shard-(\d+)-of-(\d+)$")
 RESTARTS = 3
 """Times Ray starts a shard again after its process died (an error in the twin is not retried)."""
-POLL_S = 1.0
+POLL_S = 0.5
 """How often the driver looks at its actors (and lets Ctrl-C through)."""
+STOP_S = 2.0
+"""How long a stopped hall waits for its shards to commit before ending the ones still starting."""
+STATUS_S = 1.0
+"""How long the driver waits for a shard's status (a shard whose process is still starting
+answers only once it runs: meanwhile it is 'starting', and a signal is not held up)."""
 
 
 def shard_dir(store: Path, i: int, k: int) -> Path:
@@ -155,14 +160,21 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
              status_every_s: float = 10.0) -> list[dict[str, Any]]:  # fmt: skip
     """Run ``shards`` twin actors on Ray (the cluster at ``address``, else a private instance
     with ``shards`` CPUs) until ``duration_s`` or Ctrl-C; each shard's final status."""
+    import signal
+
     from drafttwin.execution.executor import _import_ray, _init_ray, _start_guard
+    from drafttwin.execution.interrupt import restore_handler
 
     check_store(store, shards)
     ray = _import_ray()
     guard = None if address else _start_guard()  # kills a private Ray if this process dies
     started = not ray.is_initialized()
+    sigterm = signal.getsignal(signal.SIGTERM)
     try:
         _init_ray(ray, shards, address)
+        # ray.init installs its own SIGTERM handler (a stack dump, no summary): the caller's
+        # stops the shards, which commit what they received
+        restore_handler(signal.SIGTERM, sigterm)
         cls = _actor_class(ray)
         opts = {"model": model.resolve(), "mapping": mapping.resolve(), "commit_ms": commit_ms,
                 "physics": physics, "silent_s": silent_s}  # fmt: skip
@@ -173,10 +185,7 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
         try:
             _wait(ray, actors, refs, on_status, status_every_s)
         except BaseException:  # Ctrl-C or SIGTERM: each actor commits what it received
-            for a in actors:
-                a.stop.remote()
-            with contextlib.suppress(Exception):
-                ray.get(refs, timeout=60)
+            _stop_shards(ray, actors, refs)
             raise
         return _collect(ray, refs)
     finally:
@@ -187,22 +196,50 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
             guard.wait()
 
 
+def _stop_shards(ray: Any, actors: list[Any], refs: list[Any]) -> None:
+    """Ask every shard to stop (a running twin commits what it received and returns within
+    a second or two) and wait STOP_S for them; a shard still starting (importing, loading its
+    model: tens of seconds on 2 cores) has nothing to commit and is ended instead."""
+    for a in actors:
+        a.stop.remote()
+    with contextlib.suppress(Exception):
+        ray.wait(refs, num_returns=len(refs), timeout=STOP_S)
+    for a, ref in zip(actors, refs, strict=True):
+        done, _ = ray.wait([ref], timeout=0)
+        if not done:
+            with contextlib.suppress(Exception):
+                ray.kill(a, no_restart=True)
+
+
 def _wait(ray: Any, actors: list[Any], refs: list[Any], on_status: Any, every_s: float) -> None:
     last = time.monotonic()
     pending = list(refs)
+    from drafttwin.execution.interrupt import signals_deferred
+
     while pending:
-        _, pending = ray.wait(pending, num_returns=len(pending), timeout=POLL_S)
+        # a signal must not raise inside Ray's Cython calls (it left ray.get hanging): under
+        # stop_on_signals it is raised when the call has returned, within POLL_S
+        with signals_deferred():
+            _, pending = ray.wait(pending, num_returns=len(pending), timeout=POLL_S)
         if on_status is not None and time.monotonic() - last >= every_s:
             last = time.monotonic()
-            on_status([_status(ray, a) for a in actors])
+            with signals_deferred():
+                shards = _statuses(ray, actors)
+            on_status(shards)
 
 
-def _status(ray: Any, actor: Any) -> dict[str, Any] | None:
-    """A shard's status; ``None`` while it starts (again) or does not answer."""
-    try:
-        return ray.get(actor.status.remote(), timeout=30)
-    except (ray.exceptions.RayError, TimeoutError):
-        return None
+def _statuses(ray: Any, actors: list[Any]) -> list[dict[str, Any] | None]:
+    """Each shard's status, asked of all at once; ``None`` for one that starts (again) or
+    does not answer within STATUS_S."""
+    refs = [a.status.remote() for a in actors]
+    done, _ = ray.wait(refs, num_returns=len(refs), timeout=STATUS_S)
+    out: list[dict[str, Any] | None] = []
+    for ref in refs:
+        try:
+            out.append(ray.get(ref, timeout=0) if ref in done else None)
+        except (ray.exceptions.RayError, TimeoutError):
+            out.append(None)
+    return out
 
 
 def _collect(ray: Any, refs: list[Any]) -> list[dict[str, Any]]:
