@@ -17,10 +17,10 @@ from typing import Any
 sys.path.insert(0, os.path.dirname(__file__))
 
 from _machine import write_results  # noqa: E402
-from drafttwin.benchmarks.emps.physics import EmpsPhysics, rmse_mm  # noqa: E402
-from drafttwin.benchmarks.emps.run import EmpsConfig, hyperparameters  # noqa: E402
 from drafttwin.datasets.emps import load_emps  # noqa: E402
 from drafttwin.models import make_model  # noqa: E402
+from drafttwin.studies.emps.physics import EmpsPhysics, rmse_mm  # noqa: E402
+from drafttwin.studies.emps.plan import EmpsConfig, hyperparameters  # noqa: E402
 
 
 def best_of(fn: Callable[[], Any], repeat: int) -> tuple[float, Any]:

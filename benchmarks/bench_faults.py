@@ -22,13 +22,13 @@ import time
 sys.path.insert(0, os.path.dirname(__file__))
 
 from _machine import write_results  # noqa: E402
-from drafttwin.benchmarks.faults.learned import LEARNED, LearnedResiduals, raw_record  # noqa: E402
 from drafttwin.diagnosis.detect import FaultDetector  # noqa: E402
 from drafttwin.diagnosis.diagnose import Diagnoser  # noqa: E402
 from drafttwin.diagnosis.residuals import physics_prediction, record_features  # noqa: E402
 from drafttwin.mechanics import DriveTrain  # noqa: E402
 from drafttwin.plant import Plant  # noqa: E402
 from drafttwin.plant.faults import FaultSpec  # noqa: E402
+from drafttwin.studies.faults.learned import LEARNED, LearnedResiduals, raw_record  # noqa: E402
 
 CASES = {
     "healthy": [],

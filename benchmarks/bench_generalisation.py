@@ -58,7 +58,7 @@ def run_label(cfg: dict[str, Any]) -> str:
     """``full`` or ``quick`` when the run used that configuration; else what was changed."""
     from dataclasses import asdict
 
-    from drafttwin.benchmarks.generalisation import FULL, QUICK
+    from drafttwin.studies.generalisation import FULL, QUICK
 
     base = asdict(QUICK if cfg["name"] == "quick" else FULL)
     changed = [k for k, v in base.items() if k != "workers" and json.dumps(v) != json.dumps(cfg[k])]

@@ -57,7 +57,7 @@ def run(name: str, seed: int, train, test, physics, epochs: int | None) -> dict[
             options["epochs"] = epochs
     model = dt.make_model(name, "quick", **options)
     start = time.perf_counter()
-    part = dt.fit(model, train, test=test, mechanistic=physics)
+    part = dt.fit_split(model, train, test=test, mechanistic=physics)
     fit_s = time.perf_counter() - start
     result = dt.evaluate(model, part, mechanistic=physics)
     choice = model.selection_.get("accumulate", {})

@@ -4,7 +4,8 @@
 
 Times ``generate`` for 5 minutes at 100 Hz, and reports, on the default data set, how far the
 nominal mechanistic model is from the plant (measured and true) and the encoders' own error
-(measured vs true; the one-step floor is benchmarks/bench_limits.py's).
+(measured vs true; the one-step floor is measured by
+``python -m drafttwin.studies.accuracy_limits``).
 Prints tables; writes benchmarks/results/plant.json.
 """
 
@@ -24,7 +25,7 @@ from _machine import write_results  # noqa: E402
 from drafttwin import ROLLERS  # noqa: E402
 from drafttwin.data.preprocess import preprocess  # noqa: E402
 from drafttwin.datasets import load_default  # noqa: E402
-from drafttwin.mechanics import DriveTrain, simulate_on_grid  # noqa: E402
+from drafttwin.mechanics import DriveTrain, simulate  # noqa: E402
 from drafttwin.plant import Plant  # noqa: E402
 
 
@@ -33,7 +34,7 @@ def baseline_table() -> list[dict]:
     truth = series.truth
     assert truth is not None  # the embedded data carry the true speeds
     clean, _ = preprocess(series)
-    mech = simulate_on_grid(DriveTrain.preset("fa320a"), series.time_s)
+    mech = simulate(DriveTrain.preset("fa320a"), time_s=series.time_s).roller_rpm()
     ok = ~np.isnan(series.values) & ~series.metadata["outlier_mask"]
     rows = []
     print(f"{'roller':8} {'mean rel %':>10} {'max rel %':>10} {'RMSE meas':>10} {'RMSE true':>10} "

@@ -37,11 +37,11 @@ from drafttwin.diagnosis.detect import FaultDetector  # noqa: E402
 from drafttwin.models.base import BaseModel  # noqa: E402
 from drafttwin.twin.faultwatch import LiveFaultWatch, block_phase  # noqa: E402
 from drafttwin.twin.live import MachineTwin, physics_train  # noqa: E402
-from drafttwin.twin.mapping import MachineMap  # noqa: E402
 from drafttwin.twin.service import MachineState, TwinService  # noqa: E402
-from drafttwin.twin.sources import Emit, Report, Sample, Source  # noqa: E402
-from drafttwin.twin.store import StoreWriter, TwinStore  # noqa: E402
-from drafttwin.twin.web import create_app  # noqa: E402
+from drafttwin.twin.sources.base import Emit, Report, Sample, Source  # noqa: E402
+from drafttwin.twin.sources.mapping import MachineMap  # noqa: E402
+from drafttwin.twin.store.db import StoreWriter, TwinStore  # noqa: E402
+from drafttwin.twin.web.app import create_app  # noqa: E402
 
 RATE = 100.0
 

@@ -39,7 +39,7 @@ from drafttwin.plant.faults import FaultSpec  # noqa: E402
 from drafttwin.twin.build import build_service, load_twin_model  # noqa: E402
 from drafttwin.twin.faultwatch import LiveFaultWatch, detector_path, save_detector  # noqa: E402
 from drafttwin.twin.live import physics_train  # noqa: E402
-from drafttwin.twin.store import EventRow, SampleRow  # noqa: E402
+from drafttwin.twin.store.db import EventRow, SampleRow  # noqa: E402
 
 CASES = (
     "main_belt:belt_wear:severity=0.5:onset=30",

@@ -29,8 +29,8 @@ from typing import Any
 sys.path.insert(0, os.path.dirname(__file__))
 
 from _machine import write_results  # noqa: E402
-from drafttwin.twin.audit import audit  # noqa: E402
-from drafttwin.twin.history import read_events  # noqa: E402
+from drafttwin.twin.store.audit import audit  # noqa: E402
+from drafttwin.twin.store.history import read_events  # noqa: E402
 from drafttwin.wire.plantlog import read_plant_log  # noqa: E402
 
 COMMIT_MS = 100

@@ -1,10 +1,10 @@
 """A realistic synthetic study result (``results`` dict + test-part ``predictions`` frame).
 
-It follows the schema the study writes (``drafttwin.experiments.study``) so the report can be
+It follows the schema the study writes (``drafttwin.studies.paper.run``) so the report can be
 tested without running a study. The numbers are plausible for the quick profile on the plant
 emulator: speeds around 1813/434/426/355 rpm, encoder noise 0.57/0.27/0.27/0.27 rpm, a biased
 mechanistic model, networks a little better than persistence. The comparison metrics are
-computed from the predictions with :func:`drafttwin.evaluation.evaluate`, so tables and
+computed from the predictions with :func:`drafttwin.evaluation.channel_metrics`, so tables and
 figures agree.
 """
 
@@ -17,7 +17,7 @@ import pandas as pd
 from scipy import stats
 
 from drafttwin import ROLLERS
-from drafttwin.evaluation import evaluate, floor_oracle
+from drafttwin.evaluation import channel_metrics, floor_oracle
 from drafttwin.models import persistence_forecast
 
 MEAN_RPM = np.array([1813.18, 434.07, 425.54, 354.62])
@@ -72,8 +72,8 @@ def _comparison(measured: np.ndarray, true: np.ndarray, preds: dict[str, np.ndar
     oracle = floor_oracle(measured, true)
     out: dict[str, dict] = {}
     for name, p in preds.items():
-        m = evaluate(measured, p, units="rpm", persistence=pers, true_values=true,
-                     floor_values=oracle)  # fmt: skip
+        m = channel_metrics(measured, p, units="rpm", persistence=pers, true_values=true,
+                            floor_values=oracle)  # fmt: skip
         out[name] = {}
         for r in ROLLERS:
             d = m[r].to_dict()

@@ -18,7 +18,7 @@ from drafttwin.cli import app
 from drafttwin.data.io import read_measurements
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError
-from drafttwin.mechanics import DriveTrain, simulate_channels
+from drafttwin.mechanics import DriveTrain, simulate
 
 BELT = Path(__file__).resolve().parents[1] / "docs" / "examples" / "belt_drive.toml"
 CHANNELS = {"outputs": ["y"], "inputs": ["u"], "units": {"y": "rad/s", "u": "V"},
@@ -37,7 +37,7 @@ def _record(train: DriveTrain, seed: int, duration_s: float = 8.0) -> pd.DataFra
     t = np.round(np.arange(1, int(duration_s * 100) + 1) * 0.01, 10)
     levels = rng.uniform(4.0, 9.0, size=int(duration_s // 2) + 1)
     u = levels[(t // 2).astype(int)]
-    y = simulate_channels(train, t, inputs={"u": u})[:, 0]
+    y = simulate(train, time_s=t, inputs={"u": u}).channels()[:, 0]
     return pd.DataFrame({"t": t, "u": u, "y": y + 0.02 * rng.standard_normal(len(t))})
 
 
@@ -326,12 +326,12 @@ def test_known_line_recovered_from_angles_and_causal():
     """A once-per-revolution ripple of the back roller (0.3 rpm) in the measurement: the fit
     finds it on the held-out part, and the angle at a sample uses earlier samples only."""
     from drafttwin.calibration.lines import fit_lines, node_angles
-    from drafttwin.mechanics import reduce, simulate_nodes_on_grid
+    from drafttwin.mechanics import reduce, simulate
 
     fa = reduce(DriveTrain.preset("fa320a"))
     t = np.round(np.arange(1, 1501) * 0.01, 10)
     supply = {"supply_hz": np.full(len(t), 48.47)}
-    sim = simulate_nodes_on_grid(fa, t, supply)
+    sim = simulate(fa, time_s=t, inputs=supply)
     y = sim.roller_rpm()
     back = fa.node_index("back_roller")
     angle = np.cumsum(sim.node_rpm[:, back]) * 0.01 / 60.0 - 0.5 * sim.node_rpm[:, back] * 0.01 / 60

@@ -10,7 +10,7 @@ import pytest
 from drafttwin import ROLLERS
 from drafttwin.calibration import calibrate
 from drafttwin.data.io import read_measurements
-from drafttwin.mechanics import DriveTrain, reduce, simulate_channels
+from drafttwin.mechanics import DriveTrain, reduce, simulate
 from drafttwin.plant import Machine, Plant
 
 SEED = 7  # a validation machine (the benchmark reports on 101-103)
@@ -108,8 +108,8 @@ def test_calibrated_physics_beats_the_nominal_on_another_record(case):
     series, good = test.series, ~(test.outlier | test.missing)  # the samples evaluate scores
 
     def bias(train: DriveTrain) -> np.ndarray:
-        sim = simulate_channels(reduce(train), series.time_s, inputs=series.inputs,
-                                channels=ROLLERS)  # fmt: skip
+        res = simulate(reduce(train), time_s=series.time_s, inputs=series.inputs)
+        sim = res.channels(ROLLERS)
         return np.array([np.mean((sim - series.values)[good[:, j], j]) for j in range(4)])
 
     nominal, calibrated = np.abs(bias(plant.train)), np.abs(bias(cal.train))

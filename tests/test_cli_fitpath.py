@@ -114,7 +114,7 @@ def test_python_api_gives_the_cli_numbers(folder):
     # one source for both parts, as on the command line: the library splits it by records
     files = f"{folder / 'sim_train.csv'},{folder / 'sim_test.csv'}"
     physics = dt.MechanisticModel.from_option(files)
-    part = dt.fit(model, train, test=test, mechanistic=physics)
+    part = dt.fit_split(model, train, test=test, mechanistic=physics)
     result = dt.evaluate(model, part, mechanistic=physics)
     assert model.selection_["correction"]["chosen_by"] == "user"
     assert result.metrics["y"].rmse == pytest.approx(cli, rel=1e-12)

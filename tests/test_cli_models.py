@@ -118,7 +118,7 @@ def test_metrics_table_names_units_for_any_channels():
     from rich.console import Console
 
     from drafttwin.cli.models_cmds import _limits_table, _metrics_table
-    from drafttwin.evaluation import evaluate
+    from drafttwin.evaluation import channel_metrics
 
     def render(metrics, limits: bool = False) -> str:
         console = Console(width=200, record=True)
@@ -126,15 +126,15 @@ def test_metrics_table_names_units_for_any_channels():
         return console.export_text()
 
     y = np.sin(np.linspace(0, 20, 400))
-    one = render(evaluate(y, y + 0.01, channels=["position"], units="m"))
+    one = render(channel_metrics(y, y + 0.01, channels=["position"], units="m"))
     assert "RMSE m" in one and "floor" not in one and "position" in one  # no true values
-    true = evaluate(y, y + 0.01, channels=["position"], units="m", true_values=y + 0.001,
-                    floor_values=y + 0.002)  # fmt: skip
+    true = channel_metrics(y, y + 0.01, channels=["position"], units="m",
+                           true_values=y + 0.001, floor_values=y + 0.002)  # fmt: skip
     limits = render(true, limits=True)
     assert "floor m" in limits and "RMSE vs true m" in limits and "sensor error m" in limits
     # RMSE vs true 0.009, sensor 0.001: ratio 9; floor 0.002: RMSE / floor 5
     assert "0.009" in limits and "0.001" in limits and " 9.000 " in limits and " 5.000 " in limits
     assert "0.01" in one  # the RMSE, in m
     two = np.column_stack([y + 2, y + 5])
-    mixed = render(evaluate(two, two, channels=["a", "b"], units={"a": "m", "b": "V"}))
+    mixed = render(channel_metrics(two, two, channels=["a", "b"], units={"a": "m", "b": "V"}))
     assert "unit" in mixed and " V " in mixed and "RMSE m" not in mixed

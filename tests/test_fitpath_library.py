@@ -48,7 +48,7 @@ def test_predictions_name_the_time_column_as_the_file_did(tmp_path, header, kept
 def test_scoring_options_of_the_protocol(tmp_path: Path) -> None:
     series = dt.read_measurements(_record(tmp_path), outputs=["y"], inputs=())
     model = dt.make_model("persistence", outputs=("y",))
-    part = dt.fit(model, series, train_fraction=0.5)
+    part = dt.fit_split(model, series, train_fraction=0.5)
     whole = protocol.evaluate(model, part)
     later = protocol.evaluate(model, part, skip_rows=5)
     assert later.scored_rows == whole.scored_rows - 5 and later.split["score_from"] == 5
@@ -56,6 +56,18 @@ def test_scoring_options_of_the_protocol(tmp_path: Path) -> None:
         protocol.evaluate(model, part, free_run_from="start")  # one step ahead: no free run
     with pytest.raises(ConfigError, match="--free-run-from"):
         protocol.evaluate(model, part, free_run_from="middle")
+
+
+def test_fit_returns_the_fitted_model_and_fit_split_the_split(tmp_path: Path) -> None:
+    series = dt.read_measurements(_record(tmp_path), outputs=["y"], inputs=())
+    model = dt.make_model("persistence", outputs=("y",))
+    assert dt.fit(model, series, train_fraction=0.5) is model  # as scikit-learn's fit
+    other = dt.make_model("persistence", outputs=("y",))
+    part = dt.fit_split(other, series, train_fraction=0.5)
+    assert isinstance(part, protocol.Split) and part.train is not None
+    assert model.provenance_["train_rows"] == other.provenance_["train_rows"] == len(part.train)
+    a, b = dt.evaluate(model, part), dt.evaluate(other, part)
+    assert a.metrics["y"].rmse == b.metrics["y"].rmse
 
 
 def test_one_parser_names_the_physics_for_every_command(tmp_path: Path) -> None:

@@ -10,7 +10,7 @@ import pytest
 
 from drafttwin.datasets import load_default
 from drafttwin.errors import DataError
-from drafttwin.evaluation import accuracy_limits, evaluate, floor_oracle, floor_rows
+from drafttwin.evaluation import accuracy_limits, channel_metrics, floor_oracle, floor_rows
 from drafttwin.evaluation.limits import lag1_autocorrelation
 from drafttwin.plant.config import Sensors
 from drafttwin.plant.sensors import encoder_rpm, quantisation_step_rpm
@@ -148,9 +148,10 @@ def test_floor_rows_name_the_best_model_and_any_model_below_its_floor() -> None:
     true = np.full((4_000, 2), 400.0)
     measured = true + np.diff(0.2 * rng.standard_normal((4_001, 2)), axis=0)
     oracle = floor_oracle(measured, true)
-    good = evaluate(measured, true, channels=("a", "b"), true_values=true, floor_values=oracle)
-    noisy = evaluate(measured, true + 0.3 * rng.standard_normal(true.shape), channels=("a", "b"),
-                     true_values=true, floor_values=oracle)  # fmt: skip
+    ab = ("a", "b")
+    good = channel_metrics(measured, true, channels=ab, true_values=true, floor_values=oracle)
+    noisy = channel_metrics(measured, true + 0.3 * rng.standard_normal(true.shape), channels=ab,
+                            true_values=true, floor_values=oracle)  # fmt: skip
     rows = floor_rows({"good": good, "noisy": {c: m.to_dict() for c, m in noisy.items()}})
     assert [r["channel"] for r in rows] == ["a", "b"]
     for r in rows:
@@ -158,7 +159,7 @@ def test_floor_rows_name_the_best_model_and_any_model_below_its_floor() -> None:
         assert r["best_rmse"] == pytest.approx(good[r["channel"]].rmse)
         assert r["floor"] == pytest.approx(good[r["channel"]].rmse_floor)
         assert r["best_rmse"] > r["floor"]  # the true value alone does not reach the floor
-    cheat = evaluate(measured, measured, channels=("a", "b"), true_values=true, floor_values=oracle)
+    cheat = channel_metrics(measured, measured, channels=ab, true_values=true, floor_values=oracle)
     below = floor_rows({"good": good, "cheat": cheat})
     assert all(r["below_floor"] == ["cheat"] and r["best_model"] == "cheat" for r in below)
 
@@ -175,7 +176,7 @@ def test_protocol_floor_follows_the_task() -> None:
     for name, kw in (("one-step", {}), ("two-step", {"horizon": 2}),
                      ("free run", {"task": "simulation"})):  # fmt: skip
         model = make_model("persistence", **kw)
-        part = protocol.fit(model, data, train_fraction=0.7)
+        part = protocol.fit_split(model, data, train_fraction=0.7)
         ev = protocol.evaluate(model, part)
         floors[name] = ev.metrics
         for m in ev.metrics.values():

@@ -17,7 +17,7 @@ from drafttwin.mechanics import (
     Signal,
     kinematics,
     operating_point,
-    simulate_channels,
+    simulate,
 )
 
 from ._trains import FA320A, fa320a_dict
@@ -99,12 +99,11 @@ def test_default_motor_channel_when_the_motor_node_has_another_name():
 
 def test_unit_conversions_are_exact():
     time_s = np.arange(1, 21) * STEP
-    rpm = simulate_channels(FA320A, time_s, channels=["front", "front", "motor"])
-    converted = simulate_channels(
-        FA320A, time_s, channels=["front", "second", "motor"],
-        units={"front": "rad/s", "second": "m/min", "motor": "rev/s"},
-    )  # fmt: skip
-    second = simulate_channels(FA320A, time_s, channels=["second"])[:, 0]
+    rpm = simulate(FA320A, time_s=time_s).channels(["front", "front", "motor"])
+    converted = simulate(FA320A, time_s=time_s).channels(
+        ["front", "second", "motor"], {"front": "rad/s", "second": "m/min", "motor": "rev/s"}
+    )
+    second = simulate(FA320A, time_s=time_s).channels(["second"])[:, 0]
     np.testing.assert_allclose(converted[:, 0], rpm[:, 0] * math.pi / 30, rtol=1e-15)
     np.testing.assert_allclose(converted[:, 1], second * math.pi * 0.035, rtol=1e-15)
     np.testing.assert_allclose(converted[:, 2], rpm[:, 2] / 60, rtol=1e-15)
@@ -113,7 +112,7 @@ def test_unit_conversions_are_exact():
     raw["output"] = [{"channel": "delivery", "node": "front", "unit": "m/min"},
                      {"channel": "body", "node": "front_roller", "unit": "m/min"}]  # fmt: skip
     train = DriveTrain.from_dict(raw)
-    both = simulate_channels(train, time_s)
+    both = simulate(train, time_s=time_s).channels()
     np.testing.assert_allclose(both[:, 0], rpm[:, 0] * math.pi * 0.045, rtol=1e-15)
     np.testing.assert_array_equal(both[:, 0], both[:, 1])  # roller name or its node
     assert both[:, 0].mean() == pytest.approx(kinematics(FA320A).delivery_speed_m_min, rel=4e-3)
@@ -128,7 +127,7 @@ def test_single_inertia_torque_input_matches_first_order_closed_form(hold):
     u[40:60] = np.linspace(-4.0, 6.0, 20)  # and a ramp
     time_s = 123.4 + STEP * np.arange(1, len(u) + 1)  # a grid that starts anywhere
     train = DriveTrain.from_dict(_wheel(hold, j, c, k))
-    got = simulate_channels(train, time_s, {"u": u})[:, 0]
+    got = simulate(train, time_s=time_s, inputs={"u": u}).channels()[:, 0]
     want = _first_order_means(u, hold, j, c, k)
     if hold == "linear":
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
@@ -155,7 +154,8 @@ def test_channel_gain_and_offset_scale_the_input():
     raw = _wheel("zoh")
     raw["input"][0].update(gain=0.25, offset=1.5)  # N m = 0.25 u + 1.5
     u = np.full(100, 4.0)
-    got = simulate_channels(DriveTrain.from_dict(raw), STEP * np.arange(1, 101), {"u": u})
+    res = simulate(DriveTrain.from_dict(raw), time_s=STEP * np.arange(1, 101), inputs={"u": u})
+    got = res.channels()
     np.testing.assert_allclose(got[:, 0], _first_order_means(u * 0.25 + 1.5, "zoh", 0.02, 0.1, 1.0),
                                rtol=1e-9)  # fmt: skip
 
@@ -188,7 +188,7 @@ def test_belt_drive_example_kinematics_and_mapping(belt):
 def test_belt_drive_follows_a_step_in_u(belt):
     time_s = STEP * np.arange(1, 401)
     u = np.where(time_s < 1.0, 5.0, 8.0)  # V: 25 Hz, then 40 Hz
-    y = simulate_channels(belt, time_s, {"u": u})[:, 0]
+    y = simulate(belt, time_s=time_s, inputs={"u": u}).channels()[:, 0]
     ratio = 90.0 / 180.0
     for hz, value in ((25.0, y[90]), (40.0, y[-1])):
         w_sync = 2 * math.pi * hz / 2  # 4 poles
@@ -262,22 +262,22 @@ def test_refusals_when_simulating():
     time_s = STEP * np.arange(1, 11)
     wheel = DriveTrain.from_dict(_wheel("zoh"), source="wheel.toml")
     with pytest.raises(DataError, match="no input channel 'u'") as info:
-        simulate_channels(wheel, time_s, {"v": np.zeros(10)})
+        simulate(wheel, time_s=time_s, inputs={"v": np.zeros(10)}).channels()
     assert "wheel.toml" in info.value.message and "input channels given: v" in info.value.message
     with pytest.raises(DataError, match="no input channel 'u'"):
-        simulate_channels(wheel, time_s)
+        simulate(wheel, time_s=time_s).channels()
     with pytest.raises(DataError, match="input channel 'u' has no finite value"):
-        simulate_channels(wheel, time_s, {"u": np.full(10, np.nan)})
+        simulate(wheel, time_s=time_s, inputs={"u": np.full(10, np.nan)}).channels()
     with pytest.raises(DataError, match="'u' has 9 numeric values for 10 time stamps"):
-        simulate_channels(wheel, time_s, {"u": np.zeros(9)})
+        simulate(wheel, time_s=time_s, inputs={"u": np.zeros(9)}).channels()
     with pytest.raises(ConfigError, match="unknown output channel 'z'") as info:
-        simulate_channels(wheel, time_s, {"u": np.zeros(10)}, channels=["z"])
+        simulate(wheel, time_s=time_s, inputs={"u": np.zeros(10)}).channels(["z"])
     assert "use one of: y" in info.value.message
     with pytest.raises(ConfigError, match="unknown unit 'km/h'"):
-        simulate_channels(FA320A, time_s, channels=["front"], units={"front": "km/h"})
+        simulate(FA320A, time_s=time_s).channels(["front"], {"front": "km/h"})
     with pytest.raises(ConfigError, match="node 'motor' does not carry one roller"):
-        simulate_channels(FA320A, time_s, channels=["motor"], units={"motor": "m/min"})
+        simulate(FA320A, time_s=time_s).channels(["motor"], {"motor": "m/min"})
     with pytest.raises(ConfigError, match="channel 'back', which is not simulated"):
-        simulate_channels(FA320A, time_s, channels=["front"], units={"back": "rad/s"})
+        simulate(FA320A, time_s=time_s).channels(["front"], {"back": "rad/s"})
     with pytest.raises(ConfigError, match="uniform, increasing time grid"):
-        simulate_channels(FA320A, np.array([0.01, 0.02, 0.04]))
+        simulate(FA320A, time_s=np.array([0.01, 0.02, 0.04])).channels()

@@ -24,8 +24,6 @@ from drafttwin.mechanics import (
     drive_from_inputs,
     operating_point,
     simulate,
-    simulate_channels,
-    simulate_on_grid,
     starts_at_rest,
 )
 from drafttwin.plant.emulator import Plant
@@ -47,14 +45,14 @@ def _rmse(a: np.ndarray, b: np.ndarray) -> float:
 @pytest.fixture(scope="module")
 def startup():
     rec = Plant().run(6.0, rate_hz=100, seed=3, scenario="startup")
-    sim = simulate_channels(FA320A, rec.series.time_s, rec.series.inputs, channels=ROLLERS)
+    sim = simulate(FA320A, time_s=rec.series.time_s, inputs=rec.series.inputs).channels(ROLLERS)
     return rec, sim
 
 
 @pytest.fixture(scope="module")
 def speed_change():
     rec = Plant().run(6.0, rate_hz=100, seed=3, scenario="speed-change")
-    sim = simulate_channels(FA320A, rec.series.time_s, rec.series.inputs, channels=ROLLERS)
+    sim = simulate(FA320A, time_s=rec.series.time_s, inputs=rec.series.inputs).channels(ROLLERS)
     return rec, sim
 
 
@@ -94,7 +92,8 @@ def test_missing_setpoint_samples_are_bridged_in_time(startup):
     rec, sim = startup
     holes = rec.series.inputs["supply_hz"].copy()
     holes[150:170] = np.nan  # on the linear ramp (1.51-1.70 s of 0.6-8.6 s)
-    again = simulate_channels(FA320A, rec.series.time_s, {"supply_hz": holes}, channels=ROLLERS)
+    res = simulate(FA320A, time_s=rec.series.time_s, inputs={"supply_hz": holes})
+    again = res.channels(ROLLERS)
     np.testing.assert_allclose(again, sim, rtol=1e-9, atol=1e-9)
     holes[:3], holes[-5:] = np.nan, np.nan  # at the ends: the nearest known value is held
     filled = drive_from_inputs(FA320A, rec.series.time_s, {"supply_hz": holes}).supply_hz
@@ -109,7 +108,7 @@ def test_stop_brakes_the_train_to_rest():
     train; nothing divides by the supply or the speed, so it ends at rest, finite."""
     time_s = np.arange(1, 301) * 0.01
     hz = np.interp(time_s, [0.0, 0.2, 2.2, 3.0], [48.47, 48.47, 0.0, 0.0])
-    speeds = simulate_channels(FA320A, time_s, {"supply_hz": hz})
+    speeds = simulate(FA320A, time_s=time_s, inputs={"supply_hz": hz}).channels()
     assert np.isfinite(speeds).all()
     assert speeds[10, 0] == pytest.approx(RUNNING_FRONT_RPM, rel=2e-3)
     at_half = np.searchsorted(time_s, 1.2)  # half-way down the ramp: about half speed
@@ -118,17 +117,17 @@ def test_stop_brakes_the_train_to_rest():
 
 
 def test_steady_preset_unchanged():
-    """Without set-points: exactly the earlier simulate_on_grid (constant supply_hz)."""
+    """Without set-points: exactly the earlier grid simulation (constant supply_hz)."""
     time_s = 123.4 + np.arange(1, 51) * 0.01
     step = float(np.median(np.diff(time_s)))  # the earlier implementation, inline
     old = simulate(FA320A, duration_s=50 * step, output_rate_hz=1.0 / step,
                    t_start_s=float(time_s[0]) - step).roller_rpm()  # fmt: skip
-    np.testing.assert_array_equal(simulate_on_grid(FA320A, time_s), old)
-    np.testing.assert_array_equal(simulate_channels(FA320A, time_s, channels=ROLLERS), old)
+    np.testing.assert_array_equal(simulate(FA320A, time_s=time_s).roller_rpm(), old)
+    np.testing.assert_array_equal(simulate(FA320A, time_s=time_s).channels(ROLLERS), old)
     # a constant recorded set-point equal to the configured one gives the same numbers
     const = {"supply_hz": np.full(50, FA320A.spec.motor.supply_hz), "unused": np.zeros(50)}
     np.testing.assert_allclose(
-        simulate_channels(FA320A, time_s, const, channels=ROLLERS), old, rtol=1e-9
+        simulate(FA320A, time_s=time_s, inputs=const).channels(ROLLERS), old, rtol=1e-9
     )
 
 
@@ -149,6 +148,6 @@ def test_supply_below_zero_is_clamped():
     """A noisy analog set-point slightly below 0 V does not reverse the motor."""
     time_s = np.arange(1, 21) * 0.01
     hz = np.full(20, -0.3)
-    speeds = simulate_channels(FA320A, time_s, {"supply_hz": hz}, channels=("motor",))
+    speeds = simulate(FA320A, time_s=time_s, inputs={"supply_hz": hz}).channels(("motor",))
     np.testing.assert_array_equal(speeds, 0.0)
     assert math.isfinite(float(speeds.sum()))

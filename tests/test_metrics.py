@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from drafttwin.errors import ConfigError, DataError
-from drafttwin.evaluation import ChannelMetrics, evaluate, metrics_frame
+from drafttwin.evaluation import ChannelMetrics, channel_metrics, metrics_frame
 from drafttwin.evaluation.metrics import NOTE_ALL_LOW, NOTE_CROSSES_ZERO, NOTE_ZERO
 from drafttwin.models import persistence_forecast
 
 
 def _one(y, yhat, **kw) -> ChannelMetrics:
-    return evaluate(np.array(y, float), np.array(yhat, float), channels=("r",), **kw)["r"]
+    return channel_metrics(np.array(y, float), np.array(yhat, float), channels=("r",), **kw)["r"]
 
 
 def test_relative_errors_by_hand() -> None:
@@ -72,7 +72,7 @@ def test_steady_rollers_exclude_nothing() -> None:
     rng = np.random.default_rng(3)
     mean = np.array([1813.0, 434.0, 426.0, 355.0])
     y = mean + 0.5 * rng.standard_normal((2000, 4))
-    out = evaluate(y, y + 0.3, units="rpm")
+    out = channel_metrics(y, y + 0.3, units="rpm")
     for j, r in enumerate(("front", "second", "third", "back")):
         assert out[r].n_rel_excluded == 0 and out[r].rel_note is None
         assert out[r].rel_threshold == pytest.approx(0.01 * np.percentile(y[:, j], 99))
@@ -176,7 +176,7 @@ def test_limits_against_the_true_value_by_hand() -> None:
 
 def test_many_channels_dict_and_frame() -> None:
     y = np.array([[1815.0, 435, 426, 355], [1816, 436, 425, 354]])
-    out = evaluate(y, y + np.array([1.815, 0, 0, 0]), units="rpm")
+    out = channel_metrics(y, y + np.array([1.815, 0, 0, 0]), units="rpm")
     assert list(out) == ["front", "second", "third", "back"]
     assert out["front"].mean_rel_err_pct == pytest.approx(
         (100 * 1.815 / np.array([1815, 1816])).mean()
@@ -194,16 +194,16 @@ def test_channels_with_their_own_units() -> None:
     y = np.column_stack([np.linspace(0.1, 0.2, 50), np.full(50, 12.0), np.full(50, 3.0)])
     yhat = y + np.array([0.001, 0.5, -0.3])
     units = {"position": "m", "voltage": "V", "supply_hz": "Hz"}  # extra names are ignored
-    out = evaluate(y, yhat, channels=("position", "voltage", "level"), units=units)
+    out = channel_metrics(y, yhat, channels=("position", "voltage", "level"), units=units)
     assert [m.unit for m in out.values()] == ["m", "V", ""]
     assert out["position"].rmse == pytest.approx(0.001)
     assert out["voltage"].mean_rel_err_pct == pytest.approx(100 * 0.5 / 12)
     assert out["level"].max_rel_err_pct == pytest.approx(10.0)
-    listed = evaluate(y, yhat, channels=("a", "b", "c"), units=["m", "V", "cm"])
+    listed = channel_metrics(y, yhat, channels=("a", "b", "c"), units=["m", "V", "cm"])
     assert [m.unit for m in listed.values()] == ["m", "V", "cm"]
     three = r"3 channels were named \(a, b, c\)"
     with pytest.raises(DataError, match=rf"2 units were given but {three}"):
-        evaluate(y, yhat, channels=("a", "b", "c"), units=["m", "V"])
+        channel_metrics(y, yhat, channels=("a", "b", "c"), units=["m", "V"])
 
 
 def test_json_round_trip_without_nan() -> None:
@@ -211,7 +211,7 @@ def test_json_round_trip_without_nan() -> None:
     y = np.sin(2 * np.pi * t)
     yhat = y + 0.01
     yhat[:10] = np.nan
-    out = evaluate(y, yhat, channels=("x",), units="m")
+    out = channel_metrics(y, yhat, channels=("x",), units="m")
     text = json.dumps({k: m.to_dict() for k, m in out.items()}, allow_nan=False)
     back = json.loads(text)["x"]
     m = out["x"]
@@ -236,28 +236,28 @@ def test_persistence_horizon_and_gaps() -> None:
 def test_shape_errors_say_what_was_expected() -> None:
     named = r"4 channels were named \(front, second, third, back\)"
     with pytest.raises(DataError, match=rf"y_pred has 5 columns but {named}"):
-        evaluate(np.zeros((3, 4)), np.zeros((3, 5)))
+        channel_metrics(np.zeros((3, 4)), np.zeros((3, 5)))
     with pytest.raises(DataError, match=rf"y_true has 1 column but {named}"):
-        evaluate(np.zeros((3, 1)), np.zeros((3, 4)))
+        channel_metrics(np.zeros((3, 1)), np.zeros((3, 4)))
     with pytest.raises(DataError, match=rf"y_true is 1-D \(a single channel\) but {named}") as e:
-        evaluate(np.zeros(3), np.zeros(3))
+        channel_metrics(np.zeros(3), np.zeros(3))
     assert "channels=('name',)" in str(e.value)
     with pytest.raises(DataError, match="y_pred has 2 rows but y_true has 3"):
-        evaluate(np.zeros((3, 4)), np.zeros((2, 4)))
+        channel_metrics(np.zeros((3, 4)), np.zeros((2, 4)))
     with pytest.raises(DataError, match="true_values has 2 rows but y_true has 3"):
-        evaluate(np.zeros(3), np.zeros(3), channels=["x"], true_values=np.zeros(2))
+        channel_metrics(np.zeros(3), np.zeros(3), channels=["x"], true_values=np.zeros(2))
     with pytest.raises(DataError, match=r"persistence has 2 columns but 1 channel was named \(x\)"):
-        evaluate(np.zeros(3), np.zeros(3), channels=["x"], persistence=np.zeros((3, 2)))
+        channel_metrics(np.zeros(3), np.zeros(3), channels=["x"], persistence=np.zeros((3, 2)))
     with pytest.raises(DataError, match=r"shape \(3, 1, 2\); expected \(n, 1\)"):
-        evaluate(np.zeros((3, 1, 2)), np.zeros(3), channels=["x"])
+        channel_metrics(np.zeros((3, 1, 2)), np.zeros(3), channels=["x"])
     with pytest.raises(DataError, match="channel names must be distinct"):
-        evaluate(np.zeros((3, 2)), np.zeros((3, 2)), channels=["x", "x"])
+        channel_metrics(np.zeros((3, 2)), np.zeros((3, 2)), channels=["x", "x"])
 
 
 def test_one_channel_as_column_or_1d_gives_the_same() -> None:
     y = np.array([5.0, 6.0, 7.0, 8.0])
-    a = evaluate(y, y + 0.5, channels=["x"])["x"]
-    b = evaluate(y[:, None], (y + 0.5)[:, None], channels=["x"])["x"]
+    a = channel_metrics(y, y + 0.5, channels=["x"])["x"]
+    b = channel_metrics(y[:, None], (y + 0.5)[:, None], channels=["x"])["x"]
     assert a.to_dict() == b.to_dict() and a.rmse == pytest.approx(0.5)
 
 

@@ -13,7 +13,7 @@ from drafttwin.cli import app
 from drafttwin.data.io import read_measurements
 from drafttwin.data.preprocess import preprocess
 from drafttwin.datasets import DEFAULT, build, load_default
-from drafttwin.mechanics import DriveTrain, operating_point, simulate_on_grid
+from drafttwin.mechanics import DriveTrain, operating_point, simulate
 from drafttwin.plant import Plant, PlantConfig
 from drafttwin.plant.config import Sensors
 from drafttwin.plant.sensors import encoder_rpm, quantisation_step_rpm
@@ -113,7 +113,7 @@ def test_injected_defects_are_found_and_repaired(default):
 
 def test_plant_differs_from_the_nominal_model_but_not_wildly(default):
     nominal = DriveTrain.preset("fa320a")
-    mech = simulate_on_grid(nominal, default.time_s[:2000])
+    mech = simulate(nominal, time_s=default.time_s[:2000]).roller_rpm()
     truth = default.truth[:2000]
     rel = np.abs(mech.mean(axis=0) - truth.mean(axis=0)) / truth.mean(axis=0)
     assert np.all(rel > 1e-5)  # true parameters and loads differ from the nominal ones

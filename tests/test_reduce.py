@@ -12,7 +12,6 @@ from drafttwin.mechanics import (
     operating_point,
     reduce,
     simulate,
-    simulate_channels,
 )
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
@@ -128,8 +127,8 @@ def test_reduction_survives_inputs_and_channels(train):
     red_train = reduce(DriveTrain.preset("fa320a"))
     time_s = np.arange(1, 501) / RATE
     hz = np.full(time_s.shape, 48.47)
-    y = simulate_channels(red_train, time_s, inputs={"supply_hz": hz}, channels=["front"],
-                          units={"front": "m/min"})  # fmt: skip
+    res = simulate(red_train, time_s=time_s, inputs={"supply_hz": hz})
+    y = res.channels(["front"], {"front": "m/min"})
     assert red_train.with_supply_schedule(SCHEDULE).reduction is red_train.reduction
     assert y[-1, 0] == pytest.approx(256.6, rel=2e-3)  # delivery speed, m/min
 

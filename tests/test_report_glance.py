@@ -12,11 +12,11 @@ from typing import Any
 import pytest
 
 from drafttwin import ROLLERS
-from drafttwin.benchmarks.generalisation.records import SCENARIOS
 from drafttwin.report import agreement, write_report
 from drafttwin.report.fmt import sig_fixed
 from drafttwin.report.generalisation import physics_pays_section, scenario_means, speed_curves
 from drafttwin.report.glance import RULE, paper_rank, verdicts
+from drafttwin.studies.generalisation.records import SCENARIOS
 
 from ._results_fixture import build
 

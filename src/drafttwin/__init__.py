@@ -6,7 +6,8 @@ The public API in one place (``import drafttwin as dt``)::
     series = dt.read_measurements("run.csv", outputs=["y"], inputs=["u"], units={"y": "m"})
     physics = dt.MechanisticModel.from_config("my_train.toml")    # or a simulator output file
     model = dt.make_model("md-s-l", task="simulation", inputs=["u"], init_samples=20)
-    part = dt.fit(model, series, test=dt.read_measurements("test.csv", ...), mechanistic=physics)
+    test = dt.read_measurements("test.csv", outputs=["y"], inputs=["u"], units={"y": "m"})
+    part = dt.fit_split(model, series, test=test, mechanistic=physics)  # dt.fit: the model
     frame = model.predict(part.test, physics)        # time + one column per output channel
     print(dt.evaluate(model, part, mechanistic=physics).to_frame())
 
@@ -37,13 +38,13 @@ _EXPORTS: dict[str, str] = {
     "DriveTrain": "drafttwin.mechanics",
     "kinematics": "drafttwin.mechanics",
     "simulate": "drafttwin.mechanics",
-    "simulate_channels": "drafttwin.mechanics",
     # models
     "MechanisticModel": "drafttwin.models",
     "Task": "drafttwin.models",
     "Training": "drafttwin.models",
     "make_model": "drafttwin.models",
     "load_model": "drafttwin.models",
+    "clone": "drafttwin.models",
     "MODEL_NAMES": "drafttwin.models",
     "GRUModel": "drafttwin.models",
     "LSTMModel": "drafttwin.models",
@@ -54,6 +55,7 @@ _EXPORTS: dict[str, str] = {
     # the evaluation protocol
     "split": "drafttwin.evaluation.protocol",
     "fit": "drafttwin.evaluation.protocol",
+    "fit_split": "drafttwin.evaluation.protocol",
     "evaluate": "drafttwin.evaluation.protocol",
     "Evaluation": "drafttwin.evaluation.protocol",
     # the sliver
@@ -86,12 +88,12 @@ __all__ = [
     "DriveTrain",
     "kinematics",
     "simulate",
-    "simulate_channels",
     "MechanisticModel",
     "Task",
     "Training",
     "make_model",
     "load_model",
+    "clone",
     "MODEL_NAMES",
     "GRUModel",
     "LSTMModel",
@@ -101,6 +103,7 @@ __all__ = [
     "PersistenceModel",
     "split",
     "fit",
+    "fit_split",
     "evaluate",
     "Evaluation",
     "StapleDiagram",
@@ -140,8 +143,8 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load lazi
     from drafttwin.data.series import MeasurementSeries
     from drafttwin.datasets import load_default
     from drafttwin.errors import ConfigError, DataError, DrafttwinError, ModelFileError
-    from drafttwin.evaluation.protocol import Evaluation, evaluate, fit, split
-    from drafttwin.mechanics import DriveTrain, kinematics, simulate, simulate_channels
+    from drafttwin.evaluation.protocol import Evaluation, evaluate, fit, fit_split, split
+    from drafttwin.mechanics import DriveTrain, kinematics, simulate
     from drafttwin.models import (
         MDSL,
         MODEL_NAMES,
@@ -153,6 +156,7 @@ if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load lazi
         PersistenceModel,
         Task,
         Training,
+        clone,
         load_model,
         make_model,
     )

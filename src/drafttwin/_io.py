@@ -11,10 +11,7 @@ import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:
-    import numpy as np
+from typing import Any
 
 
 @contextlib.contextmanager
@@ -103,19 +100,17 @@ def json_number(value: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def json_fields(record: Any) -> dict[str, Any]:
+    """A dataclass's fields as a JSON-safe dict: NaN and infinite floats become ``None``."""
+    from dataclasses import asdict
+
+    return {k: json_number(v) if isinstance(v, float) else v for k, v in asdict(record).items()}
+
+
 def write_bytes_atomic(target: str | Path, data: bytes) -> None:
     """Write ``data`` to ``target`` atomically."""
     with atomic_path(target) as tmp:
         tmp.write_bytes(data)
-
-
-def save_npy_atomic(target: str | Path, array: np.ndarray) -> None:
-    """``np.save`` to ``target`` atomically (numbers only: no pickled objects). Written through
-    a file object, so NumPy does not append ``.npy`` to the temporary name."""
-    import numpy as np
-
-    with atomic_path(target) as tmp, tmp.open("wb") as f:
-        np.save(f, np.asarray(array), allow_pickle=False)
 
 
 def savez_atomic(target: str | Path, /, **arrays: Any) -> None:

@@ -7,15 +7,9 @@ import inspect
 import numpy as np
 import pytest
 
+import drafttwin.mechanics as mechanics
 from drafttwin.errors import ConfigError
-from drafttwin.mechanics import (
-    DriveTrain,
-    SimulationResult,
-    reduce,
-    simulate,
-    simulate_channels,
-    simulate_on_grid,
-)
+from drafttwin.mechanics import DriveTrain, SimulationResult, reduce, simulate
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
 from drafttwin.mechanics.start import _start_state
@@ -45,18 +39,26 @@ def test_a_reduction_that_keeps_every_coupling_steps_bit_for_bit_like_the_full_t
     assert np.all(full[1][-1] > 10.0)  # it ran: every node turns
 
 
-def test_simulate_on_a_grid_returns_the_result_the_shortcuts_read():
+def test_one_public_simulate_entry():
+    # a duration or a grid: simulate; the same run in pieces: simulate_chunks; SciPy: reference
+    entries = {n for n in mechanics.__all__ if n.startswith("simulate")}
+    assert entries == {"simulate", "simulate_chunks", "simulate_reference"}
+    assert not hasattr(mechanics, "grid")
+
+
+def test_simulate_on_a_grid_returns_the_result_with_its_channels():
     time_s = 0.01 * np.arange(1, 81)
     u = np.full(len(time_s), 8.0)  # 8 V: a 40 Hz set-point
     res = simulate(BELT, time_s=time_s, inputs={"u": u})
     assert isinstance(res, SimulationResult)
     np.testing.assert_allclose(res.time_s, time_s, rtol=0, atol=1e-12)
-    np.testing.assert_array_equal(res.channels(), simulate_channels(BELT, time_s, {"u": u}))
+    np.testing.assert_array_equal(res.channels(), res.channels(["y"]))  # default: all
     # 40 Hz on a 4-pole motor through a 2:1 belt: the flywheel just under 40 pi / 2 rad/s
     assert 0.9 * 20 * np.pi < res.channels()[-1, 0] < 20 * np.pi
     fast = reduce(FA320A)
     grid = simulate(fast, time_s=time_s)
-    np.testing.assert_array_equal(grid.roller_rpm(), simulate_on_grid(fast, time_s))
+    rollers = [grid.rollers[r] for r in ("front", "second", "third", "back")]
+    np.testing.assert_array_equal(grid.roller_rpm(), grid.node_rpm[:, rollers])
     assert grid.channels(["front"], {"front": "rad/s"})[-1, 0] == pytest.approx(
         grid.roller_rpm()[-1, 0] * np.pi / 30
     )

@@ -27,15 +27,15 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-import drafttwin.experiments.plan as plan
+import drafttwin.studies.paper.plan as plan
 from drafttwin.cli import app
 from drafttwin.datasets import load_default
 from drafttwin.execution import integrity
 from drafttwin.execution.lock import StudyLocked, study_lock
-from drafttwin.experiments.plan import STUDY_PROFILES
-from drafttwin.experiments.study import Study
+from drafttwin.studies.paper.plan import STUDY_PLANS
+from drafttwin.studies.paper.run import Study
 
-SMALL = replace(STUDY_PROFILES["quick"], name="cache-test", data_duration_s=12.0, epochs=1,
+SMALL = replace(STUDY_PLANS["quick"], name="cache-test", data_duration_s=12.0, epochs=1,
                 patience=None, grid_epochs=1, grid_train_samples=300, ablation_tests=2,
                 use_grid_best=True)  # fmt: skip
 SMALL_GRID = {"GRID_LR": (0.01,), "GRID_HIDDEN": (8,), "GRID_LAYERS": (1,)}

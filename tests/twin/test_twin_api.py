@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 import pytest
 
-from drafttwin.twin.hallweb import HallServer, HallView
 from drafttwin.twin.service import TwinService
-from drafttwin.twin.store import EventRow, StoreWriter, TwinStore
-from drafttwin.twin.web import WS_IN_BURST, WS_IN_MAX_BYTES, create_app
+from drafttwin.twin.store.db import EventRow, StoreWriter, TwinStore
+from drafttwin.twin.web.app import WS_IN_BURST, WS_IN_MAX_BYTES, create_app
+from drafttwin.twin.web.hall import HallServer, HallView
 
 from ._twin import CHANNELS, free_port
 
@@ -192,7 +192,7 @@ def test_a_history_query_past_its_time_bound_is_interrupted(
     stored: _Served, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """A query running past the bound answers 503 saying so; the next one is served."""
-    from drafttwin.twin import webhistory
+    from drafttwin.twin.web import history as webhistory
 
     monkeypatch.setattr(webhistory, "QUERY_TIMEOUT_S", 1e-6)
     code, body = _get(f"{stored.base}/api/history/m1?seconds=3600&points=1000")
@@ -298,7 +298,7 @@ def test_live_twin_metrics_history_load_and_prometheus(
     from prometheus_client.parser import text_string_to_metric_families
 
     from drafttwin.twin.build import build_service
-    from drafttwin.twin.web import serve_with
+    from drafttwin.twin.web.app import serve_with
 
     record, model = twin_files
     store = TwinStore(tmp_path / "store")
@@ -377,8 +377,8 @@ def test_without_a_store_history_says_it_holds_only_memory() -> None:
     the kept range, a note naming --store); a window wholly outside them is 416."""
     from fastapi import HTTPException
 
-    from drafttwin.twin.store import SampleRow
-    from drafttwin.twin.webhistory import HistoryApi
+    from drafttwin.twin.store.db import SampleRow
+    from drafttwin.twin.web.history import HistoryApi
 
     api = HistoryApi(TwinService({}, []))
     v = np.array([250.0, 275.0, 300.0, 325.0])

@@ -17,9 +17,9 @@ from typer.testing import CliRunner
 
 from drafttwin.cli import app
 from drafttwin.plant.live import LiveSample
-from drafttwin.twin.audit import audit
-from drafttwin.twin.history import read_events
-from drafttwin.twin.store import SampleRow, TwinStore
+from drafttwin.twin.store.audit import audit
+from drafttwin.twin.store.db import SampleRow, TwinStore
+from drafttwin.twin.store.history import read_events
 from drafttwin.wire.plantlog import PlantLog, read_plant_log
 
 from ._twin import CHANNELS, cli, env, free_port

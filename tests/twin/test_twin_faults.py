@@ -14,7 +14,7 @@ from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.residuals import block_features
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.twin.faultwatch import LiveFaultWatch, load_detector, save_detector
-from drafttwin.twin.store import SampleRow
+from drafttwin.twin.store.db import SampleRow
 
 from ._twin import cli, env, free_port
 
@@ -241,7 +241,7 @@ def test_the_hall_page_shows_every_shard_and_guards_its_token():
     import urllib.error
     import urllib.request
 
-    from drafttwin.twin.hallweb import HallServer, HallView
+    from drafttwin.twin.web.hall import HallServer, HallView
 
     def get(url: str, headers: dict[str, str] | None = None) -> tuple[int, str]:
         req = urllib.request.Request(url, headers=headers or {})

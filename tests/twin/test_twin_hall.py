@@ -17,7 +17,7 @@ import pytest
 from typer.testing import CliRunner
 
 from drafttwin.cli import app
-from drafttwin.twin.history import read_events
+from drafttwin.twin.store.history import read_events
 
 from ._twin import cli, env, free_port, run_cli
 

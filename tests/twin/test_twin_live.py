@@ -137,9 +137,9 @@ def test_machines_of_one_tick_share_one_network_pass_with_the_same_result(replay
     machine alone, up to float32 rounding of the batch."""
     import asyncio
 
-    from drafttwin.twin.mapping import MachineMap
     from drafttwin.twin.service import MachineState, TwinService
-    from drafttwin.twin.sources import Sample
+    from drafttwin.twin.sources.base import Sample
+    from drafttwin.twin.sources.mapping import MachineMap
 
     series, model, _, rows = replayed
     names = ["a", "b", "c"]

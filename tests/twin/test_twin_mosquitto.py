@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from drafttwin.twin.audit import audit
 from drafttwin.twin.build import build_service
-from drafttwin.twin.history import read_history
 from drafttwin.twin.service import TwinService
+from drafttwin.twin.store.audit import audit
+from drafttwin.twin.store.history import read_history
 from drafttwin.wire.plantlog import read_plant_log
 
 from ._twin import cli, env
@@ -176,8 +176,8 @@ def test_a_hall_spread_over_two_twins_by_shared_subscription_and_by_shard(
 
 def test_share_and_shard_options_are_checked() -> None:
     from drafttwin.errors import ConfigError
-    from drafttwin.twin.mapping import MachineMap
-    from drafttwin.twin.source_spec import parse_source
+    from drafttwin.twin.sources.mapping import MachineMap
+    from drafttwin.twin.sources.spec import parse_source
 
     chans = ("front", "second", "third", "back")
     hall = tuple(MachineMap(f"m{k}", chans) for k in range(5))

@@ -107,9 +107,9 @@ def test_a_flood_is_counted_and_dropped_with_flat_memory() -> None:
     counted, not queued (no callback, no payload kept)."""
     from types import SimpleNamespace
 
-    from drafttwin.twin.mapping import MachineMap
-    from drafttwin.twin.mqtt import MAX_BACKLOG, MqttSource
     from drafttwin.twin.service import MachineState, TwinService
+    from drafttwin.twin.sources.mapping import MachineMap
+    from drafttwin.twin.sources.mqtt import MAX_BACKLOG, MqttSource
 
     m = MachineMap("df-01", ("front", "second", "third", "back"))
     src = MqttSource("127.0.0.1", 1, (m,))

@@ -25,7 +25,7 @@ from typer.testing import CliRunner
 from drafttwin.cli import app
 from drafttwin.twin.build import build_service
 from drafttwin.twin.service import TwinService
-from drafttwin.twin.web import serve_with
+from drafttwin.twin.web.app import serve_with
 
 from ._twin import free_port
 
@@ -105,7 +105,7 @@ def _alarm(service: TwinService, test: str, cause: dict[str, object] | None) -> 
     from a faulted plant; here the page's part is checked)."""
     from drafttwin.diagnosis.detect import Alarm
     from drafttwin.twin.faultwatch import alarm_detail
-    from drafttwin.twin.store import EventRow
+    from drafttwin.twin.store.db import EventRow
 
     st = service.states["df-01"]
     t = st.recent[-1].ts_us / 1e6
@@ -252,7 +252,7 @@ def test_the_hall_page_shows_each_machine_health_and_alarm_banners() -> None:
     """The hall page, built from the same script: a tile per machine with its health, a banner
     per alarm (a recent one active, an old unacknowledged one returned to normal)."""
     sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (test extra)")
-    from drafttwin.twin.hallweb import HallServer, HallView
+    from drafttwin.twin.web.hall import HallServer, HallView
 
     now = time.time()
     cause = {"element": "main_belt", "kind": "belt_wear", "severity": 0.5, "probability": 0.9}

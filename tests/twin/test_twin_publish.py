@@ -26,7 +26,7 @@ from drafttwin.twin.publish.base import Publisher
 from drafttwin.twin.publish.mqtt import MqttPublisher
 from drafttwin.twin.publish.opcua import SUPPLY_MAX_HZ, OpcUaPublisher, channel_range
 from drafttwin.twin.publish.payload import SCHEMA_FILES, iso_time, schema, utc
-from drafttwin.twin.store import EventRow, SampleRow
+from drafttwin.twin.store.db import EventRow, SampleRow
 
 from ._twin import cli, env, free_port, read_plant
 

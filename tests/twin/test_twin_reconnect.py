@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from drafttwin.twin.build import build_service
-from drafttwin.twin.history import read_events
+from drafttwin.twin.store.history import read_events
 
 from ._twin import cli, env, free_port
 

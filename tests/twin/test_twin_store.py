@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from drafttwin.errors import DataError
-from drafttwin.twin.history import read_events, read_history
-from drafttwin.twin.store import EventRow, SampleRow, StoreWriter, TwinStore, store_path
+from drafttwin.twin.store.db import EventRow, SampleRow, StoreWriter, TwinStore, store_path
+from drafttwin.twin.store.history import read_events, read_history
 
 from ._twin import CHANNELS, cli, env, read_plant, run_cli
 

@@ -24,7 +24,8 @@ from scipy.optimize import least_squares
 from drafttwin.calibration.parameters import Parameter, with_factors
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
-from drafttwin.mechanics import STOPPED_SUPPLY_HZ, DriveTrain, convert_rpm, simulate_channels
+from drafttwin.mechanics import STOPPED_SUPPLY_HZ, DriveTrain, convert_rpm, simulate
+from drafttwin.mechanics.inputs import select_outputs
 
 Vector: TypeAlias = Sequence[float] | np.ndarray
 """A parameter vector: the free factors."""
@@ -74,7 +75,8 @@ class Blocks:
         taken relative to the motor's (``e_j - g_j e_motor``, ``g_j`` its nominal speed per
         motor rpm): the supply frequency's wander moves the motor and every roller alike and
         cancels, which leaves what the drive train between them (belt creep) does."""
-        return _differential(simulated - self.measured, self) / self.noise
+        errors: np.ndarray = _differential(simulated - self.measured, self) / self.noise
+        return errors
 
 
 def _unscorable(
@@ -106,7 +108,7 @@ def block_means(values: np.ndarray, block: int) -> np.ndarray:
     count = finite.sum(axis=1)
     total = np.where(finite, cut, 0.0).sum(axis=1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        out = total / count
+        out: np.ndarray = total / count
     out[count < (block + 1) // 2] = np.nan
     return out
 
@@ -189,9 +191,10 @@ def _breakaway(record: MeasurementSeries, block: int, n_blocks: int) -> np.ndarr
 def simulate_blocks(train: DriveTrain, data: Blocks) -> np.ndarray:
     """The train's block means on every record, ``(n_blocks_total, channels)``."""
     parts = []
+    select_outputs(train, data.channels, data.units)  # refused before the simulation runs
     for record in data.series.records():
-        sim = simulate_channels(train, record.time_s, inputs=record.inputs,
-                                channels=data.channels, units=data.units)  # fmt: skip
+        res = simulate(train, time_s=record.time_s, inputs=record.inputs)
+        sim = res.channels(data.channels, data.units)
         parts.append(block_means(sim, data.block))
     return np.vstack(parts)
 
@@ -235,7 +238,8 @@ class Objective:
         r = self.data.errors(self.blocks(x))
         if self.whiten is not None:
             r = self.whiten(r)
-        return r[np.isfinite(self.data.measured)]
+        scored: np.ndarray = r[np.isfinite(self.data.measured)]
+        return scored
 
 
 def fit(objective: Objective, x0: Vector, max_nfev: int = 60, loss: str = "linear") -> np.ndarray:

@@ -20,7 +20,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 from scipy.linalg import solve_toeplitz
@@ -62,7 +62,8 @@ def least_determined(relative_se: np.ndarray, gamma: float) -> int | None:
 
 
 def sensitivities(jac: np.ndarray) -> np.ndarray:
-    return np.linalg.norm(jac, axis=0)
+    norms: np.ndarray = np.linalg.norm(jac, axis=0)
+    return norms
 
 
 def combine(jac: np.ndarray, candidates: Sequence[int]) -> list[list[int]]:
@@ -117,7 +118,8 @@ def standard_errors(jac: np.ndarray, residuals: np.ndarray) -> np.ndarray:
     dof = max(n - p, 1)
     s2 = float(residuals @ residuals) / dof
     inv = np.where(s > s[0] * 1e-12, 1.0 / np.maximum(s, 1e-300), np.inf)
-    return np.sqrt(s2 * np.sum((vt.T * inv) ** 2, axis=1))
+    se: np.ndarray = np.sqrt(s2 * np.sum((vt.T * inv) ** 2, axis=1))
+    return se
 
 
 def sandwich_standard_errors(
@@ -176,7 +178,7 @@ def hc3_standard_errors(jac: np.ndarray, residuals: np.ndarray) -> np.ndarray:
 
 def ar_whitener(
     residual_blocks: np.ndarray, record_rows: Sequence[tuple[int, int]], order: int = AR_ORDER
-):
+) -> Callable[[np.ndarray], np.ndarray]:
     """A function that whitens a ``(blocks, channels)`` residual array with the AR(p) model
     fitted (Yule-Walker) to ``residual_blocks`` per channel over all records; each record is
     filtered on its own. NaN blocks are treated as zero residuals (they are not scored)."""

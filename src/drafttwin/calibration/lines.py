@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.mechanics import DriveTrain, SimulationResult, simulate_nodes_on_grid
+from drafttwin.mechanics import DriveTrain, SimulationResult, simulate
 
 HELD_OUT = 0.3
 """Share of each record (its end) kept out of the fit and scored."""
@@ -135,7 +135,7 @@ def fit_lines(train: DriveTrain, data: MeasurementSeries, physics: DriveTrain) -
     amp, freq = [], []
     sums = {k: np.zeros((2, len(chans))) for k in ("fit", "held")}  # residual SS, explained SS
     for record in data.records():
-        sim = simulate_nodes_on_grid(physics, record.time_s, record.inputs)
+        sim = simulate(physics, time_s=record.time_s, inputs=record.inputs)
         outputs = {m.channel: m for m in physics.output_channels()}
         pred = np.column_stack([outputs[c].from_rpm(sim.node_rpm[:, physics.node_index(outputs[c].node)])
                                 for c in chans])  # fmt: skip

@@ -44,7 +44,9 @@ class ChannelNoise:
 
     def covariance(self, t_s: np.ndarray) -> np.ndarray:
         lag = np.abs(t_s[:, None] - t_s[None, :])
-        return self.ou_var * np.exp(-lag / self.tau_s) + self.white_var * np.eye(len(t_s))
+        ou = self.ou_var * np.exp(-lag / self.tau_s)
+        cov: np.ndarray = ou + self.white_var * np.eye(len(t_s))
+        return cov
 
 
 @njit(cache=True)

@@ -20,7 +20,7 @@ parameter on one scale.
 from __future__ import annotations
 
 import copy
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -82,7 +82,9 @@ def _bearing(index: int) -> tuple[Callable[[Raw], float], Callable[[Raw, float],
 
 def _rated_slip(raw: Raw) -> float:
     m = raw["motor"]
-    return 1.0 - float(m["rated_rpm"]) / (120.0 * m.get("rated_supply_hz", 50.0) / m["poles"])
+    synchronous_rpm = 120.0 * m.get("rated_supply_hz", 50.0) / m["poles"]
+    slip: float = 1.0 - float(m["rated_rpm"]) / synchronous_rpm
+    return slip
 
 
 def _set_rated_slip(raw: Raw, slip: float) -> None:
@@ -165,11 +167,3 @@ def with_factors(
 def nominal_values(train: DriveTrain, params: Sequence[Parameter]) -> list[float]:
     raw = train.to_dict()
     return [p.value(raw) for p in params]
-
-
-def values_from_mapping(
-    train: DriveTrain, params: Sequence[Parameter], true: Mapping[str, float]
-) -> dict[str, float]:
-    """Factors for the parameters named in ``true`` (relative deviations, as the plant's
-    ``mismatch_draws``: factor = 1 + draw)."""
-    return {p.name: 1.0 + float(true[p.name]) for p in params if p.name in true}

@@ -3,11 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from drafttwin.errors import ConfigError
 
+if TYPE_CHECKING:
+    import pandas as pd
 
-def load_train(preset: str | None, config: Path | None):
+    from drafttwin.mechanics import DriveTrain
+
+
+def load_train(preset: str | None, config: Path | None) -> DriveTrain:
     """The drive train named by ``--preset`` or ``--config`` (exactly one may be given)."""
     from drafttwin.models.source import PhysicsSource, drive_train
 
@@ -33,7 +39,7 @@ def check_output_suffix(path: Path, option: str = "--out") -> None:
         )
 
 
-def write_frame(frame, path: Path) -> None:
+def write_frame(frame: pd.DataFrame, path: Path) -> None:
     """Write a DataFrame to CSV or Parquet atomically (nothing half-written on failure)."""
     from drafttwin._io import atomic_path
 

@@ -4,103 +4,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Any
 
-import typer
-
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._oserrors import input_paths
+from drafttwin.cli._options import (
+    ColumnsOpt,
+    InputsOpt,
+    OutputsOpt,
+    RateToleranceOpt,
+    TimeColumnOpt,
+    UnitCheckOpt,
+    UnitsOpt,
+)
 from drafttwin.errors import ConfigError
 
 if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries
-    from drafttwin.models import BaseModel, MechanisticModel
-
-DataOpt = Annotated[
-    str,
-    typer.Option(
-        "--data",
-        help="'default' (the embedded FA320A plant data) or CSV/Parquet file(s), comma-separated "
-        "(separate experiments: no model window crosses from one to the next).",
-        callback=input_paths("--data"),
-    ),
-]
-TestDataOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--test-data",
-        help="Separate test record(s), comma-separated: scored whole instead of the "
-        "chronological split.",
-        callback=input_paths("--test-data"),
-    ),
-]
-OutputsOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--outputs",
-        help="Output channels NAME[,NAME...] (default: the FA320A rollers front, second, third, "
-        "back).",
-    ),
-]
-InputsOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--inputs",
-        help="Exogenous input channels NAME[,NAME...] of the data (set-points, a drive "
-        "voltage): the networks see them; a model that takes none (the physics alone, "
-        "persistence) reads them only. Set-point columns (supply_hz, setpoint_*) are always "
-        "read for the physics.",
-    ),
-]
-TimeColumnOpt = Annotated[
-    str | None, typer.Option("--time-column", help="Name of the time column (seconds).")
-]
-UnitsOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--units",
-        help="Units NAME=UNIT[,...] (e.g. y=m,u=V). The rpm plausibility check runs only on "
-        "channels in rpm (the FA320A rollers by default).",
-    ),
-]
-MechanisticOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--mechanistic",
-        help="The physics: 'preset' / 'preset:NAME' (fa320a), 'config:FILE.toml' (your drive "
-        "train), or simulator output file(s) FILE[,FILE...] (time + one column per output, "
-        "one file for all records or one per record). Default: the model file's.",
-    ),
-]
-TaskOpt = Annotated[
-    str | None,
-    typer.Option(
-        "--task",
-        help="prediction (one step ahead, default) or simulation (free run from the inputs and "
-        "--init-samples measured samples).",
-    ),
-]
-ColumnsOpt = Annotated[
-    str | None,
-    typer.Option("--columns", help="Map file columns to channels / time / motor: "
-                 "v1=front,v2=second,..."),
-]  # fmt: skip
-UnitCheckOpt = Annotated[
-    bool,
-    typer.Option("--unit-check/--no-unit-check",
-                 help="Run the plausibility checks on the channels in rpm."),
-]  # fmt: skip
-RateToleranceOpt = Annotated[
-    float,
-    typer.Option("--rate-tolerance", callback=bounded("--rate-tolerance"),
-                 help="Allowed time-step jitter, fraction of a step."),
-]  # fmt: skip
-InitOpt = Annotated[
-    int | None,
-    typer.Option("--init-samples", callback=bounded("--init-samples"),
-                 help="Simulation: measured samples at the start "
-                 "of each record the free run may use (default: the model's window)."),
-]  # fmt: skip
+    from drafttwin.models import BaseModel
 
 
 def names(text: str | None, option: str) -> tuple[str, ...] | None:
@@ -224,8 +143,3 @@ def _rollers() -> tuple[str, ...]:
     from drafttwin._constants import ROLLERS
 
     return ROLLERS
-
-
-def physics_inputs(source: MechanisticModel | None) -> tuple[str, ...]:
-    """Input channels the mechanistic source needs from the data."""
-    return () if source is None else source.required_inputs()

@@ -12,9 +12,12 @@ from __future__ import annotations
 
 import errno
 import os
+from collections.abc import Callable
 from pathlib import Path
 
 from drafttwin.errors import ConfigError, DrafttwinError
+
+PathCallback = Callable[[Path | None], Path | None]  # typer reads the returned callback's signature
 
 _OPTIONS: dict[Path, str] = {}  # path as given (absolute) -> the option that named it
 
@@ -77,7 +80,7 @@ def describe(exc: OSError) -> DrafttwinError:
 # -- typer callbacks of path options -----------------------------------------------------
 
 
-def input_path(option: str):  # noqa: ANN201  (typer reads the callback's signature)
+def input_path(option: str) -> PathCallback:
     """Callback of an input file option: remember it (the reading reports errors)."""
 
     def callback(value: Path | None) -> Path | None:
@@ -88,7 +91,7 @@ def input_path(option: str):  # noqa: ANN201  (typer reads the callback's signat
     return callback
 
 
-def input_paths(option: str):  # noqa: ANN201
+def input_paths(option: str) -> Callable[[str | None], str | None]:
     """Callback of a comma-separated list of input files (``--data a.csv,b.csv``)."""
 
     def callback(value: str | None) -> str | None:
@@ -100,26 +103,22 @@ def input_paths(option: str):  # noqa: ANN201
     return callback
 
 
-def output_file(option: str):  # noqa: ANN201
+def output_file(option: str) -> PathCallback:
     """Callback of an output file option: refuse a folder, a file as parent, an unwritable
     folder, now rather than after the work."""
-
-    def callback(value: Path | None) -> Path | None:
-        if value is not None:
-            remember(value, option)
-            check_output(value, option, folder=False)
-        return value
-
-    return callback
+    return _output(option, folder=False)
 
 
-def output_dir(option: str):  # noqa: ANN201
+def output_dir(option: str) -> PathCallback:
     """Callback of an output folder option (created when missing)."""
+    return _output(option, folder=True)
 
+
+def _output(option: str, *, folder: bool) -> PathCallback:
     def callback(value: Path | None) -> Path | None:
         if value is not None:
             remember(value, option)
-            check_output(value, option, folder=True)
+            check_output(value, option, folder=folder)
         return value
 
     return callback

@@ -10,7 +10,7 @@ import contextlib
 import errno
 import inspect
 from collections.abc import Iterator
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import typer
 from rich.console import Console
@@ -22,6 +22,9 @@ from rich.progress import (
     TimeElapsedColumn,
     TimeRemainingColumn,
 )
+
+if TYPE_CHECKING:
+    from typer._click.core import Context  # the Context click's Group.invoke is typed with
 
 err_console = Console(stderr=True)
 
@@ -39,7 +42,7 @@ class _UserErrorsExit2(typer.core.TyperGroup):
     option, see :mod:`drafttwin.cli._oserrors`) and a bad option value or usage (one line
     instead of click's box)."""
 
-    def invoke(self, ctx):  # a typer (vendored click) Context
+    def invoke(self, ctx: Context) -> Any:
         from typer._click.exceptions import ClickException, NoArgsIsHelpError
 
         from drafttwin.cli._oserrors import describe, forget_paths

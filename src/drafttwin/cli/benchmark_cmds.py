@@ -8,8 +8,15 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._oserrors import input_path, output_dir
+from drafttwin.cli._options import (
+    EpochsOpt,
+    JsonOpt,
+    OutDirOpt,
+    QuietOpt,
+    WorkersOpt,
+    number,
+    path_in,
+)
 from drafttwin.cli.app import app, console, print_json, progress_bar
 
 benchmark_app = typer.Typer(
@@ -23,50 +30,38 @@ def _names(text: str) -> tuple[str, ...]:
     return tuple(s.strip().lower() for s in text.split(",") if s.strip())
 
 
+EmpsDirOpt = Annotated[Path | None, path_in("--data-dir", "Folder with DATA_EMPS.mat and "
+                      "DATA_EMPS_PULSES.mat (default: $DRAFTTWIN_EMPS_DIR).")]  # fmt: skip
+EmpsSeedsOpt = Annotated[int, number("--seeds", "Seeds per trained model.")]
+ProfileOpt = Annotated[str, typer.Option("--profile", help="quick | standard | paper.")]
+ModelsOpt = Annotated[str, typer.Option("--models", help="Comma-separated subset of the models.")]
+TasksOpt = Annotated[str, typer.Option("--tasks", help="simulation,prediction or one of them.")]
+MaxSamplesOpt = Annotated[int | None, number("--max-samples", "Use only the first N samples of "
+                          "each record (smoke tests; not the official protocol).")]  # fmt: skip
+# derived from the parameter's name, as --train-metrics/--no-train-metrics
+TrainMetricsOpt = Annotated[bool, typer.Option(help="Also score every model on the training record.")]  # fmt: skip
+DeviceOpt = Annotated[str, typer.Option("--device", help="auto | cpu | cuda.")]
+PhysicsOpt = Annotated[str, typer.Option("--physics", help=(
+    "published | refitted | both: the physics that physics only and the hybrids use; refitted "
+    "= M, Fv, Fc, offset refitted by output error on the training record."))]  # fmt: skip
+
+
 @benchmark_app.command("emps")
 def emps(
-    data_dir: Annotated[
-        Path | None,
-        typer.Option(
-            help="Folder with DATA_EMPS.mat and DATA_EMPS_PULSES.mat (default: "
-            "$DRAFTTWIN_EMPS_DIR).",
-            callback=input_path("--data-dir"),
-        ),
-    ] = None,
-    seeds: Annotated[
-        int, typer.Option(help="Seeds per trained model.", callback=bounded("--seeds"))
-    ] = 3,
-    profile: Annotated[str, typer.Option(help="quick | standard | paper.")] = "quick",
-    out: Annotated[Path, typer.Option(help="Output folder.", callback=output_dir("--out"))] = Path(
-        "emps_out"
-    ),
-    models: Annotated[
-        str, typer.Option(help="Comma-separated subset of the models.")
-    ] = "mechanistic,persistence,gru,lstm,parallel,md-s-l",
-    tasks: Annotated[str, typer.Option(help="simulation,prediction or one of them.")] = (
-        "simulation,prediction"
-    ),
-    workers: Annotated[
-        int, typer.Option(help="Parallel processes.", callback=bounded("--workers"))
-    ] = 1,
-    epochs: Annotated[
-        int | None,
-        typer.Option(help="Override the profile's epoch budget.", callback=bounded("--epochs")),
-    ] = None,
-    max_samples: Annotated[
-        int | None,
-        typer.Option(
-            help="Use only the first N samples of each record (smoke tests; not the "
-            "official protocol).",
-            callback=bounded("--max-samples"),
-        ),
-    ] = None,
-    train_metrics: Annotated[
-        bool, typer.Option(help="Also score every model on the training record.")
-    ] = False,
-    device: Annotated[str, typer.Option(help="auto | cpu | cuda.")] = "auto",
-    as_json: Annotated[bool, typer.Option("--json", help="Print the results as JSON.")] = False,
-    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    data_dir: EmpsDirOpt = None,
+    seeds: EmpsSeedsOpt = 3,
+    profile: ProfileOpt = "quick",
+    out: OutDirOpt = Path("emps_out"),
+    models: ModelsOpt = "mechanistic,persistence,gru,lstm,parallel,md-s-l",
+    tasks: TasksOpt = "simulation,prediction",
+    workers: WorkersOpt = 1,
+    epochs: EpochsOpt = None,
+    max_samples: MaxSamplesOpt = None,
+    train_metrics: TrainMetricsOpt = False,
+    device: DeviceOpt = "auto",
+    physics: PhysicsOpt = "published",
+    as_json: JsonOpt = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Physics only, black-box GRU/LSTM, parallel hybrid and MD-S-L on the EMPS benchmark.
 
@@ -75,14 +70,16 @@ def emps(
     one-step prediction mode (reported apart). Prints the table beside the published numbers
     and writes OUT/emps_report.html, OUT/emps_results.json and OUT/emps_predictions.csv.
     """
-    from drafttwin.benchmarks.emps.run import EmpsConfig, run_benchmark, task_configs
     from drafttwin.datasets.emps import load_emps
-    from drafttwin.report.emps import HEADER, table_rows, write_outputs
+    from drafttwin.report.emps import HEADER, refit_line, table_rows, write_outputs
+    from drafttwin.studies.emps.plan import PHYSICS, EmpsConfig, task_configs
+    from drafttwin.studies.emps.run import run_benchmark
 
     config = EmpsConfig(
         data_dir=data_dir, seeds=seeds, profile=profile, models=_names(models),
         tasks=_names(tasks), epochs=epochs, max_samples=max_samples,
         train_metrics=train_metrics, workers=workers, device=device,
+        physics_variants=PHYSICS if physics.strip().lower() == "both" else _names(physics),
     )  # fmt: skip
     config.check()
     load_emps(data_dir)  # refuse missing or altered files before anything starts
@@ -100,6 +97,8 @@ def emps(
     for cells in table_rows(result.results):
         table.add_row(*cells)
     console.print(table)
+    if refit_line(result.results):
+        console.print(refit_line(result.results))
     console.print(
         "published: physics 9.23 mm (README computation), LSTM 74.1 mm and GRU 220.3 mm "
         "(Champneys et al. 2024, trained on half of DATA_EMPS); prediction-mode rows are "
@@ -108,40 +107,25 @@ def emps(
     console.print("wrote " + ", ".join(str(p) for p in paths))
 
 
+QuickOpt = Annotated[bool, typer.Option("--quick", help=(
+    "A small subset (short records, tiny networks, 1 seed, 2 training lengths) that runs in "
+    "about a minute: a smoke test, not the benchmark's figures."))]  # fmt: skip
+SeedsOpt = Annotated[int | None, number("--seeds", "Seeds per learned model (default: 3, quick 1).")]  # fmt: skip
+# derived from the parameter's name, as --cache/--no-cache
+CacheOpt = Annotated[bool, typer.Option(help="Keep the plant records and finished fits in "
+                     "OUT/cache and reuse them on a rerun of the same configuration.")]  # fmt: skip
+RowsJsonOpt = Annotated[bool, typer.Option("--json", help='Print {"rows": [...], "floors": [...]} (strict JSON).')]  # fmt: skip
+
+
 @benchmark_app.command("generalisation")
 def generalisation(
-    quick: Annotated[
-        bool,
-        typer.Option(
-            "--quick",
-            help="A small subset (short records, tiny networks, 1 seed, 2 training lengths) "
-            "that runs in about a minute: a smoke test, not the benchmark's figures.",
-        ),
-    ] = False,
-    seeds: Annotated[
-        int | None,
-        typer.Option(
-            help="Seeds per learned model (default: 3, quick 1).", callback=bounded("--seeds")
-        ),  # fmt: skip
-    ] = None,
-    workers: Annotated[
-        int, typer.Option(help="Parallel processes for the fits.", callback=bounded("--workers"))
-    ] = 1,
-    out: Annotated[Path, typer.Option(help="Output folder.", callback=output_dir("--out"))] = Path(
-        "generalisation_out"
-    ),
-    cache: Annotated[
-        bool,
-        typer.Option(
-            help="Keep the plant records and finished fits in OUT/cache and reuse "
-            "them on a rerun of the same configuration."
-        ),  # fmt: skip
-    ] = True,
-    as_json: Annotated[
-        bool,
-        typer.Option("--json", help='Print {"rows": [...], "floors": [...]} (strict JSON).'),
-    ] = False,
-    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    quick: QuickOpt = False,
+    seeds: SeedsOpt = None,
+    workers: WorkersOpt = 1,
+    out: OutDirOpt = Path("generalisation_out"),
+    cache: CacheOpt = True,
+    as_json: RowsJsonOpt = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Where does the physics pay? Models trained on steady running of one machine at one
     set-point, tested where their training never went.
@@ -158,8 +142,8 @@ def generalisation(
     change from +15 %), against the physics. Writes
     OUT/generalisation_report.html and OUT/generalisation_results.json (docs/generalisation.md).
     """
-    from drafttwin.benchmarks.generalisation import get_config, run_benchmark
     from drafttwin.report.generalisation import check_lines, extrapolation_rows, write_outputs
+    from drafttwin.studies.generalisation import get_config, run_benchmark
 
     changes: dict[str, int] = {"workers": workers}
     if seeds is not None:

@@ -3,99 +3,72 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._common import load_train
 from drafttwin.cli._data import ChannelOptions
 from drafttwin.cli._groups import with_group
-from drafttwin.cli._oserrors import input_paths, output_file
+from drafttwin.cli._options import JsonOpt, TrainOptions, file_out, files_in, number
 from drafttwin.cli.app import app, console, err_console, print_json
-from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 from drafttwin.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from drafttwin.calibration import Calibration
+    from drafttwin.mechanics import DriveTrain
+
+
+TrainOutOpt = Annotated[Path, file_out(
+    "--out", "The calibrated drive train, .toml (usable with --config and --mechanistic "
+    "config:FILE); the report goes beside it as NAME.calibration.json (refused where a file not "
+    "written by calibrate has that name).")]  # fmt: skip
+RecordsOpt = Annotated[str, files_in("--data", "Measured records, comma-separated (steady, "
+                       "start-up and speed-change records together identify the most); 'default' "
+                       "for the embedded data.")]  # fmt: skip
+ParamsOpt = Annotated[str | None, typer.Option("--params", help=(
+    "Parameters to estimate, dotted names as in the plant's sidecar "
+    "(roller.front.friction_coefficient, belt.main_belt.axial_rigidity_n, "
+    "motor.breakdown_torque_ratio, motor.rated_slip, bearing.<node>, ...). Default: all a "
+    "drawing does not give."))]  # fmt: skip
+BlockOpt = Annotated[float, number("--block", "Block length, s: the fit compares block means.")]
+FullModelOpt = Annotated[bool, typer.Option("--full-model/--reduced-model", help=(
+    "Simulate the full drive train in the fit (minutes to hours) instead of the reduced one "
+    "(couplings above 200 Hz rigid, belts compliant; docs/mechanics.md)."))]  # fmt: skip
+LinesOpt = Annotated[bool, typer.Option("--lines", help=(
+    "Also fit the known-frequency terms (once and twice per revolution of every shaft, gear "
+    "meshes, chain tooth pass; angles from the measured speeds) to the calibrated physics' "
+    "residual, and report the share of its fluctuation they explain on each record's held-out "
+    "last 30 % and the largest terms."))]  # fmt: skip
+WanderOpt = Annotated[bool | None, typer.Option("--wander/--no-wander", show_default=False, help=(
+    "Model the motor channel's error as white noise plus a slow wander (the VFD's supply "
+    "frequency, which only the motor sees; size and correlation time by maximum likelihood) and "
+    "refit by generalised least squares; standstill and the first 0.5 s after a start are then "
+    "not scored. Needs a recorded motor speed. The report's residual_model also says how well "
+    "the records pin the steady level (level_sd) and how far a new minute's own wander moves "
+    "its mean (mean_sd_60s): the wander's share of the bias on another record. Default: on when "
+    "the records have a motor speed, plain least squares otherwise (docs/calibration.md)."))]  # fmt: skip
+# derived from the parameter's name, as --quiet/--no-quiet
+QuietOpt = Annotated[bool, typer.Option(help="No progress messages.")]
 
 
 @app.command()
 @with_group("channels", ChannelOptions)
+@with_group("drive", TrainOptions)
 def calibrate(
-    out: Annotated[
-        Path,
-        typer.Option(
-            help="The calibrated drive train, .toml (usable with "
-            "--config and --mechanistic config:FILE); the report goes beside it as "
-            "NAME.calibration.json (refused where a file not written by calibrate has that "
-            "name).",
-            callback=output_file("--out"),
-        ),
-    ],  # fmt: skip
-    data: Annotated[
-        str,
-        typer.Option(
-            help="Measured records, comma-separated (steady, start-up and speed-change "
-            "records together identify the most); 'default' for the embedded data.",
-            callback=input_paths("--data"),
-        ),
-    ],  # fmt: skip
+    out: TrainOutOpt,
+    data: RecordsOpt,
     channels: ChannelOptions,
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    params: Annotated[
-        str | None,
-        typer.Option(
-            help="Parameters to estimate, dotted names as in the plant's sidecar "
-            "(roller.front.friction_coefficient, belt.main_belt.axial_rigidity_n, "
-            "motor.breakdown_torque_ratio, motor.rated_slip, bearing.<node>, ...). "
-            "Default: all a drawing does not give."
-        ),
-    ] = None,  # fmt: skip
-    block: Annotated[
-        float,
-        typer.Option(
-            help="Block length, s: the fit compares block means.", callback=bounded("--block")
-        ),
-    ] = 0.1,
-    full_model: Annotated[
-        bool,
-        typer.Option(
-            "--full-model/--reduced-model",
-            help="Simulate the full drive train in the fit (minutes to hours) instead of "
-            "the reduced one (couplings above 200 Hz rigid, belts compliant; docs/mechanics.md).",
-        ),
-    ] = False,  # fmt: skip
-    lines: Annotated[
-        bool,
-        typer.Option(
-            "--lines",
-            help="Also fit the known-frequency terms (once and twice per revolution of every "
-            "shaft, gear meshes, chain tooth pass; angles from the measured speeds) to the "
-            "calibrated physics' residual, and report the share of its fluctuation they "
-            "explain on each record's held-out last 30 % and the largest terms.",
-        ),
-    ] = False,  # fmt: skip
-    wander: Annotated[
-        bool | None,
-        typer.Option(
-            "--wander/--no-wander",
-            help="Model the motor channel's error as white noise plus a slow wander (the "
-            "VFD's supply frequency, which only the motor sees; size and correlation time "
-            "by maximum likelihood) and refit by generalised least squares; standstill and "
-            "the first 0.5 s after a start are then not scored. Needs a recorded motor speed. "
-            "The report's residual_model also says how well the records pin the steady level "
-            "(level_sd) and how far a new minute's own wander moves its mean (mean_sd_60s): "
-            "the wander's share of the bias on another record. Default: on when the records "
-            "have a motor speed, plain least squares otherwise (docs/calibration.md).",
-            show_default=False,
-        ),
-    ] = None,  # fmt: skip
-    as_json: Annotated[bool, typer.Option("--json", help="Print the report as JSON.")] = False,
-    quiet: Annotated[bool, typer.Option(help="No progress messages.")] = False,
+    drive: TrainOptions,
+    params: ParamsOpt = None,
+    block: BlockOpt = 0.1,
+    full_model: FullModelOpt = False,
+    lines: LinesOpt = False,
+    wander: WanderOpt = None,
+    as_json: JsonOpt = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Estimate the physical parameters of a drive train from measured speeds, with standard
     errors and an identifiability verdict per parameter, and write the calibrated train.
@@ -113,7 +86,7 @@ def calibrate(
         raise ConfigError(f"unsupported output file type '{out.suffix or '(none)'}'",
                           source=out, where="--out", fix="name it *.toml")  # fmt: skip
     report_file = report_path(out)
-    train = load_train(preset, config)
+    train = drive.load()
     parsed = channels.parse()
     needs = tuple(c.channel for c in train.spec.input)
     series = parsed.read(data, needs)
@@ -172,7 +145,7 @@ def report_path(out: Path) -> Path:
     return path
 
 
-def _model(full: bool):
+def _model(full: bool) -> tuple[Callable[[DriveTrain], DriveTrain] | None, str]:
     from drafttwin.mechanics import reduce
 
     return (None, "full") if full else (reduce, "reduced")
@@ -210,7 +183,7 @@ def _print(result: Calibration) -> None:
                   f"{result.wall_s:.0f} s")  # fmt: skip
 
 
-def _print_lines(lines: dict) -> None:
+def _print_lines(lines: dict[str, Any]) -> None:
     share = Table(title="known-frequency terms: share of the physics residual's fluctuation "
                   "they explain")  # fmt: skip
     for col in ("channel", "fitted part", "held-out 30 %"):

@@ -11,9 +11,9 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
-from drafttwin.cli._bounds import bounded
 from drafttwin.cli._data import ChannelOptions
 from drafttwin.cli._groups import with_group
+from drafttwin.cli._options import JsonOpt, number
 from drafttwin.cli._oserrors import input_paths
 from drafttwin.cli.app import app, console, print_json
 from drafttwin.data.io import read_measurements
@@ -158,35 +158,25 @@ def _print_summary(s: dict[str, Any]) -> None:
     console.print(table)
 
 
+FileArg = Annotated[str, typer.Argument(
+    help="Measurement file(s) (.csv, .parquet), comma-separated for several experiments, or "
+    "'default' (the embedded FA320A data).", callback=input_paths("FILE"))]  # fmt: skip
+ExpectedRateOpt = Annotated[float | None, number("--rate", "Expected sample rate in Hz; refuse others.")]  # fmt: skip
+NominalOpt = Annotated[str | None, typer.Option("--nominal", help="Nominal speeds in rpm "
+                       "(front=1815,...) to detect unit mix-ups.")]  # fmt: skip
+ThresholdOpt = Annotated[float, number("--threshold", "Outlier threshold (0.10 = 10 % of the "
+                         "value, or of the channel's spread for signals near or through zero).")]  # fmt: skip
+
+
 @app.command("inspect")
 @with_group("channel_options", ChannelOptions)
 def inspect_cmd(
-    file: Annotated[
-        str,
-        typer.Argument(
-            help="Measurement file(s) (.csv, .parquet), comma-separated for several "
-            "experiments, or 'default' (the embedded FA320A data).",
-            callback=input_paths("FILE"),
-        ),
-    ],  # fmt: skip
+    file: FileArg,
     channel_options: ChannelOptions,
-    rate: Annotated[
-        float | None,
-        typer.Option(help="Expected sample rate in Hz; refuse others.", callback=bounded("--rate")),
-    ] = None,
-    nominal: Annotated[
-        str | None,
-        typer.Option(help="Nominal speeds in rpm (front=1815,...) to detect unit mix-ups."),
-    ] = None,
-    threshold: Annotated[
-        float,
-        typer.Option(
-            callback=bounded("--threshold"),
-            help="Outlier threshold (0.10 = 10 % of the value, or of the "
-            "channel's spread for signals near or through zero).",
-        ),
-    ] = 0.10,  # fmt: skip
-    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    rate: ExpectedRateOpt = None,
+    nominal: NominalOpt = None,
+    threshold: ThresholdOpt = 0.10,
+    as_json: JsonOpt = False,
 ) -> None:
     """Validate measurement files and summarise them.
 

@@ -10,38 +10,39 @@ from rich import box
 from rich.table import Table
 
 from drafttwin._limits import check_rk4_steps, check_samples
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._common import load_train
-from drafttwin.cli._oserrors import output_dir, output_file
+from drafttwin.cli._groups import with_group
+from drafttwin.cli._options import (
+    FarPerDayOpt,
+    JsonOpt,
+    OutDirOpt,
+    QuietOpt,
+    SampleRateOpt,
+    TrainOptions,
+    WorkersOpt,
+    dir_out,
+    file_out,
+    number,
+)
 from drafttwin.cli.app import app, console, progress_bar
 from drafttwin.cli.benchmark_cmds import benchmark_app
-from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
+
+CasesOutOpt = Annotated[Path, dir_out("--out", "Folder for the records and cases.json.")]
+CasesOpt = Annotated[int, number("--cases", "Number of records (one in 4 healthy).")]
+SetSeedOpt = Annotated[int, number("--seed", "Seed of the whole set: same seed, same files.")]
+RecordDurationOpt = Annotated[float, number("--duration", "Machine time per record, s.")]
 
 
 @app.command("generate-faults")
+@with_group("drive", TrainOptions)
 def generate_faults(
-    out: Annotated[
-        Path,
-        typer.Option(help="Folder for the records and cases.json.", callback=output_dir("--out")),
-    ],
-    cases: Annotated[
-        int, typer.Option(help="Number of records (one in 4 healthy).", callback=bounded("--cases"))
-    ] = 12,
-    seed: Annotated[
-        int,
-        typer.Option(
-            help="Seed of the whole set: same seed, same files.", callback=bounded("--seed")
-        ),
-    ] = 0,
-    duration: Annotated[
-        float, typer.Option(help="Machine time per record, s.", callback=bounded("--duration"))
-    ] = 60.0,
-    rate: Annotated[
-        float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))
-    ] = 100.0,
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    *,  # keyword-only: the option group below has no default
+    out: CasesOutOpt,
+    cases: CasesOpt = 12,
+    seed: SetSeedOpt = 0,
+    duration: RecordDurationOpt = 60.0,
+    rate: SampleRateOpt = 100.0,
+    drive: TrainOptions,
+    quiet: QuietOpt = False,
 ) -> None:
     """Write a seeded set of plant records: healthy ones and ones with one fault each.
 
@@ -55,7 +56,7 @@ def generate_faults(
     from drafttwin.plant import Plant
     from drafttwin.plant.fault_cases import draw_cases, run_case
 
-    plant = Plant(load_train(preset, config))
+    plant = Plant(drive.load())
     check_samples(duration, rate, where="--duration, --rate")
     check_rk4_steps(duration * cases, plant.train.spec.solver.dt_s, where="--duration, --cases")
     drawn = draw_cases(plant.train, cases, seed, duration)
@@ -79,40 +80,24 @@ def generate_faults(
     console.print(f"wrote {cases} records and {out / 'cases.json'}")
 
 
+PhysicsOpt = Annotated[str, typer.Option("--model", help="The twin's physics: a model file from "
+                       "'drafttwin fit' (its drive train), or preset, preset:NAME, "
+                       "config:FILE.toml.")]  # fmt: skip
+RecordOpt = Annotated[str, typer.Option("--data", help="The record to diagnose (.csv/.parquet with a motor column).")]  # fmt: skip
+HealthyOpt = Annotated[str | None, typer.Option("--healthy", help=(
+    "Healthy records of the same machine (comma-separated) to set the thresholds. Default: the "
+    "record's own first half (assumed healthy: give --healthy to trust it)."))]  # fmt: skip
+ReportOpt = Annotated[Path | None, file_out("--report", "Write an HTML page (timeline, spectrum, drive train).")]  # fmt: skip
+
+
 @app.command()
 def diagnose(
-    model: Annotated[
-        str,
-        typer.Option(
-            help="The twin's physics: a model file from 'drafttwin fit' (its drive train), or "
-            "preset, preset:NAME, config:FILE.toml.",
-        ),
-    ],
-    data: Annotated[
-        str, typer.Option(help="The record to diagnose (.csv/.parquet with a motor column).")
-    ],
-    healthy: Annotated[
-        str | None,
-        typer.Option(
-            help="Healthy records of the same machine (comma-separated) to set the thresholds. "
-            "Default: the record's own first half (assumed healthy: give --healthy to trust it).",
-        ),
-    ] = None,
-    far_per_day: Annotated[
-        float,
-        typer.Option(
-            help="False alarms allowed per 24 h of healthy running.",
-            callback=bounded("--far-per-day"),
-        ),
-    ] = 1.0,  # fmt: skip
-    as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
-    report: Annotated[
-        Path | None,
-        typer.Option(
-            help="Write an HTML page (timeline, spectrum, drive train).",
-            callback=output_file("--report"),
-        ),
-    ] = None,  # fmt: skip
+    model: PhysicsOpt,
+    data: RecordOpt,
+    healthy: HealthyOpt = None,
+    far_per_day: FarPerDayOpt = 1.0,
+    as_json: JsonOpt = False,
+    report: ReportOpt = None,
 ) -> None:
     """Detect, locate and size a machine or sensor fault in a record.
 
@@ -228,44 +213,29 @@ def _print_diagnosis(result: dict, report: Path | None, lags_note: str | None) -
         console.print(f"wrote {report}")
 
 
+QuickOpt = Annotated[bool, typer.Option("--quick", help="A small subset (6 kinds, moderate, abrupt).")]  # fmt: skip
+PlanSeedOpt = Annotated[int, number("--seed", "Seed of the plan (machines, recordings, onsets).")]
+HealthyHoursOpt = Annotated[float | None, number(
+    "--healthy-hours", "Healthy test running in hours, counted after each record's 15-s "
+    "reference window (records of the profile's length, 10.5 min full, each its own machine); "
+    "default: the profile's (12 x 10.5 min = 2.05 h full, 2 x 1 min quick). A <= 1 per 24 h "
+    "claim needs >= 72 h alarm-free.")]  # fmt: skip
+SliverVariantOpt = Annotated[bool, typer.Option("--sliver", help=(
+    "The delivery sensor's variant instead: gear run-out, cracks and roller eccentricity (which "
+    "the encoders leave not assessed) recorded with the sliver and placed by its chimneys; "
+    "writes OUT/faults_sliver.json."))]  # fmt: skip
+
+
 @benchmark_app.command("faults")
 def benchmark_faults(
-    out: Annotated[Path, typer.Option(help="Output folder.", callback=output_dir("--out"))] = Path(
-        "faults_out"
-    ),
-    quick: Annotated[
-        bool, typer.Option("--quick", help="A small subset (6 kinds, moderate, abrupt).")
-    ] = False,
-    seed: Annotated[
-        int,
-        typer.Option(
-            help="Seed of the plan (machines, recordings, onsets).", callback=bounded("--seed")
-        ),
-    ] = 0,  # fmt: skip
-    workers: Annotated[
-        int, typer.Option(help="Parallel processes.", callback=bounded("--workers"))
-    ] = 2,
-    healthy_hours: Annotated[
-        float | None,
-        typer.Option(
-            help="Healthy test running in hours, counted after each record's 15-s reference "
-            "window (records of the profile's length, 10.5 min full, each its own machine); "
-            "default: the profile's (12 x 10.5 min = 2.05 h full, 2 x 1 min quick). A <= 1 "
-            "per 24 h claim needs >= 72 h alarm-free.",
-            callback=bounded("--healthy-hours"),
-        ),
-    ] = None,  # fmt: skip
-    as_json: Annotated[bool, typer.Option("--json", help="Print the scores as JSON.")] = False,
-    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
-    sliver: Annotated[
-        bool,
-        typer.Option(
-            "--sliver",
-            help="The delivery sensor's variant instead: gear run-out, cracks and "
-            "roller eccentricity (which the encoders leave not assessed) recorded with the sliver "
-            "and placed by its chimneys; writes OUT/faults_sliver.json.",
-        ),
-    ] = False,  # fmt: skip
+    out: OutDirOpt = Path("faults_out"),
+    quick: QuickOpt = False,
+    seed: PlanSeedOpt = 0,
+    workers: WorkersOpt = 2,
+    healthy_hours: HealthyHoursOpt = None,
+    as_json: JsonOpt = False,
+    quiet: QuietOpt = False,
+    sliver: SliverVariantOpt = False,
 ) -> None:
     """Seeded faulty and healthy plant records, diagnosed and scored.
 
@@ -283,9 +253,9 @@ def benchmark_faults(
 
     if sliver:
         return _sliver_variant(out, quick, seed, workers, as_json, quiet)
-    from drafttwin.benchmarks.faults import run_benchmark
-    from drafttwin.benchmarks.faults.plan import PROFILES, with_healthy_hours
     from drafttwin.report.faults_bench import HEAD, render_benchmark, score_rows
+    from drafttwin.studies.faults import run_benchmark
+    from drafttwin.studies.faults.plan import PROFILES, with_healthy_hours
 
     profile = PROFILES["quick" if quick else "full"]
     if healthy_hours is not None:
@@ -325,7 +295,7 @@ def _sliver_variant(out: Path, quick: bool, seed: int, workers: int, as_json: bo
                     quiet: bool) -> None:  # fmt: skip
     from drafttwin._io import atomic_path
     from drafttwin._json import dumps_strict
-    from drafttwin.benchmarks.faults import sliver as variant
+    from drafttwin.studies.faults import sliver as variant
 
     with progress_bar("fault benchmark, sliver variant: records", 1,
                       quiet=quiet or as_json) as bar:  # fmt: skip

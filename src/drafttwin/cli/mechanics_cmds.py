@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import numpy as np
 import pandas as pd
@@ -13,39 +13,39 @@ from rich.table import Table
 
 from drafttwin._constants import ROLLERS
 from drafttwin._limits import check_rk4_steps, check_samples
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._common import check_output_suffix, load_train, write_frame
-from drafttwin.cli._oserrors import input_path, output_file
+from drafttwin.cli._common import check_output_suffix, write_frame
+from drafttwin.cli._groups import with_group
+from drafttwin.cli._options import (
+    DurationOpt,
+    JsonOpt,
+    QuietOpt,
+    TrainOptions,
+    file_in,
+    file_out,
+    number,
+)
 from drafttwin.cli._stream import FrameStream, RunningStats, frame_stream
 from drafttwin.cli.app import app, console, print_json, progress_bar
 
-PresetOpt = Annotated[
-    str | None, typer.Option("--preset", help="Built-in drive train (default: fa320a).")
-]
-ConfigOpt = Annotated[
-    Path | None,
-    typer.Option(
-        "--config",
-        help="Drive-train TOML file (see docs/mechanics.md).",
-        dir_okay=False,
-        readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
-        callback=input_path("--config"),
-    ),
-]
+if TYPE_CHECKING:
+    from drafttwin.mechanics import (
+        DriveTrain,
+        Kinematics,
+        OperatingPoint,
+        SimulationPiece,
+        SimulationStream,
+    )
+
+MotorRpmOpt = Annotated[float | None, number("--motor-rpm", "Motor speed, rpm (default: the "
+                       "motor's rated speed).")]  # fmt: skip
 
 
 @app.command()
+@with_group("drive", TrainOptions)
 def kinematics(
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    motor_rpm: Annotated[
-        float | None,
-        typer.Option(
-            help="Motor speed, rpm (default: the motor's rated speed).",
-            callback=bounded("--motor-rpm"),
-        ),
-    ] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    drive: TrainOptions,
+    motor_rpm: MotorRpmOpt = None,
+    as_json: JsonOpt = False,
 ) -> None:
     """Nominal roller speeds, surface speeds, drafts, excitation and eigenfrequencies.
 
@@ -54,7 +54,7 @@ def kinematics(
     from drafttwin.mechanics import kinematics as compute
     from drafttwin.mechanics import operating_point
 
-    train = load_train(preset, config)
+    train = drive.load()
     kin = compute(train, motor_rpm)
     if train.spec.motor is None:  # driven by external torques only: no running state
         print_json(kin.to_dict())
@@ -89,7 +89,7 @@ def kinematics(
                   + ", ".join(f"{f:.1f}" for f in kin.eigenfrequencies_hz))  # fmt: skip
 
 
-def _roller_table(train, kin, op) -> None:
+def _roller_table(train: DriveTrain, kin: Kinematics, op: OperatingPoint) -> None:
     table = Table(title=f"{train.spec.train.name}: nominal kinematics at {kin.motor_rpm:g} rpm")
     for col in ("roller", "diameter mm", "rpm", "surface m/min", "running rpm*"):
         table.add_column(col, justify="right" if col != "roller" else "left")
@@ -101,7 +101,7 @@ def _roller_table(train, kin, op) -> None:
     console.print("drafts          " + ", ".join(f"{k} {v:.4f}" for k, v in kin.drafts.items()))
 
 
-def _output_table(train, op) -> None:
+def _output_table(train: DriveTrain, op: OperatingPoint) -> None:
     """The measured output channels at the running operating point, in their units."""
     from drafttwin.mechanics.kinematics import RPM
 
@@ -118,78 +118,45 @@ def _output_table(train, op) -> None:
         console.print(f"input channels  {inputs}")
 
 
+OutputRateOpt = Annotated[float | None, number("--rate", "Output rate, Hz (interval means; "
+                         "default: the drive train's [solver] output_rate_hz).")]  # fmt: skip
+StepOpt = Annotated[float | None, number("--dt", "RK4 step, s (default from config).")]
+SettleOpt = Annotated[float | None, number("--settle", "Settling time before recording, s "
+                      "(default from config).")]  # fmt: skip
+SetpointsOpt = Annotated[Path | None, file_in(
+    "--setpoints", "Follow the input columns of a recorded file (those the train's [[input]] "
+    "tables map, e.g. supply_hz or u) on its time grid, record by record, and write the output "
+    "channels: a simulator output file for --mechanistic. --duration and --rate then come from "
+    "the file.")]  # fmt: skip
+ChannelsOutOpt = Annotated[Path | None, file_out("--out", "Write time + the output channels to .csv or .parquet.")]  # fmt: skip
+ReducedOpt = Annotated[bool, typer.Option("--reduced", help=(
+    "Simulate the reduced drive train: couplings whose modes lie above --cutoff-hz made rigid "
+    "and their inertias merged (belts stay compliant, with creep), at a much larger step "
+    "(default: from the highest remaining mode). 65x faster on the FA320A; its 0.1 s block "
+    "means agree with the full model to 2e-5 (docs/mechanics.md)."))]  # fmt: skip
+CutoffOpt = Annotated[float | None, number("--cutoff-hz", "Cut-off of --reduced, Hz (default 200; implies --reduced).")]  # fmt: skip
+
+
 @app.command()
+@with_group("drive", TrainOptions)
 def simulate(
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    duration: Annotated[
-        float, typer.Option(help="Recorded machine time, s.", callback=bounded("--duration"))
-    ] = 10.0,
-    rate: Annotated[
-        float | None,
-        typer.Option(
-            help="Output rate, Hz (interval means; default: the drive train's "
-            "[solver] output_rate_hz).",
-            callback=bounded("--rate"),
-        ),
-    ] = None,  # fmt: skip
-    dt: Annotated[
-        float | None,
-        typer.Option(help="RK4 step, s (default from config).", callback=bounded("--dt")),
-    ] = None,
-    settle: Annotated[
-        float | None,
-        typer.Option(
-            help="Settling time before recording, s (default from config).",
-            callback=bounded("--settle"),
-        ),
-    ] = None,
-    setpoints: Annotated[
-        Path | None,
-        typer.Option(
-            "--setpoints",
-            dir_okay=False,
-            readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
-            help="Follow the input columns of a recorded file (those the train's "
-            "[[input]] tables map, e.g. supply_hz or u) on its time grid, record by "
-            "record, and write the output channels: a simulator output file for "
-            "--mechanistic. --duration and --rate then come from the file.",
-            callback=input_path("--setpoints"),
-        ),
-    ] = None,  # fmt: skip
-    out: Annotated[
-        Path | None,
-        typer.Option(
-            help="Write time + the output channels to .csv or .parquet.",
-            callback=output_file("--out"),
-        ),
-    ] = None,
-    reduced: Annotated[
-        bool,
-        typer.Option(
-            "--reduced",
-            help="Simulate the reduced drive train: couplings whose modes lie above "
-            "--cutoff-hz made rigid and their inertias merged (belts stay compliant, with "
-            "creep), at a much larger step (default: from the highest remaining mode). "
-            "65x faster on the FA320A; its 0.1 s block means agree with the full model "
-            "to 2e-5 (docs/mechanics.md).",
-        ),
-    ] = False,  # fmt: skip
-    cutoff_hz: Annotated[
-        float | None,
-        typer.Option(
-            help="Cut-off of --reduced, Hz (default 200; implies --reduced).",
-            callback=bounded("--cutoff-hz"),
-        ),
-    ] = None,
-    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    drive: TrainOptions,
+    duration: DurationOpt = 10.0,
+    rate: OutputRateOpt = None,
+    dt: StepOpt = None,
+    settle: SettleOpt = None,
+    setpoints: SetpointsOpt = None,
+    out: ChannelsOutOpt = None,
+    reduced: ReducedOpt = False,
+    cutoff_hz: CutoffOpt = None,
+    quiet: QuietOpt = False,
 ) -> None:
     """Simulate the drive train (numba RK4) and summarise its output channels (the rollers
     and the motor for the FA320A).
 
     Values are means over each output interval, as an encoder reports them.
     """
-    train = load_train(preset, config)
+    train = drive.load()
     if setpoints is None:  # refuse a run that would never end before anything starts
         out_rate = train.spec.solver.output_rate_hz if rate is None else rate
         check_samples(duration, out_rate, where="--duration, --rate")
@@ -225,8 +192,9 @@ SIMULATE_CHUNK_S = 10.0
 duration (docs/mechanics.md gives the measured peak)."""
 
 
-def _run(train, duration: float, rate: float | None, dt: float | None, settle: float | None,
-         quiet: bool, stats: RunningStats, sink: FrameStream | None) -> tuple[str, str]:  # fmt: skip
+def _run(train: DriveTrain, duration: float, rate: float | None, dt: float | None,
+         settle: float | None, quiet: bool, stats: RunningStats,
+         sink: FrameStream | None) -> tuple[str, str]:  # fmt: skip
     """Simulate in pieces, each summarised and (with --out) written before the next."""
     from drafttwin.mechanics import simulate_chunks
 
@@ -246,7 +214,9 @@ def _run(train, duration: float, rate: float | None, dt: float | None, settle: f
     return wall, f"{duration:g} s at {stream.rate_hz:g} Hz (dt {stream.dt_s:.2e} s)"
 
 
-def _piece_frame(train, stream, piece) -> pd.DataFrame:
+def _piece_frame(
+    train: DriveTrain, stream: SimulationStream, piece: SimulationPiece
+) -> pd.DataFrame:
     """``time`` and the rollers and motor (FA320A), or a train's own output channels."""
     if not stream.rollers:  # a train of your own: its output channels
         return pd.DataFrame({"time": piece.time_s, **{
@@ -260,11 +230,11 @@ def _piece_frame(train, stream, piece) -> pd.DataFrame:
     return pd.DataFrame(cols)
 
 
-def _follow(train, path: Path, dt: float | None, settle: float | None) -> pd.DataFrame:
+def _follow(train: DriveTrain, path: Path, dt: float | None, settle: float | None) -> pd.DataFrame:
     """The train simulated on a recorded file's grid, following its input columns."""
     from drafttwin.data.io import read_measurements
     from drafttwin.errors import ConfigError
-    from drafttwin.mechanics import simulate_channels
+    from drafttwin.mechanics import simulate as simulate_train
 
     names = tuple(c.channel for c in train.input_channels())
     if not names:
@@ -280,8 +250,8 @@ def _follow(train, path: Path, dt: float | None, settle: float | None) -> pd.Dat
     }
     parts = []
     for k, record in enumerate(series.records()):
-        values = simulate_channels(train, record.time_s, inputs=record.inputs,
-                                   channels=channels, **kwargs)  # fmt: skip
+        res = simulate_train(train, time_s=record.time_s, inputs=record.inputs, **kwargs)
+        values = res.channels(channels)
         part = pd.DataFrame({"time": record.time_s, **dict(zip(channels, values.T, strict=True))})
         if series.n_records > 1:
             part["record"] = k + 1

@@ -11,62 +11,53 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import write_frame
-from drafttwin.cli._data import (
-    ChannelOptions,
+from drafttwin.cli._data import ChannelOptions
+from drafttwin.cli._groups import with_group
+from drafttwin.cli._modelopts import SetOpt, cli_terms, new_model, parse_settings, setting_names
+from drafttwin.cli._options import (
     DataOpt,
+    EpochsOpt,
     InitOpt,
     MechanisticOpt,
     TaskOpt,
     TestDataOpt,
+    file_in,
+    file_out,
+    number,
 )
-from drafttwin.cli._groups import with_group
-from drafttwin.cli._modelopts import SetOpt, cli_terms, new_model, parse_settings, setting_names
-from drafttwin.cli._oserrors import input_path, output_file
 from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries
+    from drafttwin.evaluation.metrics import ChannelMetrics
     from drafttwin.evaluation.protocol import Evaluation
     from drafttwin.models import BaseModel, MechanisticModel
 
-ModelFileOpt = Annotated[
-    Path,
-    typer.Option(
-        "--model",
-        help="A model file written by 'fit'.",
-        dir_okay=False,
-        readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
-        callback=input_path("--model"),
-    ),
-]
-FractionOpt = Annotated[
-    float | None,
-    typer.Option(
-        help="Chronological share of --data that trains; the rest is the test part (default "
-        "0.7 for fit, the model's own for evaluate; 1 on fit: all of it, no test part). Not "
-        "with --test-data.",
-        callback=bounded("--train-fraction"),
-    ),
-]
-JsonOpt = Annotated[
-    bool,
-    typer.Option("--json", help="Print one JSON object: metrics per channel (null: not "
-                 "computable), the task and the options chosen on validation data."),
-]  # fmt: skip
-
-
+ModelKindOpt = Annotated[str, typer.Option("--model", help="mechanistic | persistence | gru | "
+                         "lstm | parallel | md-s-l | md-l | md-s | md-s-l+d")]  # fmt: skip
+ModelFileOpt = Annotated[Path, file_in("--model", "A model file written by 'fit'.")]
+ModelOutOpt = Annotated[Path, file_out("--out", "Model file to write (weights, scalers, config).")]  # fmt: skip
+PredictionsOutOpt = Annotated[Path, file_out("--out", "Predictions, .csv or .parquet.")]
+ProfileOpt = Annotated[str | None, typer.Option("--profile", help="quick | standard | paper: the "
+                       "networks' hyperparameters (default quick).")]  # fmt: skip
+FractionOpt = Annotated[float | None, number(
+    "--train-fraction", "Chronological share of --data that trains; the rest is the test part "
+    "(default 0.7 for fit, the model's own for evaluate; 1 on fit: all of it, no test part). "
+    "Not with --test-data.")]  # fmt: skip
+SeedOpt = Annotated[int | None, number("--seed", "Seed of the networks (default 0): same seed, "
+                    "same numbers on CPU.")]  # fmt: skip
+HorizonOpt = Annotated[int, number("--horizon", "Predict t+h-1 from data up to t-1.")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object: metrics per channel "
+                    "(null: not computable), the task and the options chosen on validation data.")]  # fmt: skip
+WrittenJsonOpt = Annotated[bool, typer.Option("--json", help="Print what was written as one JSON object.")]  # fmt: skip
 QuietOpt = Annotated[
     bool, typer.Option("--quiet", help="No progress bar and no notes; results only.")
 ]
-ScoreFromOpt = Annotated[
-    int,
-    typer.Option("--score-from", callback=bounded("--score-from"),
-                 help="Score each test record from this sample on (0-based: the first N "
-                 "samples are not scored), as a published protocol says."),
-]  # fmt: skip
+ScoreFromOpt = Annotated[int, number("--score-from", "Score each test record from this sample on "
+                         "(0-based: the first N samples are not scored), as a published protocol "
+                         "says.")]  # fmt: skip
 FreeRunOpt = Annotated[
     str,
     typer.Option("--free-run-from",
@@ -76,7 +67,9 @@ FreeRunOpt = Annotated[
 ]  # fmt: skip
 
 
-def _source(option: str | None, model: BaseModel, channels: tuple[str, ...] | None):
+def _source(
+    option: str | None, model: BaseModel, channels: tuple[str, ...] | None
+) -> MechanisticModel | None:
     """The mechanistic source of ``--mechanistic``, else the model's own (or the FA320A
     preset for a new hybrid on the roller channels)."""
     from drafttwin._constants import ROLLERS
@@ -197,46 +190,15 @@ class SourceOptions:
 @with_group("channels", ChannelOptions)
 @with_group("source", SourceOptions)
 def fit(
-    model: Annotated[
-        str,
-        typer.Option(
-            help="mechanistic | persistence | gru | lstm | parallel | md-s-l | md-l | "
-            "md-s | md-s-l+d"
-        ),
-    ],  # fmt: skip
-    out: Annotated[
-        Path,
-        typer.Option(
-            help="Model file to write (weights, scalers, config).", callback=output_file("--out")
-        ),
-    ],
+    model: ModelKindOpt,
+    out: ModelOutOpt,
     source: SourceOptions,
     channels: ChannelOptions,
-    profile: Annotated[
-        str | None,
-        typer.Option(
-            help="quick | standard | paper: the networks' hyperparameters (default quick)."
-        ),
-    ] = None,  # fmt: skip
+    profile: ProfileOpt = None,
     train_fraction: FractionOpt = None,
-    seed: Annotated[
-        int | None,
-        typer.Option(
-            help="Seed of the networks (default 0): same seed, same numbers on CPU.",
-            callback=bounded("--seed"),
-        ),
-    ] = None,  # fmt: skip
-    horizon: Annotated[
-        int, typer.Option(help="Predict t+h-1 from data up to t-1.", callback=bounded("--horizon"))
-    ] = 1,
-    epochs: Annotated[
-        int | None,
-        typer.Option(
-            callback=bounded("--epochs"),
-            help="Most training epochs per network (default: the profile's); "
-            "a small number gives a quick first look.",
-        ),
-    ] = None,  # fmt: skip
+    seed: SeedOpt = None,
+    horizon: HorizonOpt = 1,
+    epochs: EpochsOpt = None,
     settings: SetOpt = None,
     quiet: QuietOpt = False,
     as_json: JsonOpt = False,
@@ -261,8 +223,8 @@ def fit(
     test = None if source.test_data is None else parsed.read(source.test_data, needs)
     fraction = None if test is not None else (train_fraction or 0.7)
     with cli_terms(setting_names(model)):
-        part = protocol.fit(estimator, series, train_fraction=fraction, test=test,
-                            mechanistic=physics)  # fmt: skip
+        part = protocol.fit_split(estimator, series, train_fraction=fraction, test=test,
+                                      mechanistic=physics)  # fmt: skip
     estimator.provenance_["data"] = source.data
     estimator.save(out)
     pre = part.summary["preprocessing"]["train"]
@@ -316,16 +278,11 @@ def _fitted(
 @with_group("source", SourceOptions)
 def predict(
     model: ModelFileOpt,
-    out: Annotated[
-        Path,
-        typer.Option(help="Predictions, .csv or .parquet.", callback=output_file("--out")),
-    ],
+    out: PredictionsOutOpt,
     source: SourceOptions,
     channels: ChannelOptions,
     quiet: QuietOpt = False,
-    as_json: Annotated[
-        bool, typer.Option("--json", help="Print what was written as one JSON object.")
-    ] = False,  # fmt: skip
+    as_json: WrittenJsonOpt = False,
 ) -> None:
     """Predict every sample of a data set (the time column named as in the file, + one column
     per output channel). One-step prediction uses earlier samples only; a simulation runs free
@@ -408,12 +365,12 @@ FLOOR_NOTE = {
 """The line under the table on data with true values, per task (one-step or free run)."""
 
 
-def _shared_unit(metrics: dict) -> str | None:
+def _shared_unit(metrics: dict[str, ChannelMetrics]) -> str | None:
     units = {m.unit for m in metrics.values()}
     return units.pop() if len(units) == 1 else None
 
 
-def _limits_table(metrics: dict) -> Table:
+def _limits_table(metrics: dict[str, ChannelMetrics]) -> Table:
     """The accuracy limits per channel, beside the RMSE they bound (data with true values)."""
     shared = _shared_unit(metrics)
     table = Table(title="accuracy limits (true values known)")
@@ -432,7 +389,7 @@ def _limits_table(metrics: dict) -> Table:
     return table
 
 
-def _metrics_table(metrics: dict, title: str) -> Table:
+def _metrics_table(metrics: dict[str, ChannelMetrics], title: str) -> Table:
     """One row per channel; the unit in the headers when the channels share one, else in a
     column of its own."""
     shared = _shared_unit(metrics)

@@ -10,90 +10,59 @@ import typer
 from rich.table import Table
 
 from drafttwin._limits import check_rk4_steps, check_samples
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._common import check_output_suffix, load_train
-from drafttwin.cli._oserrors import input_path, output_file
+from drafttwin.cli._common import check_output_suffix
+from drafttwin.cli._groups import with_group
+from drafttwin.cli._options import (
+    DurationOpt,
+    QuietOpt,
+    SampleRateOpt,
+    TrainOptions,
+    file_in,
+    file_out,
+    number,
+)
 from drafttwin.cli.app import app, console, progress_bar
-from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 from drafttwin.errors import ConfigError
+
+RecordOutOpt = Annotated[Path, file_out("--out", "Measured data file, .csv or .parquet.")]
+SeedOpt = Annotated[int, number("--seed", "Seed of the recording: same seeds, byte-identical files.")]  # fmt: skip
+MachineSeedOpt = Annotated[int | None, number(
+    "--machine-seed", "Seed of the machine (its true parameters). Two runs with the same "
+    "--machine-seed and different --seed are two records of one machine. Default: the "
+    "recording's --seed.")]  # fmt: skip
+MachineFileOpt = Annotated[Path | None, file_in("--machine", "Record the machine of an earlier run: the .json sidecar it wrote.")]  # fmt: skip
+ScenarioOpt = Annotated[str, typer.Option("--scenario", help="steady | startup | speed-change (see docs/plant.md).")]  # fmt: skip
+FaultOpt = Annotated[list[str] | None, typer.Option("--fault", help=(
+    "Inject a fault: ELEMENT:KIND:severity=S:onset=T[:ramp=R] (T, R in s; repeatable), e.g. "
+    "E-F:wear:severity=60:onset=30 or front:gain:severity=0.01:onset=5. Kinds and severity "
+    "units: docs/faults.md; a wrong element or kind lists the valid ones."))]  # fmt: skip
+SliverOpt = Annotated[bool, typer.Option("--sliver", help=(
+    "Make sliver too: the true rollers draft six cotton card slivers (docs/sliver.md); writes "
+    "OUT's .sliver file (delivery sensor, infeed sensor) and .sliver.truth file (the true "
+    "sliver, 1 mm grid)."))]  # fmt: skip
+FeedFaultOpt = Annotated[list[str] | None, typer.Option("--feed-fault", help=(
+    "With --sliver: a periodic fault of the card slivers, "
+    "wavelength=M:amplitude=A[:slivers=one|all][:phase=random|same] (repeatable)."))]  # fmt: skip
+FibreScaleOpt = Annotated[float, number("--fibre-scale", "With --sliver: fibres lumped into one "
+                          "(1: every fibre, about 1.3e8 per 100 m).")]  # fmt: skip
 
 
 @app.command()
+@with_group("drive", TrainOptions)
 def generate(
-    out: Annotated[
-        Path,
-        typer.Option(help="Measured data file, .csv or .parquet.", callback=output_file("--out")),
-    ],
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    duration: Annotated[
-        float, typer.Option(help="Recorded machine time, s.", callback=bounded("--duration"))
-    ] = 60.0,
-    rate: Annotated[
-        float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))
-    ] = 100.0,
-    seed: Annotated[
-        int,
-        typer.Option(
-            help="Seed of the recording: same seeds, byte-identical files.",
-            callback=bounded("--seed"),
-        ),
-    ] = 0,
-    machine_seed: Annotated[
-        int | None,
-        typer.Option(
-            help="Seed of the machine (its true parameters). Two runs with the same "
-            "--machine-seed and different --seed are two records of one machine. "
-            "Default: the recording's --seed.",
-            callback=bounded("--machine-seed"),
-        ),
-    ] = None,  # fmt: skip
-    machine: Annotated[
-        Path | None,
-        typer.Option(
-            dir_okay=False,
-            readable=False,  # an unreadable file: one message from the read (cli/_oserrors.py)
-            help="Record the machine of an earlier run: the .json sidecar it wrote.",
-            callback=input_path("--machine"),
-        ),
-    ] = None,  # fmt: skip
-    scenario: Annotated[
-        str, typer.Option(help="steady | startup | speed-change (see docs/plant.md).")
-    ] = "steady",
-    fault: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--fault",
-            help="Inject a fault: ELEMENT:KIND:severity=S:onset=T[:ramp=R] (T, R in s; "
-            "repeatable), e.g. E-F:wear:severity=60:onset=30 or front:gain:severity=0.01:onset=5. "
-            "Kinds and severity units: docs/faults.md; a wrong element or kind lists the valid ones.",
-        ),
-    ] = None,
-    sliver: Annotated[
-        bool,
-        typer.Option(
-            "--sliver",
-            help="Make sliver too: the true rollers draft six cotton card slivers "
-            "(docs/sliver.md); writes OUT's .sliver file (delivery sensor, infeed sensor) and "
-            ".sliver.truth file (the true sliver, 1 mm grid).",
-        ),
-    ] = False,  # fmt: skip
-    feed_fault: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--feed-fault",
-            help="With --sliver: a periodic fault of the card slivers, "
-            "wavelength=M:amplitude=A[:slivers=one|all][:phase=random|same] (repeatable).",
-        ),
-    ] = None,  # fmt: skip
-    fibre_scale: Annotated[
-        float,
-        typer.Option(
-            help="With --sliver: fibres lumped into one (1: every fibre, about 1.3e8 per 100 m).",
-            callback=bounded("--fibre-scale"),
-        ),
-    ] = 1.0,  # fmt: skip
-    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    out: RecordOutOpt,
+    drive: TrainOptions,
+    duration: DurationOpt = 60.0,
+    rate: SampleRateOpt = 100.0,
+    seed: SeedOpt = 0,
+    machine_seed: MachineSeedOpt = None,
+    machine: MachineFileOpt = None,
+    scenario: ScenarioOpt = "steady",
+    fault: FaultOpt = None,
+    sliver: SliverOpt = False,
+    feed_fault: FeedFaultOpt = None,
+    fibre_scale: FibreScaleOpt = 1.0,
+    quiet: QuietOpt = False,
 ) -> None:
     """Run the plant emulator: measured roller speeds with the machine's real imperfections.
 
@@ -112,7 +81,7 @@ def generate(
     if machine is not None and machine_seed is not None:
         raise ConfigError("--machine and --machine-seed both name the machine",
                           where="--machine", fix="give one of them")  # fmt: skip
-    plant = Plant(load_train(preset, config))
+    plant = Plant(drive.load())
     faults = check_faults([FaultSpec.parse(f) for f in fault or []], plant.train)
     settings = _sliver_settings(sliver, feed_fault, fibre_scale, out)
     # refuse a run that would never end (or write tens of GB) before anything starts
@@ -162,13 +131,14 @@ def _refuse_foreign_beside(out: Path) -> None:
 
     sidecar = out.with_suffix(".json")
     truth = out.with_name(f"{out.stem}.truth{out.suffix}")
-    files: dict = {}
+    files: dict[str, Any] = {}
     if sidecar.exists():
         try:
-            files = json.loads(sidecar.read_text(encoding="utf-8")).get("files") or {}
+            found = json.loads(sidecar.read_text(encoding="utf-8")).get("files")
         except (OSError, ValueError, AttributeError):
-            files = {}
-    ours = files.get("measured") == out.name if isinstance(files, dict) else False
+            found = None
+        files = found if isinstance(found, dict) else {}
+    ours = files.get("measured") == out.name
     for p in (sidecar, truth):
         if p.exists() and not (ours and (p == sidecar or files.get("truth") == p.name)):
             raise ConfigError(f"{p.name} exists and is not a file of an earlier plant record "

@@ -10,117 +10,69 @@ from typing import Annotated, Any
 
 import typer
 
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._oserrors import input_path, output_file
+from drafttwin.cli._options import (
+    SampleRateOpt,
+    StopAfterOpt,
+    file_out,
+    number,
+    path_in,
+)
 from drafttwin.cli.app import console, err_console
 from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app
 from drafttwin.errors import ConfigError
 
+OpcuaOpt = Annotated[str | None, typer.Option("--opcua", help="Serve over OPC UA at this address, e.g. opc.tcp://127.0.0.1:4840.")]  # fmt: skip
+MqttOpt = Annotated[str | None, typer.Option("--mqtt", help="Publish to the MQTT broker at "
+                    "HOST:PORT (one is started there if none answers and HOST is local).")]  # fmt: skip
+NameOpt = Annotated[str, typer.Option("--name", help="Machine name (NAME-1, NAME-2... for several).")]  # fmt: skip
+MachinesOpt = Annotated[int, number("--machines", "Number of machines.")]
+SeedOpt = Annotated[int, number("--seed", "Seed of the first machine (+1 per machine).")]
+PhysicsOpt = Annotated[str, typer.Option("--physics", help="full (the truth) | reduced (many machines).")]  # fmt: skip
+RampOpt = Annotated[float, number("--ramp", "VFD ramp toward a new set-point, Hz/s.")]
+MqttUserOpt = Annotated[str | None, typer.Option("--mqtt-user", help="MQTT: connect as this user "
+                        "(password in DRAFTTWIN_MQTT_PASSWORD); the embedded broker admits only it.")]  # fmt: skip
+CertOpt = Annotated[Path | None, path_in(
+    "--cert", "Security with the certificates in this folder ('drafttwin twin certs'): OPC UA "
+    "Basic256Sha256 SignAndEncrypt, trusted clients only; MQTT over TLS.")]  # fmt: skip
+BrokerOpt = Annotated[str, typer.Option("--broker", help=(
+    "MQTT: auto (start the embedded amqtt broker when none answers locally) | external (publish "
+    "to the broker there, e.g. Mosquitto; never start one) | embedded."))]  # fmt: skip
+HistoryOpt = Annotated[float, number("--history", "OPC UA: keep each machine's samples of the "
+                       "last SECONDS for HistoryRead (in memory): a restarted twin recovers what "
+                       "it missed.")]  # fmt: skip
+ServeFaultOpt = Annotated[list[str] | None, typer.Option("--fault", help=(
+    "Inject a fault into every served machine: ELEMENT:KIND:severity=S:onset=T[:ramp=R] (T, R "
+    "in s from the start; the syntax of 'generate --fault', docs/faults.md). Not live: "
+    "rotor_resistance, eccentricity."))]  # fmt: skip
+QosOpt = Annotated[int, number("--qos", "MQTT: QoS of the samples, 0 (at most once) or 1 (at least once).")]  # fmt: skip
+MaxLagOpt = Annotated[float | None, number(
+    "--max-lag", "Behind the wall clock by more than SECONDS, skip samples to catch up (the "
+    "counter jumps; a twin counts them as dropped). Default: publish every sample, late if need "
+    "be; the lateness is logged, warned past 1 s and summed up either way.")]  # fmt: skip
+LogOpt = Annotated[Path | None, file_out("--log", "Write every published sample to this "
+                   ".parquet/.csv file when the plant stops (the plant's own record, for "
+                   "'drafttwin twin audit').")]  # fmt: skip
+
 
 @plant_app.command("serve")
 def plant_serve(
-    opcua: Annotated[
-        str | None,
-        typer.Option(help="Serve over OPC UA at this address, e.g. opc.tcp://127.0.0.1:4840."),
-    ] = None,  # fmt: skip
-    mqtt: Annotated[
-        str | None,
-        typer.Option(
-            help="Publish to the MQTT broker at HOST:PORT (one is started "
-            "there if none answers and HOST is local)."
-        ),
-    ] = None,  # fmt: skip
-    name: Annotated[str, typer.Option(help="Machine name (NAME-1, NAME-2... for several).")] = (
-        "fa320a"
-    ),
-    machines: Annotated[
-        int, typer.Option(help="Number of machines.", callback=bounded("--machines"))
-    ] = 1,
-    seed: Annotated[
-        int,
-        typer.Option(
-            help="Seed of the first machine (+1 per machine).", callback=bounded("--seed")
-        ),
-    ] = 0,  # fmt: skip
-    rate: Annotated[
-        float, typer.Option(help="Sample rate, Hz.", callback=bounded("--rate"))
-    ] = 100.0,
-    physics: Annotated[str, typer.Option(help="full (the truth) | reduced (many machines).")] = (
-        "full"
-    ),
-    ramp: Annotated[
-        float,
-        typer.Option(help="VFD ramp toward a new set-point, Hz/s.", callback=bounded("--ramp")),
-    ] = 10.0,  # fmt: skip
-    duration: Annotated[
-        float | None,
-        typer.Option(
-            help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
-        ),
-    ] = None,  # fmt: skip
-    mqtt_user: Annotated[
-        str | None,
-        typer.Option(
-            help="MQTT: connect as this user (password in "
-            "DRAFTTWIN_MQTT_PASSWORD); the embedded broker admits only it."
-        ),
-    ] = None,  # fmt: skip
-    cert: Annotated[
-        Path | None,
-        typer.Option(
-            help="Security with the certificates in this folder ('drafttwin twin certs'): OPC UA "
-            "Basic256Sha256 SignAndEncrypt, trusted clients only; MQTT over TLS.",
-            callback=input_path("--cert"),
-        ),
-    ] = None,  # fmt: skip
-    broker: Annotated[
-        str,
-        typer.Option(
-            help="MQTT: auto (start the embedded amqtt broker when none answers locally) | "
-            "external (publish to the broker there, e.g. Mosquitto; never start one) | embedded."
-        ),
-    ] = "auto",  # fmt: skip
-    history: Annotated[
-        float,
-        typer.Option(
-            help="OPC UA: keep each machine's samples of the last SECONDS for HistoryRead (in "
-            "memory): a restarted twin recovers what it missed.",
-            callback=bounded("--history"),
-        ),
-    ] = 0.0,
-    fault: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--fault",
-            help="Inject a fault into every served machine: ELEMENT:KIND:severity=S:onset=T"
-            "[:ramp=R] (T, R in s from the start; the syntax of 'generate --fault', "
-            "docs/faults.md). Not live: rotor_resistance, eccentricity.",
-        ),
-    ] = None,  # fmt: skip
-    qos: Annotated[
-        int,
-        typer.Option(
-            help="MQTT: QoS of the samples, 0 (at most once) or 1 (at least once).",
-            callback=bounded("--qos"),
-        ),
-    ] = 0,
-    max_lag: Annotated[
-        float | None,
-        typer.Option(
-            help="Behind the wall clock by more than SECONDS, skip samples to catch up (the "
-            "counter jumps; a twin counts them as dropped). Default: publish every sample, late "
-            "if need be; the lateness is logged, warned past 1 s and summed up either way.",
-            callback=bounded("--max-lag"),
-        ),
-    ] = None,
-    log: Annotated[
-        Path | None,
-        typer.Option(
-            help="Write every published sample to this .parquet/.csv file when the plant stops "
-            "(the plant's own record, for 'drafttwin twin audit').",
-            callback=output_file("--log"),
-        ),
-    ] = None,  # fmt: skip
+    opcua: OpcuaOpt = None,
+    mqtt: MqttOpt = None,
+    name: NameOpt = "fa320a",
+    machines: MachinesOpt = 1,
+    seed: SeedOpt = 0,
+    rate: SampleRateOpt = 100.0,
+    physics: PhysicsOpt = "full",
+    ramp: RampOpt = 10.0,
+    duration: StopAfterOpt = None,
+    mqtt_user: MqttUserOpt = None,
+    cert: CertOpt = None,
+    broker: BrokerOpt = "auto",
+    history: HistoryOpt = 0.0,
+    fault: ServeFaultOpt = None,
+    qos: QosOpt = 0,
+    max_lag: MaxLagOpt = None,
+    log: LogOpt = None,
 ) -> None:
     """Run the plant emulator in real time as live machines: roller and motor speeds every
     sample, a writable supply set-point (write it and the plant changes speed)."""

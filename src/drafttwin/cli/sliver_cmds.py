@@ -2,17 +2,17 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
 import typer
 from rich.table import Table
 
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._common import check_output_suffix, load_train
-from drafttwin.cli._oserrors import output_file
+from drafttwin.cli._common import check_output_suffix
+from drafttwin.cli._groups import with_group
+from drafttwin.cli._options import JsonOpt, QuietOpt, TrainOptions, file_out, number
 from drafttwin.cli.app import app, console, print_json, progress_bar
-from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 from drafttwin.errors import ConfigError
 
 sliver_app = typer.Typer(
@@ -22,23 +22,29 @@ sliver_app = typer.Typer(
 )
 app.add_typer(sliver_app, name="sliver")
 
-StapleOpt = Annotated[
-    str, typer.Option(help="Fibres: cotton | polyester | a CSV staple diagram (columns "
-                      "length_mm, fraction; give --fineness-dtex).")]  # fmt: skip
-FinenessOpt = Annotated[
-    float | None, typer.Option(help="Fibre fineness, dtex (default: the preset's).",
-                               callback=bounded("--fineness-dtex"))]  # fmt: skip
-FinenessCvOpt = Annotated[
-    float | None, typer.Option(help="Fineness CV as a fraction (default: the preset's).",
-                               callback=bounded("--fineness-cv"))]  # fmt: skip
-GaugesOpt = Annotated[
-    str, typer.Option(help="Zone gauges main,middle,break in mm (FA320A: assumed 44,40,46).")
-]
-JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object.")]
-FibreScaleReadOpt = Annotated[float, typer.Option(
-    help="The record was simulated with this many fibres lumped into one (sliver simulate "
-    "--fibre-scale): Martindale's limit and the ideal curve follow it.",
-    callback=bounded("--fibre-scale"))]  # fmt: skip
+# the options of the sliver commands (sliver_read_cmds.py takes them too)
+StapleOpt = Annotated[str, typer.Option("--staple", help="Fibres: cotton | polyester | a CSV "
+                      "staple diagram (columns length_mm, fraction; give --fineness-dtex).")]  # fmt: skip
+FinenessOpt = Annotated[float | None, number("--fineness-dtex", "Fibre fineness, dtex (default: the preset's).")]  # fmt: skip
+FinenessCvOpt = Annotated[float | None, number("--fineness-cv", "Fineness CV as a fraction (default: the preset's).")]  # fmt: skip
+GaugesOpt = Annotated[str, typer.Option("--gauges", help="Zone gauges main,middle,break in mm "
+                      "(FA320A: assumed 44,40,46).")]  # fmt: skip
+FibreScaleReadOpt = Annotated[float, number(
+    "--fibre-scale", "The record was simulated with this many fibres lumped into one (sliver "
+    "simulate --fibre-scale): Martindale's limit and the ideal curve follow it.")]  # fmt: skip
+
+
+@dataclass(frozen=True)
+class FibreOptions:
+    """The fibres: ``--staple``, ``--fineness-dtex``, ``--fineness-cv`` (an option group)."""
+
+    staple: StapleOpt = "cotton"
+    fineness_dtex: FinenessOpt = None
+    fineness_cv: FinenessCvOpt = None
+
+    def diagram(self) -> Any:
+        """The staple diagram they describe."""
+        return staple_from(self.staple, self.fineness_dtex, self.fineness_cv)
 
 
 def staple_from(staple: str, fineness: float | None, fineness_cv: float | None) -> Any:
@@ -135,112 +141,68 @@ def _speeds(speeds: str, truth: bool, duration: float, train: Any, detail: bool,
     return with_physics_detail(coarse, train) if detail else coarse
 
 
+SliverOutOpt = Annotated[Path, file_out("--out", "Sliver file (.csv or .parquet): "
+                        "delivered_length_m, time, linear_density_ktex.")]  # fmt: skip
+SpeedsOpt = Annotated[str, typer.Option("--speeds", help=(
+    "physics (the drive train simulated at 2 kHz for --duration), or a speed file: measured "
+    "(cleaned of gaps), a model's predictions (drafttwin predict --out), or with --truth the "
+    "plant's true speeds."))]  # fmt: skip
+# derived from the parameter's name, as --truth/--no-truth
+TruthOpt = Annotated[bool, typer.Option(help="Use the plant's true speeds of --speeds FILE.")]
+PhysicsTimeOpt = Annotated[float, number("--duration", "Machine time for --speeds physics, s (25 s is about 107 m of sliver).")]  # fmt: skip
+ReducedOpt = Annotated[bool, typer.Option("--reduced", help="With --speeds physics: the reduced "
+                       "drive train (couplings above 200 Hz rigid, belts compliant: their mesh "
+                       "lines are gone); faster.")]  # fmt: skip
+# derived from the parameter's name, as --detail/--no-detail
+DetailOpt = Annotated[bool, typer.Option(help="Add the physics' content above a speed file's "
+                      "Nyquist frequency (mesh and once-per-revolution lines).")]  # fmt: skip
+DoublingsOpt = Annotated[int, number("--doublings", "Slivers fed side by side.")]
+FeedKtexOpt = Annotated[float, number("--feed-ktex", "Count of each fed sliver, ktex.")]
+FeedCvOpt = Annotated[float, number("--feed-cv", "Extra irregularity of each fed sliver above a random one (fraction).")]  # fmt: skip
+FeedCorrelationOpt = Annotated[float, number("--feed-correlation", "Its correlation length on the fed sliver, m.")]  # fmt: skip
+FeedFaultOpt = Annotated[list[str] | None, typer.Option("--feed-fault", help=(
+    "A periodic fault of the fed slivers: wavelength=M:amplitude=A[:slivers=one|all]"
+    "[:phase=random|same] (wavelength on the fed sliver, m; repeatable)."))]  # fmt: skip
+StepOpt = Annotated[float, number("--step-mm", "Delivered-length grid, mm.")]
+FibreScaleOpt = Annotated[float, number(
+    "--fibre-scale", "Lump this many fibres into one (faster; the random part's variance grows "
+    "by the same factor, and evenness and the ideal curve account for it).")]  # fmt: skip
+RealDraftingOpt = Annotated[str | None, typer.Option("--real-drafting", help=(
+    "Real drafting: ACCELERATION_MM,COUPLING (e.g. 8,1): floating fibres accelerate early, "
+    "dragged by fast ones (a drafting wave). Both must be calibrated against a mill's "
+    "spectrograms; default: ideal drafting."))]  # fmt: skip
+LevellerOpt = Annotated[str | None, typer.Option("--leveller", help=(
+    "An open-loop autoleveller: INTENSITY[,ACTION_OFFSET_MM] (1,0: full levelling at the true "
+    "action point; the offset in mm of fed sliver is a setting's error)."))]  # fmt: skip
+SeedOpt = Annotated[int, number("--seed", "Seed of the fibres.")]
+
+
 @sliver_app.command("simulate")
+@with_group("drive", TrainOptions)
+@with_group("fibre_options", FibreOptions)
 def simulate_cmd(
-    out: Annotated[
-        Path,
-        typer.Option(
-            help="Sliver file (.csv or .parquet): delivered_length_m, time, linear_density_ktex.",
-            callback=output_file("--out"),
-        ),
-    ],  # fmt: skip
-    speeds: Annotated[
-        str,
-        typer.Option(
-            help="physics (the drive train simulated at 2 kHz for --duration), or a speed file: "
-            "measured (cleaned of gaps), a model's predictions (drafttwin predict --out), or with "
-            "--truth the plant's true speeds."
-        ),
-    ] = "physics",  # fmt: skip
-    truth: Annotated[
-        bool, typer.Option(help="Use the plant's true speeds of --speeds FILE.")
-    ] = False,
-    duration: Annotated[
-        float,
-        typer.Option(
-            help="Machine time for --speeds physics, s (25 s is about 107 m of sliver).",
-            callback=bounded("--duration"),
-        ),
-    ] = 25.0,  # fmt: skip
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    reduced: Annotated[
-        bool,
-        typer.Option(
-            "--reduced",
-            help="With --speeds physics: the reduced drive train (couplings above "
-            "200 Hz rigid, belts compliant: their mesh lines are gone); faster.",
-        ),
-    ] = False,  # fmt: skip
-    detail: Annotated[
-        bool,
-        typer.Option(
-            help="Add the physics' content above a speed file's "
-            "Nyquist frequency (mesh and once-per-revolution "
-            "lines)."
-        ),
-    ] = True,  # fmt: skip
-    staple: StapleOpt = "cotton",
-    fineness_dtex: FinenessOpt = None,
-    fineness_cv: FinenessCvOpt = None,
-    doublings: Annotated[
-        int, typer.Option(help="Slivers fed side by side.", callback=bounded("--doublings"))
-    ] = 6,  # fmt: skip
-    feed_ktex: Annotated[
-        float, typer.Option(help="Count of each fed sliver, ktex.", callback=bounded("--feed-ktex"))
-    ] = 5.5,  # fmt: skip
-    feed_cv: Annotated[
-        float,
-        typer.Option(
-            help="Extra irregularity of each fed sliver above a random one (fraction).",
-            callback=bounded("--feed-cv"),
-        ),
-    ] = 0.0,  # fmt: skip
-    feed_correlation: Annotated[
-        float,
-        typer.Option(
-            help="Its correlation length on the fed sliver, m.",
-            callback=bounded("--feed-correlation"),
-        ),
-    ] = 0.05,  # fmt: skip
-    feed_fault: Annotated[
-        list[str] | None,
-        typer.Option(
-            "--feed-fault",
-            help="A periodic fault of the fed slivers: wavelength=M:amplitude=A"
-            "[:slivers=one|all][:phase=random|same] (wavelength on the fed sliver, m; repeatable).",
-        ),
-    ] = None,  # fmt: skip
+    *,  # keyword-only: the option groups below have no default
+    out: SliverOutOpt,
+    speeds: SpeedsOpt = "physics",
+    truth: TruthOpt = False,
+    duration: PhysicsTimeOpt = 25.0,
+    drive: TrainOptions,
+    reduced: ReducedOpt = False,
+    detail: DetailOpt = True,
+    fibre_options: FibreOptions,
+    doublings: DoublingsOpt = 6,
+    feed_ktex: FeedKtexOpt = 5.5,
+    feed_cv: FeedCvOpt = 0.0,
+    feed_correlation: FeedCorrelationOpt = 0.05,
+    feed_fault: FeedFaultOpt = None,
     gauges: GaugesOpt = "44,40,46",
-    step_mm: Annotated[
-        float, typer.Option(help="Delivered-length grid, mm.", callback=bounded("--step-mm"))
-    ] = 1.0,  # fmt: skip
-    fibre_scale: Annotated[
-        float,
-        typer.Option(
-            help="Lump this many fibres into one (faster; the random part's variance grows by the "
-            "same factor, and evenness and the ideal curve account for it).",
-            callback=bounded("--fibre-scale"),
-        ),
-    ] = 1.0,  # fmt: skip
-    real_drafting: Annotated[
-        str | None,
-        typer.Option(
-            help="Real drafting: ACCELERATION_MM,COUPLING (e.g. 8,1): floating fibres accelerate "
-            "early, dragged by fast ones (a drafting wave). Both must be calibrated against a "
-            "mill's spectrograms; default: ideal drafting."
-        ),
-    ] = None,  # fmt: skip
-    leveller: Annotated[
-        str | None,
-        typer.Option(
-            help="An open-loop autoleveller: INTENSITY[,ACTION_OFFSET_MM] (1,0: full levelling at "
-            "the true action point; the offset in mm of fed sliver is a setting's error)."
-        ),
-    ] = None,  # fmt: skip
-    seed: Annotated[int, typer.Option(help="Seed of the fibres.", callback=bounded("--seed"))] = 0,
+    step_mm: StepOpt = 1.0,
+    fibre_scale: FibreScaleOpt = 1.0,
+    real_drafting: RealDraftingOpt = None,
+    leveller: LevellerOpt = None,
+    seed: SeedOpt = 0,
     as_json: JsonOpt = False,
-    quiet: Annotated[bool, typer.Option(help="No progress bar.")] = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Draft fed slivers through the drafting zones at the rollers' surface speeds, fibre by
     fibre, and write the delivered sliver's linear density on a delivered-length grid."""
@@ -249,7 +211,7 @@ def simulate_cmd(
     from drafttwin.sliver.spectrogram import spectrogram
 
     check_output_suffix(out)
-    fibres = staple_from(staple, fineness_dtex, fineness_cv)
+    fibres = fibre_options.diagram()
     faults = tuple(FeedFault.parse(f) for f in feed_fault or [])
     feed = Feed(fibres, doublings, feed_ktex, faults, feed_cv, feed_correlation)
     zones = zones_from(gauges)
@@ -262,7 +224,7 @@ def simulate_cmd(
                               where="--real-drafting", fix="e.g. 8,1") from None  # fmt: skip
         real = RealDrafting(acc, coupling)
     levelling = _leveller(leveller)
-    train = load_train(preset, config)
+    train = drive.load()
     if reduced:
         from drafttwin.mechanics import reduce
 

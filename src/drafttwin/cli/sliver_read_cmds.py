@@ -8,55 +8,38 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._common import check_output_suffix, load_train
-from drafttwin.cli._oserrors import input_path, output_file
+from drafttwin.cli._common import check_output_suffix
+from drafttwin.cli._groups import with_group
+from drafttwin.cli._options import JsonOpt, TrainOptions, file_in, file_out, number
 from drafttwin.cli.app import console, print_json
-from drafttwin.cli.mechanics_cmds import ConfigOpt, PresetOpt
 from drafttwin.cli.sliver_cmds import (
+    FibreOptions,
     FibreScaleReadOpt,
-    FinenessCvOpt,
-    FinenessOpt,
     GaugesOpt,
-    JsonOpt,
-    StapleOpt,
     causes_table,
     evenness_table,
     sliver_app,
-    staple_from,
     zones_from,
 )
 from drafttwin.errors import ConfigError
 
+SliverRecordOpt = Annotated[Path, file_in("--data", "Sliver record: delivered_length_m and a "
+                           "density column (drafttwin sliver simulate, generate --sliver).")]  # fmt: skip
+ColumnOpt = Annotated[str, typer.Option("--column", help="Density column.")]
+SensorOpt = Annotated[float, number("--sensor-mm", "Averaging length of the sensor that read the record, mm (for the ideal curve).")]  # fmt: skip
+ChannelTableOpt = Annotated[Path | None, file_out("--out", "The channel table (.csv or .parquet).")]  # fmt: skip
+
 
 @sliver_app.command("spectrogram")
+@with_group("fibre_options", FibreOptions)
 def spectrogram_cmd(
-    data: Annotated[
-        Path,
-        typer.Option(
-            help="Sliver record: delivered_length_m and a density "
-            "column (drafttwin sliver simulate, generate --sliver).",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--data"),
-        ),
-    ],  # fmt: skip
-    column: Annotated[str, typer.Option(help="Density column.")] = "linear_density_ktex",
-    staple: StapleOpt = "cotton",
-    fineness_dtex: FinenessOpt = None,
-    fineness_cv: FinenessCvOpt = None,
-    sensor_mm: Annotated[
-        float,
-        typer.Option(
-            help="Averaging length of the sensor that read the record, mm (for the ideal curve).",
-            callback=bounded("--sensor-mm"),
-        ),
-    ] = 0.0,  # fmt: skip
+    *,  # keyword-only: the option group below has no default
+    data: SliverRecordOpt,
+    column: ColumnOpt = "linear_density_ktex",
+    fibre_options: FibreOptions,
+    sensor_mm: SensorOpt = 0.0,
     fibre_scale: FibreScaleReadOpt = 1.0,
-    out: Annotated[
-        Path | None,
-        typer.Option(help="The channel table (.csv or .parquet).", callback=output_file("--out")),
-    ] = None,  # fmt: skip
+    out: ChannelTableOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Count, CV %, U %, CV at cut lengths and the spectrogram as evenness testers draw it
@@ -73,7 +56,7 @@ def spectrogram_cmd(
 
     if out is not None:
         check_output_suffix(out)
-    fibres = staple_from(staple, fineness_dtex, fineness_cv)
+    fibres = fibre_options.diagram()
     sl = read_sliver(data, column, staple=fibres)
     ev = evenness(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale)
     spec = spectrogram(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale=fibre_scale,
@@ -101,24 +84,18 @@ def spectrogram_cmd(
         console.print(f"wrote {out}")
 
 
+MotorRpmOpt = Annotated[float | None, number("--motor-rpm", "Motor speed, rpm (default: the running point by torque balance).")]  # fmt: skip
+HarmonicsOpt = Annotated[int, number("--harmonics", "Harmonics listed per element.")]
+TableOutOpt = Annotated[Path | None, file_out("--out", "The table (.csv or .parquet).")]
+
+
 @sliver_app.command("wavelengths")
+@with_group("drive", TrainOptions)
 def wavelengths_cmd(
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    motor_rpm: Annotated[
-        float | None,
-        typer.Option(
-            help="Motor speed, rpm (default: the running point by torque balance).",
-            callback=bounded("--motor-rpm"),
-        ),
-    ] = None,  # fmt: skip
-    harmonics: Annotated[
-        int, typer.Option(help="Harmonics listed per element.", callback=bounded("--harmonics"))
-    ] = 3,  # fmt: skip
-    out: Annotated[
-        Path | None,
-        typer.Option(help="The table (.csv or .parquet).", callback=output_file("--out")),
-    ] = None,  # fmt: skip
+    drive: TrainOptions,
+    motor_rpm: MotorRpmOpt = None,
+    harmonics: HarmonicsOpt = 3,
+    out: TableOutOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Every rotating element of the drive train (motor, shafts, pulleys, belt pass,
@@ -129,7 +106,7 @@ def wavelengths_cmd(
 
     if out is not None:
         check_output_suffix(out)
-    table = wavelength_table(load_train(preset, config), motor_rpm=motor_rpm, harmonics=harmonics)
+    table = wavelength_table(drive.load(), motor_rpm=motor_rpm, harmonics=harmonics)
     if out is not None:
         write_frame(table.to_frame(), out)
     if as_json:
@@ -153,75 +130,43 @@ def _cm(x: float) -> str:
     return f"{x * 100:.2f} cm" if x < 1 else f"{x:.3f} m"
 
 
+SliverOrSpeedsOpt = Annotated[Path | None, file_in("--data", "A sliver record, or a speed record "
+                             "with a sliver channel beside it (generate --sliver): its speeds "
+                             "then count as --speeds.")]  # fmt: skip
+TesterOpt = Annotated[Path | None, file_in(
+    "--spectrogram", "An evenness tester's spectrogram table instead: wavelength_m | "
+    "wavelength_cm | wavelength_mm and amplitude_pct (optional significant).")]  # fmt: skip
+EncodersOpt = Annotated[Path | None, file_in("--speeds", "The roller speeds recorded with the "
+                        "sliver (same clock): the encoders' word on each look-alike.")]  # fmt: skip
+HealthySliverOpt = Annotated[Path | None, file_in(
+    "--reference", "A healthy sliver record of the same machine (or a speed record with one "
+    "beside it): chimneys no higher than 1.5 x its channel are the machine's own lines, named "
+    "but not counted as new.")]  # fmt: skip
+DataColumnOpt = Annotated[str, typer.Option("--column", help="Density column of --data.")]
+SensorOrSidecarOpt = Annotated[float | None, number("--sensor-mm", "Averaging length of the "
+                              "sensor that read --data, mm (default: the plant's sidecar, else "
+                              "0).")]  # fmt: skip
+MatchedOpt = Annotated[int, number("--harmonics", "Harmonics matched per element.")]
+PageOpt = Annotated[Path | None, file_out("--report", "An HTML page for the quality engineer.")]
+
+
 @sliver_app.command("diagnose")
+@with_group("drive", TrainOptions)
+@with_group("fibre_options", FibreOptions)
 def diagnose_cmd(
-    data: Annotated[
-        Path | None,
-        typer.Option(
-            help="A sliver record, or a speed record with a sliver channel beside it (generate "
-            "--sliver): its speeds then count as --speeds.",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--data"),
-        ),
-    ] = None,  # fmt: skip
-    spectrogram_file: Annotated[
-        Path | None,
-        typer.Option(
-            "--spectrogram",
-            help="An evenness tester's spectrogram table instead: wavelength_m | "
-            "wavelength_cm | wavelength_mm and amplitude_pct (optional significant).",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--spectrogram"),
-        ),
-    ] = None,  # fmt: skip
-    speeds: Annotated[
-        Path | None,
-        typer.Option(
-            help="The roller speeds recorded with the sliver (same clock): the encoders' word on "
-            "each look-alike.",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--speeds"),
-        ),
-    ] = None,  # fmt: skip
-    reference: Annotated[
-        Path | None,
-        typer.Option(
-            help="A healthy sliver record of the same machine (or a speed record with one beside "
-            "it): chimneys no higher than 1.5 x its channel are the machine's own lines, named "
-            "but not counted as new.",
-            dir_okay=False,
-            readable=False,
-            callback=input_path("--reference"),
-        ),
-    ] = None,  # fmt: skip
-    column: Annotated[str, typer.Option(help="Density column of --data.")] = "linear_density_ktex",
-    preset: PresetOpt = None,
-    config: ConfigOpt = None,
-    staple: StapleOpt = "cotton",
-    fineness_dtex: FinenessOpt = None,
-    fineness_cv: FinenessCvOpt = None,
+    *,  # keyword-only: the option groups below have no default
+    data: SliverOrSpeedsOpt = None,
+    spectrogram_file: TesterOpt = None,
+    speeds: EncodersOpt = None,
+    reference: HealthySliverOpt = None,
+    column: DataColumnOpt = "linear_density_ktex",
+    drive: TrainOptions,
+    fibre_options: FibreOptions,
     gauges: GaugesOpt = "44,40,46",
-    sensor_mm: Annotated[
-        float | None,
-        typer.Option(
-            help="Averaging length of the sensor that read --data, mm (default: the plant's "
-            "sidecar, else 0).",
-            callback=bounded("--sensor-mm"),
-        ),
-    ] = None,  # fmt: skip
-    harmonics: Annotated[
-        int, typer.Option(help="Harmonics matched per element.", callback=bounded("--harmonics"))
-    ] = 8,  # fmt: skip
+    sensor_mm: SensorOrSidecarOpt = None,
+    harmonics: MatchedOpt = 8,
     fibre_scale: FibreScaleReadOpt = 1.0,
-    report: Annotated[
-        Path | None,
-        typer.Option(
-            help="An HTML page for the quality engineer.", callback=output_file("--report")
-        ),
-    ] = None,  # fmt: skip
+    report: PageOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Name the drive element behind each chimney of a sliver record or a tester's
@@ -241,9 +186,9 @@ def diagnose_cmd(
     if report is not None and report.suffix.lower() not in (".html", ".htm"):
         raise ConfigError(f"'{report.name}' is not an .html file", where="--report",
                           fix="name the page *.html")  # fmt: skip
-    fibres = staple_from(staple, fineness_dtex, fineness_cv)
+    fibres = fibre_options.diagram()
     zones = zones_from(gauges)
-    train = load_train(preset, config)
+    train = drive.load()
     record: Any
     if data is not None:
         beside = sliver_beside(data)

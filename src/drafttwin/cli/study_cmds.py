@@ -5,43 +5,39 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
-from drafttwin.cli._bounds import bounded
 from drafttwin.cli._groups import with_group
-from drafttwin.cli._oserrors import input_paths, output_dir
+from drafttwin.cli._options import QuietOpt, dir_out, files_in, number
 from drafttwin.cli.app import app, console, err_console
 
 if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries
-    from drafttwin.experiments.study import Study
+    from drafttwin.studies.paper.run import Study
 
-ProfileOpt = Annotated[
-    str, typer.Option(help="quick (minutes on a laptop CPU) | standard | paper (GPU recommended).")
-]
-ExecOpt = Annotated[str, typer.Option(help="local (process pool) | ray.")]
-AddrOpt = Annotated[
-    str | None,
-    typer.Option(
-        help="Ray cluster address (HOST:PORT or 'auto'); none: a private local Ray instance."
-    ),
-]
-StudyDataOpt = Annotated[
+PlanOpt = Annotated[
     str,
     typer.Option(
-        help="'default' or a CSV/Parquet measurement file.", callback=input_paths("--data")
+        "--plan",
+        "--profile",
+        help="Study plan (--plan or --profile): quick (minutes on a laptop CPU) | standard | "
+        "paper (GPU recommended).",
     ),
 ]
-QuietOpt = Annotated[bool, typer.Option(help="No progress display.")]
-WorkersOpt = Annotated[
-    int | None,
-    typer.Option(
-        help="Parallel tasks (default: CPU cores, at most 8; at most 4 per core).",
-        callback=bounded("--workers"),
-    ),
-]
+ExecOpt = Annotated[str, typer.Option(help="local (process pool) | ray.")]
+AddrOpt = Annotated[str | None, typer.Option(help="Ray cluster address (HOST:PORT or 'auto'); "
+                    "none: a private local Ray instance.")]  # fmt: skip
+StudyDataOpt = Annotated[str, files_in("--data", "'default' or a CSV/Parquet measurement file.")]
+WorkersOpt = Annotated[int | None, number("--workers", "Parallel tasks (default: CPU cores, at "
+                       "most 8; at most 4 per core).")]  # fmt: skip
+StudyOutOpt = Annotated[Path, dir_out("--out", "Output folder (report.html, results.json, CSV tables).")]  # fmt: skip
+GridOutOpt = Annotated[Path, dir_out("--out", "Output folder (grid.json and the task cache).")]
+GeneralisationOpt = Annotated[bool, typer.Option(help=(
+    "Add the section 'Where does the physics pay?' from the generalisation benchmark's quick "
+    "subset (about 20 s of CPU; kept in OUT/cache/generalisation)."))]  # fmt: skip
 
 
 class _Display:
@@ -59,19 +55,19 @@ class _Display:
         self.progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                                  TimeElapsedColumn(), console=err_console, disable=quiet)  # fmt: skip
 
-    def stage(self, name: str, total: int):
+    def stage(self, name: str, total: int) -> Callable[[int, dict[str, Any], bool], None]:
         task = self.progress.add_task(name, total=total)
 
-        def tick(index: int, result: dict, cached: bool) -> None:
+        def tick(index: int, result: dict[str, Any], cached: bool) -> None:
             self.progress.advance(task)
 
         return tick
 
 
-def _physics_pays(out: Path, display: _Display) -> dict:
+def _physics_pays(out: Path, display: _Display) -> dict[str, Any]:
     """The generalisation benchmark's quick subset, summarised for the study report."""
-    from drafttwin.benchmarks.generalisation import get_config, run_benchmark
     from drafttwin.report.generalisation import study_summary
+    from drafttwin.studies.generalisation import get_config, run_benchmark
 
     task = display.progress.add_task("where the physics pays (quick benchmark)", total=1)
 
@@ -91,7 +87,7 @@ def _resume_note(out: Path) -> str:
 class StudyOptions:
     """What both study commands take (an option group)."""
 
-    profile: ProfileOpt = "quick"
+    plan: PlanOpt = "quick"
     data: StudyDataOpt = "default"
     executor: ExecOpt = "local"
     address: AddrOpt = None
@@ -101,12 +97,12 @@ class StudyOptions:
     def study(self, out: Path) -> tuple[Study, MeasurementSeries, _Display]:
         from drafttwin.cli._data import Channels
         from drafttwin.execution import check_executor
-        from drafttwin.experiments.study import Study
+        from drafttwin.studies.paper.run import Study
 
         check_executor(self.executor, self.workers, self.address)  # before the data are read
         series = Channels().read(self.data)
         display = _Display(self.quiet)
-        study = Study(self.profile, out_dir=out, executor=self.executor, address=self.address,
+        study = Study(self.plan, out_dir=out, executor=self.executor, address=self.address,
                       workers=self.workers, stage=display.stage)  # fmt: skip
         study.data_name = self.data
         return study, series, display
@@ -116,20 +112,8 @@ class StudyOptions:
 @with_group("options", StudyOptions)
 def reproduce(
     options: StudyOptions,
-    out: Annotated[
-        Path,
-        typer.Option(
-            help="Output folder (report.html, results.json, CSV tables).",
-            callback=output_dir("--out"),
-        ),
-    ] = Path("drafttwin-study"),
-    generalisation: Annotated[
-        bool,
-        typer.Option(
-            help="Add the section 'Where does the physics pay?' from the generalisation "
-            "benchmark's quick subset (about 20 s of CPU; kept in OUT/cache/generalisation).",
-        ),
-    ] = True,
+    out: StudyOutOpt = Path("drafttwin-study"),
+    generalisation: GeneralisationOpt = True,
 ) -> None:
     """Run the paper's whole study and write a self-contained HTML report.
 
@@ -150,7 +134,7 @@ def reproduce(
             results["generalisation"] = _physics_pays(out, display)
         files = write_study(out, results, predictions)
     console.print(
-        f"study '{options.profile}' done in {time.perf_counter() - t0:.0f} s; report: "
+        f"study '{options.plan}' done in {time.perf_counter() - t0:.0f} s; report: "
         f"{files['report']}"
     )
     for name, path in files.items():
@@ -161,12 +145,7 @@ def reproduce(
 @with_group("options", StudyOptions)
 def grid_search(
     options: StudyOptions,
-    out: Annotated[
-        Path,
-        typer.Option(
-            help="Output folder (grid.json and the task cache).", callback=output_dir("--out")
-        ),
-    ] = Path("drafttwin-study"),
+    out: GridOutOpt = Path("drafttwin-study"),
 ) -> None:
     """The paper's grid search only: lr x hidden x layers for LSTM and GRU (Fig. 7)."""
     from drafttwin._io import write_text_atomic

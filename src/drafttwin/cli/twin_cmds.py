@@ -6,16 +6,20 @@ import asyncio
 import math
 import signal
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich.table import Table
 
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._oserrors import input_path, output_dir, output_file
+from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, file_out, number, path_in
 from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.errors import ConfigError
+
+if TYPE_CHECKING:
+    from drafttwin.twin.publish.base import Publisher
+    from drafttwin.twin.service import TwinService
 
 twin_app = typer.Typer(
     help="The live twin: machines over OPC UA / MQTT or a replayed file, the hybrid per "
@@ -27,6 +31,16 @@ plant_app = typer.Typer(
     help="The plant emulator as a live machine (see docs/twin.md).", no_args_is_help=True
 )
 app.add_typer(plant_app, name="plant")
+
+# the options of the twin commands (twin_ops_cmds.py takes them too)
+TwinModelOpt = Annotated[Path, path_in("--model", "Model file (.dtm) for the machines (a mapping may name others).")]  # fmt: skip
+StoreReadOpt = Annotated[Path, path_in("--store", "Store folder a twin wrote.")]
+MachineOpt = Annotated[str | None, typer.Option("--machine", help="One machine (default: all).")]
+CommitMsOpt = Annotated[float, number("--commit-ms", "Commit interval, ms: a crash loses at most this much.")]  # fmt: skip
+TwinPhysicsOpt = Annotated[str, typer.Option("--physics", help="reduced (fast) | full drive train.")]  # fmt: skip
+TokenOpt = Annotated[str | None, typer.Option("--token", envvar="DRAFTTWIN_TOKEN",
+                     help="Token every request must carry (required off 127.0.0.1).")]  # fmt: skip
+TwinQuietOpt = Annotated[bool, typer.Option(help="No status line every 10 s on stderr.")]
 
 
 def _need_twin_extra() -> None:
@@ -64,100 +78,47 @@ def parse_bind(text: str, token: str | None) -> tuple[str, int]:
     return host, port
 
 
+SourcesOpt = Annotated[list[str], typer.Option("--source", help="replay:FILE?speed=10&machine=NAME "
+                      "| opcua:opc.tcp://HOST:PORT | mqtt://HOST:PORT; repeat for several "
+                      "sources.")]  # fmt: skip
+MappingOpt = Annotated[Path | None, path_in("--mapping", "Mapping TOML: machines, their nodes/topics, fields, models.")]  # fmt: skip
+StoreOpt = Annotated[Path | None, dir_out("--store", "Store folder (DuckDB): every sample, prediction, residual, event.")]  # fmt: skip
+RetentionOpt = Annotated[float | None, number("--retention-hours", "Keep this many hours per machine (default: all).")]  # fmt: skip
+HttpOpt = Annotated[str | None, typer.Option("--http", help="Serve the page, REST API and /metrics on HOST:PORT.")]  # fmt: skip
+PublishOpt = Annotated[list[str] | None, typer.Option("--publish", help=(
+    "Publish predictions, residuals, health and alarms: opcua:opc.tcp://HOST:PORT[?hz=10] (the "
+    "twin's own OPC UA server) | mqtt://HOST:PORT[?qos=1&hz=10&prefix=drafttwin/twin]; hz: "
+    "predictions per machine and second; repeatable (docs/twin.md)."))]  # fmt: skip
+DetectorOpt = Annotated[str, typer.Option("--detector", help=(
+    "Fault detector: auto (MODEL.dtm.detector.json when it exists, from 'twin fit-detector') | "
+    "none | FILE. Alarms with their probable cause go to the store, the page, /api/alarms and "
+    "/metrics."))]  # fmt: skip
+SilentOpt = Annotated[float, number("--silent", "A machine silent this long (s) is marked as a gap.")]  # fmt: skip
+MaxSamplesOpt = Annotated[int | None, number("--max-samples", "Stop after this many processed samples.")]  # fmt: skip
+# derived from the parameter's name, as --verbose/--no-verbose
+VerboseOpt = Annotated[bool, typer.Option(help="A line per store commit.")]
+StatusJsonOpt = Annotated[bool, typer.Option("--json", help="Print the final status as JSON.")]
+
+
 @twin_app.command("run")
 def twin_run(
-    model: Annotated[
-        Path,
-        typer.Option(
-            help="Model file (.dtm) for the machines (a mapping may name others).",
-            callback=input_path("--model"),
-        ),
-    ],  # fmt: skip
-    source: Annotated[
-        list[str],
-        typer.Option(
-            help="replay:FILE?speed=10&machine=NAME | opcua:opc.tcp://HOST:PORT | "
-            "mqtt://HOST:PORT; repeat for several sources."
-        ),
-    ],  # fmt: skip
-    mapping: Annotated[
-        Path | None,
-        typer.Option(
-            help="Mapping TOML: machines, their nodes/topics, fields, models.",
-            callback=input_path("--mapping"),
-        ),
-    ] = None,  # fmt: skip
-    store: Annotated[
-        Path | None,
-        typer.Option(
-            help="Store folder (DuckDB): every sample, prediction, residual, event.",
-            callback=output_dir("--store"),
-        ),
-    ] = None,  # fmt: skip
-    commit_ms: Annotated[
-        float,
-        typer.Option(
-            help="Commit interval, ms: a crash loses at most this much.",
-            callback=bounded("--commit-ms"),
-        ),
-    ] = 200.0,  # fmt: skip
-    retention_hours: Annotated[
-        float | None,
-        typer.Option(
-            help="Keep this many hours per machine (default: all).",
-            callback=bounded("--retention-hours"),
-        ),
-    ] = None,  # fmt: skip
-    http: Annotated[
-        str | None, typer.Option(help="Serve the page, REST API and /metrics on HOST:PORT.")
-    ] = None,
-    token: Annotated[
-        str | None,
-        typer.Option(
-            envvar="DRAFTTWIN_TOKEN",
-            help="Token every request must carry (required off 127.0.0.1).",
-        ),
-    ] = None,  # fmt: skip
-    physics: Annotated[str, typer.Option(help="reduced (fast) | full drive train.")] = "reduced",
-    publish: Annotated[
-        list[str] | None,
-        typer.Option(
-            help="Publish predictions, residuals, health and alarms: opcua:opc.tcp://HOST:PORT"
-            "[?hz=10] (the twin's own OPC UA server) | mqtt://HOST:PORT[?qos=1&hz=10&prefix="
-            "drafttwin/twin]; hz: predictions per machine and second; repeatable (docs/twin.md)."
-        ),
-    ] = None,  # fmt: skip
-    detector: Annotated[
-        str,
-        typer.Option(
-            help="Fault detector: auto (MODEL.dtm.detector.json when it exists, from 'twin "
-            "fit-detector') | none | FILE. Alarms with their probable cause go to the store, "
-            "the page, /api/alarms and /metrics.",
-        ),
-    ] = "auto",  # fmt: skip
-    silent: Annotated[
-        float,
-        typer.Option(
-            help="A machine silent this long (s) is marked as a gap.", callback=bounded("--silent")
-        ),
-    ] = 2.0,  # fmt: skip
-    duration: Annotated[
-        float | None,
-        typer.Option(
-            help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
-        ),
-    ] = None,  # fmt: skip
-    max_samples: Annotated[
-        int | None,
-        typer.Option(
-            help="Stop after this many processed samples.", callback=bounded("--max-samples")
-        ),
-    ] = None,  # fmt: skip
-    verbose: Annotated[bool, typer.Option(help="A line per store commit.")] = False,
-    quiet: Annotated[bool, typer.Option(help="No status line every 10 s on stderr.")] = False,
-    as_json: Annotated[
-        bool, typer.Option("--json", help="Print the final status as JSON.")
-    ] = False,
+    model: TwinModelOpt,
+    source: SourcesOpt,
+    mapping: MappingOpt = None,
+    store: StoreOpt = None,
+    commit_ms: CommitMsOpt = 200.0,
+    retention_hours: RetentionOpt = None,
+    http: HttpOpt = None,
+    token: TokenOpt = None,
+    physics: TwinPhysicsOpt = "reduced",
+    publish: PublishOpt = None,
+    detector: DetectorOpt = "auto",
+    silent: SilentOpt = 2.0,
+    duration: StopAfterOpt = None,
+    max_samples: MaxSamplesOpt = None,
+    verbose: VerboseOpt = False,
+    quiet: TwinQuietOpt = False,
+    as_json: StatusJsonOpt = False,
 ) -> None:
     """Run the live twin: per sample, the paper's causal cleaning, the physics following the
     set-point, the model through one incremental predictor; store and serve the result.
@@ -215,7 +176,9 @@ def twin_run(
     _print_status(status)
 
 
-async def _serve(service, bind, token, duration, max_samples, quiet, publishers=()) -> None:  # noqa: ANN001
+async def _serve(service: TwinService, bind: tuple[str, int] | None, token: str | None,
+                 duration: float | None, max_samples: int | None, quiet: bool,
+                 publishers: Sequence[Publisher] = ()) -> None:  # fmt: skip
     from drafttwin.twin.publish import publishing
 
     ticker = None if quiet else asyncio.create_task(_status_lines(service))
@@ -226,7 +189,7 @@ async def _serve(service, bind, token, duration, max_samples, quiet, publishers=
             if bind is None:
                 await service.run(duration_s=duration, max_rows=max_samples)
                 return
-            from drafttwin.twin.web import serve_with
+            from drafttwin.twin.web.app import serve_with
 
             def started(_: object) -> None:
                 err_console.print(f"page on http://{bind[0]}:{bind[1]}/")
@@ -237,7 +200,7 @@ async def _serve(service, bind, token, duration, max_samples, quiet, publishers=
             ticker.cancel()
 
 
-async def _status_lines(service) -> None:  # noqa: ANN001
+async def _status_lines(service: TwinService) -> None:
     """One line every 10 s: samples, p99 latency, machines by state (a live run has no end
     to show a progress bar against)."""
     while True:
@@ -252,7 +215,7 @@ async def _status_lines(service) -> None:  # noqa: ANN001
                           highlight=False)  # fmt: skip
 
 
-def _print_status(status: dict) -> None:
+def _print_status(status: dict[str, Any]) -> None:
     table = Table(title=f"live twin: {status['rows']} samples in {status['wall_s']:.1f} s")
     for col in ("machine", "state", "received", "processed", "dropped", "late", "duplicate",
                 "skipped", "spikes"):  # fmt: skip
@@ -278,35 +241,29 @@ def _print_status(status: dict) -> None:
                       f"dropped, {pub['failed']} failed")  # fmt: skip
 
 
+FromOpt = Annotated[float | None, number("--from", "From this time, s (inclusive).")]
+ToOpt = Annotated[float | None, number("--to", "To this time, s (inclusive).")]
+SamplesOutOpt = Annotated[Path | None, file_out("--out", "Write the samples to a .csv or .parquet file.")]  # fmt: skip
+# derived from the parameter's name, as --events/--no-events
+EventsOpt = Annotated[bool, typer.Option(help="Export the events instead of samples.")]
+
+
 @twin_app.command("query")
 def twin_query(
-    store: Annotated[
-        Path, typer.Option(help="Store folder a twin wrote.", callback=input_path("--store"))
-    ],
-    machine: Annotated[str | None, typer.Option(help="One machine (default: all).")] = None,
-    t_from: Annotated[
-        float | None,
-        typer.Option("--from", help="From this time, s (inclusive).", callback=bounded("--from")),
-    ] = None,  # fmt: skip
-    t_to: Annotated[
-        float | None,
-        typer.Option("--to", help="To this time, s (inclusive).", callback=bounded("--to")),
-    ] = None,  # fmt: skip
-    out: Annotated[
-        Path | None,
-        typer.Option(
-            help="Write the samples to a .csv or .parquet file.", callback=output_file("--out")
-        ),
-    ] = None,  # fmt: skip
-    events: Annotated[bool, typer.Option(help="Export the events instead of samples.")] = False,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the summary as JSON.")] = False,
+    store: StoreReadOpt,
+    machine: MachineOpt = None,
+    t_from: FromOpt = None,
+    t_to: ToOpt = None,
+    out: SamplesOutOpt = None,
+    events: EventsOpt = False,
+    as_json: JsonOpt = False,
 ) -> None:
     """Export a twin's history (all of it by default): per sample the measured values, the
     physics, the twin's prediction and the residual per channel; or its events."""
     _need_twin_extra()
     from drafttwin._io import atomic_path
     from drafttwin.cli._common import check_output_suffix
-    from drafttwin.twin.history import read_events, read_history, summary
+    from drafttwin.twin.store.history import read_events, read_history, summary
 
     if out is not None:
         check_output_suffix(out)
@@ -340,18 +297,16 @@ def _t(x: object) -> str:
     return f"{x:.3f}" if isinstance(x, float) and math.isfinite(x) else "-"
 
 
+CertsOutOpt = Annotated[Path, dir_out("--out", "Folder for the keys and certificates.")]
+HostOpt = Annotated[str, typer.Option("--host", help="Host name in the certificates.")]
+
+
 @twin_app.command("certs")
-def twin_certs(
-    out: Annotated[
-        Path,
-        typer.Option(help="Folder for the keys and certificates.", callback=output_dir("--out")),
-    ],  # fmt: skip
-    host: Annotated[str, typer.Option(help="Host name in the certificates.")] = "127.0.0.1",
-) -> None:
+def twin_certs(out: CertsOutOpt, host: HostOpt = "127.0.0.1") -> None:
     """Make self-signed OPC UA certificates (365 days) for 'plant serve --cert' and the twin's
     source 'opcua:URL?cert=DIR'. Existing valid ones are kept."""
     _need_twin_extra()
-    from drafttwin.twin.security import make_certificates
+    from drafttwin.twin.sources.security import make_certificates
 
     paths = asyncio.run(make_certificates(out, host))
     console.print("wrote " + ", ".join(str(p) for p in paths) + f" and {out / 'trusted'}")

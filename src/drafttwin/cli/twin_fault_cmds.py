@@ -6,60 +6,32 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
-import typer
-
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._oserrors import input_path, input_paths, output_file
+from drafttwin.cli._options import FarPerDayOpt, JsonOpt, file_out, files_in, number, path_in
 from drafttwin.cli.app import console, print_json
 from drafttwin.cli.twin_cmds import twin_app
 from drafttwin.errors import ConfigError
 
+ModelOpt = Annotated[Path, path_in("--model", "The model file (.dtm) the twin runs.")]
+HealthyOpt = Annotated[str, files_in(
+    "--healthy", "Healthy records of the machine(s), comma-separated: .csv/.parquet with a motor "
+    "column (e.g. 'drafttwin generate'), or logs of 'plant serve --log' (each machine in it a "
+    "record): they set the thresholds.")]  # fmt: skip
+ReferenceOpt = Annotated[float, number("--reference", "Seconds at the start of a run (and after "
+                         "each alarm) that set the baseline; no decisions there.")]  # fmt: skip
+PostOpt = Annotated[float, number("--post", "Seconds after an alarm whose mean shift is ranked for the probable cause.")]  # fmt: skip
+DetectorOutOpt = Annotated[Path | None, file_out("--out", "Where to write it (default: "
+                           "MODEL.dtm.detector.json, which 'twin run' finds).")]  # fmt: skip
+
 
 @twin_app.command("fit-detector")
 def twin_fit_detector(
-    model: Annotated[
-        Path,
-        typer.Option(help="The model file (.dtm) the twin runs.", callback=input_path("--model")),
-    ],
-    healthy: Annotated[
-        str,
-        typer.Option(
-            help="Healthy records of the machine(s), comma-separated: .csv/.parquet with a motor "
-            "column (e.g. 'drafttwin generate'), or logs of 'plant serve --log' (each machine "
-            "in it a record): they set the thresholds.",
-            callback=input_paths("--healthy"),
-        ),
-    ],
-    far_per_day: Annotated[
-        float,
-        typer.Option(
-            help="False alarms allowed per 24 h of healthy running.",
-            callback=bounded("--far-per-day"),
-        ),
-    ] = 1.0,  # fmt: skip
-    reference: Annotated[
-        float,
-        typer.Option(
-            help="Seconds at the start of a run (and after each alarm) that set the baseline; "
-            "no decisions there.",
-            callback=bounded("--reference"),
-        ),
-    ] = 15.0,  # fmt: skip
-    post: Annotated[
-        float,
-        typer.Option(
-            help="Seconds after an alarm whose mean shift is ranked for the probable cause.",
-            callback=bounded("--post"),
-        ),
-    ] = 10.0,  # fmt: skip
-    out: Annotated[
-        Path | None,
-        typer.Option(
-            help="Where to write it (default: MODEL.dtm.detector.json, which 'twin run' finds).",
-            callback=output_file("--out"),
-        ),
-    ] = None,  # fmt: skip
-    as_json: Annotated[bool, typer.Option("--json", help="Print the result as JSON.")] = False,
+    model: ModelOpt,
+    healthy: HealthyOpt,
+    far_per_day: FarPerDayOpt = 1.0,
+    reference: ReferenceOpt = 15.0,
+    post: PostOpt = 10.0,
+    out: DetectorOutOpt = None,
+    as_json: JsonOpt = False,
 ) -> None:
     """Fit the live fault detector on healthy records and store it with the model.
 

@@ -15,10 +15,20 @@ import typer
 from rich import box
 from rich.table import Table
 
-from drafttwin.cli._bounds import bounded
-from drafttwin.cli._oserrors import input_path, output_dir
+from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, number, path_in
 from drafttwin.cli.app import console, err_console, print_json
-from drafttwin.cli.twin_cmds import _need_twin_extra, parse_bind, twin_app
+from drafttwin.cli.twin_cmds import (
+    CommitMsOpt,
+    MachineOpt,
+    StoreReadOpt,
+    TokenOpt,
+    TwinModelOpt,
+    TwinPhysicsOpt,
+    TwinQuietOpt,
+    _need_twin_extra,
+    parse_bind,
+    twin_app,
+)
 from drafttwin.errors import ConfigError, DrafttwinError
 from drafttwin.execution.interrupt import Interrupted, stop_on_signals
 
@@ -26,28 +36,23 @@ RUNS_SHOWN = 10
 """Runs of absent samples listed per machine (the JSON has them all)."""
 
 
+PlantLogOpt = Annotated[Path, path_in("--plant-log", "The plant's log ('drafttwin plant serve --log FILE').")]  # fmt: skip
+
+
 @twin_app.command("audit")
 def twin_audit(
-    store: Annotated[
-        Path, typer.Option(help="Store folder a twin wrote.", callback=input_path("--store"))
-    ],
-    plant_log: Annotated[
-        Path,
-        typer.Option(
-            help="The plant's log ('drafttwin plant serve --log FILE').",
-            callback=input_path("--plant-log"),
-        ),
-    ],  # fmt: skip
-    machine: Annotated[str | None, typer.Option(help="One machine (default: all).")] = None,
-    as_json: Annotated[bool, typer.Option("--json", help="Print the audit as JSON.")] = False,
+    store: StoreReadOpt,
+    plant_log: PlantLogOpt,
+    machine: MachineOpt = None,
+    as_json: JsonOpt = False,
 ) -> None:
     """Count the store against the plant's log: per machine the samples published, stored,
     stored twice, stored with other values, and the runs of published samples the store lacks
     (with when the plant published them), apart from those before the twin's first and after
     its last stored sample."""
     _need_twin_extra()
-    from drafttwin.twin.audit import as_json as audit_json
-    from drafttwin.twin.audit import audit
+    from drafttwin.twin.store.audit import as_json as audit_json
+    from drafttwin.twin.store.audit import audit
 
     result = audit(store, plant_log, machine)
     if as_json:
@@ -83,71 +88,33 @@ def _clock(t: float) -> str:
     return dt.datetime.fromtimestamp(t, tz=dt.UTC).strftime("%H:%M:%S.%f")[:-3] + " UTC"
 
 
+HallServerOpt = Annotated[str, typer.Option("--source", help="The hall's server: opcua:opc.tcp://HOST:PORT | mqtt://HOST:PORT.")]  # fmt: skip
+HallMappingOpt = Annotated[Path, path_in("--mapping", "Mapping TOML listing the hall's machines (split over the shards).")]  # fmt: skip
+ShardStoreOpt = Annotated[Path, dir_out("--store", "Store folder: one DuckDB file per shard (shard-I-of-K/).")]  # fmt: skip
+ShardsOpt = Annotated[int, number("--shards", "Number of twins (Ray actors), K.")]
+RayOpt = Annotated[str | None, typer.Option("--ray", help="Ray cluster address (HOST:PORT, "
+                   "ray://HOST:PORT or auto); default: a private Ray on this machine with K CPUs.")]  # fmt: skip
+HallHttpOpt = Annotated[str | None, typer.Option("--http", help=(
+    "Serve the hall's page on HOST:PORT: every shard's machines at a glance (state, samples, "
+    "fault alarms and their probable cause), refreshed every second."))]  # fmt: skip
+ShardsJsonOpt = Annotated[bool, typer.Option("--json", help="Print each shard's status as JSON.")]
+
+
 @twin_app.command("hall")
 def twin_hall(
-    model: Annotated[
-        Path,
-        typer.Option(
-            help="Model file (.dtm) for the machines (the mapping may name others).",
-            callback=input_path("--model"),
-        ),
-    ],  # fmt: skip
-    source: Annotated[
-        str, typer.Option(help="The hall's server: opcua:opc.tcp://HOST:PORT | mqtt://HOST:PORT.")
-    ],
-    mapping: Annotated[
-        Path,
-        typer.Option(
-            help="Mapping TOML listing the hall's machines (split over the shards).",
-            callback=input_path("--mapping"),
-        ),
-    ],  # fmt: skip
-    store: Annotated[
-        Path,
-        typer.Option(
-            help="Store folder: one DuckDB file per shard (shard-I-of-K/).",
-            callback=output_dir("--store"),
-        ),
-    ],  # fmt: skip
-    shards: Annotated[
-        int, typer.Option(help="Number of twins (Ray actors), K.", callback=bounded("--shards"))
-    ] = 2,
-    ray_address: Annotated[
-        str | None,
-        typer.Option(
-            "--ray",
-            help="Ray cluster address (HOST:PORT, ray://HOST:PORT or auto); "
-            "default: a private Ray on this machine with K CPUs.",
-        ),
-    ] = None,  # fmt: skip
-    commit_ms: Annotated[
-        float, typer.Option(help="Commit interval, ms.", callback=bounded("--commit-ms"))
-    ] = 200.0,
-    physics: Annotated[str, typer.Option(help="reduced (fast) | full drive train.")] = "reduced",
-    duration: Annotated[
-        float | None,
-        typer.Option(
-            help="Stop after this many seconds (default: run on).", callback=bounded("--duration")
-        ),
-    ] = None,  # fmt: skip
-    quiet: Annotated[bool, typer.Option(help="No status line every 10 s on stderr.")] = False,
-    http: Annotated[
-        str | None,
-        typer.Option(
-            help="Serve the hall's page on HOST:PORT: every shard's machines at a glance "
-            "(state, samples, fault alarms and their probable cause), refreshed every second.",
-        ),
-    ] = None,  # fmt: skip
-    token: Annotated[
-        str | None,
-        typer.Option(
-            envvar="DRAFTTWIN_TOKEN",
-            help="Token every request to the page must carry (required off 127.0.0.1).",
-        ),
-    ] = None,  # fmt: skip
-    as_json: Annotated[
-        bool, typer.Option("--json", help="Print each shard's status as JSON.")
-    ] = False,
+    model: TwinModelOpt,
+    source: HallServerOpt,
+    mapping: HallMappingOpt,
+    store: ShardStoreOpt,
+    shards: ShardsOpt = 2,
+    ray_address: RayOpt = None,
+    commit_ms: CommitMsOpt = 200.0,
+    physics: TwinPhysicsOpt = "reduced",
+    duration: StopAfterOpt = None,
+    quiet: TwinQuietOpt = False,
+    http: HallHttpOpt = None,
+    token: TokenOpt = None,
+    as_json: ShardsJsonOpt = False,
 ) -> None:
     """Run a hall as K live twins, one Ray actor each: shard I takes the mapping's machines
     I, I+K, I+2K... (each machine whole in one twin) and writes its own store in
@@ -172,7 +139,7 @@ def twin_hall(
     err_console.print(f"hall: {n} machines over {shards} twins on "
                       f"{ray_address or 'a private Ray'}")  # fmt: skip
 
-    from drafttwin.twin.hallweb import HallServer, HallView
+    from drafttwin.twin.web.hall import HallServer, HallView
 
     view = HallView(shards)
     printed = [0.0]

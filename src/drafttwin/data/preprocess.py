@@ -108,10 +108,11 @@ def interpolate_missing(
 def _tolerance(neighbour: np.ndarray, threshold: float, scale: np.ndarray | None) -> np.ndarray:
     """Per-sample tolerance: relative to the neighbour, or to the column's scale where given
     (``NaN`` in ``scale`` = relative rule for that column)."""
-    relative = threshold * np.abs(neighbour)
+    relative: np.ndarray = threshold * np.abs(neighbour)
     if scale is None:
         return relative
-    return np.where(np.isnan(scale), relative, threshold * np.nan_to_num(scale))
+    tolerance: np.ndarray = np.where(np.isnan(scale), relative, threshold * np.nan_to_num(scale))
+    return tolerance
 
 
 def find_outliers(
@@ -287,7 +288,9 @@ def _hold(x: np.ndarray) -> np.ndarray:
     return x[idx]
 
 
-def _fill_optional(series: MeasurementSeries, max_gap: int | None) -> tuple[dict, dict]:
+def _fill_optional(
+    series: MeasurementSeries, max_gap: int | None
+) -> tuple[dict[str, Any], dict[str, int]]:
     """Motor speed: interpolated like the outputs; inputs: last value held (then first), within
     each record."""
     counts: dict[str, int] = {}

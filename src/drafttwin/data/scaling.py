@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 
 class MinMaxScaler:
@@ -19,10 +20,10 @@ class MinMaxScaler:
         x2 = x.reshape(-1, x.shape[-1]) if x.ndim > 1 else x[:, None]
         if x2.shape[0] == 0 or np.all(np.isnan(x2), axis=0).any():
             raise ValueError("MinMaxScaler.fit needs at least one finite value per column")
-        self.min_ = np.nanmin(x2, axis=0)
-        self.max_ = np.nanmax(x2, axis=0)
+        self.min_: NDArray[np.float64] = np.nanmin(x2, axis=0)
+        self.max_: NDArray[np.float64] = np.nanmax(x2, axis=0)
         span = self.max_ - self.min_
-        self.scale_ = np.where(span > 0, span, 1.0)
+        self.scale_: NDArray[np.float64] = np.where(span > 0, span, 1.0)
         return self
 
     def _check(self) -> None:

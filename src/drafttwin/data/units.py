@@ -102,7 +102,8 @@ def resolve_unit(
 
 def _nonzero(x: np.ndarray) -> np.ndarray:
     a = x[np.isfinite(x)]
-    return a[a != 0]
+    nonzero: np.ndarray = a[a != 0]
+    return nonzero
 
 
 def _running_median(x: np.ndarray) -> float:

@@ -228,7 +228,7 @@ def numeric_column(
             i = int(bad[0]) if bad.shape[0] else 0
             _refuse_text(values.iloc[i], header, source, row_label(i))
         values = coerced
-    out = values.to_numpy(dtype=np.float64, na_value=np.nan)
+    out: np.ndarray = values.to_numpy(dtype=np.float64, na_value=np.nan)
     inf = np.flatnonzero(np.isinf(out))
     if inf.shape[0]:
         _refuse_text(values.iloc[int(inf[0])], header, source, row_label(int(inf[0])))

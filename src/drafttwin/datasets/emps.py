@@ -10,13 +10,13 @@ the data set's README before it is read; a missing or altered file is refused wi
 
 from __future__ import annotations
 
-import hashlib
 import os
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from drafttwin._io import sha256_file
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
 
@@ -103,15 +103,6 @@ def find_data_dir(data_dir: str | Path | None = None) -> Path:
         fix=f"pass --data-dir DIR or set {ENV_VAR} to the folder holding {TRAIN_FILE} and "
         f"{TEST_FILE} (from https://www.nonlinearbenchmark.org/benchmarks/emps)",
     )
-
-
-def sha256_file(path: Path) -> str:
-    """Hex SHA-256 of a file's bytes."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
 
 
 def verify_file(path: Path) -> str:

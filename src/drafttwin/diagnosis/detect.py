@@ -218,7 +218,8 @@ class FaultDetector:
     def _reference_deviation(self, f: BlockFeatures) -> np.ndarray:
         n_ref = self._n_ref(f)
         x = feature_matrix(f)
-        return x[n_ref:] - np.nanmean(x[:n_ref], axis=0)
+        deviation: np.ndarray = x[n_ref:] - np.nanmean(x[:n_ref], axis=0)
+        return deviation
 
     def _long_run_factor(self, streams: Sequence[np.ndarray]) -> np.ndarray:
         """Long-run variance of the AR(1)-whitened streams over their variance, pooled over
@@ -239,7 +240,8 @@ class FaultDetector:
                 num[k - 1] += (e[k:] * e[:-k]).sum(axis=0)
         rho = num / np.maximum(den, 1e-300)
         weights = 1.0 - np.arange(1, lags + 1) / (lags + 1.0)
-        return np.maximum(1.0, 1.0 + 2.0 * (weights[:, None] * rho).sum(axis=0))
+        factor: np.ndarray = np.maximum(1.0, 1.0 + 2.0 * (weights[:, None] * rho).sum(axis=0))
+        return factor
 
     def _n_ref(self, f: BlockFeatures) -> int:
         n_ref = max(2, int(round(self.reference_s / f.block_s)))

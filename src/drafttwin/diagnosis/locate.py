@@ -175,7 +175,8 @@ class SignatureModel:
     def _lags(self, d_theta: np.ndarray) -> np.ndarray:
         """Angle changes of the four rollers -> lag changes of ``LAGGED``, mrad."""
         ratio = self.healthy[1:4] / self.healthy[0]
-        return 1e3 * (d_theta[1:] - ratio * d_theta[0])
+        lags: np.ndarray = 1e3 * (d_theta[1:] - ratio * d_theta[0])
+        return lags
 
     def signature(self, element: str, kind: str, severity: float) -> np.ndarray:
         """Change of the block features under the fault: relative change of the five

@@ -31,7 +31,7 @@ import numpy as np
 from drafttwin._constants import ROLLERS
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
-from drafttwin.mechanics import DriveTrain, reduce, simulate_channels
+from drafttwin.mechanics import DriveTrain, reduce, simulate
 
 CHANNELS = (*ROLLERS, "motor")
 LAGGED = ROLLERS[1:]  # rollers whose angle is compared with the front roller's
@@ -79,7 +79,7 @@ class BlockFeatures:
 def physics_prediction(train: DriveTrain, series: MeasurementSeries) -> np.ndarray:
     """Open-loop prediction of the four rollers and the motor, rpm, shape ``(n, 5)``."""
     fast = reduce(train) if train.reduction is None else train
-    return simulate_channels(fast, series.time_s, inputs=series.inputs, channels=CHANNELS)
+    return simulate(fast, time_s=series.time_s, inputs=series.inputs).channels(CHANNELS)
 
 
 def measured(series: MeasurementSeries) -> np.ndarray:
@@ -268,7 +268,8 @@ def coherent_motion(y: np.ndarray, good: np.ndarray) -> np.ndarray:
     together = counted & ((~good).sum(axis=1) >= 2)
     before = np.concatenate([[False], together[:-1]])
     after = np.concatenate([together[1:], [False]])
-    return together & (before | after)
+    transient: np.ndarray = together & (before | after)
+    return transient
 
 
 def _longest_runs(yb: np.ndarray) -> np.ndarray:

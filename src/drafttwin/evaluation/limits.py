@@ -30,12 +30,12 @@ gives the derivation and the figures measured on the default data set.
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from drafttwin._io import json_number
+from drafttwin._io import json_fields, json_number
 from drafttwin.errors import DataError
 
 LAG1_PREMISE = (-0.6, -0.4)
@@ -54,7 +54,8 @@ def _run_lengths(finite: np.ndarray) -> np.ndarray:
     idx = np.arange(n)
     last_gap = np.maximum.accumulate(np.where(~finite, idx, -1))  # last non-finite row <= t
     before = np.concatenate([[-1], last_gap[:-1]])  # ... strictly before t
-    return idx - before - 1
+    lengths: np.ndarray = idx - before - 1
+    return lengths
 
 
 def lag1_autocorrelation(err: np.ndarray) -> float:
@@ -89,7 +90,8 @@ def _predict_error(err: np.ndarray, max_history: int) -> np.ndarray:
     t = np.arange(e.size)
     lo = t - h  # the run is e[lo:t]; weight of e[k] is (k - lo + 1) / (h + 1)
     weighted = (p2[t] - p2[lo]) - (lo - 1) * (p1[t] - p1[lo])
-    return -weighted / (h + 1)
+    prediction: np.ndarray = -weighted / (h + 1)
+    return prediction
 
 
 def floor_oracle(
@@ -146,7 +148,7 @@ class ChannelLimits:
     n: int
 
     def to_dict(self) -> dict[str, str | int | float | None]:
-        return {k: json_number(v) if isinstance(v, float) else v for k, v in asdict(self).items()}
+        return json_fields(self)
 
 
 def _rmse(err: np.ndarray) -> float:

@@ -49,7 +49,7 @@ import numpy as np
 import pandas as pd
 
 from drafttwin._constants import ROLLERS
-from drafttwin._io import json_number
+from drafttwin._io import json_fields
 from drafttwin.errors import ConfigError, DataError
 
 DEFAULT_REL_FLOOR = 0.01
@@ -102,7 +102,7 @@ class ChannelMetrics:
 
     def to_dict(self) -> dict[str, str | int | float | None]:
         """The fields as a JSON-safe dict: NaN and infinities become ``None``."""
-        return {k: json_number(v) if isinstance(v, float) else v for k, v in asdict(self).items()}
+        return json_fields(self)
 
 
 def _named(channels: Sequence[str]) -> str:
@@ -206,7 +206,7 @@ def _ratio(num: float, den: float) -> float:
     return num / den if np.isfinite(den) and den > 0 else float("nan")
 
 
-def _channel_metrics(
+def _one_channel(
     name: str,
     unit: str,
     y: np.ndarray,
@@ -266,7 +266,7 @@ def _against_truth(
     return _rmse(yhat[ok] - true[ok]), _rmse(y[ok] - true[ok])
 
 
-def evaluate(
+def channel_metrics(
     y_true: np.ndarray,
     y_pred: np.ndarray,
     *,
@@ -316,7 +316,7 @@ def evaluate(
     oracle = arrays["floor_values"]
     assert yhat is not None
     return {
-        name: _channel_metrics(
+        name: _one_channel(
             name,
             unit_of[j],
             y[:, j],

@@ -19,7 +19,7 @@ command line, ``drafttwin reproduce`` and the EMPS benchmark.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 import pandas as pd
@@ -28,8 +28,7 @@ from drafttwin.data.preprocess import outlier_scales, preprocess, reject_spikes_
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.evaluation.limits import floor_oracle
-from drafttwin.evaluation.metrics import ChannelMetrics
-from drafttwin.evaluation.metrics import evaluate as score_channels
+from drafttwin.evaluation.metrics import ChannelMetrics, channel_metrics
 from drafttwin.models.base import BaseModel, time_column
 from drafttwin.models.baselines import PersistenceModel
 from drafttwin.models.mechanistic import MechanisticModel
@@ -317,7 +316,7 @@ def score(
         target[a : min(b, a + skip_rows)] = np.nan
     units = {c: test.unit(c) for c in test.channels}
     truth = test.truth
-    metrics = score_channels(target, pred, channels=test.channels, units=units,
+    metrics = channel_metrics(target, pred, channels=test.channels, units=units,
                              persistence=pers, true_values=truth,
                              floor_values=_oracle(part, model, truth))  # fmt: skip
     frame = pd.DataFrame({time_column(test): test.time_s})
@@ -362,7 +361,24 @@ def _oracle(part: Split, model: BaseModel, truth: np.ndarray | None) -> np.ndarr
     return floor_oracle(part.target, truth, observed=observed, record_starts=starts)
 
 
+Model = TypeVar("Model", bound=BaseModel)
+
+
 def fit(
+    model: Model,
+    data: MeasurementSeries | Split,
+    *,
+    train_fraction: float | None = 0.7,
+    test: MeasurementSeries | None = None,
+    mechanistic: object | None = None,
+) -> Model:
+    """Fit ``model`` as :func:`fit_split` does and return it, fitted (as scikit-learn's
+    ``fit``); :func:`fit_split` returns the split instead, for :func:`evaluate`."""
+    fit_split(model, data, train_fraction=train_fraction, test=test, mechanistic=mechanistic)
+    return model
+
+
+def fit_split(
     model: BaseModel,
     data: MeasurementSeries | Split,
     *,

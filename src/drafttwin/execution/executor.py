@@ -19,7 +19,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
 from drafttwin.errors import DrafttwinError
@@ -180,14 +180,7 @@ def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
 
 
 def _run_ray(fn: Task, todo: Pending, finish: Finish, workers: int, address: str | None) -> None:
-    ray = _import_ray()
-    started = not ray.is_initialized()
-    guard = _start_guard() if started and not address else None
-    sigterm = signal.getsignal(signal.SIGTERM)
-    try:
-        if started:
-            _init_ray(ray, workers, address)
-        restore_handler(signal.SIGTERM, sigterm)  # ray.init installs its own
+    with ray_session(workers, address) as ray:
         remote = ray.remote(fn)
         pending = {remote.remote(config): i for i, config in todo}
         try:
@@ -201,6 +194,23 @@ def _run_ray(fn: Task, todo: Pending, finish: Finish, workers: int, address: str
                 with contextlib.suppress(Exception):
                     ray.cancel(ref, force=True)
             raise
+
+
+@contextlib.contextmanager
+def ray_session(cpus: int, address: str | None) -> Iterator[Any]:
+    """Ray for the block: the cluster at ``address``, else a private instance with ``cpus``
+    CPUs, started here when none runs yet and shut down after the block (with a guard
+    process that kills it if this process dies). The caller's SIGTERM handler stays (ray.init
+    installs its own)."""
+    ray = _import_ray()
+    started = not ray.is_initialized()
+    guard = _start_guard() if started and not address else None
+    sigterm = signal.getsignal(signal.SIGTERM)
+    try:
+        if started:
+            _init_ray(ray, cpus, address)
+        restore_handler(signal.SIGTERM, sigterm)
+        yield ray
     finally:
         if started:
             ray.shutdown()

@@ -73,7 +73,7 @@ def load_array(path: Path, shape: tuple[int, ...] | None = None) -> np.ndarray:
     :func:`read_checked`."""
     import numpy as np
 
-    array = np.load(path, allow_pickle=False)
+    array: np.ndarray = np.load(path, allow_pickle=False)
     if array.dtype.kind != "f":
         raise ValueError(f"holds {array.dtype}, not floats")
     if shape is not None and array.shape != shape:

@@ -12,20 +12,15 @@ Public API::
     y = rec.channels(["front", "motor"])         # mapped output channels, in their units
 
 ``simulate`` is the one way to simulate (a duration or a measurement grid, always a
-:class:`SimulationResult`); ``simulate_chunks`` gives the same run in pieces and
-``simulate_reference`` is SciPy's DOP853 for tests. ``simulate_channels``,
-``simulate_on_grid`` and ``simulate_nodes_on_grid`` are deprecated one-line shortcuts.
+:class:`SimulationResult`); ``simulate_chunks`` gives the same run as a
+:class:`SimulationStream` of pieces, so memory stays flat in the duration, and
+``simulate_reference`` is SciPy's DOP853 for tests.
 """
 
 from drafttwin.mechanics.assembly import DriveTrain, Signal
 from drafttwin.mechanics.channels import OutputMap, convert_rpm
 from drafttwin.mechanics.components import InputChannel, OutputChannel
 from drafttwin.mechanics.config import PRESETS, TrainSpec
-from drafttwin.mechanics.grid import (
-    simulate_channels,
-    simulate_nodes_on_grid,
-    simulate_on_grid,
-)
 from drafttwin.mechanics.inputs import drive_from_inputs
 from drafttwin.mechanics.kinematics import (
     Kinematics,
@@ -44,9 +39,9 @@ from drafttwin.mechanics.simulate import (
     simulate,
     simulate_chunks,
     simulate_reference,
-    starts_at_rest,
     static_angles,
 )
+from drafttwin.mechanics.start import starts_at_rest
 
 __all__ = [
     "DEFAULT_CUTOFF_HZ",
@@ -72,10 +67,7 @@ __all__ = [
     "operating_point",
     "reduce",
     "simulate",
-    "simulate_channels",
     "simulate_chunks",
-    "simulate_nodes_on_grid",
-    "simulate_on_grid",
     "simulate_reference",
     "starts_at_rest",
     "static_angles",

@@ -29,14 +29,14 @@ from drafttwin.mechanics.components import (
     GearMesh,
     InputChannel,
     Roller,
-    Shaft,
+    TorsionalCoupling,
 )
 from drafttwin.mechanics.config import TrainSpec, load_toml, preset_path, spec_from_dict
 
 if TYPE_CHECKING:
     from drafttwin.mechanics.reduction import Reduction
 
-Coupling = Belt | ChainDrive | GearMesh | Shaft
+Coupling = Belt | ChainDrive | GearMesh | TorsionalCoupling
 
 
 @dataclass(frozen=True)
@@ -113,36 +113,19 @@ def mesh_stiffness_fourier(g: GearMesh) -> tuple[np.ndarray, np.ndarray]:
     return cos_c, sin_c
 
 
-@dataclass
-class Tables:
-    """The element tables of a train (column layouts in :mod:`drafttwin.mechanics.kernel`);
-    :meth:`kernel` bundles them for the integrator."""
+class Tables(K.TrainTables):
+    """The element tables of a train: the fields and column layouts of
+    :class:`drafttwin.mechanics.kernel.TrainTables`; :meth:`kernel` bundles them for the
+    integrator (``_replace`` gives a copy with some tables changed)."""
 
-    inv_j: np.ndarray
-    motor_i: np.ndarray
-    motor_f: np.ndarray
-    belt_i: np.ndarray
-    belt_f: np.ndarray
-    chain_i: np.ndarray
-    chain_f: np.ndarray
-    gear_i: np.ndarray
-    gear_f: np.ndarray
-    spring_i: np.ndarray
-    spring_f: np.ndarray
-    drag_i: np.ndarray
-    drag_f: np.ndarray
-    torque_i: np.ndarray
-    torque_f: np.ndarray
-    sig_i: np.ndarray
-    sig_f: np.ndarray
-    sig_v: np.ndarray
+    __slots__ = ()
 
     def args(self) -> tuple[np.ndarray, ...]:
-        return tuple(getattr(self, f) for f in self.__dataclass_fields__)
+        return tuple(self)
 
     def kernel(self) -> K.TrainTables:
         """The same arrays (not copies) as the kernels' one bundle."""
-        return K.TrainTables(*self.args())
+        return K.TrainTables(*self)
 
 
 @dataclass(frozen=True)
@@ -283,7 +266,8 @@ class DriveTrain:
 
     def _effective_mass(self, a: int, b: int, ra: float, rb: float) -> float:
         ja, jb = self.inertias[a], self.inertias[b]
-        return ja * jb / (ja * rb * rb + jb * ra * ra)
+        mass: float = ja * jb / (ja * rb * rb + jb * ra * ra)
+        return mass
 
     def _motor_rows(self, sig: Callable[[Signal | None], int]) -> tuple[np.ndarray, np.ndarray]:
         """Kernel rows of the induction motor (none for a train driven by external torques)."""
@@ -365,13 +349,12 @@ class DriveTrain:
             gear_f[row, K.G_COEF : K.G_COEF + g.harmonics] = cos_c
             gear_f[row, K.G_COEF + K.NH_MAX : K.G_COEF + K.NH_MAX + g.harmonics] = sin_c
 
-        shafts = [(idx(s.a), idx(s.b), s) for s in self.spec.shaft]
-        spring_i = np.array([[a, b] for a, b, _ in shafts], dtype=np.int64).reshape(-1, 2)
-        spring_f = np.zeros((len(shafts), 2))
-        for row, (a, b, s) in enumerate(shafts):
-            ja, jb = self.inertias[a], self.inertias[b]
-            c = 2 * s.damping_ratio * math.sqrt(s.stiffness_nm_per_rad * ja * jb / (ja + jb))
-            spring_f[row] = (s.stiffness_nm_per_rad, c)
+        # every torsional coupling declares its own row (shafts, then registered kinds)
+        springs = [(idx(s.a), idx(s.b), s) for s in self.spec.springs()]
+        spring_i = np.array([[a, b] for a, b, _ in springs], dtype=np.int64).reshape(-1, 2)
+        spring_f = np.zeros((len(springs), 2))
+        for row, (a, b, s) in enumerate(springs):
+            spring_f[row] = s.spring_row(self.inertias[a], self.inertias[b])
 
         drags = [(idx(r.node), (r.friction_coefficient * 2 * r.top_load_per_side_n * r.diameter_mm * 5e-4,
                                 r.friction_speed_eps_rad_s, 0.0, 0.0)) for r in self.spec.roller]  # fmt: skip

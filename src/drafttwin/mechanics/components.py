@@ -5,7 +5,8 @@ gear mesh, shaft torsion) connect two nodes by name; sources and sinks (motor, r
 load, drafting force, bearing friction, external torque) act on one node. Every field carries its unit in its
 name. These classes hold and check parameters (a coupling also names the two nodes it joins
 and its nominal speed ratio); :mod:`drafttwin.mechanics.assembly` turns them into the numeric
-tables the integrator uses.
+tables the integrator uses. A new torsional coupling is one :class:`TorsionalCoupling` subclass
+registered with :func:`register_coupling` (``tests/mechanics/test_new_element.py``).
 
 Speed convention: every coupling keeps its driven node turning in the same sense as its driver,
 so all speeds in a running train are positive (bottom-roller speeds are magnitudes, as an
@@ -14,7 +15,8 @@ encoder reports them).
 
 from __future__ import annotations
 
-from typing import Annotated, Literal, get_args
+import math
+from typing import Annotated, ClassVar, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
@@ -85,17 +87,25 @@ class InductionMotor(Component):
         return self
 
 
-class _Transmission(Component):
-    """A coupling that drives node ``driven`` from node ``driver``."""
+class _TwoEnded(Component):
+    """An element that joins two nodes, named by its fields ``end_fields``."""
 
     name: str
-    driver: str
-    driven: str
+    end_fields: ClassVar[tuple[str, str]]
 
     @property
     def ends(self) -> tuple[str, str]:
-        """The nodes it joins: (driver, driven)."""
-        return self.driver, self.driven
+        """The nodes it joins, in the order of ``end_fields``."""
+        a, b = self.end_fields
+        return getattr(self, a), getattr(self, b)
+
+
+class _Transmission(_TwoEnded):
+    """A coupling that drives node ``driven`` from node ``driver``."""
+
+    driver: str
+    driven: str
+    end_fields: ClassVar[tuple[str, str]] = ("driver", "driven")
 
 
 class Belt(_Transmission):
@@ -169,24 +179,43 @@ class GearMesh(_ToothedTransmission):
     """Amplitude of the tooth-mesh-frequency transmission error."""
 
 
-class Shaft(Component):
-    """Torsional spring-damper, e.g. the twist of a bottom roller between drive end and body."""
+class TorsionalCoupling(_TwoEnded):
+    """A linear torsional spring-damper joining nodes ``a`` and ``b``, which turn together: the
+    torque ``k (theta_a - theta_b) + c (omega_a - omega_b)`` brakes ``a`` and drives ``b``.
 
-    name: str
+    The one place such an element is written: a subclass declares its fields and
+    :meth:`damping_nms`, and :func:`register_coupling` makes it a ``[[kind]]`` of drive-train
+    files. The assembly (a row of the kernel's spring table, :meth:`spring_row`), the
+    kinematics, the start state and the reduction treat every torsional coupling alike.
+    """
+
     a: str
     b: str
     stiffness_nm_per_rad: Positive
-    damping_ratio: DampingRatio = 0.05
-
-    @property
-    def ends(self) -> tuple[str, str]:
-        """The nodes it joins: (a, b)."""
-        return self.a, self.b
+    end_fields: ClassVar[tuple[str, str]] = ("a", "b")
 
     @property
     def speed_ratio(self) -> float:
-        """Nominal b / a speed: a shaft turns both ends together."""
+        """Nominal b / a speed: both ends turn together."""
         return 1.0
+
+    def damping_nms(self, ja: float, jb: float) -> float:
+        """Viscous damping of the twist, N m s/rad, given the inertias at ``a`` and ``b``."""
+        raise NotImplementedError(f"{type(self).__name__} must define damping_nms")
+
+    def spring_row(self, ja: float, jb: float) -> tuple[float, float]:
+        """Its row of the kernel's spring table: stiffness (N m/rad), damping (N m s/rad)."""
+        return self.stiffness_nm_per_rad, self.damping_nms(ja, jb)
+
+
+class Shaft(TorsionalCoupling):
+    """Torsional spring-damper, e.g. the twist of a bottom roller between drive end and body;
+    damped at ``damping_ratio`` of critical for the two inertias it joins."""
+
+    damping_ratio: DampingRatio = 0.05
+
+    def damping_nms(self, ja: float, jb: float) -> float:
+        return 2 * self.damping_ratio * math.sqrt(self.stiffness_nm_per_rad * ja * jb / (ja + jb))
 
 
 class Roller(Component):
@@ -289,8 +318,13 @@ class TrainInfo(Component):
     description: str = ""
 
 
-COUPLING_KINDS = {"belt": Belt, "chain": ChainDrive, "gear": GearMesh, "shaft": Shaft}
-LIST_KINDS = {
+COUPLING_KINDS: dict[str, type[Component]] = {
+    "belt": Belt,
+    "chain": ChainDrive,
+    "gear": GearMesh,
+    "shaft": Shaft,
+}
+LIST_KINDS: dict[str, type[Component]] = {
     "inertia": Inertia,
     **COUPLING_KINDS,
     "roller": Roller,
@@ -301,3 +335,26 @@ LIST_KINDS = {
     "output": OutputChannel,
 }
 SINGLE_KINDS = {"train": TrainInfo, "motor": InductionMotor, "solver": Solver}
+BUILT_IN_KINDS = frozenset(LIST_KINDS) | frozenset(SINGLE_KINDS)
+
+
+def register_coupling(kind: str, cls: type[TorsionalCoupling]) -> type[TorsionalCoupling]:
+    """Make ``cls`` (a :class:`TorsionalCoupling` subclass) the ``[[kind]]`` tables of
+    drive-train files and dicts: a new coupling element, written in its one class. Returns
+    ``cls``; :func:`unregister_coupling` takes it back."""
+    if not (isinstance(cls, type) and issubclass(cls, TorsionalCoupling)):
+        raise TypeError(f"{cls!r} is not a TorsionalCoupling subclass")
+    if kind in BUILT_IN_KINDS or LIST_KINDS.get(kind, cls) is not cls:
+        raise ValueError(f"component type '{kind}' is taken by {LIST_KINDS.get(kind)}")
+    if not kind.isidentifier():
+        raise ValueError(f"component type '{kind}' is not a TOML-friendly name")
+    COUPLING_KINDS[kind] = LIST_KINDS[kind] = cls
+    return cls
+
+
+def unregister_coupling(kind: str) -> None:
+    """Forget a coupling :func:`register_coupling` added (built-in kinds stay)."""
+    if kind in BUILT_IN_KINDS:
+        raise ValueError(f"component type '{kind}' is built in")
+    COUPLING_KINDS.pop(kind, None)
+    LIST_KINDS.pop(kind, None)

@@ -11,7 +11,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 
 from drafttwin.errors import ConfigError, unknown_choice
 from drafttwin.mechanics.components import (
@@ -31,6 +31,7 @@ from drafttwin.mechanics.components import (
     Shaft,
     Solver,
     TorqueSeries,
+    TorsionalCoupling,
     TrainInfo,
 )
 
@@ -38,9 +39,13 @@ PRESETS = ("fa320a",)
 
 
 class TrainSpec(BaseModel):
-    """A whole validated drive train: nodes, couplings, sources and loads, solver settings."""
+    """A whole validated drive train: nodes, couplings, sources and loads, solver settings.
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    Couplings of kinds added by :func:`~drafttwin.mechanics.components.register_coupling`
+    are held as extra fields of their kind's name (``spec.flexible_coupling``); any other
+    extra name is refused."""
+
+    model_config = ConfigDict(extra="allow", frozen=True)
 
     train: TrainInfo = TrainInfo()
     motor: InductionMotor | None = None
@@ -62,9 +67,31 @@ class TrainSpec(BaseModel):
         """The node speed ratios are measured from: the motor's, else the first inertia."""
         return self.motor.node if self.motor is not None else self.inertia[0].name
 
-    def couplings(self) -> list[tuple[str, Belt | ChainDrive | GearMesh | Shaft]]:
-        """All couplings with their kind, in declaration order per kind."""
-        return [(kind, c) for kind in COUPLING_KINDS for c in getattr(self, kind)]
+    @model_validator(mode="before")
+    @classmethod
+    def _registered_kinds(cls, data: Any) -> Any:
+        """Validate the tables of registered coupling kinds; refuse other unknown names."""
+        if not isinstance(data, dict):
+            return data
+        out = dict(data)
+        for kind in set(data) - set(cls.model_fields):
+            klass = COUPLING_KINDS.get(kind)
+            if klass is None:
+                raise ValueError(f"unknown component type '{kind}'")
+            out[kind] = [c if isinstance(c, klass) else klass.model_validate(c) for c in data[kind]]
+        return out
+
+    def couplings(self) -> list[tuple[str, Belt | ChainDrive | GearMesh | TorsionalCoupling]]:
+        """All couplings with their kind, in declaration order per kind (built-in kinds first,
+        then registered ones)."""
+        extra = self.model_extra or {}
+        return [(kind, c) for kind in COUPLING_KINDS
+                for c in (getattr(self, kind) if kind in type(self).model_fields
+                          else extra.get(kind, []))]  # fmt: skip
+
+    def springs(self) -> list[TorsionalCoupling]:
+        """The torsional couplings (shafts, then registered kinds): the kernel's spring rows."""
+        return [c for _, c in self.couplings() if isinstance(c, TorsionalCoupling)]
 
 
 def output_target(spec: TrainSpec, name: str) -> tuple[str, float | None]:
@@ -96,9 +123,11 @@ def _component_label(raw: dict[str, Any], loc: tuple[Any, ...]) -> tuple[str, st
     return f"[{kind}]", ".".join(str(p) for p in loc[1:])
 
 
-def _translate(exc: ValidationError, raw: dict[str, Any], source: str) -> ConfigError:
+def _translate(
+    exc: ValidationError, raw: dict[str, Any], source: str, prefix: tuple[Any, ...] = ()
+) -> ConfigError:
     err = exc.errors()[0]
-    where, field = _component_label(raw, tuple(err["loc"]))
+    where, field = _component_label(raw, (*prefix, *err["loc"]))
     kind = err["type"]
     got = err.get("input")
     if kind == "missing":
@@ -152,7 +181,7 @@ def _check_graph(spec: TrainSpec, source: str) -> None:
         return n
 
     for kind, c in spec.couplings():
-        a_field, b_field = ("a", "b") if kind == "shaft" else ("driver", "driven")
+        a_field, b_field = c.end_fields
         a, b = getattr(c, a_field), getattr(c, b_field)
         need(a, f"{kind} '{c.name}'", a_field)
         need(b, f"{kind} '{c.name}'", b_field)
@@ -307,13 +336,27 @@ def spec_from_dict(raw: dict[str, Any], source: str = "<config>") -> TrainSpec:
                 fix=f"write it as [[{key}]] (one block per component)",
             )
     try:
-        spec = TrainSpec.model_validate(raw)
+        spec = TrainSpec.model_validate({**raw, **_registered_items(raw, source)})
     except ValidationError as exc:
         raise _translate(exc, raw, source) from None
     _check_graph(spec, source)
     _check_inputs(spec, source)
     _check_outputs(spec, source)
     return spec
+
+
+def _registered_items(raw: dict[str, Any], source: str) -> dict[str, list[Any]]:
+    """The tables of registered coupling kinds, validated (errors named as for built-ins)."""
+    out: dict[str, list[Any]] = {}
+    for kind in set(raw) - set(TrainSpec.model_fields):
+        klass = COUPLING_KINDS[kind]
+        out[kind] = []
+        for i, item in enumerate(raw[kind]):
+            try:
+                out[kind].append(item if isinstance(item, klass) else klass.model_validate(item))
+            except ValidationError as exc:
+                raise _translate(exc, raw, source, (kind, i)) from None
+    return out
 
 
 def load_toml(path: str | Path) -> TrainSpec:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 from scipy.linalg import eigh
@@ -23,7 +24,7 @@ from drafttwin.mechanics.assembly import (
     chain_pitch_radius_m,
     gear_base_radii_m,
 )
-from drafttwin.mechanics.components import Belt, ChainDrive, Shaft
+from drafttwin.mechanics.components import Belt, ChainDrive, TorsionalCoupling
 
 RPM = 30.0 / math.pi  # rad/s -> rpm
 
@@ -48,7 +49,7 @@ class Kinematics:
     eigenfrequencies_hz: list[float]
     node_rpm: dict[str, float]
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
@@ -106,7 +107,7 @@ def coupling_stiffness(train: DriveTrain) -> list[tuple[str, str, np.ndarray, fl
     rows = []
     idx = train.node_index
     for kind, c in train.spec.couplings():
-        if isinstance(c, Shaft):
+        if isinstance(c, TorsionalCoupling):
             a, b, ra, rb, k = idx(c.a), idx(c.b), 1.0, 1.0, c.stiffness_nm_per_rad
         elif isinstance(c, Belt):
             a, b = idx(c.driver), idx(c.driven)

@@ -1,8 +1,8 @@
 """A reduced drive train: couplings stiffer than a cut-off made rigid, for a much larger step.
 
 :func:`reduce` returns a copy of a :class:`DriveTrain` carrying a :class:`Reduction`;
-:func:`~drafttwin.mechanics.simulate.simulate` (and so ``simulate_channels`` and the
-calibration) then integrates the reduced system and expands it back onto every node.
+:func:`~drafttwin.mechanics.simulate.simulate` (for a duration or on a measurement grid,
+and so the calibration) then integrates the reduced system and expands it back onto every node.
 
 Which couplings become rigid: the linearised train (mean stiffnesses, as in
 :func:`~drafttwin.mechanics.kinematics.eigenfrequencies_hz`) is solved for its modes; while
@@ -106,7 +106,8 @@ def _representatives(train: DriveTrain, cluster: np.ndarray) -> np.ndarray:
 def _node_ratios(train: DriveTrain, cluster: np.ndarray) -> np.ndarray:
     """Speed of each node over its super-node representative's (nominal ratios)."""
     speed = train.speed_ratios
-    return speed / speed[_representatives(train, cluster)[cluster]]
+    ratios: np.ndarray = speed / speed[_representatives(train, cluster)[cluster]]
+    return ratios
 
 
 def _highest_mode(
@@ -167,7 +168,8 @@ def _default_step(train: DriveTrain, cluster: np.ndarray, ratio: np.ndarray, f_h
         t_k, slip_k = tab.motor_f[0, K.MOT_TK], tab.motor_f[0, K.MOT_SK]
         rates.append(1.0 / mot.torque_lag_s)
         rates.append(2 * t_k / slip_k * ratio[node] ** 2 / j_super[cluster[node]])
-    return min(MAX_STEP_S, OMEGA_DT / max(rates))
+    fastest = max(rates)  # 0 for a rigid train without friction or motor: any step is exact
+    return min(MAX_STEP_S, OMEGA_DT / fastest) if fastest > 0 else MAX_STEP_S
 
 
 # ---- public -------------------------------------------------------------------------------
@@ -192,8 +194,11 @@ def reduce(train: DriveTrain, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> DriveTrai
     rigid, cluster, f_hz = _rigid_couplings(train, float(cutoff_hz))
     ratio = _node_ratios(train, cluster)
     gone = {name for _, name in rigid}
-    keep = {kind: np.array([c.name not in gone for c in getattr(train.spec, kind)], dtype=bool)
-            for kind in ("chain", "gear", "shaft")}  # fmt: skip
+    rows: dict[str, list[Any]] = {
+        "chain": train.spec.chain, "gear": train.spec.gear, "spring": train.spec.springs()
+    }  # fmt: skip
+    keep = {table: np.array([c.name not in gone for c in couplings], dtype=bool)
+            for table, couplings in rows.items()}  # fmt: skip
     red = Reduction(float(cutoff_hz), cluster, ratio, tuple(sorted(gone)), f_hz,
                     _default_step(train, cluster, ratio, f_hz), keep)  # fmt: skip
     return replace(train, reduction=red)
@@ -201,10 +206,10 @@ def reduce(train: DriveTrain, cutoff_hz: float = DEFAULT_CUTOFF_HZ) -> DriveTrai
 
 def reduced_tables(tab: Tables, red: Reduction) -> Tables:
     """The full tables without the rigid couplings' rows."""
-    chain, gear, shaft = red.keep["chain"], red.keep["gear"], red.keep["shaft"]
-    return replace(tab, chain_i=tab.chain_i[chain], chain_f=tab.chain_f[chain],
-                   gear_i=tab.gear_i[gear], gear_f=tab.gear_f[gear],
-                   spring_i=tab.spring_i[shaft], spring_f=tab.spring_f[shaft])  # fmt: skip
+    chain, gear, spring = red.keep["chain"], red.keep["gear"], red.keep["spring"]
+    return tab._replace(chain_i=tab.chain_i[chain], chain_f=tab.chain_f[chain],
+                        gear_i=tab.gear_i[gear], gear_f=tab.gear_f[gear],
+                        spring_i=tab.spring_i[spring], spring_f=tab.spring_f[spring])  # fmt: skip
 
 
 def reduced_start(train: DriveTrain, y_full: np.ndarray) -> tuple[np.ndarray, K.ReducedTables]:
@@ -221,14 +226,15 @@ def reduced_start(train: DriveTrain, y_full: np.ndarray) -> tuple[np.ndarray, K.
     offset = y_full[:n] - red.ratio * y[red.cluster]
     inv_jc = 1.0 / np.bincount(red.cluster, weights=train.inertias * red.ratio**2)
     # inv_j all ones: the full right-hand side returns node torques, reflected onto super-nodes
-    tab = replace(reduced_tables(train.tables(), red), inv_j=np.ones(n)).kernel()
+    tab = reduced_tables(train.tables(), red)._replace(inv_j=np.ones(n)).kernel()
     work = np.zeros((2, len(y_full)))
     return y, K.ReducedTables(red.cluster, red.ratio, offset, inv_jc, tab, work)
 
 
 def expand_angles(y: np.ndarray, model: K.ReducedTables) -> np.ndarray:
     """Node angles (rad) of a reduced state ``y`` (``model`` from :func:`reduced_start`)."""
-    return model.ratio * y[model.cluster] + model.offset
+    angles: np.ndarray = model.ratio * y[model.cluster] + model.offset
+    return angles
 
 
 def describe(train: DriveTrain) -> dict[str, Any]:

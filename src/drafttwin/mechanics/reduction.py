@@ -23,7 +23,8 @@ class Reduction:
         rigid: names of the couplings made rigid.
         highest_hz: highest eigenfrequency of the reduced linearised train, Hz (0 if none).
         dt_s: default RK4 step, s (see :data:`~drafttwin.mechanics.reduced.OMEGA_DT`).
-        keep: per coupling kind (``chain``, ``gear``, ``shaft``), which table rows stay.
+        keep: per coupling table (``chain``, ``gear``, ``spring``: the torsional couplings,
+            shafts and registered kinds), which rows stay.
     """
 
     cutoff_hz: float

@@ -39,6 +39,8 @@ from drafttwin.mechanics.start import _start_state, starts_at_rest
 from drafttwin.mechanics.start import static_angles as static_angles
 
 ENERGY_NAMES = ("motor", "roller_loads", "bearings", "coupling_losses", "external")
+_Outputs = tuple[np.ndarray, np.ndarray, np.ndarray]
+"""One kernel call's outputs: node angles, node speeds, energy accumulators (rows: times)."""
 
 
 @dataclass(frozen=True)
@@ -228,7 +230,7 @@ class SimulationStream:
             theta = R.expand_angles(y, model)
         last_theta = theta.copy()
         block = self.block_rows
-        pending: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        pending: list[_Outputs] = []
         emitted = done = 0
         while done < self.n_rows:
             m = min(block, self.n_rows - done)
@@ -269,7 +271,9 @@ class SimulationStream:
                               fix="vary parameter values only, not elements")  # fmt: skip
         return new
 
-    def _piece(self, pending: list, rows: int, first: int, t0: float, last_theta: np.ndarray):
+    def _piece(
+        self, pending: list[_Outputs], rows: int, first: int, t0: float, last_theta: np.ndarray
+    ) -> tuple[SimulationPiece, list[_Outputs], np.ndarray]:
         """The first ``rows`` pending outputs as a piece; the rest stay pending."""
         th, om, en = (np.vstack([p[k] for p in pending]) for k in range(3))
         rest = [(th[rows:], om[rows:], en[rows:])] if len(th) > rows else []
@@ -284,7 +288,7 @@ class SimulationStream:
         )
         return piece, rest, th[rows - 1].copy()
 
-    def _check_finite(self, out: tuple, t0: float, first: int, *, settling: bool) -> None:
+    def _check_finite(self, out: _Outputs, t0: float, first: int, *, settling: bool) -> None:
         """Stop at the first non-finite output: the node (or energy flow) and the time."""
         for values, names, what in ((out[0], self.node_names, "angle"),
                                     (out[1], self.node_names, "speed"),
@@ -485,4 +489,5 @@ def simulate_reference(
                     atol=1e-12, max_step=2e-4)  # fmt: skip
     if not sol.success:
         raise RuntimeError(f"reference integration failed: {sol.message}")
-    return np.diff(sol.y[:n].T, axis=0) * rate * RPM
+    rpm: np.ndarray = np.diff(sol.y[:n].T, axis=0) * rate * RPM
+    return rpm

@@ -13,7 +13,7 @@ from drafttwin.mechanics.assembly import (
     chain_pitch_radius_m,
     gear_base_radii_m,
 )
-from drafttwin.mechanics.components import Belt, ChainDrive, GearMesh, Shaft
+from drafttwin.mechanics.components import Belt, ChainDrive, GearMesh, TorsionalCoupling
 from drafttwin.mechanics.kinematics import OperatingPoint, operating_point
 
 STOPPED_SUPPLY_HZ = 0.5
@@ -58,7 +58,7 @@ def _initial_state(train: DriveTrain, op: OperatingPoint,
     belt_row = {b.name: k for k, b in enumerate(train.spec.belt)}
     for e in train.edges:
         c, torque = e.coupling, op.transmitted[e.coupling.name]
-        if isinstance(c, Shaft):
+        if isinstance(c, TorsionalCoupling):
             sign = 1.0 if c.a == train.node_names[e.parent] else -1.0
             y[e.child] = y[e.parent] - torque / c.stiffness_nm_per_rad * sign
         elif isinstance(c, Belt):
@@ -96,7 +96,7 @@ def _chain_angle_for_feed(c: ChainDrive, theta_driver: float, stretch: float) ->
     ra = chain_pitch_radius_m(c.pitch_mm, c.driver_teeth)
     rb = chain_pitch_radius_m(c.pitch_mm, c.driven_teeth)
     target = K._chain_feed(theta_driver, c.driver_teeth, c.pitch_mm * 1e-3, ra)[0] - stretch
-    theta = target / chain_mean_radius_m(c.pitch_mm, c.driven_teeth)
+    theta: float = target / chain_mean_radius_m(c.pitch_mm, c.driven_teeth)
     for _ in range(20):
         x, dx = K._chain_feed(theta, c.driven_teeth, c.pitch_mm * 1e-3, rb)
         theta -= (x - target) / dx

@@ -28,8 +28,8 @@ from drafttwin.mechanics.simulate import (
     NonFiniteSimulationError,
     _grid,
     _integrator,
-    _start_state,
 )
+from drafttwin.mechanics.start import _start_state
 
 
 class LiveStepper:
@@ -117,7 +117,8 @@ class LiveStepper:
         start = self.t_s
         self._run(span, self.supply_hz, float(supply_hz))
         self.supply_hz = float(supply_hz)
-        return (self._angles() - before) / (self.t_s - start) * RPM
+        rpm: np.ndarray = (self._angles() - before) / (self.t_s - start) * RPM
+        return rpm
 
     def snapshot(self) -> tuple[np.ndarray, float, float]:
         """The state (copy), time and set-point: :meth:`restore` returns to it (a look-ahead

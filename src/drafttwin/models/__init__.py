@@ -10,12 +10,13 @@ mechanistic=None)`` -> a labelled frame, ``predict_values`` -> an array, ``save(
 
 Each takes a :class:`Task` (one-step prediction or free-run simulation, output and input
 channels) and the networks a :class:`Training`. Build them by name with :func:`make_model`,
-load any file with :func:`load_model`; step through a record one sample at a time with
-:class:`OnlinePredictor`.
+load any file with :func:`load_model`, copy one unfitted with :func:`clone`; step through a
+record one sample at a time with :class:`OnlinePredictor`.
 """
 
 from drafttwin.models.base import FORMAT_VERSION, BaseModel, NotFittedError
 from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel, persistence_forecast
+from drafttwin.models.cloning import clone
 from drafttwin.models.datadriven import GRUModel, LSTMModel
 from drafttwin.models.hybrid import ParallelHybrid
 from drafttwin.models.mdsl import MDSL
@@ -52,6 +53,7 @@ __all__ = [
     "SKConv1d",
     "Task",
     "Training",
+    "clone",
     "get_profile",
     "load_model",
     "make_model",

@@ -85,14 +85,7 @@ class Choice:
     validation_rows: int
 
     def to_dict(self) -> dict[str, object]:
-        return {
-            "accumulate": self.accumulate,
-            "chosen_by": self.chosen_by,
-            "validation_nrmse": {
-                k: (v if np.isfinite(v) else None) for k, v in self.scores.items()
-            },
-            "validation_rows": self.validation_rows,
-        }
+        return {"accumulate": self.accumulate, **_evidence(self)}
 
 
 def free_run_nrmse(pred: np.ndarray, measured: np.ndarray, scale: np.ndarray) -> float:
@@ -138,14 +131,15 @@ class CorrectionChoice:
         return self.kept != CORRECTION_NONE
 
     def to_dict(self) -> dict[str, object]:
-        return {
-            "kept": self.kept,
-            "chosen_by": self.chosen_by,
-            "validation_nrmse": {
-                k: (v if np.isfinite(v) else None) for k, v in self.scores.items()
-            },
-            "validation_rows": self.validation_rows,
-        }
+        return {"kept": self.kept, **_evidence(self)}
+
+
+def _evidence(choice: Choice | CorrectionChoice) -> dict[str, object]:
+    """How a choice was made, as JSON: by whom, each candidate's validation NRMSE (null where
+    not finite), on how many rows."""
+    nrmse = {k: (v if np.isfinite(v) else None) for k, v in choice.scores.items()}
+    return {"chosen_by": choice.chosen_by, "validation_nrmse": nrmse,
+            "validation_rows": choice.validation_rows}  # fmt: skip
 
 
 def choose_correction(

@@ -76,23 +76,47 @@ class BaseModel(abc.ABC):
         for name in self.param_names():
             setattr(self, name, arguments[name])
 
-    def get_params(self) -> dict[str, Any]:
-        """Hyperparameters as a dict (constructor keyword arguments)."""
-        return {name: getattr(self, name) for name in self.param_names()}
+    def get_params(self, deep: bool = True) -> dict[str, Any]:
+        """Hyperparameters as a dict (constructor keyword arguments). With ``deep`` (as in
+        scikit-learn) also ``part__name`` for each hyperparameter of every part that is an
+        estimator itself (MD-S-L's ``data_model``); ``deep=False`` gives the constructor's
+        arguments only, as model files store them."""
+        params = {name: getattr(self, name) for name in self.param_names()}
+        if deep:
+            for name, part in list(params.items()):
+                if is_estimator(part):
+                    params.update({f"{name}__{k}": v for k, v in part.get_params().items()})
+        return params
 
     def set_params(self, **params: Any) -> Self:
-        unknown = sorted(set(params) - set(self.param_names()))
+        """Set hyperparameters, ``part__name`` on a part (scikit-learn's convention; a part
+        given in the same call takes its nested names). Refuses every unknown name before
+        setting anything. Returns ``self``."""
+        own = {k: v for k, v in params.items() if "__" not in k}
+        nested: dict[str, dict[str, Any]] = {}
+        unknown = sorted(set(own) - set(self.param_names()))
+        for key, value in params.items():
+            name, _, sub = key.partition("__")
+            if key in own:
+                continue
+            part: Any = own.get(name, getattr(self, name, None))
+            known = name in self.param_names() and is_estimator(part)
+            if not known or sub not in part.get_params():
+                unknown.append(key)
+            nested.setdefault(name, {})[sub] = value
         if unknown:
             raise ConfigError(
-                f"unknown hyperparameter(s) {unknown} for {type(self).__name__}",
-                fix=f"valid: {', '.join(self.param_names())}",
+                f"unknown hyperparameter(s) {sorted(unknown)} for {type(self).__name__}",
+                fix=f"valid: {', '.join(self.get_params())}",
             )
-        for key, value in params.items():
+        for key, value in own.items():
             setattr(self, key, value)
+        for name, sub_params in nested.items():
+            getattr(self, name).set_params(**sub_params)
         return self
 
     def __repr__(self) -> str:
-        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
+        args = ", ".join(f"{k}={v!r}" for k, v in self.get_params(deep=False).items())
         return f"{type(self).__name__}({args})"
 
     @property
@@ -102,7 +126,7 @@ class BaseModel(abc.ABC):
 
     def _check_params(self) -> None:
         """Validate the hyperparameters (called by ``fit``); subclasses add their rules."""
-        P.check_params(type(self).__name__, self.get_params())
+        P.check_params(type(self).__name__, self.get_params(deep=False))
 
     def _refuse_for_task(self, name: str, why: str) -> None:
         """Refuse a hyperparameter that was set but means nothing for this task."""
@@ -265,7 +289,9 @@ class BaseModel(abc.ABC):
             "drafttwin_version": __version__,
             "model_class": type(self).__name__,
             "model_name": self.name,
-            "params_json": json.dumps(P.encode_params(self.get_params()), allow_nan=False),
+            "params_json": json.dumps(
+                P.encode_params(self.get_params(deep=False)), allow_nan=False
+            ),
             "state_json": json.dumps(state, allow_nan=True),
             "tensors": {k: v.detach().cpu().contiguous() for k, v in tensors.items()},
         }
@@ -325,6 +351,11 @@ class BaseModel(abc.ABC):
             "selection": self.selection_,
             "provenance": self.provenance_,
         }
+
+
+def is_estimator(value: object) -> bool:
+    """Whether ``value`` is an estimator instance (has ``get_params``), not a class."""
+    return hasattr(value, "get_params") and not isinstance(value, type)
 
 
 def time_column(series: MeasurementSeries) -> str:

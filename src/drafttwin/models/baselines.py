@@ -58,7 +58,9 @@ class _FixedRule(BaseModel):
         super()._check_params()
         _refuse_inputs(self, self.inputs_refused_because)
 
-    def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
+    def _fit(
+        self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress
+    ) -> None:
         return None
 
 

@@ -114,7 +114,9 @@ class _RecurrentModel(_NeuralModel):
             skip=not simulating and self.skip is not False,
         )
 
-    def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
+    def _fit(
+        self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress
+    ) -> None:
         self._fit_arrays(series.values, input_matrix(series, self.task.inputs),
                          series.record_starts, progress=progress)  # fmt: skip
 

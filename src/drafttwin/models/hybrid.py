@@ -179,7 +179,8 @@ class _ResidualHybrid(_NeuralModel):
         """What speed-like channels are divided by: the physics' speed (relative structure)."""
         if self.structure != "relative":
             return 1.0
-        return np.maximum(np.abs(mech), self.level_floor_)
+        level: np.ndarray = np.maximum(np.abs(mech), self.level_floor_)
+        return level
 
     def _fit_structure(self, mech: np.ndarray, u: np.ndarray) -> None:
         """The relative structure's references, from the training part."""
@@ -242,7 +243,9 @@ class _ResidualHybrid(_NeuralModel):
         return x, extra, scaled, rows
 
     # --- fitting ----------------------------------------------------------------------
-    def _fit(self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress):
+    def _fit(
+        self, series: MeasurementSeries, mech: np.ndarray | None, progress: FitProgress
+    ) -> None:
         assert mech is not None
         y, starts = series.values, series.record_starts
         u = input_matrix(series, self.task.inputs)

@@ -146,7 +146,7 @@ class MDSL(_ResidualHybrid):
         task = self.task
         if task.simulation:
             task = task.replace(init_samples=self._init_rows())
-        params = {**template.get_params(), "task": task, "seed": seed, "quiet": True}
+        params = {**template.get_params(deep=False), "task": task, "seed": seed, "quiet": True}
         return type(template)(**params)
 
     # --- public: fit the data-driven model alone, or give a fitted one -----------------

@@ -477,7 +477,7 @@ def _table(frame: pd.DataFrame, source: str) -> Table:
 
 
 def _numeric(frame: pd.DataFrame, column: Any, source: str) -> np.ndarray:
-    values = pd.to_numeric(frame[column], errors="coerce").to_numpy(dtype=np.float64)
+    values: np.ndarray = pd.to_numeric(frame[column], errors="coerce").to_numpy(dtype=np.float64)
     _refuse_non_finite(values, frame[column], str(column), source)
     return values
 

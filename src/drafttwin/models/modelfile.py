@@ -29,12 +29,17 @@ import math
 import warnings
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import torch
 
 from drafttwin._constants import __version__
 from drafttwin.errors import DrafttwinError, ModelFileError
+
+if TYPE_CHECKING:
+    from drafttwin.models.base import BaseModel
+
+_Model = TypeVar("_Model", bound="BaseModel")
 
 FORMAT_NAME = "drafttwin-model"
 FORMAT_VERSION = 2
@@ -317,14 +322,16 @@ def _is_real(value: Any) -> bool:
 
 
 # ----- the model -----------------------------------------------------------------------
-def construct(path: Path, payload: Mapping[str, Any], klass: type, classes: Mapping[str, type]):
+def construct(
+    path: Path, payload: Mapping[str, Any], klass: type[_Model], classes: Mapping[str, type]
+) -> _Model:
     """The estimator the stored hyperparameters build, through its constructor and checks
     (as a new model), after the device fallback; they must read back exactly as stored."""
     from drafttwin.models import params as P
 
     stored = json_field(path, payload, "params_json")
     fall_back_to_cpu(path, stored)
-    names = klass.param_names()  # type: ignore[attr-defined]
+    names = klass.param_names()
     stored.update({k: v for k, v in P.ADDED_LATER.items() if k in names and k not in stored})
     check_keys(path, "params", stored, names)
     invalid = P.first_invalid(stored)
@@ -339,7 +346,7 @@ def construct(path: Path, payload: Mapping[str, Any], klass: type, classes: Mapp
     with reading(path, "params"):
         model = klass(**decoded)
         model._check_params()
-    check_round_trip(path, "params", stored, P.encode_params(model.get_params()))
+    check_round_trip(path, "params", stored, P.encode_params(model.get_params(deep=False)))
     if payload["model_name"] != model.name:
         raise refuse(path, "model_class", f"{klass.__name__} does not match the field "
                      f"model_name {short(payload['model_name'])} (a {klass.__name__} is named "

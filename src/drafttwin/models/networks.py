@@ -97,8 +97,9 @@ def recurrent_stack(cell: str, n_in: int, hidden: int, layers: int, dropout: flo
     """A batch-first GRU or LSTM (``cell``) of ``layers`` layers; ``dropout`` acts between
     layers only, so a single layer has none."""
     rnn_cls = {"gru": nn.GRU, "lstm": nn.LSTM}[cell]
-    return rnn_cls(n_in, hidden, num_layers=layers, batch_first=True,
-                   dropout=dropout if layers > 1 else 0.0)  # fmt: skip
+    rnn: nn.Module = rnn_cls(n_in, hidden, num_layers=layers, batch_first=True,
+                             dropout=dropout if layers > 1 else 0.0)  # fmt: skip
+    return rnn
 
 
 class RecurrentRegressor(nn.Module):
@@ -129,7 +130,7 @@ class RecurrentRegressor(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         out, _ = self.rnn(x)
-        y = self.head(self.drop(out[:, -1]))
+        y: torch.Tensor = self.head(self.drop(out[:, -1]))
         if self.skip:
             y = y + x[:, -1, : self.n_outputs]
         return y
@@ -188,7 +189,7 @@ class ResidualNet(nn.Module):
             if extra is None:
                 raise ValueError("this ResidualNet expects extra inputs")
             feat = torch.cat([feat, extra], dim=1)
-        y = self.head(feat)
+        y: torch.Tensor = self.head(feat)
         if self.skip:
             y = y + x[:, -1, : self.n_outputs]
         return y

@@ -36,6 +36,7 @@ def _run(net: nn.Module, x: list[np.ndarray], extra: np.ndarray | None = None) -
     """One window ``x`` (rows, oldest first) through ``net``; returns float64 (outputs,)."""
     device = next(net.parameters()).device
     xt = torch.as_tensor(np.asarray(x, dtype=np.float32)[None], device=device)
+    out: torch.Tensor
     with torch.inference_mode():
         if extra is None:
             out = net(xt)
@@ -183,7 +184,7 @@ class OnlinePredictor:
         if isinstance(model, _RecurrentModel):
             return self._recurrent(model)
         assert self._mech is not None
-        m = self._mech.values_at(np.array([float(time_s)]), self.model.channels_)[0]
+        m: np.ndarray = self._mech.values_at(np.array([float(time_s)]), self.model.channels_)[0]
         if isinstance(model, MechanisticBaseline):
             return m
         if isinstance(model, _ResidualHybrid) and not model.correct_:

@@ -92,7 +92,8 @@ def encode(value: Any) -> Any:
     if isinstance(value, Training):
         return {"__training__": value.to_dict()}
     if hasattr(value, "get_params") and hasattr(value, "param_names"):
-        return {"__model__": type(value).__name__, "params": encode_params(value.get_params())}
+        params = encode_params(value.get_params(deep=False))
+        return {"__model__": type(value).__name__, "params": params}
     if isinstance(value, tuple):
         return list(value)
     if isinstance(value, float) and not math.isfinite(value):

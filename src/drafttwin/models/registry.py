@@ -131,7 +131,7 @@ def _data_model(
     if template is not None and not data and not training:
         return template
     base = template if template is not None else GRUModel()
-    params = {**base.get_params(), **data}
+    params = {**base.get_params(deep=False), **data}
     if training:
         params["training"] = params["training"].replace(**training)
     return type(base)(**params)

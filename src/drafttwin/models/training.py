@@ -208,6 +208,18 @@ def cpu_threads(device: torch.device, limit: int | None = None) -> Iterator[None
         torch.set_num_threads(threads)
 
 
+def _set_deterministic(mode: bool, *, warn_only: bool) -> None:
+    """``torch.use_deterministic_algorithms`` without its import of ``torch._inductor`` (about
+    a CPU-second, a tenth of a default fit's start; drafttwin compiles nothing): the
+    compiler's own flag is set as well once something else has imported it."""
+    import sys
+
+    inductor: Any = sys.modules.get("torch._inductor.config")
+    if inductor is not None:
+        inductor.deterministic = mode
+    torch._C._set_deterministic_algorithms(mode, warn_only=warn_only)
+
+
 @contextlib.contextmanager
 def compute_context(device: torch.device) -> Iterator[None]:
     """Deterministic algorithms and a capped CPU thread count, restored afterwards.
@@ -221,14 +233,14 @@ def compute_context(device: torch.device) -> Iterator[None]:
     )
     # torch sets this module attribute at import time; its stubs do not declare it
     fill = torch.utils.deterministic.fill_uninitialized_memory  # type: ignore[attr-defined]
-    torch.use_deterministic_algorithms(True, warn_only=device.type != "cpu")
+    _set_deterministic(True, warn_only=device.type != "cpu")
     # filling every new tensor with NaN only helps debugging and costs ~15 % on conv nets
     torch.utils.deterministic.fill_uninitialized_memory = False  # type: ignore[attr-defined]
     try:
         with cpu_threads(device):
             yield
     finally:
-        torch.use_deterministic_algorithms(det, warn_only=warn)
+        _set_deterministic(det, warn_only=warn)
         torch.utils.deterministic.fill_uninitialized_memory = fill  # type: ignore[attr-defined]
 
 
@@ -278,7 +290,8 @@ def _as_tensor(x: np.ndarray | None, device: torch.device) -> torch.Tensor | Non
 
 
 def _forward(net: nn.Module, x: torch.Tensor, extra: torch.Tensor | None) -> torch.Tensor:
-    return net(x) if extra is None else net(x, extra)
+    y: torch.Tensor = net(x) if extra is None else net(x, extra)
+    return y
 
 
 def _mean_loss(
@@ -436,7 +449,7 @@ def _train_epoch(
         bx, by, be = parts.train(perm[i : i + config.batch_size])
         opt.zero_grad(set_to_none=True)
         loss = nn.functional.mse_loss(_forward(net, bx, be), by)
-        loss.backward()
+        loss.backward()  # type: ignore[no-untyped-call]  # torch leaves Tensor.backward unannotated
         if config.clip_norm is not None:
             nn.utils.clip_grad_norm_(net.parameters(), config.clip_norm)
         opt.step()
@@ -489,7 +502,7 @@ def debias_head(
     mean drift over the training samples. Returns the shift (scaled units).
     """
     out = predict_network(net, x, extra=extra, device=device)
-    shift = np.mean(np.asarray(target, np.float64) - out, axis=0)
+    shift: np.ndarray = np.mean(np.asarray(target, np.float64) - out, axis=0)
     head = net.head
     if not isinstance(head, nn.Linear):
         raise TypeError(f"{type(net).__name__} has no linear output layer 'head' to re-fit")

@@ -70,7 +70,8 @@ def target_rows(n: int, window: int, horizon: int, starts: Sequence[int] = (0,))
     if len(starts) <= 1 or rows.size == 0:
         return rows
     rec = record_ids(n, starts)
-    return rows[rec[rows - first] == rec[rows]]
+    in_record: np.ndarray = rows[rec[rows - first] == rec[rows]]
+    return in_record
 
 
 def gather_windows(

@@ -21,6 +21,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from drafttwin.mechanics import DriveTrain, Signal, operating_point
+from drafttwin.mechanics.components import Roller
 from drafttwin.plant.config import PlantConfig
 
 FORCE_GRID_S = 1e-3  # drafting force and roller load grid (lines up to ~30 Hz once-per-rev)
@@ -75,6 +76,7 @@ def ou_process(
     a = math.exp(-dt_s / tau_s)
     eps = rng.standard_normal(n + 1)
     x0 = sigma * eps[0]
+    y: np.ndarray
     y, _ = lfilter([sigma * math.sqrt(1 - a * a)], [1.0, -a], eps[1:], zi=[a * x0])
     return y
 
@@ -128,7 +130,13 @@ def disturbances(
     return Disturbances(supply, rotor, signals, phases)
 
 
-def _drafting_torques(train, cfg, t, speed_scale, rng) -> dict[str, np.ndarray]:
+def _drafting_torques(
+    train: DriveTrain,
+    cfg: PlantConfig,
+    t: np.ndarray,
+    speed_scale: np.ndarray,
+    rng: np.random.Generator,
+) -> dict[str, np.ndarray]:
     """Zone forces (N) -> torques: they brake the delivering roller and drive the feeding one."""
     df = cfg.drafting_force
     n = len(t)
@@ -140,7 +148,7 @@ def _drafting_torques(train, cfg, t, speed_scale, rng) -> dict[str, np.ndarray]:
         slow_rng, n, FORCE_GRID_S, df.slow_correlation_s, 1.0
     )
     running = np.clip(speed_scale, 0.0, 1.0) > 0.05  # no sliver is drafted while stopped
-    rollers = {r.name: r for r in train.spec.roller}
+    rollers: dict[str, Roller] = {r.name: r for r in train.spec.roller}
     out: dict[str, np.ndarray] = {}
     for mean, fast, slow in (
         (df.main_zone_mean_n, "front", "second"),
@@ -154,7 +162,11 @@ def _drafting_torques(train, cfg, t, speed_scale, rng) -> dict[str, np.ndarray]:
 
 
 def _roller_load_modulation(
-    train, cfg, t, speed_scale, rng
+    train: DriveTrain,
+    cfg: PlantConfig,
+    t: np.ndarray,
+    speed_scale: np.ndarray,
+    rng: np.random.Generator,
 ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Once-per-revolution modulation of each roller's friction load (bottom-roller run-out),
     N m by node, and the random phase (rad) drawn for each roller (by roller name), one draw

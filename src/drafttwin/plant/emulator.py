@@ -24,7 +24,8 @@ from drafttwin._json import dumps_strict
 from drafttwin.data.io import attach_truth as attach_truth  # re-exported (moved to data)
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
-from drafttwin.mechanics import DriveTrain, Signal, simulate
+from drafttwin.mechanics import DriveTrain, Signal, reduce, simulate
+from drafttwin.mechanics.reduced import describe as describe_reduction
 from drafttwin.plant.config import PlantConfig
 from drafttwin.plant.effects import FORCE_GRID_S, Disturbances, disturbances
 from drafttwin.plant.faults import (
@@ -148,11 +149,25 @@ class Plant:
         train: the nominal drive train (default: the ``fa320a`` preset); the plant draws its
             true parameters around it.
         config: effect magnitudes and sensor settings (:class:`PlantConfig`).
+        reduced_hz: None (the default): the plant integrates the machine's full drive train.
+            A cut-off in Hz: it integrates the machine's train reduced at that cut-off
+            (:func:`~drafttwin.mechanics.reduce`: couplings above it rigid, belts compliant;
+            at 200 Hz about 80 times cheaper). It loses what the rigid couplings do (mesh and
+            chain vibration, backlash, gear transmission error): the rollers' and motor's
+            1-s levels match the full plant's, their parity, the angle lags and the encoders'
+            runs of repeated counts do not, so it is no stand-in for the full plant's healthy
+            running in the fault detector (:mod:`drafttwin.studies.faults.generator`,
+            docs/faults.md). Machine faults (time-varying parameters) and roller surfaces
+            need the full train and are refused. The sidecar records it (``info["reduced"]``).
     """
 
-    def __init__(self, train: DriveTrain | None = None, config: PlantConfig | None = None) -> None:
+    def __init__(self, train: DriveTrain | None = None, config: PlantConfig | None = None,
+                 reduced_hz: float | None = None) -> None:  # fmt: skip
         self.train = train if train is not None else DriveTrain.preset("fa320a")
         self.config = config if config is not None else PlantConfig()
+        if reduced_hz is not None:
+            reduce(self.train, reduced_hz)  # refuses a cut-off that is not a frequency
+        self.reduced_hz = reduced_hz
         declared = {r.name for r in self.train.spec.roller}
         if not set(ROLLERS) <= declared:
             raise ConfigError(
@@ -215,8 +230,12 @@ class Plant:
         settle = 0.0 if scen.from_rest else SETTLE_S
         dist = disturbances(plant_train, self.config, setpoint, -settle, duration_s, streams)
         faults = check_faults(faults, plant_train)
+        if self.reduced_hz is not None:
+            _check_reducible(faults, surface_rate_hz)
         driven, schedule, ecc_phase = _driven_train(plant_train, dist, faults, setpoint, -settle,
                                                     duration_s, streams["fault"])  # fmt: skip
+        if self.reduced_hz is not None:
+            driven = reduce(driven, self.reduced_hz)
         surface, surface_record = None, None
         if surface_rate_hz is None:
             res = simulate(driven, duration_s, output_rate_hz=rate_hz, settle_s=settle,
@@ -261,6 +280,8 @@ class Plant:
         }
         if surface_record is not None:
             info["surface"] = surface_record
+        if self.reduced_hz is not None:
+            info["reduced"] = describe_reduction(driven)
         channel = None
         if sliver is not None and surface is not None:
             channel = make_sliver(surface.time_s, surface.length_m, sliver, streams["sliver"],
@@ -283,6 +304,19 @@ class Plant:
             info,
             surface,
             channel,
+        )
+
+
+def _check_reducible(faults: Sequence[FaultSpec], surface_rate_hz: float | None) -> None:
+    """A reduced plant records healthy running (sensor faults allowed), nothing else."""
+    machine = sorted({f.kind for f in faults if not f.is_sensor})
+    if machine or surface_rate_hz is not None:
+        raise ConfigError(
+            "a reduced plant (reduced_hz) integrates the machine with its stiff couplings "
+            "rigid, so it cannot play "
+            + (f"the machine faults {', '.join(machine)}" if machine else "roller surfaces"),
+            where="reduced_hz",
+            fix="record faults and surfaces with the full plant (reduced_hz=None)",
         )
 
 

@@ -47,7 +47,6 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Iterable, Sequence
-from dataclasses import replace
 from typing import Annotated, Any
 
 import numpy as np
@@ -59,16 +58,16 @@ from drafttwin.mechanics import DriveTrain, Signal, operating_point
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics.assembly import Tables
 from drafttwin.mechanics.faults import CHAIN_LINKS as CHAIN_LINKS
+from drafttwin.mechanics.faults import KINDS as KINDS
 from drafttwin.mechanics.faults import (  # the catalogue and a fault's physics live there
-    KINDS,
     MACHINE_FAMILIES,
-    SENSOR_CHANNELS,
-    catalogue,
     chain_slack_m,
     worn_stiffness_factor,
 )
+from drafttwin.mechanics.faults import SENSOR_CHANNELS as SENSOR_CHANNELS
 from drafttwin.mechanics.faults import SURFACE_ONLY as SURFACE_ONLY
 from drafttwin.mechanics.faults import FaultKind as FaultKind
+from drafttwin.mechanics.faults import catalogue as catalogue
 from drafttwin.mechanics.simulate import BLOCK_S
 
 
@@ -96,8 +95,10 @@ class FaultSpec(BaseModel):
         or a linear ramp over ``ramp_s``."""
         t = np.asarray(t, dtype=np.float64)
         if self.ramp_s > 0:
-            return np.clip((t - self.onset_s) / self.ramp_s, 0.0, 1.0)
-        return (t >= self.onset_s).astype(np.float64)
+            ramp: np.ndarray = np.clip((t - self.onset_s) / self.ramp_s, 0.0, 1.0)
+            return ramp
+        step: np.ndarray = (t >= self.onset_s).astype(np.float64)
+        return step
 
     def label(self, block_s: float | None = None) -> dict[str, Any]:
         """The sidecar's record of this fault."""
@@ -239,8 +240,8 @@ class FaultSchedule:
                 drag_f[row, K.DR_COUL] *= 1.0 - s
             elif f.kind == "torque_loss":
                 motor_f[:, K.MOT_TK] *= 1.0 - s
-        return replace(b, gear_f=gear_f, belt_f=belt_f, chain_f=chain_f, drag_f=drag_f,
-                       motor_f=motor_f)  # fmt: skip
+        return b._replace(gear_f=gear_f, belt_f=belt_f, chain_f=chain_f, drag_f=drag_f,
+                          motor_f=motor_f)  # fmt: skip
 
 
 def _gear_fault(row: np.ndarray, gear: Any, kind: str, s: float) -> None:

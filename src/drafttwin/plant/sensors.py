@@ -37,7 +37,8 @@ def encoder_rpm(
     boundary_rate = np.vstack([true_rpm[:1], true_rpm]) / 60.0
     rev += boundary_rate * cfg.clock_jitter_s * rng.standard_normal((n + 1, 1))
     counts = np.floor(rev * counts_per_rev)
-    return np.diff(counts, axis=0) / counts_per_rev * 60.0 / window_s
+    rpm: np.ndarray = np.diff(counts, axis=0) / counts_per_rev * 60.0 / window_s
+    return rpm
 
 
 def inject_defects(rpm: np.ndarray, rate_hz: float, cfg: Sensors, rng_missing: np.random.Generator,

@@ -245,7 +245,8 @@ def _runout_length(theta: np.ndarray, e: float | np.ndarray, phase: float) -> np
     """Surface length of ``e sin(theta + phase)`` on the radius, m, 0 at row 0."""
     c = np.cos(theta + phase)
     if np.ndim(e) == 0:
-        return e * (c[0] - c)
+        length: np.ndarray = e * (c[0] - c)
+        return length
     return np.concatenate([[0.0], np.cumsum(e * (c[:-1] - c[1:]))])
 
 

@@ -11,7 +11,19 @@ import numpy as np
 from drafttwin._constants import ROLLERS
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, with_unit
-from drafttwin.report.html import Cell, Raw, Row, figure, join, para, section, table, tag
+from drafttwin.report.html import (
+    BodyRow,
+    Cell,
+    CellLike,
+    Raw,
+    Row,
+    figure,
+    join,
+    para,
+    section,
+    table,
+    tag,
+)
 from drafttwin.report.overview import is_plant
 from drafttwin.report.tables import compared_models, metric_unit, paper_table2
 
@@ -54,15 +66,15 @@ def _best(results: Mapping[str, Any], models: list[str], roller: str, key: str, 
     return pick(finite, key=finite.__getitem__)
 
 
-def _table2_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) -> list:
+def _table2_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) -> list[BodyRow]:
     best = {
         (k, r): _best(results, main, r, f"{k}_rel_err_pct", True)
         for k in ("max", "mean")
         for r in ROLLERS
     }
-    body: list = []
+    body: list[BodyRow] = []
     for model in main + extra:
-        cells: list = [Cell(label(model), cls="name"), Cell("ours", cls="name")]
+        cells: list[CellLike] = [Cell(label(model), cls="name"), Cell("ours", cls="name")]
         for k in ("max", "mean"):
             for r in ROLLERS:
                 v = _value(results, model, r, f"{k}_rel_err_pct")
@@ -81,8 +93,8 @@ def _table2_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) 
     return body
 
 
-def _paper_table2_cells(model: str) -> list:
-    cells: list = [Cell("", cls="name"), Cell("paper (real FA320A)", cls="name")]
+def _paper_table2_cells(model: str) -> list[CellLike]:
+    cells: list[CellLike] = [Cell("", cls="name"), Cell("paper (real FA320A)", cls="name")]
     if not np.isfinite(paper_table2(model, ROLLERS[0])[0]):
         return cells + [Cell("not in the paper", colspan=8, cls="name")]
     for k in (0, 1):
@@ -105,8 +117,8 @@ def table2_html(results: Mapping[str, Any]) -> Raw:
     return table(head, _table2_rows(results, main, extra), id="table2")
 
 
-def _honest_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) -> list:
-    body: list = []
+def _honest_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) -> list[BodyRow]:
+    body: list[BodyRow] = []
     ncol = len(HONEST) + 3
     for r in ROLLERS:
         body.append(("group", [Cell(f"{r} roller", colspan=ncol)]))
@@ -114,7 +126,7 @@ def _honest_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) 
         best = {key: _best(results, main, r, key, lower) for key, _, _, lower in HONEST}
         for model in main + extra:
             name = label(model) + (" (extra)" if model in extra else "")
-            cells: list = [Cell(name, cls="name")]
+            cells: list[CellLike] = [Cell(name, cls="name")]
             for key, _, nd, _ in HONEST:
                 cls = "best" if model in main and best[key] == model else None
                 cells.append(Cell(num(_value(results, model, r, key), nd), cls=cls))
@@ -124,7 +136,9 @@ def _honest_rows(results: Mapping[str, Any], main: list[str], extra: list[str]) 
     return body
 
 
-def _limit_rows(results: Mapping[str, Any], model: str, roller: str, ncol: int) -> list:
+def _limit_rows(
+    results: Mapping[str, Any], model: str, roller: str, ncol: int
+) -> list[tuple[str, list[CellLike]]]:
     """The accuracy limits of a roller (scored on ``model``'s rows), under the columns they
     bound: the floor under RMSE, the encoders' own error under RMSE vs true."""
     floor = _value(results, model, roller, "rmse_floor")
@@ -132,10 +146,10 @@ def _limit_rows(results: Mapping[str, Any], model: str, roller: str, ncol: int) 
     if not (is_num(floor) or is_num(sensor)):
         return []
     return [
-        ("floor", [Cell("floor: lowest RMSE any predictor can reach", cls="name"), num(floor, 3)]
-         + [""] * (ncol - 2)),
-        ("floor", [Cell("encoder error (measured vs true)", cls="name"), "", num(sensor, 3)]
-         + [""] * (ncol - 3)),
+        ("floor", [Cell("floor: lowest RMSE any predictor can reach", cls="name"), num(floor, 3),
+                   *[""] * (ncol - 2)]),
+        ("floor", [Cell("encoder error (measured vs true)", cls="name"), "", num(sensor, 3),
+                   *[""] * (ncol - 3)]),
     ]  # fmt: skip
 
 

@@ -46,7 +46,7 @@ RULE_NAMES = {"cusum": "CUSUM", "jump": "lag jump rule", "sensor": "sensor rule"
 
 def _decided(dx: Diagnosis) -> np.ndarray:
     """Blocks the streams' rules decided: not a reference window, not after the alarm."""
-    decided = np.isfinite(dx.detection.deviation).all(axis=1)
+    decided: np.ndarray = np.isfinite(dx.detection.deviation).all(axis=1)
     if dx.alarm is not None:
         decided &= np.arange(len(decided)) <= dx.alarm.block
     return decided

@@ -2,7 +2,7 @@
 
 :func:`write_outputs` writes, atomically, into the output folder: ``emps_report.html`` (the
 tables and a PNG figure embedded as base64), ``emps_results.json`` (everything
-:func:`drafttwin.benchmarks.emps.run.run_benchmark` measured) and ``emps_predictions.csv``
+:func:`drafttwin.studies.emps.run.run_benchmark` measured) and ``emps_predictions.csv``
 (time, measured ``qm`` and each model's seed-0 test prediction, m).
 """
 
@@ -24,8 +24,9 @@ import pandas as pd  # noqa: E402
 
 from drafttwin._io import atomic_path, write_text_atomic  # noqa: E402
 from drafttwin._json import dumps_strict  # noqa: E402
-from drafttwin.benchmarks.emps.run import PREDICTION_START, PUBLISHED, EmpsResult  # noqa: E402
 from drafttwin.report.figures import COLORS  # noqa: E402
+from drafttwin.studies.emps.plan import PREDICTION_START, PUBLISHED, variant_name  # noqa: E402
+from drafttwin.studies.emps.run import EmpsResult  # noqa: E402
 
 LABELS = {
     "mechanistic": "physics only",
@@ -35,6 +36,19 @@ LABELS = {
     "parallel": "parallel hybrid",
     "md-s-l": "MD-S-L",
 }
+
+
+def label(name: str) -> str:
+    """Display name of a model or a :func:`~drafttwin.studies.emps.plan.variant_name`:
+    ``parallel_refitted`` is "parallel hybrid (refitted physics)"."""
+    model, _, physics = name.partition("_")
+    if not physics:
+        return LABELS.get(model, model)
+    if model == "mechanistic":
+        return f"physics only ({physics})"
+    return f"{LABELS.get(model, model)} ({physics} physics)"
+
+
 HEADER = ("model", "task", "test RMSE mm (mean ± std)", "min–max", "runs", "fit %",
           "published mm")  # fmt: skip
 
@@ -54,7 +68,7 @@ def table_rows(results: dict[str, Any]) -> list[tuple[str, ...]]:
         spread = f"± {_num(r['rmse_mm_std'])}" if r["runs"] > 1 else ""
         pub = r.get("published_rmse_mm")
         rows.append((
-            LABELS.get(r["model"], r["model"]), r["task"],
+            label(variant_name(r["model"], r.get("physics"))), r["task"],
             f"{_num(r['rmse_mm_mean'])} {spread}".strip(),
             f"{_num(r['rmse_mm_min'])}–{_num(r['rmse_mm_max'])}" if r["runs"] > 1 else "",
             str(r["runs"]), _num(r["fit_pct_mean"], 1), "" if pub is None else _num(pub, 2),
@@ -69,11 +83,11 @@ def figure_png(result: EmpsResult) -> bytes:
     axes[0].plot(t, y * 1e3, color="#222222", lw=1.6, label="measured qm")
     span = (np.nanmin(y) * 1e3 - 30, np.nanmax(y) * 1e3 + 30)
     for (task, name), pred in sorted(result.traces.items()):
-        color = COLORS.get(name)
+        color = COLORS.get(name)  # refitted variants: matplotlib's next colour
         if task == "simulation" and name != "persistence":
-            axes[0].plot(t, pred * 1e3, lw=0.9, color=color, label=LABELS.get(name, name))
+            axes[0].plot(t, pred * 1e3, lw=0.9, color=color, label=label(name))
         ax = axes[1] if task == "simulation" else axes[2]
-        ax.plot(t, (pred - y) * 1e3, lw=0.8, color=color, label=LABELS.get(name, name))
+        ax.plot(t, (pred - y) * 1e3, lw=0.8, color=color, label=label(name))
     axes[0].set_ylim(*span)
     axes[0].set_ylabel("position, mm")
     axes[0].set_title("EMPS test record (DATA_EMPS_PULSES): free-run simulation, seed 0")
@@ -100,6 +114,25 @@ def _html_table(results: dict[str, Any]) -> str:
         for cells in table_rows(results)
     )
     return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def refit_line(results: dict[str, Any]) -> str:
+    """One line on the refitted physics (empty without one)."""
+    fit = results.get("physics_refit")
+    if not fit:
+        return ""
+    p = fit["parameters"]
+    return (
+        f"refitted physics (output error on the training record, {fit['nfev']} simulations, "
+        f"{fit['fit_s']:.0f} s): M {p['mass_kg']:.3f} kg, Fv {p['viscous_ns_per_m']:.3f} "
+        f"N s/m, Fc {p['coulomb_n']:.3f} N, offset {p['offset_n']:.4f} N; training-record "
+        f"RMSE {fit['rmse_mm']:.3f} mm (published parameters {fit['rmse_mm_initial']:.3f} mm)"
+    )
+
+
+def _refit_html(results: dict[str, Any]) -> str:
+    line = refit_line(results)
+    return f"<p>{html.escape(line[0].upper() + line[1:])}.</p>" if line else ""
 
 
 def report_html(result: EmpsResult) -> str:
@@ -131,7 +164,7 @@ protocol), scored from row {PREDICTION_START}; not
 comparable with the simulation-mode literature. Profile <b>{html.escape(res["profile"])}</b>,
 seeds {", ".join(str(s) for s in res["seeds"])}, drafttwin {html.escape(res["drafttwin_version"])},
 wall time {res["wall_s"]:.0f} s.</p>{partial}
-{_html_table(res)}
+{_html_table(res)}{_refit_html(res)}
 <h2>Published numbers (simulation task)</h2><ul>{sources}</ul>
 <h2>Measured vs predicted position</h2>
 <img alt="EMPS test record: measured vs predicted" src="data:image/png;base64,{png}"

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import io
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import matplotlib
 
@@ -15,6 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
+from matplotlib.axis import Axis  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 from scipy.signal import welch  # noqa: E402
@@ -59,7 +61,7 @@ def _png_with_legend_on_top(
     return _png(fig)
 
 
-def _log_axis_plain(axis, sparse: bool = False) -> None:
+def _log_axis_plain(axis: Axis, sparse: bool = False) -> None:
     """Log axis ticks at 1, 1.5, 2, 3, 5, 7 × 10^k (``sparse``: 1, 2, 5 × 10^k) written as
     plain numbers."""
     subs = (1.0, 2.0, 5.0) if sparse else (1.0, 1.5, 2.0, 3.0, 5.0, 7.0)
@@ -68,7 +70,7 @@ def _log_axis_plain(axis, sparse: bool = False) -> None:
     axis.set_minor_formatter(NullFormatter())
 
 
-def grid_losses(grid: Mapping[str, Sequence[Mapping]]) -> bytes:
+def grid_losses(grid: Mapping[str, Sequence[Mapping[str, Any]]]) -> bytes:
     """Fig. 7 analogue: validation loss of every (lr, hidden, layers) per network.
 
     One line per learning rate over the (hidden, layers) combinations, log scale; the best

@@ -3,7 +3,7 @@ figures and a self-contained HTML page.
 
 :func:`write_outputs` writes, atomically, ``generalisation_report.html`` (tables and PNG
 figures embedded as base64) and ``generalisation_results.json`` (everything
-:func:`drafttwin.benchmarks.generalisation.run_benchmark` measured) into the output folder.
+:func:`drafttwin.studies.generalisation.run_benchmark` measured) into the output folder.
 """
 
 from __future__ import annotations
@@ -24,11 +24,6 @@ import matplotlib.pyplot as plt  # noqa: E402
 from drafttwin._constants import ROLLERS  # noqa: E402
 from drafttwin._io import write_text_atomic  # noqa: E402
 from drafttwin._json import dumps_strict  # noqa: E402
-from drafttwin.benchmarks.generalisation.records import (  # noqa: E402
-    MACHINE_SEED,
-    SCENARIOS,
-    TEST_RECORDS,
-)
 from drafttwin.report import figures  # noqa: E402
 from drafttwin.report.figures import COLORS  # noqa: E402
 from drafttwin.report.fmt import sig_fixed  # noqa: E402
@@ -43,6 +38,11 @@ from drafttwin.report.html import (  # noqa: E402
     section,
     table,
     tag,
+)
+from drafttwin.studies.generalisation.records import (  # noqa: E402
+    MACHINE_SEED,
+    SCENARIOS,
+    TEST_RECORDS,
 )
 
 MODELS = ("mechanistic", "mechanistic (calibrated)", "persistence", "gru", "parallel", "md-s-l")

@@ -13,7 +13,9 @@ from drafttwin.report import agreement, paper
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, sig, sig_fixed
 from drafttwin.report.html import (
+    BodyRow,
     Cell,
+    CellLike,
     Raw,
     Row,
     bullets,
@@ -39,7 +41,7 @@ def _grid_matrix(rows: list[Mapping[str, Any]], net: str) -> Raw:
     best = min(finite, key=finite.__getitem__) if finite else None
     body = []
     for h, nl in combos:
-        cells: list = [Cell(f"hidden {h}, {nl} layers", cls="name")]
+        cells: list[CellLike] = [Cell(f"hidden {h}, {nl} layers", cls="name")]
         for lr in lrs:
             key = (lr, h, nl)
             cells.append(Cell(sig(losses.get(key), 3), cls="best" if key == best else None))
@@ -129,7 +131,7 @@ def _table3_html(abl: Mapping[str, Any]) -> Raw:
         ],
         [label(v) for _ in ROLLERS for v in variants],
     ]
-    body: list = []
+    body: list[BodyRow] = []
     for i, seed in enumerate(abl["seeds"]):
         body.append(
             [
@@ -140,12 +142,13 @@ def _table3_html(abl: Mapping[str, Any]) -> Raw:
         )
 
     def best_variant(roller: str) -> str:
-        return max(variants, key=lambda v: summ[v][roller]["mean"])
+        best: str = max(variants, key=lambda v: summ[v][roller]["mean"])
+        return best
 
     best = {r: best_variant(r) for r in ROLLERS}
     for title, key in (("ours: mean", "mean"), ("ours: std", "std"), ("ours: min", "min"),
                        ("ours: max", "max")):  # fmt: skip
-        cells: list = [Cell(title, colspan=2, cls="name")]
+        cells: list[CellLike] = [Cell(title, colspan=2, cls="name")]
         for r in ROLLERS:
             for v in variants:
                 x = summ[v][r][key]
@@ -183,7 +186,7 @@ def _differences_html(abl: Mapping[str, Any]) -> Raw:
     for d in diffs:
         pa, pb = (paper_table3_stats(d["roller"], d[k])[0] for k in ("a", "b"))
         yes = bool(d["larger_than_spread"])
-        row: list = [Cell(f"{label(d['a'])} − {label(d['b'])}", cls="name"),
+        row: list[CellLike] = [Cell(f"{label(d['a'])} − {label(d['b'])}", cls="name"),
                      Cell(d["roller"], cls="name"), num(d.get("mean_diff"), 4),
                      sig(d.get("spread"), 2), Cell("yes" if yes else "no", cls="yes" if yes else "no")]  # fmt: skip
         if with_p:

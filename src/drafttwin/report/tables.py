@@ -1,7 +1,7 @@
 """The report's tables as tidy DataFrames (written as CSV and rendered into the HTML).
 
 Every function takes the study's ``results`` dictionary (schema in
-``drafttwin.experiments.study``) and returns a DataFrame; the paper's published values
+``drafttwin.studies.paper.run``) and returns a DataFrame; the paper's published values
 (``drafttwin.report.paper``) sit beside ours where the paper has them.
 """
 

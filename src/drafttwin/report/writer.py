@@ -43,7 +43,8 @@ def _matrix(predictions: pd.DataFrame, prefix: str) -> np.ndarray | None:
     cols = [f"{prefix}_{r}" for r in ROLLERS]
     if not all(c in predictions.columns for c in cols):
         return None
-    return predictions[cols].to_numpy(dtype=np.float64)
+    block: np.ndarray = predictions[cols].to_numpy(dtype=np.float64)
+    return block
 
 
 def zoom_window(time_s: np.ndarray, length_s: float = 2.0) -> tuple[float, float]:
@@ -158,7 +159,7 @@ def write_report(
 
     Args:
         out_dir: folder to write into (created if needed).
-        results: the study's results dictionary (schema in ``drafttwin.experiments.study``).
+        results: the study's results dictionary (schema in ``drafttwin.studies.paper.run``).
         predictions: the test part: ``time``, ``measured_<roller>``, optionally
             ``true_<roller>``, and ``<model>_<roller>`` per compared model.
 

@@ -117,7 +117,7 @@ look-alikes. The modulation an element would need only rules it in or out: real 
 differ by more than the gains do."""
 
 
-def _rank(c: Candidate) -> tuple:
+def _rank(c: Candidate) -> tuple[bool, int, int, int, int, float]:
     # plausible first; a comb of harmonics; the fundamental; the line nearest the chimney (in
     # halves of the tolerance: equal lines tie); the prior of the kind; the smallest
     # speed modulation needed
@@ -162,7 +162,7 @@ def _fmt_m(x: float) -> str:
 
 def ranked_elements(causes: list[ChimneyCause]) -> list[str]:
     """Elements in order of their best placement over all chimneys (for summaries)."""
-    best: dict[str, tuple] = {}
+    best: dict[str, tuple[bool, int, int]] = {}
     for i, cause in enumerate(sorted(causes, key=lambda c: -c.excess_pct)):
         for j, c in enumerate(cause.candidates):
             key = (not c.plausible, i, j)

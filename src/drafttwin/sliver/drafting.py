@@ -187,7 +187,8 @@ def _with_run_in(speeds: SurfaceSpeeds, zones: DraftingZones, feed: Feed) -> np.
 
 def _times(speeds: SurfaceSpeeds, surface: np.ndarray) -> np.ndarray:
     n_before = (surface.shape[0] - speeds.time_s.size) // 2
-    return speeds.time_s[0] + speeds.step_s * (np.arange(surface.shape[0]) - n_before)
+    times: np.ndarray = speeds.time_s[0] + speeds.step_s * (np.arange(surface.shape[0]) - n_before)
+    return times
 
 
 def _tables(feed: Feed, surface: np.ndarray, zones: DraftingZones, rng: np.random.Generator,

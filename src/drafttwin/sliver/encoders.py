@@ -80,17 +80,8 @@ class _Channel:
         """Relative fluctuation, spikes bridged like gaps."""
         idx = np.arange(self.filled.size)
         clean = np.interp(idx, idx[self.good], self.filled[self.good])
-        return clean / clean.mean() - 1.0
-
-
-def encoder_line_pct(time_s: np.ndarray, rpm: np.ndarray, order: float) -> float:
-    """Relative amplitude (%) of the line at ``order`` times the roller's own rotation in its
-    interval-mean speeds (one channel; gaps filled, the data path's spikes set aside),
-    corrected for the interval averaging; NaN at or above the Nyquist frequency. The fit is
-    in the roller's angle (order analysis), so the line stays coherent while the speed
-    wanders."""
-    channel = _Channel.of(time_s, rpm)
-    return math.nan if channel is None else channel.line_pct(order)
+        relative: np.ndarray = clean / clean.mean() - 1.0
+        return relative
 
 
 class _Lines:
@@ -193,8 +184,8 @@ def rerank(diagnosis: SliverDiagnosis, checks: dict[str, list[EncoderCheck]],
         misfit = {k.element: len(k.unexplained) for k in checks.get(key, [])}
         share = shares.get(key, math.nan)
 
-        def rank(c: Candidate, share: float = share, verdicts: dict = verdicts,
-                 misfit: dict = misfit) -> tuple:  # fmt: skip
+        def rank(c: Candidate, share: float = share, verdicts: dict[str, str] = verdicts,
+                 misfit: dict[str, int] = misfit) -> tuple[bool | int, ...]:  # fmt: skip
             if not math.isfinite(share) or 0.3 <= share <= 0.6:
                 return (not c.plausible,)  # undecided: the sliver's own order stands
             if share < 0.3:

@@ -178,14 +178,16 @@ def variance_length_factor(staple: StapleDiagram, lengths_m: np.ndarray) -> np.n
     lo, hi = staple.lengths_mm - half, staple.lengths_mm + half
 
     def short(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # int_a^b (L l^2/2 - l^3/6) dl
-        return big_l * (b**3 - a**3) / 6 - (b**4 - a**4) / 24
+        j: np.ndarray = big_l * (b**3 - a**3) / 6 - (b**4 - a**4) / 24
+        return j
 
     def long(a: np.ndarray, b: np.ndarray) -> np.ndarray:  # int_a^b (l L^2/2 - L^3/6) dl
-        return big_l**2 * (b**2 - a**2) / 4 - big_l**3 * (b - a) / 6
+        j: np.ndarray = big_l**2 * (b**2 - a**2) / 4 - big_l**3 * (b - a) / 6
+        return j
 
     cut = np.clip(big_l, lo, hi)
     per_class = (short(lo, cut) + long(cut, hi)) / (hi - lo)
-    expected_j = per_class @ staple.weights
+    expected_j: np.ndarray = per_class @ staple.weights
     b = 2.0 * expected_j / (length_mm.ravel() ** 2 * staple.mean_length_mm)
     return b.reshape(length_mm.shape)
 
@@ -197,4 +199,5 @@ def ideal_variance_length_cv_pct(staple: StapleDiagram, count_ktex: float, lengt
     :func:`variance_length_factor`). At ``L`` = one grid step it is the point CV of a record of
     bin averages."""
     limit = staple.martindale_cv_pct(count_ktex) * math.sqrt(fibre_scale)
-    return limit * np.sqrt(variance_length_factor(staple, lengths_m))
+    cv_pct: np.ndarray = limit * np.sqrt(variance_length_factor(staple, lengths_m))
+    return cv_pct

@@ -133,7 +133,8 @@ class Feed:
                 var += (f.amplitude / k) ** 2 / 2
             else:
                 var += f.amplitude**2 / 2 / (1 if f.phase == "same" else k)
-        return 100 * var**0.5
+        cv_pct: float = 100 * var**0.5
+        return cv_pct
 
     def fibres_per_mm(self) -> float:
         """Mean number of fibre leading ends per mm of fed length (all slivers)."""

@@ -71,7 +71,8 @@ def _boxcar(x: np.ndarray, width: int) -> np.ndarray:
     c = np.concatenate([[0.0], np.cumsum(x)])
     idx = np.arange(1, x.size + 1)
     lo = np.maximum(idx - width, 0)
-    return (c[idx] - c[lo]) / (idx - lo)
+    mean: np.ndarray = (c[idx] - c[lo]) / (idx - lo)
+    return mean
 
 
 def infeed_reading(fed_relative: np.ndarray, fed_start_mm: float, fed_step_mm: float,
@@ -85,5 +86,5 @@ def infeed_reading(fed_relative: np.ndarray, fed_start_mm: float, fed_step_mm: f
     grid = fed_start_mm + fed_step_mm * np.arange(fed_relative.size)
     width = max(1, int(round(sensor.averaging_mm / fed_step_mm)))
     smooth = _boxcar(fed_relative, width)
-    x = np.interp(back_length_mm + scan_ahead_mm, grid, smooth) * total_ktex
+    x: np.ndarray = np.interp(back_length_mm + scan_ahead_mm, grid, smooth) * total_ktex
     return x * (1.0 + sensor.gain_error) * (1.0 + sensor.noise * rng.standard_normal(x.size))

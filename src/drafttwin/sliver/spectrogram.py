@@ -82,7 +82,8 @@ def _mean_sin2(staple: StapleDiagram, f: np.ndarray) -> np.ndarray:
     w = staple.class_width_mm / 1000.0
     fc = f.reshape(-1, 1)
     mean_cos = np.cos(2 * np.pi * fc * c) * np.sinc(fc * w)
-    return (0.5 * (1.0 - mean_cos)) @ staple.weights
+    mean_sin2: np.ndarray = (0.5 * (1.0 - mean_cos)) @ staple.weights
+    return mean_sin2
 
 
 def ideal_psd(staple: StapleDiagram, count_ktex: float, f_per_m: np.ndarray,
@@ -349,7 +350,7 @@ def _numeric_column(frame: pd.DataFrame, column: str, path: Path) -> np.ndarray:
     """A column as float64, refused (DataError) when a cell is empty or not a number."""
     import pandas as pd
 
-    values = pd.to_numeric(frame[column], errors="coerce").to_numpy(np.float64)
+    values: np.ndarray = pd.to_numeric(frame[column], errors="coerce").to_numpy(np.float64)
     bad = ~np.isfinite(values)
     if bad.any():
         row = int(np.argmax(bad))

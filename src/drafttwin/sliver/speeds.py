@@ -120,14 +120,6 @@ class SurfaceSpeeds:
             out[:, k] = base + fine - np.interp(t, self.time_s, coarse_pts)
         return SurfaceSpeeds(t, out, f"{self.source} + detail from {detail.source}")
 
-    def resampled(self, rate_hz: float) -> SurfaceSpeeds:
-        """The same travel on a uniform grid of ``rate_hz`` (linear between points)."""
-        n = max(2, int(math.floor(self.duration_s * rate_hz)))
-        t = self.time_s[0] + np.arange(n + 1) / rate_hz
-        t = t[t <= self.time_s[-1] + 1e-12]
-        s = np.column_stack([np.interp(t, self.time_s, self.length_m[:, k]) for k in range(4)])
-        return SurfaceSpeeds(t, s, self.source)
-
 
 def _fill(x: np.ndarray, source: str, name: str) -> np.ndarray:
     """The roller's speeds with their gaps filled (paper eq. 12, the data layer's filling)."""

@@ -180,7 +180,8 @@ class StapleDiagram:
         edges = np.concatenate([self.lengths_mm - h, [self.lengths_mm[-1] + h]])
         cdf[-1] = 1.0
         p = np.linspace(0.0, 1.0, size + 1)
-        return np.interp(p, cdf, edges)
+        quantiles: np.ndarray = np.interp(p, cdf, edges)
+        return quantiles
 
     def fineness_quantiles(self, size: int = 4096) -> np.ndarray:
         """Inverse CDF of one fibre's linear density (tex) at ``size + 1`` midpoint
@@ -190,7 +191,8 @@ class StapleDiagram:
             return np.full(size + 1, self.fibre_tex)
         shape = 1.0 / self.fineness_cv**2
         q = stats.gamma(shape, scale=self.fibre_tex / shape).ppf(p)
-        return q * (self.fibre_tex / q.mean())  # the table's own mean is the fibre's
+        scaled: np.ndarray = q * (self.fibre_tex / q.mean())  # the table's own mean is the fibre's
+        return scaled
 
     def describe(self) -> dict[str, float | str]:
         return {

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -72,7 +73,7 @@ class WavelengthTable:
             rows.append(row)
         return pd.DataFrame(rows)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {"train": self.train, "delivery_m_min": self.delivery_m_min,
                 "motor_rpm": self.motor_rpm, "harmonics": self.harmonics,
                 "elements": [asdict(e) | {"harmonics_m": e.harmonics_m(self.harmonics)}

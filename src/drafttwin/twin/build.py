@@ -14,11 +14,13 @@ from drafttwin.mechanics import DriveTrain
 from drafttwin.models.base import BaseModel
 from drafttwin.twin.faultwatch import LiveFaultWatch, block_phase, detector_path, load_detector
 from drafttwin.twin.live import MachineTwin, physics_train
-from drafttwin.twin.mapping import MachineMap, read_mapping
 from drafttwin.twin.service import MachineState, TwinService
-from drafttwin.twin.source_spec import parse_source
-from drafttwin.twin.sources import OpcUaSource, ReplaySource, Source
-from drafttwin.twin.store import StoreWriter, TwinStore
+from drafttwin.twin.sources.base import Source
+from drafttwin.twin.sources.mapping import MachineMap, read_mapping
+from drafttwin.twin.sources.opcua import OpcUaSource
+from drafttwin.twin.sources.replay import ReplaySource
+from drafttwin.twin.sources.spec import parse_source
+from drafttwin.twin.store.db import StoreWriter, TwinStore
 
 
 def load_twin_model(path: Path) -> BaseModel:

@@ -22,7 +22,6 @@ checked when read back (:func:`load_detector`).
 
 from __future__ import annotations
 
-import hashlib
 import json
 import math
 import threading
@@ -36,13 +35,14 @@ from typing import Any
 import numpy as np
 
 from drafttwin._constants import ROLLERS
+from drafttwin._io import sha256_file
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.diagnosis.detect import Alarm, CusumState, FaultDetector
 from drafttwin.diagnosis.diagnose import Diagnoser, sensor_cause
 from drafttwin.diagnosis.residuals import CHANNELS, LagCarry, block_features
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain
-from drafttwin.twin.store import SampleRow
+from drafttwin.twin.store.db import SampleRow
 
 FORMAT = "drafttwin-live-detector"
 VERSION = 1
@@ -60,14 +60,6 @@ def detector_path(model: Path) -> Path:
     return model.with_name(model.name + ".detector.json")
 
 
-def file_sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for chunk in iter(lambda: fh.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
-
-
 def save_detector(path: Path, detector: FaultDetector, model: Path, fitted_on: list[str],
                   post_s: float = POST_S) -> None:  # fmt: skip
     """Write the fitted detector (atomic), tied to ``model`` by its SHA-256, with the live
@@ -76,7 +68,7 @@ def save_detector(path: Path, detector: FaultDetector, model: Path, fitted_on: l
     from drafttwin._json import dumps_strict
 
     doc = {"format": FORMAT, "version": VERSION, "model_file": model.name,
-           "model_sha256": file_sha256(model), "fitted_on": fitted_on, "post_s": post_s,
+           "model_sha256": sha256_file(model), "fitted_on": fitted_on, "post_s": post_s,
            "detector": detector.to_state(), "describe": detector.describe()}  # fmt: skip
     with atomic_path(path) as tmp:
         tmp.write_text(dumps_strict(doc), encoding="utf-8")
@@ -96,7 +88,7 @@ def load_detector(path: Path, model: Path) -> tuple[FaultDetector, float]:
     if doc.get("version") != VERSION:
         raise DataError(f"detector format version {doc.get('version')}, this drafttwin reads "
                         f"{VERSION}", source=path, fix=fix)  # fmt: skip
-    if doc.get("model_sha256") != file_sha256(model):
+    if doc.get("model_sha256") != sha256_file(model):
         raise DataError(f"the detector was fitted for another model file "
                         f"({doc.get('model_file')!r}, a different SHA-256)", source=path,
                         where="model_sha256", fix=fix)  # fmt: skip

@@ -64,8 +64,8 @@ def shard_source(source: str, i: int, k: int) -> str:
 def check_hall(model: Path, source: str, mapping: Path, shards: int) -> int:
     """Check the pieces before any actor starts; returns the number of machines."""
     from drafttwin.twin.build import load_twin_model
-    from drafttwin.twin.mapping import MachineMap, read_mapping
-    from drafttwin.twin.source_spec import parse_source
+    from drafttwin.twin.sources.mapping import MachineMap, read_mapping
+    from drafttwin.twin.sources.spec import parse_source
 
     kind = source.partition(":")[0]
     if kind not in ("opcua", "mqtt", "mqtts"):
@@ -160,21 +160,12 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
              status_every_s: float = 10.0) -> list[dict[str, Any]]:  # fmt: skip
     """Run ``shards`` twin actors on Ray (the cluster at ``address``, else a private instance
     with ``shards`` CPUs) until ``duration_s`` or Ctrl-C; each shard's final status."""
-    import signal
-
-    from drafttwin.execution.executor import _import_ray, _init_ray, _start_guard
-    from drafttwin.execution.interrupt import restore_handler
+    from drafttwin.execution.executor import ray_session
 
     check_store(store, shards)
-    ray = _import_ray()
-    guard = None if address else _start_guard()  # kills a private Ray if this process dies
-    started = not ray.is_initialized()
-    sigterm = signal.getsignal(signal.SIGTERM)
-    try:
-        _init_ray(ray, shards, address)
-        # ray.init installs its own SIGTERM handler (a stack dump, no summary): the caller's
-        # stops the shards, which commit what they received
-        restore_handler(signal.SIGTERM, sigterm)
+    # the caller's SIGTERM handler stays (not Ray's stack dump): it stops the shards, which
+    # commit what they received
+    with ray_session(shards, address) as ray:
         cls = _actor_class(ray)
         opts = {"model": model.resolve(), "mapping": mapping.resolve(), "commit_ms": commit_ms,
                 "physics": physics, "silent_s": silent_s}  # fmt: skip
@@ -188,12 +179,6 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
             _stop_shards(ray, actors, refs)
             raise
         return _collect(ray, refs)
-    finally:
-        if started:
-            ray.shutdown()
-        if guard is not None:
-            guard.terminate()
-            guard.wait()
 
 
 def _stop_shards(ray: Any, actors: list[Any], refs: list[Any]) -> None:

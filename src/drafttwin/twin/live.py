@@ -33,7 +33,7 @@ from drafttwin.mechanics.stepper import LiveStepper
 from drafttwin.models import OnlinePredictor
 from drafttwin.models.base import BaseModel
 from drafttwin.models.mechanistic import MechanisticModel
-from drafttwin.twin.store import EventRow, SampleRow
+from drafttwin.twin.store.db import EventRow, SampleRow
 
 SPIKE_THRESHOLD = 0.10
 """The paper's outlier rule: 10 % from the last accepted sample."""

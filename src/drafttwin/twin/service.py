@@ -26,9 +26,9 @@ from drafttwin.sliver import StapleDiagram
 from drafttwin.sliver.watch import SliverAlarm, SliverWatch
 from drafttwin.twin.faultwatch import LiveFaultWatch, Localise, Locator, alarm_detail
 from drafttwin.twin.live import Begun, MachineTwin
-from drafttwin.twin.mapping import MachineMap
-from drafttwin.twin.sources import Sample, Source
-from drafttwin.twin.store import EventRow, SampleRow, StoreWriter
+from drafttwin.twin.sources.base import Sample, Source
+from drafttwin.twin.sources.mapping import MachineMap
+from drafttwin.twin.store.db import EventRow, SampleRow, StoreWriter
 
 LATENCY_WINDOW = 20_000
 """Latencies kept for the percentiles (sample received -> stored and pushed)."""
@@ -89,7 +89,7 @@ class TwinService:
         self.latency_s: deque[float] = deque(maxlen=LATENCY_WINDOW)
         self.rows = 0
         self.subscribers: list[Callable[[str, list[SampleRow], list[EventRow]], None]] = []
-        self.metrics: Any = None  # drafttwin.twin.metrics.Metrics when the page runs
+        self.metrics: Any = None  # drafttwin.twin.web.metrics.Metrics when the page runs
         self.event_hooks: list[Callable[[EventRow], None]] = []
         self.started = time.monotonic()
         self.locator = Locator()

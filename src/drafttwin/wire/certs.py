@@ -11,7 +11,8 @@ the MQTT broker, and the plant server's Basic256Sha256 SignAndEncrypt setup.
 The certificates are self-signed and valid for 365 days (asyncua's ``cert_gen``). With
 ``plant serve --opcua URL --cert DIR`` the server offers only Basic256Sha256 SignAndEncrypt
 and accepts only clients whose certificate lies in ``DIR/trusted``. The twin's side
-(:func:`drafttwin.twin.security.secure_client`) connects with ``--source "opcua:URL?cert=DIR"``.
+(:func:`drafttwin.twin.sources.security.secure_client`) connects with
+``--source "opcua:URL?cert=DIR"``.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from typing import Any
 
 from drafttwin.twin.publish.payload import ALARM_KINDS, Health
 from drafttwin.twin.service import MachineState, TwinService
-from drafttwin.twin.store import EventRow, SampleRow
+from drafttwin.twin.store.db import EventRow, SampleRow
 
 QUEUE_LEN = 1000
 """Entries an outbox holds before the oldest are dropped."""

@@ -26,7 +26,7 @@ from drafttwin.errors import ConfigError
 from drafttwin.twin.publish.base import CLOSE_S, QUEUE_LEN, Publisher
 from drafttwin.twin.publish.payload import alarm, prediction
 from drafttwin.twin.service import MachineState, TwinService
-from drafttwin.twin.store import EventRow, SampleRow
+from drafttwin.twin.store.db import EventRow, SampleRow
 
 PREFIX = "drafttwin/twin"
 CONNECT_S = 5.0

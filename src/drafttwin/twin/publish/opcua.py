@@ -32,7 +32,7 @@ from drafttwin._constants import __version__
 from drafttwin.twin.publish.base import CLOSE_S, Publisher
 from drafttwin.twin.publish.payload import alarm, setpoint_unit, unit_of, utc
 from drafttwin.twin.service import MachineState, TwinService
-from drafttwin.twin.store import EventRow, SampleRow
+from drafttwin.twin.store.db import EventRow, SampleRow
 from drafttwin.wire.conventions import UNECE_NAMESPACE
 
 NAMESPACE = "urn:drafttwin:twin"

@@ -16,10 +16,11 @@ import json
 import math
 import time
 from importlib import resources
+from importlib.resources.abc import Traversable
 from typing import Any
 
 from drafttwin.twin.service import MachineState, TwinService
-from drafttwin.twin.store import EventRow, SampleRow
+from drafttwin.twin.store.db import EventRow, SampleRow
 from drafttwin.wire.conventions import HERTZ, PAYLOAD_VERSION, RPM, SECOND, Unit
 from drafttwin.wire.conventions import iso_time as iso_s
 
@@ -28,7 +29,7 @@ SCHEMA_FILES = {
     "alarm": "twin-alarm.schema.json",
     "status": "twin-status.schema.json",
 }
-"""The JSON Schema of each payload, in the package's ``twin/static`` folder."""
+"""The JSON Schema of each payload, in the package's ``twin/publish/schemas`` folder."""
 ALARM_KINDS = ("fault", "sensor-fault", "fault-cause", "sliver-chimney")
 """Events published as alarms (the others change a machine's health)."""
 MILLISECOND = Unit("C26", "ms", "millisecond")
@@ -165,9 +166,14 @@ class Health:
         }
 
 
+def schema_dir() -> Traversable:
+    """The folder of the shipped JSON Schemas (the page serves them too, under ``/static/``)."""
+    return resources.files("drafttwin.twin.publish") / "schemas"
+
+
 def schema(name: str) -> dict[str, Any]:
     """The shipped JSON Schema of payload ``name`` (``prediction``, ``alarm``, ``status``)."""
-    text = (resources.files("drafttwin.twin") / "static" / SCHEMA_FILES[name]).read_text("utf-8")
+    text = (schema_dir() / SCHEMA_FILES[name]).read_text("utf-8")
     doc: dict[str, Any] = json.loads(text)
     return doc
 
@@ -182,6 +188,7 @@ __all__ = [
     "prediction",
     "probable_cause",
     "schema",
+    "schema_dir",
     "stamp",
     "symbol",
     "unit_of",

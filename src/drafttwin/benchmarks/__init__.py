@@ -1,1 +1,0 @@
-"""Benchmarks on real measurements: EMPS (:mod:`drafttwin.benchmarks.emps`)."""

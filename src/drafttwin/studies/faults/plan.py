@@ -1,0 +1,142 @@
+"""What the fault benchmark runs: seeded records of the plant, each a task.
+
+Three sets, each of its own machines and recording seeds (none shared):
+
+* ``tuning``: healthy records that set the thresholds (and nothing else); as long as the
+  healthy test records in the full profile, so the slow wander of a 10-min run (its long-run
+  variance, :class:`~drafttwin.diagnosis.detect.FaultDetector`) is in them;
+* ``faults``: one record per fault kind x severity level x profile (abrupt step, or an
+  incipient ramp), the element cycling through :data:`ELEMENTS`;
+* ``healthy``: healthy running of several machines, for false alarms.
+
+A task runs the plant and returns the record's block features against the physics (the
+``fa320a`` preset: a nominal twin, not calibrated to each machine) and its labels.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+
+from drafttwin.diagnosis.detect import FaultDetector
+from drafttwin.diagnosis.residuals import block_features, measured, physics_prediction
+from drafttwin.mechanics import DriveTrain
+from drafttwin.plant import Machine, Plant
+from drafttwin.plant.fault_cases import make_fault
+from drafttwin.studies.faults.learned import raw_record
+
+ELEMENTS: dict[str, tuple[str, ...]] = {
+    "crack": ("E-F", "G-H", "A-B"), "wear": ("E-F", "G-H", "I-J"),
+    "runout": ("A-B", "G-H", "E-F"), "belt_wear": ("main_belt",),
+    "elongation": ("rear_chain",), "bearing_friction": ("front_roller", "motor", "back_roller"),
+    "load_loss": ("front", "third", "back"), "eccentricity": ("second", "front", "back"),
+    "rotor_resistance": ("motor",), "torque_loss": ("motor",),
+    "gain": ("third", "motor", "front"), "stuck": ("back", "second", "motor"),
+    "dropout": ("front", "motor", "third"),
+}  # fmt: skip
+QUICK_KINDS = ("bearing_friction", "load_loss", "belt_wear", "rotor_resistance", "gain", "stuck")
+RATE_HZ = 100.0
+BLOCK_S = 1.0
+HEALTHY_RECORD_S = 630.0
+"""Healthy test records of the full profile: 10.5 min each, so that 12 machines give the
+issue's >= 2 h of running after each record's reference window (15 s: no decisions there)."""
+
+
+@dataclass(frozen=True)
+class Profile:
+    """Sizes of one benchmark run."""
+
+    name: str
+    kinds: tuple[str, ...]
+    levels: tuple[int, ...]  # 0 light, 1 moderate, 2 severe
+    profiles: tuple[str, ...]  # step, ramp
+    duration_s: float  # fault records
+    onset_s: tuple[float, float]  # onset drawn in this range
+    ramp_s: float
+    tuning: tuple[int, float]  # records, seconds each
+    healthy: tuple[int, float]
+
+
+PROFILES = {
+    "full": Profile("full", tuple(ELEMENTS), (0, 1, 2), ("step", "ramp"), 40.0, (18.0, 22.0),
+                    10.0, (4, HEALTHY_RECORD_S), (12, HEALTHY_RECORD_S)),
+    "quick": Profile("quick", QUICK_KINDS, (1,), ("step",), 30.0, (18.0, 20.0), 5.0,
+                     (2, 40.0), (2, 60.0)),
+}  # fmt: skip
+
+
+def decided_s(duration_s: float) -> float:
+    """Seconds of a healthy record that are watched: those after the reference window."""
+    return max(0.0, duration_s - FaultDetector().reference_s)
+
+
+REDUCED_HZ = 200.0
+"""Cut-off (Hz) of a task's reduced plant (``"generator": "reduced"``): every coupling but
+the belt rigid. Not a stand-in for the full plant's healthy running: it misses the detector's
+statistics (:mod:`drafttwin.studies.faults.generator`, docs/faults.md)."""
+
+
+def with_healthy_hours(profile: Profile, hours: float) -> Profile:
+    """``profile`` with at least ``hours`` of watched healthy running (records of the
+    profile's healthy length, each its own machine)."""
+    per = decided_s(profile.healthy[1])
+    return replace(profile, healthy=(max(1, math.ceil(hours * 3600.0 / per)), profile.healthy[1]))
+
+
+def plan(profile: Profile, seed: int) -> list[dict[str, Any]]:
+    """Task configurations (JSON-able): tuning, then fault, then healthy records."""
+    rng = np.random.default_rng(seed)
+
+    def seeds() -> tuple[int, int]:
+        a, b = (int(x) for x in rng.integers(0, 2**31, size=2))
+        return a, b
+
+    tasks: list[dict[str, Any]] = []
+    for i in range(profile.tuning[0]):
+        m, s = seeds()
+        tasks.append({"set": "tuning", "name": f"tuning_{i}", "machine_seed": m, "seed": s,
+                      "duration_s": profile.tuning[1], "faults": []})  # fmt: skip
+    for kind in profile.kinds:
+        for level in profile.levels:
+            for prof in profile.profiles:
+                m, s = seeds()
+                onset = float(np.round(rng.uniform(*profile.onset_s), 2))
+                element = ELEMENTS[kind][level % len(ELEMENTS[kind])]
+                sign = 1.0 if rng.random() < 0.5 else -1.0
+                f = make_fault(
+                    element, kind, level, prof == "step", onset, profile.duration_s, sign
+                )
+                if prof == "ramp" and f.ramp_s > 0:
+                    f = f.model_copy(update={"ramp_s": profile.ramp_s})
+                tasks.append({"set": "faults", "name": f"{element}:{kind}:{level}:{prof}",
+                              "machine_seed": m, "seed": s, "duration_s": profile.duration_s,
+                              "level": level, "profile": prof,
+                              "faults": [f.model_dump()]})  # fmt: skip
+    for i in range(profile.healthy[0]):
+        m, s = seeds()
+        tasks.append({"set": "healthy", "name": f"healthy_{i}", "machine_seed": m, "seed": s,
+                      "duration_s": profile.healthy[1], "faults": []})  # fmt: skip
+    return tasks
+
+
+def run_record(config: dict[str, Any]) -> dict[str, Any]:
+    """One task: the plant record's physics block features and labels (plain lists), and
+    its raw channels with the physics prediction (arrays) for the learned residuals. The
+    full plant, or with ``config["generator"] == "reduced"`` the reduced one (healthy
+    records only; :mod:`drafttwin.studies.faults.generator` compares them)."""
+    from drafttwin.plant.faults import FaultSpec
+
+    plant = Plant(reduced_hz=REDUCED_HZ if config.get("generator") == "reduced" else None)
+    machine = Machine.draw(plant.train, plant.config, int(config["machine_seed"]))
+    faults = [FaultSpec(**f) for f in config["faults"]]
+    rec = plant.run(float(config["duration_s"]), RATE_HZ, seed=int(config["seed"]),
+                    machine=machine, faults=faults)  # fmt: skip
+    physics = physics_prediction(DriveTrain.preset("fa320a"), rec.series)
+    f = block_features(measured(rec.series), physics, rec.series.time_s, BLOCK_S)
+    return {"time_s": f.time_s.tolist(), "level": f.level.tolist(), "lost": f.lost.tolist(),
+            "run": f.run.tolist(), "block_s": f.block_s, "lag": f.lags.tolist(),
+            "labels": rec.info["faults"],
+            "raw": raw_record(rec.series, physics)}  # fmt: skip

@@ -1,0 +1,107 @@
+"""The page of a whole hall (``drafttwin twin hall --http``): every shard's machines at a glance.
+
+The hall's driver polls each shard actor's status every second (:func:`~drafttwin.twin.hall.run_hall`)
+and keeps the latest in a :class:`HallView`; this app serves it as ``GET /api/hall`` and a page
+(``static/hall.html``, no chart library, nothing from the internet) that redraws a tile per
+machine from it: its shard, state, samples, p99 latency of its shard and its latest fault
+alarm with the probable cause. The same token guard as the twin's page
+(:mod:`~drafttwin.twin.web.guard`): any bind address but 127.0.0.1 needs a token, checked on
+every request.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from typing import Any
+
+from fastapi import FastAPI
+from fastapi.responses import HTMLResponse
+
+from drafttwin._json import to_strict
+from drafttwin.twin.web.assets import page_text, serve_static
+from drafttwin.twin.web.guard import guard
+
+
+class HallView:
+    """The latest status of each shard (``None``: starting or not answering), thread-safe."""
+
+    def __init__(self, shards: int) -> None:
+        self.lock = threading.Lock()
+        self.shards: list[dict[str, Any] | None] = [None] * shards
+        self.updated = 0.0
+
+    def update(self, statuses: list[dict[str, Any] | None]) -> None:
+        with self.lock:
+            self.shards, self.updated = list(statuses), time.time()
+
+    def snapshot(self) -> dict[str, Any]:
+        with self.lock:
+            shards, updated = list(self.shards), self.updated
+        out = []
+        for i, st in enumerate(shards):
+            if st is None:
+                out.append({"shard": i, "state": "starting", "machines": {}})
+                continue
+            out.append({"shard": i, "state": "running", "rows": st.get("rows"),
+                        "latency_ms": st.get("latency_ms"),
+                        "machines": {name: {k: m.get(k) for k in MACHINE_KEYS}
+                                     for name, m in st.get("machines", {}).items()}})  # fmt: skip
+        return to_strict({"updated": updated, "shards": out})
+
+
+MACHINE_KEYS = ("state", "received", "processed", "dropped", "late", "fault_alarms",
+                "fault_detector", "last_fault")  # fmt: skip
+
+
+def create_hall_app(view: HallView, token: str | None = None) -> FastAPI:
+    """The hall's app; its OpenAPI schema is ``/openapi.json``, the interactive docs ``/docs``."""
+    app = FastAPI(title="drafttwin hall", summary="Every shard's machines (docs/twin.md)")
+    guard(app, token)
+    serve_static(app)
+
+    @app.get("/", response_class=HTMLResponse, include_in_schema=False)
+    def page() -> str:
+        return page_text("hall.html")
+
+    @app.get("/api/hall")
+    def hall() -> Any:
+        """Each shard's state, rows and p99 latency, and per machine its counts and last alarm."""
+        return view.snapshot()
+
+    return app
+
+
+class HallServer:
+    """uvicorn in a thread of the driver (the driver's own thread waits on Ray)."""
+
+    def __init__(self, view: HallView, bind: tuple[str, int], token: str | None) -> None:
+        import socket
+
+        import uvicorn
+
+        family = socket.AF_INET6 if ":" in bind[0] else socket.AF_INET
+        self.sock = socket.socket(family, socket.SOCK_STREAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        self.sock.bind(bind)  # an address in use fails here, as an OSError the CLI reports
+        config = uvicorn.Config(create_hall_app(view, token), log_level="warning", lifespan="off")
+        self.server = uvicorn.Server(config)
+        self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]},
+                                       name="hall-page", daemon=True)  # fmt: skip
+
+    def __enter__(self) -> HallServer:
+        self.thread.start()
+        deadline = time.monotonic() + 10
+        while not self.server.started and self.thread.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if not self.server.started:
+            raise OSError("the hall page did not start")
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.server.should_exit = True
+        self.thread.join(timeout=5)
+        self.sock.close()
+
+
+__all__ = ["HallServer", "HallView", "create_hall_app"]

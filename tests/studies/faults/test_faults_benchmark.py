@@ -1,0 +1,92 @@
+"""The fault benchmark on a tiny profile: plan, scores, page, CLI refusals."""
+
+import json
+
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin.cli import app
+from drafttwin.plant.faults import KINDS, SURFACE_ONLY
+from drafttwin.studies.faults.plan import (
+    ELEMENTS,
+    PROFILES,
+    Profile,
+    decided_s,
+    plan,
+    with_healthy_hours,
+)
+from drafttwin.studies.faults.score import by_kind, poisson_upper
+
+
+def test_full_plan_covers_every_kind_three_severities_both_profiles():
+    tasks = plan(PROFILES["full"], seed=0)
+    faults = [t for t in tasks if t["set"] == "faults"]
+    encoders_see = set(KINDS) - set(SURFACE_ONLY)  # a flute moves no speed: the sliver's
+    assert set(ELEMENTS) == encoders_see
+    assert len(faults) >= 60
+    seen = {(t["faults"][0]["kind"], t["level"], t["profile"]) for t in faults}
+    assert seen == {(k, lv, p) for k in encoders_see for lv in range(3) for p in ("step", "ramp")}
+    machines = [t["machine_seed"] for t in tasks]
+    assert len(set(machines)) == len(machines)  # tuning, faults and healthy share no machine
+    assert plan(PROFILES["full"], seed=0) == tasks  # seeded
+
+
+def test_full_plan_has_two_hours_of_watched_healthy_running_on_several_machines():
+    healthy = [t for t in plan(PROFILES["full"], seed=0) if t["set"] == "healthy"]
+    assert len(healthy) >= 5
+    assert sum(decided_s(t["duration_s"]) for t in healthy) >= 2 * 3600  # issue 13
+    assert decided_s(PROFILES["full"].healthy[1]) == PROFILES["full"].healthy[1] - 15.0
+    more = with_healthy_hours(PROFILES["full"], 72.0)
+    assert more.healthy[0] * decided_s(more.healthy[1]) >= 72 * 3600
+    assert (more.healthy[0] - 1) * decided_s(more.healthy[1]) < 72 * 3600  # no more than needed
+
+
+def test_poisson_bound_is_the_rule_of_three():
+    assert poisson_upper(0, 72.0) == pytest.approx(3.0 / 72 * 24, rel=0.01)  # ~1 per 24 h
+
+
+@pytest.mark.slow
+def test_tiny_benchmark_scores_and_page():
+    from drafttwin.report.faults_bench import render_benchmark
+    from drafttwin.studies.faults import run_benchmark
+
+    tiny = Profile("tiny", ("belt_wear", "gain"), (2,), ("step",), 24.0, (17.0, 17.5), 5.0,
+                   (1, 30.0), (1, 20.0))  # fmt: skip
+    res = run_benchmark(tiny, seed=3, workers=1)
+    phys, raw = res["scores"]["physics"], res["scores"]["raw-threshold"]
+    assert res["sets"] == {"tuning": 1, "faults": 2, "healthy": 1}
+    assert phys["detection_pct"]["severe"] == 100.0  # belt -0.8 and a 2 % gain: plain to see
+    assert phys["localisation"]["top1_pct"] == 100.0
+    assert phys["localisation"]["sensor_blamed_on_machine"] == 0
+    assert phys["confusion"] == {"belt_wear": {"belt_wear": 1}, "gain": {"gain": 1}}
+    cell = phys["by_kind"]["gain"]["severe"]
+    assert (cell["records"], cell["detected"], cell["top1"], cell["group_hit"]) == (1, 1, 1, 1)
+    assert raw["localisation"] is None  # the baseline does not locate
+    hyb, dd = res["scores"]["hybrid"], res["scores"]["data-driven"]
+    assert hyb["detection_pct"]["severe"] == 100.0  # open loop: the hybrid sees the shift too
+    assert hyb["localisation"]["top1_pct"] == 100.0  # and the physics ranking names it
+    assert hyb["localisation"]["sensor_blamed_on_machine"] == 0
+    assert dd["localisation"] is None  # a one-step innovation is not localised
+    assert set(res["detectors"]) == {"physics", "hybrid", "data-driven"}
+    assert res["learned"]["data-driven"]["task"] == "prediction"
+    json.dumps(res, allow_nan=True)
+    html = render_benchmark(res)
+    assert 'id="scores"' in html and 'id="confusion"' in html and "raw-threshold" in html
+    assert 'id="confusion-hybrid"' in html and "data-driven" in html
+
+
+def test_by_kind_counts_every_record_and_places_only_detected_ones():
+    rows = [
+        {"kind": "wear", "level": 1, "profile": "step", "detected": True, "delay_s": 1.5,
+         "top1": False, "group_hit": True},
+        {"kind": "wear", "level": 1, "profile": "ramp", "detected": False, "delay_s": None},
+        {"name": "healthy_0", "set": "healthy", "healthy_s": 615.0, "false_alarms": 0},
+    ]  # fmt: skip
+    assert by_kind(rows) == {"wear": {"moderate": {
+        "records": 2, "detected": 1, "top1": 0, "group_hit": 1,
+        "delay_s": {"step": 1.5, "ramp": None}}}}  # fmt: skip
+
+
+def test_cli_refuses_bad_numbers(tmp_path):
+    res = CliRunner().invoke(app, ["benchmark", "faults", "--workers", "0", "--out", str(tmp_path)])
+    assert res.exit_code == 2 and "--workers" in res.output
