@@ -139,3 +139,26 @@ def test_networks_train_on_one_thread_unless_drafttwin_threads_says_otherwise(
         monkeypatch.setenv("DRAFTTWIN_THREADS", bad)
         with pytest.raises(ConfigError, match="DRAFTTWIN_THREADS"):
             training_threads()
+
+
+def test_cpu_adam_is_torch_adam_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The CPU training loop's own Adam (no torch.optim: its import of torch._dynamo cost a
+    CPU-second per fit) gives exactly torch.optim.Adam's losses and weights."""
+    from drafttwin.models import training as tr
+
+    own = tr.make_adam
+    assert isinstance(own([torch.zeros(1, requires_grad=True)], 0.1, torch.device("cpu")),
+                      tr.CpuAdam)  # fmt: skip
+
+    x, y = _toy()
+    cfg = Training(epochs=3, batch_size=16, lr=0.01, patience=None, device="cpu")
+    results = []
+    for adam in (own, lambda p, lr, dev: torch.optim.Adam(p, lr=lr)):
+        monkeypatch.setattr(tr, "make_adam", adam)
+        torch.manual_seed(0)
+        net = ResidualNet(4, 4, use_sknet=True, use_lstm=True, sk_channels=6, hidden=8, layers=2)
+        hist = train_network(net, x, y, cfg, seed=1)
+        results.append((hist.train_loss, hist.val_loss, net.state_dict()))
+    (loss_a, val_a, sd_a), (loss_b, val_b, sd_b) = results
+    assert loss_a == loss_b and val_a == val_b
+    assert all(torch.equal(sd_a[k], sd_b[k]) for k in sd_a)

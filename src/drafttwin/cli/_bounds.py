@@ -13,6 +13,7 @@ has a callback from here.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TypeVar
@@ -50,54 +51,68 @@ def _num(x: float) -> str:
 
 _SEED_MAX = 2**32 - 1  # NumPy and torch seeds are 32-bit
 
-#: every numeric option of the CLI; the same name means the same quantity in every command
-BOUNDS: dict[str, Bound] = {
-    "--motor-rpm": Bound(0, 1e5, "rpm"),
-    "--duration": Bound(0, 1e6, "s"),
-    "--rate": Bound(0, 1e6, "Hz"),
-    "--dt": Bound(0, 1.0, "s"),
-    "--settle": Bound(0, 3600, "s", low_inclusive=True),
-    "--cutoff-hz": Bound(0, 1e6, "Hz"),
-    "--rate-tolerance": Bound(0, 0.49, "(fraction of a step)", low_inclusive=True),
-    "--threshold": Bound(0, 10, "(fraction)", low_inclusive=True),
-    "--seed": Bound(0, _SEED_MAX, low_inclusive=True),
-    "--machine-seed": Bound(0, _SEED_MAX, low_inclusive=True),
-    "--seeds": Bound(1, 1000, "seeds", low_inclusive=True),
-    "--init-samples": Bound(1, 1e7, "samples", low_inclusive=True),
-    "--train-fraction": Bound(0.05, 1.0, low_inclusive=True),
-    "--horizon": Bound(1, 1e5, "samples", low_inclusive=True),
-    "--score-from": Bound(0, 1e9, "samples", low_inclusive=True),
-    "--epochs": Bound(1, 1e6, low_inclusive=True),
-    "--block": Bound(0.001, 3600, "s", low_inclusive=True),
-    "--workers": Bound(1, 1024, low_inclusive=True),
-    "--max-samples": Bound(1, 1e9, "samples", low_inclusive=True),
-    "--cases": Bound(1, 100000, "cases", low_inclusive=True),
-    "--far-per-day": Bound(0, 1e6, "alarms per 24 h"),
-    "--healthy-hours": Bound(0, 1000, "h"),
-    "--commit-ms": Bound(1, 60_000, "ms", low_inclusive=True),
-    "--retention-hours": Bound(0, 1e6, "h"),
-    "--silent": Bound(0.05, 3600, "s", low_inclusive=True),
-    "--from": Bound(0, 1e11, "s", low_inclusive=True),
-    "--to": Bound(0, 1e11, "s", low_inclusive=True),
-    "--machines": Bound(1, 10_000, "machines", low_inclusive=True),
-    "--shards": Bound(1, 1000, "twins", low_inclusive=True),
-    "--history": Bound(0, 86_400, "s", low_inclusive=True),
-    "--ramp": Bound(0, 1e4, "Hz/s"),
-    "--reference": Bound(0, 3600, "s"),
-    "--doublings": Bound(1, 16, "slivers", low_inclusive=True),
-    "--feed-ktex": Bound(0.05, 100, "ktex", low_inclusive=True),
-    "--feed-cv": Bound(0, 0.49, "(fraction)", low_inclusive=True),
-    "--feed-correlation": Bound(0.01, 1e4, "m", low_inclusive=True),
-    "--fineness-dtex": Bound(0, 100, "dtex"),
-    "--fineness-cv": Bound(0, 1.5, "(fraction)", low_inclusive=True),
-    "--step-mm": Bound(0.05, 50, "mm", low_inclusive=True),
-    "--fibre-scale": Bound(1, 1e6, "fibres per drawn fibre", low_inclusive=True),
-    "--harmonics": Bound(1, 20, "harmonics", low_inclusive=True),
-    "--sensor-mm": Bound(0, 1000, "mm", low_inclusive=True),
-    "--post": Bound(0, 3600, "s"),
-    "--qos": Bound(0, 1, "(MQTT QoS)", low_inclusive=True),
-    "--max-lag": Bound(0, 3600, "s"),
+#: every numeric option of the CLI and its range, as an interval and a unit: "(0, 1e6] Hz" is
+#: 0 < x <= 1e6, "[0, 3600] s" is 0 <= x <= 3600; the same name means the same quantity in
+#: every command
+_RANGES: dict[str, str] = {
+    "--motor-rpm": "(0, 1e5] rpm",
+    "--duration": "(0, 1e6] s",
+    "--rate": "(0, 1e6] Hz",
+    "--dt": "(0, 1.0] s",
+    "--settle": "[0, 3600] s",
+    "--cutoff-hz": "(0, 1e6] Hz",
+    "--rate-tolerance": "[0, 0.49] (fraction of a step)",
+    "--threshold": "[0, 10] (fraction)",
+    "--seed": f"[0, {_SEED_MAX}]",
+    "--machine-seed": f"[0, {_SEED_MAX}]",
+    "--seeds": "[1, 1000] seeds",
+    "--init-samples": "[1, 1e7] samples",
+    "--train-fraction": "[0.05, 1.0]",
+    "--horizon": "[1, 1e5] samples",
+    "--score-from": "[0, 1e9] samples",
+    "--epochs": "[1, 1e6]",
+    "--block": "[0.001, 3600] s",
+    "--workers": "[1, 1024]",
+    "--max-samples": "[1, 1e9] samples",
+    "--cases": "[1, 100000] cases",
+    "--far-per-day": "(0, 1e6] alarms per 24 h",
+    "--healthy-hours": "(0, 1000] h",
+    "--commit-ms": "[1, 60_000] ms",
+    "--retention-hours": "(0, 1e6] h",
+    "--silent": "[0.05, 3600] s",
+    "--from": "[0, 1e11] s",
+    "--to": "[0, 1e11] s",
+    "--machines": "[1, 10_000] machines",
+    "--shards": "[1, 1000] twins",
+    "--history": "[0, 86_400] s",
+    "--ramp": "(0, 1e4] Hz/s",
+    "--reference": "(0, 3600] s",
+    "--doublings": "[1, 16] slivers",
+    "--feed-ktex": "[0.05, 100] ktex",
+    "--feed-cv": "[0, 0.49] (fraction)",
+    "--feed-correlation": "[0.01, 1e4] m",
+    "--fineness-dtex": "(0, 100] dtex",
+    "--fineness-cv": "[0, 1.5] (fraction)",
+    "--step-mm": "[0.05, 50] mm",
+    "--fibre-scale": "[1, 1e6] fibres per drawn fibre",
+    "--harmonics": "[1, 20] harmonics",
+    "--sensor-mm": "[0, 1000] mm",
+    "--post": "(0, 3600] s",
+    "--qos": "[0, 1] (MQTT QoS)",
+    "--max-lag": "(0, 3600] s",
 }
+
+
+def _interval(text: str) -> Bound:
+    """``"(0, 1e6] Hz"`` -> ``Bound(0, 1e6, "Hz")``; a ``[`` makes the low end inclusive."""
+    match = re.fullmatch(r"([(\[])([^,]+), ([^\]]+)\] ?(.*)", text)
+    if match is None:
+        raise ValueError(f"not an interval and unit: {text!r}")
+    opening, low, high, unit = match.groups()
+    return Bound(float(low), float(high), unit, low_inclusive=opening == "[")
+
+
+BOUNDS: dict[str, Bound] = {option: _interval(text) for option, text in _RANGES.items()}
 
 
 def check(option: str, value: N) -> N:

@@ -42,6 +42,7 @@ def with_group(name: str, group: type) -> Callable[[F], F]:
             values = {f: kwargs.pop(f) for f in fields}
             return command(**kwargs, **{name: group(**values)})
 
+        # a function object takes any attribute; typer reads this one as the command's signature
         run.__signature__ = signature.replace(parameters=params)  # type: ignore[attr-defined]
         run.__annotations__ = {p.name: p.annotation for p in params}
         return typing.cast(F, run)

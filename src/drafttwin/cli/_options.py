@@ -16,13 +16,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import load_train
 from drafttwin.cli._oserrors import input_path, input_paths, output_dir, output_file
+
+if TYPE_CHECKING:
+    from drafttwin.mechanics import DriveTrain
 
 
 def number(flag: str, help: str, **kw: Any) -> Any:
@@ -69,7 +72,7 @@ class TrainOptions:
     preset: PresetOpt = None
     config: ConfigOpt = None
 
-    def load(self) -> Any:
+    def load(self) -> DriveTrain:
         """The drive train they name (the FA320A preset when neither is given)."""
         return load_train(self.preset, self.config)
 

@@ -81,6 +81,7 @@ def _closest_only(exc: Exception) -> None:
     if possible and name:
         started = sorted(p for p in possible if p.startswith(name))[:1]
         close = difflib.get_close_matches(name, possible, n=1, cutoff=0.8)
+        # only click's NoSuchOption has possibilities (checked above); set on any exception
         exc.possibilities = started or close  # type: ignore[attr-defined]
 
 

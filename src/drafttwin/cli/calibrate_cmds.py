@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
@@ -58,18 +58,11 @@ QuietOpt = Annotated[bool, typer.Option(help="No progress messages.")]
 @with_group("channels", ChannelOptions)
 @with_group("drive", TrainOptions)
 def calibrate(
-    out: TrainOutOpt,
-    data: RecordsOpt,
-    channels: ChannelOptions,
-    drive: TrainOptions,
-    params: ParamsOpt = None,
-    block: BlockOpt = 0.1,
-    full_model: FullModelOpt = False,
-    lines: LinesOpt = False,
-    wander: WanderOpt = None,
-    as_json: JsonOpt = False,
-    quiet: QuietOpt = False,
-) -> None:
+    out: TrainOutOpt, data: RecordsOpt, channels: ChannelOptions, drive: TrainOptions,
+    params: ParamsOpt = None, block: BlockOpt = 0.1, full_model: FullModelOpt = False,
+    lines: LinesOpt = False, wander: WanderOpt = None,
+    as_json: JsonOpt = False, quiet: QuietOpt = False,
+) -> None:  # fmt: skip
     """Estimate the physical parameters of a drive train from measured speeds, with standard
     errors and an identifiability verdict per parameter, and write the calibrated train.
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich import box
@@ -25,6 +25,9 @@ from drafttwin.cli._options import (
 )
 from drafttwin.cli.app import app, console, progress_bar
 from drafttwin.cli.benchmark_cmds import benchmark_app
+
+if TYPE_CHECKING:
+    from drafttwin.data.series import MeasurementSeries
 
 CasesOutOpt = Annotated[Path, dir_out("--out", "Folder for the records and cases.json.")]
 CasesOpt = Annotated[int, number("--cases", "Number of records (one in 4 healthy).")]
@@ -92,13 +95,9 @@ ReportOpt = Annotated[Path | None, file_out("--report", "Write an HTML page (tim
 
 @app.command()
 def diagnose(
-    model: PhysicsOpt,
-    data: RecordOpt,
-    healthy: HealthyOpt = None,
-    far_per_day: FarPerDayOpt = 1.0,
-    as_json: JsonOpt = False,
-    report: ReportOpt = None,
-) -> None:
+    model: PhysicsOpt, data: RecordOpt, healthy: HealthyOpt = None,
+    far_per_day: FarPerDayOpt = 1.0, as_json: JsonOpt = False, report: ReportOpt = None,
+) -> None:  # fmt: skip
     """Detect, locate and size a machine or sensor fault in a record.
 
     Residuals of the record against the physics (open loop, from the set-points) are watched
@@ -161,7 +160,7 @@ def diagnose(
         _print_sliver(sliver[0])
 
 
-def _head(series, n: int):  # noqa: ANN001, ANN202  (a MeasurementSeries)
+def _head(series: MeasurementSeries, n: int) -> MeasurementSeries:
     from dataclasses import replace
 
     return replace(series, time_s=series.time_s[:n], values=series.values[:n],
@@ -171,7 +170,7 @@ def _head(series, n: int):  # noqa: ANN001, ANN202  (a MeasurementSeries)
                    metadata={})  # fmt: skip
 
 
-def _print_diagnosis(result: dict, report: Path | None, lags_note: str | None) -> None:
+def _print_diagnosis(result: dict[str, Any], report: Path | None, lags_note: str | None) -> None:
     alarm = result["alarm"]
     console.print(f"thresholds from {result['thresholds_from']}")
     if lags_note is not None:
@@ -328,7 +327,7 @@ def _sliver_variant(out: Path, quick: bool, seed: int, workers: int, as_json: bo
     console.print(f"wrote {out / 'faults_sliver.json'}")
 
 
-def _print_sliver(ev: dict) -> None:
+def _print_sliver(ev: dict[str, Any]) -> None:
     """The sliver channel's evidence, a few lines."""
     console.print(f"sliver ({ev['file']}): count {ev['count_ktex']:.4f} ktex, CV "
                   f"{ev['cv_pct']:.3f} %")  # fmt: skip

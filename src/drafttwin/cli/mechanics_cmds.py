@@ -140,17 +140,11 @@ CutoffOpt = Annotated[float | None, number("--cutoff-hz", "Cut-off of --reduced,
 @app.command()
 @with_group("drive", TrainOptions)
 def simulate(
-    drive: TrainOptions,
-    duration: DurationOpt = 10.0,
-    rate: OutputRateOpt = None,
-    dt: StepOpt = None,
-    settle: SettleOpt = None,
-    setpoints: SetpointsOpt = None,
-    out: ChannelsOutOpt = None,
-    reduced: ReducedOpt = False,
-    cutoff_hz: CutoffOpt = None,
+    drive: TrainOptions, duration: DurationOpt = 10.0, rate: OutputRateOpt = None,
+    dt: StepOpt = None, settle: SettleOpt = None, setpoints: SetpointsOpt = None,
+    out: ChannelsOutOpt = None, reduced: ReducedOpt = False, cutoff_hz: CutoffOpt = None,
     quiet: QuietOpt = False,
-) -> None:
+) -> None:  # fmt: skip
     """Simulate the drive train (numba RK4) and summarise its output channels (the rollers
     and the motor for the FA320A).
 

@@ -190,19 +190,11 @@ class SourceOptions:
 @with_group("channels", ChannelOptions)
 @with_group("source", SourceOptions)
 def fit(
-    model: ModelKindOpt,
-    out: ModelOutOpt,
-    source: SourceOptions,
-    channels: ChannelOptions,
-    profile: ProfileOpt = None,
-    train_fraction: FractionOpt = None,
-    seed: SeedOpt = None,
-    horizon: HorizonOpt = 1,
-    epochs: EpochsOpt = None,
-    settings: SetOpt = None,
-    quiet: QuietOpt = False,
-    as_json: JsonOpt = False,
-) -> None:
+    model: ModelKindOpt, out: ModelOutOpt, source: SourceOptions, channels: ChannelOptions,
+    profile: ProfileOpt = None, train_fraction: FractionOpt = None, seed: SeedOpt = None,
+    horizon: HorizonOpt = 1, epochs: EpochsOpt = None, settings: SetOpt = None,
+    quiet: QuietOpt = False, as_json: JsonOpt = False,
+) -> None:  # fmt: skip
     """Fit a model and save it. Trains on the first --train-fraction of --data (preprocessed as
     in the paper; 'drafttwin evaluate' then scores the rest), or on all of --data when separate
     --test-data records are given: these are scored at once and the metrics printed."""
@@ -277,13 +269,9 @@ def _fitted(
 @with_group("channels", ChannelOptions)
 @with_group("source", SourceOptions)
 def predict(
-    model: ModelFileOpt,
-    out: PredictionsOutOpt,
-    source: SourceOptions,
-    channels: ChannelOptions,
-    quiet: QuietOpt = False,
-    as_json: WrittenJsonOpt = False,
-) -> None:
+    model: ModelFileOpt, out: PredictionsOutOpt, source: SourceOptions, channels: ChannelOptions,
+    quiet: QuietOpt = False, as_json: WrittenJsonOpt = False,
+) -> None:  # fmt: skip
     """Predict every sample of a data set (the time column named as in the file, + one column
     per output channel). One-step prediction uses earlier samples only; a simulation runs free
     over each record from its first --init-samples measured samples. --test-data replaces
@@ -303,15 +291,10 @@ def predict(
 @with_group("channels", ChannelOptions)
 @with_group("source", SourceOptions)
 def evaluate(
-    model: ModelFileOpt,
-    source: SourceOptions,
-    channels: ChannelOptions,
-    train_fraction: FractionOpt = None,
-    score_from: ScoreFromOpt = 0,
-    free_run_from: FreeRunOpt = "test",
-    quiet: QuietOpt = False,
-    as_json: JsonOpt = False,
-) -> None:
+    model: ModelFileOpt, source: SourceOptions, channels: ChannelOptions,
+    train_fraction: FractionOpt = None, score_from: ScoreFromOpt = 0,
+    free_run_from: FreeRunOpt = "test", quiet: QuietOpt = False, as_json: JsonOpt = False,
+) -> None:  # fmt: skip
     """Score a model on the test part of --data (the chronological split it was fitted with)
     or on separate --test-data records (replacing --data): the paper's relative errors and
     honest metrics (RMSE, NRMSE, skill against persistence) per channel.

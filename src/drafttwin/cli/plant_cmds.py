@@ -50,20 +50,13 @@ FibreScaleOpt = Annotated[float, number("--fibre-scale", "With --sliver: fibres 
 @app.command()
 @with_group("drive", TrainOptions)
 def generate(
-    out: RecordOutOpt,
-    drive: TrainOptions,
-    duration: DurationOpt = 60.0,
-    rate: SampleRateOpt = 100.0,
-    seed: SeedOpt = 0,
-    machine_seed: MachineSeedOpt = None,
-    machine: MachineFileOpt = None,
-    scenario: ScenarioOpt = "steady",
-    fault: FaultOpt = None,
-    sliver: SliverOpt = False,
-    feed_fault: FeedFaultOpt = None,
-    fibre_scale: FibreScaleOpt = 1.0,
+    out: RecordOutOpt, drive: TrainOptions,
+    duration: DurationOpt = 60.0, rate: SampleRateOpt = 100.0,
+    seed: SeedOpt = 0, machine_seed: MachineSeedOpt = None, machine: MachineFileOpt = None,
+    scenario: ScenarioOpt = "steady", fault: FaultOpt = None,
+    sliver: SliverOpt = False, feed_fault: FeedFaultOpt = None, fibre_scale: FibreScaleOpt = 1.0,
     quiet: QuietOpt = False,
-) -> None:
+) -> None:  # fmt: skip
     """Run the plant emulator: measured roller speeds with the machine's real imperfections.
 
     Writes OUT (time, front, second, third, back in rpm, gaps as empty cells, and the VFD

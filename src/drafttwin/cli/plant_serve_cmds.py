@@ -56,24 +56,13 @@ LogOpt = Annotated[Path | None, file_out("--log", "Write every published sample 
 
 @plant_app.command("serve")
 def plant_serve(
-    opcua: OpcuaOpt = None,
-    mqtt: MqttOpt = None,
-    name: NameOpt = "fa320a",
-    machines: MachinesOpt = 1,
-    seed: SeedOpt = 0,
-    rate: SampleRateOpt = 100.0,
-    physics: PhysicsOpt = "full",
-    ramp: RampOpt = 10.0,
-    duration: StopAfterOpt = None,
-    mqtt_user: MqttUserOpt = None,
-    cert: CertOpt = None,
-    broker: BrokerOpt = "auto",
-    history: HistoryOpt = 0.0,
-    fault: ServeFaultOpt = None,
-    qos: QosOpt = 0,
-    max_lag: MaxLagOpt = None,
-    log: LogOpt = None,
-) -> None:
+    opcua: OpcuaOpt = None, mqtt: MqttOpt = None, name: NameOpt = "fa320a",
+    machines: MachinesOpt = 1, seed: SeedOpt = 0, rate: SampleRateOpt = 100.0,
+    physics: PhysicsOpt = "full", ramp: RampOpt = 10.0, duration: StopAfterOpt = None,
+    mqtt_user: MqttUserOpt = None, cert: CertOpt = None, broker: BrokerOpt = "auto",
+    history: HistoryOpt = 0.0, fault: ServeFaultOpt = None, qos: QosOpt = 0,
+    max_lag: MaxLagOpt = None, log: LogOpt = None,
+) -> None:  # fmt: skip
     """Run the plant emulator in real time as live machines: roller and motor speeds every
     sample, a writable supply set-point (write it and the plant changes speed)."""
     _need_twin_extra()

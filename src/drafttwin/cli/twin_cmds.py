@@ -85,14 +85,14 @@ MappingOpt = Annotated[Path | None, path_in("--mapping", "Mapping TOML: machines
 StoreOpt = Annotated[Path | None, dir_out("--store", "Store folder (DuckDB): every sample, prediction, residual, event.")]  # fmt: skip
 RetentionOpt = Annotated[float | None, number("--retention-hours", "Keep this many hours per machine (default: all).")]  # fmt: skip
 HttpOpt = Annotated[str | None, typer.Option("--http", help="Serve the page, REST API and /metrics on HOST:PORT.")]  # fmt: skip
-PublishOpt = Annotated[list[str] | None, typer.Option("--publish", help=(
-    "Publish predictions, residuals, health and alarms: opcua:opc.tcp://HOST:PORT[?hz=10] (the "
-    "twin's own OPC UA server) | mqtt://HOST:PORT[?qos=1&hz=10&prefix=drafttwin/twin]; hz: "
-    "predictions per machine and second; repeatable (docs/twin.md)."))]  # fmt: skip
+PublishOpt = Annotated[list[str] | None, typer.Option("--publish", help="Publish predictions, "
+                       "residuals, health and alarms: opcua:opc.tcp://HOST:PORT[?hz=10] (the "
+                       "twin's own OPC UA server) | mqtt://HOST:PORT[?qos=1&hz=10&prefix="
+                       "drafttwin/twin]; hz: predictions per machine and second; repeatable "
+                       "(docs/twin.md).")]  # fmt: skip
 DetectorOpt = Annotated[str, typer.Option("--detector", help=(
     "Fault detector: auto (MODEL.dtm.detector.json when it exists, from 'twin fit-detector') | "
-    "none | FILE. Alarms with their probable cause go to the store, the page, /api/alarms and "
-    "/metrics."))]  # fmt: skip
+    "none | FILE. Alarms with their probable cause go to the store, the page, /api/alarms and /metrics."))]  # fmt: skip
 SilentOpt = Annotated[float, number("--silent", "A machine silent this long (s) is marked as a gap.")]  # fmt: skip
 MaxSamplesOpt = Annotated[int | None, number("--max-samples", "Stop after this many processed samples.")]  # fmt: skip
 # derived from the parameter's name, as --verbose/--no-verbose
@@ -102,24 +102,13 @@ StatusJsonOpt = Annotated[bool, typer.Option("--json", help="Print the final sta
 
 @twin_app.command("run")
 def twin_run(
-    model: TwinModelOpt,
-    source: SourcesOpt,
-    mapping: MappingOpt = None,
-    store: StoreOpt = None,
-    commit_ms: CommitMsOpt = 200.0,
-    retention_hours: RetentionOpt = None,
-    http: HttpOpt = None,
-    token: TokenOpt = None,
-    physics: TwinPhysicsOpt = "reduced",
-    publish: PublishOpt = None,
-    detector: DetectorOpt = "auto",
-    silent: SilentOpt = 2.0,
-    duration: StopAfterOpt = None,
-    max_samples: MaxSamplesOpt = None,
-    verbose: VerboseOpt = False,
-    quiet: TwinQuietOpt = False,
-    as_json: StatusJsonOpt = False,
-) -> None:
+    model: TwinModelOpt, source: SourcesOpt, mapping: MappingOpt = None,
+    store: StoreOpt = None, commit_ms: CommitMsOpt = 200.0, retention_hours: RetentionOpt = None,
+    http: HttpOpt = None, token: TokenOpt = None, physics: TwinPhysicsOpt = "reduced",
+    publish: PublishOpt = None, detector: DetectorOpt = "auto", silent: SilentOpt = 2.0,
+    duration: StopAfterOpt = None, max_samples: MaxSamplesOpt = None,
+    verbose: VerboseOpt = False, quiet: TwinQuietOpt = False, as_json: StatusJsonOpt = False,
+) -> None:  # fmt: skip
     """Run the live twin: per sample, the paper's causal cleaning, the physics following the
     set-point, the model through one incremental predictor; store and serve the result.
     Stops when every source ended (a replay), after --duration or --max-samples, or on Ctrl-C."""

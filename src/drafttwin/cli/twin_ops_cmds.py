@@ -9,7 +9,7 @@ import signal
 import sys
 import time
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 from rich import box
@@ -102,20 +102,12 @@ ShardsJsonOpt = Annotated[bool, typer.Option("--json", help="Print each shard's 
 
 @twin_app.command("hall")
 def twin_hall(
-    model: TwinModelOpt,
-    source: HallServerOpt,
-    mapping: HallMappingOpt,
-    store: ShardStoreOpt,
-    shards: ShardsOpt = 2,
-    ray_address: RayOpt = None,
-    commit_ms: CommitMsOpt = 200.0,
-    physics: TwinPhysicsOpt = "reduced",
-    duration: StopAfterOpt = None,
-    quiet: TwinQuietOpt = False,
-    http: HallHttpOpt = None,
-    token: TokenOpt = None,
+    model: TwinModelOpt, source: HallServerOpt, mapping: HallMappingOpt, store: ShardStoreOpt,
+    shards: ShardsOpt = 2, ray_address: RayOpt = None, commit_ms: CommitMsOpt = 200.0,
+    physics: TwinPhysicsOpt = "reduced", duration: StopAfterOpt = None,
+    quiet: TwinQuietOpt = False, http: HallHttpOpt = None, token: TokenOpt = None,
     as_json: ShardsJsonOpt = False,
-) -> None:
+) -> None:  # fmt: skip
     """Run a hall as K live twins, one Ray actor each: shard I takes the mapping's machines
     I, I+K, I+2K... (each machine whole in one twin) and writes its own store in
     STORE/shard-I-of-K/; 'twin query' and 'twin audit' read them all. Stops after --duration
@@ -144,7 +136,7 @@ def twin_hall(
     view = HallView(shards)
     printed = [0.0]
 
-    def status(shard_status: list) -> None:  # noqa: ANN001  the page's, and a line per 10 s
+    def status(shard_status: list[dict[str, Any] | None]) -> None:  # the page's, a line per 10 s
         view.update(shard_status)
         if quiet or time.monotonic() - printed[0] < 10.0:
             return

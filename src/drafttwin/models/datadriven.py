@@ -73,16 +73,10 @@ class _RecurrentModel(_NeuralModel):
 
     def __init__(
         self,
-        window: int = 20,
-        hidden: int = 48,
-        layers: int = 2,
-        dropout: float = 0.1,
+        window: int = 20, hidden: int = 48, layers: int = 2, dropout: float = 0.1,
         skip: bool | None = None,
-        task: Task = Task(),
-        training: Training = Training(),
-        seed: int = 0,
-        quiet: bool = False,
-    ) -> None:
+        task: Task = Task(), training: Training = Training(), seed: int = 0, quiet: bool = False,
+    ) -> None:  # fmt: skip
         self._store_params(locals())
 
     @property

@@ -448,20 +448,11 @@ class ParallelHybrid(_ResidualHybrid):
 
     def __init__(
         self,
-        window: int = 20,
-        hidden: int = 48,
-        layers: int = 2,
-        dropout: float = 0.1,
-        skip: bool | None = None,
-        accumulate: bool | None = None,
-        structure: str = "absolute",
-        fade: bool | str = False,
-        fallback: bool = True,
-        task: Task = Task(),
-        training: Training = Training(),
-        seed: int = 0,
-        quiet: bool = False,
-    ) -> None:
+        window: int = 20, hidden: int = 48, layers: int = 2, dropout: float = 0.1,
+        skip: bool | None = None, accumulate: bool | None = None, structure: str = "absolute",
+        fade: bool | str = False, fallback: bool = True,
+        task: Task = Task(), training: Training = Training(), seed: int = 0, quiet: bool = False,
+    ) -> None:  # fmt: skip
         self._store_params(locals())
 
     @property

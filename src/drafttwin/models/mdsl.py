@@ -66,25 +66,14 @@ class MDSL(_ResidualHybrid):
 
     def __init__(
         self,
-        variant: str = "md-s-l",
-        use_disagreement: bool = False,
-        window: int = 20,
-        hidden: int = 48,
-        layers: int = 2,
-        sk_channels: int = 24,
+        variant: str = "md-s-l", use_disagreement: bool = False,
+        window: int = 20, hidden: int = 48, layers: int = 2, sk_channels: int = 24,
         dropout: float = 0.1,
-        skip: bool | None = None,
-        accumulate: bool | None = None,
-        structure: str = "absolute",
-        fade: bool | str = False,
-        fallback: bool = True,
-        folds: int = 3,
-        data_model: _RecurrentModel | None = None,
-        task: Task = Task(),
-        training: Training = Training(),
-        seed: int = 0,
-        quiet: bool = False,
-    ) -> None:
+        skip: bool | None = None, accumulate: bool | None = None, structure: str = "absolute",
+        fade: bool | str = False, fallback: bool = True,
+        folds: int = 3, data_model: _RecurrentModel | None = None,
+        task: Task = Task(), training: Training = Training(), seed: int = 0, quiet: bool = False,
+    ) -> None:  # fmt: skip
         self._store_params(locals())
 
     @property

@@ -4,28 +4,19 @@ and the prediction / residual figures (Fig. 8 analogue)."""
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from drafttwin._constants import ROLLERS
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, with_unit
-from drafttwin.report.html import (
-    BodyRow,
-    Cell,
-    CellLike,
-    Raw,
-    Row,
-    figure,
-    join,
-    para,
-    section,
-    table,
-    tag,
-)
+from drafttwin.report.html import Cell, figure, join, para, section, table, tag
 from drafttwin.report.overview import is_plant
 from drafttwin.report.tables import compared_models, metric_unit, paper_table2
+
+if TYPE_CHECKING:
+    from drafttwin.report.html import BodyRow, CellLike, Raw, Row
 
 # (key, header, decimals, lower is better); headers in UNIT_HEADERS get the metrics' unit
 HONEST = (

@@ -11,7 +11,7 @@ table of its three rules.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -27,18 +27,10 @@ from drafttwin.diagnosis.residuals import CHANNELS  # noqa: E402
 from drafttwin.diagnosis.spectrum import kinematic_lines, residual_samples, spectrum  # noqa: E402
 from drafttwin.mechanics import DriveTrain  # noqa: E402
 from drafttwin.report.figures import _png  # noqa: E402
-from drafttwin.report.html import (  # noqa: E402
-    Cell,
-    Raw,
-    Row,
-    figure,
-    join,
-    page,
-    para,
-    section,
-    table,
-    tag,
-)
+from drafttwin.report.html import Cell, figure, join, page, para, section, table, tag  # noqa: E402
+
+if TYPE_CHECKING:
+    from drafttwin.report.html import Raw, Row
 
 RED, ORANGE, GREY = "#d62728", "#ff9f1c", "#b0b7c3"
 RULE_NAMES = {"cusum": "CUSUM", "jump": "lag jump rule", "sensor": "sensor rule"}

@@ -123,8 +123,8 @@ def refit_line(results: dict[str, Any]) -> str:
         return ""
     p = fit["parameters"]
     return (
-        f"refitted physics (output error on the training record, {fit['nfev']} simulations, "
-        f"{fit['fit_s']:.0f} s): M {p['mass_kg']:.3f} kg, Fv {p['viscous_ns_per_m']:.3f} "
+        f"refitted physics (output error on the training record, "
+        f"{fit['nfev'] + 4 * fit.get('njev', 0)} simulations, {fit['fit_s']:.0f} s): M {p['mass_kg']:.3f} kg, Fv {p['viscous_ns_per_m']:.3f} "
         f"N s/m, Fc {p['coulomb_n']:.3f} N, offset {p['offset_n']:.4f} N; training-record "
         f"RMSE {fit['rmse_mm']:.3f} mm (published parameters {fit['rmse_mm_initial']:.3f} mm)"
     )

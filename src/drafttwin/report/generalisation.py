@@ -14,7 +14,7 @@ import io
 import math
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -27,23 +27,15 @@ from drafttwin._json import dumps_strict  # noqa: E402
 from drafttwin.report import figures  # noqa: E402
 from drafttwin.report.figures import COLORS  # noqa: E402
 from drafttwin.report.fmt import sig_fixed  # noqa: E402
-from drafttwin.report.html import (  # noqa: E402
-    Cell,
-    Raw,
-    Row,
-    bullets,
-    figure,
-    join,
-    para,
-    section,
-    table,
-    tag,
-)
+from drafttwin.report.html import Cell, Raw, bullets, figure, join, para, section, table, tag  # noqa: E402
 from drafttwin.studies.generalisation.records import (  # noqa: E402
     MACHINE_SEED,
     SCENARIOS,
     TEST_RECORDS,
 )
+
+if TYPE_CHECKING:
+    from drafttwin.report.html import Row
 
 MODELS = ("mechanistic", "mechanistic (calibrated)", "persistence", "gru", "parallel", "md-s-l")
 LABELS = {

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from drafttwin._constants import ROLLERS
 from drafttwin.evaluation.metrics import DEFAULT_REL_FLOOR
@@ -11,7 +11,6 @@ from drafttwin.report.fmt import DASH, is_num, seconds
 from drafttwin.report.html import (
     Cell,
     Raw,
-    Row,
     bullets,
     join,
     kv_table,
@@ -22,6 +21,9 @@ from drafttwin.report.html import (
     value_text,
 )
 from drafttwin.report.tables import metric_unit
+
+if TYPE_CHECKING:
+    from drafttwin.report.html import Row
 
 TITLE = "drafttwin study: predicting the bottom-roller speeds of an FA320A drafting section"
 

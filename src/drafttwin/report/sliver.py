@@ -19,7 +19,7 @@ the summary, the figure and the tables.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -33,11 +33,8 @@ from matplotlib.ticker import FixedLocator, FuncFormatter, LogLocator, NullForma
 from drafttwin.report.figures import _png  # noqa: E402
 from drafttwin.report.fmt import DASH, is_num  # noqa: E402
 from drafttwin.report.html import (  # noqa: E402
-    BodyRow,
     Cell,
-    Content,
     Raw,
-    Row,
     bullets,
     figure,
     join,
@@ -51,6 +48,9 @@ from drafttwin.report.html import (  # noqa: E402
 from drafttwin.sliver.attribute import Candidate, ChimneyCause  # noqa: E402
 from drafttwin.sliver.diagnose import SliverDiagnosis  # noqa: E402
 from drafttwin.sliver.evenness import Evenness  # noqa: E402
+
+if TYPE_CHECKING:
+    from drafttwin.report.html import BodyRow, Content, Row
 
 __all__ = [
     "causes_table",

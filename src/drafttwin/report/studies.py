@@ -4,7 +4,7 @@ and the agreement with the paper."""
 from __future__ import annotations
 
 from collections.abc import Mapping
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -12,22 +12,11 @@ from drafttwin._constants import ROLLERS
 from drafttwin.report import agreement, paper
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, sig, sig_fixed
-from drafttwin.report.html import (
-    BodyRow,
-    Cell,
-    CellLike,
-    Raw,
-    Row,
-    bullets,
-    figure,
-    join,
-    kv_table,
-    para,
-    section,
-    table,
-    tag,
-)
+from drafttwin.report.html import Cell, bullets, figure, join, kv_table, para, section, table, tag
 from drafttwin.report.tables import paper_table3_stats
+
+if TYPE_CHECKING:
+    from drafttwin.report.html import BodyRow, CellLike, Raw, Row
 
 CONFIG_KEYS = ("lr", "hidden", "layers")
 

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 import drafttwin as dt
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.calibration import Calibration, Estimate, calibrate, select, with_factors
 from drafttwin.calibration.fit import motor_gains
 from drafttwin.calibration.noise import ChannelNoise, mean_sd

@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 import drafttwin as dt
-from drafttwin import ROLLERS
+from drafttwin._constants import ROLLERS
 from drafttwin.calibration import Calibration, Parameter, calibrate, select, with_factors
 from drafttwin.mechanics import DriveTrain, reduce, simulate
 from drafttwin.plant import Machine, Plant, PlantConfig

@@ -173,7 +173,8 @@ def test_benchmark_cli_end_to_end_on_a_slice(tmp_path: Path) -> None:
     out = tmp_path / "emps"
     args = ["benchmark", "emps", "--data-dir", str(DATA), "--out", str(out), "--seeds", "1",
             "--epochs", "1", "--max-samples", "1000", "--quiet", "--json",
-            "--models", "mechanistic,persistence,gru,parallel,md-s-l"]  # fmt: skip
+            "--models", "mechanistic,persistence,gru,parallel,md-s-l",
+            "--physics", "both"]  # fmt: skip
     result = CliRunner().invoke(app, args)
     assert result.exit_code == 0, result.output
     rows = json.loads(result.output)
@@ -182,8 +183,16 @@ def test_benchmark_cli_end_to_end_on_a_slice(tmp_path: Path) -> None:
         for m in ("mechanistic", "persistence", "gru", "parallel", "md-s-l")
     }  # fmt: skip
     assert all(r["n_nan"] == 0 and math.isfinite(r["rmse_mm_mean"]) for r in rows)
+    physics = {(r["model"], r["physics"]) for r in rows if r["task"] == "simulation"}
+    assert physics == {("persistence", None), ("gru", None)} | {
+        (m, p) for m in ("mechanistic", "parallel", "md-s-l") for p in ("published", "refitted")
+    }  # fmt: skip
     doc = json.loads((out / "emps_results.json").read_text())
     assert doc["protocol"]["max_samples"] == 1000
+    refit = doc["physics_refit"]  # on the first 1000 training samples only
+    assert refit["rmse_mm"] < refit["rmse_mm_initial"]
+    assert refit["parameters"]["mass_kg"] != doc["physics"]["mass_kg"]  # published, kept
     page = (out / "emps_report.html").read_text()
     assert "data:image/png;base64," in page and "smoke test" in page
+    assert "physics only (refitted)" in page and "MD-S-L (refitted physics)" in page
     assert (out / "emps_predictions.csv").is_file()

@@ -107,8 +107,9 @@ class EmpsConfig:
                                       ("--physics", self.physics_variants, PHYSICS)):  # fmt: skip
             bad = [v for v in values if v not in allowed]
             if bad or not values:
+                both = " (or both)" if what == "--physics" else ""
                 raise ConfigError(f"unknown or no entries {bad}", where=what,
-                                  fix=f"use a comma-separated subset of {', '.join(allowed)}")  # fmt: skip
+                                  fix=f"use a comma-separated subset of {', '.join(allowed)}{both}")  # fmt: skip
         if self.seeds < 1 or self.workers < 1 or (self.epochs is not None and self.epochs < 1):
             raise ConfigError("seeds, workers and epochs must be >= 1", where="options")
         if self.max_samples is not None and self.max_samples < 4 * (INIT_SAMPLES + WINDOW):

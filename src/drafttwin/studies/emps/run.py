@@ -62,7 +62,8 @@ def run_one(cfg: dict[str, Any]) -> dict[str, Any]:
     history = getattr(model, "history_", None)
     out: dict[str, Any] = {
         "task": cfg["task"], "model": cfg["model"], "seed": cfg["seed"],
-        "physics": cfg.get("_physics_name"), "rmse_mm": 1e3 * result.metrics[OUTPUT].rmse, "fit_pct": fit_pct(test.qm_m, pred, first),
+        "physics": cfg.get("_physics_name"),
+        "rmse_mm": 1e3 * result.metrics[OUTPUT].rmse, "fit_pct": fit_pct(test.qm_m, pred, first),
         "n_nan": int(np.isnan(pred[first:]).sum()), "fit_s": fit_s, "predict_s": predict_s,
         "epochs": None if history is None else len(history.train_loss),
         "selection": dict(model.selection_),

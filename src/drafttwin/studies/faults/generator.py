@@ -1,7 +1,7 @@
 """Is the reduced plant a cheaper generator of the benchmark's healthy running?
 
 The full plant costs about 5.6 CPU-s per minute of healthy running (99 % in the full drive
-train's RK4 kernel), so 24 h of it cost about 8 100 CPU-s. The plant with the machine's train
+train's RK4 kernel), so 24 h of it cost about 8 300 CPU-s. The plant with the machine's train
 reduced (:class:`~drafttwin.plant.Plant` ``reduced_hz``: every coupling but the belt rigid) is
 about 80 times cheaper. It may stand in for the full plant's healthy records only if the
 detector sees the same statistics in both. :func:`compare` records the same machines with the
@@ -18,10 +18,10 @@ same recording seeds on both plants and sets side by side what the detector uses
   over its limit, the largest sensor statistic over its limit, and the alarms.
 
 docs/faults.md gives the table and the verdict (measured: six machines x 120 s, seed 1): the
-roller and motor levels agree within 1 %, but the reduced plant's parity and belt streams are
-30-70 % narrower, its third-roller lag 5.5 times narrower, and its encoders repeat one count up
-to 87 samples (the full plant's at most 16), which the stuck rule flags: 183 sensor alarms in
-0.2 h against none. It is not used for the benchmark's healthy running.
+roller and motor levels agree within 1 %, but the reduced plant's belt stream is 1.4 and its
+parity streams 1.8-3 times narrower, its third-roller lag 5.5 times narrower, and the encoders
+of its second, third and back rollers repeat one count up to 87 samples (the full plant's at
+most 10), which the stuck rule flags: 183 sensor alarms in 0.2 h against one belt alarm. It is not used for the benchmark's healthy running.
 """
 
 from __future__ import annotations

@@ -28,7 +28,7 @@ def store_folders(folder: str | Path) -> list[Path]:
     return shards
 
 
-def _open(folder: str | Path):  # noqa: ANN202  a DuckDB connection
+def _open(folder: str | Path) -> tuple[Any, Path]:  # a DuckDB connection (Any, as in db)
     path = store_path(folder)
     if not path.is_file():
         raise DataError("no twin store here", source=path.parent,
@@ -75,8 +75,11 @@ def read_history(folder: str | Path, machine: str | None = None, t_from_s: float
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
 
 
-def _window(machine: str | None, t_from_s: float | None, t_to_s: float | None):  # noqa: ANN202
-    where, args = "", []
+def _window(
+    machine: str | None, t_from_s: float | None, t_to_s: float | None
+) -> tuple[str, list[int]]:
+    where = ""
+    args: list[int] = []
     if t_from_s is not None:
         where += " AND ts_us >= ?"
         args.append(int(round(t_from_s * 1e6)))
@@ -86,7 +89,7 @@ def _window(machine: str | None, t_from_s: float | None, t_to_s: float | None): 
     return where, args
 
 
-def _frame(machine: str, channels: list[str], rows: dict) -> pd.DataFrame:
+def _frame(machine: str, channels: list[str], rows: dict[str, Any]) -> pd.DataFrame:
     n = len(rows["ts_us"])
     cols: dict[str, object] = {
         "machine": np.full(n, machine, dtype=object),

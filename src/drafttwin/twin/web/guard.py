@@ -28,7 +28,8 @@ def given_token(headers: Any, query: Any, cookies: Any) -> str | None:
     auth = headers.get("authorization", "")
     if auth.lower().startswith("bearer "):
         return str(auth[7:].strip())
-    return query.get("token") or cookies.get(COOKIE)
+    found: str | None = query.get("token") or cookies.get(COOKIE)
+    return found
 
 
 def guard(app: FastAPI, token: str | None) -> None:

@@ -47,7 +47,8 @@ class HallView:
                         "latency_ms": st.get("latency_ms"),
                         "machines": {name: {k: m.get(k) for k in MACHINE_KEYS}
                                      for name, m in st.get("machines", {}).items()}})  # fmt: skip
-        return to_strict({"updated": updated, "shards": out})
+        status: dict[str, Any] = to_strict({"updated": updated, "shards": out})
+        return status
 
 
 MACHINE_KEYS = ("state", "received", "processed", "dropped", "late", "fault_alarms",

@@ -24,10 +24,11 @@ import os
 import re
 import sys
 import threading
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from fastapi import HTTPException
@@ -43,6 +44,8 @@ from drafttwin.twin.store.history import (
     stored_channels,
     stored_range,
 )
+
+T = TypeVar("T")
 
 MAX_PAGE_ROWS = 10_000
 """Rows per page at most (``limit``)."""
@@ -115,7 +118,7 @@ def _json(meta: dict[str, Any], rows: list[list[Any]], key: str = "rows") -> Res
 
 def _row_lists(a: np.ndarray) -> list[list[Any]]:
     """Rows in the page's layout: time in s, seq an integer, the values."""
-    out = a.tolist()
+    out: list[list[Any]] = a.tolist()
     for r in out:
         r[0] = r[0] / 1e6
         r[1] = None if r[1] != r[1] else int(r[1])
@@ -184,7 +187,7 @@ class HistoryApi:
             self._cons.append(con)
         return con
 
-    async def run(self, work: Any, *args: Any) -> Any:
+    async def run(self, work: Callable[..., T], *args: Any) -> T:
         """``work(con, *args)`` in a history thread: bounded in number and in time."""
         if self.in_flight >= MAX_IN_FLIGHT:
             self.refused += 1
@@ -193,7 +196,7 @@ class HistoryApi:
         self.in_flight += 1
         q = _Query()
 
-        def job() -> Any:
+        def job() -> T:
             q.con = self._con() if self.store is not None else None
             return work(q.con, *args)
 
