@@ -1,44 +1,19 @@
-"""Machine description and JSON writing shared by the benchmarks."""
+"""Machine description and JSON writing shared by the benchmarks: the studies' own writer
+(:mod:`drafttwin.studies.figures`), pointed at this folder's ``results/``."""
 
 from __future__ import annotations
 
-import datetime as _dt
-import json
-import os
-import platform
 from pathlib import Path
 from typing import Any
 
+from drafttwin.studies.figures import machine
+from drafttwin.studies.figures import write_results as _write_results
+
 RESULTS = Path(__file__).resolve().parent / "results"
 
-
-def machine() -> dict[str, Any]:
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as fh:
-            for line in fh:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    return {
-        "cpu": cpu,
-        "logical_cores": os.cpu_count(),
-        "python": platform.python_version(),
-        "platform": platform.platform(),
-    }
+__all__ = ["RESULTS", "machine", "write_results"]
 
 
 def write_results(name: str, figures: list[dict[str, Any]]) -> Path:
-    """Write ``{"figures": [...], "machine": ..., "date": ...}`` to results/<name>.json."""
-    RESULTS.mkdir(exist_ok=True)
-    path = RESULTS / f"{name}.json"
-    doc = {
-        "benchmark": name,
-        "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-        "machine": machine(),
-        "figures": figures,
-    }
-    path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
-    return path
+    """Write ``{"benchmark", "date", "machine", "figures": [...]}`` to results/<name>.json."""
+    return _write_results(name, figures, RESULTS)

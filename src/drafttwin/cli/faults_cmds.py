@@ -216,8 +216,8 @@ QuickOpt = Annotated[bool, typer.Option("--quick", help="A small subset (6 kinds
 PlanSeedOpt = Annotated[int, number("--seed", "Seed of the plan (machines, recordings, onsets).")]
 HealthyHoursOpt = Annotated[float | None, number(
     "--healthy-hours", "Healthy test running in hours, counted after each record's 15-s "
-    "reference window (records of the profile's length, 10.5 min full, each its own machine); "
-    "default: the profile's (12 x 10.5 min = 2.05 h full, 2 x 1 min quick). A <= 1 per 24 h "
+    "reference window (records of the plan's length, 10.5 min full, each its own machine); "
+    "default: the plan's (12 x 10.5 min = 2.05 h full, 2 x 1 min quick). A <= 1 per 24 h "
     "claim needs >= 72 h alarm-free.")]  # fmt: skip
 SliverVariantOpt = Annotated[bool, typer.Option("--sliver", help=(
     "The delivery sensor's variant instead: gear run-out, cracks and roller eccentricity (which "
@@ -254,13 +254,13 @@ def benchmark_faults(
         return _sliver_variant(out, quick, seed, workers, as_json, quiet)
     from drafttwin.report.faults_bench import HEAD, render_benchmark, score_rows
     from drafttwin.studies.faults import run_benchmark
-    from drafttwin.studies.faults.plan import PROFILES, with_healthy_hours
+    from drafttwin.studies.faults.plan import PLANS, with_healthy_hours
 
-    profile = PROFILES["quick" if quick else "full"]
+    plan = PLANS["quick" if quick else "full"]
     if healthy_hours is not None:
-        profile = with_healthy_hours(profile, healthy_hours)
+        plan = with_healthy_hours(plan, healthy_hours)
     with progress_bar(
-        f"fault benchmark ({profile.name}): plant records", 1, quiet=quiet or as_json
+        f"fault benchmark ({plan.name}): plant records", 1, quiet=quiet or as_json
     ) as bar:
         task = bar.task_ids[0]
 
@@ -268,9 +268,9 @@ def benchmark_faults(
             bar.update(task, total=total, completed=done)
 
         def stage(what: str) -> None:
-            bar.update(task, description=f"fault benchmark ({profile.name}): {what}")
+            bar.update(task, description=f"fault benchmark ({plan.name}): {what}")
 
-        results = run_benchmark(profile, seed, workers, on_record=advance, on_stage=stage)
+        results = run_benchmark(plan, seed, workers, on_record=advance, on_stage=stage)
     with atomic_path(out / "faults_results.json") as tmp:
         tmp.write_text(dumps_strict(results, sort_keys=True) + "\n", encoding="utf-8")
     with atomic_path(out / "faults_report.html") as tmp:
@@ -278,7 +278,7 @@ def benchmark_faults(
     if as_json:
         typer.echo(dumps_strict(results["scores"]))
         return
-    table = Table(title=f"fault benchmark ({profile.name}), {results['sets']['faults']} fault records, "
+    table = Table(title=f"fault benchmark ({plan.name}), {results['sets']['faults']} fault records, "
                   f"{results['machine_seconds']['healthy'] / 3600:.2f} h healthy test running")  # fmt: skip
     rows = score_rows(results["scores"])
     table.add_column("score")

@@ -64,7 +64,7 @@ def _learned_note(learned: Mapping[str, Any]) -> str:
 
 
 def _subtitle(results: Mapping[str, Any]) -> str:
-    """'profile full, seed 0: 4 tuning, 78 fault and 12 healthy records (0.4 / 0.9 / 2.1 h of
+    """'plan full, seed 0: 4 tuning, 78 fault and 12 healthy records (0.4 / 0.9 / 2.1 h of
     machine time), 11 min 11 s wall' in words, not as a dict."""
     sets, secs = results["sets"], results["machine_seconds"]
     names = [n for n in ("tuning", "faults", "healthy") if n in sets]
@@ -72,7 +72,7 @@ def _subtitle(results: Mapping[str, Any]) -> str:
     hours = " / ".join(f"{secs.get(n, 0.0) / 3600:.2g}" for n in names)
     wall = float(results["wall_s"])
     return (
-        f"profile {results['profile']}, seed {results['seed']}: {counts} records ({hours} h "
+        f"plan {results.get('plan', results.get('profile'))}, seed {results['seed']}: {counts} records ({hours} h "
         f"of machine time), {int(wall // 60)} min {wall % 60:.0f} s wall"
     )
 

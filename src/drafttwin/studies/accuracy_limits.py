@@ -30,7 +30,7 @@ from drafttwin.evaluation import accuracy_limits, floor_rows, protocol
 from drafttwin.evaluation.limits import lag1_autocorrelation
 from drafttwin.plant.config import PlantConfig
 from drafttwin.plant.sensors import quantisation_step_rpm
-from drafttwin.studies._figures import write_results
+from drafttwin.studies.figures import write_results
 
 LAGS = 32
 TRAIN_FRACTION = 0.7

@@ -47,7 +47,7 @@ from drafttwin.calibration.fit import motor_gains
 from drafttwin.calibration.noise import ChannelNoise, mean_sd
 from drafttwin.mechanics import DriveTrain, operating_point, simulate
 from drafttwin.plant import Machine, Plant, PlantConfig
-from drafttwin.studies._figures import write_results
+from drafttwin.studies.figures import write_results
 
 
 def thermal_factor(cfg: PlantConfig, t_s: float) -> float:

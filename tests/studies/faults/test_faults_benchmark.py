@@ -1,4 +1,4 @@
-"""The fault benchmark on a tiny profile: plan, scores, page, CLI refusals."""
+"""The fault benchmark on a tiny plan: plan, scores, page, CLI refusals."""
 
 import json
 
@@ -9,17 +9,17 @@ from drafttwin.cli import app
 from drafttwin.plant.faults import KINDS, SURFACE_ONLY
 from drafttwin.studies.faults.plan import (
     ELEMENTS,
-    PROFILES,
-    Profile,
+    PLANS,
+    BenchmarkPlan,
     decided_s,
-    plan,
+    task_configs,
     with_healthy_hours,
 )
 from drafttwin.studies.faults.score import by_kind, poisson_upper
 
 
 def test_full_plan_covers_every_kind_three_severities_both_profiles():
-    tasks = plan(PROFILES["full"], seed=0)
+    tasks = task_configs(PLANS["full"], seed=0)
     faults = [t for t in tasks if t["set"] == "faults"]
     encoders_see = set(KINDS) - set(SURFACE_ONLY)  # a flute moves no speed: the sliver's
     assert set(ELEMENTS) == encoders_see
@@ -28,15 +28,15 @@ def test_full_plan_covers_every_kind_three_severities_both_profiles():
     assert seen == {(k, lv, p) for k in encoders_see for lv in range(3) for p in ("step", "ramp")}
     machines = [t["machine_seed"] for t in tasks]
     assert len(set(machines)) == len(machines)  # tuning, faults and healthy share no machine
-    assert plan(PROFILES["full"], seed=0) == tasks  # seeded
+    assert task_configs(PLANS["full"], seed=0) == tasks  # seeded
 
 
 def test_full_plan_has_two_hours_of_watched_healthy_running_on_several_machines():
-    healthy = [t for t in plan(PROFILES["full"], seed=0) if t["set"] == "healthy"]
+    healthy = [t for t in task_configs(PLANS["full"], seed=0) if t["set"] == "healthy"]
     assert len(healthy) >= 5
     assert sum(decided_s(t["duration_s"]) for t in healthy) >= 2 * 3600  # issue 13
-    assert decided_s(PROFILES["full"].healthy[1]) == PROFILES["full"].healthy[1] - 15.0
-    more = with_healthy_hours(PROFILES["full"], 72.0)
+    assert decided_s(PLANS["full"].healthy[1]) == PLANS["full"].healthy[1] - 15.0
+    more = with_healthy_hours(PLANS["full"], 72.0)
     assert more.healthy[0] * decided_s(more.healthy[1]) >= 72 * 3600
     assert (more.healthy[0] - 1) * decided_s(more.healthy[1]) < 72 * 3600  # no more than needed
 
@@ -50,7 +50,7 @@ def test_tiny_benchmark_scores_and_page():
     from drafttwin.report.faults_bench import render_benchmark
     from drafttwin.studies.faults import run_benchmark
 
-    tiny = Profile("tiny", ("belt_wear", "gain"), (2,), ("step",), 24.0, (17.0, 17.5), 5.0,
+    tiny = BenchmarkPlan("tiny", ("belt_wear", "gain"), (2,), ("step",), 24.0, (17.0, 17.5), 5.0,
                    (1, 30.0), (1, 20.0))  # fmt: skip
     res = run_benchmark(tiny, seed=3, workers=1)
     phys, raw = res["scores"]["physics"], res["scores"]["raw-threshold"]

@@ -243,3 +243,24 @@ def test_study_report_section_from_the_quick_run(quick_run) -> None:
     assert text.startswith('<section id="generalisation">')
     assert all(s in text for s in R.SCENARIOS)
     assert physics_pays_section({}) == ""
+
+
+def test_the_results_json_gives_the_markdown_tables_and_the_figures_file(quick_run) -> None:
+    """``python -m drafttwin.report.generalisation_results`` (was benchmarks/): the markdown
+    it writes where told, the figures below the folder it runs from, nothing else touched."""
+    import subprocess
+    import sys
+
+    _, out = quick_run
+    md = out / "results.md"
+    res = subprocess.run([sys.executable, "-m", "drafttwin.report.generalisation_results",
+                          str(out / "generalisation_results.json"), "--markdown", str(md)],
+                         cwd=out, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    text = md.read_text()
+    for heading in ("## Extrapolation table: free-run simulation", "## Learning curves",
+                    "## One-step floor (oracle)", "## Hybrid RMSE / GRU RMSE"):  # fmt: skip
+        assert heading in text
+    figures = json.loads((out / "benchmarks" / "results" / "generalisation.json").read_text())
+    assert figures["benchmark"] == "generalisation" and figures["figures"]
+    assert all(f["unit"] in ("rpm", "s") for f in figures["figures"])

@@ -3,7 +3,7 @@
 Three sets, each of its own machines and recording seeds (none shared):
 
 * ``tuning``: healthy records that set the thresholds (and nothing else); as long as the
-  healthy test records in the full profile, so the slow wander of a 10-min run (its long-run
+  healthy test records in the full plan, so the slow wander of a 10-min run (its long-run
   variance, :class:`~drafttwin.diagnosis.detect.FaultDetector`) is in them;
 * ``faults``: one record per fault kind x severity level x profile (abrupt step, or an
   incipient ramp), the element cycling through :data:`ELEMENTS`;
@@ -41,13 +41,14 @@ QUICK_KINDS = ("bearing_friction", "load_loss", "belt_wear", "rotor_resistance",
 RATE_HZ = 100.0
 BLOCK_S = 1.0
 HEALTHY_RECORD_S = 630.0
-"""Healthy test records of the full profile: 10.5 min each, so that 12 machines give the
+"""Healthy test records of the full plan: 10.5 min each, so that 12 machines give the
 issue's >= 2 h of running after each record's reference window (15 s: no decisions there)."""
 
 
 @dataclass(frozen=True)
-class Profile:
-    """Sizes of one benchmark run."""
+class BenchmarkPlan:
+    """What one benchmark run holds: kinds, severities, fault profiles (step, ramp) and the
+    sizes of the three record sets (not to be confused with a model profile)."""
 
     name: str
     kinds: tuple[str, ...]
@@ -60,10 +61,10 @@ class Profile:
     healthy: tuple[int, float]
 
 
-PROFILES = {
-    "full": Profile("full", tuple(ELEMENTS), (0, 1, 2), ("step", "ramp"), 40.0, (18.0, 22.0),
+PLANS = {
+    "full": BenchmarkPlan("full", tuple(ELEMENTS), (0, 1, 2), ("step", "ramp"), 40.0, (18.0, 22.0),
                     10.0, (4, HEALTHY_RECORD_S), (12, HEALTHY_RECORD_S)),
-    "quick": Profile("quick", QUICK_KINDS, (1,), ("step",), 30.0, (18.0, 20.0), 5.0,
+    "quick": BenchmarkPlan("quick", QUICK_KINDS, (1,), ("step",), 30.0, (18.0, 20.0), 5.0,
                      (2, 40.0), (2, 60.0)),
 }  # fmt: skip
 
@@ -79,14 +80,14 @@ the belt rigid. Not a stand-in for the full plant's healthy running: it misses t
 statistics (:mod:`drafttwin.studies.faults.generator`, docs/faults.md)."""
 
 
-def with_healthy_hours(profile: Profile, hours: float) -> Profile:
-    """``profile`` with at least ``hours`` of watched healthy running (records of the
-    profile's healthy length, each its own machine)."""
-    per = decided_s(profile.healthy[1])
-    return replace(profile, healthy=(max(1, math.ceil(hours * 3600.0 / per)), profile.healthy[1]))
+def with_healthy_hours(plan: BenchmarkPlan, hours: float) -> BenchmarkPlan:
+    """``plan`` with at least ``hours`` of watched healthy running (records of the plan's
+    healthy length, each its own machine)."""
+    per = decided_s(plan.healthy[1])
+    return replace(plan, healthy=(max(1, math.ceil(hours * 3600.0 / per)), plan.healthy[1]))
 
 
-def plan(profile: Profile, seed: int) -> list[dict[str, Any]]:
+def task_configs(plan: BenchmarkPlan, seed: int) -> list[dict[str, Any]]:
     """Task configurations (JSON-able): tuning, then fault, then healthy records."""
     rng = np.random.default_rng(seed)
 
@@ -95,30 +96,28 @@ def plan(profile: Profile, seed: int) -> list[dict[str, Any]]:
         return a, b
 
     tasks: list[dict[str, Any]] = []
-    for i in range(profile.tuning[0]):
+    for i in range(plan.tuning[0]):
         m, s = seeds()
         tasks.append({"set": "tuning", "name": f"tuning_{i}", "machine_seed": m, "seed": s,
-                      "duration_s": profile.tuning[1], "faults": []})  # fmt: skip
-    for kind in profile.kinds:
-        for level in profile.levels:
-            for prof in profile.profiles:
+                      "duration_s": plan.tuning[1], "faults": []})  # fmt: skip
+    for kind in plan.kinds:
+        for level in plan.levels:
+            for prof in plan.profiles:
                 m, s = seeds()
-                onset = float(np.round(rng.uniform(*profile.onset_s), 2))
+                onset = float(np.round(rng.uniform(*plan.onset_s), 2))
                 element = ELEMENTS[kind][level % len(ELEMENTS[kind])]
                 sign = 1.0 if rng.random() < 0.5 else -1.0
-                f = make_fault(
-                    element, kind, level, prof == "step", onset, profile.duration_s, sign
-                )
+                f = make_fault(element, kind, level, prof == "step", onset, plan.duration_s, sign)
                 if prof == "ramp" and f.ramp_s > 0:
-                    f = f.model_copy(update={"ramp_s": profile.ramp_s})
+                    f = f.model_copy(update={"ramp_s": plan.ramp_s})
                 tasks.append({"set": "faults", "name": f"{element}:{kind}:{level}:{prof}",
-                              "machine_seed": m, "seed": s, "duration_s": profile.duration_s,
+                              "machine_seed": m, "seed": s, "duration_s": plan.duration_s,
                               "level": level, "profile": prof,
                               "faults": [f.model_dump()]})  # fmt: skip
-    for i in range(profile.healthy[0]):
+    for i in range(plan.healthy[0]):
         m, s = seeds()
         tasks.append({"set": "healthy", "name": f"healthy_{i}", "machine_seed": m, "seed": s,
-                      "duration_s": profile.healthy[1], "faults": []})  # fmt: skip
+                      "duration_s": plan.healthy[1], "faults": []})  # fmt: skip
     return tasks
 
 

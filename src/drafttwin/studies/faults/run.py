@@ -10,15 +10,15 @@ from typing import Any
 from drafttwin._constants import __version__
 from drafttwin.errors import unknown_choice
 from drafttwin.execution.executor import run_tasks
-from drafttwin.studies.faults.plan import PROFILES, Profile, plan, run_record
-from drafttwin.studies.faults.score import evaluate
+from drafttwin.studies.faults.plan import PLANS, BenchmarkPlan, run_record, task_configs
+from drafttwin.studies.faults.score import score_records
 
 
-def get_profile(name: str) -> Profile:
+def get_plan(name: str) -> BenchmarkPlan:
     try:
-        return PROFILES[name]
+        return PLANS[name]
     except KeyError:
-        raise unknown_choice(f"unknown profile '{name}'", PROFILES, where="--profile") from None
+        raise unknown_choice(f"unknown benchmark plan '{name}'", PLANS, where="--quick") from None
 
 
 def _cpu() -> float:
@@ -28,12 +28,12 @@ def _cpu() -> float:
     return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def run_benchmark(profile: Profile | str = "full", seed: int = 0, workers: int = 1,
+def run_benchmark(plan: BenchmarkPlan | str = "full", seed: int = 0, workers: int = 1,
                   on_record: Callable[[int, int], None] | None = None,
                   on_stage: Callable[[str], None] | None = None) -> dict[str, Any]:  # fmt: skip
     """Results of one benchmark run (JSON-able): plan, scores per method, every record."""
-    prof = get_profile(profile) if isinstance(profile, str) else profile
-    tasks = plan(prof, seed)
+    plan = get_plan(plan) if isinstance(plan, str) else plan
+    tasks = task_configs(plan, seed)
     start = time.perf_counter()
     done = [0]
 
@@ -47,10 +47,10 @@ def run_benchmark(profile: Profile | str = "full", seed: int = 0, workers: int =
     plant_s, cpu1 = time.perf_counter() - start, _cpu()
     if on_stage is not None:
         on_stage("fitting the networks on the tuning set, scoring")
-    scored = evaluate(tasks, results, seed=seed)
+    scored = score_records(tasks, results, seed=seed)
     cpu2 = _cpu()
     return {
-        "benchmark": "faults", "drafttwin_version": __version__, "profile": prof.name,
+        "benchmark": "faults", "drafttwin_version": __version__, "plan": plan.name,
         "seed": seed, "workers": workers, "wall_s": time.perf_counter() - start,
         "plant_wall_s": plant_s,
         # CPU time (this process and its finished workers): on a shared machine the wall time

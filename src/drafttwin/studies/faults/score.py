@@ -93,7 +93,7 @@ def poisson_upper(count: int, hours: float) -> float:
     return float(chi2.ppf(0.95, 2 * count + 2) / 2 / hours * 24)
 
 
-def evaluate(tasks: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]],
+def score_records(tasks: Sequence[dict[str, Any]], results: Sequence[dict[str, Any]],
              far_per_day: float = 1.0, seed: int = 0) -> dict[str, Any]:  # fmt: skip
     """Fit on the tuning set, run every method on the rest, score them."""
     from drafttwin.mechanics import DriveTrain

@@ -1,6 +1,7 @@
-"""The figures file of a study run as ``python -m drafttwin.studies.<name>``: the same JSON
-document the timing scripts of ``benchmarks/`` write (``benchmarks/_machine.py``), so every
-measured figure of the project reads alike, with the machine it was measured on."""
+"""The figures file every measurement of the project writes: the studies run as
+``python -m drafttwin.studies.<name>`` and the timing scripts of ``benchmarks/`` (through
+``benchmarks/_machine.py``), so every measured figure reads alike, with the machine it was
+measured on. Written atomically (temp file, then rename)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,8 @@ import os
 import platform
 from pathlib import Path
 from typing import Any
+
+from drafttwin._io import write_text_atomic
 
 RESULTS = Path("benchmarks") / "results"
 """Where the figures go: the repository's results folder when run from its root."""
@@ -44,5 +47,5 @@ def write_results(name: str, figures: list[dict[str, Any]], folder: Path = RESUL
         "machine": machine(),
         "figures": figures,
     }
-    path.write_text(json.dumps(doc, indent=2) + "\n", encoding="utf-8")
+    write_text_atomic(path, json.dumps(doc, indent=2) + "\n")
     return path

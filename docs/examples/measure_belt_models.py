@@ -1,6 +1,6 @@
 """A machine that is not the FA320A, end to end: the tutorial's belt drive (docs/own-machine.md).
 
-    python benchmarks/bench_own_machine.py [--seeds 3] [--epochs N]
+    python docs/examples/measure_belt_models.py [--seeds 3] [--epochs N]   # from the repository root
 
 The belt-drive records of ``docs/examples/make_belt_records.py`` (seed 0: two training
 records of 40 s, a test record of 30 s, 50 Hz, output ``y`` in rad/s, input ``u`` in V); the
@@ -9,15 +9,14 @@ directly and once read back as a simulator output file. Every model is fitted on
 records with the quick profile (its full budget unless ``--epochs``) and scored by the
 evaluation protocol on the separate test record in free-run simulation from 20 measured
 samples. Prints a table and writes benchmarks/results/own_machine.json (RMSE in rad/s, wall
-times in s).
+times in s) below the folder it is run from. A study of the tutorial's data, so it lives beside
+the tutorial, not among the timing scripts of ``benchmarks/``.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib.util
-import os
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -26,13 +25,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-sys.path.insert(0, os.path.dirname(__file__))
+import drafttwin as dt
+from drafttwin.studies.figures import write_results
 
-import drafttwin as dt  # noqa: E402
-from _machine import write_results  # noqa: E402
-
-ROOT = Path(__file__).resolve().parents[1]
-EXAMPLES = ROOT / "docs" / "examples"
+EXAMPLES = Path(__file__).resolve().parent
 CHANNELS = {"outputs": ["y"], "inputs": ["u"], "units": {"y": "rad/s", "u": "V"}}
 
 

@@ -1,36 +1,26 @@
-"""Figures of the generalisation benchmark (issue 16) from its results JSON.
+"""Figures of the generalisation benchmark from its results JSON, as markdown.
 
     drafttwin benchmark generalisation --out gen_out --workers 2     # the full run
-    python benchmarks/bench_generalisation.py gen_out/generalisation_results.json
+    python -m drafttwin.report.generalisation_results gen_out/generalisation_results.json
 
 Prints the extrapolation table, the learning curves, the hybrid/GRU ratios, the structure
 choice, the floors and the run's wall times as markdown; writes them to
-docs/generalisation-results.md and the headline figures to
-benchmarks/results/generalisation.json.
+docs/generalisation-results.md (``--markdown``) and the headline figures to
+benchmarks/results/generalisation.json, both below the folder it is run from.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import os
-import sys
 from pathlib import Path
 from typing import Any
 
-sys.path.insert(0, os.path.dirname(__file__))
+from drafttwin._io import write_text_atomic
+from drafttwin.report import generalisation as tables
+from drafttwin.studies.figures import write_results
 
-from _machine import write_results  # noqa: E402
-from drafttwin.report.generalisation import (  # noqa: E402
-    check_lines,
-    extrapolation_rows,
-    floor_rows,
-    learning_rows,
-    ratio_rows,
-    structure_rows,
-)
-
-DOCS = Path(__file__).resolve().parents[1] / "docs" / "generalisation-results.md"
+DOCS = Path("docs") / "generalisation-results.md"
 
 
 def markdown(head: list[str], rows: list[list[str]]) -> str:
@@ -68,11 +58,12 @@ def run_label(cfg: dict[str, Any]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("results", type=Path, help="generalisation_results.json")
+    parser.add_argument("--markdown", type=Path, default=DOCS, help="markdown file to write")
     args = parser.parse_args()
     doc = json.loads(args.results.read_text(encoding="utf-8"))
     cfg = doc["config"]
     parts = [
-        "<!-- written by benchmarks/bench_generalisation.py from the benchmark's JSON -->",
+        "<!-- written by python -m drafttwin.report.generalisation_results from the benchmark's JSON -->",
         f"# Generalisation benchmark: measured figures ({run_label(cfg)})",
         f"{cfg['seeds']} seed(s), training lengths {cfg['train_lengths_s']} s, test records "
         f"{cfg['test_s']:g} s, network {cfg['layers']} x {cfg['hidden']}, window {cfg['window']}, "
@@ -80,18 +71,18 @@ def main() -> None:
         f"{cfg['workers']} worker(s); wall time {doc['timings']['total_s']:.0f} s. "
         "RMSE in rpm, mean ± std over seeds.",
         "## Hybrid structure chosen on the validation records (steady at the training set-point, at +15 % and -15 %, speed change from +15 %)",
-        markdown(*structure_rows(doc)),
-        "## Checks", "\n".join(f"* {line}" for line in check_lines(doc)),
-        "## Extrapolation table: free-run simulation", markdown(*extrapolation_rows(doc, "simulation")),
-        "## Extrapolation table: one-step prediction", markdown(*extrapolation_rows(doc, "prediction")),
-        "## Hybrid RMSE / GRU RMSE (same seed, full training length)", markdown(*ratio_rows(doc)),
-        "## Learning curves (little-data test record)", markdown(*learning_rows(doc)),
-        "## One-step floor (oracle)", markdown(*floor_rows(doc)),
+        markdown(*tables.structure_rows(doc)),
+        "## Checks", "\n".join(f"* {line}" for line in tables.check_lines(doc)),
+        "## Extrapolation table: free-run simulation", markdown(*tables.extrapolation_rows(doc, "simulation")),
+        "## Extrapolation table: one-step prediction", markdown(*tables.extrapolation_rows(doc, "prediction")),
+        "## Hybrid RMSE / GRU RMSE (same seed, full training length)", markdown(*tables.ratio_rows(doc)),
+        "## Learning curves (little-data test record)", markdown(*tables.learning_rows(doc)),
+        "## One-step floor (oracle)", markdown(*tables.floor_rows(doc)),
     ]  # fmt: skip
     text = "\n\n".join(parts) + "\n"
     print(text)
-    DOCS.write_text(text, encoding="utf-8")
-    print(f"wrote {DOCS}")
+    write_text_atomic(args.markdown, text)
+    print(f"wrote {args.markdown}")
     print(f"wrote {write_results('generalisation', headline(doc))}")
 
 
