@@ -46,8 +46,8 @@ from drafttwin.calibration import Calibration, Parameter, calibrate, select, wit
 from drafttwin.mechanics import DriveTrain, reduce, simulate
 from drafttwin.plant import Machine, Plant, PlantConfig
 from drafttwin.plant.config import DraftingForce, Eccentricity, Supply
-from drafttwin.studies.figures import write_results
 from drafttwin.studies.calibration_accuracy import errors, thermal_factor, truth
+from drafttwin.studies.figures import write_results
 
 
 def variants() -> dict[str, PlantConfig]:
