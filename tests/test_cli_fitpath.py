@@ -118,3 +118,19 @@ def test_python_api_gives_the_cli_numbers(folder):
     result = dt.evaluate(model, part, mechanistic=physics)
     assert model.selection_["correction"]["chosen_by"] == "user"
     assert result.metrics["y"].rmse == pytest.approx(cli, rel=1e-12)
+
+
+def test_evaluate_without_data_scores_the_data_the_model_was_fitted_on(folder):
+    """A model fitted on the user's file is scored on that file's test part when --data is
+    left out (said in a note), not on the embedded FA320A data; --data still overrides."""
+    model = folder / "own.dtm"
+    _run(["fit", "--model", "mechanistic", "--data", folder / "train.csv", *DATA, *SIM,
+          "--mechanistic", folder / "sim_train.csv", "--out", model, "--quiet"])  # fmt: skip
+    common = ["--model", model, "--time-column", "t", "--mechanistic", folder / "sim_train.csv"]
+    given = json.loads(_run(["evaluate", *common, "--data", folder / "train.csv", "--json"]))
+    result = runner.invoke(app, [str(a) for a in ["evaluate", *common, "--json"]])
+    assert result.exit_code == 0, result.output
+    assert f"the data own.dtm was fitted on, {folder / 'train.csv'}" in result.stderr.replace(
+        "\n", ""
+    )
+    assert json.loads(result.stdout)["channels"] == given["channels"]

@@ -16,7 +16,6 @@ from drafttwin.cli._data import ChannelOptions
 from drafttwin.cli._groups import with_group
 from drafttwin.cli._modelopts import SetOpt, cli_terms, new_model, parse_settings, setting_names
 from drafttwin.cli._options import (
-    DataOpt,
     EpochsOpt,
     InitOpt,
     MechanisticOpt,
@@ -24,6 +23,7 @@ from drafttwin.cli._options import (
     TestDataOpt,
     file_in,
     file_out,
+    files_in,
     number,
 )
 from drafttwin.cli.app import app, console, err_console, print_json
@@ -159,11 +159,18 @@ _CANDIDATE = {"none": "physics alone", "level": "residual level",
 """How the validation candidates of a hybrid read in the report."""
 
 
+ModelDataOpt = Annotated[str | None, files_in(
+    "--data", "'default' (the embedded FA320A plant data) or CSV/Parquet file(s), comma-separated "
+    "(separate experiments: no model window crosses from one to the next). fit: default "
+    "'default'; predict / evaluate: default the data the model was fitted on (its file "
+    "records it).")]  # fmt: skip
+
+
 @dataclass(frozen=True)
 class SourceOptions:
     """Where the data and the physics come from, and the task (fit, predict, evaluate)."""
 
-    data: DataOpt = "default"
+    data: ModelDataOpt = None
     test_data: TestDataOpt = None
     mechanistic: MechanisticOpt = None
     task: TaskOpt = None
@@ -176,11 +183,17 @@ class SourceOptions:
                               fix="with --test-data every row of --data trains: drop "
                               "--train-fraction")  # fmt: skip
 
-    def spec(self) -> str:
-        """predict / evaluate: --test-data replaces --data."""
+    @property
+    def fit_data(self) -> str:
+        """fit: --data, else the embedded FA320A data."""
+        return self.data or "default"
+
+    def spec(self, fitted_on: str | None = None) -> str:
+        """predict / evaluate: --test-data replaces --data; with neither, the data the model
+        was fitted on (``fitted_on``, from its file), else the embedded data."""
         if self.test_data is None:
-            return self.data
-        if self.data != "default":
+            return self.data or fitted_on or "default"
+        if self.data is not None:
             raise ConfigError("--test-data replaces --data here; both were given",
                               where="--data / --test-data", fix="give one of them")  # fmt: skip
         return self.test_data
@@ -211,13 +224,13 @@ def fit(
             err_console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
     physics = _source(source.mechanistic, estimator, parsed.outputs)
     needs = () if physics is None else physics.required_inputs()
-    series = parsed.read(source.data, needs)
+    series = parsed.read(source.fit_data, needs)
     test = None if source.test_data is None else parsed.read(source.test_data, needs)
     fraction = None if test is not None else (train_fraction or 0.7)
     with cli_terms(setting_names(model)):
         part = protocol.fit_split(estimator, series, train_fraction=fraction, test=test,
                                       mechanistic=physics)  # fmt: skip
-    estimator.provenance_["data"] = source.data
+    estimator.provenance_["data"] = source.fit_data
     estimator.save(out)
     pre = part.summary["preprocessing"]["train"]
     filled, smoothed = sum(pre["filled"].values()), sum(pre["outliers"].values())
@@ -238,7 +251,7 @@ def fit(
 
 
 def _fitted(
-    model_file: Path, source: SourceOptions, channels: ChannelOptions
+    model_file: Path, source: SourceOptions, channels: ChannelOptions, quiet: bool
 ) -> tuple[BaseModel, MechanisticModel | None, MeasurementSeries]:
     """A model file, its physics and the data of predict / evaluate, checked against it."""
     import warnings
@@ -259,7 +272,11 @@ def _fitted(
     _check_task(estimator, source.task, source.init_samples)
     parsed = channels.parse().for_model(estimator)
     physics = _source(source.mechanistic, estimator, parsed.outputs)
-    spec = source.spec()
+    fitted_on = estimator.provenance_.get("data")
+    spec = source.spec(fitted_on if isinstance(fitted_on, str) else None)
+    if source.data is None and source.test_data is None and spec != "default" and not quiet:
+        err_console.print(f"note: --data not given: the data {escape(model_file.name)} was "
+                          f"fitted on, {escape(spec)}", highlight=False, soft_wrap=True)  # fmt: skip
     series = parsed.read(spec, () if physics is None else physics.required_inputs())
     _check_rate(estimator, series, spec)
     return estimator, physics, series
@@ -276,7 +293,7 @@ def predict(
     per output channel). One-step prediction uses earlier samples only; a simulation runs free
     over each record from its first --init-samples measured samples. --test-data replaces
     --data."""
-    estimator, physics, series = _fitted(model, source, channels)
+    estimator, physics, series = _fitted(model, source, channels, quiet)
     frame = estimator.predict(series, physics)
     write_frame(frame, out)
     if as_json:
@@ -308,7 +325,7 @@ def evaluate(
     if free_run_from not in protocol.FREE_RUN_FROM:
         raise ConfigError(f"unknown free-run start {free_run_from!r}", where="--free-run-from",
                           fix=f"use one of {', '.join(protocol.FREE_RUN_FROM)}")  # fmt: skip
-    estimator, physics, series = _fitted(model, source, channels)
+    estimator, physics, series = _fitted(model, source, channels, quiet)
     data, test = (None, series) if source.test_data is not None else (series, None)
     result = protocol.evaluate(estimator, data, test=test, train_fraction=train_fraction,
                                mechanistic=physics, skip_rows=score_from,

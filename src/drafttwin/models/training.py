@@ -211,8 +211,8 @@ def cpu_threads(device: torch.device, limit: int | None = None) -> Iterator[None
 
 def _set_deterministic(mode: bool, *, warn_only: bool) -> None:
     """``torch.use_deterministic_algorithms`` without its import of ``torch._inductor`` (about
-    a CPU-second, a tenth of a default fit's start; drafttwin compiles nothing): the
-    compiler's own flag is set as well once something else has imported it."""
+    a CPU-second per process; drafttwin compiles nothing): the compiler's own flag is set as
+    well once something else has imported it."""
     import sys
 
     inductor: Any = sys.modules.get("torch._inductor.config")
