@@ -13,8 +13,9 @@ Public API::
 
 ``simulate`` is the one way to simulate (a duration or a measurement grid, always a
 :class:`SimulationResult`); ``simulate_chunks`` gives the same run as a
-:class:`SimulationStream` of pieces, so memory stays flat in the duration, and
-``simulate_reference`` is SciPy's DOP853 for tests.
+:class:`SimulationStream` of pieces, so memory stays flat in the duration. (The tests'
+reference integrator, SciPy's DOP853 on the same right-hand side, is
+:func:`drafttwin.mechanics.simulate.reference_node_rpm`: no simulation of its own.)
 """
 
 from drafttwin.mechanics.assembly import DriveTrain, Signal
@@ -38,7 +39,6 @@ from drafttwin.mechanics.simulate import (
     SimulationStream,
     simulate,
     simulate_chunks,
-    simulate_reference,
     static_angles,
 )
 from drafttwin.mechanics.start import starts_at_rest
@@ -68,7 +68,6 @@ __all__ = [
     "reduce",
     "simulate",
     "simulate_chunks",
-    "simulate_reference",
     "starts_at_rest",
     "static_angles",
 ]

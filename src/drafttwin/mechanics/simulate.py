@@ -459,7 +459,7 @@ def decimation_factor(coarse: SimulationStream, fine: SimulationStream) -> int |
     return m if same else None
 
 
-def simulate_reference(
+def reference_node_rpm(
     train: DriveTrain,
     duration_s: float,
     *,
