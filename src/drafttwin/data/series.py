@@ -105,6 +105,13 @@ class MeasurementSeries:
         return float(1.0 / np.median(steps))
 
     @property
+    def time_column(self) -> str:
+        """The name predictions of this series give their time column: the data file's own
+        (``t`` stays ``t``) where its values are that file's seconds, else ``time``."""
+        name = self.metadata.get("time_column")
+        return name if isinstance(name, str) and name and name not in self.channels else "time"
+
+    @property
     def duration_s(self) -> float:
         """Summed duration of the records in seconds."""
         return float(sum(self.time_s[b - 1] - self.time_s[a] for a, b in self.record_bounds()))

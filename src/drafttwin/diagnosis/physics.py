@@ -8,6 +8,6 @@ from drafttwin.mechanics import DriveTrain
 
 def physics_train(model: str) -> DriveTrain:
     """The drive train named by ``--model``."""
-    from drafttwin.models.source import drive_train
+    from drafttwin.models.registry import drive_train
 
     return drive_train(model, where="--model")

@@ -29,7 +29,7 @@ from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.evaluation.limits import floor_oracle
 from drafttwin.evaluation.metrics import ChannelMetrics, channel_metrics
-from drafttwin.models.base import BaseModel, time_column
+from drafttwin.models.base import BaseModel
 from drafttwin.models.baselines import PersistenceModel
 from drafttwin.models.mechanistic import MechanisticModel
 
@@ -319,7 +319,7 @@ def score(
     metrics = channel_metrics(target, pred, channels=test.channels, units=units,
                              persistence=pers, true_values=truth,
                              floor_values=_oracle(part, model, truth))  # fmt: skip
-    frame = pd.DataFrame({time_column(test): test.time_s})
+    frame = pd.DataFrame({test.time_column: test.time_s})
     for j, name in enumerate(test.channels):
         frame[name] = pred[:, j]
     if test.n_records > 1:

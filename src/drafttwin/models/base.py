@@ -227,7 +227,7 @@ class BaseModel(abc.ABC):
         (plus ``record`` for a series of several records); ``frame.attrs["units"]`` holds the
         channel units. Same rows and rules as :meth:`predict_values`."""
         values = self.predict_values(series, mechanistic)
-        frame = pd.DataFrame({time_column(series): series.time_s})
+        frame = pd.DataFrame({series.time_column: series.time_s})
         for j, name in enumerate(self.channels_):
             frame[name] = values[:, j]
         if series.n_records > 1:
@@ -356,13 +356,6 @@ class BaseModel(abc.ABC):
 def is_estimator(value: object) -> bool:
     """Whether ``value`` is an estimator instance (has ``get_params``), not a class."""
     return hasattr(value, "get_params") and not isinstance(value, type)
-
-
-def time_column(series: MeasurementSeries) -> str:
-    """The name of the time column of predictions of ``series``: the data file's own (``t``
-    stays ``t``) where its values are that file's seconds, else ``time``."""
-    name = series.metadata.get("time_column")
-    return name if isinstance(name, str) and name and name not in series.channels else "time"
 
 
 def pack_module(prefix: str, module: nn.Module) -> dict[str, torch.Tensor]:

@@ -36,6 +36,7 @@ import pandas as pd
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
+from drafttwin.models.source import parse_source
 
 if TYPE_CHECKING:
     from drafttwin.mechanics import DriveTrain
@@ -179,8 +180,6 @@ class MechanisticModel:
     def from_option(cls, text: str) -> MechanisticModel:
         """The source named by a command-line value: ``preset``, ``preset:NAME``,
         ``config:FILE.toml`` or a simulator output file (``FILE[,FILE...]``, one per record)."""
-        from drafttwin.models.source import parse_source
-
         source = parse_source(text, "--mechanistic")
         if source.kind == "preset":
             return cls.from_preset(source.preset)
@@ -233,11 +232,10 @@ class MechanisticModel:
         per channel (default: the series' output channels), ``record`` for a series of several
         records; ``frame.attrs["units"]`` holds the channel units. :meth:`predict_values`
         gives the same values as an array."""
-        from drafttwin.models.base import time_column  # base imports this module
 
         values = self.predict_values(series, channels)
         names = tuple(series.channels if channels is None else channels)
-        frame = pd.DataFrame({time_column(series): series.time_s})
+        frame = pd.DataFrame({series.time_column: series.time_s})
         for j, name in enumerate(names):
             frame[name] = values[:, j]
         if series.n_records > 1:

@@ -29,17 +29,33 @@ import math
 import warnings
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import torch
 
 from drafttwin._constants import __version__
 from drafttwin.errors import DrafttwinError, ModelFileError
 
-if TYPE_CHECKING:
-    from drafttwin.models.base import BaseModel
 
-_Model = TypeVar("_Model", bound="BaseModel")
+class StoredModel(Protocol):
+    """What a model file builds (:class:`~drafttwin.models.base.BaseModel` is one): named
+    hyperparameters checked on construction. A protocol, so that this module, which the
+    base class imports, imports nothing of it."""
+
+    def __init__(self, **params: Any) -> None: ...
+
+    @classmethod
+    def param_names(cls) -> list[str]: ...
+
+    @property
+    def name(self) -> str: ...
+
+    def get_params(self, deep: bool = True) -> dict[str, Any]: ...
+
+    def _check_params(self) -> None: ...
+
+
+_Model = TypeVar("_Model", bound=StoredModel)
 
 FORMAT_NAME = "drafttwin-model"
 FORMAT_VERSION = 2

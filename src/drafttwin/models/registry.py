@@ -7,12 +7,14 @@ from pathlib import Path
 from typing import Any
 
 from drafttwin.errors import ConfigError
+from drafttwin.mechanics import DriveTrain
 from drafttwin.models.base import MODEL_CLASSES, BaseModel, read_model_file
 from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel
 from drafttwin.models.datadriven import GRUModel, LSTMModel
 from drafttwin.models.hybrid import ParallelHybrid
 from drafttwin.models.mdsl import MDSL
 from drafttwin.models.profiles import PROFILES, Profile
+from drafttwin.models.source import PhysicsSource, parse_source
 from drafttwin.models.task import Task
 from drafttwin.models.training import Training
 
@@ -142,3 +144,31 @@ def load_model(path: str | Path) -> BaseModel:
     payload = read_model_file(Path(path))
     cls = MODEL_CLASSES.get(str(payload["model_class"]), BaseModel)
     return cls.load(path)
+
+
+def drive_train(source: str | PhysicsSource, where: str = "--model") -> DriveTrain:
+    """The drive train a source names: a preset, a TOML, or the train a fitted model file
+    carries (a model fitted on simulator files carries none: refused)."""
+    parsed = parse_source(source, where) if isinstance(source, str) else source
+    if parsed.kind == "preset":
+        return DriveTrain.preset(parsed.preset)
+    if parsed.kind == "config":
+        return DriveTrain.from_toml(parsed.paths[0])
+    if len(parsed.paths) != 1:
+        raise ConfigError("a drive train comes from one model file, not a list of files",
+                          where=where, fix="give one model file, preset or config:FILE.toml")  # fmt: skip
+    path = parsed.paths[0]
+    fitted = load_model(path)
+    spec = getattr(fitted, "mechanistic_spec_", None) or {}
+    if spec.get("kind") == "preset":
+        return DriveTrain.preset(str(spec["name"]))
+    if spec.get("kind") == "train":
+        return DriveTrain.from_dict(dict(spec["spec"]), source=f"model file {path}")
+    raise ConfigError(
+        f"the model in this file ({type(fitted).__name__}) carries no drive train "
+        f"(its physics: {spec.get('kind', 'none')})",
+        source=path,
+        where=where,
+        fix="fit a model on a drive-train physics (fit --mechanistic preset or config:FILE.toml), "
+        "or give --model preset / config:FILE.toml",
+    )

@@ -2,18 +2,16 @@
 ``config:FILE.toml`` (a drive train), simulator output file(s) ``FILE[,FILE...]`` or a
 fitted model file (whose drive train it carries). ``fit``/``predict``/``evaluate``
 (:meth:`MechanisticModel.from_option`), the diagnosis (``--model``) and the commands that take
-``--preset``/``--config`` all read it here."""
+``--preset``/``--config`` all read it here; the drive train a source names (a model file's
+included) is :func:`drafttwin.models.registry.drive_train`, above the model classes, so this
+parser stays a leaf that every model module may import."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from drafttwin.errors import ConfigError
-
-if TYPE_CHECKING:
-    from drafttwin.mechanics import DriveTrain
 
 
 @dataclass(frozen=True)
@@ -49,35 +47,3 @@ def parse_source(text: str, where: str = "--mechanistic") -> PhysicsSource:
         raise ConfigError("no physics source given", where=where,
                           fix=f"write {where} preset, config:FILE.toml or a file")  # fmt: skip
     return PhysicsSource("files", paths=paths)
-
-
-def drive_train(source: str | PhysicsSource, where: str = "--model") -> DriveTrain:
-    """The drive train a source names: a preset, a TOML, or the train a fitted model file
-    carries (a model fitted on simulator files carries none: refused)."""
-    from drafttwin.mechanics import DriveTrain
-
-    parsed = parse_source(source, where) if isinstance(source, str) else source
-    if parsed.kind == "preset":
-        return DriveTrain.preset(parsed.preset)
-    if parsed.kind == "config":
-        return DriveTrain.from_toml(parsed.paths[0])
-    if len(parsed.paths) != 1:
-        raise ConfigError("a drive train comes from one model file, not a list of files",
-                          where=where, fix="give one model file, preset or config:FILE.toml")  # fmt: skip
-    from drafttwin.models.registry import load_model
-
-    path = parsed.paths[0]
-    fitted = load_model(path)
-    spec = getattr(fitted, "mechanistic_spec_", None) or {}
-    if spec.get("kind") == "preset":
-        return DriveTrain.preset(str(spec["name"]))
-    if spec.get("kind") == "train":
-        return DriveTrain.from_dict(dict(spec["spec"]), source=f"model file {path}")
-    raise ConfigError(
-        f"the model in this file ({type(fitted).__name__}) carries no drive train "
-        f"(its physics: {spec.get('kind', 'none')})",
-        source=path,
-        where=where,
-        fix="fit a model on a drive-train physics (fit --mechanistic preset or config:FILE.toml), "
-        "or give --model preset / config:FILE.toml",
-    )
