@@ -126,7 +126,7 @@ def test_networks_train_on_one_thread_unless_drafttwin_threads_says_otherwise(
     import torch
 
     from drafttwin.errors import ConfigError
-    from drafttwin.models.training import cpu_threads, training_threads
+    from drafttwin.models.compute import cpu_threads, training_threads
 
     monkeypatch.delenv("DRAFTTWIN_THREADS", raising=False)
     before = torch.get_num_threads()

@@ -36,16 +36,11 @@ import pandas as pd
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
+from drafttwin.models.simfiles import Table, interpolate, read_table, tables
 from drafttwin.models.source import parse_source
 
 if TYPE_CHECKING:
     from drafttwin.mechanics import DriveTrain
-
-TIME_COLUMNS = ("time", "time_s", "t")
-"""Accepted names (case-insensitive) of the time column of a simulator output file."""
-
-Table = tuple[np.ndarray, dict[str, np.ndarray]]
-"""A simulator table: time (s) and columns by lower-cased name."""
 
 RecordFunction = Callable[[np.ndarray, dict[str, np.ndarray], tuple[str, ...], dict[str, str]], Any]
 """What a source computes for one record: ``f(time_s, inputs, channels, units)``."""
@@ -83,11 +78,11 @@ class MechanisticModel:
         self._spec: dict[str, Any]
         if isinstance(source, str | Path) or _is_path_list(source):
             paths = [Path(p) for p in ([source] if isinstance(source, str | Path) else source)]
-            self._tables = [t for p in paths for t in _tables(_read_table(p), str(p))]
+            self._tables = [t for p in paths for t in tables(read_table(p), str(p))]
             self._spec = {"kind": "file", "paths": [str(p) for p in paths]}
             label = ", ".join(str(p) for p in paths)
         elif isinstance(source, pd.DataFrame):
-            self._tables = _tables(source, "mechanistic table")
+            self._tables = tables(source, "mechanistic table")
             self._spec, label = {"kind": "table"}, "table"
         elif isinstance(source, np.ndarray):
             self._array = np.asarray(source, dtype=np.float64)
@@ -283,7 +278,7 @@ class MechanisticModel:
             if len(self._tables) > 1:
                 raise DataError("several simulator files: evaluate them record by record",
                                 source=where)  # fmt: skip
-            return _interpolate(self._tables[0], time_s, self._table_columns(names), names, where)
+            return interpolate(self._tables[0], time_s, self._table_columns(names), names, where)
         if self._record_fn is None or self._spec["kind"] != "callable":
             raise DataError(f"{where} cannot be evaluated at single time stamps",
                             fix="pass a table or a callable of time")  # fmt: skip
@@ -299,7 +294,7 @@ class MechanisticModel:
         time_s = series.time_s[a:b]
         if self._tables:
             table = self._tables[k if len(self._tables) > 1 else 0]
-            return _interpolate(table, time_s, self._table_columns(names), names, where)
+            return interpolate(table, time_s, self._table_columns(names), names, where)
         if self._series_fn is not None:
             out = self._series_fn(series.slice(a, b))
         else:
@@ -415,118 +410,3 @@ def _check_values(
                         where=f"row {row}, channel {names[col]}",
                         fix="fill or drop the missing simulator output")  # fmt: skip
     return arr
-
-
-def _read_table(path: Path) -> pd.DataFrame:
-    if not path.is_file():
-        raise DataError("file not found", source=path, fix="check the path of the simulator output")
-    suffix = path.suffix.lower()
-    try:
-        if suffix in (".parquet", ".pq"):
-            return pd.read_parquet(path)
-        if suffix in (".csv", ".txt"):
-            return pd.read_csv(path)
-    except (ValueError, OSError) as exc:
-        raise DataError(f"cannot read the file ({exc})", source=path) from exc
-    raise DataError(
-        f"unsupported file type {suffix or '(none)'}",
-        source=path,
-        fix="write the simulator output as .csv or .parquet",
-    )
-
-
-def _tables(frame: pd.DataFrame, source: str) -> list[Table]:
-    """One table per record: a ``record`` column (as ``drafttwin predict`` writes for several
-    records) splits the frame where it changes."""
-    lower = {str(c).strip().lower(): c for c in frame.columns}
-    if "record" not in lower:
-        return [_table(frame, source)]
-    ids = pd.to_numeric(frame[lower["record"]], errors="coerce").to_numpy(dtype=np.float64)
-    _refuse_non_finite(ids, frame[lower["record"]], "record", source)
-    cuts = np.flatnonzero(np.diff(ids) != 0) + 1
-    parts = np.split(np.arange(len(frame)), cuts)
-    return [_table(frame.iloc[rows].drop(columns=[lower["record"]]), f"{source} (record {k + 1})")
-            for k, rows in enumerate(parts)]  # fmt: skip
-
-
-def _table(frame: pd.DataFrame, source: str) -> Table:
-    """Time and numeric columns of a simulator table, checked."""
-    if len(frame) < 2:
-        raise DataError(f"{len(frame)} row(s); need at least 2", source=source)
-    lower = {str(c).strip().lower(): c for c in frame.columns}
-    time_col = next((lower[n] for n in TIME_COLUMNS if n in lower), None)
-    if time_col is None:
-        raise DataError(f"no time column (looked for {', '.join(TIME_COLUMNS)})", source=source,
-                        where=f"columns {list(map(str, frame.columns))}",
-                        fix="name the time column 'time' (seconds)")  # fmt: skip
-    time_s = _numeric(frame, time_col, source)
-    steps = np.diff(time_s)
-    if (steps <= 0).any():
-        row = int(np.argmax(steps <= 0)) + 1
-        raise DataError("time is not strictly increasing", source=source,
-                        where=f"data row {row}, column {time_col!r}",
-                        fix="sort the simulator output by time and drop duplicate times")  # fmt: skip
-    # other columns are checked when a channel uses them (the rest may be text or empty)
-    cols = {name: frame[col] for name, col in lower.items() if col != time_col}
-    return time_s, {
-        name: pd.to_numeric(col, errors="coerce").to_numpy(dtype=np.float64)
-        for name, col in cols.items()
-    }
-
-
-def _numeric(frame: pd.DataFrame, column: Any, source: str) -> np.ndarray:
-    values: np.ndarray = pd.to_numeric(frame[column], errors="coerce").to_numpy(dtype=np.float64)
-    _refuse_non_finite(values, frame[column], str(column), source)
-    return values
-
-
-def _refuse_non_finite(values: np.ndarray, raw: pd.Series, column: str, source: str) -> None:
-    bad = ~np.isfinite(values)
-    if bad.any():
-        row = int(np.argmax(bad))
-        raise DataError(
-            f"non-numeric or missing value {raw.iloc[row]!r}",
-            source=source,
-            where=f"row {row + 2} (data row {row}), column {column!r}",
-            fix="the simulator output must be complete numbers (time in seconds, values in "
-            "the channels' units)",
-        )
-
-
-def _interpolate(
-    table: Table, time_s: np.ndarray, columns: list[str], names: tuple[str, ...], where: str
-) -> np.ndarray:
-    """The table's columns linearly interpolated onto ``time_s``.
-
-    A simulator may stamp an interval's mean at its start or at its end, so the table may
-    start or end up to one of its own steps inside the data's span: the edge value is held
-    there. Anything further outside is refused.
-    """
-    table_t, table_cols = table
-    missing = [c for c in columns if c not in table_cols]
-    if missing:
-        raise DataError(
-            f"no column(s) {missing} for the output channel(s) "
-            f"{[n for n, c in zip(names, columns, strict=True) if c in missing]}",
-            source=where,
-            where=f"columns {sorted(table_cols)}",
-            fix="write one column per output channel, named like the channel",
-        )
-    if time_s.size == 0:
-        return np.zeros((0, len(columns)))
-    step = float(np.median(np.diff(table_t)))
-    tol = step * (1 + 1e-6)
-    if time_s.min() < table_t[0] - tol or time_s.max() > table_t[-1] + tol:
-        raise DataError(
-            f"the simulator output covers {table_t[0]:g} s to {table_t[-1]:g} s but the data "
-            f"span {time_s.min():g} s to {time_s.max():g} s",
-            source=where,
-            fix="simulate over the whole measurement span, on the same time axis (seconds, as "
-            "in the data file's time column)",
-        )
-    out = []
-    for column in columns:
-        values = table_cols[column]
-        _refuse_non_finite(values, pd.Series(values), column, where)
-        out.append(np.interp(time_s, table_t, values))
-    return np.column_stack(out)

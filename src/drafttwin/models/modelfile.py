@@ -250,7 +250,7 @@ def fall_back_to_cpu(path: Path, params: dict[str, Any]) -> None:
     """Replace, in the stored hyperparameters, a training device this machine lacks by
     ``cpu`` (with one :class:`DeviceFallbackWarning`); an unknown device name is left for
     the constructor to refuse."""
-    from drafttwin.models.training import _valid_device
+    from drafttwin.models.compute import _valid_device
 
     for training in _training_settings(params):
         device = training.get("device")

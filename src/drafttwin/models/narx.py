@@ -16,13 +16,13 @@ import numpy as np
 import torch
 
 from drafttwin.data.scaling import MinMaxScaler
+from drafttwin.models.compute import cpu_threads
 from drafttwin.models.features import fit_scaler, scale_inputs
 from drafttwin.models.networks import RecurrentRegressor
 from drafttwin.models.training import (
     FitProgress,
     History,
     Training,
-    cpu_threads,
     debias_head,
     train_network,
 )

@@ -24,11 +24,11 @@ from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.models.base import BaseModel
 from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel
+from drafttwin.models.compute import place, resolve_device
 from drafttwin.models.datadriven import _RecurrentModel
 from drafttwin.models.hybrid import _ResidualHybrid
 from drafttwin.models.mdsl import MDSL
 from drafttwin.models.mechanistic import MechanisticModel
-from drafttwin.models.training import place, resolve_device
 from drafttwin.models.windows import causal_ffill
 
 

@@ -1,0 +1,135 @@
+"""Simulator output files as a physics source: CSV/Parquet tables of a time column and one
+column per channel (one table per record, or a ``record`` column), read, checked and
+interpolated onto a record's time axis (:class:`~drafttwin.models.mechanistic.MechanisticModel`
+given files)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from drafttwin.errors import DataError
+
+TIME_COLUMNS = ("time", "time_s", "t")
+"""Accepted names (case-insensitive) of the time column of a simulator output file."""
+
+Table = tuple[np.ndarray, dict[str, np.ndarray]]
+"""A simulator table: time (s) and columns by lower-cased name."""
+
+
+def read_table(path: Path) -> pd.DataFrame:
+    if not path.is_file():
+        raise DataError("file not found", source=path, fix="check the path of the simulator output")
+    suffix = path.suffix.lower()
+    try:
+        if suffix in (".parquet", ".pq"):
+            return pd.read_parquet(path)
+        if suffix in (".csv", ".txt"):
+            return pd.read_csv(path)
+    except (ValueError, OSError) as exc:
+        raise DataError(f"cannot read the file ({exc})", source=path) from exc
+    raise DataError(
+        f"unsupported file type {suffix or '(none)'}",
+        source=path,
+        fix="write the simulator output as .csv or .parquet",
+    )
+
+
+def tables(frame: pd.DataFrame, source: str) -> list[Table]:
+    """One table per record: a ``record`` column (as ``drafttwin predict`` writes for several
+    records) splits the frame where it changes."""
+    lower = {str(c).strip().lower(): c for c in frame.columns}
+    if "record" not in lower:
+        return [_table(frame, source)]
+    ids = pd.to_numeric(frame[lower["record"]], errors="coerce").to_numpy(dtype=np.float64)
+    _refuse_non_finite(ids, frame[lower["record"]], "record", source)
+    cuts = np.flatnonzero(np.diff(ids) != 0) + 1
+    parts = np.split(np.arange(len(frame)), cuts)
+    return [_table(frame.iloc[rows].drop(columns=[lower["record"]]), f"{source} (record {k + 1})")
+            for k, rows in enumerate(parts)]  # fmt: skip
+
+
+def _table(frame: pd.DataFrame, source: str) -> Table:
+    """Time and numeric columns of a simulator table, checked."""
+    if len(frame) < 2:
+        raise DataError(f"{len(frame)} row(s); need at least 2", source=source)
+    lower = {str(c).strip().lower(): c for c in frame.columns}
+    time_col = next((lower[n] for n in TIME_COLUMNS if n in lower), None)
+    if time_col is None:
+        raise DataError(f"no time column (looked for {', '.join(TIME_COLUMNS)})", source=source,
+                        where=f"columns {list(map(str, frame.columns))}",
+                        fix="name the time column 'time' (seconds)")  # fmt: skip
+    time_s = _numeric(frame, time_col, source)
+    steps = np.diff(time_s)
+    if (steps <= 0).any():
+        row = int(np.argmax(steps <= 0)) + 1
+        raise DataError("time is not strictly increasing", source=source,
+                        where=f"data row {row}, column {time_col!r}",
+                        fix="sort the simulator output by time and drop duplicate times")  # fmt: skip
+    # other columns are checked when a channel uses them (the rest may be text or empty)
+    cols = {name: frame[col] for name, col in lower.items() if col != time_col}
+    return time_s, {
+        name: pd.to_numeric(col, errors="coerce").to_numpy(dtype=np.float64)
+        for name, col in cols.items()
+    }
+
+
+def _numeric(frame: pd.DataFrame, column: Any, source: str) -> np.ndarray:
+    values: np.ndarray = pd.to_numeric(frame[column], errors="coerce").to_numpy(dtype=np.float64)
+    _refuse_non_finite(values, frame[column], str(column), source)
+    return values
+
+
+def _refuse_non_finite(values: np.ndarray, raw: pd.Series, column: str, source: str) -> None:
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row = int(np.argmax(bad))
+        raise DataError(
+            f"non-numeric or missing value {raw.iloc[row]!r}",
+            source=source,
+            where=f"row {row + 2} (data row {row}), column {column!r}",
+            fix="the simulator output must be complete numbers (time in seconds, values in "
+            "the channels' units)",
+        )
+
+
+def interpolate(
+    table: Table, time_s: np.ndarray, columns: list[str], names: tuple[str, ...], where: str
+) -> np.ndarray:
+    """The table's columns linearly interpolated onto ``time_s``.
+
+    A simulator may stamp an interval's mean at its start or at its end, so the table may
+    start or end up to one of its own steps inside the data's span: the edge value is held
+    there. Anything further outside is refused.
+    """
+    table_t, table_cols = table
+    missing = [c for c in columns if c not in table_cols]
+    if missing:
+        raise DataError(
+            f"no column(s) {missing} for the output channel(s) "
+            f"{[n for n, c in zip(names, columns, strict=True) if c in missing]}",
+            source=where,
+            where=f"columns {sorted(table_cols)}",
+            fix="write one column per output channel, named like the channel",
+        )
+    if time_s.size == 0:
+        return np.zeros((0, len(columns)))
+    step = float(np.median(np.diff(table_t)))
+    tol = step * (1 + 1e-6)
+    if time_s.min() < table_t[0] - tol or time_s.max() > table_t[-1] + tol:
+        raise DataError(
+            f"the simulator output covers {table_t[0]:g} s to {table_t[-1]:g} s but the data "
+            f"span {time_s.min():g} s to {time_s.max():g} s",
+            source=where,
+            fix="simulate over the whole measurement span, on the same time axis (seconds, as "
+            "in the data file's time column)",
+        )
+    out = []
+    for column in columns:
+        values = table_cols[column]
+        _refuse_non_finite(values, pd.Series(values), column, where)
+        out.append(np.interp(time_s, table_t, values))
+    return np.column_stack(out)
