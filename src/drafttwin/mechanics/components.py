@@ -16,6 +16,7 @@ encoder reports them).
 from __future__ import annotations
 
 import math
+from abc import abstractmethod
 from typing import Annotated, ClassVar, Literal, get_args
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -199,9 +200,10 @@ class TorsionalCoupling(_TwoEnded):
         """Nominal b / a speed: both ends turn together."""
         return 1.0
 
+    @abstractmethod
     def damping_nms(self, ja: float, jb: float) -> float:
-        """Viscous damping of the twist, N m s/rad, given the inertias at ``a`` and ``b``."""
-        raise NotImplementedError(f"{type(self).__name__} must define damping_nms")
+        """Viscous damping of the twist, N m s/rad, given the inertias at ``a`` and ``b``
+        (each coupling its own law: a subclass cannot be built without one)."""
 
     def spring_row(self, ja: float, jb: float) -> tuple[float, float]:
         """Its row of the kernel's spring table: stiffness (N m/rad), damping (N m s/rad)."""
