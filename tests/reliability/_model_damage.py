@@ -222,6 +222,10 @@ def cases() -> list[Case]:
                        ("mechanistic", {"kind": "preset", "name": "../../etc/passwd"}),
                        ("mechanistic", {"kind": "train", "name": "t", "spec": {"evil": 1}}),
                        ("mechanistic", {"kind": "file", "paths": 5}),
+                       ("mechanistic", {"kind": "preset", "name": "fa320a", "cutoff_hz": -200}),
+                       ("mechanistic", {"kind": "preset", "name": "fa320a", "cutoff_hz": NAN}),
+                       ("mechanistic", {"kind": "preset", "name": "fa320a", "cutoff_hz": "200"}),
+                       ("mechanistic", {"kind": "file", "paths": ["a.csv"], "cutoff_hz": 200}),
                        ("mechanistic", "preset"), ("history", [1]),
                        ("history", {"train_loss": []})]:  # fmt: skip
         add(f"state.{field}: {bad!r}", _state(field, value=bad))

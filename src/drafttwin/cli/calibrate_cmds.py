@@ -12,7 +12,14 @@ from rich.table import Table
 
 from drafttwin.cli._data import ChannelOptions
 from drafttwin.cli._groups import with_group
-from drafttwin.cli._options import JsonOpt, TrainOptions, file_out, files_in, number
+from drafttwin.cli._options import (
+    FullModelOpt,
+    JsonOpt,
+    TrainOptions,
+    file_out,
+    files_in,
+    number,
+)
 from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.errors import ConfigError, DataError
 
@@ -34,9 +41,6 @@ ParamsOpt = Annotated[str | None, typer.Option("--params", help=(
     "motor.breakdown_torque_ratio, motor.rated_slip, bearing.<node>, ...). Default: all a "
     "drawing does not give."))]  # fmt: skip
 BlockOpt = Annotated[float, number("--block", "Block length, s: the fit compares block means.")]
-FullModelOpt = Annotated[bool, typer.Option("--full-model/--reduced-model", help=(
-    "Simulate the full drive train in the fit (minutes to hours) instead of the reduced one "
-    "(couplings above 200 Hz rigid, belts compliant; docs/mechanics.md)."))]  # fmt: skip
 LinesOpt = Annotated[bool, typer.Option("--lines", help=(
     "Also fit the known-frequency terms (once and twice per revolution of every shaft, gear "
     "meshes, chain tooth pass; angles from the measured speeds) to the calibrated physics' "

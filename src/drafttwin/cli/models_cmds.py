@@ -17,6 +17,7 @@ from drafttwin.cli._groups import with_group
 from drafttwin.cli._modelopts import SetOpt, cli_terms, new_model, parse_settings, setting_names
 from drafttwin.cli._options import (
     EpochsOpt,
+    FullModelOpt,
     InitOpt,
     MechanisticOpt,
     TaskOpt,
@@ -68,22 +69,28 @@ FreeRunOpt = Annotated[
 
 
 def _source(
-    option: str | None, model: BaseModel, channels: tuple[str, ...] | None
+    option: str | None, model: BaseModel, channels: tuple[str, ...] | None, full: bool = False
 ) -> MechanisticModel | None:
     """The mechanistic source of ``--mechanistic``, else the model's own (or the FA320A
-    preset for a new hybrid on the roller channels)."""
+    preset for a new hybrid on the roller channels). A new model's drive train is reduced
+    unless ``full`` (``--full-model``); a fitted model's is simulated as it was fitted."""
     from drafttwin._constants import ROLLERS
+    from drafttwin.mechanics import DEFAULT_CUTOFF_HZ
     from drafttwin.models import MechanisticModel
-    from drafttwin.models.mechanistic import describe_spec
+    from drafttwin.models.mechanistic import describe_spec, spec_cutoff_hz
 
     if not model.needs_mechanistic:
         if option is not None:
             raise ConfigError(f"the {model.name} model uses no mechanistic source",
                               where="--mechanistic", fix="leave --mechanistic out")  # fmt: skip
         return None
-    if option is not None:
-        return MechanisticModel.from_option(option)
     fitted = getattr(model, "mechanistic_spec_", None)
+    if hasattr(model, "channels_"):
+        cutoff_hz = spec_cutoff_hz(fitted)
+    else:
+        cutoff_hz = None if full else DEFAULT_CUTOFF_HZ
+    if option is not None:
+        return MechanisticModel.from_option(option, cutoff_hz=cutoff_hz)
     if hasattr(model, "channels_"):
         source = MechanisticModel.from_spec(fitted)
         if source is None:
@@ -100,7 +107,7 @@ def _source(
             where="--mechanistic",
             fix="give config:YOUR_TRAIN.toml or a simulator output file (time + those columns)",
         )
-    return MechanisticModel.from_preset("fa320a")
+    return MechanisticModel.from_preset("fa320a", cutoff_hz=cutoff_hz)
 
 
 def _check_task(model: BaseModel, task: str | None, init_samples: int | None) -> None:
@@ -206,7 +213,7 @@ def fit(
     model: ModelKindOpt, out: ModelOutOpt, source: SourceOptions, channels: ChannelOptions,
     profile: ProfileOpt = None, train_fraction: FractionOpt = None, seed: SeedOpt = None,
     horizon: HorizonOpt = 1, epochs: EpochsOpt = None, settings: SetOpt = None,
-    quiet: QuietOpt = False, as_json: JsonOpt = False,
+    full_model: FullModelOpt = False, quiet: QuietOpt = False, as_json: JsonOpt = False,
 ) -> None:  # fmt: skip
     """Fit a model and save it. Trains on the first --train-fraction of --data (preprocessed as
     in the paper; 'drafttwin evaluate' then scores the rest), or on all of --data when separate
@@ -222,7 +229,7 @@ def fit(
     if not quiet:
         for note in notes:
             err_console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
-    physics = _source(source.mechanistic, estimator, parsed.outputs)
+    physics = _source(source.mechanistic, estimator, parsed.outputs, full_model)
     needs = () if physics is None else physics.required_inputs()
     series = parsed.read(source.fit_data, needs)
     test = None if source.test_data is None else parsed.read(source.test_data, needs)

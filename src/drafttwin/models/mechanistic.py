@@ -131,26 +131,34 @@ class MechanisticModel:
             return cache[key]
 
         spec = {"kind": "train", "name": train.spec.train.name, "source": str(train.source),
-                "spec": train.spec.model_dump(mode="json", exclude_defaults=True)}  # fmt: skip
-        model = cls._from_function(run, spec, name or f"drive train {train.spec.train.name}")
+                "spec": train.spec.model_dump(mode="json", exclude_defaults=True),
+                **_reduction_spec(train)}  # fmt: skip
+        label = name or f"drive train {train.spec.train.name}"
+        model = cls._from_function(run, spec, label + _reduction_label(train))
         model._inputs = tuple(c.channel for c in train.spec.input)  # declared: required
         return model
 
     @classmethod
-    def from_preset(cls, preset: str = "fa320a") -> MechanisticModel:
-        """The built-in drive train ``preset`` (see :func:`from_train`)."""
+    def from_preset(
+        cls, preset: str = "fa320a", *, cutoff_hz: float | None = None
+    ) -> MechanisticModel:
+        """The built-in drive train ``preset`` (see :func:`from_train`), reduced
+        (:func:`drafttwin.mechanics.reduce`) at ``cutoff_hz`` when given."""
         from drafttwin.mechanics import DriveTrain
 
-        model = cls.from_train(DriveTrain.preset(preset), name=f"preset {preset}")
-        model._spec = {"kind": "preset", "name": preset}
+        train = _reduced(DriveTrain.preset(preset), cutoff_hz)
+        model = cls.from_train(train, name=f"preset {preset}")
+        model._spec = {"kind": "preset", "name": preset, **_reduction_spec(train)}
         return model
 
     @classmethod
-    def from_config(cls, path: str | Path) -> MechanisticModel:
-        """A drive train declared in a TOML file (see :func:`from_train`)."""
+    def from_config(cls, path: str | Path, *, cutoff_hz: float | None = None) -> MechanisticModel:
+        """A drive train declared in a TOML file (see :func:`from_train`), reduced at
+        ``cutoff_hz`` when given."""
         from drafttwin.mechanics import DriveTrain
 
-        return cls.from_train(DriveTrain.from_toml(Path(path)), name=f"config {path}")
+        train = _reduced(DriveTrain.from_toml(Path(path)), cutoff_hz)
+        return cls.from_train(train, name=f"config {path}")
 
     @classmethod
     def from_series_function(
@@ -172,14 +180,15 @@ class MechanisticModel:
         return model
 
     @classmethod
-    def from_option(cls, text: str) -> MechanisticModel:
+    def from_option(cls, text: str, *, cutoff_hz: float | None = None) -> MechanisticModel:
         """The source named by a command-line value: ``preset``, ``preset:NAME``,
-        ``config:FILE.toml`` or a simulator output file (``FILE[,FILE...]``, one per record)."""
+        ``config:FILE.toml`` or a simulator output file (``FILE[,FILE...]``, one per record).
+        ``cutoff_hz`` reduces a drive train (files are taken as they are)."""
         source = parse_source(text, "--mechanistic")
         if source.kind == "preset":
-            return cls.from_preset(source.preset)
+            return cls.from_preset(source.preset, cutoff_hz=cutoff_hz)
         if source.kind == "config":
-            return cls.from_config(source.paths[0])
+            return cls.from_config(source.paths[0], cutoff_hz=cutoff_hz)
         return cls([str(p) for p in source.paths])
 
     @classmethod
@@ -188,13 +197,14 @@ class MechanisticModel:
         drive train), else ``None`` (files, callables, tables and arrays are passed again)."""
         if not spec:
             return None
+        cutoff_hz = spec_cutoff_hz(spec)
         if spec.get("kind") == "preset":
-            return cls.from_preset(str(spec["name"]))
+            return cls.from_preset(str(spec["name"]), cutoff_hz=cutoff_hz)
         if spec.get("kind") == "train":
             from drafttwin.mechanics import DriveTrain
 
             train = DriveTrain.from_dict(dict(spec["spec"]), source=f"model file ({spec['name']})")
-            return cls.from_train(train, name=f"drive train {spec['name']}")
+            return cls.from_train(_reduced(train, cutoff_hz), name=f"drive train {spec['name']}")
         return None
 
     def split_records(self, first: int, second: int) -> tuple[MechanisticModel, MechanisticModel]:
@@ -331,6 +341,33 @@ def as_mechanistic(source: object) -> MechanisticModel:
     if isinstance(source, DriveTrain):
         return MechanisticModel.from_train(source)
     return MechanisticModel(source)
+
+
+def spec_cutoff_hz(spec: Mapping[str, Any] | None) -> float | None:
+    """The reduction cut-off (Hz) a stored drive-train source was simulated with, ``None`` for
+    the full train (and for model files written before the field existed: they were full)."""
+    value = (spec or {}).get("cutoff_hz")
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int | float) or not 0 < value < np.inf:
+        raise DataError(f"the stored physics' cutoff_hz={value!r} is not a positive frequency",
+                        fix="refit the model (the model file was edited or damaged)")  # fmt: skip
+    return float(value)
+
+
+def _reduced(train: DriveTrain, cutoff_hz: float | None) -> DriveTrain:
+    from drafttwin.mechanics import reduce
+
+    return train if cutoff_hz is None else reduce(train, cutoff_hz)
+
+
+def _reduction_spec(train: DriveTrain) -> dict[str, float]:
+    return {} if train.reduction is None else {"cutoff_hz": train.reduction.cutoff_hz}
+
+
+def _reduction_label(train: DriveTrain) -> str:
+    red = train.reduction
+    return "" if red is None else f" (reduced: couplings above {red.cutoff_hz:g} Hz rigid)"
 
 
 def describe_spec(spec: Mapping[str, Any] | None) -> str:

@@ -313,7 +313,12 @@ def check_mechanistic_spec(path: Path, spec: Any) -> None:
     kind = spec["kind"]
     allowed = {"preset": ("name",), "train": ("name", "source", "spec"),
                "file": ("paths",)}.get(kind, ())  # fmt: skip
-    check_keys(path, field, {k: v for k, v in spec.items() if k != "kind"}, allowed)
+    optional = ("cutoff_hz",) if kind in ("preset", "train") else ()  # a reduced train's
+    check_keys(path, field, {k: v for k, v in spec.items() if k not in ("kind", *optional)},
+               allowed)  # fmt: skip
+    if "cutoff_hz" in spec and not (_is_real(spec["cutoff_hz"]) and spec["cutoff_hz"] > 0):
+        raise refuse(path, f"{field}.cutoff_hz", f"{short(spec['cutoff_hz'])} is not a positive "
+                     "frequency (Hz)")  # fmt: skip
     if kind == "file":
         paths = spec["paths"]
         if not isinstance(paths, list) or not all(isinstance(p, str) and p for p in paths):
