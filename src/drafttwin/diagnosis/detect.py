@@ -29,6 +29,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from drafttwin.diagnosis.residuals import CHANNELS, LAGGED, BlockFeatures
+from drafttwin.diagnosis.walk import lag_walk
 from drafttwin.errors import ConfigError, DataError
 
 STREAMS = ("rollers", "motor", "belt", *(f"parity_{c}" for c in CHANNELS[:4]),
@@ -168,6 +169,7 @@ class FaultDetector:
         self.phi_ = np.clip(num / np.maximum((x0[good] ** 2).sum(axis=0), 1e-300), 0.0, 0.95)
         self.sigma_ = np.maximum(s_all.std(axis=0), 1e-12)
         self.long_run_ = self._long_run_factor([p[1] for p in pairs])
+        self.lag_walk_ = lag_walk([np.asarray(f.lags, dtype=np.float64) for f in healthy])
         self.watched_ = self._watched(healthy)
         self.jump_limit_ = self._jump_limit(x0[good], x1[good])
         blocks_per_day = 86400.0 / self.block_s_
@@ -307,7 +309,9 @@ class FaultDetector:
                                 "jump_limit": float(self.jump_limit_[i])}
                             for i, s in enumerate(STREAMS)},
                 "run_limit": dict(zip(CHANNELS, map(float, self.run_limit_), strict=True)),
-                "lost_limit": dict(zip(CHANNELS, map(float, self.lost_limit_), strict=True))}  # fmt: skip
+                "lost_limit": dict(zip(CHANNELS, map(float, self.lost_limit_), strict=True)),
+                "lag_walk_mrad2_per_block": dict(zip(LAGGED, map(float, np.diag(self.lag_walk_)),
+                                                     strict=True))}  # fmt: skip
 
     # ---- stored with a model (drafttwin twin fit-detector) -----------------------------
     def to_state(self) -> dict[str, Any]:
@@ -318,7 +322,8 @@ class FaultDetector:
                 "phi": self.phi_.tolist(), "sigma": self.sigma_.tolist(),
                 "long_run_blocks": self.long_run_blocks, "long_run": self.long_run_.tolist(),
                 "watched": self.watched_.tolist(), "jump_limit": self.jump_limit_.tolist(),
-                "run_limit": self.run_limit_.tolist(), "lost_limit": self.lost_limit_.tolist()}  # fmt: skip
+                "run_limit": self.run_limit_.tolist(), "lost_limit": self.lost_limit_.tolist(),
+                "lag_walk": self.lag_walk_.tolist()}  # fmt: skip
 
     @classmethod
     def from_state(cls, state: dict[str, Any], source: str = "detector") -> FaultDetector:
@@ -343,6 +348,9 @@ class FaultDetector:
             det.sigma_ = _array(state["sigma"], (ns,), "sigma", source)
             det.run_limit_ = _array(state["run_limit"], (nc,), "run_limit", source)
             det.lost_limit_ = _array(state["lost_limit"], (nc,), "lost_limit", source)
+            nl = len(LAGGED)  # a state written before the walk was measured: none
+            walk = state.get("lag_walk", np.zeros((nl, nl)).tolist())
+            det.lag_walk_ = _array(walk, (nl, nl), "lag_walk", source)
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"not a fitted detector ({type(exc).__name__}: {exc})",
                             source=source, fix="fit it again (drafttwin twin fit-detector)") from None  # fmt: skip
@@ -350,6 +358,9 @@ class FaultDetector:
                 or (det.long_run_ < 1).any() or (det.jump_limit_ < 0).any()):  # fmt: skip
             raise DataError("detector scales out of range (sigma > 0, 0 <= phi < 1, long_run >= 1, "
                             "jump_limit >= 0)",
+                            source=source, fix="fit it again (drafttwin twin fit-detector)")  # fmt: skip
+        if (np.linalg.eigvalsh(0.5 * (det.lag_walk_ + det.lag_walk_.T)) < -1e-9).any():
+            raise DataError("detector lag_walk is not a covariance (a negative eigenvalue)",
                             source=source, fix="fit it again (drafttwin twin fit-detector)")  # fmt: skip
         if det.belt_level_.ndim != 1 or not np.isfinite(det.belt_level_).all():
             raise DataError("detector belt levels not finite", source=source,

@@ -33,6 +33,7 @@ from drafttwin.diagnosis.locate import (
 from drafttwin.diagnosis.residuals import CHANNELS, LAGGED, BlockFeatures, record_features
 from drafttwin.diagnosis.sensors import size_sensor_fault
 from drafttwin.diagnosis.spectrum import LineEvidence, line_evidence
+from drafttwin.diagnosis.walk import baseline_weights, walk_covariance
 from drafttwin.mechanics import DriveTrain
 
 POST_S = 30.0  # s after the alarm used to measure the shift
@@ -158,7 +159,8 @@ class Diagnoser:
         if sensor is not None:  # a stuck or dropped encoder explains the shift: name it
             dx.causes = [sensor]
             return dx
-        dx.shift, dx.causes = self.rank(f.time_s[blocks], blocks, x[window] - base, alarm.change_s)
+        dx.shift, dx.causes = self.rank(f.time_s[blocks], blocks, x[window] - base, alarm.change_s,
+                                        alarm.block)  # fmt: skip
         # the trend of the cause the verdict names: the first that fits, else the first
         i = next((i for i, c in enumerate(dx.causes) if c.fits), 0)
         if dx.causes:
@@ -205,22 +207,26 @@ class Diagnoser:
         return None
 
     def rank(self, time_s: np.ndarray, blocks: np.ndarray, dev: np.ndarray,
-             change_s: float) -> tuple[np.ndarray, list[Cause]]:  # fmt: skip
+             change_s: float, alarm_block: int | None = None) -> tuple[np.ndarray, list[Cause]]:  # fmt: skip
         """The shift (see :meth:`_shift`) of the window's blocks (their end times, their
-        indices, their features minus the baseline at the alarm) and the candidates ranked
-        for it; the live twin calls this on its post-alarm window."""
-        shift, cov, elapsed = self._shift(time_s, dev, blocks, change_s)
+        indices, their features minus the baseline at the alarm, raised at ``alarm_block``:
+        default the block before the window) and the candidates ranked for it; the live
+        twin calls this on its post-alarm window."""
+        end = int(blocks[0]) if alarm_block is None else int(alarm_block) + 1
+        shift, cov, elapsed = self._shift(time_s, dev, blocks, change_s, end)
         self.signatures.elapsed_s = elapsed
         # the absolute fit judges the lags only where the tuning records measured their slow
         # wander (the detector watches them); else their noise is underestimated several fold
         judged = np.arange(len(shift)) < len(CHANNELS) if not self.detector.lags_watched else None
         return shift, rank_causes(self.signatures, shift, cov, self.creep_rel_sd, judged)
 
-    def _shift(self, time_s: np.ndarray, dev: np.ndarray, blocks: np.ndarray,
-               change_s: float) -> tuple[np.ndarray, np.ndarray, dict[str, tuple[float, ...]]]:  # fmt: skip
+    def _shift(self, time_s: np.ndarray, dev: np.ndarray, blocks: np.ndarray, change_s: float,
+               base_end: int) -> tuple[np.ndarray, np.ndarray, dict[str, tuple[float, ...]]]:  # fmt: skip
         """The shift vector (mean levels over the window, then the mean lags over each half
         of it), its covariance, and per roller each half's mean time since the change an
-        encoder gain on that roller would have run for (:func:`_gain_start`)."""
+        encoder gain on that roller would have run for (:func:`_gain_start`). The lags'
+        covariance holds their random walk (:mod:`~drafttwin.diagnosis.walk`) between the
+        baseline (formed over the blocks before ``base_end``) and each half."""
         det, nc = self.detector, len(CHANNELS)
         halves = np.array_split(np.arange(len(blocks)), 2) if len(blocks) >= 2 else [np.arange(1)]
         phi = det.phi_
@@ -235,7 +241,11 @@ class Diagnoser:
         t = blocks.astype(float)
         parts = np.array([[np.mean(rho ** np.abs(t[ha][:, None] - t[hb][None, :]))
                            for hb in halves] for ha in halves])  # fmt: skip
-        cov = block_diag(cov_l, np.kron(parts, det.feature_cov_[nc:, nc:]))
+        n_ref = max(2, int(round(det.reference_s / det.block_s_)))
+        base = baseline_weights(base_end, n_ref, min(1.0, det.block_s_ / det.drift_tau_s))
+        walk = walk_covariance([blocks[h] for h in halves], base)
+        cov = block_diag(cov_l, np.kron(parts, det.feature_cov_[nc:, nc:])
+                         + np.kron(walk, det.lag_walk_))  # fmt: skip
         shift = np.concatenate([dev[:, :nc].mean(axis=0),
                                 *(dev[h, nc:].mean(axis=0) for h in halves)])  # fmt: skip
         t = np.asarray(time_s, dtype=np.float64)

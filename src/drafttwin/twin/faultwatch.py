@@ -304,7 +304,7 @@ def _prepare(key: str, train: dict[str, Any], detector: dict[str, Any]) -> None:
 def _rank(key: str, train: dict[str, Any], detector: dict[str, Any], req: Localise) -> list[dict[str, Any]]:  # fmt: skip
     """Worker side: the top causes."""
     dx = _diagnoser(key, train, detector)
-    _, causes = dx.rank(req.time_s, req.blocks, req.deviation, req.alarm.change_s)
+    _, causes = dx.rank(req.time_s, req.blocks, req.deviation, req.alarm.change_s, req.alarm.block)
     return [c.to_dict() for c in causes[:TOP]]
 
 
