@@ -180,7 +180,9 @@ def test_signalled_study_leaves_no_worker_behind(how, reference, tmp_path):
     _assert_exit(how, rc, err)
 
 
-@pytest.mark.parametrize("how", ["SIGKILL", pytest.param("SIGTERM", marks=pytest.mark.slow)])
+# the SIGTERM variant is a second one of the same resume (long, as are the Ray study's
+# SIGKILL and group SIGINT: the process executor's test covers them every run)
+@pytest.mark.parametrize("how", ["SIGKILL", pytest.param("SIGTERM", marks=pytest.mark.long)])
 def test_rerun_after_a_kill_gives_the_numbers_of_an_uninterrupted_run(how, reference, tmp_path):
     out = tmp_path / "study"
     proc, _ = _start(reference[1], out)
@@ -193,7 +195,8 @@ def test_rerun_after_a_kill_gives_the_numbers_of_an_uninterrupted_run(how, refer
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("how", ["SIGKILL", "SIGTERM", "group:SIGINT"])
+@pytest.mark.parametrize("how", [pytest.param("SIGKILL", marks=pytest.mark.long), "SIGTERM",
+                                 pytest.param("group:SIGINT", marks=pytest.mark.long)])  # fmt: skip
 def test_signalled_ray_study_leaves_no_ray_process_behind(how, reference, tmp_path):
     pytest.importorskip("ray")
     proc, err = _start(reference[1], tmp_path / "study", "--executor", "ray")

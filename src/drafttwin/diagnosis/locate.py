@@ -203,7 +203,7 @@ class SignatureModel:
             out[:nc] = unit[:nc] * moved
             out[nc:] = np.tile(unit[nc:] * moved, parts)
             return out
-        levels, angles = self._state(self._faulted(element, kind, severity))
+        levels, angles = self._state(self.faulted_train(element, kind, severity))
         out[:nc] = levels / self.healthy - 1.0
         out[nc:] = np.tile(self._lags(angles - self.healthy_angles), parts)
         return out
@@ -233,7 +233,7 @@ class SignatureModel:
             slack = {element: chain_slack_m(s, chain.pitch_mm * 1e-3)}
             faulted = self.train
         else:
-            faulted = self._faulted(element, kind, s)
+            faulted = self.faulted_train(element, kind, s)
         levels, angles = self._state(faulted, slack)
         return np.concatenate(
             [levels / self.healthy - 1.0, self._lags(angles - self.healthy_angles)]
@@ -279,7 +279,7 @@ class SignatureModel:
                              - lag[(t > 0.5) & (t <= 1.0)].mean(axis=0))  # fmt: skip
         return _SETTLED[key].copy()
 
-    def _faulted(self, element: str, kind: str, s: float) -> DriveTrain:
+    def faulted_train(self, element: str, kind: str, s: float) -> DriveTrain:
         if kind == "rotor_resistance":
             return self.train.with_rotor_resistance(Signal(0.0, 1.0, np.array([1.0 + s] * 2)))
         raw: dict[str, Any] = dict(self.raw)

@@ -79,6 +79,10 @@ class PlantRecording:
         surface: the bottom rollers' true surface lengths at a fine rate (with their radius
             run-out), only where the run asked for them (``surface_rate_hz``); not written
             to files (``info["surface"]`` records how they were made).
+        true_motor_torque_nm: the motor's true interval-mean air-gap torque (N m: its work
+            over the interval over the angle turned), what a drive's torque or current
+            estimate would follow; not written to files (a study of what such a channel
+            would add: ``drafttwin.studies.faults.torque_channel``).
     """
 
     series: MeasurementSeries
@@ -89,6 +93,7 @@ class PlantRecording:
     info: dict[str, Any] = field(default_factory=dict)
     surface: RollerSurface | None = None
     sliver: SliverChannel | None = None
+    true_motor_torque_nm: np.ndarray | None = None
 
     def truth_frame(self) -> pd.DataFrame:
         cols: dict[str, np.ndarray] = {"time": self.series.time_s}
@@ -304,7 +309,17 @@ class Plant:
             info,
             surface,
             channel,
+            _motor_torque_nm(res.energy_j[:, 0], res.motor_rpm, rate_hz),
         )
+
+
+def _motor_torque_nm(work_j: np.ndarray, motor_rpm: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Interval-mean motor torque from its work accumulator (J at each interval end, counted
+    from the record's start) and its interval-mean speed (rpm)."""
+    power_w = np.diff(np.concatenate([[0.0], work_j])) * rate_hz
+    with np.errstate(divide="ignore", invalid="ignore"):
+        torque: np.ndarray = np.where(motor_rpm > 0, power_w / (motor_rpm * np.pi / 30.0), np.nan)
+    return torque
 
 
 def _check_reducible(faults: Sequence[FaultSpec], surface_rate_hz: float | None) -> None:
