@@ -79,3 +79,36 @@ def test_a_one_row_wear_step_on_one_roller_is_kept(plant):
     got, true = lag_steps(plant, 5, "I-J:wear:severity=250:onset=5", None)
     assert true == pytest.approx([0.0, -9.0, 0.0], abs=0.3)
     assert got == pytest.approx(true, abs=1.0)
+
+
+@pytest.mark.long  # 2 x 100 s healthy and a 60-s fault record of the full plant: about 20 CPU-s
+@pytest.mark.parametrize("machine_seed", [7, 9])
+def test_diagnose_sizes_an_elongation_after_a_lost_row_within_its_interval(plant, machine_seed):
+    """The issue's done-when: a 1.1 % chain elongation with a logger row lost 30 ms before
+    its step is named first and its interval holds 1.1 (on machines 7 and 9 it did not
+    before the lags' walk and the signature's model error entered the ranking: 1.081
+    [1.067, 1.095] and 1.052 [1.011, 1.094])."""
+    from dataclasses import replace
+
+    from drafttwin.diagnosis.detect import FaultDetector
+    from drafttwin.diagnosis.diagnose import Diagnoser
+    from drafttwin.diagnosis.residuals import record_features
+    from drafttwin.plant.faults import FaultSpec
+
+    p, draw, train = plant
+    machine = draw(machine_seed)
+    healthy = [record_features(train, p.run(100.0, seed=100 * machine_seed + i,
+                                            machine=machine).series, 1.0) for i in (1, 2)]  # fmt: skip
+    rec = p.run(60.0, seed=100 * machine_seed, machine=machine,
+                faults=[FaultSpec.parse("rear_chain:elongation:severity=1.1:onset=30")])  # fmt: skip
+    truth = np.column_stack([rec.true_rpm, rec.true_motor_rpm])
+    true_lag = angle_lag(
+        truth, physics_prediction(train, rec.series), np.ones(truth.shape, bool), 0.01
+    )
+    row = int(np.argmax(np.abs(np.diff(true_lag, axis=0)).max(axis=1) > 1.0)) + 1 - 3
+    values, motor = rec.series.values.copy(), rec.series.motor_rpm.copy()
+    values[row], motor[row] = np.nan, np.nan
+    series = replace(rec.series, values=values, motor_rpm=motor)
+    top = Diagnoser(train, FaultDetector().fit(healthy)).diagnose(series).causes[0]
+    assert (top.element, top.kind) == ("rear_chain", "elongation")
+    assert top.interval[0] <= 1.1 <= top.interval[1] and top.fits
