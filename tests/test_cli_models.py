@@ -80,6 +80,12 @@ def test_a_drive_train_is_reduced_unless_full_model_is_asked_for(data_file, tmp_
     np.testing.assert_allclose(reduced, full, rtol=1e-2)
 
 
+def test_full_model_on_a_model_without_a_drive_train_is_noted(data_file, tmp_path):
+    out = _ok(["fit", "--model", "persistence", "--data", str(data_file), "--out",
+               str(tmp_path / "p.dtm"), "--full-model"]).output  # fmt: skip
+    assert "--full-model changes nothing: the persistence model uses no physics" in out
+
+
 def test_refusals_exit_2(data_file, tmp_path):
     cases = [
         [
