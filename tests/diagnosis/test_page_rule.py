@@ -61,6 +61,8 @@ def test_a_lag_jump_alarm_is_shown_as_the_jump_rule_with_its_own_statistic(detec
     assert "Cannot be told apart from C-D:wear" in html
     assert 'id="detector"' in html and "twice the largest in the healthy records" in html
     assert "long_run_factor" not in html  # no parameter dump
+    walk = np.sqrt(np.diag(detector.lag_walk_) * 60.0)  # mrad per minute, as the page says
+    assert f"random-walk by lag_second {walk[0]:.1f}, lag_third {walk[1]:.1f}" in html
 
 
 def test_a_sensor_alarm_names_the_sensor_rule(detector):

@@ -10,6 +10,7 @@ table of its three rules.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
@@ -297,6 +298,13 @@ def detector_table(info: Mapping[str, Any]) -> Raw:
             + (f"; belt-creep mismatch {100 * creep:.0f} % of the physics' creep"
                if isinstance(creep, float) else "")
             + (f". Not watched: {', '.join(unwatched)}." if unwatched else "."))  # fmt: skip
+    walk = d.get("lag_walk_mrad2_per_block") or {}
+    if walk and isinstance(d.get("block_s"), int | float):
+        per_min = ", ".join(f"lag_{name} {math.sqrt(max(float(q), 0.0) * 60.0 / d['block_s']):.1f}"
+                            for name, q in walk.items())  # fmt: skip
+        base += (f" The angle lags random-walk by {per_min} mrad per minute (SD, measured on "
+                 "the healthy records); the severity intervals of gear wear and chain "
+                 "elongation carry it.")  # fmt: skip
     return join([table(head, rows, id="detector"), para(base, cls="note")])
 
 
