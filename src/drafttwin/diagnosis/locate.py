@@ -38,8 +38,14 @@ from scipy.stats import chi2 as chi2_dist
 
 from drafttwin.diagnosis.residuals import CHANNELS, LAGGED
 from drafttwin.mechanics import DriveTrain, Signal, operating_point, simulate, static_angles
-from drafttwin.mechanics import kernel as K
-from drafttwin.mechanics.faults import KINDS, FaultKind, catalogue, chain_slack_m, worn_gear
+from drafttwin.mechanics.faults import (
+    KINDS,
+    FaultKind,
+    catalogue,
+    chain_slack_m,
+    slacken_chain,
+    worn_gear,
+)
 
 LEVEL_KINDS = ("bearing_friction", "load_loss", "belt_wear", "rotor_resistance", "torque_loss",
                "gain")  # fmt: skip
@@ -147,6 +153,7 @@ class SignatureModel:
         self.raw = train.to_dict()
         self._units: dict[tuple[str, str], np.ndarray] = {}
         self._takeup: dict[tuple[str, str], float] = {}  # severity the pretension takes up
+        self._rel_sd: dict[tuple[str, str], float] = {}  # signature model errors
         self._roller_nodes = [train.node_index(r.node) for r in sorted(
             train.spec.roller, key=lambda r: CHANNELS.index(str(r.name)))]  # fmt: skip
 
@@ -249,13 +256,15 @@ class SignatureModel:
         it as a model error of the signature rather than a correction."""
         if kind != "elongation" or self.train.reduction is not None:
             return 0.0
-        moderate = KINDS[kind].levels[1]
-        errs = []
-        for s in (moderate, 2.0 * moderate):
-            static = self._change(element, kind, s)[len(CHANNELS) :]
-            j = int(np.argmax(np.abs(static)))
-            errs.append(abs(self.settled_lags(element, s)[j] / static[j] - 1.0))
-        return float(max(errs))
+        if (element, kind) not in self._rel_sd:
+            moderate = KINDS[kind].levels[1]
+            errs = []
+            for s in (moderate, 2.0 * moderate):
+                static = self._change(element, kind, s)[len(CHANNELS) :]
+                j = int(np.argmax(np.abs(static)))
+                errs.append(abs(self.settled_lags(element, s)[j] / static[j] - 1.0))
+            self._rel_sd[(element, kind)] = float(max(errs))
+        return self._rel_sd[(element, kind)]
 
     def settled_lags(self, element: str, s: float) -> np.ndarray:
         """Lag change (mrad) of a chain elongated by ``s`` % as the physics settles with it:
@@ -266,10 +275,7 @@ class SignatureModel:
         if key not in _SETTLED:
             tab = self.train.tables()
             row = [c.name for c in self.train.spec.chain].index(element)
-            chain_f = tab.chain_f.copy()
-            extra = chain_slack_m(s, chain_f[row, K.CH_P])
-            chain_f[row, K.CH_T0] -= chain_f[row, K.CH_K] * 0.5 * extra
-            slack = tab._replace(chain_f=chain_f)
+            slack = tab._replace(chain_f=slacken_chain(tab.chain_f, row, s))
             res = simulate(self.train, duration_s=3.5, output_rate_hz=1000.0, angles=True,
                            tables_at=lambda t: slack if t >= 1.0 else tab)  # fmt: skip
             theta = np.asarray(res.angle_rad)[1:, self._roller_nodes]

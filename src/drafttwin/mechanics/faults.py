@@ -13,6 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from drafttwin._constants import ROLLERS
 from drafttwin.mechanics.assembly import DriveTrain
 
@@ -115,3 +117,16 @@ def chain_slack_m(elongation_pct: float, pitch_m: float) -> float:
     """Extra loop length of a chain elongated by ``elongation_pct`` % (:data:`CHAIN_LINKS`
     pitches of ``pitch_m``), m: the pretension is lost and each span goes slack by half."""
     return elongation_pct / 100.0 * CHAIN_LINKS * pitch_m
+
+
+def slacken_chain(chain_f: np.ndarray, row: int, elongation_pct: float) -> np.ndarray:
+    """A copy of the kernel's chain table (``Tables.chain_f``) with chain ``row`` elongated by
+    ``elongation_pct`` %: its slack (:func:`chain_slack_m`) taken off the pretension at the
+    span stiffness, ``T0 - k slack / 2`` (each span goes slack by half). The plant injects an
+    elongation so, and diagnosis simulates it so."""
+    from drafttwin.mechanics import kernel as K
+
+    out = np.array(chain_f, dtype=np.float64, copy=True)
+    extra = chain_slack_m(elongation_pct, out[row, K.CH_P])
+    out[row, K.CH_T0] -= out[row, K.CH_K] * 0.5 * extra
+    return out

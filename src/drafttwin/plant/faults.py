@@ -61,7 +61,7 @@ from drafttwin.mechanics.faults import CHAIN_LINKS as CHAIN_LINKS
 from drafttwin.mechanics.faults import KINDS as KINDS
 from drafttwin.mechanics.faults import (  # the catalogue and a fault's physics live there
     MACHINE_FAMILIES,
-    chain_slack_m,
+    slacken_chain,
     worn_stiffness_factor,
 )
 from drafttwin.mechanics.faults import SENSOR_CHANNELS as SENSOR_CHANNELS
@@ -226,8 +226,7 @@ class FaultSchedule:
                 belt_f[[b_.name for b_ in spec.belt].index(f.element), K.BELT_INV_EA] /= 1.0 - s
             elif f.kind == "elongation":
                 row = [c.name for c in spec.chain].index(f.element)
-                extra = chain_slack_m(s, chain_f[row, K.CH_P])
-                chain_f[row, K.CH_T0] -= chain_f[row, K.CH_K] * 0.5 * extra
+                chain_f = slacken_chain(chain_f, row, s)
             elif f.kind == "bearing_friction":
                 rows = (b.drag_i[:, 0] == self.train.node_index(f.element)) & (
                     b.drag_f[:, K.DR_KIND] == 1.0
