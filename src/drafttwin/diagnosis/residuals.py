@@ -136,7 +136,12 @@ class LagCarry:
     gives them over the whole record: each block is computed after the last :data:`ANCHOR`
     rows of the rows before it, so the lags go on where they stopped and a gap at a block's
     edge is bridged with rows on both sides, not lost with its counts (a lost edge on every
-    such gap would add up to a random walk, and to false alarms on the lag streams)."""
+    such gap would add up to a random walk, and to false alarms on the lag streams).
+
+    Not the same numbers: each call takes its own rows' median speed ratio, and a gap is
+    anchored only with the rows at hand (the offline lags may use up to :data:`ANCHOR` rows
+    past a block's end). On 10.5-min plant records of the fault benchmark the two differ by
+    up to 3.4 mrad, the block-fed lags' SD up to 3.3 times larger (four records, 2026-11-27)."""
 
     def __init__(self) -> None:
         self.y: np.ndarray | None = None
