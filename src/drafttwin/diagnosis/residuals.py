@@ -138,10 +138,11 @@ class LagCarry:
     edge is bridged with rows on both sides, not lost with its counts (a lost edge on every
     such gap would add up to a random walk, and to false alarms on the lag streams).
 
-    Not the same numbers: each call takes its own rows' median speed ratio, and a gap is
-    anchored only with the rows at hand (the offline lags may use up to :data:`ANCHOR` rows
-    past a block's end). On 10.5-min plant records of the fault benchmark the two differ by
-    up to 3.4 mrad, the block-fed lags' SD up to 3.3 times larger (four records, 2026-11-27)."""
+    Not the same numbers: a gap is anchored only with the rows at hand (the offline lags may
+    use up to :data:`ANCHOR` rows past a block's end), and each call is aligned to the
+    carried rows. On 10.5-min plant records of the fault benchmark the two differ by up to
+    3.4 mrad, the block-fed lags' SD up to 3.3 times larger (four records, 2026-11-27; the
+    speed ratio is not the cause: with the whole record's ratio the numbers are the same)."""
 
     def __init__(self) -> None:
         self.y: np.ndarray | None = None
