@@ -230,8 +230,8 @@ def fit(
         for note in notes:
             err_console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
     physics = _source(source.mechanistic, estimator, parsed.outputs, full_model)
-    if full_model and not quiet and (physics is None or "cutoff_hz" not in physics.spec()
-                                     and physics.spec()["kind"] not in ("preset", "train")):  # fmt: skip
+    if full_model and not quiet and (physics is None
+                                     or physics.spec()["kind"] not in ("preset", "train")):  # fmt: skip
         what = "uses no physics" if physics is None else "takes its physics from files"
         err_console.print(f"note: --full-model changes nothing: the {estimator.name} model {what}",
                           highlight=False, soft_wrap=True)  # fmt: skip
