@@ -85,13 +85,11 @@ def _source(
                               where="--mechanistic", fix="leave --mechanistic out")  # fmt: skip
         return None
     fitted = getattr(model, "mechanistic_spec_", None)
-    if hasattr(model, "channels_"):
-        cutoff_hz = spec_cutoff_hz(fitted)
-    else:
-        cutoff_hz = None if full else DEFAULT_CUTOFF_HZ
+    is_fitted = hasattr(model, "channels_")
+    cutoff_hz = spec_cutoff_hz(fitted) if is_fitted else (None if full else DEFAULT_CUTOFF_HZ)
     if option is not None:
         return MechanisticModel.from_option(option, cutoff_hz=cutoff_hz)
-    if hasattr(model, "channels_"):
+    if is_fitted:
         source = MechanisticModel.from_spec(fitted)
         if source is None:
             raise ConfigError(

@@ -245,8 +245,17 @@ class FaultDetector:
         factor: np.ndarray = np.maximum(1.0, 1.0 + 2.0 * (weights[:, None] * rho).sum(axis=0))
         return factor
 
+    def reference_blocks(self, block_s: float) -> int:
+        """Blocks of ``block_s`` seconds in the reference window (at least 2)."""
+        return max(2, int(round(self.reference_s / block_s)))
+
+    @property
+    def drift_alpha(self) -> float:
+        """The baseline's EWMA weight per block while it follows slow drift."""
+        return min(1.0, self.block_s_ / self.drift_tau_s)
+
     def _n_ref(self, f: BlockFeatures) -> int:
-        n_ref = max(2, int(round(self.reference_s / f.block_s)))
+        n_ref = self.reference_blocks(f.block_s)
         if len(f.level) <= n_ref:
             raise DataError(f"the record ({len(f.level) * f.block_s:g} s) is not longer than the "
                             f"reference window ({self.reference_s:g} s)", where="data",
@@ -349,8 +358,9 @@ class FaultDetector:
             det.run_limit_ = _array(state["run_limit"], (nc,), "run_limit", source)
             det.lost_limit_ = _array(state["lost_limit"], (nc,), "lost_limit", source)
             nl = len(LAGGED)  # a state written before the walk was measured: none
-            walk = state.get("lag_walk", np.zeros((nl, nl)).tolist())
-            det.lag_walk_ = _array(walk, (nl, nl), "lag_walk", source)
+            det.lag_walk_ = _array(
+                state.get("lag_walk", np.zeros((nl, nl))), (nl, nl), "lag_walk", source
+            )
         except (KeyError, TypeError, ValueError) as exc:
             raise DataError(f"not a fitted detector ({type(exc).__name__}: {exc})",
                             source=source, fix="fit it again (drafttwin twin fit-detector)") from None  # fmt: skip
@@ -397,7 +407,7 @@ class CusumState:
         self.det, self.n_ref, self.block_s = detector, n_ref, block_s
         self.a = stream_matrix()
         self.scale = detector.sigma_ * np.sqrt((1 - detector.phi_**2) * detector.long_run_)
-        self.alpha = min(1.0, detector.block_s_ / detector.drift_tau_s)
+        self.alpha = detector.drift_alpha
         self.up, self.down, self.prev = np.zeros(ns), np.zeros(ns), np.zeros(ns)
         self.fresh = True  # no decided block since the (re)baseline: ``prev`` is not one
         self.up_start, self.down_start = np.zeros(ns), np.zeros(ns)  # block end times

@@ -241,8 +241,7 @@ class Diagnoser:
         t = blocks.astype(float)
         parts = np.array([[np.mean(rho ** np.abs(t[ha][:, None] - t[hb][None, :]))
                            for hb in halves] for ha in halves])  # fmt: skip
-        n_ref = max(2, int(round(det.reference_s / det.block_s_)))
-        base = baseline_weights(base_end, n_ref, min(1.0, det.block_s_ / det.drift_tau_s))
+        base = baseline_weights(base_end, det.reference_blocks(det.block_s_), det.drift_alpha)
         walk = walk_covariance([blocks[h] for h in halves], base)
         cov = block_diag(cov_l, np.kron(parts, det.feature_cov_[nc:, nc:])
                          + np.kron(walk, det.lag_walk_))  # fmt: skip

@@ -76,18 +76,19 @@ def walk_covariance(parts: Sequence[np.ndarray], base: np.ndarray) -> np.ndarray
     """Covariance, per unit walk rate, of each part's mean (block indices ``parts``) minus
     the baseline (``base``: weights of blocks ``0 .. len(base)-1``), ``(parts, parts)``: for
     a walk, ``cov(W[i], W[j])`` grows with ``min(i, j)``; the origin cancels because every
-    mean's weights sum to one."""
-    idx = [np.asarray(p, dtype=np.float64) for p in parts]
-    rows = np.arange(len(base), dtype=np.float64)
+    mean's weights sum to one. ``min(i, j)`` is the number of steps ``k = 1 .. min(i, j)``,
+    so each term is a sum over ``k`` of two tail sums of weights: linear in the record's
+    length (a live twin's block index grows by 86 400 a day)."""
+    idx = [np.asarray(p, dtype=np.int64) for p in parts]
+    size = max([len(base), *(int(i.max()) + 1 for i in idx if len(i))])
 
-    def cross(a: np.ndarray, wa: np.ndarray, b: np.ndarray, wb: np.ndarray) -> float:
-        return float(wa @ np.minimum.outer(a, b) @ wb)
+    def tail(rows: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        dense = np.bincount(rows, weights=weights, minlength=size)
+        sums: np.ndarray = np.cumsum(dense[::-1])[::-1][1:]  # weights at rows >= k, k >= 1
+        return sums
 
-    out = np.zeros((len(idx), len(idx)))
-    for i, a in enumerate(idx):
-        wa = np.full(len(a), 1.0 / len(a))
-        for j, b in enumerate(idx):
-            wb = np.full(len(b), 1.0 / len(b))
-            out[i, j] = (cross(a, wa, b, wb) - cross(a, wa, rows, base)
-                         - cross(rows, base, b, wb) + cross(rows, base, rows, base))  # fmt: skip
-    return 0.5 * (out + out.T)
+    baseline = tail(np.arange(len(base)), base)
+    tails = [tail(i, np.full(len(i), 1.0 / len(i))) - baseline for i in idx]
+    out = np.array([[float(ta @ tb) for tb in tails] for ta in tails])
+    cov: np.ndarray = 0.5 * (out + out.T)
+    return cov

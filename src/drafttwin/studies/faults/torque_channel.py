@@ -51,7 +51,7 @@ def healthy_scales(seconds: float = 100.0, machine_seed: int = 0) -> tuple[float
     train = DriveTrain.preset("fa320a")
     records = [plant.run(seconds, seed=s, machine=machine) for s in (1, 2)]
     detector = FaultDetector().fit([record_features(train, r.series, 1.0) for r in records])
-    n_ref = int(round(detector.reference_s))
+    n_ref = detector.reference_blocks(1.0)
     devs = []
     for r in records:
         torque = np.asarray(r.true_motor_torque_nm)
