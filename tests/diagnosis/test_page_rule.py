@@ -13,21 +13,22 @@ from drafttwin.diagnosis.locate import Cause
 from drafttwin.diagnosis.residuals import block_features
 from drafttwin.mechanics import DriveTrain
 
-from ..test_faults_angles import counted, lost_rows
+from ..test_faults_angles import TUNING_ROWS, counted, lost_rows
 
-N = 8000  # 80 s at 100 Hz: the lags are watched after 75 s of tuning
+N = 8000  # 80 s at 100 Hz
 T = np.arange(N) * 0.01
 
 
-def features(step_mrad: float, seed: int):
-    y, true = counted(step_mrad, 50.0, N, seed)
+def features(step_mrad: float, seed: int, n: int = N):
+    y, true = counted(step_mrad, 50.0, n, seed)
     y = lost_rows(y, seed)
-    return y, true, block_features(y, true, T, 1.0)
+    return y, true, block_features(y, true, np.arange(n) * 0.01, 1.0)
 
 
 @pytest.fixture(scope="module")
 def detector():
-    det = FaultDetector().fit([features(0.0, s)[2] for s in (21, 22)])
+    # the lags are watched with 400 decided blocks of tuning: 2 x 225 here
+    det = FaultDetector().fit([features(0.0, s, TUNING_ROWS)[2] for s in (21, 22)])
     # these synthetic counts of a constant speed repeat one value through a step's 0.1-s
     # dip (see test_faults_angles): the stuck rule is not what the lag test is about
     det.run_limit_ = det.run_limit_ * 10

@@ -140,7 +140,7 @@ def test_opcua_nodes_carry_units_ranges_identity_and_the_source_time() -> None:
     assert f["range"].Low == 0 and f["range"].High > f["values"][0] > 1000
     assert f["description"] != "front_rpm" and "roller" in f["description"]
     assert f["dims"] == [8] and f["fields"][:3] == ["seq", "time", "front"]
-    assert f["serial"] == "fa320a-seed-0" and f["state"] == "Executing"
+    assert f["serial"] == "FA320A-SIM-0" and f["state"] == "Executing"
     for v in f["values"]:  # as measured: no binary noise from the unit conversion
         assert v == round(v, 2) and repr(v) == repr(round(v, 2))
     # one clock: the sample's SourceTimestamp is its own time, and the scalar's lies on the

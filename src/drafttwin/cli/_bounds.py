@@ -80,6 +80,7 @@ _RANGES: dict[str, str] = {
     "--commit-ms": "[1, 60_000] ms",
     "--retention-hours": "(0, 1e6] h",
     "--silent": "[0.05, 3600] s",
+    "--learn": "[0, 86_400] s",
     "--from": "[0, 1e11] s",
     "--to": "[0, 1e11] s",
     "--machines": "[1, 10_000] machines",

@@ -91,8 +91,16 @@ PublishOpt = Annotated[list[str] | None, typer.Option("--publish", help="Publish
                        "drafttwin/twin]; hz: predictions per machine and second; repeatable "
                        "(docs/twin.md).")]  # fmt: skip
 DetectorOpt = Annotated[str, typer.Option("--detector", help=(
-    "Fault detector: auto (MODEL.dtm.detector.json when it exists, from 'twin fit-detector') | "
-    "none | FILE. Alarms with their probable cause go to the store, the page, /api/alarms and /metrics."))]  # fmt: skip
+    "Fault detection: auto (each machine learns its healthy state, on top of "
+    "MODEL.dtm.detector.json from 'twin fit-detector' when it exists; a baseline it learned "
+    "before is read back from --store) | none | FILE (the detector file to learn on top of). "
+    "Alarms with their probable cause go to the store, the page, /api/alarms, /metrics and "
+    "--publish."))]  # fmt: skip
+LearnOpt = Annotated[float | None, number("--learn", (
+    "Seconds of running a machine new to the twin learns before it is watched (no fault "
+    "alarm meanwhile). Default: what the detector needs: 600 alone, 120 on top of a detector "
+    "file that watches the angle lags. 0: no learning, the detector file judges every "
+    "machine as it is (one fitted on another machine is flagged)."))]  # fmt: skip
 SilentOpt = Annotated[float, number("--silent", "A machine silent this long (s) is marked as a gap.")]  # fmt: skip
 MaxSamplesOpt = Annotated[int | None, number("--max-samples", "Stop after this many processed samples.")]  # fmt: skip
 # derived from the parameter's name, as --verbose/--no-verbose
@@ -105,7 +113,8 @@ def twin_run(
     model: TwinModelOpt, source: SourcesOpt, mapping: MappingOpt = None,
     store: StoreOpt = None, commit_ms: CommitMsOpt = 200.0, retention_hours: RetentionOpt = None,
     http: HttpOpt = None, token: TokenOpt = None, physics: TwinPhysicsOpt = "reduced",
-    publish: PublishOpt = None, detector: DetectorOpt = "auto", silent: SilentOpt = 2.0,
+    publish: PublishOpt = None, detector: DetectorOpt = "auto", learn: LearnOpt = None,
+    silent: SilentOpt = 2.0,
     duration: StopAfterOpt = None, max_samples: MaxSamplesOpt = None,
     verbose: VerboseOpt = False, quiet: TwinQuietOpt = False, as_json: StatusJsonOpt = False,
 ) -> None:  # fmt: skip
@@ -136,7 +145,7 @@ def twin_run(
     service = build_service(model, source, mapping=mapping, store_dir=store, commit_ms=commit_ms,
                             retention_s=None if retention_hours is None else retention_hours * 3600,
                             physics=physics, silent_s=silent, on_commit=on_commit,
-                            detector=detector)  # fmt: skip
+                            detector=detector, learn_s=learn)  # fmt: skip
     start = time.monotonic()
     try:
         from drafttwin.twin.aio import run_until_signal

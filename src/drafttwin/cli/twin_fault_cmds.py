@@ -29,7 +29,7 @@ def twin_fit_detector(
     healthy: HealthyOpt,
     far_per_day: FarPerDayOpt = 1.0,
     reference: ReferenceOpt = 15.0,
-    post: PostOpt = 10.0,
+    post: PostOpt = 20.0,
     out: DetectorOutOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -37,9 +37,12 @@ def twin_fit_detector(
 
     The residuals of each record against the model's physics (open loop, the rollers and the
     motor, in 1-s blocks) set each CUSUM's scale, its AR(1) coefficient and a threshold for the
-    false-alarm rate asked, as 'drafttwin diagnose' does offline. 'twin run' then raises an
-    alarm per sample block and names its probable cause. The file is tied to the model by its
-    SHA-256: refitting the model needs a new detector.
+    false-alarm rate asked, as 'drafttwin diagnose' does offline. 'twin run' takes it as the
+    prior each machine learns its own healthy state on (2 min instead of 10 when it watches
+    the angle lags: give at least 7 min of healthy running in all), or with --learn 0 as the
+    detector of every machine. The file names the machines its records were made on (from
+    their sidecars) and is tied to the model by its SHA-256: refitting the model needs a new
+    detector.
     """
     from drafttwin.cli._data import Channels
     from drafttwin.diagnosis.detect import FaultDetector
@@ -47,6 +50,7 @@ def twin_fit_detector(
     from drafttwin.twin.build import load_twin_model
     from drafttwin.twin.faultwatch import detector_path, plant_log_series, save_detector
     from drafttwin.twin.live import physics_train
+    from drafttwin.twin.sources.replay import recorded_identity
 
     files = [p.strip() for p in healthy.split(",") if p.strip()]
     if not files:
@@ -60,13 +64,15 @@ def twin_fit_detector(
     features = [record_features(train, s) for s in series]
     detector = FaultDetector(far_per_day=far_per_day, reference_s=reference).fit(features)
     target = out if out is not None else detector_path(model)
-    save_detector(target, detector, model, files, post)
-    result = {"detector": str(target), "model": str(model), "fitted_on": files, "post_s": post,
-              **detector.describe()}  # fmt: skip
+    machines = sorted({i.serial for p in files if (i := recorded_identity(Path(p))) is not None})
+    save_detector(target, detector, model, files, post, machines)
+    result = {"detector": str(target), "model": str(model), "fitted_on": files,
+              "machines": machines, "post_s": post, **detector.describe()}  # fmt: skip
     if as_json:
         print_json(result)
         return
-    console.print(f"fitted on {len(series)} record(s): CUSUM threshold h = {detector.h_:.2f} "
+    made_on = f" of {', '.join(machines)}" if machines else ""
+    console.print(f"fitted on {len(series)} record(s){made_on}: CUSUM threshold h = {detector.h_:.2f} "
                   f"(k = {detector.k:g}, {far_per_day:g} false alarm(s) per 24 h), "
                   f"blocks of {detector.block_s_:g} s, baseline {reference:g} s")  # fmt: skip
     if (note := detector.lags_note()) is not None:

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from drafttwin.data.series import MeasurementSeries
+from drafttwin.diagnosis.blocks import BlockRow
 from drafttwin.diagnosis.detect import STREAMS, Alarm, Detection, FaultDetector, feature_matrix
 from drafttwin.diagnosis.growth import block_severities, severity_trend
 from drafttwin.diagnosis.locate import (
@@ -30,14 +31,20 @@ from drafttwin.diagnosis.locate import (
     explained,
     rank_causes,
 )
-from drafttwin.diagnosis.residuals import CHANNELS, LAGGED, BlockFeatures, record_features
+from drafttwin.diagnosis.residuals import (
+    CHANNELS,
+    LAGGED,
+    BlockFeatures,
+    measured,
+    physics_prediction,
+    roller_ratio,
+)
 from drafttwin.diagnosis.sensors import size_sensor_fault
 from drafttwin.diagnosis.spectrum import LineEvidence, line_evidence
+from drafttwin.diagnosis.stream import POST_S, Decisions, DiagnosisStream, RankRequest, Step
 from drafttwin.diagnosis.walk import baseline_weights, walk_covariance
+from drafttwin.errors import DataError
 from drafttwin.mechanics import DriveTrain
-
-POST_S = 30.0  # s after the alarm used to measure the shift
-MIN_BLOCKS = 5
 
 
 @dataclass
@@ -97,89 +104,125 @@ class Diagnosis:
 
 
 class Diagnoser:
-    """Detection, then localisation, on the physics ``train`` with a fitted detector.
+    """Detection, then localisation, on the physics ``train`` with a fitted detector: a
+    record pushed through a :class:`~drafttwin.diagnosis.stream.DiagnosisStream` (the live
+    twin's own), its first alarm's window ranked.
 
     Args:
         model_mismatch: allow for the physics' belt creep being off on this machine (its
             relative error estimated from the detector's healthy records,
             :func:`~drafttwin.diagnosis.locate.creep_mismatch`) in the ranking's covariance.
+        post_s: the window after an alarm whose shift is ranked, s.
+        signatures: the train's :class:`~drafttwin.diagnosis.locate.SignatureModel`, when one
+            is at hand (it is the costly part; machines of one train share it).
     """
 
-    def __init__(self, train: DriveTrain, detector: FaultDetector,
-                 model_mismatch: bool = True) -> None:  # fmt: skip
-        self.train, self.detector = train, detector
-        self.signatures = SignatureModel(train)
+    def __init__(self, train: DriveTrain, detector: FaultDetector, model_mismatch: bool = True,
+                 post_s: float = POST_S, signatures: SignatureModel | None = None) -> None:  # fmt: skip
+        self.train, self.detector, self.post_s = train, detector, post_s
+        self.signatures = SignatureModel(train) if signatures is None else signatures
         self.creep_rel_sd = (creep_mismatch(self.signatures, detector.belt_level_)
                              if model_mismatch else 0.0)  # fmt: skip
 
+    def stream(self, period_s: float, *, trace: bool = False, machine: str = "") -> DiagnosisStream:
+        """A stream of this diagnosis for rows every ``period_s`` seconds."""
+        return DiagnosisStream(period_s, roller_ratio(self.train), detector=self.detector,
+                               post_s=self.post_s, trace=trace, machine=machine)  # fmt: skip
+
     def diagnose(self, series: MeasurementSeries) -> Diagnosis:
         """Detect, locate and size (with spectral evidence) in one record."""
-        f = record_features(self.train, series, self.detector.block_s_)
-        dx = self.from_features(f)
+        t = np.asarray(series.time_s, dtype=np.float64)
+        if len(t) < 2:
+            raise DataError("the record has fewer than two samples", where="data",
+                            fix="give a longer record")  # fmt: skip
+        stream = self.stream(float(np.median(np.diff(t))), trace=True)
+        step = stream.push(t, measured(series), physics_prediction(self.train, series))
+        step += stream.finish()
+        if not stream.rows:
+            raise DataError(f"the record is shorter than one block ({self.detector.block_s_:g} s)",
+                            where="data", fix="give a longer record")  # fmt: skip
+        f = BlockFeatures.from_rows(stream.rows, stream.blocks.block_s)
+        assert stream.decisions is not None
+        dx = self._diagnosis(f, stream.decisions, step)
         a = dx.alarm
         if a is not None:
             dx.lines = line_evidence(self.train, series, a.change_s, a.time_s)
-        if (
-            a is not None
-            and dx.causes
-            and dx.causes[0].family == "sensor"
-            and dx.causes[0].kind != "gain"
-        ):
-            j = CHANNELS.index(dx.causes[0].element)
-            healthy_run = float(self.detector.run_limit_[j]) / 2  # the longest in tuning
-            dx.causes[0] = size_sensor_fault(series, dx.causes[0], a.time_s, a.change_s,
-                                             f.block_s, healthy_run)  # fmt: skip
         return dx
 
     def from_features(self, f: BlockFeatures) -> Diagnosis:
-        """Detection and localisation from block features alone (no spectra)."""
-        det = self.detector.run(f)
+        """Detection and localisation from block features alone (no spectra, no sensor
+        sizing on samples)."""
+        decisions = Decisions(self.detector, f.block_s, post_s=self.post_s, trace=True)
+        step = Step()
+        x = feature_matrix(f)
+        for j in range(len(x)):
+            step += decisions.add(BlockRow(j, float(f.time_s[j]), f.level[j], f.lost[j], f.run[j],
+                                           x[j, len(CHANNELS):]))  # fmt: skip
+        step += decisions.finish()
+        return self._diagnosis(f, decisions, step)
+
+    def _diagnosis(self, f: BlockFeatures, decisions: Decisions, step: Step) -> Diagnosis:
+        """The record's first alarm and its window's causes."""
+        det = decisions.detection()
         dx = Diagnosis(f, det)
         alarm = det.first
         if alarm is None:
             return dx
-        if alarm.direction == 0:  # a sensor rule: the channel is named, nothing else
-            dx.causes = [sensor_cause(alarm, f.lost[alarm.block], f.run[alarm.block])]
+        req = next((r for r in step.requests if r.alarm == alarm), None)
+        if req is None:
             return dx
-        base = det.baseline_at_alarm
-        assert base is not None
-        x = feature_matrix(f)
-        after = np.arange(len(x)) > alarm.block
-        det.deviation[after] = x[after] - base  # evidence past the alarm, for the page
-        # the shift after the alarm (a ramp has grown by then); the record up to the alarm
-        # when too little follows it
-        finite = np.isfinite(x).all(axis=1)
-        window = (f.time_s > alarm.time_s) & (f.time_s <= alarm.time_s + POST_S) & finite
-        if window.sum() < MIN_BLOCKS:
-            window = (f.time_s > alarm.change_s) & (f.time_s <= alarm.time_s + POST_S) & finite
-        if not window.any():
-            return dx
-        blocks = np.flatnonzero(window)
-        sensor = self._sensor_in_window(f, alarm, int(blocks[-1]))
-        if sensor is not None:  # a stuck or dropped encoder explains the shift: name it
-            dx.causes = [sensor]
-            return dx
-        dx.shift, dx.causes = self.rank(f.time_s[blocks], blocks, x[window] - base, alarm.change_s,
-                                        alarm.block)  # fmt: skip
-        # the trend of the cause the verdict names: the first that fits, else the first
-        i = next((i for i, c in enumerate(dx.causes) if c.fits), 0)
-        if dx.causes:
-            dx.causes[i] = self._with_growth(dx.causes[i], f, x - base, alarm)
+        det.baseline_at_alarm = req.base
+        after = np.arange(len(f.time_s)) > alarm.block
+        det.deviation[after] = feature_matrix(f)[after] - req.base  # the evidence, for the page
+        dx.shift, dx.causes = self.locate(req)
         return dx
 
-    def _with_growth(self, cause: Cause, f: BlockFeatures, dev: np.ndarray, alarm: Alarm) -> Cause:
-        """``cause`` with the trend of its severity over the record's last :data:`POST_S`
-        seconds after the alarm (:mod:`drafttwin.diagnosis.growth`)."""
-        finite = np.isfinite(dev).all(axis=1) & (f.time_s > alarm.time_s)
+    def locate(self, req: RankRequest) -> tuple[np.ndarray | None, list[Cause]]:
+        """The causes of a window (:class:`~drafttwin.diagnosis.stream.RankRequest`), the best
+        first, with the shift they explain; a sensor rule's window: its channel, sized on the
+        samples when the request carries them. The live twin calls this in its worker."""
+        if req.sensor is not None:
+            return None, [self._sensor_cause(req)]
+        if req.n_blocks == 0:
+            return None, []
+        shift, causes = self.rank(req.time_s, req.blocks, req.deviation, req.alarm.change_s,
+                                  req.alarm.block)  # fmt: skip
+        # the trend of the cause the verdict names: the first that fits, else the first
+        i = next((i for i, c in enumerate(causes) if c.fits), 0)
+        if causes:
+            causes[i] = self._with_growth(causes[i], req)
+        return shift, causes
+
+    def _sensor_cause(self, req: RankRequest) -> Cause:
+        assert req.sensor is not None and req.sensor_window is not None
+        channel, kind = req.sensor
+        w = req.sensor_window
+        named = Alarm(w.time_s, w.block, f"{'lost' if kind == 'dropout' else 'stuck'}_{channel}",
+                      0, w.time_s - req.block_s, "sensor")  # fmt: skip
+        period = None
+        if req.raw_time_s is not None and len(req.raw_time_s) > 1:
+            period = float(np.median(np.diff(req.raw_time_s)))
+        cause = sensor_cause(named, w.lost, w.run, None if period is None else 1.0 / period)
+        if req.raw_y is None or req.raw_time_s is None or period is None:
+            return cause
+        j = CHANNELS.index(channel)
+        healthy_run = float(self.detector.run_limit_[j]) / 2  # the longest in tuning
+        return size_sensor_fault(req.raw_time_s, req.raw_y, cause, w.time_s,
+                                 min(req.alarm.change_s, named.change_s), req.block_s,
+                                 healthy_run)  # fmt: skip
+
+    def _with_growth(self, cause: Cause, req: RankRequest) -> Cause:
+        """``cause`` with the trend of its severity over the window
+        (:mod:`drafttwin.diagnosis.growth`)."""
+        finite = np.isfinite(req.deviation).all(axis=1)
         if not finite.any():
             return cause
-        end = float(f.time_s[finite][-1])
-        blocks = np.flatnonzero(finite & (f.time_s > end - POST_S))
+        dev, t = req.deviation[finite], req.time_s[finite]
         det = self.detector
-        sev = block_severities(self.signatures, cause, dev[blocks], det.feature_cov_)
+        sev = block_severities(self.signatures, cause, dev, det.feature_cov_)
         lag0 = STREAMS.index(f"lag_{LAGGED[0]}")
         phi = det.phi_[lag0:] if cause.kind in ANGLE_KINDS else det.phi_[:lag0]
-        mid = f.time_s[blocks] - f.block_s / 2
+        mid = t - req.block_s / 2
         growth = severity_trend(sev, mid, float(np.max(phi)), 1.0 if cause.severity >= 0 else -1.0)
         if growth is None:
             return cause
@@ -192,19 +235,6 @@ class Diagnoser:
         half = float(np.hypot(stat, half_rank * max(1.0, scale)))
         at_end = (growth.severity - half, growth.severity + half)
         return replace(cause, growth=replace(growth, interval=at_end))
-
-    def _sensor_in_window(self, f: BlockFeatures, alarm: Alarm, last: int) -> Cause | None:
-        """A sensor rule firing from the change estimate to the window's end. A stuck or
-        dropped encoder corrupts its channel's level and, through the lost or held counts,
-        its angle lag at once, so a CUSUM can alarm a block before the sensor rule does (a
-        1-s stuck value moved the back roller's lag by tens of mrad); the ranking would then
-        blame a machine element for the sensor's fault."""
-        first = int(np.searchsorted(f.time_s, alarm.change_s))
-        for j in range(min(first, alarm.block), last + 1):
-            a = self.detector.sensor_alarm(float(f.time_s[j]), j, f.lost[j], f.run[j], f.block_s)
-            if a is not None:
-                return sensor_cause(a, f.lost[j], f.run[j])
-        return None
 
     def rank(self, time_s: np.ndarray, blocks: np.ndarray, dev: np.ndarray,
              change_s: float, alarm_block: int | None = None) -> tuple[np.ndarray, list[Cause]]:  # fmt: skip

@@ -3,7 +3,8 @@
 A sensor rule fires on one block's features (the longest run of one repeated value, the
 share of samples lost there); the fault itself spans more: a stuck encoder repeats its value
 for seconds, a failing one loses a share of its samples from the onset on. Here the named
-channel's samples give
+channel's samples (those the diagnosis stream keeps: the alarm's window and what precedes
+it) give
 
 * ``stuck``: the time the channel repeated one value, s (the run of identical finite values
   through the alarm block, lost rows bridged), +- one sample and the longest run a healthy
@@ -19,20 +20,19 @@ from dataclasses import replace
 import numpy as np
 from scipy.stats import binomtest
 
-from drafttwin.data.series import MeasurementSeries
 from drafttwin.diagnosis.locate import Cause
-from drafttwin.diagnosis.residuals import CHANNELS, measured
+from drafttwin.diagnosis.residuals import CHANNELS
 from drafttwin.mechanics.faults import KINDS
 
 
-def size_sensor_fault(series: MeasurementSeries, cause: Cause, alarm_s: float, change_s: float,
-                      block_s: float, healthy_run: float) -> Cause:  # fmt: skip
-    """``cause`` (a sensor rule's) sized on ``series``: see the module. ``alarm_s``: the
-    alarm block's end; ``healthy_run``: the longest run of one value the channel showed in
-    the healthy records, samples."""
-    y = measured(series)
+def size_sensor_fault(time_s: np.ndarray, y: np.ndarray, cause: Cause, alarm_s: float,
+                      change_s: float, block_s: float, healthy_run: float) -> Cause:  # fmt: skip
+    """``cause`` (a sensor rule's) sized on the samples ``time_s`` ``(n,)`` and ``y`` ``(n,
+    5)`` (the rollers and the motor): see the module. ``alarm_s``: the end of the block whose
+    rule fired; ``healthy_run``: the longest run of one value the channel showed in the
+    healthy records, samples."""
     j = CHANNELS.index(cause.element)
-    t = np.asarray(series.time_s, dtype=np.float64)
+    t = np.asarray(time_s, dtype=np.float64)
     if cause.kind == "stuck":
         return _stuck(cause, t, y[:, j], alarm_s - block_s, alarm_s, healthy_run)
     if cause.kind == "dropout":

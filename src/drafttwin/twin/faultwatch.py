@@ -1,23 +1,20 @@
-"""Fault detection and probable cause in the live path (issue 13's detector, run live).
+"""Fault detection and probable cause in the live path: the offline diagnosis, fed row by row.
 
-Per machine, :class:`LiveFaultWatch` takes each processed row (in time order) and keeps one
-block of measured and open-loop physics speeds (the four rollers and the motor). When a block
-closes, its features come from the same function the offline diagnosis uses
-(:func:`~drafttwin.diagnosis.residuals.block_features`) and go to the same CUSUM decisions
-(:class:`~drafttwin.diagnosis.detect.CusumState`): per sample the cost is a copy into the block
-buffer; per block one feature row and one CUSUM step. Nothing is recomputed over the history.
+Per machine, :class:`LiveFaultWatch` pushes each processed row (in time order: measured and
+open-loop physics speeds of the four rollers and the motor) into the diagnosis's own
+:class:`~drafttwin.diagnosis.stream.DiagnosisStream`: the same blocks, lags, statistics,
+thresholds and windows as ``drafttwin diagnose`` on the same rows (tested by replay), so the
+live word is the offline one. A machine new to the twin first learns its healthy state
+(:mod:`drafttwin.diagnosis.learning`; no fault alarm meanwhile), on top of the model's
+detector file as a prior when there is one; its baseline is kept in the store with its
+identity (:mod:`drafttwin.twin.store.baselines`).
 
-A sensor rule fires on every block while its fault lasts; the watch raises it once per
-episode (offline, ``run(stop_at_first=False)`` lists every block). After a CUSUM alarm the
-watch collects :data:`POST_S` of blocks (the shift grows by then, as
-offline) and hands the mean shift to the model-based ranking
-(:meth:`~drafttwin.diagnosis.diagnose.Diagnoser.rank`), which the service runs in a separate
-process (:class:`Locator`): a second of SciPy fits must not hold up any machine's samples.
-A sensor rule names its channel at once.
+A window's ranking (SciPy fits, about a second) runs in a separate process
+(:class:`Locator`), so it never holds up any machine's samples; a sensor rule names its
+channel at once, its window sizes the fault on the samples.
 
-The detector's thresholds come from healthy records and are stored next to the model
-(``MODEL.dtm.detector.json``, :func:`save_detector`), tied to the model file by its SHA-256 and
-checked when read back (:func:`load_detector`).
+The detector file (``MODEL.dtm.detector.json``, :func:`save_detector`) is tied to the model
+file by its SHA-256 and names the records (and machines) it was fitted on.
 """
 
 from __future__ import annotations
@@ -25,10 +22,8 @@ from __future__ import annotations
 import json
 import math
 import threading
-from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ProcessPoolExecutor
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -37,18 +32,18 @@ import numpy as np
 from drafttwin._constants import ROLLERS
 from drafttwin._io import sha256_file
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.diagnosis.detect import Alarm, CusumState, FaultDetector
+from drafttwin.diagnosis.detect import Alarm, FaultDetector
 from drafttwin.diagnosis.diagnose import Diagnoser, sensor_cause
-from drafttwin.diagnosis.residuals import CHANNELS, LagCarry, block_features
+from drafttwin.diagnosis.learning import Learner, learn_time
+from drafttwin.diagnosis.locate import SignatureModel
+from drafttwin.diagnosis.residuals import CHANNELS
+from drafttwin.diagnosis.stream import BLOCK_S, POST_S, DiagnosisStream, RankRequest, Step
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain
 from drafttwin.twin.store.db import SampleRow
 
 FORMAT = "drafttwin-live-detector"
 VERSION = 1
-POST_S = 10.0
-"""Seconds of blocks after a CUSUM alarm whose mean shift is ranked (offline: up to 30 s;
-live, a shorter window gives the probable cause sooner)."""
 TOP = 3
 """Causes kept per alarm (the best first)."""
 MAX_PENDING = 4
@@ -61,22 +56,25 @@ def detector_path(model: Path) -> Path:
 
 
 def save_detector(path: Path, detector: FaultDetector, model: Path, fitted_on: list[str],
-                  post_s: float = POST_S) -> None:  # fmt: skip
+                  post_s: float = POST_S, machines: list[str] | None = None) -> None:  # fmt: skip
     """Write the fitted detector (atomic), tied to ``model`` by its SHA-256, with the live
-    post-alarm window ``post_s``."""
+    post-alarm window ``post_s`` and the serial numbers of the ``machines`` its records were
+    made on (where their files say)."""
     from drafttwin._io import atomic_path
     from drafttwin._json import dumps_strict
 
     doc = {"format": FORMAT, "version": VERSION, "model_file": model.name,
-           "model_sha256": sha256_file(model), "fitted_on": fitted_on, "post_s": post_s,
+           "model_sha256": sha256_file(model), "fitted_on": fitted_on,
+           "machines": sorted(set(machines or [])), "post_s": post_s,
            "detector": detector.to_state(), "describe": detector.describe()}  # fmt: skip
     with atomic_path(path) as tmp:
         tmp.write_text(dumps_strict(doc), encoding="utf-8")
 
 
-def load_detector(path: Path, model: Path) -> tuple[FaultDetector, float]:
-    """Read a detector (and its post-alarm window, s) back, refusing one of another format or
-    fitted for another model."""
+def load_detector(path: Path, model: Path) -> tuple[FaultDetector, float, dict[str, Any]]:
+    """Read a detector, its post-alarm window (s) and where it came from (the file, its
+    SHA-256, the records and machines it was fitted on) back, refusing one of another format
+    or fitted for another model."""
     fix = f"fit it again: drafttwin twin fit-detector --model {model} --healthy FILES"
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
@@ -98,7 +96,13 @@ def load_detector(path: Path, model: Path) -> tuple[FaultDetector, float]:
     if not (isinstance(post, int | float) and math.isfinite(post) and 0 < post <= 3600):
         raise DataError(f"post_s = {post!r} is not a number of seconds in (0, 3600]",
                         source=path, where="post_s", fix=fix)  # fmt: skip
-    return FaultDetector.from_state(state, source=str(path)), float(post)
+    machines = doc.get("machines", [])
+    if not (isinstance(machines, list) and all(isinstance(m, str) for m in machines)):
+        raise DataError("machines is not a list of serial numbers", source=path,
+                        where="machines", fix=fix)  # fmt: skip
+    origin = {"file": path.name, "sha256": sha256_file(path), "machines": machines,
+              "fitted_on": [str(f) for f in doc.get("fitted_on", [])][:100]}  # fmt: skip
+    return FaultDetector.from_state(state, source=str(path)), float(post), origin
 
 
 def plant_log_series(path: Path) -> list[MeasurementSeries] | None:
@@ -125,151 +129,130 @@ def plant_log_series(path: Path) -> list[MeasurementSeries] | None:
     return out
 
 
-@dataclass(frozen=True)
-class Localise:
-    """A request for the ranking: the alarm and its window's blocks (end times, indices, and
-    features minus the baseline at the alarm, :data:`~drafttwin.diagnosis.detect.FEATURES`)."""
-
-    machine: str
-    alarm: Alarm
-    time_s: np.ndarray
-    blocks: np.ndarray
-    deviation: np.ndarray
-
-    @property
-    def n_blocks(self) -> int:
-        return len(self.blocks)
-
-    @property
-    def shift(self) -> np.ndarray:
-        """The window's mean deviation (levels, then lags)."""
-        return np.asarray(self.deviation.mean(axis=0))
-
-
 class LiveFaultWatch:
-    """The fault detector of one machine, fed row by row.
+    """The diagnosis of one machine, fed row by row (see the module docstring).
 
     Args:
-        detector: a fitted :class:`~drafttwin.diagnosis.detect.FaultDetector`.
         machine: the machine's name.
         channels: the model's output channels (must be the four rollers).
         rate_hz: the machine's sample rate.
+        ratio: the rollers' kinematic speed ratios
+            (:func:`~drafttwin.diagnosis.residuals.roller_ratio` of the twin's train).
+        baseline: the machine's learned detector (watch at once), or ``None`` (learn first).
+        prior: a detector fitted on longer running of machines of the type, combined with
+            what the machine learns (:func:`~drafttwin.diagnosis.learning.combine`).
+        learn_s: how long the machine learns (default:
+            :func:`~drafttwin.diagnosis.learning.learn_time` of the prior).
+        post_s: the window after an alarm, s.
         has_motor: the samples carry the motor speed; without it the motor's residual is
             taken as zero (see docs/twin.md: motor-side faults and belt wear then look alike).
         phase: rows left out before the first block (see :func:`block_phase`).
     """
 
-    def __init__(self, detector: FaultDetector, machine: str, channels: tuple[str, ...],
-                 rate_hz: float, *, has_motor: bool = True, post_s: float = POST_S,
-                 phase: int = 0) -> None:  # fmt: skip
+    def __init__(self, machine: str, channels: tuple[str, ...], rate_hz: float,
+                 ratio: np.ndarray, *, baseline: FaultDetector | None = None,
+                 prior: FaultDetector | None = None, learn_s: float | None = None,
+                 post_s: float = POST_S, has_motor: bool = True, phase: int = 0) -> None:  # fmt: skip
         if tuple(channels) != ROLLERS:
             raise ConfigError(f"the fault detector needs the channels {', '.join(ROLLERS)}, the "
                               f"model has {', '.join(channels)}", where="--detector",
                               fix="run without a detector, or fit the model on the four rollers")  # fmt: skip
-        self.detector, self.machine, self.has_motor = detector, machine, has_motor
-        self.rate_hz = rate_hz
-        self.per = max(1, int(round(detector.block_s_ * rate_hz)))
-        self.block_s = self.per / rate_hz
+        self.machine, self.has_motor, self.rate_hz = machine, has_motor, rate_hz
+        self.ratio, self.prior, self.post_s = np.asarray(ratio, dtype=np.float64), prior, post_s
+        self.learn_s = learn_time(prior) if learn_s is None else float(learn_s)
         self.period_us = int(round(1e6 / rate_hz))
-        self.n_ref = max(2, int(round(detector.reference_s / self.block_s)))
-        self.post = max(1, int(round(post_s / self.block_s)))
-        self.y = np.full((self.per, len(CHANNELS)), np.nan)
-        self.yhat = np.full((self.per, len(CHANNELS)), np.nan)
-        self.t = np.zeros(self.per)
-        self.k = 0
-        self.skip = phase % self.per
+        if baseline is None and self.learn_s == 0:  # no learning: the prior judges as it is
+            if prior is None:
+                raise ConfigError("no learning and no detector to judge by", where="--learn",
+                                  fix="give a detector file (twin fit-detector), or let the "
+                                  "machines learn (leave out --learn 0)")  # fmt: skip
+            baseline = prior
+        self.detector = baseline
+        self.learner: Learner | None = None if baseline is not None else self._learner()
+        known = baseline if baseline is not None else prior
+        self.block_s = known.block_s_ if known is not None else BLOCK_S
+        self.skip = phase % max(1, int(round(self.block_s * rate_hz)))
+        self.stream = self._stream()
         self.last_us: int | None = None
-        self.state = CusumState(detector, self.n_ref, self.block_s)
-        self.lag = LagCarry()  # the angle lags go on from block to block
-        self.pending: tuple[Alarm, np.ndarray, list[Window]] | None = None
-        self.blocks = 0
         self.restarts = 0
-        self.sensor_active: set[str] = set()
-        self.levels: deque[Window] = deque(maxlen=self.post + self.n_ref)
+        self.learn_from_s: float | None = None  # source time of the first learned block
+        self._row = np.empty((1, len(CHANNELS)))
+        self._hat = np.empty((1, len(CHANNELS)))
 
-    def restart(self) -> None:
-        """A new baseline (after a gap the physics restarts: the old one no longer holds)."""
-        self.state = CusumState(self.detector, self.n_ref, self.block_s)
-        self.k, self.pending = 0, None
-        self.lag = LagCarry()
+    # ---- state ------------------------------------------------------------------------------
+    @property
+    def learning(self) -> bool:
+        return self.detector is None
+
+    @property
+    def learn_progress(self) -> float:
+        return 1.0 if self.learner is None else self.learner.progress
+
+    @property
+    def learn_left_s(self) -> float:
+        """Running time still to learn, s (0 when watching)."""
+        return 0.0 if self.learner is None else max(0.0, self.learn_s - self.learner.learned_s)
+
+    def _learner(self) -> Learner:
+        return Learner(self.learn_s, self.prior)
+
+    def _stream(self) -> DiagnosisStream:
+        return DiagnosisStream(1.0 / self.rate_hz, self.ratio, detector=self.detector,
+                               learner=self.learner, post_s=self.post_s, machine=self.machine)  # fmt: skip
+
+    def restart(self) -> list[RankRequest]:
+        """A gap: the physics restarts, the rows go on in a new run (a new reference window;
+        a learning state goes on learning). The old run's open window is ranked with what
+        it has."""
+        step = self.stream.finish()
+        if self.learner is not None:
+            self.learner.new_record()
+        self.stream = self._stream()
         self.restarts += 1
+        return step.requests
 
-    def add(self, row: SampleRow) -> tuple[list[Alarm], list[dict[str, Any]], list[Localise]]:
-        """One row: the alarms of the block it closed, the sensor causes found at once and the
-        localisations to run (empty lists while the block is open)."""
+    def relearn(self) -> list[RankRequest]:
+        """After maintenance (an operator's command): forget the baseline and learn again."""
+        requests = self.stream.finish().requests
+        self.detector, self.learner, self.learn_from_s = None, self._learner(), None
+        self.stream = self._stream()
+        return requests
+
+    # ---- rows ------------------------------------------------------------------------------
+    def add(self, row: SampleRow) -> Step:
+        """One row: what it brought (alarms raised, windows closed, a learning that ended)."""
+        step = Step()
         if self.last_us is not None and row.ts_us - self.last_us > 1.5 * self.period_us:
-            self.restart()
+            step.requests += self.restart()
         self.last_us = row.ts_us
         if self.skip:
             self.skip -= 1
-            return [], [], []
-        k = self.k
-        self.y[k, :4], self.y[k, 4] = row.measured, row.motor
-        self.yhat[k, :4], self.yhat[k, 4] = row.physics, row.motor_physics
+            return step
+        y, yhat = self._row, self._hat
+        y[0, :4], y[0, 4] = row.measured, row.motor
+        yhat[0, :4], yhat[0, 4] = row.physics, row.motor_physics
         if not self.has_motor:  # no motor channel: its residual is zero by construction
-            self.y[k, 4] = row.motor_physics
-        self.t[k] = row.ts_us / 1e6
-        self.k += 1
-        if self.k < self.per:
-            return [], [], []
-        self.k = 0
-        return self._block()
+            y[0, 4] = row.motor_physics
+        if self.learning and self.learn_from_s is None:
+            self.learn_from_s = row.ts_us / 1e6
+        step += self.stream.push(np.array([row.ts_us / 1e6]), y, yhat)
+        if step.learned is not None:
+            self.detector, self.learner = step.learned, None
+        return step
 
-    def _block(self) -> tuple[list[Alarm], list[dict[str, Any]], list[Localise]]:
-        f = block_features(self.y, self.yhat, self.t, self.block_s, self.lag)
-        lost, run = f.lost[0], f.run[0]
-        level = np.concatenate([f.level[0], f.lags[0]])
-        here = Window(float(f.time_s[0]), self.blocks, level)
-        self.blocks += 1
-        self.levels.append(here)
-        alarms = self.state.update(here.time_s, level, lost, run)
-        # a sensor rule fires on every block while the fault lasts: raise it once per episode
-        sensor = {a.test for a in alarms if a.direction == 0}
-        alarms = [a for a in alarms if a.direction != 0 or a.test not in self.sensor_active]
-        self.sensor_active = sensor
-        causes, requests = [], []
-        if sensor:  # a stuck or dropped encoder explains a pending alarm: no machine ranking
-            self.pending = None  # (as offline, Diagnoser._sensor_in_window)
-        if self.pending is not None and np.isfinite(level).all():
-            alarm, base, after = self.pending
-            after.append(here)
-            if len(after) >= self.post:
-                requests.append(_request(self.machine, alarm, base, after))
-                self.pending = None
-        for a in alarms:
-            if a.direction == 0:
-                causes.append(sensor_cause(a, lost, run, self.rate_hz).to_dict())
-            elif self.state.baseline_at_alarm is not None and self.pending is None and not sensor:
-                self.pending = (a, self.state.baseline_at_alarm.copy(), [])
-        return alarms, causes, requests
+    def flush(self) -> list[RankRequest]:
+        """At the end of a run: the open window, ranked with the blocks it has."""
+        requests = self.stream.finish().requests
+        self.stream = self._stream()
+        return requests
 
-    def flush(self) -> list[Localise]:
-        """At the end of a run: rank what a pending alarm collected (at least one block after
-        it, else the blocks from its onset on, as offline when too little follows)."""
-        if self.pending is None:
-            return []
-        alarm, base, after = self.pending
-        self.pending = None
-        if not after:
-            after = [w for w in self.levels
-                     if alarm.change_s < w.time_s <= alarm.time_s and np.isfinite(w.row).all()]  # fmt: skip
-        if not after:
-            return []
-        return [_request(self.machine, alarm, base, after)]
-
-
-@dataclass(frozen=True)
-class Window:
-    """One block of the live watch: its end time (s), index and feature row."""
-
-    time_s: float
-    block: int
-    row: np.ndarray
-
-
-def _request(machine: str, alarm: Alarm, base: np.ndarray, after: list[Window]) -> Localise:
-    return Localise(machine, alarm, np.array([w.time_s for w in after]),
-                    np.array([w.block for w in after]), np.vstack([w.row for w in after]) - base)  # fmt: skip
+    def sensor_cause(self, alarm: Alarm) -> dict[str, Any]:
+        """A sensor rule's cause from the block that raised it (sized later by its window)."""
+        d = self.stream.decisions
+        w = next((w for w in (d.recent if d is not None else ()) if w.block == alarm.block), None)
+        if w is None:
+            raise ValueError(f"block {alarm.block} of the alarm is not among the recent ones")
+        return sensor_cause(alarm, w.lost, w.run, self.rate_hz).to_dict()
 
 
 def block_phase(machine: str, rate_hz: float, block_s: float) -> int:
@@ -282,45 +265,54 @@ def block_phase(machine: str, rate_hz: float, block_s: float) -> int:
 
 
 # ---- the ranking, in a worker process ---------------------------------------------------------
-_DIAGNOSERS: dict[str, Diagnoser] = {}
+_SIGNATURES: dict[str, SignatureModel] = {}
+_TRAINS: dict[str, DriveTrain] = {}
 
 
-def _diagnoser(key: str, train: dict[str, Any], detector: dict[str, Any]) -> Diagnoser:
-    """Worker side: the model's diagnoser, built once and kept."""
-    dx = _DIAGNOSERS.get(key)
-    if dx is None:
-        dx = Diagnoser(DriveTrain.from_dict(train, source=f"model {key}"),
-                       FaultDetector.from_state(detector))  # fmt: skip
-        _DIAGNOSERS[key] = dx
-    return dx
+def _diagnoser(key: str, train: dict[str, Any], detector: dict[str, Any],
+               post_s: float) -> Diagnoser:  # fmt: skip
+    """Worker side: a machine's diagnoser; the train's signatures (the costly part) built
+    once per model and kept."""
+    if key not in _TRAINS:
+        _TRAINS[key] = DriveTrain.from_dict(train, source=f"model {key}")
+        _SIGNATURES[key] = SignatureModel(_TRAINS[key])
+    return Diagnoser(_TRAINS[key], FaultDetector.from_state(detector), post_s=post_s,
+                     signatures=_SIGNATURES[key])  # fmt: skip
 
 
-def _prepare(key: str, train: dict[str, Any], detector: dict[str, Any]) -> None:
-    """Worker side, at the twin's start: build the diagnoser and its healthy operating point
-    (the first alarm then waits for the ranking only, not for a process start)."""
-    _ = _diagnoser(key, train, detector).signatures.healthy
+def _prepare(key: str, train: dict[str, Any]) -> None:
+    """Worker side, at the twin's start: build the model's signatures and its healthy
+    operating point (the first alarm then waits for the ranking only, not for a start)."""
+    if key not in _TRAINS:
+        _TRAINS[key] = DriveTrain.from_dict(train, source=f"model {key}")
+        _SIGNATURES[key] = SignatureModel(_TRAINS[key])
+    _ = _SIGNATURES[key].healthy
 
 
-def _rank(key: str, train: dict[str, Any], detector: dict[str, Any], req: Localise) -> list[dict[str, Any]]:  # fmt: skip
-    """Worker side: the top causes."""
-    dx = _diagnoser(key, train, detector)
-    _, causes = dx.rank(req.time_s, req.blocks, req.deviation, req.alarm.change_s, req.alarm.block)
+def _rank(key: str, train: dict[str, Any], detector: dict[str, Any], post_s: float,
+          req: RankRequest) -> list[dict[str, Any]]:  # fmt: skip
+    """Worker side: the top causes of a window (the offline diagnosis's own locate)."""
+    _, causes = _diagnoser(key, train, detector, post_s).locate(req)
     return [c.to_dict() for c in causes[:TOP]]
+
+
+Done = Callable[[RankRequest, list[dict[str, Any]] | None, str | None], None]
 
 
 class Locator:
     """Runs the rankings in one worker process (started with the twin, :meth:`warm`), at most
     :data:`MAX_PENDING` at a time; ``done(request, causes, error)`` is called from the
-    executor's thread."""
+    executor's thread. Each request carries its machine's detector (machines learn their
+    own); the model's train is sent once per call (a dict of a few kB)."""
 
     def __init__(self) -> None:
         self.executor: ProcessPoolExecutor | None = None
         self.in_flight = 0
         self._lock = threading.Lock()  # in_flight: counted up here, down in the executor's thread
-        self.models: dict[str, tuple[dict[str, Any], dict[str, Any]]] = {}
+        self.models: dict[str, dict[str, Any]] = {}
 
-    def register(self, key: str, train: DriveTrain, detector: FaultDetector) -> None:
-        self.models[key] = (train.to_dict(), detector.to_state())
+    def register(self, key: str, train: DriveTrain) -> None:
+        self.models[key] = train.to_dict()
 
     def _executor(self) -> ProcessPoolExecutor:
         if self.executor is None:
@@ -330,20 +322,20 @@ class Locator:
         return self.executor
 
     def warm(self) -> list[Future[None]]:
-        """Start the worker and build every model's diagnoser there, in the background (the
+        """Start the worker and build every model's signatures there, in the background (the
         futures tell when it is ready; a second call finds them built)."""
-        return [self._executor().submit(_prepare, key, train, det)
-                for key, (train, det) in self.models.items()]  # fmt: skip
+        return [self._executor().submit(_prepare, key, train)
+                for key, train in self.models.items()]  # fmt: skip
 
-    def submit(self, key: str, req: Localise,
-               done: Callable[[Localise, list[dict[str, Any]] | None, str | None], None]) -> bool:  # fmt: skip
+    def submit(self, key: str, detector: FaultDetector, post_s: float, req: RankRequest,
+               done: Done) -> bool:  # fmt: skip
         """Queue one ranking; ``False`` (nothing queued) when :data:`MAX_PENDING` are."""
         with self._lock:
             if self.in_flight >= MAX_PENDING:
                 return False
             self.in_flight += 1
-        train, det = self.models[key]
-        fut = self._executor().submit(_rank, key, train, det, req)
+        fut = self._executor().submit(_rank, key, self.models[key], detector.to_state(), post_s,
+                                      req)  # fmt: skip
 
         def finished(f: Future[list[dict[str, Any]]]) -> None:
             with self._lock:

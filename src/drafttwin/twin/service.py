@@ -21,21 +21,27 @@ from typing import Any
 
 import numpy as np
 
+from drafttwin.diagnosis.detect import Alarm, FaultDetector
+from drafttwin.diagnosis.stream import RankRequest
 from drafttwin.models.online import forecast_many
 from drafttwin.sliver import StapleDiagram
 from drafttwin.sliver.watch import SliverAlarm, SliverWatch
-from drafttwin.twin.faultwatch import LiveFaultWatch, Localise, Locator, alarm_detail
+from drafttwin.twin.faultwatch import LiveFaultWatch, Locator, alarm_detail
 from drafttwin.twin.live import Begun, MachineTwin
 from drafttwin.twin.sources.base import Sample, Source
 from drafttwin.twin.sources.mapping import MachineMap
+from drafttwin.twin.store.baselines import Baseline, BaselineStore
 from drafttwin.twin.store.db import EventRow, SampleRow, StoreWriter
+from drafttwin.wire.identity import MachineIdentity
 
 LATENCY_WINDOW = 20_000
 """Latencies kept for the percentiles (sample received -> stored and pushed)."""
 HISTORY_ROWS = 3000
 """Rows per machine kept in memory for the page (30 s at 100 Hz)."""
-LOCATE_WAIT_S = 30.0
-"""At the end of a run, how long the rankings still running may take to finish (stored)."""
+LOCATE_WAIT_S = 3.0
+"""At the end of a run, how long the rankings still running may take to finish (stored;
+one takes about a second in the warm worker). One that does not finish is stored as not
+localised, with the reason."""
 SLIVER_SENSOR_M = 0.005
 """Averaging length of a delivery sensor (the plant's, docs/sliver.md), m: its ideal curve."""
 
@@ -57,6 +63,11 @@ class MachineState:
     alarms: deque[EventRow] = field(default_factory=lambda: deque(maxlen=200))
     watch: LiveFaultWatch | None = None  # the fault detector, when the model has one
     model_key: str = ""  # the model file (the locator's key for its diagnoser)
+    model_sha256: str = ""
+    identity: MachineIdentity | None = None  # who the machine is, when its source says
+    baseline: Baseline | None = None  # what it learned (stored with its identity)
+    prior: dict[str, Any] | None = None  # the detector file it learns on top of
+    refused: str | None = None  # why a stored baseline was not used
     faults: int = 0
     last_fault: EventRow | None = None  # the latest alarm or its cause (status, hall page)
     sliver: SliverWatch | None = None  # the sliver channel's watch, once the source sends one
@@ -98,6 +109,8 @@ class TwinService:
         self._stop = asyncio.Event()
         self._batch: list[Sample] = []
         self._scheduled = False
+        self.baselines: BaselineStore | None = None  # where machines' baselines are kept
+        self._ranking: dict[int, tuple[MachineState, RankRequest]] = {}  # in the worker
 
     # ---- samples in ---------------------------------------------------------------------
     def on_sample(self, s: Sample) -> None:
@@ -209,44 +222,162 @@ class TwinService:
 
     # ---- faults -------------------------------------------------------------------------
     def _watch_rows(self, st: MachineState, rows: list[SampleRow]) -> list[EventRow]:
-        """Feed the machine's fault watch; alarms become events at once, rankings are queued."""
+        """Feed the machine's diagnosis; alarms become events at once, windows are ranked in
+        the worker, a learning state that ends stores the machine's baseline."""
         assert st.watch is not None
         out = []
         for row in rows:
-            alarms, causes, requests = st.watch.add(row)
-            out += self._fault_events(st, alarms, causes)
-            for req in requests:
+            step = st.watch.add(row)
+            if step.learned is not None:
+                out.append(self._learned(st, step.learned, row.ts_us))
+            out += self._fault_events(st, step.alarms)
+            for req in step.requests:
                 self._locate(st, req)
         return out
 
-    def _fault_events(self, st: MachineState, alarms: list[Any],
-                      causes: list[dict[str, Any]]) -> list[EventRow]:  # fmt: skip
-        out, sensor = [], iter(causes)
+    def _fault_events(self, st: MachineState, alarms: list[Alarm]) -> list[EventRow]:
+        assert st.watch is not None
+        out = []
         for a in alarms:
             st.faults += 1
-            if a.direction == 0:  # a sensor rule: its channel is the cause
+            note = f"probable cause after {st.watch.post_s:g} s"
+            if a.direction == 0:  # a sensor rule: its channel is the cause, sized later
                 ev = EventRow(st.twin.name, "sensor-fault", int(round(a.time_s * 1e6)),
-                              alarm_detail(a, [next(sensor)]))  # fmt: skip
+                              alarm_detail(a, [st.watch.sensor_cause(a)], note))  # fmt: skip
             else:
                 ev = EventRow(st.twin.name, "fault", int(round(a.time_s * 1e6)),
-                              alarm_detail(a, note="probable cause after "
-                                           f"{st.watch.post * st.watch.block_s if st.watch else 0:g} s"))  # fmt: skip
+                              alarm_detail(a, note=note))  # fmt: skip
             self._event(st, ev)
             out.append(ev)
         return out
 
-    def _locate(self, st: MachineState, req: Localise) -> None:
-        def done(r: Localise, causes: list[dict[str, Any]] | None, error: str | None) -> None:
+    def _learned(self, st: MachineState, detector: FaultDetector, ts_us: int) -> EventRow:
+        """A machine finished learning: its baseline, stored with its identity."""
+        assert st.watch is not None
+        start = st.watch.learn_from_s if st.watch.learn_from_s is not None else ts_us / 1e6
+        st.baseline = Baseline(st.twin.name, detector, st.model_sha256, st.identity,
+                               st.watch.learn_s, start, ts_us / 1e6, st.prior)  # fmt: skip
+        where = ""
+        if self.baselines is not None:
+            try:
+                where = f"; stored in {self.baselines.save(st.baseline)}"
+            except OSError as exc:
+                where = f"; not stored ({type(exc).__name__}: {exc})"
+        who = f" ({st.identity})" if st.identity is not None else ""
+        ev = EventRow(st.twin.name, "learned", ts_us,
+                      f"learned its healthy state{who} over {st.watch.learn_s:g} s of running"
+                      + ("" if st.prior is None else f" on top of {st.prior['file']}") + where
+                      + ("" if detector.lags_watched else "; angle lags not watched"))  # fmt: skip
+        self._event(st, ev)
+        return ev
+
+    def announce(self, st: MachineState) -> None:
+        """At the start: what the machine's detector does (learns, or watches with the
+        baseline the store kept), and a stored baseline refused, by name."""
+        w = st.watch
+        assert w is not None
+        now = int(time.time() * 1e6)
+        if st.refused is not None:
+            self._event(st, EventRow(st.twin.name, "baseline-refused", now,
+                                     f"stored baseline not used: {st.refused}"))  # fmt: skip
+        if w.learning:
+            prior = "" if st.prior is None else f", on top of {st.prior['file']}"
+            text = (f"learning its healthy state: {w.learn_s:g} s of running{prior}; no fault "
+                    "alarm meanwhile")  # fmt: skip
+            self._event(st, EventRow(st.twin.name, "learning", now, text))
+        elif st.baseline is not None:
+            b = st.baseline
+            who = "" if b.identity is None else f" on {b.identity}"
+            self._event(st, EventRow(st.twin.name, "baseline", now,
+                                     f"watching with the baseline learned{who} over "
+                                     f"{b.learned_s:g} s of running"))  # fmt: skip
+        else:
+            self._judged_as_is(st)
+
+    def _judged_as_is(self, st: MachineState) -> None:
+        """No learning (``--learn 0``): the detector file judges the machine as it is; said
+        by name when it was fitted on other machines, or nobody knows."""
+        if st.prior is None or st.baseline is not None or st.watch is None or st.watch.learning:
+            return
+        made = st.prior.get("machines") or []
+        on = ", ".join(made) if made else "machines its records do not name"
+        if st.identity is not None and st.identity.serial in made:
+            kind, text = "baseline", f"judged by {st.prior['file']}, fitted on this machine"
+        elif st.identity is None and not st.source.startswith("replay"):
+            return  # a live source says who the machine is once connected (identify)
+        elif st.identity is None:
+            kind = "detector-foreign"
+            text = (f"judged by {st.prior['file']} (fitted on {on}); the source does not say "
+                    "which machine this is")  # fmt: skip
+        else:
+            kind = "detector-foreign"
+            text = (f"judged by {st.prior['file']}, fitted on {on}, not on this machine "
+                    f"({st.identity}): let it learn its own (leave out --learn 0)")  # fmt: skip
+        self._event(st, EventRow(st.twin.name, kind, int(time.time() * 1e6), text))
+
+    def relearn(self, machine: str, why: str = "operator's command") -> bool:
+        """Forget a machine's baseline and learn again (after maintenance); False: no such
+        machine with a detector."""
+        st = self.states.get(machine)
+        if st is None or st.watch is None:
+            return False
+        for req in st.watch.relearn():
+            self._locate(st, req)
+        st.baseline = None
+        if self.baselines is not None:
+            self.baselines.forget(machine)
+        ev = EventRow(machine, "learning", int(time.time() * 1e6),
+                      f"learning its healthy state again ({why}): {st.watch.learn_s:g} s of "
+                      "running, no fault alarm meanwhile")  # fmt: skip
+        self._event(st, ev)
+        for push in self.subscribers:
+            push(machine, [], [ev])
+        return True
+
+    def identify(self, machine: str, identity: MachineIdentity) -> None:
+        """The source says who the machine is: a baseline learned on another machine is
+        refused by name, and the machine learns its own."""
+        st = self.states.get(machine)
+        if st is None:
+            return
+        before, st.identity = st.identity, identity
+        if before == identity:
+            return
+        learned = st.baseline.identity if st.baseline is not None else None
+        if st.baseline is not None and learned is not None and learned != identity:
+            self.relearn(machine, f"its baseline was learned on {learned}, the machine now says "
+                                  f"{identity}")  # fmt: skip
+        elif st.baseline is not None and learned is None:
+            st.baseline.identity = identity  # learned before the source named it: it is this one
+            if self.baselines is not None:
+                self.baselines.save(st.baseline)
+        else:
+            self._judged_as_is(st)
+
+    def _locate(self, st: MachineState, req: RankRequest) -> None:
+        def done(r: RankRequest, causes: list[dict[str, Any]] | None, error: str | None) -> None:
             note = None if causes is not None else f"not localised ({error})"
-            ev = EventRow(r.machine, "fault-cause", int(round(r.alarm.time_s * 1e6)),
+            ev = EventRow(st.twin.name, "fault-cause", int(round(r.alarm.time_s * 1e6)),
                           alarm_detail(r.alarm, causes, note))  # fmt: skip
             if self._loop is not None and self._loop.is_running():
                 self._loop.call_soon_threadsafe(self._cause, st, ev, causes)
             else:
                 self._cause(st, ev, causes)
 
-        if not self.locator.submit(st.model_key, req, done):
-            done(req, None, "the locator is busy")
+        det = st.watch.detector if st.watch is not None else None
+        if det is None:
+            done(req, None, "the machine is learning again")
+            return
+        key = id(req)
+        self._ranking[key] = (st, req)
+
+        def once(r: RankRequest, causes: list[dict[str, Any]] | None, error: str | None) -> None:
+            if self._ranking.pop(key, None) is not None:  # (settled at the stop: stored then)
+                done(r, causes, error)
+
+        if not self.locator.submit(st.model_key, det, st.watch.post_s if st.watch else 0.0,
+                                   req, once):  # fmt: skip
+            once(req, None, "the locator is busy")
 
     def _cause(self, st: MachineState, ev: EventRow, causes: list[dict[str, Any]] | None) -> None:
         self._event(st, ev)
@@ -258,15 +389,21 @@ class TwinService:
             push(st.twin.name, [], [ev])
 
     async def _settle_faults(self) -> None:
-        """At the end: rank what a pending alarm collected, wait for the rankings running."""
+        """At the end: rank what each open window has, wait for the rankings running (a
+        ranking not done in time is stored as not localised, with the reason)."""
         for st in self.states.values():
             if st.watch is not None:
                 for req in st.watch.flush():
                     self._locate(st, req)
         deadline = time.monotonic() + LOCATE_WAIT_S
-        while self.locator.in_flight and time.monotonic() < deadline:
-            await asyncio.sleep(0.05)
+        while self._ranking and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
         await asyncio.sleep(0)  # the callbacks scheduled from the worker's thread
+        for key, (st, req) in list(self._ranking.items()):  # an alarm is never left without
+            self._ranking.pop(key, None)  # its cause, or the word why it has none
+            self._cause(st, EventRow(st.twin.name, "fault-cause", int(round(req.alarm.time_s * 1e6)),
+                                     alarm_detail(req.alarm, None, "not localised (the twin "
+                                                  "stopped before its ranking finished)")), None)  # fmt: skip
         self.locator.close()
         self._sliver_pool.shutdown(wait=True, cancel_futures=True)
 
@@ -274,6 +411,16 @@ class TwinService:
         """A source's state change, or ``count`` dropped payloads."""
         st = self.states.get(machine)
         if st is None:
+            return
+        if kind == "identity":  # the source says who the machine is
+            try:
+                identity = MachineIdentity.from_dict(json.loads(detail))
+            except ValueError:
+                identity = None
+            if identity is not None and identity != st.identity:
+                self._event(st, EventRow(machine, "identity", int(time.time() * 1e6),
+                                         f"the machine is {identity} ({identity.model})"))  # fmt: skip
+                self.identify(machine, identity)
             return
         if kind.startswith("source-"):
             st.state = kind.removeprefix("source-")
@@ -363,12 +510,30 @@ class TwinService:
                                 "source": st.source, "fault_alarms": st.faults,
                                 "fault_detector": st.watch is not None,
                                 "fault_motor": st.watch is not None and st.watch.has_motor,
+                                "detector": detector_state(st),
+                                "identity": None if st.identity is None else st.identity.to_dict(),
                                 "last_fault": _fault(st.last_fault),
                                 "sliver": None if st.sliver is None else st.sliver.summary(),
                                 "transport_ms": st.transport_ms(),
                                 "data_age_s": st.data_age_s()}
                          for name, st in self.states.items()},
         }  # fmt: skip
+
+
+def detector_state(st: MachineState) -> dict[str, Any]:
+    """A machine's fault detector as status shows it: ``none``, ``learning`` (how far, how
+    long still) or ``watching`` (its baseline: when and over how long it was learned, the
+    identity it was learned on, the prior it was combined with)."""
+    w = st.watch
+    if w is None:
+        return {"state": "none"}
+    out: dict[str, Any] = {"state": "learning" if w.learning else "watching",
+                           "learn_s": w.learn_s, "prior": None if st.prior is None else st.prior["file"]}  # fmt: skip
+    if w.learning:
+        out.update({"progress": round(w.learn_progress, 4), "left_s": round(w.learn_left_s, 1)})
+    elif st.baseline is not None:
+        out["baseline"] = st.baseline.summary()
+    return out
 
 
 def _fault(ev: EventRow | None) -> dict[str, Any] | None:

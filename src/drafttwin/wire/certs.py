@@ -21,8 +21,9 @@ from pathlib import Path
 from typing import Any
 
 from drafttwin.errors import ConfigError
+from drafttwin.wire.identity import PLANT_SERVER_URI
 
-SERVER_URI = "urn:drafttwin:plant:server"
+SERVER_URI = PLANT_SERVER_URI
 CLIENT_URI = "urn:drafttwin:twin:client"
 FILES = ("server_key.pem", "server_cert.der", "client_key.pem", "client_cert.der")
 

@@ -10,6 +10,9 @@ Topics, per machine ``NAME`` (docs/twin.md, "The plant's MQTT payload"):
 * ``drafttwin/NAME/status``: ``online`` / ``offline``, retained, QoS 1; ``offline`` is also
   the connection's will message, so a subscriber learns of a publisher that died.
 * ``drafttwin/NAME/setpoint``: a new VFD set-point for the live plant, a JSON number (Hz).
+* ``drafttwin/NAME/identification``: who the machine is (serial number, product instance
+  URI, manufacturer, model: :mod:`drafttwin.wire.identity`), retained, QoS 1; schema
+  ``schemas/identification.schema.json``.
 
 Each machine has its own connection (a will message belongs to a connection).
 
@@ -29,6 +32,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from drafttwin._constants import __version__
 from drafttwin.errors import ConfigError
 from drafttwin.plant.faults import FaultSpec
 from drafttwin.plant.live import LivePlant
@@ -44,6 +48,7 @@ from drafttwin.wire.conventions import (
     status_topic,
     topic,
 )
+from drafttwin.wire.identity import identification_payload, plant_identity
 
 SCHEMA = Path(__file__).with_name("schemas") / "sample.schema.json"
 """JSON Schema of the sample payload."""
@@ -135,6 +140,8 @@ async def _connect(p: _Publisher, host: str, port: int, qos: int, username: str 
     def on_connect(client: Any, *_: Any) -> None:  # also after a reconnect
         client.subscribe(setpoint_topic(p.name), qos=1)
         client.publish(status_topic(p.name), ONLINE, qos=1, retain=True)
+        who = identification_payload(plant_identity(p.plant.machine.seed or 0), __version__)
+        client.publish(topic(p.name, "identification"), json.dumps(who), qos=1, retain=True)
 
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv311)
     client.on_message, client.on_connect = on_message, on_connect

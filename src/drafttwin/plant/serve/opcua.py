@@ -51,12 +51,18 @@ from drafttwin.wire.conventions import (
     Channel,
     utc,
 )
+from drafttwin.wire.identity import (
+    MANUFACTURER,
+    PLANT_MODEL,
+    PLANT_PRODUCT_URI,
+    machine_uri,
+    plant_serial,
+)
 
 NAMESPACE = "urn:drafttwin:plant"
 SCALARS = ("front_rpm", "second_rpm", "third_rpm", "back_rpm", "motor_rpm", "supply_hz")
-PRODUCT_URI = "urn:drafttwin:plant"
-MANUFACTURER = "drafttwin"
-MODEL = "FA320A drawing frame (emulated)"
+PRODUCT_URI = PLANT_PRODUCT_URI
+MODEL = PLANT_MODEL
 
 
 @dataclass
@@ -132,8 +138,8 @@ async def _identification(obj: Any, idx: int, name: str, seed: int) -> None:
     props: list[tuple[str, Any, Any]] = [
         ("Manufacturer", ua.LocalizedText(MANUFACTURER), ua.VariantType.LocalizedText),
         ("Model", ua.LocalizedText(MODEL), ua.VariantType.LocalizedText),
-        ("SerialNumber", f"{name}-seed-{seed}", ua.VariantType.String),
-        ("ProductInstanceUri", f"{PRODUCT_URI}:{name}", ua.VariantType.String),
+        ("SerialNumber", plant_serial(seed), ua.VariantType.String),
+        ("ProductInstanceUri", machine_uri(plant_serial(seed)), ua.VariantType.String),
         ("SoftwareRevision", __version__, ua.VariantType.String),
         ("ComponentName", ua.LocalizedText(name), ua.VariantType.LocalizedText),
     ]

@@ -34,6 +34,7 @@ from drafttwin.twin.publish.payload import alarm, setpoint_unit, unit_of, utc
 from drafttwin.twin.service import MachineState, TwinService
 from drafttwin.twin.store.db import EventRow, SampleRow
 from drafttwin.wire.conventions import UNECE_NAMESPACE
+from drafttwin.wire.identity import MANUFACTURER, TWIN_PRODUCT_URI, TWIN_SERVER_URI
 
 NAMESPACE = "urn:drafttwin:twin"
 SUPPLY_MAX_HZ = 120.0
@@ -97,8 +98,8 @@ class OpcUaPublisher(Publisher):
         await server.init()
         server.set_endpoint(f"opc.tcp://{self.host}:{self.port}/")
         server.set_server_name("drafttwin twin")
-        await server.set_application_uri("urn:drafttwin:twin:server")
-        await server.set_build_info("https://github.com/drafttwin", "drafttwin", "drafttwin twin",
+        await server.set_application_uri(TWIN_SERVER_URI)
+        await server.set_build_info(TWIN_PRODUCT_URI, MANUFACTURER, "drafttwin twin",
                                     __version__, __version__, dt.datetime.now(dt.UTC))  # fmt: skip
         server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
         self.idx = await server.register_namespace(NAMESPACE)

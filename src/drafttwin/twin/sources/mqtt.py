@@ -7,6 +7,8 @@ Topics, per machine ``NAME`` (a mapping file may name others):
   ``fields`` (``seq``, ``time`` in epoch s, the channels, ``supply_hz``) and ignores the rest
   (``v``, ``timestamp``, ``units``, ``lag_s``: schema ``plant/serve/schemas/sample.schema.json``).
 * ``drafttwin/NAME/setpoint``: a new VFD set-point for the live plant, a JSON number (Hz).
+* ``drafttwin/NAME/identification``: who the machine is (retained; the twin keeps each
+  machine's learned baseline with its serial number, :mod:`drafttwin.wire.identity`).
 
 Payloads are checked before use: over ``MAX_PAYLOAD`` bytes, not JSON, not an object, a
 field missing, of the wrong type, out of range or not finite: dropped and counted. The paho
@@ -50,6 +52,9 @@ class MqttSource(Source):
             machines,
         )
         self.by_topic = {m.topic: m for m in machines}
+        # who each machine is (retained beside its samples: drafttwin/NAME/identification)
+        self.by_ident = {t.rsplit("/", 1)[0] + "/identification": m for t, m in
+                         self.by_topic.items() if t.endswith("/sample")}  # fmt: skip
         self.username, self.password = username, password
         self.ca_file = ca_file  # TLS, trusting exactly this certificate
         self.share = share
@@ -77,6 +82,19 @@ class MqttSource(Source):
                 self._report(name, "dropped", f"flood: {new} samples over the backlog limit", new)
                 self._flood_reported[name] = n
 
+    def _identified(self, machine: str, payload: bytes) -> None:
+        """The retained identification (checked: a malformed one is counted as dropped)."""
+        from drafttwin.wire.identity import MachineIdentity
+
+        try:
+            identity = MachineIdentity.from_dict(json.loads(payload))
+        except (ValueError, RecursionError):
+            identity = None
+        if identity is None:
+            self._report(machine, "dropped", "identification payload malformed")
+        else:
+            self._report(machine, "identity", json.dumps(identity.to_dict()))
+
     def _subscribe(self, client: Any, userdata: Any, flags: Any, reason: Any,
                    properties: Any = None) -> None:  # fmt: skip
         available = getattr(properties, "SharedSubscriptionAvailable", 1)  # CONNACK, MQTT 5
@@ -87,11 +105,16 @@ class MqttSource(Source):
         prefix = "" if self.share is None else f"$share/{self.share}/"
         for topic in self.by_topic:
             client.subscribe(prefix + topic, qos=0)
+        for topic in self.by_ident:  # retained: every member gets it (not shared)
+            client.subscribe(topic, qos=1)
 
     def on_message(self, client: Any, userdata: Any, msg: Any) -> None:
         """paho's callback (network thread): check, then queue for the loop, or count a drop."""
         m = self.by_topic.get(msg.topic)
         if m is None:
+            who = self.by_ident.get(msg.topic)
+            if who is not None and len(msg.payload) <= MAX_PAYLOAD:
+                self._loop.call_soon_threadsafe(self._identified, who.name, msg.payload)
             return
         if self.queued - self.handled >= MAX_BACKLOG:
             self.flooded[m.name] = self.flooded.get(m.name, 0) + 1  # no callback: memory flat

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -55,6 +56,8 @@ class OpcUaSource(Source):
                         await sub.subscribe_data_change(nodes, queuesize=SERVER_QUEUE)
                         self._set("live", report)
                         attempt = 0
+                        for each in self.machines:  # who each machine is, if the server says
+                            await self._identify(client, each, report)
                         if self.resume_after:  # once, on the first connection after a restart
                             await self._backfill(client, emit, report)
                             self.resume_after = {}
@@ -86,6 +89,35 @@ class OpcUaSource(Source):
                     await asyncio.wait_for(client.disconnect(), 2.0)
             await asyncio.sleep(BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
             attempt += 1
+
+    async def _identify(self, client: Any, m: MachineMap, report: Report) -> None:
+        """Read the machine's Identification (OPC 40001-1: SerialNumber, ProductInstanceUri,
+        Manufacturer, Model) beside its sample node and report it (``identity``); a server
+        without one says nothing."""
+        from drafttwin.wire.identity import MachineIdentity
+
+        names = {"SerialNumber": "serial_number", "ProductInstanceUri": "product_instance_uri",
+                 "Manufacturer": "manufacturer", "Model": "model"}  # fmt: skip
+        try:
+            parent = await asyncio.wait_for(client.get_node(m.node).get_parent(), 5.0)
+            found = {}
+            for child in await asyncio.wait_for(parent.get_children(), 5.0):
+                if (await child.read_browse_name()).Name != "Identification":
+                    continue
+                for prop in await asyncio.wait_for(child.get_children(), 5.0):
+                    key = names.get((await prop.read_browse_name()).Name)
+                    if key is not None:
+                        value = await asyncio.wait_for(prop.read_value(), 5.0)
+                        found[key] = getattr(value, "Text", value)
+        except (TimeoutError, OSError, ValueError, AttributeError) as exc:
+            report(m.name, "history", f"identification not read ({type(exc).__name__})")
+            return
+        except Exception as exc:  # noqa: BLE001  asyncua's status errors: none to read
+            report(m.name, "history", f"identification not read ({type(exc).__name__})")
+            return
+        identity = MachineIdentity.from_dict(found)
+        if identity is not None:
+            report(m.name, "identity", json.dumps(identity.to_dict()))
 
     async def _backfill(self, client: Any, emit: Emit, report: Report) -> None:
         """Emit what the server's history holds after each machine's last stored sample (the

@@ -13,6 +13,7 @@ import numpy as np
 from drafttwin.errors import DataError
 from drafttwin.twin.sources.base import Emit, Report, Sample, Source
 from drafttwin.twin.sources.mapping import MachineMap
+from drafttwin.wire.identity import MachineIdentity, plant_identity
 
 
 class ReplaySource(Source):
@@ -36,6 +37,7 @@ class ReplaySource(Source):
                       else np.asarray(series.motor_rpm, dtype=np.float64))  # fmt: skip
         self.first = 0
         self.sliver = _sliver_channel(path)
+        self.identity = recorded_identity(path)
 
     def skip_to(self, after_us: int | None) -> None:
         """Start after ``after_us`` (a restart: those rows are stored already)."""
@@ -69,6 +71,20 @@ class ReplaySource(Source):
         return (s[lo:hi], x[lo:hi], t[lo:hi]) if hi > lo else None
 
 
+def recorded_identity(path: Path) -> MachineIdentity | None:
+    """The recorded machine's identity, from the plant's sidecar (``STEM.json``: its machine
+    seed), if the file has one."""
+    import json
+
+    sidecar = path.with_suffix(".json")
+    try:
+        doc = json.loads(sidecar.read_text(encoding="utf-8"))
+        seed = doc["machine"]["seed"]
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
+        return None
+    return plant_identity(seed) if isinstance(seed, int) and not isinstance(seed, bool) else None
+
+
 def _sliver_channel(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The delivery sensor's readings recorded beside a replayed file, if any."""
     from drafttwin.sliver import read_sliver
@@ -83,4 +99,4 @@ def _sliver_channel(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | N
     return sl.delivered_length_m, sl.linear_density_ktex, np.asarray(sl.time_s)
 
 
-__all__ = ["ReplaySource"]
+__all__ = ["ReplaySource", "recorded_identity"]

@@ -1,0 +1,358 @@
+"""Block features of a record as it streams in: the one implementation that the offline
+diagnosis (a whole record pushed at once) and the live twin (rows as they arrive) share.
+
+:class:`BlockStream` takes rows of measured and predicted speeds (the four rollers and the
+motor) in pieces of any size and hands back each block's features once they are final; a
+record pushed in one piece or row by row gives the same numbers, bit for bit. Everything is
+causal: a block's features use its own rows and at most :data:`ANCHOR` + 1 rows after it
+(the angle lags' gap anchors and the transient rule look that far ahead), so a live block is
+final one block after it closed (at 1-s blocks and 100 Hz).
+
+Per block (see :class:`~drafttwin.diagnosis.residuals.BlockFeatures`): the mean relative
+residual of each channel with data-path spikes left out, the share of samples lost on a
+channel alone, the longest run of identical values, and the mean angle lag of the second,
+third and back roller behind the front.
+
+The angle lags (:class:`LagCounter`) are running sums of the counted speeds, the front's
+times the kinematic ratio subtracted. A lost row (or a data-path spike) loses its counts,
+unknowable to +-1 edge of quantisation each, which would add up to a random walk of several
+edges over minutes; the angle is carried through the gap (gears and chain are positive
+drives: the lag does not move while nobody counts) and each gap re-anchored: the lag's mean
+over up to :data:`ANCHOR` rows after the gap is matched to its mean over up to as many
+before. Those rows stop at a row where the lag moved by more than :data:`MOVED` times the
+90th percentile of the last :data:`HISTORY` counted row steps before the row's block (a worn
+mesh or a chain taking up its slack steps the lag within a few rows, 4-18 mrad against a
+healthy row's 0.3-1), so a step next to a gap stays whole. (Until 2026-11-27 the windows ran
+over such a step and matched it away: one lost row 30 ms before a 1.1 % chain elongation
+left 3.7 of its 22 mrad. Until 2026-11-28 the percentile came from the whole record, and
+the live twin had a second implementation that differed by up to 3.4 mrad.)
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections import deque
+
+import numpy as np
+
+from drafttwin.errors import DataError
+
+N_CHANNELS = 5  # the four rollers, then the motor
+N_LAGGED = 3  # the rollers whose angle is compared with the front roller's
+SPIKE = 0.01  # relative distance from the block median that leaves a sample out of a level
+ANGLE_SPIKE = 0.10  # ... and that makes a reading a data-path spike for the angle:
+# a spike is a wrong reading, the next one back on the level, and counted it would move the
+# angle by its whole size (the plant's bit errors: 15-40 % of a row, 70-180 mrad of the
+# third roller); a step of the drive is a real motion that persists in the angle and is
+# bounded by the lost motion it takes up: one row of 1-2 % for a worn mesh up to its 500-um
+# range limit, 2-7 % on two rollers together for a 1-5 % chain elongation (measured on the
+# plant). Until 2026-11-27 the 1 % band of the levels decided this too and erased them.
+ANCHOR = 25  # rows each side of a gap whose mean lags are matched (0.25 s at 100 Hz)
+HISTORY = 6000  # counted row steps a move is judged by (a minute at 100 Hz)
+MIN_HISTORY = 10  # fewer counted steps than this: no row counts as a move yet
+MOVED = 3.0  # a row's lag step this many times the 90th percentile of the history: a move
+MOVING_RPM = 1.0  # below this predicted speed a roller counts as stopped (no spike test)
+MRAD_PER_RPM_S = 2e3 * math.pi / 60.0  # a speed of 1 rpm for 1 s turns this many mrad
+
+
+class BlockStream:
+    """Block features of rows pushed in pieces (see the module docstring).
+
+    Args:
+        block_s: block length, s (rounded to whole rows).
+        period_s: the rows' sample period, s.
+        ratio: each lagged roller's speed over the front roller's, by the kinematics
+            (:func:`~drafttwin.diagnosis.residuals.roller_ratio`).
+    """
+
+    def __init__(self, block_s: float, period_s: float, ratio: np.ndarray) -> None:
+        if not (math.isfinite(block_s) and block_s > 0 and math.isfinite(period_s)
+                and period_s > 0):  # fmt: skip
+            raise DataError(f"block {block_s} s or sample period {period_s} s is not > 0",
+                            where="block_s", fix="e.g. blocks of 1 s at 100 Hz")  # fmt: skip
+        self.per = max(1, int(round(block_s / period_s)))
+        self.period_s = float(period_s)
+        self.block_s = self.per * self.period_s
+        self.lags = LagCounter(np.asarray(ratio, dtype=np.float64), self.period_s)
+        self._y = np.full((self.per, N_CHANNELS), np.nan)
+        self._yhat = np.full((self.per, N_CHANNELS), np.nan)
+        self._t = np.zeros(self.per)
+        self._k = 0  # rows in the open block
+        self._waiting: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self._lag_rows = np.zeros((0, N_LAGGED))  # final lags not yet averaged into a block
+        self.blocks = 0  # blocks handed out so far
+        self.finished = False
+
+    @property
+    def pending_blocks(self) -> int:
+        """Closed blocks waiting for their angle lags."""
+        return len(self._waiting)
+
+    def push(self, time_s: np.ndarray, y: np.ndarray, yhat: np.ndarray) -> list[BlockRow]:
+        """Rows ``(n,)`` times, ``(n, 5)`` measured and predicted; the blocks now final."""
+        if self.finished:
+            raise RuntimeError("the stream was finished; start a new one")
+        t = np.atleast_1d(np.asarray(time_s, dtype=np.float64))
+        y, yhat = np.atleast_2d(y), np.atleast_2d(yhat)
+        out: list[BlockRow] = []
+        i = 0
+        while i < len(t):
+            take = min(self.per - self._k, len(t) - i)
+            self._y[self._k : self._k + take] = y[i : i + take]
+            self._yhat[self._k : self._k + take] = yhat[i : i + take]
+            self._t[self._k : self._k + take] = t[i : i + take]
+            self._k += take
+            i += take
+            if self._k == self.per:
+                self._k = 0
+                out += self._close()
+        return out
+
+    def finish(self) -> list[BlockRow]:
+        """The end of the record: every closed block's features (the open block's rows,
+        fewer than a block, are left out)."""
+        self.finished = True
+        return self._emit(self.lags.finish())
+
+    def _close(self) -> list[BlockRow]:
+        level, lost, run, good = block_levels(self._y, self._yhat)
+        self._waiting.append((float(self._t[-1]), level, lost, run))
+        return self._emit(self.lags.add(self._y[:, :4].copy(), good[:, :4]))
+
+    def _emit(self, lag: np.ndarray) -> list[BlockRow]:
+        self._lag_rows = np.vstack([self._lag_rows, lag])
+        out = []
+        while self._waiting and len(self._lag_rows) >= self.per:
+            t, level, lost, run = self._waiting.popleft()
+            mean_lag = self._lag_rows[: self.per].mean(axis=0)
+            self._lag_rows = self._lag_rows[self.per :]
+            out.append(BlockRow(self.blocks, t, level, lost, run, mean_lag))
+            self.blocks += 1
+        return out
+
+
+class BlockRow:
+    """One block's features (see :class:`~drafttwin.diagnosis.residuals.BlockFeatures`)."""
+
+    __slots__ = ("index", "time_s", "level", "lost", "run", "lag")
+
+    def __init__(self, index: int, time_s: float, level: np.ndarray, lost: np.ndarray,
+                 run: np.ndarray, lag: np.ndarray) -> None:  # fmt: skip
+        self.index, self.time_s = index, time_s
+        self.level, self.lost, self.run, self.lag = level, lost, run, lag
+
+    @property
+    def features(self) -> np.ndarray:
+        """The five levels, then the three lags (:data:`~drafttwin.diagnosis.detect.FEATURES`)."""
+        return np.concatenate([self.level, self.lag])
+
+
+def block_levels(y: np.ndarray, yhat: np.ndarray) -> tuple[np.ndarray, ...]:
+    """One block's rows ``(per, 5)``: mean relative residual per channel (NaN with fewer than
+    half the samples), share lost on a channel alone, longest run of identical values, and
+    which readings the angle counts ``(per, 5)`` (all but a data-path spike)."""
+    per = len(y)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = y / yhat - 1.0
+    finite_r = np.isfinite(r)
+    if finite_r.all():
+        med = np.median(r, axis=0, keepdims=True)
+    else:
+        with warnings.catch_warnings():  # a block with no sample (a dropout) has no median
+            warnings.simplefilter("ignore", RuntimeWarning)
+            med = np.nanmedian(np.where(finite_r, r, np.nan), axis=0, keepdims=True)
+    off = np.abs(r - med)
+    ok = finite_r & (off < SPIKE)
+    count = ok.sum(axis=0)
+    level = np.where(count >= per / 2, np.where(ok, r, 0.0).sum(axis=0) / np.maximum(count, 1),
+                     np.nan)  # fmt: skip
+    finite = np.isfinite(y)
+    lost = (~finite & finite.any(axis=1, keepdims=True)).sum(axis=0) / per
+    stopped = yhat < MOVING_RPM
+    good = ((off < ANGLE_SPIKE) & finite) | (stopped & finite)
+    return level, lost, longest_runs(y), good
+
+
+def longest_runs(y: np.ndarray) -> np.ndarray:
+    """Longest run of identical finite consecutive values per channel of rows ``(n, k)``."""
+    same = (y[1:] == y[:-1]) & np.isfinite(y[1:])
+    if not same.any():
+        return np.ones(y.shape[1])
+    count = np.cumsum(same, axis=0)
+    # the count where each run began: the count at the last row that broke a run
+    began = np.maximum.accumulate(np.where(same, 0, count), axis=0)
+    out: np.ndarray = (count - began).max(axis=0) + 1.0
+    return out
+
+
+class LagCounter:
+    """The angle lags of rows fed block by block, each row final once the rows it anchors
+    to have come (see the module docstring). ``add`` takes one block's readings of the four
+    rollers and which of them count; it returns the lags, mrad ``(m, 3)``, of the rows that
+    became final (in order, possibly none)."""
+
+    def __init__(self, ratio: np.ndarray, period_s: float) -> None:
+        self.ratio = np.asarray(ratio, dtype=np.float64).reshape(N_LAGGED)
+        self.mrad_per_row = period_s * MRAD_PER_RPM_S
+        self.base = 0  # global index of the buffers' first row
+        self.y = np.zeros((0, 4))
+        self.good = np.zeros((0, 4), dtype=bool)
+        self.step = np.zeros((0, N_LAGGED))  # rows < n_ok
+        self.row_ok = np.zeros(0, dtype=bool)  # rows < n_ok
+        self.cum = np.zeros((0, N_LAGGED))  # running sum of the counted steps, rows < n_ok
+        self.still = np.zeros((0, N_LAGGED), dtype=bool)  # rows < n_ok
+        self.lag = np.zeros((0, N_LAGGED))  # final lags, rows < n_final
+        self.n_rows = self.n_ok = self.n_final = 0
+        self.history = np.zeros((HISTORY, N_LAGGED))  # the last counted steps, a ring
+        self.n_history = 0  # counted steps ever (the ring's write position, modulo)
+        self.offset = np.zeros(N_LAGGED)
+        self.prev_end = 0  # end of the last gap (global row)
+        self.before: np.ndarray | None = None  # the open gap's before-means (NaN: none)
+        self.pending: tuple[int, np.ndarray] | None = None  # a gap's end and before-means
+        self.carried = np.zeros(N_LAGGED)  # the value an open gap holds
+        self.finished = False
+
+    # ---- rows in ---------------------------------------------------------------------------
+    def add(self, y4: np.ndarray, good4: np.ndarray) -> np.ndarray:
+        """One block's rows; the lags of the rows now final."""
+        start = self.n_rows
+        self.y = np.vstack([self.y, y4])
+        self.good = np.vstack([self.good, good4])
+        self.n_rows += len(y4)
+        # one judge of moves per block: the history before the block
+        usual, spread = self._stats()
+        # the previous block's last row: its transient rule needed this block's first row
+        self._count(start, usual, spread)
+        self._count(self.n_rows - 1, usual, spread)
+        return self._scan()
+
+    def finish(self) -> np.ndarray:
+        """No more rows: the last row's transient rule sees none after it; every lag final."""
+        self.finished = True
+        usual, spread = self._stats()
+        self._count(self.n_rows, usual, spread)
+        return self._scan()
+
+    def _stats(self) -> tuple[np.ndarray, np.ndarray]:
+        """The usual row step and its 90th-percentile spread over the history (a percentile,
+        not a SD: a steady speed's quantised steps take a few values, and more than half of
+        them can be one); no history yet: nothing is a move."""
+        if self.n_history < MIN_HISTORY:
+            return np.zeros(N_LAGGED), np.full(N_LAGGED, np.inf)
+        counted = self.history[: min(self.n_history, HISTORY)]
+        usual = np.median(counted, axis=0)
+        return usual, np.quantile(np.abs(counted - usual), 0.9, axis=0)
+
+    def _count(self, upto: int, usual: np.ndarray, spread: np.ndarray) -> None:
+        """Make ``row_ok``, the steps, their running sum and ``still`` final up to ``upto``
+        (global, exclusive), judging moves by ``usual`` and ``spread``."""
+        lo, hi = self.n_ok - self.base, upto - self.base
+        if hi <= lo:
+            return
+        rows = slice(lo, hi)
+        y, good = self.y, self.good
+        counted = np.isfinite(y).all(axis=1)
+        together = counted & ((~good).sum(axis=1) >= 2)
+        before = np.concatenate([[False], together[:-1]])
+        after = np.concatenate([together[1:], [False]])
+        # a transient of the drive moves two or more rollers out of the spike band together
+        # for two or more rows, every roller counted: its counts are kept (a data-path spike
+        # is one sample of one channel; two such on two channels in two consecutive rows come
+        # about once in 1e12 rows at the plant's rate of 5e-4 per sample)
+        row_ok = (good.all(axis=1) | (together & (before | after)))[rows]
+        step = (y[rows, 1:] - y[rows, :1] * self.ratio) * self.mrad_per_row
+        step[~row_ok] = 0.0  # carried: a positive drive keeps the lag across the gap
+        last = self.cum[-1] if len(self.cum) else np.zeros(N_LAGGED)
+        self.step = np.vstack([self.step, step])
+        self.row_ok = np.concatenate([self.row_ok, row_ok])
+        self.cum = np.vstack([self.cum, last + np.cumsum(step, axis=0)])
+        self.still = np.vstack([self.still, np.abs(step - usual) <= MOVED * spread])
+        self._remember(step[row_ok])
+        self.n_ok = upto
+
+    def _remember(self, steps: np.ndarray) -> None:
+        """Counted steps into the history ring (the oldest overwritten)."""
+        steps = steps[-HISTORY:]
+        pos = np.arange(self.n_history, self.n_history + len(steps)) % HISTORY
+        self.history[pos] = steps
+        self.n_history += len(steps)
+
+    # ---- gaps, anchors and final lags ------------------------------------------------------
+    def _scan(self) -> np.ndarray:
+        """Advance the final lags as far as the anchors allow."""
+        first = self.n_final
+        while self.n_final < self.n_ok:
+            if self.pending is not None and not self._resolve():
+                break  # the rows after the gap have not all come yet
+            i = self.n_final - self.base
+            ok = self.row_ok[i : self.n_ok - self.base]
+            if ok[0] and self.before is not None:  # the open gap ended at the last edge
+                self._close_gap()
+                continue
+            if ok[0]:  # a run of counted rows: up to the next gap
+                n = int(np.argmin(ok)) if not ok.all() else len(ok)
+                self._final(self.cum[i : i + n] + self.offset)
+                continue
+            if self.before is None:  # a gap opens here
+                self._open_gap(self.n_final)
+            n = int(np.argmax(ok)) if ok.any() else len(ok)
+            self._final(np.tile(self.carried, (n, 1)))
+            if n < len(ok):  # the gap ends: its after-rows decide its anchor
+                self._close_gap()
+        lag = self.lag[first - self.base : self.n_final - self.base]
+        self._trim()
+        return lag
+
+    def _close_gap(self) -> None:
+        """The open gap ended before the first row not yet final."""
+        assert self.before is not None
+        self.pending, self.before = (self.n_final, self.before), None
+        self.prev_end = self.n_final
+
+    def _final(self, values: np.ndarray) -> None:
+        self.lag = np.vstack([self.lag, values])
+        self.n_final += len(values)
+
+    def _open_gap(self, s0: int) -> None:
+        """A gap starts at row ``s0``: the mean lag over up to :data:`ANCHOR` rows before it
+        (back to the last move, not before the previous gap), per roller, and the value it
+        carries."""
+        before = np.full(N_LAGGED, np.nan)
+        lo = max(self.prev_end, s0 - ANCHOR)
+        for j in range(N_LAGGED):
+            moved = np.flatnonzero(~self.still[lo + 1 - self.base : s0 - self.base, j])
+            b0 = lo + 1 + int(moved[-1]) if moved.size else lo
+            if s0 > b0:
+                before[j] = self.cum[b0 - self.base : s0 - self.base, j].mean()
+        self.before = before
+        self.carried = self.lag[s0 - 1 - self.base].copy() if s0 > 0 else np.zeros(N_LAGGED)
+
+    def _resolve(self) -> bool:
+        """Anchor the gap that ended (rows up to :data:`ANCHOR` after it, to the next gap
+        or the record's end, up to a move): its offset is added to every later row."""
+        assert self.pending is not None
+        e0, before = self.pending
+        ok = self.row_ok[e0 - self.base : min(e0 + ANCHOR, self.n_ok) - self.base]
+        if ok.all() and self.n_ok < e0 + ANCHOR and not self.finished:
+            return False
+        hi = e0 + (int(np.argmin(ok)) if not ok.all() else len(ok))
+        for j in range(N_LAGGED):
+            moved = np.flatnonzero(~self.still[e0 - self.base : hi - self.base, j])
+            a1 = e0 + int(moved[0]) if moved.size else hi
+            if math.isfinite(before[j]) and a1 > e0:
+                self.offset[j] += before[j] - self.cum[e0 - self.base : a1 - self.base, j].mean()
+        self.pending = None
+        return True
+
+    def _trim(self) -> None:
+        """Drop rows no anchor or transient rule can reach any more."""
+        keep = min(self.n_final - ANCHOR - 2, self.n_ok - 2)
+        if self.pending is not None:
+            keep = min(keep, self.pending[0] - ANCHOR - 2)
+        cut = keep - self.base
+        if cut <= 0:
+            return
+        for name in ("y", "good", "step", "row_ok", "cum", "still", "lag"):
+            setattr(self, name, getattr(self, name)[cut:])
+        self.base += cut

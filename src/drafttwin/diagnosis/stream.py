@@ -1,0 +1,359 @@
+"""The diagnosis fed as a machine runs: blocks, decisions, and the windows whose shift is
+ranked. One implementation for both paths: the offline diagnosis
+(:class:`~drafttwin.diagnosis.diagnose.Diagnoser`) pushes a whole record through a
+:class:`DiagnosisStream` and ranks its windows at once; the live twin pushes each machine's
+rows as they arrive and ranks the windows in a worker process. The same rows give the same
+alarms, windows and causes.
+
+Per block the detector's :class:`~drafttwin.diagnosis.detect.CusumState` decides. After an
+alarm the stream goes on (the CUSUMs restart from a new reference window, as at a record's
+start) and keeps a *window*: the :data:`POST_S` seconds of blocks after a CUSUM alarm (the
+shift of a ramp grows by then), handed out as a :class:`RankRequest` when it is full, or
+when the record ends with at least :data:`MIN_BLOCKS` of them (else the blocks from the
+change estimate on). A sensor rule names its channel at once and is raised once per episode;
+its window sizes the fault on the channel's own samples (:mod:`~drafttwin.diagnosis.sensors`),
+and a sensor rule that fires from a machine alarm's change estimate to the window's end takes
+the window over: a stuck or dropped encoder corrupts its level and angle lag at once, so a
+CUSUM can alarm a block before the sensor rule does, and the ranking would blame a machine
+element for the sensor's fault.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from drafttwin.diagnosis.blocks import BlockRow, BlockStream
+from drafttwin.diagnosis.detect import (
+    FEATURES,
+    STREAMS,
+    Alarm,
+    CusumState,
+    Detection,
+    FaultDetector,
+)
+from drafttwin.diagnosis.learning import Learner
+from drafttwin.diagnosis.residuals import CHANNELS
+
+POST_S = 20.0
+"""Seconds of blocks after an alarm whose shift is ranked (a sensor fault: sized)."""
+BLOCK_S = 1.0
+"""Block length of a machine that learns without a prior, s."""
+MIN_BLOCKS = 5
+"""Fewest blocks after the alarm a window cut short by the record's end is ranked on."""
+
+
+@dataclass(frozen=True)
+class Window:
+    """One block the stream remembers: its end time (s), index, features
+    (:data:`~drafttwin.diagnosis.detect.FEATURES`), lost shares and longest runs."""
+
+    time_s: float
+    block: int
+    row: np.ndarray
+    lost: np.ndarray
+    run: np.ndarray
+
+
+@dataclass(frozen=True)
+class RankRequest:
+    """What to rank (or, for a sensor rule, to size) after an alarm: the window's blocks
+    (end times, indices, features minus the baseline at the alarm) and, for a sensor fault,
+    the cause its rule named with the channel's samples around it."""
+
+    alarm: Alarm
+    base: np.ndarray  # the baseline at the alarm (FEATURES)
+    time_s: np.ndarray
+    blocks: np.ndarray
+    deviation: np.ndarray
+    block_s: float
+    complete: bool = True  # the window ran its full length (False: the record ended first)
+    sensor: tuple[str, str] | None = None  # (channel, kind) a sensor rule named
+    sensor_window: Window | None = None  # the block whose rule named it
+    raw_time_s: np.ndarray | None = None  # the stream's recent samples, for the sizing
+    raw_y: np.ndarray | None = None
+    machine: str = ""
+
+    @property
+    def n_blocks(self) -> int:
+        return len(self.blocks)
+
+    @property
+    def shift(self) -> np.ndarray:
+        """The window's mean deviation (levels, then lags)."""
+        return np.asarray(self.deviation.mean(axis=0))
+
+
+@dataclass
+class Step:
+    """What a piece of rows (or a block) brought: the alarms raised, the windows that
+    closed, and the detector a learning state ended with."""
+
+    alarms: list[Alarm] = field(default_factory=list)
+    requests: list[RankRequest] = field(default_factory=list)
+    learned: FaultDetector | None = None
+
+    def __iadd__(self, other: Step) -> Step:
+        self.alarms += other.alarms
+        self.requests += other.requests
+        self.learned = other.learned or self.learned
+        return self
+
+
+@dataclass
+class _Open:
+    """A window collecting blocks."""
+
+    alarm: Alarm
+    base: np.ndarray
+    after: list[Window]
+    sensor: tuple[str, str] | None = None
+    sensor_window: Window | None = None  # the block whose rule named the sensor
+
+
+class Decisions:
+    """The decisions on block features, one block at a time (see the module docstring).
+
+    Args:
+        detector: a fitted detector.
+        block_s: the blocks' length, s.
+        post_s: the window after an alarm, s.
+        trace: keep every block's statistics (a :class:`~drafttwin.diagnosis.detect.Detection`
+            for the diagnosis page).
+    """
+
+    def __init__(self, detector: FaultDetector, block_s: float, *, post_s: float = POST_S,
+                 trace: bool = False) -> None:  # fmt: skip
+        self.detector, self.block_s = detector, block_s
+        self.n_ref = detector.reference_blocks(block_s)
+        self.post = max(1, int(round(post_s / block_s)))
+        self.state = CusumState(detector, self.n_ref, block_s)
+        self.recent: deque[Window] = deque(maxlen=self.post + self.n_ref + 2)
+        self.open: _Open | None = None
+        self.sensor_active: set[str] = set()
+        self.alarms: list[Alarm] = []
+        self.trace: list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]] | None = (
+            [] if trace else None
+        )
+        self.times: list[float] = []
+
+    @property
+    def learned_blocks(self) -> int:
+        """Blocks decided on so far (the reference windows included)."""
+        return self.state.block
+
+    def add(self, row: BlockRow) -> Step:
+        """One block's features: the alarms it raised and the window it closed, if any."""
+        x = row.features
+        here = Window(row.time_s, row.index, x, row.lost, row.run)
+        self.recent.append(here)
+        raised = self.state.update(row.time_s, x, row.lost, row.run)
+        self._record(here, raised)
+        step = Step()
+        sensor = {a.test for a in raised if a.direction == 0}
+        fresh = [a for a in raised if a.direction != 0 or a.test not in self.sensor_active]
+        self.sensor_active = sensor
+        step.alarms += fresh
+        self.alarms += fresh
+        for a in fresh:
+            self._open_window(a)
+        if self.open is not None:
+            if self.open.sensor is None and sensor:  # a sensor rule takes the window over
+                a = next(a for a in raised if a.direction == 0)
+                self.open.sensor, self.open.sensor_window = _sensor_of(a), here
+            # a sensor window counts every block (a dropped channel's levels may be NaN)
+            counted = self.open.sensor is not None or np.isfinite(x).all()
+            if counted and here.time_s > self.open.alarm.time_s:
+                self.open.after.append(here)
+            if len(self.open.after) >= self.post:
+                step.requests.append(self._request(self.open, complete=True))
+                self.open = None
+        return step
+
+    def finish(self) -> Step:
+        """The record's end: the open window's request with the blocks it has (at least
+        :data:`MIN_BLOCKS`, else the blocks from the change estimate on)."""
+        step = Step()
+        if self.open is None:
+            return step
+        w, self.open = self.open, None
+        if len(w.after) < MIN_BLOCKS and w.sensor is None:
+            a = w.alarm
+            w.after = [b for b in self.recent
+                       if b.time_s > a.change_s and np.isfinite(b.row).all()
+                       and (b.time_s <= a.time_s or b in w.after)]  # fmt: skip
+        if w.after or w.sensor is not None:
+            step.requests.append(self._request(w, complete=False))
+        return step
+
+    def _open_window(self, a: Alarm) -> None:
+        if a.direction == 0:  # a sensor rule: it names its channel, a window sizes it
+            if self.open is None:
+                base = self.state.baseline_at_alarm
+                self.open = _Open(a, np.zeros(len(FEATURES)) if base is None else base.copy(),
+                                  [], _sensor_of(a), self.recent[-1])  # fmt: skip
+            elif self.open.sensor is None:  # it explains the machine alarm's window
+                self.open.sensor, self.open.sensor_window = _sensor_of(a), self.recent[-1]
+            return
+        if self.open is not None:  # one window at a time: the first alarm's
+            return
+        base = self.state.baseline_at_alarm
+        assert base is not None
+        self.open = _Open(a, base.copy(), [])
+        # a sensor rule from the change estimate on (before the alarm) takes it over
+        for w in self.recent:
+            if a.change_s <= w.time_s and w.block <= a.block:
+                s = self.detector.sensor_alarm(w.time_s, w.block, w.lost, w.run, self.block_s)
+                if s is not None:
+                    self.open.sensor, self.open.sensor_window = _sensor_of(s), w
+                    break
+
+    def _request(self, w: _Open, complete: bool) -> RankRequest:
+        after = w.after
+        if after:
+            t = np.array([b.time_s for b in after])
+            blocks = np.array([b.block for b in after])
+            dev = np.vstack([b.row for b in after]) - w.base
+        else:
+            t, blocks, dev = np.zeros(0), np.zeros(0, dtype=int), np.zeros((0, len(FEATURES)))
+        return RankRequest(w.alarm, w.base, t, blocks, dev, self.block_s, complete, w.sensor,
+                           w.sensor_window)  # fmt: skip
+
+    def _record(self, here: Window, raised: list[Alarm]) -> None:
+        self.times.append(here.time_s)
+        if self.trace is None:
+            return
+        s = self.state
+        ns = len(STREAMS)
+        dev = np.full(len(FEATURES), np.nan) if s.deviation is None else s.deviation
+        stat = np.zeros(ns) if s.statistic is None else s.statistic
+        jump = s.jump_ratio if s.deviation is not None else np.zeros(ns)
+        sensor = self.detector.sensor_ratio(here.lost[None, :], here.run[None, :])[0]
+        self.trace.append((dev.copy(), stat.copy(), jump.copy(), sensor))
+
+    def detection(self) -> Detection:
+        """Every block's statistics so far (with ``trace``), and the alarms."""
+        assert self.trace is not None, "a stream without trace keeps no statistics"
+        n = len(self.trace)
+        if n == 0:
+            ns, nf = len(STREAMS), len(FEATURES)
+            dev, stat, jump, sensor = (np.zeros((0, nf)), np.zeros((0, ns)), np.zeros((0, ns)),
+                                       np.zeros((0, 2 * len(CHANNELS))))  # fmt: skip
+        else:
+            dev, stat, jump, sensor = (np.vstack(c) for c in zip(*self.trace, strict=True))
+        det = Detection(np.array(self.times), dev, stat, list(self.alarms), jump=jump,
+                        sensor=sensor)  # fmt: skip
+        return det
+
+
+def _sensor_of(a: Alarm) -> tuple[str, str]:
+    rule, channel = a.test.split("_", 1)
+    return channel, "dropout" if rule == "lost" else "stuck"
+
+
+class DiagnosisStream:
+    """Rows of one machine in, alarms and windows to rank out (see the module docstring).
+
+    Args:
+        period_s: the rows' sample period, s.
+        ratio: the rollers' kinematic speed ratios
+            (:func:`~drafttwin.diagnosis.residuals.roller_ratio`).
+        detector: a fitted detector (its block length is the blocks'); or ``None`` with a
+            ``learner``: the stream learns first, then decides with what it learned.
+        learner: the machine's :class:`~drafttwin.diagnosis.learning.Learner` (it outlives
+            the stream: a run after a stop goes on learning).
+        post_s: the window after an alarm, s.
+        trace: keep every block's statistics and features (the diagnosis page).
+        machine: a name carried by the requests (the live twin's machine).
+    """
+
+    def __init__(self, period_s: float, ratio: np.ndarray, *,
+                 detector: FaultDetector | None = None, learner: Learner | None = None,
+                 post_s: float = POST_S, trace: bool = False, machine: str = "") -> None:  # fmt: skip
+        if detector is None and learner is None:
+            raise ValueError("a stream needs a fitted detector or a learner")
+        block_s = detector.block_s_ if detector is not None else _learning_block_s(learner)
+        self.blocks = BlockStream(block_s, period_s, ratio)
+        self.learner = None if detector is not None else learner
+        self.post_s, self.trace, self.machine = post_s, trace, machine
+        self.decisions: Decisions | None = None
+        if detector is not None:
+            self.decisions = Decisions(detector, self.blocks.block_s, post_s=post_s, trace=trace)
+        self.rows: list[BlockRow] = []  # every block (offline: the record's features)
+        # the recent samples a sensor fault is sized on: the window and what precedes it
+        n_ref = (detector or FaultDetector()).reference_blocks(self.blocks.block_s)
+        self._raw_span = (int(round(post_s / block_s)) + n_ref + 3) * self.blocks.per
+        self._raw_t: deque[np.ndarray] = deque()
+        self._raw_y: deque[np.ndarray] = deque()
+        self._raw_n = 0
+
+    @property
+    def learning(self) -> bool:
+        return self.decisions is None
+
+    def push(self, time_s: np.ndarray, y: np.ndarray, yhat: np.ndarray) -> Step:
+        """Rows ``(n,)`` times, ``(n, 5)`` measured and predicted."""
+        self._remember(np.atleast_1d(time_s), np.atleast_2d(y))
+        step = Step()
+        for row in self.blocks.push(time_s, y, yhat):
+            step += self.add_block(row)
+        return step
+
+    def finish(self) -> Step:
+        """The record's (or the run's) end."""
+        step = Step()
+        for row in self.blocks.finish():
+            step += self.add_block(row)
+        if self.decisions is not None:
+            step += self._with_samples(self.decisions.finish())
+        return step
+
+    def add_block(self, row: BlockRow) -> Step:
+        """One block's features (from :attr:`blocks`, or from stored features)."""
+        if self.trace:
+            self.rows.append(row)
+        if self.decisions is None:
+            assert self.learner is not None
+            learned = self.learner.add(row, self.blocks.block_s)
+            if learned is not None:
+                self.decisions = Decisions(learned, self.blocks.block_s, post_s=self.post_s,
+                                           trace=self.trace)  # fmt: skip
+            return Step(learned=learned)
+        return self._with_samples(self.decisions.add(row))
+
+    def _with_samples(self, step: Step) -> Step:
+        step.requests = [_with_raw(r, self._raw(), self.machine) for r in step.requests]
+        return step
+
+    def _remember(self, t: np.ndarray, y: np.ndarray) -> None:
+        self._raw_t.append(np.asarray(t, dtype=np.float64).copy())
+        self._raw_y.append(np.asarray(y, dtype=np.float64).copy())
+        self._raw_n += len(t)
+        while self._raw_n - len(self._raw_t[0]) >= self._raw_span:
+            self._raw_n -= len(self._raw_t.popleft())
+            self._raw_y.popleft()
+
+    def _raw(self) -> tuple[np.ndarray, np.ndarray]:
+        if not self._raw_t:
+            return np.zeros(0), np.zeros((0, len(CHANNELS)))
+        t, y = np.concatenate(self._raw_t), np.vstack(self._raw_y)
+        return t[-self._raw_span :], y[-self._raw_span :]
+
+
+def _learning_block_s(learner: Learner | None) -> float:
+    """The block length a learning stream uses: its prior's, else the detector's default."""
+    if learner is not None and learner.prior is not None:
+        return float(learner.prior.block_s_)
+    return BLOCK_S
+
+
+def _with_raw(r: RankRequest, raw: tuple[np.ndarray, np.ndarray], machine: str) -> RankRequest:
+    if r.sensor is None:
+        return replace(r, machine=machine)
+    return replace(r, raw_time_s=raw[0], raw_y=raw[1], machine=machine)
+
+
+__all__ = ["MIN_BLOCKS", "POST_S", "Decisions", "DiagnosisStream", "RankRequest", "Step",
+           "Window"]  # fmt: skip
