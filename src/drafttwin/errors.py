@@ -48,6 +48,12 @@ class DataError(DrafttwinError):
     """A measurement file is missing, malformed or implausible."""
 
 
+class RunError(DrafttwinError):
+    """A process a command started for its work failed (its log says why): exit code 1."""
+
+    exit_code = 1
+
+
 class ModelFileError(DrafttwinError):
     """A saved model file is not a drafttwin model or comes from an incompatible version."""
 

@@ -69,12 +69,11 @@ def fed(watch: LiveFaultWatch, t: np.ndarray, y: np.ndarray, yhat: np.ndarray,
     """Every row into the watch, then the end of the run; a sensor rule's cause as the
     service takes it (at once) into ``causes``."""
     step = Step()
-    for r in rows(t, y, yhat):
-        got = watch.add(r)
+    for r in [*rows(t, y, yhat), None]:
+        got = watch.add(r) if r is not None else watch.flush()
         if causes is not None:
-            causes += [watch.sensor_cause(a) for a in got.alarms if a.direction == 0]
+            causes += [watch.sensor_cause(a, got) for a in got.alarms if a.direction == 0]
         step += got
-    step.requests += watch.flush()
     return step
 
 

@@ -22,6 +22,7 @@ from drafttwin.cli import twin_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import twin_ops_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import twin_fault_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import plant_serve_cmds  # noqa: E402,F401  isort: skip
+from drafttwin.cli import plant_replay_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import sliver_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import sliver_read_cmds  # noqa: E402,F401  isort: skip
 

@@ -219,6 +219,17 @@ HealthyHoursOpt = Annotated[float | None, number(
     "reference window (records of the plan's length, 10.5 min full, each its own machine); "
     "default: the plan's (12 x 10.5 min = 2.05 h full, 2 x 1 min quick). A <= 1 per 24 h "
     "claim needs >= 72 h alarm-free.")]  # fmt: skip
+RecordsDirOpt = Annotated[Path | None, dir_out("--records", (
+    "Folder the plant records are kept in (default OUT/records): made once, read back "
+    "checked by later runs (a changed diagnosis re-scores in minutes; a changed plant makes "
+    "them again), served by 'benchmark faults --live'."))]  # fmt: skip
+LiveOpt = Annotated[bool, typer.Option("--live", help=(
+    "Serve the benchmark's records over MQTT to the live twin instead ('plant replay' -> "
+    "'twin run', each machine learning its own healthy state first) and score its stored "
+    "alarms beside the offline diagnosis of the same records; writes OUT/faults_live.json "
+    "and OUT/faults_live.html."))]  # fmt: skip
+LiveMachinesOpt = Annotated[int, number("--machines", "--live: machines served at once.")]
+LiveSpeedOpt = Annotated[float, number("--speed", "--live: times real time per machine.")]
 SliverVariantOpt = Annotated[bool, typer.Option("--sliver", help=(
     "The delivery sensor's variant instead: gear run-out, cracks and roller eccentricity (which "
     "the encoders leave not assessed) recorded with the sliver and placed by its chimneys; "
@@ -235,6 +246,10 @@ def benchmark_faults(
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
     sliver: SliverVariantOpt = False,
+    records: RecordsDirOpt = None,
+    live: LiveOpt = False,
+    machines: LiveMachinesOpt = 10,
+    speed: LiveSpeedOpt = 8.0,
 ) -> None:
     """Seeded faulty and healthy plant records, diagnosed and scored.
 
@@ -252,6 +267,9 @@ def benchmark_faults(
 
     if sliver:
         return _sliver_variant(out, quick, seed, workers, as_json, quiet)
+    if live:
+        return _live_variant(out, quick, seed, workers, healthy_hours, records, machines, speed,
+                             as_json, quiet)  # fmt: skip
     from drafttwin.report.faults_bench import HEAD, render_benchmark, score_rows
     from drafttwin.studies.faults import run_benchmark
     from drafttwin.studies.faults.plan import PLANS, with_healthy_hours
@@ -270,7 +288,8 @@ def benchmark_faults(
         def stage(what: str) -> None:
             bar.update(task, description=f"fault benchmark ({plan.name}): {what}")
 
-        results = run_benchmark(plan, seed, workers, on_record=advance, on_stage=stage)
+        results = run_benchmark(plan, seed, workers, on_record=advance, on_stage=stage,
+                                records=records if records is not None else out / "records")  # fmt: skip
     with atomic_path(out / "faults_results.json") as tmp:
         tmp.write_text(dumps_strict(results, sort_keys=True) + "\n", encoding="utf-8")
     with atomic_path(out / "faults_report.html") as tmp:
@@ -288,6 +307,56 @@ def benchmark_faults(
         table.add_row(name, *(row[i] for row in rows))
     console.print(table)
     console.print(f"wrote {out / 'faults_results.json'} and {out / 'faults_report.html'}")
+
+
+def _live_variant(out: Path, quick: bool, seed: int, workers: int, healthy_hours: float | None,
+                  records: Path | None, machines: int, speed: float, as_json: bool,
+                  quiet: bool) -> None:  # fmt: skip
+    from drafttwin._io import atomic_path
+    from drafttwin._json import dumps_strict
+    from drafttwin.cli.twin_cmds import _need_twin_extra
+    from drafttwin.report.faults_bench import HEAD, render_live, score_rows
+    from drafttwin.studies.faults.live import LivePlan, run_live
+    from drafttwin.studies.faults.plan import PLANS, with_healthy_hours
+
+    _need_twin_extra()
+    plan = PLANS["quick" if quick else "full"]
+    if healthy_hours is not None:
+        plan = with_healthy_hours(plan, healthy_hours)
+    with progress_bar(f"live fault benchmark ({plan.name})", 1, quiet=quiet or as_json) as bar:
+        task = bar.task_ids[0]
+
+        def stage(what: str) -> None:
+            bar.update(task, description=f"live benchmark: {what}")
+
+        def advance(done: int, total: int) -> None:
+            bar.update(task, total=total, completed=done)
+
+        results = run_live(plan, seed, records if records is not None else out / "records",
+                           out / "live", workers=workers,
+                           live=LivePlan(machines=machines, speed=speed),
+                           on_stage=stage, on_progress=advance)  # fmt: skip
+    with atomic_path(out / "faults_live.json") as tmp:
+        tmp.write_text(dumps_strict(results, sort_keys=True) + "\n", encoding="utf-8")
+    with atomic_path(out / "faults_live.html") as tmp:
+        tmp.write_text(render_live(results), encoding="utf-8")
+    both = {"offline": results["offline"]["scores"], "live twin": results["twin"]["scores"]}
+    if as_json:
+        typer.echo(dumps_strict(both))
+        return
+    lv = results["live"]
+    table = Table(title=f"live fault benchmark ({plan.name}): "
+                  f"{results['machine_hours_served']:.1f} machine-hours served on "
+                  f"{lv['machines']} machines at {lv['speed']:g}x, {lv['wall_s'] / 60:.1f} min")  # fmt: skip
+    table.add_column("score")
+    rows = score_rows(both)
+    for row in rows:
+        table.add_column(row[0], justify="right")
+    for i, name in enumerate(HEAD[1:], start=1):
+        table.add_row(name, *(row[i] for row in rows))
+    console.print(table)
+    console.print(f"received {lv['received']} of {lv['published']} samples, {lv['dropped']} "
+                  f"dropped; wrote {out / 'faults_live.json'} and {out / 'faults_live.html'}")  # fmt: skip
 
 
 def _sliver_variant(out: Path, quick: bool, seed: int, workers: int, as_json: bool,

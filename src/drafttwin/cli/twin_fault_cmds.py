@@ -50,7 +50,7 @@ def twin_fit_detector(
     from drafttwin.twin.build import load_twin_model
     from drafttwin.twin.faultwatch import detector_path, plant_log_series, save_detector
     from drafttwin.twin.live import physics_train
-    from drafttwin.twin.sources.replay import recorded_identity
+    from drafttwin.wire.identity import recorded_identity
 
     files = [p.strip() for p in healthy.split(",") if p.strip()]
     if not files:

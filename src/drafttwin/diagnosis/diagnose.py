@@ -19,7 +19,6 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.diagnosis.blocks import BlockRow
 from drafttwin.diagnosis.detect import STREAMS, Alarm, Detection, FaultDetector, feature_matrix
 from drafttwin.diagnosis.growth import block_severities, severity_trend
 from drafttwin.diagnosis.locate import (
@@ -41,7 +40,14 @@ from drafttwin.diagnosis.residuals import (
 )
 from drafttwin.diagnosis.sensors import size_sensor_fault
 from drafttwin.diagnosis.spectrum import LineEvidence, line_evidence
-from drafttwin.diagnosis.stream import POST_S, Decisions, DiagnosisStream, RankRequest, Step
+from drafttwin.diagnosis.stream import (
+    POST_S,
+    Decisions,
+    DiagnosisStream,
+    RankRequest,
+    Step,
+    decide,
+)
 from drafttwin.diagnosis.walk import baseline_weights, walk_covariance
 from drafttwin.errors import DataError
 from drafttwin.mechanics import DriveTrain
@@ -56,10 +62,11 @@ class Diagnosis:
     causes: list[Cause] = field(default_factory=list)
     shift: np.ndarray | None = None  # relative level change per channel, then lags (mrad)
     lines: list[LineEvidence] = field(default_factory=list)
+    ranked: Alarm | None = None  # the alarm whose causes these are (default: the first)
 
     @property
     def alarm(self) -> Alarm | None:
-        return self.detection.first
+        return self.ranked if self.ranked is not None else self.detection.first
 
     @property
     def verdict(self) -> str | None:
@@ -149,23 +156,20 @@ class Diagnoser:
             dx.lines = line_evidence(self.train, series, a.change_s, a.time_s)
         return dx
 
-    def from_features(self, f: BlockFeatures) -> Diagnosis:
+    def from_features(self, f: BlockFeatures, first_after: float | None = None) -> Diagnosis:
         """Detection and localisation from block features alone (no spectra, no sensor
-        sizing on samples)."""
-        decisions = Decisions(self.detector, f.block_s, post_s=self.post_s, trace=True)
-        step = Step()
-        x = feature_matrix(f)
-        for j in range(len(x)):
-            step += decisions.add(BlockRow(j, float(f.time_s[j]), f.level[j], f.lost[j], f.run[j],
-                                           x[j, len(CHANNELS):]))  # fmt: skip
-        step += decisions.finish()
-        return self._diagnosis(f, decisions, step)
+        sizing on samples); ``first_after``: rank the first alarm at or after this time (a
+        benchmark's onset) instead of the record's first."""
+        decisions, step = decide(self.detector, f, post_s=self.post_s, trace=True)
+        return self._diagnosis(f, decisions, step, first_after)
 
-    def _diagnosis(self, f: BlockFeatures, decisions: Decisions, step: Step) -> Diagnosis:
-        """The record's first alarm and its window's causes."""
+    def _diagnosis(self, f: BlockFeatures, decisions: Decisions, step: Step,
+                   first_after: float | None = None) -> Diagnosis:  # fmt: skip
+        """The record's first alarm (at or after ``first_after``) and its window's causes."""
         det = decisions.detection()
-        dx = Diagnosis(f, det)
-        alarm = det.first
+        later = [a for a in det.alarms if first_after is None or a.time_s >= first_after]
+        alarm = later[0] if later else None
+        dx = Diagnosis(f, det, ranked=alarm)
         if alarm is None:
             return dx
         req = next((r for r in step.requests if r.alarm == alarm), None)

@@ -21,7 +21,8 @@ element for the sensor's fault.
 from __future__ import annotations
 
 from collections import deque
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +36,7 @@ from drafttwin.diagnosis.detect import (
     FaultDetector,
 )
 from drafttwin.diagnosis.learning import Learner
-from drafttwin.diagnosis.residuals import CHANNELS
+from drafttwin.diagnosis.residuals import CHANNELS, BlockFeatures
 
 POST_S = 20.0
 """Seconds of blocks after an alarm whose shift is ranked (a sensor fault: sized)."""
@@ -85,6 +86,63 @@ class RankRequest:
         """The window's mean deviation (levels, then lags)."""
         return np.asarray(self.deviation.mean(axis=0))
 
+    def to_doc(self) -> dict[str, Any]:
+        """JSON-able (NaN as null): a request kept to be ranked later (a twin stopped first)."""
+        w = self.sensor_window
+
+        def arr(a: np.ndarray | None) -> Any:
+            return None if a is None else np.where(np.isfinite(a), a, np.nan).tolist()
+
+        return {"alarm": asdict(self.alarm), "base": arr(self.base), "time_s": arr(self.time_s),
+                "blocks": self.blocks.astype(int).tolist(), "deviation": arr(self.deviation),
+                "block_s": self.block_s, "complete": self.complete,
+                "sensor": None if self.sensor is None else list(self.sensor),
+                "sensor_window": None if w is None else {
+                    "time_s": w.time_s, "block": w.block, "row": arr(w.row), "lost": arr(w.lost),
+                    "run": arr(w.run)},
+                "raw_time_s": arr(self.raw_time_s), "raw_y": arr(self.raw_y),
+                "machine": self.machine}  # fmt: skip
+
+    @classmethod
+    def from_doc(cls, doc: dict[str, Any]) -> RankRequest:
+        """From :meth:`to_doc`, every field checked (``ValueError`` naming what is wrong)."""
+        nf, nc = len(FEATURES), len(CHANNELS)
+
+        def arr(v: Any, shape: tuple[int, ...], name: str, finite: bool = True) -> np.ndarray:
+            a = np.array([[np.nan if x is None else x for x in r] for r in v] if v and
+                         isinstance(v[0], list) else [np.nan if x is None else x for x in v],
+                         dtype=np.float64)  # fmt: skip
+            if len(shape) == 2 and a.size == 0:
+                a = a.reshape(0, shape[1])
+            ok = all(s in (-1, d) for s, d in zip(shape, a.shape, strict=False))
+            if a.ndim != len(shape) or not ok or (finite and not np.isfinite(a).all()):
+                raise ValueError(f"{name} has shape {a.shape} or is not finite")
+            return a
+
+        try:
+            al = doc["alarm"]
+            alarm = Alarm(float(al["time_s"]), int(al["block"]), str(al["test"]),
+                          int(al["direction"]), float(al["change_s"]), str(al["rule"]))  # fmt: skip
+            time_s = arr(doc["time_s"], (-1,), "time_s")
+            blocks = np.asarray(doc["blocks"], dtype=int)
+            dev = arr(doc["deviation"], (len(time_s), nf), "deviation", finite=False)
+            w, sensor = doc["sensor_window"], doc["sensor"]
+            window = None if w is None else Window(
+                float(w["time_s"]), int(w["block"]), arr(w["row"], (nf,), "row", finite=False),
+                arr(w["lost"], (nc,), "lost"), arr(w["run"], (nc,), "run"))  # fmt: skip
+            raw_t = (
+                None if doc["raw_time_s"] is None else arr(doc["raw_time_s"], (-1,), "raw_time_s")
+            )
+            raw_y = (
+                None if doc["raw_y"] is None else arr(doc["raw_y"], (-1, nc), "raw_y", finite=False)
+            )
+            return cls(alarm, arr(doc["base"], (nf,), "base", finite=False), time_s, blocks, dev,
+                       float(doc["block_s"]), bool(doc["complete"]),
+                       None if sensor is None else (str(sensor[0]), str(sensor[1])), window,
+                       raw_t, raw_y, str(doc["machine"]))  # fmt: skip
+        except (KeyError, TypeError, IndexError) as exc:
+            raise ValueError(f"{type(exc).__name__}: {exc}") from None
+
 
 @dataclass
 class Step:
@@ -94,11 +152,13 @@ class Step:
     alarms: list[Alarm] = field(default_factory=list)
     requests: list[RankRequest] = field(default_factory=list)
     learned: FaultDetector | None = None
+    blocks: dict[int, Window] = field(default_factory=dict)  # each alarm's block, by index
 
     def __iadd__(self, other: Step) -> Step:
         self.alarms += other.alarms
         self.requests += other.requests
         self.learned = other.learned or self.learned
+        self.blocks.update(other.blocks)
         return self
 
 
@@ -156,6 +216,8 @@ class Decisions:
         fresh = [a for a in raised if a.direction != 0 or a.test not in self.sensor_active]
         self.sensor_active = sensor
         step.alarms += fresh
+        if fresh:
+            step.blocks[here.block] = here
         self.alarms += fresh
         for a in fresh:
             self._open_window(a)
@@ -246,6 +308,21 @@ class Decisions:
         det = Detection(np.array(self.times), dev, stat, list(self.alarms), jump=jump,
                         sensor=sensor)  # fmt: skip
         return det
+
+
+def decide(
+    detector: FaultDetector, f: BlockFeatures, *, post_s: float = POST_S, trace: bool = False
+) -> tuple[Decisions, Step]:
+    """The decisions over a record's block features (stored ones: no samples, so a sensor
+    fault is not sized): every alarm and every window, as the stream makes them."""
+    decisions = Decisions(detector, f.block_s, post_s=post_s, trace=trace)
+    step = Step()
+    lags = f.lags
+    for j in range(len(f.time_s)):
+        step += decisions.add(BlockRow(j, float(f.time_s[j]), f.level[j], f.lost[j], f.run[j],
+                                       lags[j]))  # fmt: skip
+    step += decisions.finish()
+    return decisions, step
 
 
 def _sensor_of(a: Alarm) -> tuple[str, str]:
@@ -356,4 +433,4 @@ def _with_raw(r: RankRequest, raw: tuple[np.ndarray, np.ndarray], machine: str) 
 
 
 __all__ = ["MIN_BLOCKS", "POST_S", "Decisions", "DiagnosisStream", "RankRequest", "Step",
-           "Window"]  # fmt: skip
+           "Window", "decide"]  # fmt: skip

@@ -95,3 +95,36 @@ def render_benchmark(results: Mapping[str, Any]) -> str:
         section("learned", "Learned residuals", para(_learned_note(results["learned"]))),
     ])  # fmt: skip
     return page("Fault benchmark", body)
+
+
+def render_live(results: Mapping[str, Any]) -> str:
+    """The live benchmark's page: the twin's scores beside the offline diagnosis's on the same
+    records, and how the records were served."""
+    scores = {"offline (diagnose)": results["offline"]["scores"],
+              "live twin": results["twin"]["scores"]}  # fmt: skip
+    lv = results["live"]
+    wall = float(lv["wall_s"])
+    served = (
+        f"{results['machine_hours_served']:.1f} machine-hours served over MQTT on "
+        f"{lv['machines']} machines at once, {lv['speed']:g}x real time each, in "
+        f"{int(wall // 60)} min {wall % 60:.0f} s wall; {lv['received']} of {lv['published']} "
+        f"samples received, {lv['dropped']} dropped; each machine learned {lv['prelude_s']:g} s "
+        f"of its own healthy running first, on top of the detector fitted on "
+        f"{results['prior']['fitted_on']} tuning records"
+    )
+    events = ", ".join(f"{k}: {v}" for k, v in sorted(results["events"].items()))
+    body = join([
+        tag("h1", "Fault benchmark, live"),
+        para(f"plan {results['plan']}, seed {results['seed']}: {served}.", cls="sub"),
+        section("scores", "The twin beside the offline diagnosis",
+                table([HEAD], score_rows(scores), id="scores"),
+                para("The same records: the offline row pushes each record through the "
+                     "diagnosis at once ('drafttwin diagnose'); the live row is what the twin "
+                     "stored while the records were served as live machines. False alarms count "
+                     "the watched healthy running (after each run's reference window); the "
+                     "learning preludes are not watched.", cls="note")),
+        section("confusion", "Confusion matrix (live twin)",
+                confusion_table(results["twin"]["scores"]["confusion"])),
+        section("events", "The twin's events", para(events)),
+    ])  # fmt: skip
+    return page("Fault benchmark, live", body)

@@ -170,6 +170,9 @@ def _watch(
                               baseline=None if st.baseline is None else st.baseline.detector,
                               prior=prior, learn_s=learn_s, post_s=post_s, has_motor=has_motor,
                               phase=block_phase(name, m.rate_hz, block_s))  # fmt: skip
+    if baselines is not None and st.watch.learner is not None:  # go on learning, if kept
+        st.watch.learn_from_s = baselines.load_learning(name, st.identity, st.model_sha256,
+                                                        st.watch.learner)  # fmt: skip
 
 
 def _refusal(kept: Baseline | None, st: MachineState) -> str | None:

@@ -46,7 +46,7 @@ FORMAT = "drafttwin-live-detector"
 VERSION = 1
 TOP = 3
 """Causes kept per alarm (the best first)."""
-MAX_PENDING = 4
+MAX_PENDING = 32
 """Localisations queued at once; more alarms in that time get no cause ('busy')."""
 
 
@@ -176,8 +176,11 @@ class LiveFaultWatch:
         self.last_us: int | None = None
         self.restarts = 0
         self.learn_from_s: float | None = None  # source time of the first learned block
-        self._row = np.empty((1, len(CHANNELS)))
-        self._hat = np.empty((1, len(CHANNELS)))
+        # rows are pushed a block at a time (the stream gives the same numbers for any
+        # pieces; a block's features are final a block later anyway)
+        per = max(1, int(round(self.block_s * rate_hz)))
+        self._t, self._k = np.zeros(per), 0
+        self._y, self._hat = np.zeros((per, len(CHANNELS))), np.zeros((per, len(CHANNELS)))
 
     # ---- state ------------------------------------------------------------------------------
     @property
@@ -200,58 +203,75 @@ class LiveFaultWatch:
         return DiagnosisStream(1.0 / self.rate_hz, self.ratio, detector=self.detector,
                                learner=self.learner, post_s=self.post_s, machine=self.machine)  # fmt: skip
 
-    def restart(self) -> list[RankRequest]:
+    def _took(self, step: Step) -> Step:
+        if step.learned is not None:  # the learning state ended: watch with what it learned
+            self.detector, self.learner = step.learned, None
+        return step
+
+    def _push(self) -> Step:
+        """The rows held so far into the stream."""
+        k, self._k = self._k, 0
+        if k == 0:
+            return Step()
+        return self._took(self.stream.push(self._t[:k], self._y[:k], self._hat[:k]))
+
+    def _end_run(self) -> Step:
+        """The run's end: its last blocks and its open window (ranked with what it has)."""
+        step = self._push()
+        step += self._took(self.stream.finish())
+        self.stream = self._stream()
+        return step
+
+    def restart(self) -> Step:
         """A gap: the physics restarts, the rows go on in a new run (a new reference window;
-        a learning state goes on learning). The old run's open window is ranked with what
-        it has."""
-        step = self.stream.finish()
+        a learning state goes on learning)."""
+        step = self._end_run()
         if self.learner is not None:
             self.learner.new_record()
-        self.stream = self._stream()
         self.restarts += 1
-        return step.requests
+        return step
 
-    def relearn(self) -> list[RankRequest]:
+    def relearn(self) -> Step:
         """After maintenance (an operator's command): forget the baseline and learn again."""
-        requests = self.stream.finish().requests
+        step = self._end_run()
         self.detector, self.learner, self.learn_from_s = None, self._learner(), None
         self.stream = self._stream()
-        return requests
+        step.learned = None  # (what the old run ended with is forgotten too)
+        return step
 
     # ---- rows ------------------------------------------------------------------------------
     def add(self, row: SampleRow) -> Step:
         """One row: what it brought (alarms raised, windows closed, a learning that ended)."""
         step = Step()
         if self.last_us is not None and row.ts_us - self.last_us > 1.5 * self.period_us:
-            step.requests += self.restart()
+            step += self.restart()
         self.last_us = row.ts_us
         if self.skip:
             self.skip -= 1
             return step
-        y, yhat = self._row, self._hat
-        y[0, :4], y[0, 4] = row.measured, row.motor
-        yhat[0, :4], yhat[0, 4] = row.physics, row.motor_physics
+        k = self._k
+        y, yhat = self._y, self._hat
+        y[k, :4], y[k, 4] = row.measured, row.motor
+        yhat[k, :4], yhat[k, 4] = row.physics, row.motor_physics
         if not self.has_motor:  # no motor channel: its residual is zero by construction
-            y[0, 4] = row.motor_physics
+            y[k, 4] = row.motor_physics
+        self._t[k] = row.ts_us / 1e6
         if self.learning and self.learn_from_s is None:
             self.learn_from_s = row.ts_us / 1e6
-        step += self.stream.push(np.array([row.ts_us / 1e6]), y, yhat)
-        if step.learned is not None:
-            self.detector, self.learner = step.learned, None
+        self._k += 1
+        if self._k == len(self._t):
+            step += self._push()
         return step
 
-    def flush(self) -> list[RankRequest]:
-        """At the end of a run: the open window, ranked with the blocks it has."""
-        requests = self.stream.finish().requests
-        self.stream = self._stream()
-        return requests
+    def flush(self) -> Step:
+        """At the end of a run: its last blocks and the open window, ranked with the blocks
+        it has."""
+        return self._end_run()
 
-    def sensor_cause(self, alarm: Alarm) -> dict[str, Any]:
-        """A sensor rule's cause from the block that raised it (sized later by its window)."""
-        d = self.stream.decisions
-        w = next((w for w in (d.recent if d is not None else ()) if w.block == alarm.block), None)
-        if w is None:
-            raise ValueError(f"block {alarm.block} of the alarm is not among the recent ones")
+    def sensor_cause(self, alarm: Alarm, step: Step) -> dict[str, Any]:
+        """A sensor rule's cause from the block that raised it (the ``step`` that brought the
+        alarm holds it; its window sizes it later)."""
+        w = step.blocks[alarm.block]
         return sensor_cause(alarm, w.lost, w.run, self.rate_hz).to_dict()
 
 

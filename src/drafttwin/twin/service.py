@@ -10,6 +10,7 @@ released; the others run on.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import math
 import time
@@ -17,12 +18,13 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from drafttwin.diagnosis.detect import Alarm, FaultDetector
-from drafttwin.diagnosis.stream import RankRequest
+from drafttwin.diagnosis.detect import FaultDetector
+from drafttwin.diagnosis.stream import RankRequest, Step
 from drafttwin.models.online import forecast_many
 from drafttwin.sliver import StapleDiagram
 from drafttwin.sliver.watch import SliverAlarm, SliverWatch
@@ -39,9 +41,12 @@ LATENCY_WINDOW = 20_000
 HISTORY_ROWS = 3000
 """Rows per machine kept in memory for the page (30 s at 100 Hz)."""
 LOCATE_WAIT_S = 3.0
-"""At the end of a run, how long the rankings still running may take to finish (stored;
-one takes about a second in the warm worker). One that does not finish is stored as not
-localised, with the reason."""
+"""After a stop signal, how long the rankings still running may take to finish (stored; one
+takes about a second in the warm worker). One that does not finish is kept in the store and
+ranked when the twin starts again there (without a store: stored as not localised)."""
+LOCATE_END_S = 60.0
+"""At the end of a run that was not stopped (a replay ended, --duration): how long the
+rankings may take (a worker still starting included)."""
 SLIVER_SENSOR_M = 0.005
 """Averaging length of a delivery sensor (the plant's, docs/sliver.md), m: its ideal curve."""
 
@@ -110,7 +115,10 @@ class TwinService:
         self._batch: list[Sample] = []
         self._scheduled = False
         self.baselines: BaselineStore | None = None  # where machines' baselines are kept
-        self._ranking: dict[int, tuple[MachineState, RankRequest]] = {}  # in the worker
+        self._stop_signal = False
+        self._ranking: dict[
+            int, tuple[MachineState, RankRequest, FaultDetector]
+        ] = {}  # in the worker
 
     # ---- samples in ---------------------------------------------------------------------
     def on_sample(self, s: Sample) -> None:
@@ -227,23 +235,30 @@ class TwinService:
         assert st.watch is not None
         out = []
         for row in rows:
-            step = st.watch.add(row)
-            if step.learned is not None:
-                out.append(self._learned(st, step.learned, row.ts_us))
-            out += self._fault_events(st, step.alarms)
-            for req in step.requests:
-                self._locate(st, req)
+            out += self._took(st, st.watch.add(row), row.ts_us)
         return out
 
-    def _fault_events(self, st: MachineState, alarms: list[Alarm]) -> list[EventRow]:
+    def _took(self, st: MachineState, step: Step, ts_us: int,
+              judge: FaultDetector | None = None) -> list[EventRow]:  # fmt: skip
+        """What a machine's diagnosis brought: its learning's end, alarms, windows to rank
+        (with ``judge``, the detector that raised them, or the machine's present one)."""
+        out = []
+        if step.learned is not None:
+            out.append(self._learned(st, step.learned, ts_us))
+        out += self._fault_events(st, step)
+        for req in step.requests:
+            self._locate(st, req, judge)
+        return out
+
+    def _fault_events(self, st: MachineState, step: Step) -> list[EventRow]:
         assert st.watch is not None
         out = []
-        for a in alarms:
+        for a in step.alarms:
             st.faults += 1
             note = f"probable cause after {st.watch.post_s:g} s"
             if a.direction == 0:  # a sensor rule: its channel is the cause, sized later
                 ev = EventRow(st.twin.name, "sensor-fault", int(round(a.time_s * 1e6)),
-                              alarm_detail(a, [st.watch.sensor_cause(a)], note))  # fmt: skip
+                              alarm_detail(a, [st.watch.sensor_cause(a, step)], note))  # fmt: skip
             else:
                 ev = EventRow(st.twin.name, "fault", int(round(a.time_s * 1e6)),
                               alarm_detail(a, note=note))  # fmt: skip
@@ -261,6 +276,7 @@ class TwinService:
         if self.baselines is not None:
             try:
                 where = f"; stored in {self.baselines.save(st.baseline)}"
+                self.baselines.forget_learning(st.twin.name)
             except OSError as exc:
                 where = f"; not stored ({type(exc).__name__}: {exc})"
         who = f" ({st.identity})" if st.identity is not None else ""
@@ -282,8 +298,10 @@ class TwinService:
                                      f"stored baseline not used: {st.refused}"))  # fmt: skip
         if w.learning:
             prior = "" if st.prior is None else f", on top of {st.prior['file']}"
-            text = (f"learning its healthy state: {w.learn_s:g} s of running{prior}; no fault "
-                    "alarm meanwhile")  # fmt: skip
+            done = w.learner.learned_s if w.learner is not None else 0.0
+            kept = f" ({done:g} s of it learned before the twin restarted)" if done else ""
+            text = (f"learning its healthy state: {w.learn_s:g} s of running{prior}{kept}; no "
+                    "fault alarm meanwhile")  # fmt: skip
             self._event(st, EventRow(st.twin.name, "learning", now, text))
         elif st.baseline is not None:
             b = st.baseline
@@ -321,8 +339,8 @@ class TwinService:
         st = self.states.get(machine)
         if st is None or st.watch is None:
             return False
-        for req in st.watch.relearn():
-            self._locate(st, req)
+        judge = st.watch.detector  # the windows of the old run were raised by it
+        self._took(st, st.watch.relearn(), int(time.time() * 1e6), judge)
         st.baseline = None
         if self.baselines is not None:
             self.baselines.forget(machine)
@@ -347,6 +365,8 @@ class TwinService:
         if st.baseline is not None and learned is not None and learned != identity:
             self.relearn(machine, f"its baseline was learned on {learned}, the machine now says "
                                   f"{identity}")  # fmt: skip
+        elif before is not None and st.watch is not None and st.watch.learning:
+            self.relearn(machine, f"it was learning {before}, the machine now says {identity}")
         elif st.baseline is not None and learned is None:
             st.baseline.identity = identity  # learned before the source named it: it is this one
             if self.baselines is not None:
@@ -354,9 +374,17 @@ class TwinService:
         else:
             self._judged_as_is(st)
 
-    def _locate(self, st: MachineState, req: RankRequest) -> None:
+    def _locate(self, st: MachineState, req: RankRequest, judge: FaultDetector | None = None,
+                post_s: float | None = None, kept: Path | None = None) -> None:  # fmt: skip
+        """Rank a window in the worker and store the cause (``judge``: the detector that raised
+        it, default the machine's; ``kept``: the file of a window a stopped twin left, removed
+        once ranked)."""
+
         def done(r: RankRequest, causes: list[dict[str, Any]] | None, error: str | None) -> None:
             note = None if causes is not None else f"not localised ({error})"
+            if kept is not None:
+                note = (note + "; " if note else "") + "ranked after the twin restarted"
+                kept.unlink(missing_ok=True)
             ev = EventRow(st.twin.name, "fault-cause", int(round(r.alarm.time_s * 1e6)),
                           alarm_detail(r.alarm, causes, note))  # fmt: skip
             if self._loop is not None and self._loop.is_running():
@@ -364,19 +392,19 @@ class TwinService:
             else:
                 self._cause(st, ev, causes)
 
-        det = st.watch.detector if st.watch is not None else None
+        det = judge if judge is not None else st.watch.detector if st.watch is not None else None
         if det is None:
             done(req, None, "the machine is learning again")
             return
         key = id(req)
-        self._ranking[key] = (st, req)
+        self._ranking[key] = (st, req, det)
 
         def once(r: RankRequest, causes: list[dict[str, Any]] | None, error: str | None) -> None:
             if self._ranking.pop(key, None) is not None:  # (settled at the stop: stored then)
                 done(r, causes, error)
 
-        if not self.locator.submit(st.model_key, det, st.watch.post_s if st.watch else 0.0,
-                                   req, once):  # fmt: skip
+        post = post_s if post_s is not None else st.watch.post_s if st.watch else 0.0
+        if not self.locator.submit(st.model_key, det, post, req, once):
             once(req, None, "the locator is busy")
 
     def _cause(self, st: MachineState, ev: EventRow, causes: list[dict[str, Any]] | None) -> None:
@@ -388,24 +416,50 @@ class TwinService:
         for push in self.subscribers:
             push(st.twin.name, [], [ev])
 
-    async def _settle_faults(self) -> None:
-        """At the end: rank what each open window has, wait for the rankings running (a
-        ranking not done in time is stored as not localised, with the reason)."""
+    async def _settle_faults(self, wait_s: float) -> None:
+        """At the end: rank what each open window has, wait up to ``wait_s`` for the rankings
+        running (one not done then is kept for the next twin, or stored as not localised)."""
         for st in self.states.values():
             if st.watch is not None:
-                for req in st.watch.flush():
-                    self._locate(st, req)
-        deadline = time.monotonic() + LOCATE_WAIT_S
+                last = st.twin.last_us if st.twin.last_us else int(time.time() * 1e6)
+                self._took(st, st.watch.flush(), last)
+        deadline = time.monotonic() + wait_s
         while self._ranking and time.monotonic() < deadline:
             await asyncio.sleep(0.02)
         await asyncio.sleep(0)  # the callbacks scheduled from the worker's thread
-        for key, (st, req) in list(self._ranking.items()):  # an alarm is never left without
-            self._ranking.pop(key, None)  # its cause, or the word why it has none
+        for key, (st, req, det) in list(self._ranking.items()):  # an alarm is never left
+            self._ranking.pop(key, None)  # without its cause, or the word why and when
+            why = "not localised (the twin stopped before its ranking finished)"
+            if self.baselines is not None and st.watch is not None:
+                self.baselines.save_pending(st.twin.name, req, det, st.watch.post_s)
+                why = ("probable cause pending: the twin stopped before its ranking finished; "
+                       "ranked when it starts again on this store")  # fmt: skip
             self._cause(st, EventRow(st.twin.name, "fault-cause", int(round(req.alarm.time_s * 1e6)),
-                                     alarm_detail(req.alarm, None, "not localised (the twin "
-                                                  "stopped before its ranking finished)")), None)  # fmt: skip
+                                     alarm_detail(req.alarm, None, why)), None)  # fmt: skip
+        self._keep_learning()
         self.locator.close()
         self._sliver_pool.shutdown(wait=True, cancel_futures=True)
+
+    def _keep_learning(self) -> None:
+        """Each learning machine's blocks so far, kept for the next twin on this store."""
+        if self.baselines is None:
+            return
+        for st in self.states.values():
+            w = st.watch
+            if w is not None and w.learner is not None and w.learner.blocks:
+                with contextlib.suppress(OSError):
+                    self.baselines.save_learning(st.twin.name, w.learner, st.identity,
+                                                 st.model_sha256, w.learn_from_s)  # fmt: skip
+
+    def _resume_pending(self) -> None:
+        """Rank the windows a stopped twin left (their alarms are stored already)."""
+        if self.baselines is None:
+            return
+        for st in self.states.values():
+            if st.watch is None:
+                continue
+            for path, req, det, post_s in self.baselines.pending(st.twin.name):
+                self._locate(st, req, det, post_s, kept=path)
 
     def report(self, machine: str, kind: str, detail: str, count: int = 1) -> None:
         """A source's state change, or ``count`` dropped payloads."""
@@ -413,6 +467,7 @@ class TwinService:
         if st is None:
             return
         if kind == "identity":  # the source says who the machine is
+            self._run_batch()  # the samples before it are the machine it was
             try:
                 identity = MachineIdentity.from_dict(json.loads(detail))
             except ValueError:
@@ -459,9 +514,11 @@ class TwinService:
         """Run until every source ended, ``duration_s`` passed or ``max_rows`` were processed."""
         self._loop = asyncio.get_running_loop()
         self.locator.warm()  # a worker process: the first alarm must not wait for its start
+        self._resume_pending()
         tasks = [asyncio.create_task(src.run(self.on_sample, self.report)) for src in self.sources]
         watch = asyncio.create_task(self._watch())
         deadline = math.inf if duration_s is None else time.monotonic() + duration_s
+        wait_s = LOCATE_END_S
         try:
             while time.monotonic() < deadline and not self._stop.is_set():
                 if max_rows is not None and self.rows >= max_rows:
@@ -472,6 +529,9 @@ class TwinService:
                             raise t.exception()  # type: ignore[misc]
                     break
                 await asyncio.sleep(0.05)
+        except asyncio.CancelledError:  # a stop signal: the rankings get a short while
+            wait_s = LOCATE_WAIT_S
+            raise
         finally:
             self._stop.set()
             for t in [*tasks, watch]:
@@ -481,9 +541,11 @@ class TwinService:
             self._run_batch()
             for st in self.states.values():
                 self._out(st, st.twin.flush(), None)
-            await self._settle_faults()
+            await self._settle_faults(wait_s if not self._stop_signal else LOCATE_WAIT_S)
 
     def stop(self) -> None:
+        """Stop as a signal does (the rankings still running get a short while)."""
+        self._stop_signal = True
         self._stop.set()
 
     # ---- figures ------------------------------------------------------------------------

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 PLANT_PRODUCT_URI = "urn:drafttwin:plant"
@@ -78,6 +79,27 @@ def plant_identity(machine_seed: int) -> MachineIdentity:
     return MachineIdentity(serial, machine_uri(serial))
 
 
+def recorded_identity(path: Path) -> MachineIdentity | None:
+    """The identity of the machine a recorded file was made on, from the file beside it:
+    ``generate``'s sidecar (``STEM.json``: ``machine.seed``) or the fault benchmark's record
+    (``STEM.json``: ``config.machine_seed``); ``None`` when neither says."""
+    import json
+
+    try:
+        doc = json.loads(Path(path).with_suffix(".json").read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    if not isinstance(doc, dict):
+        return None
+    machine, config = doc.get("machine"), doc.get("config")
+    seed = machine.get("seed") if isinstance(machine, dict) else None
+    if seed is None and isinstance(config, dict):
+        seed = config.get("machine_seed")
+    if not isinstance(seed, int) or isinstance(seed, bool):
+        return None
+    return plant_identity(seed)
+
+
 def identification_payload(identity: MachineIdentity, software_revision: str) -> dict[str, Any]:
     """The retained MQTT identification message."""
     from drafttwin.wire.conventions import PAYLOAD_VERSION
@@ -97,4 +119,5 @@ __all__ = [
     "machine_uri",
     "plant_identity",
     "plant_serial",
+    "recorded_identity",
 ]

@@ -22,7 +22,12 @@ from typing import Any
 import numpy as np
 
 from drafttwin.diagnosis.detect import FaultDetector
-from drafttwin.diagnosis.residuals import block_features, measured, physics_prediction
+from drafttwin.diagnosis.residuals import (
+    block_features,
+    measured,
+    physics_prediction,
+    roller_ratio,
+)
 from drafttwin.mechanics import DriveTrain
 from drafttwin.plant import Machine, Plant
 from drafttwin.plant.fault_cases import make_fault
@@ -121,21 +126,36 @@ def task_configs(plan: BenchmarkPlan, seed: int) -> list[dict[str, Any]]:
     return tasks
 
 
-def run_record(config: dict[str, Any]) -> dict[str, Any]:
-    """One task: the plant record's physics block features and labels (plain lists), and
-    its raw channels with the physics prediction (arrays) for the learned residuals. The
-    full plant, or with ``config["generator"] == "reduced"`` the reduced one (healthy
-    records only; :mod:`drafttwin.studies.faults.generator` compares them)."""
+def plant_record(config: dict[str, Any]) -> tuple[Any, list[dict[str, Any]]]:
+    """The task's plant record (its series) and fault labels: read from the records folder
+    ``config["_records"]`` when kept there (:mod:`.records`), else made (and kept there). The
+    full plant, or with ``config["generator"] == "reduced"`` the reduced one (healthy records
+    only; :mod:`drafttwin.studies.faults.generator` compares them)."""
     from drafttwin.plant.faults import FaultSpec
+    from drafttwin.studies.faults.records import load_record, record_path, save_record
 
+    folder = config.get("_records")
+    path = None if folder is None else record_path(folder, config)
+    if path is not None and (kept := load_record(path)) is not None:
+        return kept
     plant = Plant(reduced_hz=REDUCED_HZ if config.get("generator") == "reduced" else None)
     machine = Machine.draw(plant.train, plant.config, int(config["machine_seed"]))
     faults = [FaultSpec(**f) for f in config["faults"]]
     rec = plant.run(float(config["duration_s"]), RATE_HZ, seed=int(config["seed"]),
                     machine=machine, faults=faults)  # fmt: skip
-    physics = physics_prediction(DriveTrain.preset("fa320a"), rec.series)
-    f = block_features(measured(rec.series), physics, rec.series.time_s, BLOCK_S)
+    labels = list(rec.info["faults"])
+    if path is not None:
+        save_record(path, config, rec.series, labels)
+    return rec.series, labels
+
+
+def run_record(config: dict[str, Any]) -> dict[str, Any]:
+    """One task: the plant record's physics block features and labels (plain lists), and
+    its raw channels with the physics prediction (arrays) for the learned residuals."""
+    series, labels = plant_record(config)
+    train = DriveTrain.preset("fa320a")
+    physics = physics_prediction(train, series)
+    f = block_features(measured(series), physics, series.time_s, BLOCK_S, roller_ratio(train))
     return {"time_s": f.time_s.tolist(), "level": f.level.tolist(), "lost": f.lost.tolist(),
             "run": f.run.tolist(), "block_s": f.block_s, "lag": f.lags.tolist(),
-            "labels": rec.info["faults"],
-            "raw": raw_record(rec.series, physics)}  # fmt: skip
+            "labels": labels, "raw": raw_record(series, physics)}  # fmt: skip

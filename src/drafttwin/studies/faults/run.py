@@ -5,6 +5,7 @@ from __future__ import annotations
 import resource
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from drafttwin._constants import __version__
@@ -30,10 +31,15 @@ def _cpu() -> float:
 
 def run_benchmark(plan: BenchmarkPlan | str = "full", seed: int = 0, workers: int = 1,
                   on_record: Callable[[int, int], None] | None = None,
-                  on_stage: Callable[[str], None] | None = None) -> dict[str, Any]:  # fmt: skip
-    """Results of one benchmark run (JSON-able): plan, scores per method, every record."""
+                  on_stage: Callable[[str], None] | None = None,
+                  records: Path | None = None) -> dict[str, Any]:  # fmt: skip
+    """Results of one benchmark run (JSON-able): plan, scores per method, every record.
+    ``records``: the folder its plant records are kept in (:mod:`.records`): made once,
+    read back by later runs (and served by the live benchmark)."""
     plan = get_plan(plan) if isinstance(plan, str) else plan
     tasks = task_configs(plan, seed)
+    if records is not None:
+        tasks = [{**t, "_records": str(records)} for t in tasks]
     start = time.perf_counter()
     done = [0]
 

@@ -6,6 +6,8 @@ Topics, per machine ``NAME`` (a mapping file may name others):
 * ``drafttwin/NAME/sample``: one JSON object per sample; the source reads the mapping's
   ``fields`` (``seq``, ``time`` in epoch s, the channels, ``supply_hz``) and ignores the rest
   (``v``, ``timestamp``, ``units``, ``lag_s``: schema ``plant/serve/schemas/sample.schema.json``).
+* ``drafttwin/NAME/samples``: ``{"v": 1, "samples": [...]}``, up to :data:`MAX_BATCH` sample
+  objects in one message (``plant replay``: records served faster than real time);
 * ``drafttwin/NAME/setpoint``: a new VFD set-point for the live plant, a JSON number (Hz).
 * ``drafttwin/NAME/identification``: who the machine is (retained; the twin keeps each
   machine's learned baseline with its serial number, :mod:`drafttwin.wire.identity`).
@@ -30,6 +32,10 @@ from drafttwin.wire.conventions import parse_hostport, setpoint_topic
 
 MAX_PAYLOAD = 16_384
 """Largest accepted payload, bytes (a sample is about 150)."""
+MAX_BATCH = 200
+"""Most samples in one batch payload (``drafttwin/NAME/samples``)."""
+MAX_BATCH_PAYLOAD = 131_072
+"""Largest accepted batch payload, bytes."""
 MAX_BACKLOG = 50_000
 """Samples waiting for the event loop before new ones are dropped."""
 
@@ -52,9 +58,11 @@ class MqttSource(Source):
             machines,
         )
         self.by_topic = {m.topic: m for m in machines}
-        # who each machine is (retained beside its samples: drafttwin/NAME/identification)
-        self.by_ident = {t.rsplit("/", 1)[0] + "/identification": m for t, m in
-                         self.by_topic.items() if t.endswith("/sample")}  # fmt: skip
+        # who each machine is (retained beside its samples: drafttwin/NAME/identification),
+        # and its samples in batches (drafttwin/NAME/samples: a replay faster than real time)
+        beside = {t.rsplit("/", 1)[0]: m for t, m in self.by_topic.items() if t.endswith("/sample")}
+        self.by_ident = {f"{base}/identification": m for base, m in beside.items()}
+        self.by_batch = {f"{base}/samples": m for base, m in beside.items()}
         self.username, self.password = username, password
         self.ca_file = ca_file  # TLS, trusting exactly this certificate
         self.share = share
@@ -103,7 +111,7 @@ class MqttSource(Source):
             client.disconnect()
             return
         prefix = "" if self.share is None else f"$share/{self.share}/"
-        for topic in self.by_topic:
+        for topic in (*self.by_topic, *self.by_batch):
             client.subscribe(prefix + topic, qos=0)
         for topic in self.by_ident:  # retained: every member gets it (not shared)
             client.subscribe(topic, qos=1)
@@ -112,15 +120,24 @@ class MqttSource(Source):
         """paho's callback (network thread): check, then queue for the loop, or count a drop."""
         m = self.by_topic.get(msg.topic)
         if m is None:
+            batch = self.by_batch.get(msg.topic)
+            if batch is not None:
+                self._queue(batch, _parse_batch(batch, msg.payload))
+                return
             who = self.by_ident.get(msg.topic)
             if who is not None and len(msg.payload) <= MAX_PAYLOAD:
                 self._loop.call_soon_threadsafe(self._identified, who.name, msg.payload)
             return
-        if self.queued - self.handled >= MAX_BACKLOG:
-            self.flooded[m.name] = self.flooded.get(m.name, 0) + 1  # no callback: memory flat
+        self._queue(m, [_parse(m, msg.payload)])
+
+    def _queue(self, m: MachineMap, items: list[Sample | tuple[str, str]]) -> None:
+        """Hand parsed samples (or drops) to the loop; past the backlog, count them dropped."""
+        if self.queued - self.handled + len(items) > MAX_BACKLOG:
+            self.flooded[m.name] = self.flooded.get(m.name, 0) + len(items)  # memory flat
             return
-        self.queued += 1
-        self._loop.call_soon_threadsafe(self._deliver, _parse(m, msg.payload))
+        self.queued += len(items)
+        for item in items:
+            self._loop.call_soon_threadsafe(self._deliver, item)
 
     async def run(self, emit: Emit, report: Report) -> None:
         import paho.mqtt.client as mqtt
@@ -170,6 +187,26 @@ class MqttSource(Source):
                     client.loop_stop()
             await asyncio.sleep(BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
             attempt += 1
+
+
+def _parse_batch(m: MachineMap, payload: bytes) -> list[Sample | tuple[str, str]]:
+    """A batch payload ``{"v": 1, "samples": [SAMPLE, ...]}`` (schema
+    ``plant/serve/schemas/samples.schema.json``): each sample checked as a single one."""
+    if len(payload) > MAX_BATCH_PAYLOAD:
+        return [(m.name, f"batch payload of {len(payload)} bytes (limit {MAX_BATCH_PAYLOAD})")]
+    try:
+        obj = json.loads(payload)
+    except (ValueError, RecursionError):
+        return [(m.name, "batch payload is not JSON")]
+    samples = obj.get("samples") if isinstance(obj, dict) else None
+    if not isinstance(samples, list) or not 0 < len(samples) <= MAX_BATCH:
+        return [(m.name, f"batch payload without a list of 1-{MAX_BATCH} samples")]
+    out: list[Sample | tuple[str, str]] = []
+    for one in samples:
+        row = m.from_json(one)
+        out.append((m.name, "batch sample fields missing, of the wrong type or out of range")
+                   if row is None else Sample(m.name, *row))  # fmt: skip
+    return out
 
 
 def _parse(m: MachineMap, payload: bytes) -> Sample | tuple[str, str]:

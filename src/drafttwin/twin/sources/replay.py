@@ -13,7 +13,7 @@ import numpy as np
 from drafttwin.errors import DataError
 from drafttwin.twin.sources.base import Emit, Report, Sample, Source
 from drafttwin.twin.sources.mapping import MachineMap
-from drafttwin.wire.identity import MachineIdentity, plant_identity
+from drafttwin.wire.identity import recorded_identity
 
 
 class ReplaySource(Source):
@@ -71,20 +71,6 @@ class ReplaySource(Source):
         return (s[lo:hi], x[lo:hi], t[lo:hi]) if hi > lo else None
 
 
-def recorded_identity(path: Path) -> MachineIdentity | None:
-    """The recorded machine's identity, from the plant's sidecar (``STEM.json``: its machine
-    seed), if the file has one."""
-    import json
-
-    sidecar = path.with_suffix(".json")
-    try:
-        doc = json.loads(sidecar.read_text(encoding="utf-8"))
-        seed = doc["machine"]["seed"]
-    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
-        return None
-    return plant_identity(seed) if isinstance(seed, int) and not isinstance(seed, bool) else None
-
-
 def _sliver_channel(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """The delivery sensor's readings recorded beside a replayed file, if any."""
     from drafttwin.sliver import read_sliver
@@ -99,4 +85,4 @@ def _sliver_channel(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | N
     return sl.delivered_length_m, sl.linear_density_ktex, np.asarray(sl.time_s)
 
 
-__all__ = ["ReplaySource", "recorded_identity"]
+__all__ = ["ReplaySource"]

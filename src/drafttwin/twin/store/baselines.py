@@ -18,7 +18,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from drafttwin.diagnosis.blocks import BlockRow
 from drafttwin.diagnosis.detect import FaultDetector
+from drafttwin.diagnosis.learning import Learner
+from drafttwin.diagnosis.stream import RankRequest
 from drafttwin.errors import DataError
 from drafttwin.wire.identity import MachineIdentity
 
@@ -128,6 +133,100 @@ class BaselineStore:
             raise DataError("the baseline holds no detector", source=path, fix=fix)
         detector = FaultDetector.from_state(doc["detector"], source=str(path))
         return Baseline(machine, detector, sha, identity, nums[0], nums[1], nums[2], prior)
+
+    # ---- what a stopped twin leaves to the next one ---------------------------------------
+    def save_learning(self, machine: str, learner: Learner, identity: MachineIdentity | None,
+                      model_sha256: str, from_s: float | None) -> None:  # fmt: skip
+        """A learning state's blocks so far (``NAME.learning.json``): a restarted twin goes on
+        learning the same machine instead of starting over."""
+        from drafttwin._io import atomic_path
+        from drafttwin._json import dumps_strict
+
+        records = [[_row(r) for r in rec] for rec in learner.records if rec]
+        doc = {"format": FORMAT + "-learning", "version": VERSION, "machine": machine,
+               "identity": None if identity is None else identity.to_dict(),
+               "model_sha256": model_sha256, "learn_s": learner.learn_s,
+               "block_s": learner.block_s, "from_s": from_s, "records": records}  # fmt: skip
+        self.folder.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self.folder / f"{machine}.learning.json") as tmp:
+            tmp.write_text(dumps_strict(doc), encoding="utf-8")
+
+    def load_learning(self, machine: str, identity: MachineIdentity | None, model_sha256: str,
+                      learner: Learner) -> float | None:  # fmt: skip
+        """Put a kept learning state's blocks into ``learner`` when it was this machine's (and
+        model's); the source time it began (None: nothing kept, or not this machine's). A
+        damaged file is set aside."""
+        path = self.folder / f"{machine}.learning.json"
+        if not path.is_file():
+            return None
+        try:
+            doc = json.loads(path.read_text(encoding="utf-8"))
+            if doc.get("format") != FORMAT + "-learning" or doc.get("machine") != machine:
+                raise ValueError("not this machine's learning state")
+            kept = doc.get("identity")
+            if doc.get("model_sha256") != model_sha256 or (
+                kept is not None and identity is not None and kept != identity.to_dict()
+            ):
+                return None
+            records = [[_unrow(r) for r in rec] for rec in doc["records"]]
+            block_s = float(doc["block_s"]) if doc.get("block_s") is not None else None
+            from_s = doc.get("from_s")
+        except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
+            path.replace(path.with_name(path.name + ".damaged"))
+            return None
+        learner.records = [*records, []] if records else [[]]
+        learner.block_s = block_s
+        return float(from_s) if isinstance(from_s, int | float) else None
+
+    def forget_learning(self, machine: str) -> None:
+        (self.folder / f"{machine}.learning.json").unlink(missing_ok=True)
+
+    def save_pending(self, machine: str, req: RankRequest, detector: FaultDetector,
+                     post_s: float) -> Path:  # fmt: skip
+        """A window whose ranking a stop cut short, kept to be ranked when the twin starts
+        again (``pending/NAME-ALARM_US.json``)."""
+        from drafttwin._io import atomic_path
+        from drafttwin._json import dumps_strict
+
+        folder = self.folder / "pending"
+        folder.mkdir(parents=True, exist_ok=True)
+        target = folder / f"{machine}-{int(round(req.alarm.time_s * 1e6))}.json"
+        doc = {"format": FORMAT + "-pending", "version": VERSION, "machine": machine,
+               "post_s": post_s, "detector": detector.to_state(), "request": req.to_doc()}  # fmt: skip
+        with atomic_path(target) as tmp:
+            tmp.write_text(dumps_strict(doc), encoding="utf-8")
+        return target
+
+    def pending(self, machine: str) -> list[tuple[Path, RankRequest, FaultDetector, float]]:
+        """The machine's kept windows (checked; a damaged one is set aside)."""
+        out = []
+        for path in sorted((self.folder / "pending").glob(f"{machine}-*.json")):
+            try:
+                doc = json.loads(path.read_text(encoding="utf-8"))
+                if doc.get("format") != FORMAT + "-pending" or doc.get("machine") != machine:
+                    raise ValueError("not this machine's window")
+                post = float(doc["post_s"])
+                if not (math.isfinite(post) and post > 0):
+                    raise ValueError("post_s")
+                req = RankRequest.from_doc(doc["request"])
+                det = FaultDetector.from_state(doc["detector"], source=str(path))
+            except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError, DataError):
+                path.replace(path.with_name(path.name + ".damaged"))
+                continue
+            out.append((path, req, det, post))
+        return out
+
+
+def _row(r: BlockRow) -> list[float]:
+    return [float(r.index), r.time_s, *r.level.tolist(), *r.lost.tolist(), *r.run.tolist(),
+            *r.lag.tolist()]  # fmt: skip
+
+
+def _unrow(v: Any) -> BlockRow:
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape != (20,) or not np.isfinite(a).all():
+        raise ValueError("a learned block is not 20 finite numbers")
+    return BlockRow(int(a[0]), float(a[1]), a[2:7], a[7:12], a[12:17], a[17:20])
 
 
 __all__ = ["Baseline", "BaselineStore"]
