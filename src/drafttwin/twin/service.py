@@ -416,15 +416,19 @@ class TwinService:
         for push in self.subscribers:
             push(st.twin.name, [], [ev])
 
-    async def _settle_faults(self, wait_s: float) -> None:
-        """At the end: rank what each open window has, wait up to ``wait_s`` for the rankings
-        running (one not done then is kept for the next twin, or stored as not localised)."""
+    async def _settle_faults(self) -> None:
+        """At the end: rank what each open window has, wait for the rankings running
+        (:data:`LOCATE_WAIT_S` after a stop signal, else :data:`LOCATE_END_S`); one not done
+        then is kept for the next twin, or stored as not localised."""
         for st in self.states.values():
             if st.watch is not None:
                 last = st.twin.last_us if st.twin.last_us else int(time.time() * 1e6)
                 self._took(st, st.watch.flush(), last)
-        deadline = time.monotonic() + wait_s
-        while self._ranking and time.monotonic() < deadline:
+        start = time.monotonic()
+        while self._ranking:
+            budget = LOCATE_WAIT_S if self._stop_signal else LOCATE_END_S
+            if time.monotonic() - start >= budget:
+                break
             await asyncio.sleep(0.02)
         await asyncio.sleep(0)  # the callbacks scheduled from the worker's thread
         for key, (st, req, det) in list(self._ranking.items()):  # an alarm is never left
@@ -518,7 +522,6 @@ class TwinService:
         tasks = [asyncio.create_task(src.run(self.on_sample, self.report)) for src in self.sources]
         watch = asyncio.create_task(self._watch())
         deadline = math.inf if duration_s is None else time.monotonic() + duration_s
-        wait_s = LOCATE_END_S
         try:
             while time.monotonic() < deadline and not self._stop.is_set():
                 if max_rows is not None and self.rows >= max_rows:
@@ -530,18 +533,32 @@ class TwinService:
                     break
                 await asyncio.sleep(0.05)
         except asyncio.CancelledError:  # a stop signal: the rankings get a short while
-            wait_s = LOCATE_WAIT_S
+            self._stop_signal = True
             raise
         finally:
-            self._stop.set()
-            for t in [*tasks, watch]:
-                t.cancel()
-            # a client library stuck in its own clean-up must not hold the twin's shutdown
-            await asyncio.wait([*tasks, watch], timeout=5.0)
-            self._run_batch()
-            for st in self.states.values():
-                self._out(st, st.twin.flush(), None)
-            await self._settle_faults(wait_s if not self._stop_signal else LOCATE_WAIT_S)
+            # the end runs to its end: a second signal meanwhile only shortens the wait for
+            # the rankings (an alarm's cause is stored, or kept for the next start)
+            ending = asyncio.ensure_future(self._end(tasks, watch))
+            late_cancel = False
+            while not ending.done():
+                try:
+                    await asyncio.shield(ending)
+                except asyncio.CancelledError:
+                    self._stop_signal = late_cancel = True
+            ending.result()
+            if late_cancel:  # the caller cancelled during the end: it is told so
+                raise asyncio.CancelledError
+
+    async def _end(self, tasks: list[asyncio.Task[None]], watch: asyncio.Task[None]) -> None:
+        self._stop.set()
+        for t in [*tasks, watch]:
+            t.cancel()
+        # a client library stuck in its own clean-up must not hold the twin's shutdown
+        await asyncio.wait([*tasks, watch], timeout=5.0)
+        self._run_batch()
+        for st in self.states.values():
+            self._out(st, st.twin.flush(), None)
+        await self._settle_faults()
 
     def stop(self) -> None:
         """Stop as a signal does (the rankings still running get a short while)."""
