@@ -6,6 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Annotated
 
+import typer
+
 from drafttwin.cli._options import FarPerDayOpt, JsonOpt, file_out, files_in, number, path_in
 from drafttwin.cli.app import console, print_json
 from drafttwin.cli.twin_cmds import twin_app
@@ -78,3 +80,47 @@ def twin_fit_detector(
     if (note := detector.lags_note()) is not None:
         console.print(note)
     console.print(f"wrote {target} ('twin run --model {model}' uses it)")
+
+
+TwinPageOpt = Annotated[str, typer.Option("--http", help="The running twin's page, HOST:PORT (its 'twin run --http').")]  # fmt: skip
+RelearnMachineOpt = Annotated[str, typer.Option("--machine", help="The machine that was serviced.")]
+RelearnTokenOpt = Annotated[str | None, typer.Option("--token", envvar="DRAFTTWIN_TOKEN",
+                            help="The twin's token, if it has one.")]  # fmt: skip
+
+
+@twin_app.command("relearn")
+def twin_relearn(http: TwinPageOpt, machine: RelearnMachineOpt,
+                 token: RelearnTokenOpt = None, as_json: JsonOpt = False) -> None:  # fmt: skip
+    """After maintenance: the running twin forgets the machine's learned healthy state and
+    learns it again (no fault alarm meanwhile, then watched with the new baseline). Asks the
+    twin's REST API (POST /api/machines/NAME/relearn)."""
+    import json
+    import urllib.error
+    import urllib.parse
+    import urllib.request
+
+    host, _, port = http.rpartition(":")
+    if not host or not port.isdigit():
+        raise ConfigError(f"bad address {http!r}", where="--http", fix="write HOST:PORT, e.g. 127.0.0.1:8050")  # fmt: skip
+    url = f"http://{host}:{port}/api/machines/{urllib.parse.quote(machine, safe='')}/relearn"
+    req = urllib.request.Request(url, method="POST", headers=(
+        {"Authorization": f"Bearer {token}"} if token else {}))  # fmt: skip
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:  # noqa: S310  the address the user gave
+            doc = json.loads(r.read())
+    except urllib.error.HTTPError as exc:
+        detail = exc.read().decode(errors="replace")[:200]
+        fix = {401: "give the twin's --token (or DRAFTTWIN_TOKEN)",
+               404: "give a machine the twin watches (GET /api/machines lists them)",
+               409: "the twin runs without a fault detector (--detector none)"}.get(exc.code, "see the twin's log")  # fmt: skip
+        raise ConfigError(f"the twin refused: HTTP {exc.code} {detail}", where="--machine",
+                          fix=fix) from None  # fmt: skip
+    except (urllib.error.URLError, OSError) as exc:
+        raise ConfigError(f"no twin answers at {http} ({getattr(exc, 'reason', exc)})",
+                          where="--http", fix="give the address of a running 'twin run --http'") from None  # fmt: skip
+    if as_json:
+        print_json(doc)
+        return
+    d = doc["detector"]
+    console.print(f"{machine}: learning its healthy state again, {d.get('left_s', d.get('learn_s'))} s "
+                  "of running; no fault alarm meanwhile")  # fmt: skip

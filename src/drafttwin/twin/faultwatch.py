@@ -380,7 +380,7 @@ def alarm_detail(alarm: Alarm, causes: list[dict[str, Any]] | None = None,
     """The JSON stored as an alarm event's detail (and parsed back for REST and the page)."""
     from drafttwin._json import to_strict
 
-    doc: dict[str, Any] = {"test": alarm.test, "direction": alarm.direction,
+    doc: dict[str, Any] = {"test": alarm.test, "rule": alarm.rule, "direction": alarm.direction,
                            "alarm_s": alarm.time_s, "onset_s": alarm.change_s}  # fmt: skip
     if causes is not None:
         doc["causes"] = [_short(c) for c in causes]

@@ -7,8 +7,9 @@ Address space, namespace ``urn:drafttwin:twin`` (index 2), per machine ``NAME``:
         Prediction/CHANNEL Residual/CHANNEL      AnalogItemType, Double, EngineeringUnits
                                                  (UNECE), EURange, SourceTimestamp = sample
         Setpoint                                 AnalogItemType (Hz)
-        Health/  State, DataAge, SinceLastSample, LatencyP99 (AnalogItemType s / ms),
-                 Received, Processed, Late, Dropped (UInt64)
+        Health/  State, Detector (none, learning, watching), DataAge, SinceLastSample,
+                 LearningLeft, LatencyP99 (AnalogItemType s / ms), Received, Processed, Late,
+                 Dropped (UInt64)
         Alarm/   Active (Boolean), Kind, Cause, Detail (String), Time (UtcTime)
 
 An alarm is also an event of ``AlarmConditionType`` emitted by the Server object (subscribe
@@ -139,6 +140,13 @@ class OpcUaPublisher(Publisher):
         health = await obj.add_object(self._nid(f"{name}.Health"), f"{self.idx}:Health")
         out.health["State"] = await self._plain(health, f"{name}.Health.State", "State", "",
                                                 "connecting, live, silent, reconnecting, offline")  # fmt: skip
+        out.health["Detector"] = await self._plain(
+            health, f"{name}.Health.Detector", "Detector", "",
+            "the fault detector: none, learning (the machine's healthy state: no fault alarm "
+            "meanwhile) or watching")  # fmt: skip
+        out.health["LearningLeft"] = await self._analog(
+            server, health, f"{name}.Health.LearningLeft", "LearningLeft",
+            f"{name}: running time still to learn (0 when watching)", "s", (0.0, 86_400.0))  # fmt: skip
         for key, unit, what in HEALTH:
             out.health[key] = await self._analog(server, health, f"{name}.Health.{key}", key,
                                                  f"{name}: {what}", unit, (0.0, math.inf))  # fmt: skip
@@ -247,6 +255,10 @@ class OpcUaPublisher(Publisher):
             await self._write(h[key], math.nan if v is None else float(v), now)
         for key in COUNTS:
             await self._set(h[key], int(status[key.lower()]), ua.VariantType.UInt64)
+        det = status["detector"]
+        await self._set(h["Detector"], det["state"], ua.VariantType.String)
+        await self._write(h["LearningLeft"], math.nan if det["left_s"] is None else det["left_s"],
+                          now)  # fmt: skip
 
     async def send_alarm(self, st: MachineState, ev: EventRow) -> None:
         ua = _ua()

@@ -162,8 +162,20 @@ class Health:
             "processed": st.twin.n_rows,
             "late": st.twin.reorder.late,
             "dropped": st.dropped,
+            "detector": detector(st),
             "alarm": None if st.last_fault is None else alarm(st.last_fault),
         }
+
+
+def detector(st: MachineState) -> dict[str, Any]:
+    """The machine's fault detector: ``none``, ``learning`` (its healthy state: how far, how
+    long still, no fault alarm meanwhile) or ``watching``; the serial number it knows."""
+    w = st.watch
+    state = "none" if w is None else "learning" if w.learning else "watching"
+    return {"state": state,
+            "progress": None if w is None else round(w.learn_progress, 4),
+            "left_s": None if w is None else round(w.learn_left_s, 1),
+            "serial_number": None if st.identity is None else st.identity.serial}  # fmt: skip
 
 
 def schema_dir() -> Traversable:
@@ -184,6 +196,7 @@ __all__ = [
     "UNITS",
     "Health",
     "alarm",
+    "detector",
     "iso_time",
     "prediction",
     "probable_cause",

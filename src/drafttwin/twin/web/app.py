@@ -117,6 +117,17 @@ def create_app(service: TwinService, token: str | None = None) -> FastAPI:
         """Rows, latency percentiles, the store, and per machine its counts and last alarm."""
         return to_strict(service.status())
 
+    @app.post("/api/machines/{machine}/relearn")
+    def relearn(machine: str) -> Any:
+        """After maintenance: forget the machine's learned healthy state and learn it again
+        (no fault alarm meanwhile); its detector's state afterwards."""
+        from drafttwin.twin.service import detector_state
+
+        st = state(machine)
+        if not service.relearn(machine, "operator's command (REST)"):
+            raise HTTPException(409, f"machine {machine!r} has no fault detector")
+        return to_strict({"machine": machine, "detector": detector_state(st)})
+
     @app.get("/api/model/{machine}")
     def model(machine: str) -> Any:
         """The machine's model: class, channels, horizon, physics."""

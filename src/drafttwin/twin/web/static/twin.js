@@ -115,6 +115,14 @@ function health(name, m, p99, age, setpoint) {
   t.append(el("span", { class: "age " + (fresh ? "" : "warn") }, `data age ${withUnit(age, age !== null && age < 10 ? 2 : 0, "s")}`));
   t.append(el("span", { class: "p99" }, `p99 ${withUnit(p99, 1, "ms")}`));
   if (setpoint !== undefined) t.append(el("span", {}, `set-point ${withUnit(setpoint, 2, "Hz")}`));
+  const d = m.detector;  // learning its healthy state: no fault alarm meanwhile
+  if (d && d.state === "learning") {
+    t.append(el("span", { class: "learning", title: "the machine's healthy state is being learned: no fault alarm meanwhile" },
+      `learning ${Math.round(100 * (d.progress || 0))} %, ${withUnit(d.left_s, 0, "s")} left`));
+  } else if (d && d.state === "watching") {
+    const serial = m.identity ? m.identity.serial_number : null;
+    t.append(el("span", { class: "watching", title: serial ? `baseline learned on ${serial}` : "baseline learned" }, "watched"));
+  }
   return t;
 }
 
