@@ -34,6 +34,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 from _machine import write_results  # noqa: E402
 from drafttwin.data.io import read_measurements  # noqa: E402
 from drafttwin.diagnosis.detect import FaultDetector  # noqa: E402
+from drafttwin.diagnosis.residuals import roller_ratio  # noqa: E402
 from drafttwin.models.base import BaseModel  # noqa: E402
 from drafttwin.twin.faultwatch import LiveFaultWatch, block_phase  # noqa: E402
 from drafttwin.twin.live import MachineTwin, physics_train  # noqa: E402
@@ -85,12 +86,13 @@ async def _step(model: BaseModel, record: Path, n: int, seconds: float, folder: 
         states[m.name] = MachineState(twin, m, feed.spec, model_key="bench")
         if detector is not None:
             phase = block_phase(m.name, RATE, detector.block_s_)  # as twin run does
-            states[m.name].watch = LiveFaultWatch(detector, m.name, m.channels, RATE, phase=phase)
+            states[m.name].watch = LiveFaultWatch(m.name, m.channels, RATE, roller_ratio(train),
+                                                  baseline=detector, phase=phase)  # fmt: skip
     store = TwinStore(folder / f"store{n}")
     writer = StoreWriter(store, 200.0)
     service = TwinService(states, [feed], writer)
     if detector is not None:  # the ranking's worker is started before the clock runs
-        service.locator.register("bench", physics_train(model, "full"), detector)
+        service.locator.register("bench", physics_train(model, "full"))
         for ready in service.locator.warm():
             ready.result()
     app = create_app(service)

@@ -5,7 +5,7 @@ cause each names, and the CPU the detector adds per sample.
 
 Records (the recorded plant, ``drafttwin generate``'s): two healthy ones of other machines set
 the thresholds (``twin fit-detector``'s defaults: 1 false alarm per 24 h, 15 s baseline,
-10 s post-alarm window); each faulted record is diagnosed offline (``Diagnoser.diagnose``,
+20 s post-alarm window, as offline); each faulted record is diagnosed offline (``Diagnoser.diagnose``,
 what ``drafttwin diagnose`` runs) and replayed through the live path (``twin run
 --source replay:FILE?speed=inf``: cleaning, reduced physics stepped per sample, the hybrid,
 the live fault watch, the ranking in its worker process). Delay = alarm time minus the
@@ -33,7 +33,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 from _machine import write_results  # noqa: E402
 from drafttwin.diagnosis.detect import FaultDetector  # noqa: E402
 from drafttwin.diagnosis.diagnose import Diagnoser  # noqa: E402
-from drafttwin.diagnosis.residuals import record_features  # noqa: E402
+from drafttwin.diagnosis.residuals import record_features, roller_ratio  # noqa: E402
 from drafttwin.plant import Machine, Plant  # noqa: E402
 from drafttwin.plant.faults import FaultSpec  # noqa: E402
 from drafttwin.twin.build import build_service, load_twin_model  # noqa: E402
@@ -78,7 +78,9 @@ def _model(path: str | None, folder: Path, plant: Plant) -> Path:
 
 def _live(model: Path, record: Path, detector: str) -> dict[str, Any]:
     """One replay at full speed: its fault events (with wall times), rows and CPU."""
-    service = build_service(model, [f"replay:{record}?speed=inf"], detector=detector)
+    # learn_s 0: the detector file judges the machine as it is (offline's thresholds)
+    service = build_service(model, [f"replay:{record}?speed=inf"], detector=detector,
+                            learn_s=0.0)  # fmt: skip
     events: list[tuple[EventRow, float]] = []
     rows: list[SampleRow] = []
     service.event_hooks.append(lambda ev: events.append((ev, time.monotonic())))
@@ -89,11 +91,13 @@ def _live(model: Path, record: Path, detector: str) -> dict[str, Any]:
     return {"events": events, "rows": rows, "cpu_s": cpu, "n": service.rows}
 
 
-def _watch_cost(detector: FaultDetector, rows: list[SampleRow], repeats: int = 3) -> float:
+def _watch_cost(detector: FaultDetector, rows: list[SampleRow], ratio: np.ndarray,
+                repeats: int = 3) -> float:  # fmt: skip
     """Microseconds per row of the live watch alone (the best of ``repeats``)."""
     best = np.inf
     for _ in range(repeats):
-        watch = LiveFaultWatch(detector, "m", ("front", "second", "third", "back"), 100.0)
+        watch = LiveFaultWatch("m", ("front", "second", "third", "back"), 100.0, ratio,
+                               baseline=detector)  # fmt: skip
         t0 = time.perf_counter()
         for r in rows:
             watch.add(r)
@@ -126,14 +130,14 @@ def main() -> None:
             spec = FaultSpec.parse(case)
             rec = _record(plant, folder, f"case{k}", 70 + k, 80 + k, DURATION_S, (case,))
             dx = offline.diagnose(_series(rec))
-            live = _live(model, rec, "auto")
+            live = _live(model, rec, str(detector_path(model)))
             r = _case(case, spec.onset_s, dx, live["events"])
             results.append(r)
             print(f"{case:<52} {_f(r['offline_delay_s']):>9} {_f(r['live_delay_s']):>7} "
                   f"{_f(r['cause_wait_wall_s']):>12}  {r['offline_cause']} / {r['live_cause']}")  # fmt: skip
         base = _live(model, healthy[0], "none")
-        watched = _live(model, healthy[0], "auto")
-        per_row_us = _watch_cost(det, watched["rows"])
+        watched = _live(model, healthy[0], str(detector_path(model)))
+        per_row_us = _watch_cost(det, watched["rows"], roller_ratio(train))
         added = (watched["cpu_s"] - base["cpu_s"]) / max(1, watched["n"]) * 1e6
         print(f"live watch alone: {per_row_us:.1f} us per sample; whole replay with vs without "
               f"the detector: {base['cpu_s'] / base['n'] * 1e6:.0f} -> "

@@ -85,6 +85,7 @@ _RANGES: dict[str, str] = {
     "--batch": "[1, 200] samples",
     "--gap": "[0, 86_400] s",
     "--lead": "[0, 3600] s",
+    "--plant-machines": "[0, 50] machines",
     "--from": "[0, 1e11] s",
     "--to": "[0, 1e11] s",
     "--machines": "[1, 10_000] machines",

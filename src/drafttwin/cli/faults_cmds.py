@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, NamedTuple
 
 import typer
 from rich import box
@@ -230,6 +230,8 @@ LiveOpt = Annotated[bool, typer.Option("--live", help=(
     "and OUT/faults_live.html."))]  # fmt: skip
 LiveMachinesOpt = Annotated[int, number("--machines", "--live: machines served at once.")]
 LiveSpeedOpt = Annotated[float, number("--speed", "--live: times real time per machine.")]
+PlantMachinesOpt = Annotated[int, number("--plant-machines", "--live: machines of the shorter "
+                             "run against 'plant serve' (10 min at the wall clock; 0: none).")]  # fmt: skip
 SliverVariantOpt = Annotated[bool, typer.Option("--sliver", help=(
     "The delivery sensor's variant instead: gear run-out, cracks and roller eccentricity (which "
     "the encoders leave not assessed) recorded with the sliver and placed by its chimneys; "
@@ -250,6 +252,7 @@ def benchmark_faults(
     live: LiveOpt = False,
     machines: LiveMachinesOpt = 10,
     speed: LiveSpeedOpt = 8.0,
+    plant_machines: PlantMachinesOpt = 4,
 ) -> None:
     """Seeded faulty and healthy plant records, diagnosed and scored.
 
@@ -268,8 +271,8 @@ def benchmark_faults(
     if sliver:
         return _sliver_variant(out, quick, seed, workers, as_json, quiet)
     if live:
-        return _live_variant(out, quick, seed, workers, healthy_hours, records, machines, speed,
-                             as_json, quiet)  # fmt: skip
+        return _live_variant(out, quick, seed, workers, healthy_hours, records,
+                             LivePlanArgs(machines, speed, plant_machines), as_json, quiet)  # fmt: skip
     from drafttwin.report.faults_bench import HEAD, render_benchmark, score_rows
     from drafttwin.studies.faults import run_benchmark
     from drafttwin.studies.faults.plan import PLANS, with_healthy_hours
@@ -309,8 +312,14 @@ def benchmark_faults(
     console.print(f"wrote {out / 'faults_results.json'} and {out / 'faults_report.html'}")
 
 
+class LivePlanArgs(NamedTuple):
+    machines: int
+    speed: float
+    plant_machines: int
+
+
 def _live_variant(out: Path, quick: bool, seed: int, workers: int, healthy_hours: float | None,
-                  records: Path | None, machines: int, speed: float, as_json: bool,
+                  records: Path | None, args: LivePlanArgs, as_json: bool,
                   quiet: bool) -> None:  # fmt: skip
     from drafttwin._io import atomic_path
     from drafttwin._json import dumps_strict
@@ -334,7 +343,9 @@ def _live_variant(out: Path, quick: bool, seed: int, workers: int, healthy_hours
 
         results = run_live(plan, seed, records if records is not None else out / "records",
                            out / "live", workers=workers,
-                           live=LivePlan(machines=machines, speed=speed),
+                           live=LivePlan(machines=args.machines, speed=args.speed,
+                                         plant_machines=args.plant_machines,
+                                         plant_s=360.0 if quick else 600.0),
                            on_stage=stage, on_progress=advance)  # fmt: skip
     with atomic_path(out / "faults_live.json") as tmp:
         tmp.write_text(dumps_strict(results, sort_keys=True) + "\n", encoding="utf-8")
@@ -356,7 +367,20 @@ def _live_variant(out: Path, quick: bool, seed: int, workers: int, healthy_hours
         table.add_row(name, *(row[i] for row in rows))
     console.print(table)
     console.print(f"received {lv['received']} of {lv['published']} samples, {lv['dropped']} "
-                  f"dropped; wrote {out / 'faults_live.json'} and {out / 'faults_live.html'}")  # fmt: skip
+                  f"dropped")  # fmt: skip
+    plant = results.get("plant")
+    if plant:
+        pt = Table(title=f"the live plant: {plant['machines']} machines served for "
+                   f"{plant['duration_s'] / 60:.0f} min, a fault each at a random time")  # fmt: skip
+        pt.add_column("score")
+        prow = score_rows({"recorded, offline": plant["offline"]["scores"],
+                           "served, live twin": plant["twin"]["scores"]})  # fmt: skip
+        for row in prow:
+            pt.add_column(row[0], justify="right")
+        for i, name in enumerate(HEAD[1:], start=1):
+            pt.add_row(name, *(row[i] for row in prow))
+        console.print(pt)
+    console.print(f"wrote {out / 'faults_live.json'} and {out / 'faults_live.html'}")
 
 
 def _sliver_variant(out: Path, quick: bool, seed: int, workers: int, as_json: bool,

@@ -19,6 +19,8 @@ from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, number, path_
 from drafttwin.cli.app import console, err_console, print_json
 from drafttwin.cli.twin_cmds import (
     CommitMsOpt,
+    DetectorOpt,
+    LearnOpt,
     MachineOpt,
     StoreReadOpt,
     TokenOpt,
@@ -106,7 +108,7 @@ def twin_hall(
     shards: ShardsOpt = 2, ray_address: RayOpt = None, commit_ms: CommitMsOpt = 200.0,
     physics: TwinPhysicsOpt = "reduced", duration: StopAfterOpt = None,
     quiet: TwinQuietOpt = False, http: HallHttpOpt = None, token: TokenOpt = None,
-    as_json: ShardsJsonOpt = False,
+    as_json: ShardsJsonOpt = False, detector: DetectorOpt = "auto", learn: LearnOpt = None,
 ) -> None:  # fmt: skip
     """Run a hall as K live twins, one Ray actor each: shard I takes the mapping's machines
     I, I+K, I+2K... (each machine whole in one twin) and writes its own store in
@@ -168,7 +170,8 @@ def twin_hall(
                 err_console.print(f"hall page on http://{bind[0]}:{bind[1]}/")
             results = run_hall(model, source, mapping, store, shards, address=ray_address,
                                commit_ms=commit_ms, physics=physics, duration_s=duration,
-                               on_status=status, status_every_s=1.0)  # fmt: skip
+                               on_status=status, status_every_s=1.0, detector=detector,
+                               learn_s=learn)  # fmt: skip
     except Interrupted as exc:  # a service manager's stop is a clean end: exit code 0
         err_console.print(f"stopped by {signal.Signals(exc.signum).name}: the running shards "
                           "committed what they received (one still starting is ended)")  # fmt: skip

@@ -123,8 +123,33 @@ def render_live(results: Mapping[str, Any]) -> str:
                      "stored while the records were served as live machines. False alarms count "
                      "the watched healthy running (after each run's reference window); the "
                      "learning preludes are not watched.", cls="note")),
+        _plant_section(results.get("plant")),
         section("confusion", "Confusion matrix (live twin)",
                 confusion_table(results["twin"]["scores"]["confusion"])),
         section("events", "The twin's events", para(events)),
     ])  # fmt: skip
     return page("Fault benchmark, live", body)
+
+
+def _plant_section(plant: Mapping[str, Any] | None) -> Any:
+    """The shorter run against 'plant serve' (when it ran)."""
+    if not plant:
+        return ""
+    scores = {"recorded, offline": plant["offline"]["scores"],
+              "served, live twin": plant["twin"]["scores"]}  # fmt: skip
+    faults = "; ".join(f"{c['name']} (seed {c['machine_seed']}): {c['fault']}"
+                       for c in plant["cases"])  # fmt: skip
+    return section(
+        "plant",
+        "The live plant itself",
+        table([HEAD], score_rows(scores), id="plant-scores"),
+        para(
+            f"{plant['machines']} machines served by 'plant serve' over MQTT for "
+            f"{plant['duration_s'] / 60:.0f} min at the wall clock, each learnt "
+            f"first, a fault at a random time: {faults}. Beside them: the same "
+            f"machines and faults recorded by the emulator and diagnosed offline "
+            f"with the prior's thresholds. {plant['received']} samples received, "
+            f"{plant['dropped']} dropped.",
+            cls="note",
+        ),
+    )

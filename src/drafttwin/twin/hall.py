@@ -105,7 +105,8 @@ def _actor_class(ray: Any) -> Any:
             o = self.options
             self.service = build_service(o["model"], [o["source"]], mapping=o["mapping"],
                                          store_dir=o["store"], commit_ms=o["commit_ms"],
-                                         physics=o["physics"], silent_s=o["silent_s"])  # fmt: skip
+                                         physics=o["physics"], silent_s=o["silent_s"],
+                                         detector=o["detector"], learn_s=o["learn_s"])  # fmt: skip
             failed: list[BaseException] = []
 
             def loop() -> None:  # a thread of its own: Ray's method thread runs its own loop
@@ -157,9 +158,12 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
              address: str | None = None, commit_ms: float = 200.0, physics: str = "reduced",
              silent_s: float = 2.0, duration_s: float | None = None,
              on_status: Callable[[list[dict[str, Any] | None]], None] | None = None,
-             status_every_s: float = 10.0) -> list[dict[str, Any]]:  # fmt: skip
+             status_every_s: float = 10.0, detector: str = "auto",
+             learn_s: float | None = None) -> list[dict[str, Any]]:  # fmt: skip
     """Run ``shards`` twin actors on Ray (the cluster at ``address``, else a private instance
-    with ``shards`` CPUs) until ``duration_s`` or Ctrl-C; each shard's final status."""
+    with ``shards`` CPUs) until ``duration_s`` or Ctrl-C; each shard's final status. Each
+    shard's machines learn their own healthy state (``detector``, ``learn_s``: as ``twin
+    run``'s), kept in the shard's store."""
     from drafttwin.execution.executor import ray_session
 
     check_store(store, shards)
@@ -168,7 +172,9 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
     with ray_session(shards, address) as ray:
         cls = _actor_class(ray)
         opts = {"model": model.resolve(), "mapping": mapping.resolve(), "commit_ms": commit_ms,
-                "physics": physics, "silent_s": silent_s}  # fmt: skip
+                "physics": physics, "silent_s": silent_s, "learn_s": learn_s,
+                "detector": detector if detector in ("auto", "none") else
+                str(Path(detector).resolve())}  # fmt: skip
         actors = [cls.remote({**opts, "source": shard_source(source, i, shards),
                               "store": shard_dir(store.resolve(), i, shards)})
                   for i in range(shards)]  # fmt: skip

@@ -40,7 +40,9 @@ LATENCY_WINDOW = 20_000
 """Latencies kept for the percentiles (sample received -> stored and pushed)."""
 HISTORY_ROWS = 3000
 """Rows per machine kept in memory for the page (30 s at 100 Hz)."""
-LOCATE_WAIT_S = 3.0
+SOURCES_STOP_S = 1.5
+"""At a stop, how long the sources may take to close their connections."""
+LOCATE_WAIT_S = 2.0
 """After a stop signal, how long the rankings still running may take to finish (stored; one
 takes about a second in the warm worker). One that does not finish is kept in the store and
 ranked when the twin starts again there (without a store: stored as not localised)."""
@@ -116,6 +118,8 @@ class TwinService:
         self._scheduled = False
         self.baselines: BaselineStore | None = None  # where machines' baselines are kept
         self._stop_signal = False
+        self._closed = False
+        self.after_stop = 0  # samples a source delivered after the stop began (not processed)
         self._ranking: dict[
             int, tuple[MachineState, RankRequest, FaultDetector]
         ] = {}  # in the worker
@@ -125,6 +129,9 @@ class TwinService:
         """Queue a sample; the samples that arrive in one turn of the event loop (one OPC UA
         publish, one tick of the machines) are processed together, one network pass for all
         machines that share a model (:func:`~drafttwin.models.online.forecast_many`)."""
+        if self._closed:  # stopping: nothing after the signal beyond what was in flight
+            self.after_stop += 1
+            return
         self._batch.append(s)
         if self._scheduled:
             return
@@ -551,10 +558,11 @@ class TwinService:
 
     async def _end(self, tasks: list[asyncio.Task[None]], watch: asyncio.Task[None]) -> None:
         self._stop.set()
+        self._closed = True  # what the sources deliver from now on is not processed
         for t in [*tasks, watch]:
             t.cancel()
         # a client library stuck in its own clean-up must not hold the twin's shutdown
-        await asyncio.wait([*tasks, watch], timeout=5.0)
+        await asyncio.wait([*tasks, watch], timeout=SOURCES_STOP_S)
         self._run_batch()
         for st in self.states.values():
             self._out(st, st.twin.flush(), None)

@@ -71,6 +71,8 @@ class LivePlan:
     speed: float = SPEED
     batch: int = 20
     prelude_s: float = PRELUDE_S
+    plant_machines: int = 4  # the shorter run against 'plant serve' (0: none)
+    plant_s: float = 600.0
 
 
 def prelude_config(task: dict[str, Any]) -> dict[str, Any]:
@@ -125,7 +127,13 @@ def run_live(plan: BenchmarkPlan, seed: int, records: Path, out: Path, *, worker
     events = _events(out / "store")
     rows = live_rows(test, manifest, events, detector.reference_s)
     machine_s = sum(r["rows"] for s in manifest["machines"].values() for r in s) * 0.01
-    return {"benchmark": "faults-live", "plan": plan.name, "seed": seed,
+    plant = None
+    if live.plant_machines:
+        from drafttwin.studies.faults.live_plant import run_live_plant
+
+        plant = run_live_plant(out, model, machines=live.plant_machines,
+                               duration_s=live.plant_s, seed=seed, on_stage=stage)  # fmt: skip
+    return {"benchmark": "faults-live", "plan": plan.name, "seed": seed, "plant": plant,
             "live": {"machines": live.machines, "speed": live.speed, "batch": live.batch,
                      "prelude_s": live.prelude_s, "transport": "mqtt", **served},
             "prior": {"file": prior.name, "fitted_on": len(tuning)},

@@ -4,7 +4,6 @@ reconnecting with backoff, reading the server's history after a restart (``--sou
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import json
 import math
 from pathlib import Path
@@ -15,6 +14,8 @@ from drafttwin.twin.sources.mapping import MachineMap
 
 SERVER_QUEUE = 10_000
 """Monitored-item queue asked of an OPC UA server (samples kept while the twin is busy)."""
+DISCONNECT_S = 1.0
+"""How long closing the session may take at a stop."""
 
 
 class OpcUaSource(Source):
@@ -63,8 +64,12 @@ class OpcUaSource(Source):
                             self.resume_after = {}
                         while True:
                             # a subscription that goes quiet without an error (opcua-asyncio
-                            # #1925) is dropped and made again, like a broken connection
-                            ev = await asyncio.wait_for(anext(sub), self.silence_s)
+                            # #1925) is dropped and made again, like a broken connection.
+                            # asyncio.timeout, not wait_for: Python 3.11's wait_for swallows a
+                            # cancellation that lands as the item arrives (the twin then ran
+                            # on for tens of seconds after SIGTERM)
+                            async with asyncio.timeout(self.silence_s):
+                                ev = await anext(sub)
                             if not isinstance(ev, DataChangeEvent):
                                 continue
                             m = by_node.get(ev.node.nodeid.to_string())
@@ -84,9 +89,9 @@ class OpcUaSource(Source):
             finally:
                 self.client = None
                 # bounded: a refused secured session can leave asyncua's disconnect waiting on
-                # a reply that never comes, which would hold the twin's shutdown
-                with contextlib.suppress(Exception):
-                    await asyncio.wait_for(client.disconnect(), 2.0)
+                # a reply that never comes, which would hold the twin's shutdown; shielded from
+                # a second cancellation (else the coroutine is left never awaited)
+                await _disconnect(client)
             await asyncio.sleep(BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
             attempt += 1
 
@@ -145,6 +150,27 @@ class OpcUaSource(Source):
             for row in fresh:  # no receive time: their latency is not the live path's
                 emit(Sample(m.name, *row, received=math.nan))
             report(m.name, "history", f"{len(fresh)} samples recovered from the server's history")
+
+
+async def _disconnect(client: Any) -> None:
+    """Close the session within :data:`DISCONNECT_S`; a cancellation meanwhile waits for that
+    (bounded) and is raised again after it."""
+    task = asyncio.ensure_future(client.disconnect())
+    cancelled = False
+    deadline = asyncio.get_running_loop().time() + DISCONNECT_S
+    while not task.done():
+        left = deadline - asyncio.get_running_loop().time()
+        if left <= 0:
+            task.cancel()
+            break
+        try:
+            await asyncio.wait([task], timeout=left)
+        except asyncio.CancelledError:
+            cancelled = True
+    if task.done() and not task.cancelled():
+        task.exception()  # retrieved: a failed close is no error at a stop
+    if cancelled:
+        raise asyncio.CancelledError
 
 
 __all__ = ["SERVER_QUEUE", "OpcUaSource"]

@@ -80,6 +80,10 @@ class Hub:
             q.put_nowait(text)
 
 
+WEB_STOP_S = 1.0
+"""At a stop, how long the page's server may take to close."""
+
+
 def create_app(service: TwinService, token: str | None = None) -> FastAPI:
     """The FastAPI app of ``service`` (a token, if given, guards every route). Its OpenAPI
     schema is ``/openapi.json``, the interactive docs ``/docs``."""
@@ -279,8 +283,9 @@ async def serve_with(service: TwinService, bind: tuple[str, int], token: str | N
         stop.set()
         app.state.history.close()
         server.should_exit = True
+        server.force_exit = True  # open WebSockets and keep-alive clients do not hold the stop
         start = time.monotonic()
-        while not web.done() and time.monotonic() - start < 5:
+        while not web.done() and time.monotonic() - start < WEB_STOP_S:
             await asyncio.sleep(0.05)
         for task in (web, pump):
             task.cancel()
