@@ -104,18 +104,19 @@ def _alarm(service: TwinService, test: str, cause: dict[str, object] | None) -> 
     row's time: what the detector's fault events go through (test_twin_faults.py raises them
     from a faulted plant; here the page's part is checked)."""
     from drafttwin.diagnosis.detect import Alarm
+    from drafttwin.diagnosis.stream import Step
     from drafttwin.twin.faultwatch import alarm_detail
     from drafttwin.twin.store.db import EventRow
 
     st = service.states["df-01"]
     t = st.recent[-1].ts_us / 1e6
     alarm = Alarm(time_s=t, block=0, test=test, direction=-1, change_s=t - 3.0)
-    events = service._fault_events(st, [alarm], [])
+    events = service.faults.fault_events(st, Step(alarms=[alarm]))
     for push in service.subscribers:
         push("df-01", [], events)
     if cause is not None:
         ev = EventRow("df-01", "fault-cause", int(round(t * 1e6)), alarm_detail(alarm, [cause]))
-        service._cause(st, ev, [cause])
+        service.faults.cause(st, ev, [cause], alarm)
 
 
 FRONT = "twinPage.charts.find(c => c.kind === '{}' && c.channel === 'front').u"

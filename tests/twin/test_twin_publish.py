@@ -308,6 +308,30 @@ class _Events:
         self.events.append(event)
 
 
+def _raise(service: Any, test: str, time_s: float, cause: str) -> Any:
+    """An alarm raised on the machine as the fault desk raises one, then its cause."""
+    from drafttwin.diagnosis.detect import Alarm
+    from drafttwin.diagnosis.stream import Step
+    from drafttwin.twin.faultwatch import alarm_detail
+
+    st = service.states["fa320a"]
+    alarm = Alarm(time_s, int(time_s), test, 1, time_s - 0.3)
+    service.faults.fault_events(st, Step(alarms=[alarm]))
+    element, kind = cause.split(":")
+    causes = [{"element": element, "kind": kind, "family": "gear", "severity": 0.3,
+               "interval": [0.2, 0.4], "probability": 0.9, "group": []}]  # fmt: skip
+    ev = EventRow("fa320a", "fault-cause", int(time_s * 1e6), alarm_detail(alarm, causes))
+    service.faults.cause(st, ev, causes, alarm)
+    return alarm
+
+
+async def _events_until(handler: _Events, n: int) -> None:
+    for _ in range(200):
+        if len(handler.events) >= n:
+            return
+        await asyncio.sleep(0.05)
+
+
 async def _alarm_round(
     service: Any, ua_port: int, mqtt_port: int, sub: Subscriber
 ) -> dict[str, Any]:
@@ -315,32 +339,52 @@ async def _alarm_round(
 
     opc = OpcUaPublisher("127.0.0.1", ua_port)
     mq = MqttPublisher("127.0.0.1", mqtt_port, qos=1)
+    url = f"opc.tcp://127.0.0.1:{ua_port}/"
+    alarm_type = ua.NodeId(ua.ObjectIds.AlarmConditionType)
     async with publishing(service, [opc, mq]):
-        async with Client(f"opc.tcp://127.0.0.1:{ua_port}/", timeout=10) as client:
+        async with Client(url, timeout=10) as client:
             handler = _Events()
             subscription = await client.create_subscription(50, handler)
-            await subscription.subscribe_alarms_and_conditions(client.nodes.server)
-            detail = json.dumps({"test": "cusum:front", "direction": 1, "alarm_s": 4.2,
-                                 "onset_s": 3.9, "causes": [{"element": "A-B", "kind": "wear",
-                                                             "severity": 0.3}]})  # fmt: skip
-            st = service.states["fa320a"]
-            service._event(st, EventRow("fa320a", "fault-cause", 4_200_000, detail))
-            for _ in range(100):
-                if handler.events:
-                    break
-                await asyncio.sleep(0.05)
+            await subscription.subscribe_alarms_and_conditions(client.nodes.server, alarm_type)
+            _raise(service, "cusum:front", 4.2, "A-B:wear")
+            await _events_until(handler, 2)  # the alarm, then its cause
             idx = await client.get_namespace_index("urn:drafttwin:twin")
             cause = await client.get_node(ua.NodeId("fa320a.Alarm.Cause", idx)).read_value()
             active = await client.get_node(ua.NodeId("fa320a.Alarm.Active", idx)).read_value()
+        # a client that connects after the alarm: ConditionRefresh sends it the condition
+        async with Client(url, timeout=10) as late:
+            seen = _Events()
+            subscription = await late.create_subscription(50, seen)
+            await subscription.subscribe_alarms_and_conditions(late.nodes.server, alarm_type)
+            await late.get_node(ua.NodeId(ua.ObjectIds.ConditionType)).call_method(
+                ua.NodeId(ua.ObjectIds.ConditionType_ConditionRefresh),
+                ua.Variant(subscription.subscription_id, ua.VariantType.UInt32))  # fmt: skip
+            await _events_until(seen, 1)
+            refreshed = list(seen.events)
+            condition = late.get_node(ua.NodeId("fa320a.Alarm", idx))
+            event_id = refreshed[-1].EventId
+            comment = ua.LocalizedText("belt checked")
+            method = ua.NodeId(ua.ObjectIds.AcknowledgeableConditionType_Acknowledge)
+            with pytest.raises(ua.UaStatusCodeError, match="EventIdUnknown"):
+                await condition.call_method(
+                    method, ua.Variant(b"not-an-event", ua.VariantType.ByteString), comment
+                )
+            await condition.call_method(
+                method, ua.Variant(event_id, ua.VariantType.ByteString), comment
+            )
+            await _events_until(seen, len(refreshed) + 1)
+            acked = seen.events[-1]
         # waited for in a thread: the publishers run in this event loop
-        alarm = await asyncio.to_thread(sub.wait, "/alarm")
+        alarm = await asyncio.to_thread(sub.wait, "/alarm", lambda m: m["kind"] == "fault-cause")
         status = await asyncio.to_thread(sub.wait, "/status", lambda m: m["alarm"] is not None)
+        standing = await asyncio.to_thread(sub.wait, "/alarms", lambda m: bool(m["alarms"]))
         # the twin dies (no DISCONNECT): the broker sends the machine's will message
         assert sub.of("/status")[-1]["state"] != "offline"
         mq.clients["fa320a"].socket().close()
         will = await asyncio.to_thread(sub.wait, "/status", lambda m: m["state"] == "offline")
     return {"events": handler.events, "cause": cause, "active": active, "alarm": alarm,
-            "status": status, "will": will}  # fmt: skip
+            "status": status, "will": will, "refreshed": refreshed, "acked": acked,
+            "standing": standing, "book": service.book.retained("fa320a")}  # fmt: skip
 
 
 def test_alarms_go_out_as_conditions_and_payloads_and_the_will_says_offline(
@@ -354,15 +398,24 @@ def test_alarms_go_out_as_conditions_and_payloads_and_the_will_says_offline(
     finally:
         sub.close()
     assert got["cause"] == "A-B:wear" and got["active"] is True
-    (ev,) = got["events"]
-    assert ev.ConditionName == "fault-cause" and ev.Retain is True and ev.Severity == 700
+    ev = got["events"][-1]  # the condition once the cause came
+    assert ev.ConditionName == "fault" and ev.Retain is True and ev.Severity == 700
     assert "A-B:wear" in ev.Message.Text and ev.Time.year == 1970
+    # the late client: the condition, active and unacknowledged, through ConditionRefresh
+    (late,) = [e for e in got["refreshed"] if getattr(e, "ConditionName", None)]
+    assert late.Retain is True and late.ActiveState.Text == "Active"
+    assert "A-B:wear" in late.Message.Text and late.AckedState.Text == "Unacknowledged"
+    assert got["acked"].AckedState.Text == "Acknowledged" and got["acked"].Retain is True
+    (booked,) = got["book"]
+    assert booked.acked and not booked.confirmed and booked.comment == "belt checked"
     check = _validators()
     check["alarm"].validate(got["alarm"])
     assert got["alarm"]["cause"] == "A-B:wear" and got["alarm"]["time"] == 4.2
     check["status"].validate(got["status"])  # the alarm inside, by the alarm schema's URN
     assert got["status"]["alarm"]["cause"] == "A-B:wear"
     check["status"].validate(got["will"])
+    check["alarms"].validate(got["standing"])  # retained: a late MQTT client reads it
+    assert got["standing"]["alarms"][0]["cause"]["element"] == "A-B"
     broken = {**got["status"], "alarm": {**got["alarm"], "time": got["alarm"]["timestamp"]}}
     with pytest.raises(jsonschema.ValidationError):  # a time as text where seconds belong
         check["status"].validate(broken)

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from drafttwin.diagnosis.blocks import BlockRow, BlockStream
+from drafttwin.diagnosis.clearance import Clearance
 from drafttwin.diagnosis.detect import (
     FEATURES,
     STREAMS,
@@ -153,10 +154,12 @@ class Step:
     requests: list[RankRequest] = field(default_factory=list)
     learned: FaultDetector | None = None
     blocks: dict[int, Window] = field(default_factory=dict)  # each alarm's block, by index
+    cleared: list[Alarm] = field(default_factory=list)  # returned to normal (clearance.py)
 
     def __iadd__(self, other: Step) -> Step:
         self.alarms += other.alarms
         self.requests += other.requests
+        self.cleared += other.cleared
         self.learned = other.learned or self.learned
         self.blocks.update(other.blocks)
         return self
@@ -190,6 +193,7 @@ class Decisions:
         self.n_ref = detector.reference_blocks(block_s)
         self.post = max(1, int(round(post_s / block_s)))
         self.state = CusumState(detector, self.n_ref, block_s)
+        self.clearance = Clearance(detector, block_s)
         self.recent: deque[Window] = deque(maxlen=self.post + self.n_ref + 2)
         self.open: _Open | None = None
         self.sensor_active: set[str] = set()
@@ -215,12 +219,14 @@ class Decisions:
         sensor = {a.test for a in raised if a.direction == 0}
         fresh = [a for a in raised if a.direction != 0 or a.test not in self.sensor_active]
         self.sensor_active = sensor
+        step.cleared = self.clearance.block(x, sensor)  # before this block's own alarms
         step.alarms += fresh
         if fresh:
             step.blocks[here.block] = here
         self.alarms += fresh
         for a in fresh:
             self._open_window(a)
+            self.clearance.raised(a, None if a.direction == 0 else self.state.baseline_at_alarm)
         if self.open is not None:
             if self.open.sensor is None and sensor:  # a sensor rule takes the window over
                 a = next(a for a in raised if a.direction == 0)

@@ -137,11 +137,14 @@ async def _connect(p: _Publisher, host: str, port: int, qos: int, username: str 
             if math.isfinite(value):
                 p.pending = value
 
+    announced: list[Any] = []  # the online and identification messages (QoS 1)
+
     def on_connect(client: Any, *_: Any) -> None:  # also after a reconnect
         client.subscribe(setpoint_topic(p.name), qos=1)
-        client.publish(status_topic(p.name), ONLINE, qos=1, retain=True)
         who = identification_payload(plant_identity(p.plant.machine.seed or 0), __version__)
-        client.publish(topic(p.name, "identification"), json.dumps(who), qos=1, retain=True)
+        announced[:] = [client.publish(status_topic(p.name), ONLINE, qos=1, retain=True),
+                        client.publish(topic(p.name, "identification"), json.dumps(who), qos=1,
+                                       retain=True)]  # fmt: skip
 
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv311)
     client.on_message, client.on_connect = on_message, on_connect
@@ -155,7 +158,8 @@ async def _connect(p: _Publisher, host: str, port: int, qos: int, username: str 
     await asyncio.to_thread(client.connect, host, port, 30)
     client.loop_start()
     for _ in range(100):  # a TCP listener that is no MQTT broker never acknowledges
-        if client.is_connected():
+        # connected, and the broker holds 'online' and who it is (retained) for any subscriber
+        if announced and all(m.is_published() for m in announced):
             return
         await asyncio.sleep(0.05)
     raise ConfigError(f"{host}:{port} accepts connections but no MQTT broker answers there",

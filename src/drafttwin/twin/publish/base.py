@@ -46,6 +46,7 @@ class Publisher:
         self._last_row: dict[str, float] = {}
         self._wake: asyncio.Event | None = None
         self.health: Health | None = None
+        self.service: TwinService | None = None
 
     # ---- the twin's processing path: append only ------------------------------------------
     def on_rows(self, machine: str, rows: list[SampleRow], _events: list[EventRow]) -> None:
@@ -119,6 +120,7 @@ class Publisher:
     # ---- a protocol's part --------------------------------------------------------------------
     async def open(self, service: TwinService) -> None:
         self.health = Health(service)
+        self.service = service
 
     async def close(self, service: TwinService) -> None:
         """Publish the last entries and each machine's final status (offline), then close."""

@@ -4,6 +4,8 @@ Topics, per machine ``NAME`` (``PREFIX`` = ``drafttwin/twin`` unless ``?prefix=`
 
     PREFIX/NAME/prediction   a processed sample (twin-prediction.schema.json), <= max_hz
     PREFIX/NAME/alarm        an alarm and, later, its probable cause (twin-alarm.schema.json)
+    PREFIX/NAME/alarms       retained: the machine's alarms that are active or wait for an
+                             operator, most severe first (twin-alarms.schema.json)
     PREFIX/NAME/status       retained: health and current alarm, once a second
                              (twin-status.schema.json); the will message sets it offline
 
@@ -24,7 +26,7 @@ from typing import Any
 
 from drafttwin.errors import ConfigError
 from drafttwin.twin.publish.base import CLOSE_S, QUEUE_LEN, Publisher
-from drafttwin.twin.publish.payload import alarm, prediction
+from drafttwin.twin.publish.payload import active_alarms, alarm, prediction
 from drafttwin.twin.service import MachineState, TwinService
 from drafttwin.twin.store.db import EventRow, SampleRow
 
@@ -96,6 +98,11 @@ class MqttPublisher(Publisher):
 
     async def send_alarm(self, st: MachineState, ev: EventRow) -> None:
         self._publish(st.twin.name, "alarm", alarm(ev), retain=False)
+        # the machine's alarms as they stand, retained: a client that connects later reads
+        # them at once (empty when none is active or waiting for an operator)
+        assert self.service is not None
+        self._publish(st.twin.name, "alarms", active_alarms(self.service, st.twin.name),
+                      retain=True)  # fmt: skip
 
     async def send_status(self, st: MachineState, status: dict[str, Any]) -> None:
         self._publish(st.twin.name, "status", status, retain=True)

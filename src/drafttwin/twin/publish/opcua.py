@@ -12,11 +12,11 @@ Address space, namespace ``urn:drafttwin:twin`` (index 2), per machine ``NAME``:
                  Dropped (UInt64)
         Alarm/   Active (Boolean), Kind, Cause, Detail (String), Time (UtcTime)
 
-An alarm is also an event of ``AlarmConditionType`` emitted by the Server object (subscribe
-to events there): SourceNode the machine, ConditionName its kind, Message with the probable
-cause, ActiveState true, Retain true (so ConditionRefresh sends it again to a new client).
-asyncua implements no condition methods (Acknowledge, Confirm), so an alarm cannot be
-acknowledged over OPC UA; the detector has no return to normal, so it stays active.
+Each machine's alarms are also an OPC UA condition (``NAME.Alarm``, AlarmConditionType) whose
+events the Server object emits (subscribe to events there), with ConditionRefresh,
+Acknowledge and Confirm written on top of asyncua (:mod:`drafttwin.twin.publish.conditions`):
+a client connecting after an alarm sees it, active until it returns to normal, retained
+until an operator acknowledged and confirmed it.
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from typing import Any
 
 from drafttwin._constants import __version__
 from drafttwin.twin.publish.base import CLOSE_S, Publisher
+from drafttwin.twin.publish.conditions import Conditions
 from drafttwin.twin.publish.payload import alarm, setpoint_unit, unit_of, utc
 from drafttwin.twin.service import MachineState, TwinService
 from drafttwin.twin.store.db import EventRow, SampleRow
@@ -48,7 +49,6 @@ HEALTH = (("DataAge", "s", "wall clock minus the newest sample's source time (no
           ("SinceLastSample", "s", "time since the twin received the machine's last sample"),
           ("LatencyP99", "ms", "the twin's p99 latency, sample received -> stored and pushed"))  # fmt: skip
 COUNTS = ("Received", "Processed", "Late", "Dropped")
-SEVERITY = {"fault": 700, "fault-cause": 700, "sensor-fault": 500, "sliver-chimney": 400}
 
 
 def _ua() -> Any:
@@ -88,6 +88,7 @@ class OpcUaPublisher(Publisher):
         self.server: Any = None
         self.idx = 2
         self.nodes: dict[str, MachineNodes] = {}
+        self.conditions: Conditions = Conditions(lambda _: [], lambda *_: None)
 
     async def open(self, service: TwinService) -> None:
         from asyncua import Server
@@ -105,8 +106,11 @@ class OpcUaPublisher(Publisher):
         server.set_security_policy([ua.SecurityPolicyType.NoSecurity])
         self.idx = await server.register_namespace(NAMESPACE)
         folder = await server.nodes.objects.add_folder(self._nid("Twin"), f"{self.idx}:Twin")
+        self.conditions = Conditions(service.book.retained, service.faults.acknowledge)
+        await self.conditions.install(server)
         for name, st in service.states.items():
             self.nodes[name] = await self._add_machine(server, folder, st)
+            self.conditions.add(name, self.nodes[name].events, self._nid(f"{name}.Alarm"))
         await server.start()  # an OSError (port taken) reaches the CLI
         self.server = server
 
@@ -261,24 +265,20 @@ class OpcUaPublisher(Publisher):
                           now)  # fmt: skip
 
     async def send_alarm(self, st: MachineState, ev: EventRow) -> None:
+        """The machine's Alarm nodes and its condition as they stand after ``ev``."""
         ua = _ua()
 
-        doc, nodes = alarm(ev), self.nodes[st.twin.name]
-        when = utc(ev.ts_us)
-        await self._set(nodes.alarm["Active"], True, ua.VariantType.Boolean)
-        await self._set(nodes.alarm["Kind"], ev.kind, ua.VariantType.String)
-        await self._set(nodes.alarm["Cause"], doc["cause"] or "", ua.VariantType.String)
-        await self._set(nodes.alarm["Detail"], json.dumps(doc["detail"]), ua.VariantType.String)
-        await self._set(nodes.alarm["Time"], when, ua.VariantType.DateTime)
-        e = nodes.events.event
-        e.ConditionName, e.Severity, e.Retain = ev.kind, SEVERITY.get(ev.kind, 500), True
-        for prop, value in (("EnabledState/Id", True), ("ActiveState/Id", True),
-                            ("AckedState/Id", False), ("ConfirmedState/Id", False)):  # fmt: skip
-            setattr(e, prop, value)
-        e.ActiveState = ua.LocalizedText("Active")
-        e.EnabledState = ua.LocalizedText("Enabled")
-        cause = f"; probable cause {doc['cause']}" if doc["cause"] else ""
-        await nodes.events.trigger(time_attr=when, message=f"{st.twin.name}: {ev.kind}{cause}")
+        name = st.twin.name
+        doc, nodes = alarm(ev), self.nodes[name]
+        retained = self.conditions.retained(name)
+        await self._set(nodes.alarm["Active"], any(a.active for a in retained),
+                        ua.VariantType.Boolean)  # fmt: skip
+        if ev.kind in ("fault", "sensor-fault", "fault-cause", "sliver-chimney"):
+            await self._set(nodes.alarm["Kind"], ev.kind, ua.VariantType.String)
+            await self._set(nodes.alarm["Cause"], doc["cause"] or "", ua.VariantType.String)
+            await self._set(nodes.alarm["Detail"], json.dumps(doc["detail"]), ua.VariantType.String)
+            await self._set(nodes.alarm["Time"], utc(ev.ts_us), ua.VariantType.DateTime)
+        await self.conditions.emit(name, when=utc(ev.ts_us) if ev.kind != "alarm-ack" else None)
 
     async def close(self, service: TwinService) -> None:
         if self.server is None:

@@ -28,10 +28,12 @@ SCHEMA_FILES = {
     "prediction": "twin-prediction.schema.json",
     "alarm": "twin-alarm.schema.json",
     "status": "twin-status.schema.json",
+    "alarms": "twin-alarms.schema.json",
 }
 """The JSON Schema of each payload, in the package's ``twin/publish/schemas`` folder."""
-ALARM_KINDS = ("fault", "sensor-fault", "fault-cause", "sliver-chimney")
-"""Events published as alarms (the others change a machine's health)."""
+ALARM_KINDS = ("fault", "sensor-fault", "fault-cause", "fault-cleared", "alarm-ack",
+               "sliver-chimney")  # fmt: skip
+"""Events published as alarms, or changes of them (the others change a machine's health)."""
 MILLISECOND = Unit("C26", "ms", "millisecond")
 UNITS = {"rpm": RPM, "r/min": RPM, "Hz": HERTZ, "s": SECOND, "ms": MILLISECOND}
 """A unit as a model file or a field name writes it -> its UNECE Rec 20 unit."""
@@ -167,6 +169,13 @@ class Health:
         }
 
 
+def active_alarms(service: TwinService, machine: str) -> dict[str, Any]:
+    """The machine's retained alarms (active, or not yet acknowledged and confirmed), most
+    severe first: what the MQTT publisher retains and every late client reads."""
+    return {"v": PAYLOAD_VERSION, "machine": machine, **stamp(int(time.time() * 1e6)),
+            "alarms": [a.to_dict() for a in service.book.retained(machine)]}  # fmt: skip
+
+
 def detector(st: MachineState) -> dict[str, Any]:
     """The machine's fault detector: ``none``, ``learning`` (its healthy state: how far, how
     long still, no fault alarm meanwhile) or ``watching``; the serial number it knows."""
@@ -193,6 +202,7 @@ def schema(name: str) -> dict[str, Any]:
 __all__ = [
     "ALARM_KINDS",
     "SCHEMA_FILES",
+    "active_alarms",
     "UNITS",
     "Health",
     "alarm",

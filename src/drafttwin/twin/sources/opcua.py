@@ -7,7 +7,7 @@ import asyncio
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from drafttwin.twin.sources.base import BACKOFF_S, Emit, Report, Sample, Source
 from drafttwin.twin.sources.mapping import MachineMap
@@ -68,18 +68,14 @@ class OpcUaSource(Source):
                             # asyncio.timeout, not wait_for: Python 3.11's wait_for swallows a
                             # cancellation that lands as the item arrives (the twin then ran
                             # on for tens of seconds after SIGTERM)
-                            async with asyncio.timeout(self.silence_s):
-                                ev = await anext(sub)
-                            if not isinstance(ev, DataChangeEvent):
-                                continue
-                            m = by_node.get(ev.node.nodeid.to_string())
-                            if m is None:
-                                continue
-                            row = m.from_array(ev.value)
-                            if row is None:
-                                report(m.name, "dropped", f"malformed value {str(ev.value)[:80]}")
-                            else:
-                                emit(Sample(m.name, *row))
+                            try:
+                                async with asyncio.timeout(self.silence_s):
+                                    ev = await anext(sub)
+                            except asyncio.CancelledError:  # the stop: hand over what arrived
+                                for ev in _received(sub):
+                                    self._take(ev, by_node, DataChangeEvent, emit, report)
+                                raise
+                            self._take(ev, by_node, DataChangeEvent, emit, report)
             except asyncio.CancelledError:
                 raise
             except TimeoutError:
@@ -94,6 +90,22 @@ class OpcUaSource(Source):
                 await _disconnect(client)
             await asyncio.sleep(BACKOFF_S[min(attempt, len(BACKOFF_S) - 1)])
             attempt += 1
+
+    @staticmethod
+    def _take(ev: Any, by_node: dict[str, MachineMap], change: type, emit: Emit,
+              report: Report) -> None:  # fmt: skip
+        """One subscription item: a machine's sample emitted, a malformed one counted."""
+        if not isinstance(ev, change):
+            return
+        ev = cast(Any, ev)
+        m = by_node.get(ev.node.nodeid.to_string())
+        if m is None:
+            return
+        row = m.from_array(ev.value)
+        if row is None:
+            report(m.name, "dropped", f"malformed value {str(ev.value)[:80]}")
+        else:
+            emit(Sample(m.name, *row))
 
     async def _identify(self, client: Any, m: MachineMap, report: Report) -> None:
         """Read the machine's Identification (OPC 40001-1: SerialNumber, ProductInstanceUri,
@@ -150,6 +162,18 @@ class OpcUaSource(Source):
             for row in fresh:  # no receive time: their latency is not the live path's
                 emit(Sample(m.name, *row, received=math.nan))
             report(m.name, "history", f"{len(fresh)} samples recovered from the server's history")
+
+
+def _received(sub: Any) -> list[Any]:
+    """The items a subscription received and queued but nobody took yet (asyncua keeps them in
+    the iterator's queue; none when a later version keeps them elsewhere)."""
+    queue = getattr(sub, "_event_queue", None)
+    out = []
+    while queue is not None and not queue.empty():
+        item = queue.get_nowait()
+        if item is not None:
+            out.append(item)
+    return out
 
 
 async def _disconnect(client: Any) -> None:

@@ -132,6 +132,25 @@ def create_app(service: TwinService, token: str | None = None) -> FastAPI:
             raise HTTPException(409, f"machine {machine!r} has no fault detector")
         return to_strict({"machine": machine, "detector": detector_state(st)})
 
+    @app.get("/api/alarms/active")
+    def active_alarms(machine: str | None = None) -> Any:
+        """The alarms that are active or wait for an operator (acknowledge, confirm), most
+        severe first, each with its cause: what the page's banner shows."""
+        if machine is not None:
+            state(machine)
+        return to_strict([a.to_dict() for a in service.book.retained(machine)])
+
+    @app.post("/api/machines/{machine}/alarms/{what}")
+    def acknowledge(machine: str, what: str, comment: str = "") -> Any:
+        """``what`` = acknowledge or confirm the machine's retained alarms (an operator's, as
+        over OPC UA); the alarms afterwards."""
+        state(machine)
+        if what not in ("acknowledge", "confirm"):
+            raise HTTPException(404, "acknowledge or confirm")
+        n = service.faults.acknowledge(machine, comment[:500], what == "confirm")
+        return to_strict({"machine": machine, "taken": n,
+                          "alarms": [a.to_dict() for a in service.book.retained(machine)]})  # fmt: skip
+
     @app.get("/api/model/{machine}")
     def model(machine: str) -> Any:
         """The machine's model: class, channels, horizon, physics."""

@@ -1,0 +1,67 @@
+"""When an alarm returns to normal: its stream back near the baseline it left.
+
+After an alarm the CUSUMs restart from a new reference window, so the detector itself stops
+seeing a persistent fault. Whether the fault is still *there* is another question, the one
+an alarm list answers (an OPC UA condition's ActiveState): a machine alarm returns to normal
+when the stream that raised it stays within :data:`CLEAR_Z` of its healthy scale around the
+baseline *before* the alarm for :data:`CLEAR_S` of consecutive blocks (a belt replaced, a
+load restored); a sensor alarm when its rule has not fired for as long. A worn mesh does not
+un-wear: its lag stays off and its alarm stays active until the machine is serviced and
+learnt again.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from drafttwin.diagnosis.detect import STREAMS, Alarm, FaultDetector, stream_matrix
+
+CLEAR_Z = 2.0
+"""Deviations within this many healthy SDs of the stream count as normal."""
+CLEAR_S = 30.0
+"""Seconds of normal blocks in a row that return an alarm to normal."""
+
+
+@dataclass
+class _Watched:
+    alarm: Alarm
+    base: np.ndarray | None  # the baseline before the alarm (features); None: a sensor rule
+    normal: int = 0  # consecutive normal blocks so far
+
+
+class Clearance:
+    """The active alarms of one run, each watched for its return to normal."""
+
+    def __init__(self, detector: FaultDetector, block_s: float) -> None:
+        self.detector = detector
+        self.blocks = max(1, int(round(CLEAR_S / block_s)))
+        self.a = stream_matrix()
+        self.active: list[_Watched] = []
+
+    def raised(self, alarm: Alarm, base: np.ndarray | None) -> None:
+        """An alarm to watch (``base``: the baseline it left; ``None`` for a sensor rule)."""
+        self.active.append(_Watched(alarm, None if base is None else base.copy()))
+
+    def block(self, features: np.ndarray, sensor_tests: set[str]) -> list[Alarm]:
+        """One block's features and the sensor rules it fired; the alarms it returned to
+        normal."""
+        cleared = []
+        for w in list(self.active):
+            if w.base is None:
+                normal = w.alarm.test not in sensor_tests
+            else:
+                if not np.isfinite(features).all():
+                    continue  # a block without a measurement says nothing
+                i = STREAMS.index(w.alarm.test)
+                z = abs(float((features - w.base) @ self.a[i])) / self.detector.sigma_[i]
+                normal = z < CLEAR_Z
+            w.normal = w.normal + 1 if normal else 0
+            if w.normal >= self.blocks:
+                self.active.remove(w)
+                cleared.append(w.alarm)
+        return cleared
+
+
+__all__ = ["CLEAR_S", "CLEAR_Z", "Clearance"]
