@@ -3,32 +3,35 @@
 After an alarm the CUSUMs restart from a new reference window, so the detector itself stops
 seeing a persistent fault. Whether the fault is still *there* is another question, the one
 an alarm list answers (an OPC UA condition's ActiveState): a machine alarm returns to normal
-when the stream that raised it stays within :data:`CLEAR_Z` of its healthy scale around the
-baseline *before* the alarm for :data:`CLEAR_S` of consecutive blocks (a belt replaced, a
-load restored); a sensor alarm when its rule has not fired for as long. A worn mesh does not
+when the stream that raised it, averaged over the last :data:`CLEAR_S` of blocks, lies within
+:data:`CLEAR_Z` of its healthy block SD around the baseline *before* the alarm (a belt
+replaced, a load restored: a mean, since one healthy block in twenty lies past 2 SD); a
+sensor alarm when its rule has not fired for as long. A worn mesh does not
 un-wear: its lag stays off and its alarm stays active until the machine is serviced and
 learnt again.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from drafttwin.diagnosis.detect import STREAMS, Alarm, FaultDetector, stream_matrix
 
 CLEAR_Z = 2.0
-"""Deviations within this many healthy SDs of the stream count as normal."""
+"""A mean deviation within this many of the stream's healthy block SDs counts as normal."""
 CLEAR_S = 30.0
-"""Seconds of normal blocks in a row that return an alarm to normal."""
+"""Seconds of blocks the deviation is averaged over (and a sensor rule must stay quiet)."""
 
 
 @dataclass
 class _Watched:
     alarm: Alarm
     base: np.ndarray | None  # the baseline before the alarm (features); None: a sensor rule
-    normal: int = 0  # consecutive normal blocks so far
+    normal: int = 0  # a sensor rule: consecutive blocks without it
+    z: deque[float] = field(default_factory=deque)  # a stream: its last deviations, in SDs
 
 
 class Clearance:
@@ -50,15 +53,17 @@ class Clearance:
         cleared = []
         for w in list(self.active):
             if w.base is None:
-                normal = w.alarm.test not in sensor_tests
+                w.normal = w.normal + 1 if w.alarm.test not in sensor_tests else 0
+                back = w.normal >= self.blocks
             else:
                 if not np.isfinite(features).all():
                     continue  # a block without a measurement says nothing
                 i = STREAMS.index(w.alarm.test)
-                z = abs(float((features - w.base) @ self.a[i])) / self.detector.sigma_[i]
-                normal = z < CLEAR_Z
-            w.normal = w.normal + 1 if normal else 0
-            if w.normal >= self.blocks:
+                w.z.append(float((features - w.base) @ self.a[i]) / self.detector.sigma_[i])
+                if len(w.z) > self.blocks:
+                    w.z.popleft()
+                back = len(w.z) == self.blocks and abs(float(np.mean(w.z))) < CLEAR_Z
+            if back:
                 self.active.remove(w)
                 cleared.append(w.alarm)
         return cleared
