@@ -1,8 +1,8 @@
 """The page in headless Chromium (Debian's, driven by Playwright), checked on what it draws: a
 record with encoder spikes keeps each roller's axis within a few rpm of its band (the spikes
 marked at the edge), the legends read numbers with units on a wall-clock axis, the health
-summary says live, late, data age and p99, and an alarm with its probable cause shows as a
-banner that is acknowledged and returns to normal. The token guards REST, the WebSocket and
+summary says live, late, data age and p99, and every retained alarm shows as a banner, most
+severe first, with its probable cause: acknowledged, returned to normal, confirmed, gone. The token guards REST, the WebSocket and
 /metrics; a page off 127.0.0.1 without a token is refused."""
 
 from __future__ import annotations
@@ -41,6 +41,16 @@ def _get(url: str, headers: dict[str, str] | None = None) -> tuple[int, bytes]:
             return r.status, r.read()
     except urllib.error.HTTPError as exc:
         return exc.code, exc.read()
+
+
+def _keep_shot(png: bytes, name: str) -> None:
+    """The screenshot kept for a person to look at, where DRAFTTWIN_SHOTS names a folder."""
+    import os
+
+    folder = os.environ.get("DRAFTTWIN_SHOTS")
+    if folder:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        (Path(folder) / name).write_bytes(png)
 
 
 async def _ws_refused(url: str) -> bool:
@@ -99,10 +109,14 @@ def _serve(service: TwinService, port: int) -> tuple[threading.Thread, dict[str,
     return thread, found
 
 
+RAISED: dict[str, object] = {}
+"""The alarms _alarm raised, by test (to return them to normal)."""
+
+
 def _alarm(service: TwinService, test: str, cause: dict[str, object] | None) -> None:
     """An alarm (and its probable cause) through the service's own event path, at the newest
     row's time: what the detector's fault events go through (test_twin_faults.py raises them
-    from a faulted plant; here the page's part is checked)."""
+    from a faulted plant; here the page's part is checked). ``stuck_*``: a sensor rule's."""
     from drafttwin.diagnosis.detect import Alarm
     from drafttwin.diagnosis.stream import Step
     from drafttwin.twin.faultwatch import alarm_detail
@@ -110,13 +124,21 @@ def _alarm(service: TwinService, test: str, cause: dict[str, object] | None) -> 
 
     st = service.states["df-01"]
     t = st.recent[-1].ts_us / 1e6
-    alarm = Alarm(time_s=t, block=0, test=test, direction=-1, change_s=t - 3.0)
+    sensor = test.startswith("stuck_")
+    alarm = Alarm(time_s=t, block=0, test=test, direction=0 if sensor else -1, change_s=t - 3.0,
+                  rule="sensor" if sensor else "cusum")  # fmt: skip
+    RAISED[test] = alarm
     events = service.faults.fault_events(st, Step(alarms=[alarm]))
     for push in service.subscribers:
         push("df-01", [], events)
     if cause is not None:
         ev = EventRow("df-01", "fault-cause", int(round(t * 1e6)), alarm_detail(alarm, [cause]))
         service.faults.cause(st, ev, [cause], alarm)
+
+
+def _normal(service: TwinService, test: str) -> None:
+    """The alarm on ``test`` returned to normal (as diagnosis.clearance finds it)."""
+    service.faults.cleared(service.states["df-01"], RAISED[test], "returned to normal")  # type: ignore[arg-type]
 
 
 FRONT = "twinPage.charts.find(c => c.kind === '{}' && c.channel === 'front').u"
@@ -151,7 +173,7 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
                 "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                 "--disable-component-update", "--disable-sync", "--no-first-run"])  # fmt: skip
             page = browser.new_page(viewport={"width": 1280, "height": 1100})
-            page.goto(f"{base}/?token={TOKEN}&rtn=1")
+            page.goto(f"{base}/?token={TOKEN}")
             # past the record's first front-roller spike (and two samples after it)
             page.wait_for_function(f"(() => {{ const b = twinPage.machines['df-01']; return "
                                    f"twinPage.charts.length && b && b.t.length && b.t[b.t.length - 1] > {first_spike + 0.02}; }})()",
@@ -171,19 +193,29 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
                 _alarm, service, "belt", {"element": "main_belt", "kind": "belt_wear",
                                           "severity": 0.5, "interval": [0.4, 0.6],
                                           "probability": 0.9})  # fmt: skip
-            banner = page.locator("#banner .banner")
+            banners = page.locator("#banner .banner")
             page.wait_for_selector("#banner .banner.active-unack", timeout=20_000)
-            alarm_text = banner.inner_text()
+            # a sensor fault after it: both shown, the machine fault (more severe) first
+            loop.call_soon_threadsafe(_alarm, service, "stuck_back", None)  # type: ignore[attr-defined]
+            page.wait_for_function("document.querySelectorAll('#banner .banner').length === 2",
+                                   timeout=10_000)  # fmt: skip
+            two = banners.all_inner_texts()
             png = page.screenshot()
-            page.click("#banner .ack")
-            page.wait_for_selector("#banner .banner.active-ack", timeout=5_000)
-            acked = banner.inner_text()
-            loop.call_soon_threadsafe(_alarm, service, "parity_front", None)  # type: ignore[attr-defined]
-            page.wait_for_selector("#banner .banner.active-unack", timeout=20_000)
-            page.wait_for_selector("#banner .banner.rtn-unack", timeout=30_000)  # 1 s of data
-            page.click("#banner .ack")
-            page.wait_for_function("document.querySelectorAll('#banner .banner').length === 0",
+            _keep_shot(png, "twin-two-alarms.png")
+            belt = "#banner .banner[data-alarm*=':belt']"
+            page.click(f"{belt} .ack")
+            page.wait_for_selector(f"{belt}.active-ack", timeout=5_000)
+            acked = page.locator(belt).inner_text()
+            still = page.locator("#banner .banner[data-alarm*='stuck_back']").get_attribute("class")
+            loop.call_soon_threadsafe(_normal, service, "belt")  # type: ignore[attr-defined]
+            page.wait_for_selector(f"{belt}.rtn-ack", timeout=10_000)
+            page.click(f"{belt} .confirm")
+            page.wait_for_function("document.querySelectorAll('#banner .banner').length === 1",
                                    timeout=5_000)  # fmt: skip
+            left = banners.all_inner_texts()
+            page.wait_for_timeout(1500)  # a poll of /api/alarms/active: the same
+            left_after_poll = banners.all_inner_texts()
+            hub = page.evaluate("fetch('docs').then(r => r.text())")
             # an hour from the history API, then a zoom by dragging: every chart follows
             page.click("button[data-span='3600']")
             page.wait_for_function("twinPage.history && twinPage.history.buf.t.length > 0")
@@ -225,10 +257,13 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
     assert len(values) == 4 and all(NUMBER_RPM.match(v) for v in values[1:]), values
     for part in ("live", "late 0", "data age", " s", "p99", " ms", "set-point", " Hz"):
         assert part in tile, tile
-    assert (
-        "ALARM" in alarm_text and "main_belt belt_wear" in alarm_text and "belt down" in alarm_text
-    )
-    assert "acknowledged" in acked and "main_belt" in acked
+    assert len(two) == 2, two
+    assert "ALARM" in two[0] and "main_belt belt_wear" in two[0] and "belt down" in two[0]
+    assert "sensor fault stuck_back" in two[1] and "probable cause pending" in two[1]
+    assert "acknowledged" in acked and "main_belt" in acked and "Confirm" in acked
+    assert still is not None and "active-unack" in still  # only the one acknowledged
+    assert len(left) == 1 and "stuck_back" in left[0] and left_after_poll == left
+    assert "docs-files/swagger-ui-bundle.js" in hub and "cdn" not in hub.lower()
     assert hour == [False, 3600]
     assert len({tuple(z) for z in zoomed}) == 1 and 100 < zoomed[0][1] - zoomed[0][0] < 3000
     assert back_live is True
@@ -251,27 +286,36 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
                     "(apt-get install chromium): the browser test needs it")  # fmt: skip
 def test_the_hall_page_shows_each_machine_health_and_alarm_banners() -> None:
     """The hall page, built from the same script: a tile per machine with its health, a banner
-    per alarm (a recent one active, an old unacknowledged one returned to normal)."""
+    per retained alarm of every shard's machines (one active, one returned to normal and not yet
+    acknowledged), most severe first; the operator acts on the machine's own page."""
     sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (test extra)")
     from drafttwin.twin.web.hall import HallServer, HallView
 
     now = time.time()
     cause = {"element": "main_belt", "kind": "belt_wear", "severity": 0.5, "probability": 0.9}
-    recent = {"kind": "fault-cause", "time": now - 2, "test": "belt", "direction": -1,
-              "alarm_s": now - 2, "onset_s": now - 5, "causes": [cause]}  # fmt: skip
-    old = {"kind": "sensor-fault", "time": now - 300, "test": "stuck_back", "direction": 0,
-           "alarm_s": now - 300, "onset_s": now - 301, "causes": [
-               {"element": "back", "kind": "encoder_stuck", "probability": 1.0}]}  # fmt: skip
+    booked = {"machine": "m-1", "rule": "cusum", "change_s": None, "active": True,
+              "acked": False, "confirmed": False, "cleared_s": None, "cleared_why": "",
+              "comment": "", "retained": True}  # fmt: skip
+    recent = {**booked, "id": "m-1:1:belt", "kind": "fault", "test": "belt", "time_s": now - 2,
+              "severity": 700, "direction": -1, "cause": cause}  # fmt: skip
+    old = {**booked, "id": "m-2:1:stuck_back", "machine": "m-2", "kind": "sensor-fault",
+           "test": "stuck_back", "time_s": now - 300, "severity": 500, "direction": 0,
+           "rule": "sensor", "active": False, "cleared_s": now - 200,
+           "cause": {"element": "back", "kind": "encoder_stuck", "probability": 1.0}}  # fmt: skip
     machine = {"received": 10, "processed": 10, "dropped": 0, "fault_detector": True,
                "late": 0, "source": "x"}  # fmt: skip
     view = HallView(2)
     view.update([{"rows": 20, "latency_ms": {"p50": 1.0, "p99": 1.5, "max": 2.0}, "machines": {
-        "m-1": {**machine, "state": "live", "fault_alarms": 1, "last_fault": recent},
-        "m-2": {**machine, "state": "silent", "fault_alarms": 1, "last_fault": old}}}, None])  # fmt: skip
+        "m-1": {**machine, "state": "live", "fault_alarms": 1, "active_alarms": [recent]},
+        "m-2": {**machine, "state": "silent", "fault_alarms": 1, "active_alarms": [old]}}}, None])  # fmt: skip
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     with HallServer(view, ("127.0.0.1", port), None):
         assert _get(base + "/static/twin.js")[0] == 200  # the script both pages share
+        code, docs = _get(base + "/docs")
+        assert code == 200 and b"docs-files/swagger-ui.css" in docs
+        assert _get(base + "/docs-files/swagger-ui-bundle.js")[0] == 200
+        assert _get(base + "/docs-files/..%2Fswagger-ui.js")[0] == 404
         with sync_api.sync_playwright() as p:
             browser = p.chromium.launch(executable_path=CHROMIUM, args=[
                 "--no-sandbox", "--disable-gpu", "--no-first-run"])  # fmt: skip
@@ -281,15 +325,18 @@ def test_the_hall_page_shows_each_machine_health_and_alarm_banners() -> None:
             tiles = {
                 m: page.locator(f".tile[data-machine='{m}']").inner_text() for m in ("m-1", "m-2")
             }
-            active = page.locator("#banner .banner.active-unack").inner_text()
-            returned = page.locator("#banner .banner.rtn-unack").inner_text()
-            page.click("#banner .banner.active-unack .ack")
-            page.wait_for_selector("#banner .banner.active-ack", timeout=5_000)
+            texts = page.locator("#banner .banner").all_inner_texts()
+            buttons = page.locator("#banner button").count()
+            _keep_shot(page.screenshot(), "hall.png")
+            classes = {m: page.locator(f".tile[data-machine='{m}']").get_attribute("class")
+                       for m in ("m-1", "m-2")}  # fmt: skip
             browser.close()
-    assert "m-1" in active and "main_belt belt_wear" in active and "ALARM" in active
-    assert (
-        "m-2" in returned and "returned to normal" in returned and "back encoder_stuck" in returned
-    )
+    assert len(texts) == 2, texts
+    assert "m-1" in texts[0] and "main_belt belt_wear" in texts[0] and "ALARM" in texts[0]
+    assert "m-2" in texts[1] and "returned to normal" in texts[1]
+    assert "back encoder_stuck" in texts[1]
+    assert buttons == 0  # the hall shows; a machine's own page acknowledges
+    assert "alarm-active-unack" in str(classes["m-1"]) and "alarm-rtn-unack" in str(classes["m-2"])
     # the hall's status carries no late count nor data age (yet): the tile says "–" for the age
     assert all(p in tiles["m-1"] for p in ("live", "p99 1.5 ms", "data age")), tiles
     assert "silent" in tiles["m-2"] and "main_belt" in tiles["m-1"], tiles

@@ -34,6 +34,8 @@ class BookedAlarm:
     rule: str
     time_s: float  # the alarm block's end (source time)
     severity: int
+    direction: int = 0  # +1 the stream went up, -1 down, 0 for the sensor rules
+    change_s: float | None = None  # the estimated onset (source time)
     cause: dict[str, Any] | None = None  # the first ranked cause
     active: bool = True
     acked: bool = False
@@ -63,7 +65,8 @@ class AlarmBook:
 
     def raised(self, machine: str, alarm: Alarm, kind: str) -> BookedAlarm:
         a = BookedAlarm(self.key(machine, alarm.time_s, alarm.test), machine, kind, alarm.test,
-                        alarm.rule, alarm.time_s, SEVERITY.get(kind, 500))  # fmt: skip
+                        alarm.rule, alarm.time_s, SEVERITY.get(kind, 500), alarm.direction,
+                        alarm.change_s)  # fmt: skip
         self.alarms[a.id] = a
         self._trim(machine)
         self.changed += 1

@@ -158,14 +158,16 @@ class FaultDesk:
         else:
             self.judged_as_is(st)
 
-    def acknowledge(self, machine: str, comment: str = "", confirm: bool = False) -> int:
-        """An operator acknowledges (or confirms) the machine's retained alarms: stored as an
-        event ``alarm-ack``; the number of alarms it took."""
+    def acknowledge(self, machine: str, comment: str = "", confirm: bool = False,
+                    alarm_id: str | None = None) -> int:  # fmt: skip
+        """An operator acknowledges (or confirms: those acknowledged) the machine's retained
+        alarms, or the one ``alarm_id``: stored as an event ``alarm-ack``; the number taken."""
         st = self.host.states.get(machine)
         if st is None:
             return 0
-        taken = [a for a in self.book.retained(machine)
-                 if self.book.acknowledge(a.id, comment, confirm) is not None]  # fmt: skip
+        chosen = [a for a in self.book.retained(machine)
+                  if (alarm_id is None or a.id == alarm_id) and (a.acked or not confirm)]  # fmt: skip
+        taken = [a for a in chosen if self.book.acknowledge(a.id, comment, confirm) is not None]
         what = "confirmed" if confirm else "acknowledged"
         ev = EventRow(machine, "alarm-ack", int(time.time() * 1e6),
                       json.dumps({"what": what, "alarms": [a.id for a in taken],

@@ -33,7 +33,7 @@ from fastapi.responses import HTMLResponse, Response
 from drafttwin._json import to_strict
 from drafttwin.twin.service import TwinService
 from drafttwin.twin.store.db import EventRow, SampleRow
-from drafttwin.twin.web.assets import page_text, serve_static
+from drafttwin.twin.web.assets import page_text, serve_docs, serve_static
 from drafttwin.twin.web.guard import guard, ws_admits
 from drafttwin.twin.web.history import FAULT_KINDS, HistoryApi
 from drafttwin.twin.web.history import event_dict as _event
@@ -88,7 +88,7 @@ def create_app(service: TwinService, token: str | None = None) -> FastAPI:
     """The FastAPI app of ``service`` (a token, if given, guards every route). Its OpenAPI
     schema is ``/openapi.json``, the interactive docs ``/docs``."""
     app = FastAPI(title="drafttwin live twin", summary="The live twin's REST API, WebSocket "
-                  "and metrics (docs/twin.md)")  # fmt: skip
+                  "and metrics (docs/twin.md)", docs_url=None, redoc_url=None)  # fmt: skip
     hub = Hub()
     metrics = Metrics(service)
     api = HistoryApi(service)
@@ -108,6 +108,7 @@ def create_app(service: TwinService, token: str | None = None) -> FastAPI:
         return page_text("index.html")
 
     serve_static(app)
+    serve_docs(app)
 
     @app.get("/api/machines")
     def machines() -> list[dict[str, Any]]:
@@ -141,13 +142,15 @@ def create_app(service: TwinService, token: str | None = None) -> FastAPI:
         return to_strict([a.to_dict() for a in service.book.retained(machine)])
 
     @app.post("/api/machines/{machine}/alarms/{what}")
-    def acknowledge(machine: str, what: str, comment: str = "") -> Any:
-        """``what`` = acknowledge or confirm the machine's retained alarms (an operator's, as
-        over OPC UA); the alarms afterwards."""
+    def acknowledge(machine: str, what: str, comment: str = "", alarm: str | None = None) -> Any:
+        """``what`` = acknowledge or confirm (those acknowledged) the machine's retained alarms,
+        or the one whose id is ``alarm`` (an operator's, as over OPC UA); the alarms after."""
         state(machine)
         if what not in ("acknowledge", "confirm"):
             raise HTTPException(404, "acknowledge or confirm")
-        n = service.faults.acknowledge(machine, comment[:500], what == "confirm")
+        if alarm is not None and alarm not in {a.id for a in service.book.retained(machine)}:
+            raise HTTPException(404, f"machine {machine!r} has no retained alarm {alarm!r}")
+        n = service.faults.acknowledge(machine, comment[:500], what == "confirm", alarm)
         return to_strict({"machine": machine, "taken": n,
                           "alarms": [a.to_dict() for a in service.book.retained(machine)]})  # fmt: skip
 

@@ -1,14 +1,19 @@
 """The pages' files (``static/``: HTML, CSS, scripts, uPlot), shipped in the package, no CDN,
-and the JSON Schemas of what the twin publishes, served beside them
-(:func:`~drafttwin.twin.publish.payload.schema_dir`)."""
+the JSON Schemas of what the twin publishes, served beside them
+(:func:`~drafttwin.twin.publish.payload.schema_dir`), and the interactive API docs (``/docs``)
+from Swagger UI's files installed with the package (``swagger-ui-bundle``): a plant network
+has no internet."""
 
 from __future__ import annotations
 
 from importlib import resources
 from importlib.resources.abc import Traversable
+from pathlib import Path
 
+import swagger_ui_bundle
 from fastapi import FastAPI, HTTPException
-from fastapi.responses import Response
+from fastapi.openapi.docs import get_swagger_ui_html
+from fastapi.responses import HTMLResponse, Response
 
 from drafttwin.twin.publish.payload import SCHEMA_FILES, schema_dir
 
@@ -42,4 +47,33 @@ def serve_static(app: FastAPI) -> None:
         return Response(path.read_bytes(), media_type=kind)
 
 
-__all__ = ["MEDIA", "page_text", "serve_static", "static_dir"]
+DOCS_FILES = ("swagger-ui-bundle.js", "swagger-ui.css", "favicon-32x32.png")
+"""Swagger UI's files that ``/docs`` loads."""
+
+
+def serve_docs(app: FastAPI) -> None:
+    """``GET /docs``: Swagger UI on the app's ``/openapi.json``, its files from the package.
+
+    The app must be made with ``docs_url=None`` (FastAPI's own ``/docs`` loads a CDN)."""
+    folder = Path(swagger_ui_bundle.swagger_ui_path)
+
+    @app.get("/docs", include_in_schema=False)
+    def docs() -> HTMLResponse:
+        return get_swagger_ui_html(openapi_url=app.openapi_url or "/openapi.json",
+                                   title=f"{app.title} - API", swagger_js_url="docs-files/swagger-ui-bundle.js",
+                                   swagger_css_url="docs-files/swagger-ui.css",
+                                   swagger_favicon_url="docs-files/favicon-32x32.png")  # fmt: skip
+
+    @app.get("/docs-files/{name}", include_in_schema=False)
+    def docs_file(name: str) -> Response:
+        if name not in DOCS_FILES:
+            raise HTTPException(404, "no such file")
+        kind = next(m for suffix, m in MEDIA.items() if name.endswith(suffix))
+        return Response(
+            (folder / name).read_bytes(),
+            media_type=kind,
+            headers={"Cache-Control": "max-age=86400"},
+        )
+
+
+__all__ = ["DOCS_FILES", "MEDIA", "page_text", "serve_docs", "serve_static", "static_dir"]

@@ -19,7 +19,7 @@ from fastapi import FastAPI
 from fastapi.responses import HTMLResponse
 
 from drafttwin._json import to_strict
-from drafttwin.twin.web.assets import page_text, serve_static
+from drafttwin.twin.web.assets import page_text, serve_docs, serve_static
 from drafttwin.twin.web.guard import guard
 
 
@@ -52,14 +52,20 @@ class HallView:
 
 
 MACHINE_KEYS = ("state", "received", "processed", "dropped", "late", "fault_alarms",
-                "fault_detector", "last_fault")  # fmt: skip
+                "fault_detector", "last_fault", "active_alarms", "detector", "identity")  # fmt: skip
 
 
 def create_hall_app(view: HallView, token: str | None = None) -> FastAPI:
     """The hall's app; its OpenAPI schema is ``/openapi.json``, the interactive docs ``/docs``."""
-    app = FastAPI(title="drafttwin hall", summary="Every shard's machines (docs/twin.md)")
+    app = FastAPI(
+        title="drafttwin hall",
+        summary="Every shard's machines (docs/twin.md)",
+        docs_url=None,
+        redoc_url=None,
+    )
     guard(app, token)
     serve_static(app)
+    serve_docs(app)
 
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)
     def page() -> str:

@@ -5,8 +5,7 @@
 "use strict";
 const PARAMS = new URLSearchParams(location.search);
 const TOKEN = PARAMS.get("token");
-const RTN_S = Number(PARAMS.get("rtn")) > 0 ? Number(PARAMS.get("rtn")) : 60;  // s without alarm
-const ALARM_KINDS = ["fault", "fault-cause", "sensor-fault", "sliver-chimney"];
+const ALARM_KINDS = ["fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack", "sliver-chimney"];
 const SPIKE_REL = 0.10;   // the twin's spike rule: 10 % from both neighbours
 const LIVE_KEEP_S = 600;  // live rows kept in the page, s
 const SPANS = [["1 min", 60], ["5 min", 300], ["10 min", 600], ["1 h", 3600], ["6 h", 21600],
@@ -39,10 +38,10 @@ async function api(path) {
   return r.json();
 }
 
-// ---- alarms: the latest per machine, its cause, acknowledgement, return to normal ---------
+// ---- alarms: the twin's book (every alarm active, or waiting for an operator) --------------
 function causeText(f) {
   if (!f) return "";
-  const c = f.causes && f.causes[0];
+  const c = f.causes ? f.causes[0] : f.cause;
   if (c) {
     const sev = c.severity === null || c.severity === undefined ? "" : ` severity ${fmt(c.severity, 3)}`;
     const p = c.probability === undefined ? "" : ` (p ${fmt(100 * c.probability, 0)} %)`;
@@ -56,48 +55,45 @@ function alarmTitle(a) {
   const way = f.direction > 0 ? " up" : f.direction < 0 ? " down" : "";
   return `${a.kind === "sensor-fault" ? "sensor fault" : "fault"} ${f.test}${way}, onset ${clock(f.onset_s)}`;
 }
-// ack is kept in this browser (the API has no acknowledgement); key: machine and alarm time
-function ackKey(m, t) { return `drafttwin-ack:${m}:${t}`; }
+// the twin's own book (/api/alarms/active, most severe first, then the newest): an alarm stays
+// active until its stream is back at the baseline it left (or the machine is serviced) and is
+// shown until an operator acknowledged and confirmed it, on every page and client alike
 const book = {
-  alarms: {},  // machine -> {event, fault, time}
-  note(ev) {
-    if (!ALARM_KINDS.includes(ev.kind)) return;
-    const cur = this.alarms[ev.machine];
-    const t = ev.fault && ev.fault.alarm_s !== undefined ? ev.fault.alarm_s : ev.time;
-    if (ev.kind === "fault-cause" && cur && Math.abs(cur.time - t) < 1e-6) {
-      cur.fault = ev.fault; cur.event = ev;  // the cause of the alarm shown: same alarm
-      return;
-    }
-    if (cur && t < cur.time) return;
-    this.alarms[ev.machine] = { event: ev, fault: ev.fault, time: t };
-  },
-  // "active-unack", "active-ack", "rtn-unack" or "normal" at data time `now` (s)
-  state(m, now) {
-    const a = this.alarms[m];
-    if (!a) return "normal";
-    const acked = localStorage.getItem(ackKey(m, a.time)) !== null;
-    const active = now === null || now - a.time < RTN_S;
-    if (active) return acked ? "active-ack" : "active-unack";
-    return acked ? "normal" : "rtn-unack";
-  },
-  ack(m) { const a = this.alarms[m]; if (a) localStorage.setItem(ackKey(m, a.time), "1"); },
+  list: [],
+  load(list) { this.list = Array.isArray(list) ? list : []; },
+  state(a) { return `${a.active ? "active" : "rtn"}-${a.acked ? "ack" : "unack"}`; },
+  of(m) { return this.list.filter(a => a.machine === m); },
+  worst(m) { const l = this.of(m); return l.length ? this.state(l[0]) : "normal"; },
 };
 const BANNER = { "active-unack": "ALARM", "active-ack": "ALARM · acknowledged",
-                 "rtn-unack": `returned to normal (no alarm for ${RTN_S} s) · not acknowledged` };
-function banners(now, redraw) {
+                 "rtn-unack": "returned to normal · not acknowledged",
+                 "rtn-ack": "returned to normal · acknowledged, not confirmed" };
+async function post(path) {
+  const url = new URL(path, location.href);
+  if (TOKEN) url.searchParams.set("token", TOKEN);
+  const r = await fetch(url, { method: "POST" });
+  if (!r.ok) throw new Error(`${path}: ${r.status}`);
+  return r.json();
+}
+function banners(redraw, canAct) {
   const box = document.getElementById("banner");
   if (!box) return;
   const out = [];
-  for (const [m, a] of Object.entries(book.alarms)) {
-    const s = book.state(m, now(m));
-    if (s === "normal") continue;
-    const b = el("div", { class: "banner " + s, "data-machine": m, role: "alert" });
-    b.append(el("b", {}, `${BANNER[s]} · ${m}`), el("span", { class: "what" }, alarmTitle(a.event)),
-             el("span", { class: "cause" }, a.fault ? causeText(a.fault) : ""),
-             el("span", { class: "when" }, `at ${clock(a.time)}`));
-    if (s !== "active-ack") {
-      const btn = el("button", { class: "ack" }, "Acknowledge");
-      btn.onclick = () => { book.ack(m); redraw(); };
+  for (const a of book.list) {
+    const s = book.state(a);
+    const b = el("div", { class: "banner " + s, "data-machine": a.machine, "data-alarm": a.id, role: "alert" });
+    const way = a.direction > 0 ? " up" : a.direction < 0 ? " down" : "";
+    b.append(el("b", {}, `${BANNER[s]} · ${a.machine}`),
+             el("span", { class: "what" }, `${a.kind === "sensor-fault" ? "sensor fault" : "fault"} ${a.test}${way}`),
+             el("span", { class: "cause" }, a.cause ? causeText({ cause: a.cause }) : "probable cause pending"),
+             el("span", { class: "when" }, `at ${clock(a.time_s)}`));
+    const act = !canAct ? null : !a.acked ? ["ack", "Acknowledge", "acknowledge"]
+      : !a.confirmed ? ["confirm", "Confirm", "confirm"] : null;
+    if (act) {
+      const btn = el("button", { class: act[0] }, act[1]);
+      btn.onclick = () => post(`api/machines/${encodeURIComponent(a.machine)}/alarms/${act[2]}?alarm=${encodeURIComponent(a.id)}`)
+        .then(r => { book.list = book.list.filter(x => x.machine !== a.machine).concat(r.alarms); redraw(); })
+        .catch(e => status(String(e)));
       b.append(btn);
     }
     out.push(b);
@@ -209,7 +205,7 @@ function chart(b, width, height, list, extra) {
     scales: { x: { time: epoch, range: () => [state.view.x0, state.view.x1] },
               y: { range: u => u.yRange || [-1, 1] } },
     series: [{ label: epoch ? "time" : "record time", value: (u, v) => clock(v, true) }, ...list],
-    axes: [{ values: (u, s) => s.map(v => (epoch ? clock(v, s.length > 1 && s[1] - s[0] < 1) : `${v} s`)) },
+    axes: [{ space: 90, values: (u, s) => s.map(v => (epoch ? clock(v, s.length > 1 && s[1] - s[0] < 1) : `${v} s`)) },
            { size: 64, label: extra.unit, labelSize: 14 }],
     cursor: { sync: { key: "twin" }, drag: { x: true, y: false, setScale: false } },
     hooks: { draw: [u => (extra.draw ? extra.draw(u) : null)],
@@ -379,7 +375,7 @@ function drawEvents() {
          `${clock(a.time)} ${a.machine} ${ALARM_KINDS.includes(a.kind) ? alarmTitle(a) : a.kind + ": " + a.detail}` +
          (a.fault && a.kind !== "fault" ? " · " + causeText(a.fault) : ""))));
   }
-  banners(dataNow, drawPage);
+  banners(drawPage, true);
 }
 
 // a tile per machine, made once and updated in place (a click must not land on a replaced one)
@@ -398,7 +394,7 @@ function tiles() {
     const n = newest(b);
     const age = typeof m.data_age_s === "number" ? m.data_age_s : n !== null && isEpoch(n) ? Date.now() / 1000 - n : null;
     const p99 = m.latency_ms ? m.latency_ms.p99 : s && s.latency_ms ? s.latency_ms.p99 : null;
-    t.className = `tile ${m.state || ""} alarm-${book.state(name, dataNow(name))}` + (name === state.selected ? " sel" : "");
+    t.className = `tile ${m.state || ""} alarm-${book.worst(name)}` + (name === state.selected ? " sel" : "");
     t.lastChild.replaceWith(health(name, m, p99, age, b.last ? num(b.last[2]) : undefined));
   }
 }
@@ -441,30 +437,44 @@ function controls() {
 function status(text) { document.getElementById("status").textContent = text; }
 
 async function startTwin() {
+  // the stream first: rows that arrive while the history loads are kept and joined to it, so
+  // the page has no gap where history meets the stream
+  const early = [];
+  const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host +
+                           location.pathname.replace(/[^/]*$/, "") + "ws" + (TOKEN ? "?token=" + encodeURIComponent(TOKEN) : ""));
+  let ready = false;
+  const take = msg => {
+    for (const [m, rows] of Object.entries(msg.rows)) {
+      const b = state.machines[m];
+      if (!b) continue;
+      const last = newest(b);
+      push(b, last === null ? rows : rows.filter(r => r[0] > last));  // after the history's end
+    }
+    if (msg.events.length) {
+      state.events.push(...msg.events);
+      if (msg.events.some(e => ALARM_KINDS.includes(e.kind))) loadAlarms();
+    }
+    state.updates++;
+  };
+  ws.onmessage = ev => { const msg = JSON.parse(ev.data); if (ready) take(msg); else early.push(msg); };
+  ws.onclose = () => status("disconnected");
   const list = await api("api/machines");
   for (const m of list) {
     state.machines[m.machine] = Object.assign(buffers(m.channels), { state: m.state });
     push(state.machines[m.machine], await historyRows(m.machine, "seconds=60"));
   }
   const alarms = await api("api/alarms");
-  alarms.forEach(a => book.note(a));
   const others = await api("api/events").catch(() => []);  // an older twin: alarms held all
   state.events = [...alarms, ...others.filter(e => !ALARM_KINDS.includes(e.kind))].sort((a, b) => a.time - b.time);
+  await loadAlarms();
   // the detector's residual limits, rpm per channel, when the API sends them (else a 4σ band)
   const model = list.length ? await api("api/model/" + encodeURIComponent(list[0].machine)).catch(() => ({})) : {};
   state.limits = model.residual_limits_rpm || null;
   state.selected = list.length ? list[0].machine : null;
+  early.splice(0).forEach(take);
+  ready = true;
   controls();
   build();
-  const ws = new WebSocket((location.protocol === "https:" ? "wss://" : "ws://") + location.host +
-                           location.pathname.replace(/[^/]*$/, "") + "ws" + (TOKEN ? "?token=" + encodeURIComponent(TOKEN) : ""));
-  ws.onmessage = ev => {
-    const msg = JSON.parse(ev.data);
-    for (const [m, rows] of Object.entries(msg.rows)) if (state.machines[m]) push(state.machines[m], rows);
-    for (const e of msg.events) { book.note(e); state.events.push(e); }
-    state.updates++;
-  };
-  ws.onclose = () => status("disconnected");
   setInterval(drawPage, 250);
   const poll = async () => {
     try {
@@ -473,8 +483,12 @@ async function startTwin() {
       for (const [m, st] of Object.entries(s.machines)) if (state.machines[m]) state.machines[m].state = st.state;
       status(`${Object.keys(s.machines).length} machine(s) · ${s.rows} samples · p99 ${withUnit(s.latency_ms.p99, 1, "ms")} (all machines)`);
     } catch (e) { status(String(e)); }
+    loadAlarms();
   };
   poll(); setInterval(poll, 1000);
+}
+async function loadAlarms() {
+  try { book.load(await api("api/alarms/active")); } catch (e) { /* an older twin: none */ }
 }
 
 // ---- the hall page -----------------------------------------------------------------------
@@ -485,26 +499,31 @@ async function drawHall() {
   const root = document.getElementById("hall");
   root.replaceChildren();
   let machines = 0, alarms = 0;
-  const now = () => h.updated;  // the hall's status time (wall clock) stands for data time
+  const standing = [];
   for (const s of h.shards) {
     const p99 = s.latency_ms ? s.latency_ms.p99 : null;
     root.append(el("h2", {}, `shard ${s.shard}: ${s.state} · ${s.rows ?? 0} samples · p99 ${withUnit(p99, 1, "ms")}`));
     const box = el("div", { class: "shard" });
     for (const [name, m] of Object.entries(s.machines)) {
       machines++;
-      if (m.last_fault) book.note({ machine: name, kind: m.last_fault.kind, time: m.last_fault.time, fault: m.last_fault });
-      const a = book.state(name, isEpoch(h.updated) && m.last_fault && isEpoch(m.last_fault.time) ? h.updated : null);
-      if (a !== "normal") alarms++;
-      const t = el("div", { class: `tile ${m.state} alarm-${a}`, "data-machine": name });
+      standing.push(...(m.active_alarms || []));
+      const mine = (m.active_alarms || []).map(a => book.state(a));
+      if (mine.length) alarms++;
+      const t = el("div", { class: `tile ${m.state} alarm-${mine.length ? mine[0] : "normal"}`, "data-machine": name });
       const age = typeof m.data_age_s === "number" ? m.data_age_s : null;
       t.append(el("b", {}, name), health(name, m, m.latency_ms ? m.latency_ms.p99 : p99, age),
                el("span", { class: "count" }, `${m.processed ?? 0} samples · ${m.fault_alarms ?? 0} alarm(s)`));
-      if (m.last_fault) t.append(el("span", { class: "cause" }, causeText(m.last_fault)));
+      const top = (m.active_alarms || [])[0];  // the most severe standing alarm, else the last
+      const c = top ? (top.cause ? causeText({ cause: top.cause }) : `${top.test}: probable cause pending`)
+        : m.last_fault ? causeText(m.last_fault) : "";
+      if (c) t.append(el("span", { class: "cause" }, c));
       box.append(t);
     }
     root.append(box);
   }
-  banners(m => (book.alarms[m] && isEpoch(book.alarms[m].time) ? now() : null), () => drawHall());
+  standing.sort((a, b) => b.severity - a.severity || b.time_s - a.time_s);
+  book.load(standing);
+  banners(() => drawHall(), false);  // the hall's page shows; the machine's twin page acts
   status(`· ${machines} machine(s) · ${alarms} with alarms · updated ${clock(h.updated)}`);
 }
 function startHall() {
