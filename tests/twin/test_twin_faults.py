@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import subprocess
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -397,3 +399,32 @@ def test_a_sensor_rule_in_the_window_takes_the_machine_ranking_over(detector):
 
     _, (cause,) = Diagnoser(DriveTrain.preset("fa320a"), detector).locate(req)
     assert cause.name == "back:stuck" and cause.severity == pytest.approx(1.25, abs=0.011)
+
+
+def test_the_locator_worker_ends_with_a_twin_killed_outright(tmp_path: Path) -> None:
+    """The ranking worker process watches its twin: a twin killed by SIGKILL (no cleanup at
+    all) leaves no worker behind (orphans of 290 MB each piled up before)."""
+    import os
+    import sys
+
+    code = (
+        "import os, time\n"
+        "from drafttwin.twin.faultwatch import Locator\n"
+        "loc = Locator()\n"
+        "print(loc._executor().submit(os.getpid).result(), flush=True)\n"
+        "time.sleep(60)\n"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    worker = int(proc.stdout.readline())
+    assert Path(f"/proc/{worker}").exists() or not sys.platform.startswith("linux")
+    proc.kill()
+    proc.wait(timeout=30)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        try:
+            os.kill(worker, 0)
+        except ProcessLookupError:
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"the worker {worker} outlived its killed twin")

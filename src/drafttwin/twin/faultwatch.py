@@ -337,8 +337,13 @@ class Locator:
     def _executor(self) -> ProcessPoolExecutor:
         if self.executor is None:
             import multiprocessing
+            import os
 
-            self.executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+            from drafttwin.execution.interrupt import worker_init
+
+            # the worker ends with the twin, even one killed outright (an orphan kept 290 MB)
+            self.executor = ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"),
+                                                initializer=worker_init, initargs=(os.getpid(),))  # fmt: skip
         return self.executor
 
     def warm(self) -> list[Future[None]]:
