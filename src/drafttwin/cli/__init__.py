@@ -37,7 +37,17 @@ def main() -> None:
     # error, instead of SIGXFSZ killing the process with a half-written file
     if hasattr(signal, "SIGXFSZ"):
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
-    app(prog_name="drafttwin")
+    from drafttwin.cli._exit import not_done, quick_exit, quick_exit_due
+
+    not_done()
+    try:
+        app(prog_name="drafttwin")
+    except SystemExit as exc:
+        if not quick_exit_due():
+            raise
+        quick_exit(exc.code if isinstance(exc.code, int) else 0 if exc.code is None else 1)
+    if quick_exit_due():
+        quick_exit(0)
 
 
 __all__ = ["app", "main"]

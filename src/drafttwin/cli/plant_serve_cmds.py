@@ -10,6 +10,7 @@ from typing import Annotated, Any
 
 import typer
 
+from drafttwin.cli._exit import work_done
 from drafttwin.cli._options import (
     SampleRateOpt,
     StopAfterOpt,
@@ -116,6 +117,7 @@ def plant_serve(
         if history:
             opts["history_s"] = history
         signum = _serve_plant(opcua, mqtt, names, opts, mqtt_user, cert, broker)
+    work_done()  # the servers closed, the log written
     if signum is not None:
         err_console.print(f"stopped by {signal.Signals(signum).name}")
     console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in published.items()))

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 from rich.table import Table
 
+from drafttwin.cli._exit import work_done
 from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, file_out, number, path_in
 from drafttwin.cli.app import app, console, err_console, print_json
 from drafttwin.errors import ConfigError
@@ -20,6 +21,7 @@ from drafttwin.errors import ConfigError
 if TYPE_CHECKING:
     from drafttwin.twin.publish.base import Publisher
     from drafttwin.twin.service import TwinService
+    from drafttwin.twin.store.db import EventRow
 
 twin_app = typer.Typer(
     help="The live twin: machines over OPC UA / MQTT or a replayed file, the hybrid per "
@@ -164,6 +166,7 @@ def twin_run(
         if service.writer is not None:
             service.writer.close()
             service.writer.store.close()
+    work_done()  # the store closed: the summary below is all that is left
     status = service.status()
     status["wall_s"] = time.monotonic() - start
     if publishers:
@@ -180,6 +183,8 @@ async def _serve(service: TwinService, bind: tuple[str, int] | None, token: str 
     from drafttwin.twin.publish import publishing
 
     ticker = None if quiet else asyncio.create_task(_status_lines(service))
+    if not quiet:  # alarms, causes and the detector's learning as they happen
+        service.event_hooks.append(_print_event)
     try:
         async with publishing(service, publishers):
             for pub in publishers:
@@ -196,6 +201,14 @@ async def _serve(service: TwinService, bind: tuple[str, int] | None, token: str 
     finally:
         if ticker is not None:
             ticker.cancel()
+
+
+def _print_event(ev: EventRow) -> None:
+    from drafttwin.twin.alarms import event_line
+
+    line = event_line(ev.machine, ev.kind, ev.ts_us, ev.detail)
+    if line is not None:
+        err_console.print(line, highlight=False, markup=False, soft_wrap=True)
 
 
 async def _status_lines(service: TwinService) -> None:
@@ -232,6 +245,13 @@ def _print_status(status: dict[str, Any]) -> None:
             tr = m["transport_ms"]
             console.print(f"{name}: source -> received (transport and the source's own "
                           f"lateness): p50 {tr['p50']:.1f} ms, p99 {tr['p99']:.1f} ms")  # fmt: skip
+    for name, m in status["machines"].items():
+        for a in m.get("active_alarms") or []:
+            from drafttwin.twin.alarms import cause_text
+
+            state = "active" if a["active"] else "returned to normal"
+            console.print(f"{name}: alarm {a['test']} ({state}, {'acknowledged' if a['acked'] else 'not acknowledged'}): "
+                          f"{cause_text(a.get('cause'))}", highlight=False, markup=False, soft_wrap=True)  # fmt: skip
     if status["store"] is not None:
         console.print(f"store: {status['store']['committed']} rows committed")
     for pub in status.get("publish", []):

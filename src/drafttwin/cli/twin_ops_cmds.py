@@ -15,6 +15,7 @@ import typer
 from rich import box
 from rich.table import Table
 
+from drafttwin.cli._exit import work_done
 from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, number, path_in
 from drafttwin.cli.app import console, err_console, print_json
 from drafttwin.cli.twin_cmds import (
@@ -173,9 +174,11 @@ def twin_hall(
                                on_status=status, status_every_s=1.0, detector=detector,
                                learn_s=learn)  # fmt: skip
     except Interrupted as exc:  # a service manager's stop is a clean end: exit code 0
+        work_done()
         err_console.print(f"stopped by {signal.Signals(exc.signum).name}: the running shards "
                           "committed what they received (one still starting is ended)")  # fmt: skip
         return
+    work_done()  # Ray ended, the shards' stores closed
     if as_json:
         print_json({"wall_s": time.monotonic() - start, "shards": results})
         return

@@ -25,6 +25,7 @@ from typing import Any
 from drafttwin.errors import DrafttwinError
 from drafttwin.execution import ray_guard
 from drafttwin.execution.interrupt import (
+    Interrupted,
     restore_handler,
     signals_deferred,
     spawn_without_sigint,
@@ -151,12 +152,12 @@ def _run_local(fn: Task, todo: Pending, finish: Finish, workers: int, address: s
         for fut in cf.as_completed(futures):
             finish(futures[fut], fut.result())
     except BaseException:  # an error, Ctrl-C or SIGTERM: finished results are already stored
-        _stop_pool(pool)
+        stop_pool(pool)
         raise
     pool.shutdown(wait=True)
 
 
-def _stop_pool(pool: cf.ProcessPoolExecutor) -> None:
+def stop_pool(pool: cf.ProcessPoolExecutor) -> None:
     """Cancel pending tasks and end the workers now: ``shutdown`` alone would wait for (or,
     with ``wait=False``, abandon) the running ones."""
     processes = list((pool._processes or {}).values())
@@ -208,7 +209,12 @@ def ray_session(cpus: int, address: str | None) -> Iterator[Any]:
     sigterm = signal.getsignal(signal.SIGTERM)
     try:
         if started:
-            _init_ray(ray, cpus, address)
+            try:
+                _init_ray(ray, cpus, address)
+            except SystemExit as exc:  # Ray's own SIGTERM handler, while it starts
+                if exc.code != signal.SIGTERM:
+                    raise
+                raise Interrupted(signal.SIGTERM, "Ray was still starting") from None
         restore_handler(signal.SIGTERM, sigterm)
         yield ray
     finally:
@@ -232,6 +238,9 @@ def _import_ray() -> Any:
 
 
 def _init_ray(ray: Any, workers: int, address: str | None) -> None:
+    # abseil's failure signal handler, installed by Ray's core worker, answered a SIGTERM
+    # during the start with a stack dump on stderr; the caller's handler answers it
+    os.environ.setdefault("RAY_DISABLE_FAILURE_SIGNAL_HANDLER", "1")
     if not address:
         ray.init(num_cpus=workers, ignore_reinit_error=True, log_to_driver=False,
                  include_dashboard=False, logging_level=logging.ERROR)  # fmt: skip

@@ -11,6 +11,8 @@ acknowledged and confirmed.
 
 from __future__ import annotations
 
+import datetime as _dt
+import json
 import time
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -123,4 +125,65 @@ class AlarmBook:
             del self.alarms[a.id]
 
 
-__all__ = ["SEVERITY", "AlarmBook", "BookedAlarm"]
+CONSOLE_KINDS = ("fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack",
+                 "sliver-chimney", "learning", "learned", "baseline", "baseline-refused",
+                 "detector-foreign", "identity")  # fmt: skip
+"""Events a running twin prints on its console (its alarms and what its detector does)."""
+
+
+def _clock(t_s: float | None) -> str:
+    if t_s is None:
+        return "?"
+    if t_s > 1e8:  # epoch seconds: the plant's wall clock
+        return _dt.datetime.fromtimestamp(t_s, _dt.UTC).strftime("%H:%M:%S UTC")
+    return f"{t_s:.2f} s"
+
+
+def cause_text(c: dict[str, Any] | None) -> str:
+    """``main_belt belt_wear severity 0.50 [0.45, 0.55] (p 90 %)``."""
+    if not c:
+        return "probable cause pending"
+    sev = c.get("severity")
+    out = f"{c.get('element', '?')} {c.get('kind', '?')}"
+    if isinstance(sev, float | int):
+        out += f" severity {sev:.3g}"
+        if isinstance(c.get("interval"), list) and len(c["interval"]) == 2:
+            out += f" [{c['interval'][0]:.3g}, {c['interval'][1]:.3g}]"
+    if isinstance(c.get("probability"), float | int):
+        out += f" (p {100 * c['probability']:.0f} %)"
+    return out
+
+
+def event_line(machine: str, kind: str, ts_us: int, detail: str) -> str | None:
+    """One console line for an event of :data:`CONSOLE_KINDS` (None for the others)."""
+    if kind not in CONSOLE_KINDS:
+        return None
+    try:
+        doc = json.loads(detail) if detail.startswith("{") else None
+    except ValueError:
+        doc = None
+    if not isinstance(doc, dict):
+        return f"{machine} {kind}: {detail}"
+    at = _clock(ts_us / 1e6)
+    if kind in ("fault", "sensor-fault", "fault-cause"):
+        d = doc.get("direction", 0)
+        way = " up" if d > 0 else " down" if d < 0 else ""
+        what = f"{'sensor fault' if kind == 'sensor-fault' or d == 0 else 'fault'} {doc.get('test')}{way}"
+        causes = doc.get("causes") or []
+        if kind == "fault-cause":
+            why = f"probable cause {cause_text(causes[0])}" if causes else doc.get("note", "")
+            return f"{machine} {what} (alarm at {_clock(doc.get('alarm_s'))}): {why}"
+        return f"ALARM {machine} {what} at {at}, onset {_clock(doc.get('onset_s'))}" + (
+            f": {cause_text(causes[0])}" if causes else f"; {doc.get('note', '')}"
+        )
+    if kind == "fault-cleared":
+        return f"{machine} alarm {doc.get('test')} (at {_clock(doc.get('alarm_s'))}) returned to normal at {at}: {doc.get('why', '')}"
+    if kind == "alarm-ack":
+        return (
+            f"{machine}: {len(doc.get('alarms', []))} alarm(s) {doc.get('what', 'acknowledged')}"
+            + (f" ({doc['comment']})" if doc.get("comment") else "")
+        )
+    return f"{machine} {kind}: {detail}"
+
+
+__all__ = ["CONSOLE_KINDS", "SEVERITY", "AlarmBook", "BookedAlarm", "cause_text", "event_line"]

@@ -374,9 +374,13 @@ class Locator:
         fut.add_done_callback(finished)
         return True
 
-    def close(self, wait: bool = False) -> None:
+    def close(self) -> None:
+        """End the worker now, a ranking still running with it (the caller kept its window;
+        a plain ``shutdown`` would let the interpreter's exit wait for it: 3 s at a stop)."""
         if self.executor is not None:
-            self.executor.shutdown(wait=wait, cancel_futures=not wait)
+            from drafttwin.execution.executor import stop_pool
+
+            stop_pool(self.executor)
             self.executor = None
 
 
