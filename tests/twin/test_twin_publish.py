@@ -216,8 +216,20 @@ async def _read_opcua(port: int) -> dict[str, Any]:
         product = await client.get_node(
             ua.ObjectIds.Server_ServerStatus_BuildInfo_ProductName
         ).read_value()
+        product_uri = await client.get_node(
+            ua.ObjectIds.Server_ServerStatus_BuildInfo_ProductUri
+        ).read_value()
+        server_uri = (await client.get_node(ua.ObjectIds.Server_ServerArray).read_value())[0]
+        ident = {}
+        for _ in range(100):  # the source's identity, once it said (a replay: at once)
+            ident = {p: await client.get_node(ua.NodeId(f"fa320a.Identification.{p}", idx)).read_value()
+                     for p in ("SerialNumber", "ProductInstanceUri", "ComponentName")}  # fmt: skip
+            if ident["SerialNumber"]:
+                break
+            await asyncio.sleep(0.1)
         return {"dv": dv, "eu": eu, "range": rng, "type": tdef, "measured": measured,
-                "state": state, "description": desc.Text, "product": product}  # fmt: skip
+                "state": state, "description": desc.Text, "product": product,
+                "product_uri": product_uri, "server_uri": server_uri, "ident": ident}  # fmt: skip
 
 
 @pytest.mark.slow  # a twin start-up: about 8 s
@@ -260,6 +272,19 @@ def test_twin_run_publishes_over_opcua_and_mqtt(
     assert frame["ts_us"].min() <= _us(seen["measured"].SourceTimestamp) <= frame["ts_us"].max()
     assert seen["state"] in ("live", "connecting")
     assert "prediction" in seen["description"] and seen["product"] == "drafttwin twin"
+    # one identity scheme: the twin's server and product URNs, the machine's Identification
+    # as its source (the record's sidecar) said
+    from drafttwin.wire.identity import recorded_identity
+
+    known = recorded_identity(record)
+    assert known is not None
+    assert (seen["product_uri"], seen["server_uri"]) == (
+        "urn:drafttwin:twin",
+        "urn:drafttwin:twin:server",
+    )
+    assert seen["ident"]["SerialNumber"] == known.serial
+    assert seen["ident"]["ProductInstanceUri"] == f"urn:drafttwin:machine:{known.serial}"
+    assert seen["ident"]["ComponentName"].Text == "fa320a"
     # MQTT: every payload valid; the measured values are the file's, the residual closes
     check = _validators()
     preds, statuses = sub.of("/prediction"), sub.of("/status")

@@ -11,6 +11,12 @@ Address space, namespace ``urn:drafttwin:twin`` (index 2), per machine ``NAME``:
                  LearningLeft, LatencyP99 (AnalogItemType s / ms), Received, Processed, Late,
                  Dropped (UInt64)
         Alarm/   Active (Boolean), Kind, Cause, Detail (String), Time (UtcTime)
+        Identification/  Manufacturer, Model, SerialNumber, ProductInstanceUri (the machine's,
+                 as its source said: OPC 40001-1; empty until known), ComponentName (NAME)
+
+The server itself says ApplicationUri ``urn:drafttwin:twin:server`` and ProductUri
+``urn:drafttwin:twin`` (the plant's: ``urn:drafttwin:plant:server``, ``urn:drafttwin:plant``;
+:mod:`drafttwin.wire.identity`).
 
 Each machine's alarms are also an OPC UA condition (``NAME.Alarm``, AlarmConditionType) whose
 events the Server object emits (subscribe to events there), with ConditionRefresh,
@@ -68,6 +74,21 @@ def channel_range(st: MachineState, channel: str) -> tuple[float, float]:
     return (0.0, float(train.speed_ratios[train.roller_nodes[channel]]) * sync_rpm)
 
 
+IDENTITY_FIELDS = ("Manufacturer", "Model", "SerialNumber", "ProductInstanceUri")
+
+
+def _known(st: MachineState) -> tuple[str, ...]:
+    i = st.identity
+    return () if i is None else (i.manufacturer, i.model, i.serial, i.product_instance_uri)
+
+
+def _identification() -> tuple[tuple[str, Any], ...]:
+    ua = _ua()
+    text, string = ua.VariantType.LocalizedText, ua.VariantType.String
+    return (("Manufacturer", text), ("Model", text), ("SerialNumber", string),
+            ("ProductInstanceUri", string), ("ComponentName", text))  # fmt: skip
+
+
 @dataclass
 class MachineNodes:
     values: dict[str, list[Any]] = field(default_factory=dict)  # kind -> node per channel
@@ -75,6 +96,8 @@ class MachineNodes:
     health: dict[str, Any] = field(default_factory=dict)
     alarm: dict[str, Any] = field(default_factory=dict)
     events: Any = None  # the AlarmConditionType event generator
+    ident: dict[str, Any] = field(default_factory=dict)  # Identification's properties
+    known: tuple[str, ...] = ()  # the identity last written there
 
 
 class OpcUaPublisher(Publisher):
@@ -158,6 +181,17 @@ class OpcUaPublisher(Publisher):
             out.health[key] = await self._plain(health, f"{name}.Health.{key}", key,
                                                 ua.Variant(0, ua.VariantType.UInt64),
                                                 f"{name}: samples {key.lower()}")  # fmt: skip
+        ident = await obj.add_object(self._nid(f"{name}.Identification"),
+                                     f"{self.idx}:Identification")  # fmt: skip
+        out.known = _known(st)
+        values = dict(zip(IDENTITY_FIELDS, out.known or ("",) * 4, strict=True))
+        values["ComponentName"] = name
+        for prop, vtype in _identification():
+            v = values[prop]
+            out.ident[prop] = await ident.add_property(
+                self._nid(f"{name}.Identification.{prop}"), f"{self.idx}:{prop}",
+                ua.LocalizedText(v) if vtype == ua.VariantType.LocalizedText else v,
+                varianttype=vtype)  # fmt: skip
         al = await obj.add_object(self._nid(f"{name}.Alarm"), f"{self.idx}:Alarm")
         out.alarm["Active"] = await self._plain(al, f"{name}.Alarm.Active", "Active", False,
                                                 f"{name}: an alarm was raised")  # fmt: skip
@@ -247,9 +281,29 @@ class OpcUaPublisher(Publisher):
                 await self._write(node, float(v), when)
         await self._write(nodes.setpoint, float(row.setpoint), when)
 
+    async def _identify(self, nodes: MachineNodes, st: MachineState) -> None:
+        """The machine's Identification as the twin knows it from its source (OPC 40001-1:
+        the plant's SerialNumber and ProductInstanceUri; empty until the source said)."""
+        ua = _ua()
+
+        known = _known(st)
+        if known == nodes.known or not nodes.ident:
+            return
+        nodes.known = known
+        values = dict(zip(IDENTITY_FIELDS, known or ("",) * 4, strict=True))
+        for prop, vtype in _identification():
+            if prop in values:
+                v = (
+                    ua.LocalizedText(values[prop])
+                    if vtype == ua.VariantType.LocalizedText
+                    else values[prop]
+                )
+                await self._set(nodes.ident[prop], v, vtype)
+
     async def send_status(self, st: MachineState, status: dict[str, Any]) -> None:
         ua = _ua()
 
+        await self._identify(self.nodes[st.twin.name], st)
         h = self.nodes[st.twin.name].health
         await self._set(h["State"], status["state"], ua.VariantType.String)
         now = dt.datetime.now(dt.UTC)
