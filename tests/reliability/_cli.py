@@ -90,6 +90,14 @@ BASE: dict[str, list[str]] = {
     "sliver spectrogram": ["sliver", "spectrogram", "--data", "{tmp}/none.csv"],
     "sliver wavelengths": ["sliver", "wavelengths", "--json"],
     "sliver diagnose": ["sliver", "diagnose", "--data", "{tmp}/none.csv"],
+    "plant replay": [
+        "plant",
+        "replay",
+        "--mqtt",
+        "127.0.0.1:1",
+        "--records",
+        "{tmp}/none.parquet",
+    ],  # fmt: skip
     "twin hall": [
         "twin",
         "hall",
@@ -114,7 +122,14 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "generate": ["--duration", "--rate", "--seed", "--machine-seed", "--fibre-scale"],
     "generate-faults": ["--cases", "--seed", "--duration", "--rate"],
     "diagnose": ["--far-per-day"],
-    "benchmark faults": ["--seed", "--workers", "--healthy-hours"],
+    "benchmark faults": [
+        "--seed",
+        "--workers",
+        "--healthy-hours",
+        "--machines",
+        "--speed",
+        "--plant-machines",
+    ],
     "benchmark generalisation": ["--seeds", "--workers"],
     "fit": [
         "--init-samples",
@@ -130,7 +145,14 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "reproduce": ["--workers"],
     "grid-search": ["--workers"],
     "benchmark emps": ["--seeds", "--workers", "--epochs", "--max-samples"],
-    "twin run": ["--commit-ms", "--retention-hours", "--silent", "--duration", "--max-samples"],
+    "twin run": [
+        "--commit-ms",
+        "--retention-hours",
+        "--learn",
+        "--silent",
+        "--duration",
+        "--max-samples",
+    ],
     "twin query": ["--from", "--to"],
     "twin fit-detector": ["--far-per-day", "--reference", "--post"],
     "plant serve": [
@@ -143,7 +165,8 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
         "--qos",
         "--max-lag",
     ],
-    "twin hall": ["--shards", "--commit-ms", "--duration"],
+    "twin hall": ["--shards", "--commit-ms", "--duration", "--learn"],
+    "plant replay": ["--machines", "--speed", "--batch", "--gap", "--lead"],
     "sliver simulate": [
         "--duration",
         "--fineness-dtex",
@@ -169,7 +192,8 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
 
 #: values inside the range of options that may be zero (these are not hostile there)
 ZERO_OK = {"--settle", "--rate-tolerance", "--threshold", "--seed", "--machine-seed", "--from",
-           "--to", "--history", "--feed-cv", "--fineness-cv", "--sensor-mm", "--qos", "--score-from"}  # fmt: skip
+           "--to", "--history", "--feed-cv", "--fineness-cv", "--sensor-mm", "--qos", "--score-from",
+           "--learn", "--gap", "--lead", "--plant-machines"}  # fmt: skip
 
 
 def numeric_cases() -> list[tuple[str, str, str]]:

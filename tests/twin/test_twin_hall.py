@@ -133,35 +133,110 @@ def test_the_hall_refuses_what_would_go_wrong_in_an_actor(
     _error(run(app, [*fresh, "--source", opcua, "--ray", nobody]), "--ray", "no Ray cluster")
 
 
-@pytest.mark.long  # a plant and a private Ray: about 30 s
-def test_sigterm_ends_a_hall_within_5_s(twin_files: tuple[Path, Path], tmp_path: Path) -> None:
-    """Ray's init puts in its own SIGTERM handler (a stack dump, no summary) and a signal
-    raised inside its calls left the driver waiting: the hall keeps its own handler, lets the
-    signal through between Ray's calls, and ends shards still starting."""
+@pytest.mark.long  # a plant and a private Ray: about 30-60 s
+@pytest.mark.skipif(not Path("/proc/self/fd").is_dir(), reason="finds the shard through /proc")
+def test_the_hall_knows_its_shards_and_sigterm_ends_it_within_5_s(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """The hall's page says each shard's real state (starting, loading, then running with its
+    machines, as its store fills); SIGTERM ends it within 5 s with a message per shard. Ray's
+    init puts in its own SIGTERM handler (a stack dump, no summary) and a signal raised inside
+    its calls left the driver waiting: the hall keeps its own handler and lets the signal
+    through between Ray's calls."""
+    import urllib.request
+
     _, model = twin_files
     mapping = tmp_path / "hall.toml"
     mapping.write_text(HALL, encoding="utf-8")
-    url = f"opc.tcp://127.0.0.1:{free_port()}"
+    url, http = f"opc.tcp://127.0.0.1:{free_port()}", free_port()
     plant = subprocess.Popen(cli("plant", "serve", "--opcua", url, "--machines", "3", "--physics",
                                  "reduced"), env=env(), stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)  # fmt: skip
     hall = None
+    states: list[list[str]] = []
     try:
         assert plant.stderr is not None and "serving" in plant.stderr.readline()
         hall = subprocess.Popen(cli("twin", "hall", "--model", str(model), "--source", f"opcua:{url}",
                                     "--mapping", str(mapping), "--store", str(tmp_path / "store"),
-                                    "--shards", "2"), env=env(), stdout=subprocess.PIPE,
-                                stderr=subprocess.PIPE, text=True)  # fmt: skip
-        time.sleep(20.0)  # Ray up, the shards starting or running
+                                    "--shards", "2", "--http", f"127.0.0.1:{http}"), env=env(),
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+        deadline = time.monotonic() + 240  # a loaded 2-core box: Ray's start, the imports
+        running: list[dict] = []
+        while time.monotonic() < deadline and hall.poll() is None:
+            time.sleep(1.0)
+            try:
+                with urllib.request.urlopen(f"http://127.0.0.1:{http}/api/hall", timeout=5) as r:
+                    shards = json.loads(r.read())["shards"]
+            except OSError:
+                continue
+            states.append([s["state"] for s in shards])
+            if all(s["state"] == "running" and (s["rows"] or 0) > 100 for s in shards):
+                running = shards
+                break
+        assert running, f"the hall's page never said both shards run: {states}"
         start = time.monotonic()
         hall.send_signal(signal.SIGTERM)
         _, err = hall.communicate(timeout=60)
         took = time.monotonic() - start
-        assert took < 5.0, f"{took:.1f} s: {err}"
-        assert hall.returncode == 0 and "stopped by SIGTERM" in err, err
-        assert "Traceback" not in err and "SIGTERM received" not in err, err
     finally:
         for p in (hall, plant):
             if p is not None and p.poll() is None:
                 p.kill()
                 p.communicate(timeout=30)
+    assert {m for s in running for m in s["machines"]} == {"fa320a-1", "fa320a-2", "fa320a-3"}
+    assert all(m["state"] == "live" for s in running for m in s["machines"].values())
+    # "not answering": a shard too busy (importing) to answer within a second
+    assert set(sum(states, [])) <= {"starting", "loading", "running", "not answering"}, states
+    assert states[-1] == ["running", "running"]
+    assert took < 5.0, f"{took:.1f} s: {err}"
+    assert hall.returncode == 0, err
+    assert "stopped by SIGTERM: shards 0, 1 committed what they received" in err, err
+    assert "Traceback" not in err and "SIGTERM received" not in err, err
+    assert "still starting" not in err, err
+
+
+class _Ref:
+    def __init__(self, value: object, done: bool = True) -> None:
+        self.value, self.done = value, done
+
+
+class _FakeRay:
+    """Just what the hall's driver asks of Ray: wait, get, and an error type."""
+
+    class exceptions:  # noqa: N801  Ray's module layout
+        class RayError(Exception):
+            pass
+
+    @staticmethod
+    def wait(refs: list[_Ref], num_returns: int = 1, timeout: float = 0) -> tuple[list, list]:
+        return [r for r in refs if r.done], [r for r in refs if not r.done]
+
+    @staticmethod
+    def get(ref: _Ref, timeout: float = 0) -> object:
+        if isinstance(ref.value, Exception):
+            raise ref.value
+        return ref.value
+
+
+class _Actor:
+    def __init__(self, answer: _Ref) -> None:
+        self.status = type("M", (), {"remote": staticmethod(lambda: answer)})
+
+
+def test_each_shard_says_its_real_state() -> None:
+    """The driver's poll: a shard not yet up is starting, one building its twin loading, a
+    running one its machines; one that answered before but not now keeps its last status as
+    not answering; a finished run is ended, a failed one failed with its error."""
+    from drafttwin.twin.hall import _statuses
+
+    running = {"state": "running", "rows": 10, "machines": {"m": {"state": "live"}}}
+    actors = [_Actor(_Ref(None, done=False)), _Actor(_Ref({"state": "loading"})),
+              _Actor(_Ref(running)), _Actor(_Ref(None, done=False)), _Actor(_Ref(None)),
+              _Actor(_Ref(None))]  # fmt: skip
+    refs = [_Ref(None, done=False)] * 4 + [_Ref({"rows": 5, "machines": {}}),
+                                           _Ref(RuntimeError("boom\nshard broke"))]  # fmt: skip
+    before = [None, None, None, running, None, None]
+    out = _statuses(_FakeRay(), actors, refs, before)
+    assert [o["state"] for o in out] == ["starting", "loading", "running", "not answering",
+                                         "ended", "failed"]  # fmt: skip
+    assert out[3]["machines"] == running["machines"] and out[5]["error"] == "shard broke"

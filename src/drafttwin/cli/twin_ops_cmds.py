@@ -146,12 +146,12 @@ def twin_hall(
         printed[0] = time.monotonic()
         parts = []
         for i, st in enumerate(shard_status):
-            if st is None:
-                parts.append(f"shard {i}: starting")
+            if st is None or "rows" not in st:
+                parts.append(f"shard {i}: {'starting' if st is None else st['state']}")
             else:
                 p99 = st["latency_ms"]["p99"]
-                parts.append(f"shard {i}: {st['rows']} samples, p99 "
-                             f"{'-' if p99 is None else f'{p99:.1f}'} ms")  # fmt: skip
+                parts.append(f"shard {i}: {st['state']}, {len(st['machines'])} machine(s), "
+                             f"{st['rows']} samples, p99 {'-' if p99 is None else f'{p99:.1f}'} ms")  # fmt: skip
         err_console.print("; ".join(parts), highlight=False)
 
     start = time.monotonic()
@@ -175,8 +175,8 @@ def twin_hall(
                                learn_s=learn)  # fmt: skip
     except Interrupted as exc:  # a service manager's stop is a clean end: exit code 0
         work_done()
-        err_console.print(f"stopped by {signal.Signals(exc.signum).name}: the running shards "
-                          "committed what they received (one still starting is ended)")  # fmt: skip
+        note = str(exc).partition("; ")[2]  # what the hall did, shard by shard
+        err_console.print(f"stopped by {signal.Signals(exc.signum).name}: {note}", highlight=False)
         return
     work_done()  # Ray ended, the shards' stores closed
     if as_json:

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from drafttwin.errors import ConfigError
+from drafttwin.execution.interrupt import Interrupted
 
 SHARD_DIR = re.compile(r"^shard-(\d+)-of-(\d+)$")
 RESTARTS = 3
@@ -81,6 +82,16 @@ def check_hall(model: Path, source: str, mapping: Path, shards: int) -> int:
     return len(mapped)
 
 
+async def _shard_main(shard: Any, duration_s: float | None) -> None:
+    """A shard's twin in its loop. Not a method: one ``async def`` on the class makes Ray run
+    it as an async actor, whose plain methods share one event loop thread, so ``status()``
+    waited behind ``run()`` for the whole run (the hall said "starting" throughout)."""
+    shard.loop = asyncio.get_running_loop()
+    if shard.stopping.is_set():
+        return
+    await shard.service.run(duration_s=duration_s)
+
+
 def _actor_class(ray: Any) -> Any:
     # run() in one thread, status()/stop() beside it. A shard whose process dies is started
     # again and its run() retried (RESTARTS times): the new twin resumes from its own store
@@ -111,7 +122,7 @@ def _actor_class(ray: Any) -> Any:
 
             def loop() -> None:  # a thread of its own: Ray's method thread runs its own loop
                 try:
-                    run_bounded(self._main(duration_s))
+                    run_bounded(_shard_main(self, duration_s))
                 except BaseException as exc:  # noqa: BLE001  raised again in the method
                     failed.append(exc)
 
@@ -127,20 +138,15 @@ def _actor_class(ray: Any) -> Any:
                     self.service.writer.store.close()
             return {"source": o["source"], "store_dir": str(o["store"]), **self.service.status()}
 
-        async def _main(self, duration_s: float | None) -> None:
-            self.loop = asyncio.get_running_loop()
-            if self.stopping.is_set():
-                return
-            await self.service.run(duration_s=duration_s)
-
         def status(self) -> dict[str, Any] | None:
-            """The shard's status (``None`` before its twin is built). Read from this thread
-            while the twin's loop runs: a collection changing under the read is read again."""
+            """The shard's status: ``loading`` before its twin is built, then ``running`` with
+            the twin's status. Read from this thread while the twin's loop runs: a collection
+            changing under the read is read again (``None``: it kept changing)."""
             for _ in range(5):
                 if self.service is None:
-                    return None
+                    return {"state": "loading"}
                 try:
-                    return dict(self.service.status())
+                    return {**self.service.status(), "state": "running"}
                 except RuntimeError:  # "deque mutated during iteration"
                     time.sleep(0.01)
             return None
@@ -181,25 +187,49 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
         refs = [a.run.remote(duration_s) for a in actors]
         try:
             _wait(ray, actors, refs, on_status, status_every_s)
-        except BaseException:  # Ctrl-C or SIGTERM: each actor commits what it received
+        except Interrupted as exc:  # Ctrl-C or SIGTERM: each actor commits what it received
+            ended = _stop_shards(ray, actors, refs)
+            raise Interrupted(exc.signum, _stop_note(shards, ended)) from None
+        except BaseException:
             _stop_shards(ray, actors, refs)
             raise
         return _collect(ray, refs)
 
 
-def _stop_shards(ray: Any, actors: list[Any], refs: list[Any]) -> None:
+def _stop_note(shards: int, ended: list[int]) -> str:
+    """What a stop did, shard by shard."""
+    ran = [i for i in range(shards) if i not in ended]
+    parts = []
+    if ran:
+        parts.append(f"{_shards(ran)} committed what {'it' if len(ran) == 1 else 'they'} received")
+    if ended:
+        parts.append(
+            f"{_shards(ended)} still starting ({'was' if len(ended) == 1 else 'were'} ended)"
+        )
+    return "; ".join(parts)
+
+
+def _shards(idx: list[int]) -> str:
+    return ("shard " if len(idx) == 1 else "shards ") + ", ".join(str(i) for i in idx)
+
+
+def _stop_shards(ray: Any, actors: list[Any], refs: list[Any]) -> list[int]:
     """Ask every shard to stop (a running twin commits what it received and returns within
     a second or two) and wait STOP_S for them; a shard still starting (importing, loading its
-    model: tens of seconds on 2 cores) has nothing to commit and is ended instead."""
+    model: tens of seconds on 2 cores) has nothing to commit and is ended instead. Returns
+    the shards ended so."""
     for a in actors:
         a.stop.remote()
     with contextlib.suppress(Exception):
         ray.wait(refs, num_returns=len(refs), timeout=STOP_S)
-    for a, ref in zip(actors, refs, strict=True):
+    ended = []
+    for i, (a, ref) in enumerate(zip(actors, refs, strict=True)):
         done, _ = ray.wait([ref], timeout=0)
         if not done:
+            ended.append(i)
             with contextlib.suppress(Exception):
                 ray.kill(a, no_restart=True)
+    return ended
 
 
 def _wait(ray: Any, actors: list[Any], refs: list[Any], on_status: Any, every_s: float) -> None:
@@ -207,6 +237,7 @@ def _wait(ray: Any, actors: list[Any], refs: list[Any], on_status: Any, every_s:
     pending = list(refs)
     from drafttwin.execution.interrupt import signals_deferred
 
+    seen: list[dict[str, Any] | None] = [None] * len(actors)
     while pending:
         # a signal must not raise inside Ray's Cython calls (it left ray.get hanging): under
         # stop_on_signals it is raised when the call has returned, within POLL_S
@@ -215,21 +246,37 @@ def _wait(ray: Any, actors: list[Any], refs: list[Any], on_status: Any, every_s:
         if on_status is not None and time.monotonic() - last >= every_s:
             last = time.monotonic()
             with signals_deferred():
-                shards = _statuses(ray, actors)
-            on_status(shards)
+                seen = _statuses(ray, actors, refs, seen)
+            on_status(seen)
 
 
-def _statuses(ray: Any, actors: list[Any]) -> list[dict[str, Any] | None]:
-    """Each shard's status, asked of all at once; ``None`` for one that starts (again) or
-    does not answer within STATUS_S."""
-    refs = [a.status.remote() for a in actors]
-    done, _ = ray.wait(refs, num_returns=len(refs), timeout=STATUS_S)
+def _statuses(ray: Any, actors: list[Any], refs: list[Any],
+              seen: list[dict[str, Any] | None]) -> list[dict[str, Any] | None]:  # fmt: skip
+    """Each shard's status, asked of all at once, with its ``state``: ``starting`` (its
+    process is not up yet), ``loading`` (its model), ``running``, ``not answering`` (it did,
+    but not within STATUS_S now: busy, or started again after its process died; its last
+    status kept), ``ended`` or ``failed``."""
+    asked = {i: a.status.remote() for i, (a, ref) in enumerate(zip(actors, refs, strict=True))
+             if not ray.wait([ref], timeout=0)[0]}  # fmt: skip
+    done, _ = ray.wait(list(asked.values()), num_returns=len(asked), timeout=STATUS_S)
     out: list[dict[str, Any] | None] = []
-    for ref in refs:
-        try:
-            out.append(ray.get(ref, timeout=0) if ref in done else None)
-        except (ray.exceptions.RayError, TimeoutError):
-            out.append(None)
+    for i, ref in enumerate(refs):
+        if i not in asked:  # its run returned
+            try:
+                out.append({**ray.get(ref, timeout=0), "state": "ended"})
+            except Exception as exc:  # noqa: BLE001  said on the page; _collect raises it
+                out.append({"state": "failed", "error": str(exc).strip().splitlines()[-1][:200]})
+            continue
+        got = None
+        if asked[i] in done:
+            with contextlib.suppress(ray.exceptions.RayError, TimeoutError):
+                got = ray.get(asked[i], timeout=0)
+        if got is not None:
+            out.append(got)
+        elif seen[i] is None or seen[i].get("state") == "starting":  # type: ignore[union-attr]
+            out.append({"state": "starting"})
+        else:
+            out.append({**seen[i], "state": "not answering"})  # type: ignore[dict-item]
     return out
 
 

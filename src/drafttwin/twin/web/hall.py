@@ -24,7 +24,9 @@ from drafttwin.twin.web.guard import guard
 
 
 class HallView:
-    """The latest status of each shard (``None``: starting or not answering), thread-safe."""
+    """The latest status of each shard, thread-safe: its ``state`` (starting, loading,
+    running, not answering, ended, failed; ``None`` before the first poll: starting) and,
+    once running, its twin's status."""
 
     def __init__(self, shards: int) -> None:
         self.lock = threading.Lock()
@@ -40,10 +42,11 @@ class HallView:
             shards, updated = list(self.shards), self.updated
         out = []
         for i, st in enumerate(shards):
-            if st is None:
-                out.append({"shard": i, "state": "starting", "machines": {}})
+            if st is None or "machines" not in st:  # starting, loading, failed: no machines yet
+                out.append({"shard": i, "state": "starting" if st is None else st["state"],
+                            "machines": {}, **({"error": st["error"]} if st and "error" in st else {})})  # fmt: skip
                 continue
-            out.append({"shard": i, "state": "running", "rows": st.get("rows"),
+            out.append({"shard": i, "state": st.get("state", "running"), "rows": st.get("rows"),
                         "latency_ms": st.get("latency_ms"),
                         "machines": {name: {k: m.get(k) for k in MACHINE_KEYS}
                                      for name, m in st.get("machines", {}).items()}})  # fmt: skip
