@@ -52,6 +52,7 @@ def test_api_examples_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> No
     assert (tmp_path / "parallel.dtm").is_file()
 
 
+@pytest.mark.long  # a minute of fitting; test_api_examples_run runs the API's examples
 def test_own_machine_tutorial_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     shutil.copytree(DOCS / "examples", tmp_path / "docs" / "examples")
     monkeypatch.chdir(tmp_path)

@@ -173,8 +173,8 @@ def test_ranking_names_the_worn_mesh_not_an_encoder(signatures):
         signatures.elapsed_s = (0.0,)
 
 
-@pytest.mark.slow
-def test_diagnose_names_the_worn_ef_mesh_on_plant_records():
+@pytest.mark.long  # 7 min of full plant records; test_ranking_names_the_worn_mesh_not_an_encoder
+def test_diagnose_names_the_worn_ef_mesh_on_plant_records():  # is its fast variant
     from drafttwin.diagnosis.detect import FaultDetector
     from drafttwin.diagnosis.diagnose import Diagnoser
     from drafttwin.diagnosis.residuals import record_features
