@@ -167,5 +167,5 @@ def test_contradicting_and_meaningless_options_are_refused(belt: Path, tmp_path:
     _refused(["fit", "--model", "gru", "--data", "default", "--outputs", "y", "--out",
               tmp_path / "d.dtm"], "--data default")  # fmt: skip
     _refused([*fit, "--model", "parallel", "--mechanistic", f"{belt / 'sim_test.csv'}"],
-             "covers")  # fmt: skip
+             "--mechanistic gives 1 simulator output table(s)", "sim_test.csv", "train.csv")  # fmt: skip
     assert not (tmp_path / "x.dtm").exists() and not (tmp_path / "p.csv").exists()

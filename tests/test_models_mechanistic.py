@@ -149,8 +149,10 @@ def test_sources_run_record_by_record(series, tmp_path: Path) -> None:
     both.to_csv(tmp_path / "both.csv", index=False)
     np.testing.assert_allclose(MechanisticModel(tmp_path / "both.csv").predict_values(two), want,
                                atol=1e-9)  # fmt: skip
-    with pytest.raises(DataError, match="2 simulator output files for 3 records"):
+    with pytest.raises(DataError, match=r"gives 2 simulator output table\(s\) .* for 3 records"):
         MechanisticModel(files).predict_values(MeasurementSeries.concat([a, b, b]))
+    with pytest.raises(DataError, match=r"gives 1 simulator output table\(s\) .* for 2 records"):
+        MechanisticModel(files[0]).predict_values(two)  # one record's file: never reused
     calls = []
     MechanisticModel(lambda t: calls.append(t[0]) or mechanistic(t)).predict_values(two)
     assert calls == [a.time_s[0], 0.0]

@@ -31,7 +31,7 @@ from drafttwin.evaluation.limits import floor_oracle
 from drafttwin.evaluation.metrics import ChannelMetrics, channel_metrics
 from drafttwin.models.base import BaseModel
 from drafttwin.models.baselines import PersistenceModel
-from drafttwin.models.mechanistic import MechanisticModel
+from drafttwin.models.mechanistic import MechanisticModel, record_names
 
 OUTLIER_THRESHOLD = 0.10
 """The paper's outlier rule: a one-sample jump of more than 10 %."""
@@ -289,7 +289,7 @@ def evaluate(
     of each test record left unscored (so that models with different warm-ups are scored on
     the same rows; the CLI's ``--score-from``). ``free_run_from``: see :func:`model_input`."""
     part = prepare(model, data, test, train_fraction)
-    mechanistic = _test_physics(mechanistic, part)
+    mechanistic = _test_physics(mechanistic, part, data)
     series, first = model_input(model, part, free_run_from)
     pred = model.predict_values(series, mechanistic)[first:]
     return score(part, pred, model, skip_rows=skip_rows, free_run_from=free_run_from)
@@ -337,13 +337,24 @@ def score(
     )  # fmt: skip
 
 
-def _test_physics(mechanistic: object | None, part: Split) -> object | None:
-    """The physics of the test records: from simulator files for the training records then
-    the test records (as :func:`fit` was given them), the test records' ones."""
-    train_records = part.summary.get("train_records")
-    if part.mode != "records" or not train_records or not isinstance(mechanistic, MechanisticModel):
+def _test_physics(
+    mechanistic: object | None, part: Split, data: MeasurementSeries | Split | None
+) -> object | None:
+    """The physics of the records scored, checked against them: from simulator files for the
+    training records then the test records (as :func:`fit` was given them), the test
+    records' ones; files for the whole records of a chronological split are matched with
+    those records (``data``)."""
+    if not isinstance(mechanistic, MechanisticModel):
         return mechanistic
-    return mechanistic.split_records(int(train_records), part.test_part().n_records)[1]
+    if part.mode == "records":
+        test = part.test_part()
+        train_records = part.summary.get("train_records")
+        if train_records and mechanistic.n_tables == int(train_records) + test.n_records:
+            mechanistic = mechanistic.split_records(int(train_records), test.n_records)[1]
+        mechanistic.match_records(test)
+    elif isinstance(data, MeasurementSeries):
+        mechanistic.match_records(data)
+    return mechanistic
 
 
 def _oracle(part: Split, model: BaseModel, truth: np.ndarray | None) -> np.ndarray | None:
@@ -402,9 +413,14 @@ def fit_split(
     else:
         part = split(data, train_fraction=train_fraction, test=test)
     assert part.train is not None
-    if test is not None and isinstance(mechanistic, MechanisticModel):
-        # simulator files for the training records, then the test records: the first ones
-        mechanistic = mechanistic.split_records(part.train.n_records, test.n_records)[0]
+    if isinstance(mechanistic, MechanisticModel) and not isinstance(data, Split):
+        for_test = None
+        if test is not None:  # simulator files for the training records, then the test ones
+            names = record_names(data) + record_names(test)
+            mechanistic, for_test = mechanistic.split_records(data.n_records, test.n_records, names)
+        mechanistic.match_records(data)  # whole records, before the split
+        if for_test is not None and test is not None:
+            for_test.match_records(test)
     model.fit(part.train, mechanistic)
     model.provenance_.update({
         "split": part.mode,

@@ -72,17 +72,26 @@ class MechanisticModel:
         self._columns = {k: str(v).lower() for k, v in (columns or {}).items()}
         self._array: np.ndarray | None = None
         self._tables: list[Table] = []
+        self._table_names: list[str] = []
         self._record_fn: RecordFunction | None = None
         self._series_fn: Callable[[MeasurementSeries], np.ndarray] | None = None
         self._inputs: tuple[str, ...] = ()
         self._spec: dict[str, Any]
         if isinstance(source, str | Path) or _is_path_list(source):
             paths = [Path(p) for p in ([source] if isinstance(source, str | Path) else source)]
-            self._tables = [t for p in paths for t in tables(read_table(p), str(p))]
+            per_file = [tables(read_table(p), str(p)) for p in paths]
+            self._tables = [t for ts in per_file for t in ts]
+            self._table_names = [
+                str(p) if len(ts) == 1 else f"{p} (record {k + 1})"
+                for p, ts in zip(paths, per_file, strict=True)
+                for k in range(len(ts))
+            ]
             self._spec = {"kind": "file", "paths": [str(p) for p in paths]}
             label = ", ".join(str(p) for p in paths)
         elif isinstance(source, pd.DataFrame):
             self._tables = tables(source, "mechanistic table")
+            self._table_names = [f"mechanistic table (record {k + 1})" if len(self._tables) > 1
+                                 else "mechanistic table" for k in range(len(self._tables))]  # fmt: skip
             self._spec, label = {"kind": "table"}, "table"
         elif isinstance(source, np.ndarray):
             self._array = np.asarray(source, dtype=np.float64)
@@ -207,18 +216,78 @@ class MechanisticModel:
             return cls.from_train(_reduced(train, cutoff_hz), name=f"drive train {spec['name']}")
         return None
 
-    def split_records(self, first: int, second: int) -> tuple[MechanisticModel, MechanisticModel]:
-        """Sources for two series of ``first`` and ``second`` records: a list of one
-        simulator file per record (training records, then test records) is cut in two; any
-        other source serves both."""
-        if len(self._tables) != first + second or len(self._tables) < 2:
+    def split_records(
+        self, first: int, second: int, records: Sequence[str] | None = None
+    ) -> tuple[MechanisticModel, MechanisticModel]:
+        """Sources for two series of ``first`` and ``second`` records: simulator tables, one
+        per record (training records, then test records), are cut in two; any other source
+        serves both. Tables in another number are refused (:meth:`match_records`): the
+        training records' simulator output is never reused for a test record (``records``:
+        the records' names for the message)."""
+        if not self._tables:
             return self, self
+        if len(self._tables) != first + second:
+            raise self._count_error(first + second, "the training and test records", records)
         a, b = copy.copy(self), copy.copy(self)
         a._tables, b._tables = self._tables[:first], self._tables[first:]
-        paths = self._spec["paths"]
-        a._spec = {**self._spec, "paths": paths[:first]}
-        b._spec = {**self._spec, "paths": paths[first:]}
+        a._table_names, b._table_names = self._table_names[:first], self._table_names[first:]
+        if "paths" in self._spec:
+            files = list(dict.fromkeys(n.split(" (record ")[0] for n in a._table_names))
+            a._spec = {**self._spec, "paths": files}
+            b._spec = {**self._spec, "paths": list(dict.fromkeys(
+                n.split(" (record ")[0] for n in b._table_names))}  # fmt: skip
         return a, b
+
+    def match_records(self, series: MeasurementSeries) -> None:
+        """Refuse simulator tables that do not match the records of ``series`` (whole
+        records, as read): one table per record, in order, each spanning its own record's
+        time grid (start and end within one sample step, the coarser of the two grids). A
+        table for another record (another span or length) is refused naming both files;
+        other sources are not checked."""
+        if not self._tables:
+            return
+        bounds = series.record_bounds()
+        if len(self._tables) != len(bounds):
+            raise self._count_error(len(bounds), "the records", record_names(series))
+        names = record_names(series)
+        for k, ((a, b), (table_t, _)) in enumerate(zip(bounds, self._tables, strict=True)):
+            time_s = series.time_s[a:b]
+            if len(time_s) < 2:
+                continue
+            step = max(float(np.median(np.diff(table_t))), float(np.median(np.diff(time_s))))
+            tol = step * (1 + 1e-6)
+            if abs(table_t[0] - time_s[0]) <= tol and abs(table_t[-1] - time_s[-1]) <= tol:
+                continue
+            raise DataError(
+                f"{{mechanistic:name}} file {self._table_names[k]} covers {table_t[0]:g} s to "
+                f"{table_t[-1]:g} s ({len(table_t)} rows) but its record {names[k]} spans "
+                f"{time_s[0]:g} s to {time_s[-1]:g} s ({len(time_s)} rows): it is the "
+                "simulator output of another record",
+                terms={"mechanistic": self.name},
+                param="mechanistic",
+                fix="give the simulator output of each record, simulated over that record's "
+                "own time axis, one file per record in the order of the records",
+            )
+
+    def _count_error(
+        self, n_records: int, what: str, records: Sequence[str] | None = None
+    ) -> DataError:
+        files = ", ".join(self._table_names)
+        named = "" if not records else f" ({', '.join(records)})"
+        return DataError(
+            f"{{mechanistic:name}} gives {len(self._tables)} simulator output table(s) "
+            f"({files}) for {n_records} records{named}: a record's simulator output is never "
+            "reused for another record",
+            terms={"mechanistic": self.name},
+            param="mechanistic",
+            fix=f"give one simulator file per record for {what}, in their order (training "
+            "records first), or one file with a record column",
+        )
+
+    @property
+    def n_tables(self) -> int:
+        """Simulator tables (one per record) of a file or table source; 0 for others."""
+        return len(self._tables)
 
     def required_inputs(self) -> tuple[str, ...]:
         """Input channels the source needs in the data (a drive train's ``[[input]]``s)."""
@@ -264,12 +333,8 @@ class MechanisticModel:
         if self._array is not None:
             return self._aligned_array(series, names)
         bounds = series.record_bounds()
-        if self._tables and len(self._tables) not in (1, len(bounds)):
-            raise DataError(
-                f"{len(self._tables)} simulator output files for {len(bounds)} records",
-                source=f"mechanistic source {self.name}",
-                fix="give one file covering every record, or one file per record, in order",
-            )
+        if self._tables and len(self._tables) != len(bounds):
+            raise self._count_error(len(bounds), "the records", record_names(series))
         parts = [self._record(series, k, a, b, names) for k, (a, b) in enumerate(bounds)]
         return np.vstack(parts) if parts else np.zeros((0, len(names)))
 
@@ -303,7 +368,7 @@ class MechanisticModel:
             where += f" (record {k + 1})"
         time_s = series.time_s[a:b]
         if self._tables:
-            table = self._tables[k if len(self._tables) > 1 else 0]
+            table = self._tables[k]
             return interpolate(table, time_s, self._table_columns(names), names, where)
         if self._series_fn is not None:
             out = self._series_fn(series.slice(a, b))
@@ -330,6 +395,22 @@ class MechanisticModel:
 
     def __repr__(self) -> str:
         return f"MechanisticModel({self.name!r})"
+
+
+def record_names(series: MeasurementSeries) -> list[str]:
+    """Each record's file (``file (record k)`` for several records of one file) as the data
+    were read, for messages."""
+    metas = series.metadata.get("records")
+    n = series.n_records
+    if isinstance(metas, list) and len(metas) == n:
+        files = [str(m.get("source", "")) if isinstance(m, dict) else "" for m in metas]
+    else:
+        files = [str(series.metadata.get("source", ""))] * n
+    out = []
+    for k, f in enumerate(files):
+        label = f or "the data"
+        out.append(label if files.count(f) == 1 else f"{label} (record {k + 1})")
+    return out
 
 
 def as_mechanistic(source: object) -> MechanisticModel:

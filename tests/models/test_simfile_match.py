@@ -1,0 +1,94 @@
+"""A simulator file serves the record it was simulated for, and no other (issue 38, item 3):
+the training record's file is refused for a test record, through the CLI and the library
+alike, in one line naming both files and the option."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+import drafttwin as dt
+from drafttwin.cli import app
+from drafttwin.errors import DataError
+
+runner = CliRunner()
+DATA = ["--outputs", "y", "--inputs", "u", "--time-column", "t", "--units", "y=m,u=V"]
+TINY = ["--epochs", "1", "--set", "window=8,hidden=4,layers=1", "--quiet"]
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Training and test records, each starting at 0 s (their own time axes) and of other
+    lengths, with their own simulator files."""
+    path = tmp_path_factory.mktemp("simmatch")
+    rng = np.random.default_rng(1)
+    for name, n in (("train", 160), ("test", 90)):
+        t = np.arange(n) * 0.05
+        u = np.repeat(rng.uniform(0.5, 2.0, n // 20 + 1), 20)[:n]
+        physics = 1.0 + 0.5 * u
+        pd.DataFrame({"t": t, "u": u, "y": physics + rng.normal(0, 0.01, n)}).to_csv(
+            path / f"{name}.csv", index=False
+        )
+        pd.DataFrame({"time": t, "y": physics}).to_csv(path / f"sim_{name}.csv", index=False)
+    return path
+
+
+def _fit(folder: Path, mechanistic: str, *extra: str) -> tuple[int, str]:
+    result = runner.invoke(app, ["fit", "--model", "parallel", "--data", str(folder / "train.csv"),
+                                 "--test-data", str(folder / "test.csv"), *DATA,
+                                 "--mechanistic", mechanistic, "--out",
+                                 str(folder / "m.dtm"), *TINY, *extra])  # fmt: skip
+    return result.exit_code, result.output
+
+
+def test_the_training_records_file_is_refused_for_the_test_record(folder: Path) -> None:
+    code, out = _fit(folder, str(folder / "sim_train.csv"))
+    assert code == 2 and "Traceback" not in out
+    line = " ".join(out.split())
+    assert line.startswith("error: --mechanistic gives 1 simulator output table(s)")
+    assert "sim_train.csv" in line and "train.csv" in line and "test.csv" in line
+    assert not (folder / "m.dtm").exists()
+
+
+def test_a_file_of_another_record_is_refused_by_its_span(folder: Path) -> None:
+    # two files, in the wrong order: each spans the other record's time axis
+    code, out = _fit(folder, f"{folder / 'sim_test.csv'},{folder / 'sim_train.csv'}")
+    line = " ".join(out.split())
+    assert code == 2, out
+    assert "--mechanistic file" in line and "sim_test.csv covers 0 s to 4.45 s (90 rows)" in line
+    assert "its record" in line and "train.csv spans 0 s to 7.95 s (160 rows)" in line
+
+
+def test_matching_files_fit_and_evaluate_refuses_the_wrong_one(folder: Path) -> None:
+    code, out = _fit(folder, f"{folder / 'sim_train.csv'},{folder / 'sim_test.csv'}")
+    assert code == 0, out
+    wrong = runner.invoke(app, ["evaluate", "--model", str(folder / "m.dtm"), "--test-data",
+                                str(folder / "test.csv"), "--time-column", "t",
+                                "--mechanistic", str(folder / "sim_train.csv")])  # fmt: skip
+    assert wrong.exit_code == 2 and "sim_train.csv covers 0 s to 7.95 s" in " ".join(
+        wrong.output.split()
+    )
+
+
+def test_the_library_refuses_alike_naming_the_parameter(folder: Path) -> None:
+    read = {"outputs": ["y"], "inputs": ["u"], "time_column": "t", "units": {"y": "m", "u": "V"}}
+    train = dt.read_measurements(folder / "train.csv", **read)
+    test = dt.read_measurements(folder / "test.csv", **read)
+    model = dt.make_model("mechanistic", outputs=("y",))
+    physics = dt.MechanisticModel(str(folder / "sim_train.csv"))
+    with pytest.raises(DataError, match=r"^mechanistic gives 1 simulator output table"):
+        dt.fit_split(model, train, test=test, mechanistic=physics)
+    # one record, one file of another record: refused by span
+    with pytest.raises(DataError, match="sim_train.csv covers 0 s to 7.95 s"):
+        dt.fit_split(model, test, train_fraction=0.5, mechanistic=physics)
+    both = dt.MechanisticModel([str(folder / "sim_train.csv"), str(folder / "sim_test.csv")])
+    part = dt.fit_split(model, train, test=test, mechanistic=both)
+    direct = model.predict_values(
+        part.test_part(), dt.MechanisticModel(str(folder / "sim_test.csv"))
+    )
+    scored = dt.evaluate(model, part, mechanistic=both)
+    assert np.allclose(scored.predictions["y"].to_numpy(), direct[:, 0])
