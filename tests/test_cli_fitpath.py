@@ -87,13 +87,19 @@ def test_score_from_reproduces_a_hand_rmse_of_predict(folder):
 def test_hyperparameter_errors_name_cli_options(folder):
     args = ["fit", "--model", "parallel", "--data", folder / "train.csv", *DATA, "--task",
             "simulation", "--mechanistic", folder / "sim_train.csv", "--out", folder / "x.dtm"]  # fmt: skip
-    text = _run([*args, "--init-samples", "5"], code=2)
-    assert "--set window=20" in text and "--init-samples 20" in text
-    assert "init_samples" not in text
+    # a window the user did not set follows --init-samples (issue 38): it fits, with a note
+    fitted = runner.invoke(app, [str(a) for a in [*args, "--init-samples", "5", "--epochs", "1"]])
+    assert fitted.exit_code == 0, fitted.output
+    assert "the profile's window (20) is longer than --init-samples 5" in fitted.output
+    (folder / "x.dtm").unlink()
+    text = " ".join(_run([*args, "--init-samples", "5", "--set", "window=8"], code=2).split())
+    assert "--set window=8 is longer than the 5 measured rows a simulation may use " in text
+    assert "(--init-samples)" in text
+    assert "init_samples" not in text and "data_window" not in text
     text = _run([*args, "--set", "window=8,patiense=3"], code=2)
-    assert "patiense" in text and "valid --set names:" in text and "patience" in text
+    assert "--set patiense" in text and "valid hyperparameters:" in text and "patience" in text
     text = _run([*args, "--set", "init_samples=8"], code=2)
-    assert "use --init-samples" in text
+    assert "set --init-samples instead" in text
     pred = ["evaluate", "--model", folder / "m2.dtm", "--data", folder / "train.csv",
             "--time-column", "t", "--free-run-from", "begin"]  # fmt: skip
     assert "--free-run-from" in _run(pred, code=2)

@@ -143,7 +143,7 @@ def test_data_with_other_rollers_or_rate_refused(data_file, tmp_path):
 def test_metrics_table_names_units_for_any_channels():
     from rich.console import Console
 
-    from drafttwin.cli.models_cmds import _limits_table, _metrics_table
+    from drafttwin.cli._fitprint import _limits_table, _metrics_table
     from drafttwin.evaluation import channel_metrics
 
     def render(metrics, limits: bool = False) -> str:

@@ -81,7 +81,7 @@ def test_hybrid_simulation_on_a_separate_test_record(name: str, belt: Path) -> N
     ]))  # fmt: skip
     y = fitted["channels"]["y"]
     assert fitted["task"] == "simulation" and y["unit"] == "rad/s" and y["rmse"] > 0
-    assert fitted["selection"]["accumulate"]["chosen_by"] == "validation"
+    assert fitted["selection"]["accumulate"]["chosen_by"] == "validation folds"
     assert fitted["split"]["mode"] == "records" and fitted["split"]["train_records"] == 2
     again = json.loads(_ok(["evaluate", "--model", model, "--test-data", belt / "test.csv",
                             "--mechanistic", belt / "sim_test.csv", "--json"]))  # fmt: skip

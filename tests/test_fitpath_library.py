@@ -52,9 +52,9 @@ def test_scoring_options_of_the_protocol(tmp_path: Path) -> None:
     whole = protocol.evaluate(model, part)
     later = protocol.evaluate(model, part, skip_rows=5)
     assert later.scored_rows == whole.scored_rows - 5 and later.split["score_from"] == 5
-    with pytest.raises(ConfigError, match="--free-run-from"):
+    with pytest.raises(ConfigError, match="free_run_from="):
         protocol.evaluate(model, part, free_run_from="start")  # one step ahead: no free run
-    with pytest.raises(ConfigError, match="--free-run-from"):
+    with pytest.raises(ConfigError, match="free_run_from="):
         protocol.evaluate(model, part, free_run_from="middle")
 
 

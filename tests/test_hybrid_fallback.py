@@ -58,8 +58,9 @@ def test_white_noise_residual_leaves_the_physics_alone(name: str, task: str, tmp
     train, test = data.slice(0, 280), data.slice(280)
     model = _fit(name, train, task)
     choice = model.selection_["correction"]
-    assert choice["kept"] == "none" and choice["chosen_by"] == "validation"
+    assert choice["kept"] == "none" and choice["chosen_by"] == "validation folds"
     assert choice["validation_rows"] > 0 and set(choice["validation_nrmse"]) >= {"none"}
+    assert choice["folds"] == 3 and all(len(v) == 3 for v in choice["fold_nrmse"].values())
     init = {"init_samples": INIT} if task == "simulation" else {}
     alone = make_model("mechanistic", task=task, outputs=("y",), **init)
     alone.fit(train, physics())

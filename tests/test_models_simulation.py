@@ -119,12 +119,15 @@ def test_parallel_simulation_accumulates_from_the_measured_residual(data):
 
 @pytest.mark.parametrize("name", ["parallel", "md-s-l"])
 def test_accumulation_is_chosen_on_validation_data(name, fitted):
-    """Both variants are trained; the one with the smaller free-run error over the validation
-    part is kept, and the model file records the scores."""
+    """Both variants are trained; the one with the smaller free-run error over the blocked
+    validation folds is kept, and the model file records the scores."""
     model = fitted[name]
     choice = model.selection_["accumulate"]
     scores = choice["validation_nrmse"]
-    assert choice["chosen_by"] == "validation" and choice["validation_rows"] > 0
+    assert choice["chosen_by"] == "validation folds" and choice["validation_rows"] > 0
+    folds = model.selection_["correction"]["fold_nrmse"]
+    for key in ("accumulate", "level"):  # the choice's scores are the folds' means
+        assert scores[key] == pytest.approx(np.mean(folds[key]))
     assert set(scores) == {"accumulate", "level"}
     best = min(scores, key=scores.get)
     assert model.accumulate_ is (best == "accumulate") is choice["accumulate"]

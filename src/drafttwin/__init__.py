@@ -54,7 +54,9 @@ _EXPORTS: dict[str, str] = {
     "PersistenceModel": "drafttwin.models",
     # the evaluation protocol
     "split": "drafttwin.evaluation.protocol",
-    "fit": "drafttwin.evaluation.protocol",
+    "fit": "drafttwin.application",
+    "FitRequest": "drafttwin.application",
+    "run_fit": "drafttwin.application",
     "fit_split": "drafttwin.evaluation.protocol",
     "evaluate": "drafttwin.evaluation.protocol",
     "Evaluation": "drafttwin.evaluation.protocol",
@@ -103,6 +105,8 @@ __all__ = [
     "PersistenceModel",
     "split",
     "fit",
+    "FitRequest",
+    "run_fit",
     "fit_split",
     "evaluate",
     "Evaluation",
@@ -138,12 +142,13 @@ def __dir__() -> list[str]:
 
 
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load lazily
+    from drafttwin.application import FitRequest, fit, run_fit
     from drafttwin.data.io import read_measurements, write_measurements
     from drafttwin.data.preprocess import preprocess
     from drafttwin.data.series import MeasurementSeries
     from drafttwin.datasets import load_default
     from drafttwin.errors import ConfigError, DataError, DrafttwinError, ModelFileError
-    from drafttwin.evaluation.protocol import Evaluation, evaluate, fit, fit_split, split
+    from drafttwin.evaluation.protocol import Evaluation, evaluate, fit_split, split
     from drafttwin.mechanics import DriveTrain, kinematics, simulate
     from drafttwin.models import (
         MDSL,

@@ -1,21 +1,20 @@
-"""The model options of ``fit``: a new estimator from the CLI's options (``--profile``,
-``--set NAME=VALUE,...``, the data description), and errors in the CLI's terms."""
+"""The model options of ``fit``: ``--set NAME=VALUE,...`` over the profile's hyperparameters,
+and the tuning options (``--tune``, ``--tune-budget``, ``--tune-seed``, ``--tune-storage``).
+The command only parses them: the application layer (:mod:`drafttwin.application`) builds the
+model, and errors name the options through one table (:mod:`drafttwin.cli._terms`)."""
 
 from __future__ import annotations
 
 import contextlib
-import re
-from collections.abc import Iterator
-from typing import TYPE_CHECKING, Annotated, Any
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any
 
 import typer
 
 from drafttwin.cli._data import pairs
-from drafttwin.errors import ConfigError, DrafttwinError
-
-if TYPE_CHECKING:
-    from drafttwin.cli._data import Channels
-    from drafttwin.models import BaseModel
+from drafttwin.cli._options import number
 
 SetOpt = Annotated[
     str | None,
@@ -25,21 +24,9 @@ SetOpt = Annotated[
         "numbers, true/false, none or a word): any the profile sets (window, hidden, layers, "
         "dropout, lr, batch_size, epochs, patience, val_fraction, clip_norm, folds, skip, "
         "sk_channels, data_window, data_hidden, data_layers) and the model's own (accumulate, "
-        "structure, fade, fallback, ...). A wrong name is refused with the valid ones.",
+        "structure, fade, fallback, val_folds, ...). A wrong name is refused with the valid ones.",
     ),
 ]
-
-OPTION_OF = {
-    "init_samples": "--init-samples",
-    "horizon": "--horizon",
-    "epochs": "--epochs",
-    "seed": "--seed",
-    "inputs": "--inputs",
-    "outputs": "--outputs",
-    "task": "--task",
-    "quiet": "--quiet",
-}
-"""Hyperparameters with a CLI option of their own (the others go through ``--set``)."""
 
 
 def parse_settings(text: str | None) -> dict[str, Any]:
@@ -62,109 +49,72 @@ def _value(text: str) -> Any:
     return text
 
 
-def new_model(
-    name: str, *, profile: str | None, task: str | None, init: int | None, horizon: int,
-    channels: Channels, seed: int | None, quiet: bool, epochs: int | None,
-    settings: dict[str, Any],
-) -> tuple[BaseModel, list[str]]:  # fmt: skip
-    """A new estimator by registry name from the CLI's options, and notes for the user.
-
-    ``--inputs`` describes the data: a model that takes no exogenous inputs (the physics
-    alone, persistence) is built without them (the physics still reads the channels it
-    maps). Training options on a model that trains nothing are noted, not refused."""
-    from drafttwin.models import make_model
-    from drafttwin.models.registry import model_class
-
-    cls = model_class(name)
-    accepted = set(cls.param_names())
-    trains = "training" in accepted
-    options: dict[str, Any] = {"task": task or "prediction"}
-    notes = []
-    if trains:
-        options["inputs"] = channels.inputs or ()
-    elif channels.inputs:
-        notes.append(f"the {name} model takes no exogenous inputs: --inputs "
-                     f"{','.join(channels.inputs)} only describes the data")  # fmt: skip
-    if channels.outputs is not None:
-        options["outputs"] = channels.outputs
-    if init is not None:
-        options["init_samples"] = init
-    if horizon != 1:
-        options["horizon"] = horizon
-    training = {"--profile": profile, "--seed": seed, "--epochs": epochs}
-    unused = [opt for opt, value in training.items() if value is not None]
-    if trains:
-        options |= {"seed": seed or 0, "quiet": quiet}
-        if epochs is not None:
-            options["epochs"] = epochs
-    elif unused:
-        notes.append(f"the {name} model trains nothing: {', '.join(unused)} ignored")
-    if settings and not trains and not set(settings) & accepted:
-        notes.append(f"the {name} model trains nothing: --set {','.join(settings)} ignored")
-        settings = {}
-    valid = setting_names(name)
-    unknown = sorted(set(settings) - valid - set(OPTION_OF))
-    if unknown:
-        raise ConfigError(f"{', '.join(unknown)}: not a hyperparameter of the {name} model",
-                          where="--set",
-                          fix=f"valid --set names: {', '.join(sorted(valid))}")  # fmt: skip
-    clash = sorted(set(settings) & set(OPTION_OF))
-    if clash:
-        raise ConfigError(f"--set {', '.join(clash)}: these have options of their own",
-                          where="--set",
-                          fix="use " + ", ".join(OPTION_OF[k] for k in clash))  # fmt: skip
-    with cli_terms(setting_names(name), where="--set"):
-        model = make_model(name, profile or "quick", **options, **settings)
-        model._check_params()
-    return model, notes
+TuneOpt = Annotated[bool, typer.Option(
+    "--tune", help="Search the hyperparameters (windows, sizes, layers, learning rate, epochs and "
+    "patience, the hybrid's structure, several seeds) on validation data of the training records "
+    "first, within --tune-budget CPU-minutes; resumable, its trial table kept in the model file. "
+    "On small data the thing to do.")]  # fmt: skip
+TuneBudgetOpt = Annotated[float | None, number(
+    "--tune-budget", "CPU-minutes (user + system time of this process) the search may take "
+    "(default 10).")]  # fmt: skip
+TuneSeedOpt = Annotated[int | None, number(
+    "--tune-seed", "Seed of the search: same seed, same trials (default 0).")]  # fmt: skip
+TuneTrialsOpt = Annotated[int | None, number(
+    "--tune-trials", "At most this many trials (a budget that does not depend on the "
+    "machine's speed: with --tune-seed the same search anywhere).")]  # fmt: skip
+TuneStorageOpt = Annotated[Path | None, typer.Option(
+    "--tune-storage", help="The search's journal: a second run with the same file and request "
+    "resumes it (default: OUT.tune.jsonl beside --out).")]  # fmt: skip
 
 
-def setting_names(name: str) -> set[str]:
-    """The names ``--set`` takes for registry model ``name``."""
-    from drafttwin.models.registry import DATA_MODEL_FIELDS, TRAINING_FIELDS, model_class
+@dataclass(frozen=True)
+class TuneOptions:
+    """The tuning options of ``fit`` (an option group)."""
 
-    accepted = set(model_class(name).param_names()) - {"task", "training", "data_model"}
-    if "training" in model_class(name).param_names():
-        accepted |= set(TRAINING_FIELDS)
-    if "data_model" in model_class(name).param_names():
-        accepted |= set(DATA_MODEL_FIELDS)
-    return accepted - set(OPTION_OF)
+    tune: TuneOpt = False
+    tune_budget: TuneBudgetOpt = None
+    tune_seed: TuneSeedOpt = None
+    tune_trials: TuneTrialsOpt = None
+    tune_storage: TuneStorageOpt = None
 
+    def storage(self, out: Path) -> Path | None:
+        """The journal file: ``--tune-storage``, else ``OUT.tune.jsonl`` (with --tune only)."""
+        if not self.tune:
+            return None
+        return self.tune_storage or out.with_name(out.name + ".tune.jsonl")
 
-@contextlib.contextmanager
-def cli_terms(names: set[str], where: str | None = None) -> Iterator[None]:
-    """Re-raise the library's errors about hyperparameters in the CLI's terms:
-    ``init_samples`` as ``--init-samples``, ``window=20`` (one of ``names``) as
-    ``--set window=20`` (``where``: the option named when the error names none)."""
-    try:
-        yield
-    except DrafttwinError as exc:
-        problem = _cli_text(exc.problem, names)
-        fix = None if exc.fix is None else _cli_text(exc.fix, names)
-        changed = (problem, fix) != (exc.problem, exc.fix)
-        if not changed and (exc.where or where is None):
-            raise
-        # a message now naming the options needs no prefix
-        raise type(exc)(problem, source=exc.source,
-                        where=exc.where or (None if changed else where), fix=fix) from None  # fmt: skip
+    def check(self, out: Path) -> None:
+        """Tuning options without --tune are refused."""
+        from drafttwin.errors import ConfigError
 
+        given = [f for f, v in (("--tune-budget", self.tune_budget), ("--tune-seed", self.tune_seed),
+                                ("--tune-trials", self.tune_trials),
+                                ("--tune-storage", self.tune_storage)) if v is not None]  # fmt: skip
+        if given and not self.tune:
+            raise ConfigError(f"{', '.join(given)} without --tune", where=given[0],
+                              fix="add --tune, or leave the tuning options out")  # fmt: skip
 
-_OPTION = re.compile(r"(?<![-\w.])(?:init_samples\b(=?)|(horizon|epochs|seed|task)=)")
+    @contextlib.contextmanager
+    def progress(self, quiet: bool) -> Iterator[Callable[[dict[str, Any]], None] | None]:
+        """A progress line per finished trial on stderr (``None`` when quiet or not tuning)."""
+        if quiet or not self.tune:
+            yield None
+            return
+        from rich.markup import escape
 
+        from drafttwin.cli.app import err_console
 
-def _cli_text(text: str, names: set[str]) -> str:
-    """``'window=20 ...; set init_samples=20'`` -> ``'--set window=20 ...; set
-    --init-samples 20'``; ``valid: a, b`` -> ``valid --set names: a, b``."""
-    if names:
-        pattern = r"(?<![-\w])(?:training\.)?(" + "|".join(sorted(names)) + r")=(?!=)"
-        text = re.sub(pattern, r"--set \1=", text)
-        text = re.sub(r"(?<![-\w])training\.(" + "|".join(sorted(names)) + r")\b",
-                      r"--set \1", text)  # fmt: skip
+        def told(event: dict[str, Any]) -> None:
+            score = event.get("score")
+            shown = "failed" if score is None else f"score {score:.4g}"
+            best = event.get("best")
+            err_console.print(
+                f"tune: trial {event['number']} {shown} (best {best:.4g}), "
+                f"{event['cpu_s'] / 60:.1f}/{event['budget_min']:g} CPU-min: "
+                f"{escape(event['params'])}" if best is not None else
+                f"tune: trial {event['number']} {shown}, {event['cpu_s'] / 60:.1f}/"
+                f"{event['budget_min']:g} CPU-min: {escape(event['params'])}",
+                highlight=False, soft_wrap=True,
+            )  # fmt: skip
 
-    def option(m: re.Match[str]) -> str:
-        if m.group(2):
-            return OPTION_OF[m.group(2)] + " "
-        return "--init-samples" + (" " if m.group(1) else "")
-
-    text = _OPTION.sub(option, text)
-    return text.replace("valid: ", "valid --set names: ")
+        yield told

@@ -11,10 +11,9 @@ option."""
 from __future__ import annotations
 
 import contextlib
-import contextvars
 from collections.abc import Iterable, Iterator
 
-from drafttwin.errors import TermRenderer, _show
+from drafttwin.errors import DrafttwinError, TermRenderer, _show
 
 PARAM_FLAGS: dict[str, str] = {
     "data": "--data",
@@ -36,24 +35,28 @@ PARAM_FLAGS: dict[str, str] = {
     "tune": "--tune",
     "tune_budget": "--tune-budget",
     "tune_storage": "--tune-storage",
+    "tune_seed": "--tune-seed",
+    "tune_trials": "--tune-trials",
     "out": "--out",
 }
 """Parameter -> option. Every other hyperparameter is set with ``--set NAME=VALUE``."""
 
-_TYPED: contextvars.ContextVar[frozenset[str] | None] = contextvars.ContextVar(
-    "drafttwin_typed_params", default=None
-)
-
 
 @contextlib.contextmanager
 def typed(names: Iterable[str]) -> Iterator[None]:
-    """Within: the parameters the user typed are ``names`` (the others came from a profile or
-    a default, and errors say so)."""
-    token = _TYPED.set(frozenset(names))
+    """Within: the user typed the parameters ``names`` (the others came from a profile or a
+    default); an error raised here is printed so (:func:`renderer_for`)."""
     try:
         yield
-    finally:
-        _TYPED.reset(token)
+    except DrafttwinError as exc:
+        if getattr(exc, "typed_params", None) is None:
+            exc.typed_params = frozenset(names)  # type: ignore[attr-defined]  # read below
+        raise
+
+
+def renderer_for(exc: DrafttwinError) -> CliTerms:
+    """The renderer of an error raised in :func:`typed` (else: every parameter as typed)."""
+    return CliTerms(getattr(exc, "typed_params", None))
 
 
 def flag(name: str) -> str:
@@ -63,11 +66,14 @@ def flag(name: str) -> str:
 
 class CliTerms(TermRenderer):
     """Parameters as the options that set them; values the user never typed as what they
-    are (``the profile's window (30)``)."""
+    are (``the profile's window (30)``). ``given``: the parameters the user typed (``None``:
+    all of them)."""
+
+    def __init__(self, given: Iterable[str] | None = None) -> None:
+        self.given = None if given is None else frozenset(given)
 
     def _typed(self, name: str) -> bool:
-        given = _TYPED.get()
-        return given is None or name in given or name in ("data", "out", "mechanistic")
+        return self.given is None or name in self.given or name in ("data", "out", "mechanistic")
 
     def full(self, name: str, value: object) -> str:
         if name in PARAM_FLAGS:

@@ -52,9 +52,9 @@ class _UserErrorsExit2(typer.core.TyperGroup):
         try:
             return super().invoke(ctx)
         except DrafttwinError as exc:
-            from drafttwin.cli._terms import CLI_TERMS
+            from drafttwin.cli._terms import renderer_for
 
-            print_error(exc.render(CLI_TERMS))
+            print_error(exc.render(renderer_for(exc)))
             raise typer.Exit(exc.exit_code) from None
         except KeyboardInterrupt:  # Ctrl-C outside a study's own handling: no traceback
             err_console.print("interrupted", highlight=False)

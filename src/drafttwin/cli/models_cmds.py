@@ -4,17 +4,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import numpy as np
 import typer
 from rich.markup import escape
-from rich.table import Table
 
 from drafttwin.cli._common import write_frame
 from drafttwin.cli._data import ChannelOptions
+from drafttwin.cli._fitprint import fit_advice, report, selection_lines, tuning_lines
 from drafttwin.cli._groups import with_group
-from drafttwin.cli._modelopts import SetOpt, cli_terms, new_model, parse_settings, setting_names
+from drafttwin.cli._modelopts import SetOpt, TuneOptions, parse_settings
 from drafttwin.cli._options import (
     EpochsOpt,
     FullModelOpt,
@@ -32,8 +32,6 @@ from drafttwin.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries
-    from drafttwin.evaluation.metrics import ChannelMetrics
-    from drafttwin.evaluation.protocol import Evaluation
     from drafttwin.models import BaseModel, MechanisticModel
 
 ModelKindOpt = Annotated[str, typer.Option("--model", help="mechanistic | persistence | gru | "
@@ -68,46 +66,6 @@ FreeRunOpt = Annotated[
 ]  # fmt: skip
 
 
-def _source(
-    option: str | None, model: BaseModel, channels: tuple[str, ...] | None, full: bool = False
-) -> MechanisticModel | None:
-    """The mechanistic source of ``--mechanistic``, else the model's own (or the FA320A
-    preset for a new hybrid on the roller channels). A new model's drive train is reduced
-    unless ``full`` (``--full-model``); a fitted model's is simulated as it was fitted."""
-    from drafttwin._constants import ROLLERS
-    from drafttwin.mechanics import DEFAULT_CUTOFF_HZ
-    from drafttwin.models import MechanisticModel
-    from drafttwin.models.mechanistic import describe_spec, spec_cutoff_hz
-
-    if not model.needs_mechanistic:
-        if option is not None:
-            raise ConfigError(f"the {model.name} model uses no mechanistic source",
-                              where="--mechanistic", fix="leave --mechanistic out")  # fmt: skip
-        return None
-    fitted = getattr(model, "mechanistic_spec_", None)
-    is_fitted = hasattr(model, "channels_")
-    cutoff_hz = spec_cutoff_hz(fitted) if is_fitted else (None if full else DEFAULT_CUTOFF_HZ)
-    if option is not None:
-        return MechanisticModel.from_option(option, cutoff_hz=cutoff_hz)
-    if is_fitted:
-        source = MechanisticModel.from_spec(fitted)
-        if source is None:
-            raise ConfigError(
-                f"the model was fitted with {describe_spec(fitted)}, which the model file does "
-                "not hold",
-                where="--mechanistic",
-                fix="pass the mechanistic source again with --mechanistic",
-            )
-        return source
-    if channels not in (None, ROLLERS):
-        raise ConfigError(
-            f"the {model.name} model needs the physics of the channels {', '.join(channels)}",
-            where="--mechanistic",
-            fix="give config:YOUR_TRAIN.toml or a simulator output file (time + those columns)",
-        )
-    return MechanisticModel.from_preset("fa320a", cutoff_hz=cutoff_hz)
-
-
 def _check_task(model: BaseModel, task: str | None, init_samples: int | None) -> None:
     """``--task`` / ``--init-samples`` on predict and evaluate must match the model file."""
     if task is not None and task != model.task.kind:
@@ -131,37 +89,6 @@ def _check_rate(model: BaseModel, series: MeasurementSeries, source: str) -> Non
             source=source,
             fix="resample the data to the model's rate, or fit a model on data at this rate",
         )
-
-
-def _selection_lines(selection: dict[str, Any]) -> list[str]:
-    lines = []
-    choice = selection.get("accumulate")
-    if choice:
-        what = "accumulated changes" if choice["accumulate"] else "residual level"
-        scores = ", ".join(f"{k} {v:.3g}" for k, v in choice.get("validation_nrmse", {}).items()
-                           if v is not None)  # fmt: skip
-        how = f"chosen on validation data (free-run NRMSE: {scores})" if scores else "set"
-        lines.append(f"residual model predicts the {what}: {how}")
-    correction = selection.get("correction")
-    if correction:
-        scores = ", ".join(f"{_CANDIDATE.get(k, k)} {v:.3g}"
-                           for k, v in correction.get("validation_nrmse", {}).items()
-                           if v is not None)  # fmt: skip
-        kept = correction["kept"]
-        lines.append(
-            ("no correction: the physics alone predicts (the residual model did not beat it"
-             if kept == "none" else f"correction kept: {_CANDIDATE.get(kept, kept)} ("
-             + ("beats the physics alone" if correction["chosen_by"] == "validation"
-                else "kept by --set fallback=false" if correction["chosen_by"] == "user"
-                else "no validation part to test it on"))
-            + (f"; validation NRMSE: {scores})" if scores else ")")
-        )  # fmt: skip
-    return lines
-
-
-_CANDIDATE = {"none": "physics alone", "level": "residual level",
-              "accumulate": "accumulated changes", "residual": "residual model"}  # fmt: skip
-"""How the validation candidates of a hybrid read in the report."""
 
 
 ModelDataOpt = Annotated[str | None, files_in(
@@ -205,42 +132,50 @@ class SourceOptions:
 
 
 @app.command()
+@with_group("tune", TuneOptions)
 @with_group("channels", ChannelOptions)
 @with_group("source", SourceOptions)
 def fit(
     model: ModelKindOpt, out: ModelOutOpt, source: SourceOptions, channels: ChannelOptions,
+    tune: TuneOptions,
     profile: ProfileOpt = None, train_fraction: FractionOpt = None, seed: SeedOpt = None,
     horizon: HorizonOpt = 1, epochs: EpochsOpt = None, settings: SetOpt = None,
     full_model: FullModelOpt = False, quiet: QuietOpt = False, as_json: JsonOpt = False,
 ) -> None:  # fmt: skip
     """Fit a model and save it. Trains on the first --train-fraction of --data (preprocessed as
     in the paper; 'drafttwin evaluate' then scores the rest), or on all of --data when separate
-    --test-data records are given: these are scored at once and the metrics printed."""
-    from drafttwin.evaluation import protocol
+    --test-data records are given: these are scored at once and the metrics printed.
 
-    source.refuse_fraction_with_test_data(train_fraction)
+    On a small record (hundreds to a few thousand rows) the profile's hyperparameters are a
+    guess: --tune searches them on validation data within --tune-budget CPU-minutes, and is
+    the thing to do."""
+    from drafttwin.application import FitRequest, plan_physics, run_fit
+    from drafttwin.cli._terms import CliTerms, typed
+
     parsed = channels.parse()
-    estimator, notes = new_model(model, profile=profile, task=source.task,
-                                 init=source.init_samples, horizon=horizon, channels=parsed,
-                                 seed=seed, quiet=quiet, epochs=epochs,
-                                 settings=parse_settings(settings))  # fmt: skip
+    request = FitRequest(
+        model=model, mechanistic=source.mechanistic, profile=profile,
+        settings=parse_settings(settings), task=source.task, init_samples=source.init_samples,
+        horizon=None if horizon == 1 else horizon, inputs=parsed.inputs, seed=seed,
+        epochs=epochs, train_fraction=train_fraction, full_model=full_model,
+        tune=tune.tune, tune_budget=tune.tune_budget, tune_seed=tune.tune_seed, tune_trials=tune.tune_trials,
+        tune_storage=tune.storage(out), data_label=source.fit_data, quiet=quiet,
+    )  # fmt: skip
+    given = request.given() | {"outputs", "inputs"}
+    terms = CliTerms(given)
+    with typed(given):
+        tune.check(out)
+        _, physics, _ = plan_physics(request, channels=parsed.outputs)
+        needs = () if physics is None else physics.required_inputs()
+        series = parsed.read(source.fit_data, needs)
+        test = None if source.test_data is None else parsed.read(source.test_data, needs)
+        with tune.progress(quiet or as_json) as told:
+            result = run_fit(request.replace(data=series, test=test), progress=told)
     if not quiet:
-        for note in notes:
-            err_console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)
-    physics = _source(source.mechanistic, estimator, parsed.outputs, full_model)
-    if full_model and not quiet and (physics is None
-                                     or physics.spec()["kind"] not in ("preset", "train")):  # fmt: skip
-        what = "uses no physics" if physics is None else "takes its physics from files"
-        err_console.print(f"note: --full-model changes nothing: the {estimator.name} model {what}",
-                          highlight=False, soft_wrap=True)  # fmt: skip
-    needs = () if physics is None else physics.required_inputs()
-    series = parsed.read(source.fit_data, needs)
-    test = None if source.test_data is None else parsed.read(source.test_data, needs)
-    fraction = None if test is not None else (train_fraction or 0.7)
-    with cli_terms(setting_names(model)):
-        part = protocol.fit_split(estimator, series, train_fraction=fraction, test=test,
-                                      mechanistic=physics)  # fmt: skip
-    estimator.provenance_["data"] = source.fit_data
+        for note in result.notes:
+            err_console.print(f"note: {escape(note.render(terms))}", highlight=False,
+                              soft_wrap=True)  # fmt: skip
+    estimator, part = result.model, result.split
     estimator.save(out)
     pre = part.summary["preprocessing"]["train"]
     filled, smoothed = sum(pre["filled"].values()), sum(pre["outliers"].values())
@@ -249,15 +184,20 @@ def fit(
         f"in {part.summary['train_records']} record(s), channels {', '.join(estimator.channels_)} "
         f"({filled} samples filled, {smoothed} outliers smoothed); wrote {escape(str(out))}"
     )
-    if test is not None:  # separate test records: score them now (else: drafttwin evaluate)
-        _report(protocol.evaluate(estimator, part, mechanistic=physics), as_json)
+    if not (quiet or as_json):
+        for line in fit_advice(result):
+            console.print(line, highlight=False, soft_wrap=True)
+    if result.evaluation is not None:  # separate test records: scored now (else: evaluate)
+        report(result.evaluation, as_json)
         return
     if as_json:
         print_json({"model": estimator.name, "selection": estimator.selection_,
-                    "split": part.summary})  # fmt: skip
+                    "split": part.summary, "tuning": result.tuning})  # fmt: skip
         return
-    for line in _selection_lines(estimator.selection_):
-        console.print(line)
+    for line in selection_lines(estimator.selection_):
+        console.print(line, highlight=False, soft_wrap=True)
+    for line in tuning_lines(estimator.provenance_.get("tuning")):
+        console.print(line, highlight=False, soft_wrap=True)
 
 
 def _fitted(
@@ -266,6 +206,7 @@ def _fitted(
     """A model file, its physics and the data of predict / evaluate, checked against it."""
     import warnings
 
+    from drafttwin.application import resolve_physics
     from drafttwin.models import load_model
     from drafttwin.models.modelfile import DeviceFallbackWarning
 
@@ -281,7 +222,7 @@ def _fitted(
                                    warning.lineno)  # fmt: skip
     _check_task(estimator, source.task, source.init_samples)
     parsed = channels.parse().for_model(estimator)
-    physics = _source(source.mechanistic, estimator, parsed.outputs)
+    physics = resolve_physics(source.mechanistic, estimator, parsed.outputs)
     fitted_on = estimator.provenance_.get("data")
     spec = source.spec(fitted_on if isinstance(fitted_on, str) else None)
     if source.data is None and source.test_data is None and spec != "default" and not quiet:
@@ -304,6 +245,8 @@ def predict(
     over each record from its first --init-samples measured samples. --test-data replaces
     --data."""
     estimator, physics, series = _fitted(model, source, channels, quiet)
+    if physics is not None:
+        physics.match_records(series)  # a simulator file of another record is refused
     frame = estimator.predict(series, physics)
     write_frame(frame, out)
     if as_json:
@@ -333,88 +276,12 @@ def evaluate(
 
     source.refuse_fraction_with_test_data(train_fraction)
     if free_run_from not in protocol.FREE_RUN_FROM:
-        raise ConfigError(f"unknown free-run start {free_run_from!r}", where="--free-run-from",
+        raise ConfigError("unknown free-run start {free_run_from}",
+                          terms={"free_run_from": free_run_from},
                           fix=f"use one of {', '.join(protocol.FREE_RUN_FROM)}")  # fmt: skip
     estimator, physics, series = _fitted(model, source, channels, quiet)
     data, test = (None, series) if source.test_data is not None else (series, None)
     result = protocol.evaluate(estimator, data, test=test, train_fraction=train_fraction,
                                mechanistic=physics, skip_rows=score_from,
                                free_run_from=free_run_from)  # fmt: skip
-    _report(result, as_json)
-
-
-def _report(result: Evaluation, as_json: bool) -> None:
-    if as_json:
-        print_json(result.to_dict())
-        return
-    rows = result.split.get("test_rows")
-    console.print(_metrics_table(result.metrics, f"{result.model} ({result.task}) on "
-                                 f"{rows} test rows, {result.scored_rows} scored"))  # fmt: skip
-    for name, m in result.metrics.items():
-        if m.rel_note:
-            console.print(f"{escape(name)}: {m.rel_note}")
-    for line in _selection_lines(result.selection):
-        console.print(line)
-    console.print("skill = 1 - RMSE / RMSE(persistence); scored: measured samples not flagged "
-                  "as outliers" + ("" if result.task == "prediction" else ", after each "
-                                   "record's initialisation window"))  # fmt: skip
-    if any(np.isfinite(m.sensor_rmse) for m in result.metrics.values()):
-        console.print(_limits_table(result.metrics))
-        console.print(FLOOR_NOTE[result.task == "prediction"])
-
-
-FLOOR_NOTE = {
-    True: "floor: the lowest RMSE any one-step predictor of the measured value can reach (an "
-    "oracle that knows the true value and every earlier measurement; the encoders' counting "
-    "error is partly foreseeable). sensor error: RMSE of measured vs true; vs true / sensor "
-    "< 1: the prediction estimates the true value better than the encoder measures it",
-    False: "floor: in a free run no measurement shows the sensor's error, so the floor is the "
-    "sensor error (RMSE of measured vs true); vs true / sensor < 1: the simulation estimates "
-    "the true value better than the encoder measures it",
-}
-"""The line under the table on data with true values, per task (one-step or free run)."""
-
-
-def _shared_unit(metrics: dict[str, ChannelMetrics]) -> str | None:
-    units = {m.unit for m in metrics.values()}
-    return units.pop() if len(units) == 1 else None
-
-
-def _limits_table(metrics: dict[str, ChannelMetrics]) -> Table:
-    """The accuracy limits per channel, beside the RMSE they bound (data with true values)."""
-    shared = _shared_unit(metrics)
-    table = Table(title="accuracy limits (true values known)")
-    table.add_column("channel")
-    if shared is None:
-        table.add_column("unit")
-    unit = f" {shared}" if shared else ""
-    for c in (f"RMSE{unit}", f"floor{unit}", "RMSE / floor", f"RMSE vs true{unit}",
-              f"sensor error{unit}", "vs true / sensor"):  # fmt: skip
-        table.add_column(c, justify="right")
-    for r, m in metrics.items():
-        over = m.rmse / m.rmse_floor if m.rmse_floor > 0 else float("nan")  # NaN: unknown
-        cells = [f"{m.rmse:.4g}", f"{m.rmse_floor:.4g}", f"{over:.3f}",
-                 f"{m.rmse_vs_true:.4g}", f"{m.sensor_rmse:.4g}", f"{m.true_error_ratio:.3f}"]  # fmt: skip
-        table.add_row(escape(r), *([] if shared is not None else [m.unit]), *cells)
-    return table
-
-
-def _metrics_table(metrics: dict[str, ChannelMetrics], title: str) -> Table:
-    """One row per channel; the unit in the headers when the channels share one, else in a
-    column of its own."""
-    shared = _shared_unit(metrics)
-
-    def head(label: str) -> str:
-        return f"{label} {shared}" if shared else label
-
-    table = Table(title=escape(title))
-    table.add_column("channel")
-    if shared is None:
-        table.add_column("unit")
-    for c in ("max rel %", "mean rel %", "accuracy %", head("RMSE"), "NRMSE", "skill"):
-        table.add_column(c, justify="right")
-    for r, m in metrics.items():
-        cells = [f"{m.max_rel_err_pct:.4f}", f"{m.mean_rel_err_pct:.4f}", f"{m.accuracy_pct:.3f}",
-                 f"{m.rmse:.4g}", f"{m.nrmse:.3f}", f"{m.skill:.3f}"]  # fmt: skip
-        table.add_row(escape(r), *([] if shared is not None else [m.unit]), *cells)
-    return table
+    report(result, as_json)

@@ -2,6 +2,7 @@
 
 from drafttwin.data.io import read_measurements, write_measurements
 from drafttwin.data.preprocess import (
+    DEFAULT_TRAIN_FRACTION,
     PreprocessReport,
     chronological_split,
     find_outliers,
@@ -16,6 +17,7 @@ from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.data.series import MeasurementSeries
 
 __all__ = [
+    "DEFAULT_TRAIN_FRACTION",
     "MeasurementSeries",
     "MinMaxScaler",
     "PreprocessReport",

@@ -366,8 +366,13 @@ def preprocess(
     return replace(series, values=clean, metadata=metadata, **changes), report
 
 
+DEFAULT_TRAIN_FRACTION = 0.7
+"""The share of a record that trains when nothing else is said: the paper's 70 % / 30 %
+chronological split (the one place this default is written)."""
+
+
 def chronological_split(
-    series: MeasurementSeries, train_fraction: float = 0.7
+    series: MeasurementSeries, train_fraction: float = DEFAULT_TRAIN_FRACTION
 ) -> tuple[MeasurementSeries, MeasurementSeries]:
     """The first ``train_fraction`` of the samples for training, the rest for testing.
 

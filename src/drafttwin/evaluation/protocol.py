@@ -24,7 +24,12 @@ from typing import Any, TypeVar
 import numpy as np
 import pandas as pd
 
-from drafttwin.data.preprocess import outlier_scales, preprocess, reject_spikes_causal
+from drafttwin.data.preprocess import (
+    DEFAULT_TRAIN_FRACTION,
+    outlier_scales,
+    preprocess,
+    reject_spikes_causal,
+)
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.evaluation.limits import floor_oracle
@@ -70,8 +75,9 @@ class Split:
         if self.test is None:
             raise ConfigError(
                 "the data were split with no test part: every row trained the model",
-                where="--train-fraction",
-                fix="fit with a train fraction below 1, or give separate --test-data",
+                param="train_fraction",
+                terms={"train_fraction": 1, "test": None},
+                fix="fit with {train_fraction:name} below 1, or give separate {test:name} records",
             )
         return self.test
 
@@ -92,7 +98,7 @@ def cleaning_stats(train: MeasurementSeries) -> dict[str, dict[str, float | None
 def split(
     data: MeasurementSeries,
     *,
-    train_fraction: float | None = 0.7,
+    train_fraction: float | None = DEFAULT_TRAIN_FRACTION,
     test: MeasurementSeries | None = None,
     outlier_threshold: float = OUTLIER_THRESHOLD,
 ) -> Split:
@@ -101,9 +107,10 @@ def split(
     if test is None:
         if train_fraction is None or not 0.0 < train_fraction < 1.0:
             raise ConfigError(
-                f"train fraction {train_fraction} leaves no test part",
-                where="--train-fraction",
-                fix="use a fraction below 1 (e.g. 0.7), or give separate --test-data",
+                "{train_fraction} leaves no test part",
+                terms={"train_fraction": train_fraction, "test": None},
+                fix=f"use a fraction below 1 (e.g. {DEFAULT_TRAIN_FRACTION}), or give separate "
+                "{test:name} records",
             )
         train_rows = int(round(train_fraction * len(data)))
         if train_rows < 2 or len(data) - train_rows < 2:
@@ -195,12 +202,14 @@ def model_input(
     from their own measured starts, or with ``free_run_from="start"`` over the whole record
     from its first measured rows (the published protocol of many benchmarks)."""
     if free_run_from not in FREE_RUN_FROM:
-        raise ConfigError(f"unknown free-run start {free_run_from!r}", where="--free-run-from",
+        raise ConfigError("unknown free-run start {free_run_from}",
+                          terms={"free_run_from": free_run_from},
                           fix=f"use one of {', '.join(FREE_RUN_FROM)}")  # fmt: skip
     if free_run_from == "start" and not model.task.simulation:
-        raise ConfigError("--free-run-from start applies to a simulation; the model predicts "
+        raise ConfigError("{free_run_from} applies to a simulation; the model predicts "
                           "one step ahead (it sees every earlier row anyway)",
-                          where="--free-run-from", fix="leave --free-run-from out")  # fmt: skip
+                          terms={"free_run_from": free_run_from},
+                          fix="leave {free_run_from:name} out")  # fmt: skip
     whole = not model.task.simulation or free_run_from == "start"
     if data.joined is not None and whole:
         return data.joined, len(data.joined) - len(data.test_part())
@@ -224,6 +233,7 @@ class Evaluation:
     scored_rows: int
     selection: dict[str, Any]
     split: dict[str, Any]
+    tuning: dict[str, Any] | None = None
 
     def rows(self) -> dict[str, dict[str, Any]]:
         """Per channel, the metrics (JSON-safe)."""
@@ -236,6 +246,7 @@ class Evaluation:
             "task": self.task,
             "channels": self.rows(),
             "selection": self.selection,
+            "tuning": self.tuning,
             "scored_rows": self.scored_rows,
             "split": self.split,
         }
@@ -268,7 +279,7 @@ def prepare(
     if data is None:
         raise ConfigError("nothing to evaluate on", fix="pass data= and/or test=")
     if train_fraction is None and test is None:
-        train_fraction = fitted.get("train_fraction") or 0.7
+        train_fraction = fitted.get("train_fraction") or DEFAULT_TRAIN_FRACTION
     return split(data, train_fraction=train_fraction, test=test)
 
 
@@ -332,6 +343,7 @@ def score(
         predictions=frame,
         scored_rows=int(np.isfinite(target).any(axis=1).sum()),
         selection=dict(getattr(model, "selection_", {})),
+        tuning=(getattr(model, "provenance_", {}) or {}).get("tuning"),
         split={**part.summary, "score_from": skip_rows,
                **({"free_run_from": free_run_from} if model.task.simulation else {})},
     )  # fmt: skip
@@ -379,7 +391,7 @@ def fit(
     model: Model,
     data: MeasurementSeries | Split,
     *,
-    train_fraction: float | None = 0.7,
+    train_fraction: float | None = DEFAULT_TRAIN_FRACTION,
     test: MeasurementSeries | None = None,
     mechanistic: object | None = None,
 ) -> Model:
@@ -389,11 +401,27 @@ def fit(
     return model
 
 
+def split_for_fit(
+    data: MeasurementSeries,
+    train_fraction: float | None = DEFAULT_TRAIN_FRACTION,
+    test: MeasurementSeries | None = None,
+) -> Split:
+    """The split :func:`fit_split` trains on: chronological at ``train_fraction``, all of
+    ``data`` with ``train_fraction=1`` or with separate ``test`` records."""
+    if test is None and train_fraction is not None and train_fraction >= 1.0:
+        clean, report = preprocess(data)
+        summary = {"mode": "all", "train_rows": len(data), "train_records": data.n_records,
+                   "preprocessing": {"train": report.to_dict()}}  # fmt: skip
+        return Split(clean, None, np.zeros((0, len(data.channels))), None, "all", summary,
+                     cleaning_stats(data))  # fmt: skip
+    return split(data, train_fraction=train_fraction, test=test)
+
+
 def fit_split(
     model: BaseModel,
     data: MeasurementSeries | Split,
     *,
-    train_fraction: float | None = 0.7,
+    train_fraction: float | None = DEFAULT_TRAIN_FRACTION,
     test: MeasurementSeries | None = None,
     mechanistic: object | None = None,
 ) -> Split:
@@ -402,16 +430,7 @@ def fit_split(
     are given) and record how in ``model.provenance_``; returns the split, so the same test
     part can be scored with :func:`evaluate` (``split.test`` is ``None`` without a test part).
     """
-    if isinstance(data, Split):
-        part = data
-    elif test is None and train_fraction is not None and train_fraction >= 1.0:
-        clean, report = preprocess(data)
-        summary = {"mode": "all", "train_rows": len(data), "train_records": data.n_records,
-                   "preprocessing": {"train": report.to_dict()}}  # fmt: skip
-        part = Split(clean, None, np.zeros((0, len(data.channels))), None, "all", summary,
-                     cleaning_stats(data))  # fmt: skip
-    else:
-        part = split(data, train_fraction=train_fraction, test=test)
+    part = data if isinstance(data, Split) else split_for_fit(data, train_fraction, test)
     assert part.train is not None
     if isinstance(mechanistic, MechanisticModel) and not isinstance(data, Split):
         for_test = None

@@ -13,12 +13,27 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 from torch import nn
 
 from drafttwin.models.training import predict_network, split_sizes
 from drafttwin.models.windows import record_ids
+
+
+class FoldScoresLike(Protocol):
+    """What :func:`choose_on_folds` reads of :class:`drafttwin.models.folds.FoldScores`."""
+
+    @property
+    def scores(self) -> dict[str, list[float]]: ...
+
+    @property
+    def rows(self) -> list[int]: ...
+
+    def mean(self, candidate: str) -> float: ...
+
+    def wins(self, candidate: str) -> int: ...
 
 
 def validation_slice(n_samples: int, val_fraction: float, stride: int) -> slice:
@@ -100,11 +115,11 @@ def free_run_nrmse(pred: np.ndarray, measured: np.ndarray, scale: np.ndarray) ->
     return float(np.mean(per_channel))
 
 
-def choose(scores: dict[bool, float], n_rows: int) -> Choice:
+def choose(scores: dict[bool, float], n_rows: int, by: str = "validation") -> Choice:
     """The candidate with the smaller validation error (accumulation on a tie)."""
     best = min(scores, key=lambda k: (scores[k], not k))
     named = {("accumulate" if k else "level"): v for k, v in scores.items()}
-    return Choice(best, "validation", named, n_rows)
+    return Choice(best, by, named, n_rows)
 
 
 CORRECTION_NONE = "none"
@@ -122,16 +137,20 @@ class CorrectionChoice:
     the output, in the output's units over the measured residual's spread)."""
 
     kept: str  # the kept candidate ("level", "accumulate", "residual") or CORRECTION_NONE
-    chosen_by: str  # "validation", "user" (fallback off) or "no validation part" (kept untested)
+    chosen_by: str  # "validation" (tail), "validation folds", "user" or "no validation part"
     scores: dict[str, float]
     validation_rows: int
+    wins: int | None = None  # folds on which the residual model beat the physics alone
 
     @property
     def correct(self) -> bool:
         return self.kept != CORRECTION_NONE
 
     def to_dict(self) -> dict[str, object]:
-        return {"kept": self.kept, **_evidence(self)}
+        out = {"kept": self.kept, **_evidence(self)}
+        if self.wins is not None:
+            out["wins"] = self.wins
+        return out
 
 
 def _evidence(choice: Choice | CorrectionChoice) -> dict[str, object]:
@@ -162,3 +181,17 @@ def choose_correction(
     kept = candidate if better or not test else CORRECTION_NONE
     return CorrectionChoice(kept, "validation" if test else "user", {CORRECTION_NONE: physics, candidate: with_model},
                             int(residual.shape[0]))  # fmt: skip
+
+
+def choose_on_folds(candidate: str, folds: FoldScoresLike, test: bool = True) -> CorrectionChoice:
+    """Keep ``candidate`` only when it wins reliably on the blocked folds
+    (:mod:`drafttwin.models.folds`): below the physics alone on every fold, and on the mean
+    over the folds by more than :data:`CORRECTION_MARGIN`. ``test=False``: the user kept it
+    (scores still recorded)."""
+    physics, model = folds.mean(CORRECTION_NONE), folds.mean(candidate)
+    n_folds = len(folds.scores[CORRECTION_NONE])
+    reliable = folds.wins(candidate) == n_folds and model < (1.0 - CORRECTION_MARGIN) * physics
+    kept = candidate if reliable or not test else CORRECTION_NONE
+    return CorrectionChoice(kept, "validation folds" if test else "user",
+                            {CORRECTION_NONE: physics, candidate: model}, sum(folds.rows),
+                            wins=folds.wins(candidate))  # fmt: skip

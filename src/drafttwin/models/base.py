@@ -124,6 +124,11 @@ class BaseModel(abc.ABC):
         """Registry name of this model (as in reports)."""
         return type(self).__name__.lower()
 
+    def check_params(self) -> None:
+        """Validate the hyperparameters as ``fit`` does, before any data are read (a
+        :class:`~drafttwin.errors.ConfigError` naming the parameter)."""
+        self._check_params()
+
     def _check_params(self) -> None:
         """Validate the hyperparameters (called by ``fit``); subclasses add their rules."""
         P.check_params(type(self).__name__, self.get_params(deep=False))
@@ -132,9 +137,9 @@ class BaseModel(abc.ABC):
         """Refuse a hyperparameter that was set but means nothing for this task."""
         if getattr(self, name, None) is not None:
             raise ConfigError(
-                f"{name}={getattr(self, name)!r} does not apply to {type(self).__name__} with "
-                f"task {self.task.kind!r}: {why}",
-                fix=f"leave {name} unset (None) for this task",
+                f"{{{name}}} does not apply to {type(self).__name__} with {{task}}: {why}",
+                terms={name: getattr(self, name), "task": self.task.kind},
+                fix=f"leave {{{name}:name}} unset for this task",
             )
 
     # ----- boundary checks -------------------------------------------------------------

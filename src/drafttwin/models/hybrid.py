@@ -49,6 +49,7 @@ from drafttwin.models import accumulation as acc
 from drafttwin.models.base import pack_module, unpack_module
 from drafttwin.models.datadriven import _NeuralModel
 from drafttwin.models.features import fit_scaler
+from drafttwin.models.folds import DEFAULT_FOLDS, MEASURE, judge
 from drafttwin.models.networks import ResidualNet
 from drafttwin.models.task import Task, check_windows, input_matrix
 from drafttwin.models.training import (
@@ -94,6 +95,7 @@ class _ResidualHybrid(_NeuralModel):
     structure: str
     fade: bool | str
     fallback: bool
+    val_folds: int
 
     @property
     def use_sknet(self) -> bool:
@@ -135,11 +137,13 @@ class _ResidualHybrid(_NeuralModel):
         super()._check_params()
         if self.task.simulation:
             self._refuse_for_task("skip", "a free run has no measured residual to add to")
-            if self.accumulate is None and self.training.val_fraction == 0:
+            if self.accumulate is None and self.training.val_fraction == 0 and self.val_folds < 2:
                 raise ConfigError(
-                    "accumulate=None chooses residual accumulation on the validation part of "
-                    "the training data, but training.val_fraction is 0",
-                    fix="set val_fraction=0.2 (any share above 0), or fix accumulate=True or False",
+                    "accumulate unset chooses residual accumulation on the validation part of "
+                    "the training data, but {val_fraction} leaves none",
+                    terms={"val_fraction": 0, "accumulate": None},
+                    fix="set {val_fraction:name} to 0.2 (any share above 0), or fix "
+                    "{accumulate:name} to true or false",
                 )
         else:
             self._refuse_for_task("accumulate", "one-step prediction sees measured residuals")
@@ -264,9 +268,17 @@ class _ResidualHybrid(_NeuralModel):
             ok = _finite(x, target, extra)
             fits[accumulate] = (*self._train(x, target, extra, ok, progress, accumulate), ok)
         val = self._validation(fits, x, extra, rows, groups["em"], starts)
+        level = self._level(mech)
+        folds = judge(self, fits, x, extra, scaled, rows, groups["em"], y - mech, level, starts,
+                      progress)  # fmt: skip
         kept = False
         if self.task.simulation:
-            if self.accumulate is None:
+            if self.accumulate is not None:
+                choice = acc.Choice(self.accumulate, "user", {}, 0)
+            elif folds is not None:
+                choice = acc.choose({k: folds.mean(_candidate(k)) for k in candidates},
+                                    sum(folds.rows), "validation folds")  # fmt: skip
+            else:
                 if any(v is None for v in val.values()):
                     raise DataError(
                         "no validation samples to choose residual accumulation on",
@@ -274,11 +286,16 @@ class _ResidualHybrid(_NeuralModel):
                     )
                 choice = acc.choose({k: v[0] for k, v in val.items() if v is not None},
                                     max(len(v[1]) for v in val.values() if v is not None))  # fmt: skip
-            else:
-                choice = acc.Choice(self.accumulate, "user", {}, 0)
             self.accumulate_ = kept = choice.accumulate
             self.selection_["accumulate"] = choice.to_dict()
         self.net_, self.history_, _ = fits[kept]
+        if folds is not None:
+            name = _candidate(kept) if self.task.simulation else "residual"
+            correction = acc.choose_on_folds(name, folds, test=self.fallback)
+            self.correct_ = correction.correct
+            self.selection_["correction"] = {**correction.to_dict(), **folds.to_dict(),
+                                             "measure": MEASURE}  # fmt: skip
+            return
         self._choose_correction(val[kept], y - mech, mech)
 
     def _choose_correction(
@@ -422,6 +439,10 @@ def _relative_state(state: dict[str, Any], n_out: int, n_in: int) -> tuple[np.nd
     return floor, ref
 
 
+def _candidate(accumulate: bool) -> str:
+    return "accumulate" if accumulate else "level"
+
+
 def _finite(x: np.ndarray, target: np.ndarray, extra: np.ndarray | None) -> np.ndarray:
     return finite_rows(x, target) if extra is None else finite_rows(x, target, extra)
 
@@ -443,6 +464,11 @@ class ParallelHybrid(_ResidualHybrid):
         fade: scale the correction down outside the training range (back to the physics);
             ``"strict"``: also off wherever a channel held constant in training (a set-point)
             leaves its training value.
+        fallback: keep the residual model only when it beats the physics alone on validation
+            data (``False``: keep it untested; the scores are still recorded).
+        val_folds: blocked folds of the training rows that judge the residual model against
+            the physics alone and choose accumulation (:mod:`drafttwin.models.folds`); 1: the
+            validation tail of the training alone (as model files before it).
         task / training / seed / quiet: as :class:`~drafttwin.models.GRUModel`.
     """
 
@@ -450,7 +476,7 @@ class ParallelHybrid(_ResidualHybrid):
         self,
         window: int = 20, hidden: int = 48, layers: int = 2, dropout: float = 0.1,
         skip: bool | None = None, accumulate: bool | None = None, structure: str = "absolute",
-        fade: bool | str = False, fallback: bool = True,
+        fade: bool | str = False, fallback: bool = True, val_folds: int = DEFAULT_FOLDS,
         task: Task = Task(), training: Training = Training(), seed: int = 0, quiet: bool = False,
     ) -> None:  # fmt: skip
         self._store_params(locals())

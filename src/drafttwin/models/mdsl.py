@@ -31,6 +31,7 @@ import torch
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.models.datadriven import GRUModel, _RecurrentModel
+from drafttwin.models.folds import DEFAULT_FOLDS
 from drafttwin.models.hybrid import VARIANTS, Groups, _ResidualHybrid
 from drafttwin.models.task import Task, blank_after_init, check_windows, input_matrix
 from drafttwin.models.training import FitProgress, Training
@@ -45,7 +46,7 @@ class MDSL(_ResidualHybrid):
         use_disagreement: add ``yhat_d(T) - yhat_m(T)`` as an input (reported as ``+d``).
         window: residual window, samples. hidden / layers: LSTM residual-model size.
         sk_channels: SKNet width (a multiple of 3; the residual channels are lifted to it).
-        dropout / skip / accumulate / structure / fade / fallback: as
+        dropout / skip / accumulate / structure / fade / fallback / val_folds: as
             :class:`~drafttwin.models.ParallelHybrid`.
         folds: contiguous blocks for cross-fitting the data-driven model.
         data_model: the data-driven model's settings, as an unfitted
@@ -70,7 +71,7 @@ class MDSL(_ResidualHybrid):
         window: int = 20, hidden: int = 48, layers: int = 2, sk_channels: int = 24,
         dropout: float = 0.1,
         skip: bool | None = None, accumulate: bool | None = None, structure: str = "absolute",
-        fade: bool | str = False, fallback: bool = True,
+        fade: bool | str = False, fallback: bool = True, val_folds: int = DEFAULT_FOLDS,
         folds: int = 3, data_model: _RecurrentModel | None = None,
         task: Task = Task(), training: Training = Training(), seed: int = 0, quiet: bool = False,
     ) -> None:  # fmt: skip

@@ -42,6 +42,7 @@ CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
     "hidden": (_int_at_least(1, MAX_WIDTH), f"an integer in [1, {MAX_WIDTH}]"),
     "layers": (_int_at_least(1, MAX_LAYERS), f"an integer in [1, {MAX_LAYERS}]"),
     "folds": (_int_at_least(2, 1000), "an integer in [2, 1000]"),
+    "val_folds": (_int_at_least(1, 20), "an integer in [1, 20] (1: the validation tail only)"),
     "seed": (_int_at_least(0), f"an integer in [0, {MAX_SEED}]"),
     "sk_channels": (
         lambda v: _int_at_least(3, MAX_WIDTH)(v) and v % 3 == 0,
@@ -61,7 +62,8 @@ CHECKS: dict[str, tuple[Callable[[Any], bool], str]] = {
 """Per-hyperparameter rule and its wording for the error message."""
 
 
-ADDED_LATER: dict[str, Any] = {"structure": "absolute", "fade": False, "fallback": False}
+ADDED_LATER: dict[str, Any] = {"structure": "absolute", "fade": False, "fallback": False,
+                               "val_folds": 1}  # fmt: skip
 """Hyperparameters added after model files were first written, with the value that keeps the
 older behaviour: a file without them is read with these."""
 
@@ -81,8 +83,8 @@ def check_params(owner: str, params: Mapping[str, Any]) -> None:
     for key, value in params.items():
         rule = CHECKS.get(key)
         if rule is not None and not rule[0](value):
-            raise ConfigError(f"hyperparameter {key}={value!r} is invalid for {owner}",
-                              fix=f"{key} must be {rule[1]}")  # fmt: skip
+            raise ConfigError(f"hyperparameter {{{key}}} is invalid for {owner}",
+                              terms={key: value}, fix=f"{{{key}:name}} must be {rule[1]}")  # fmt: skip
 
 
 def encode(value: Any) -> Any:

@@ -99,3 +99,5 @@ _ROWS = (
 )
 # fmt: on
 PROFILES: dict[str, Profile] = {p.name: p for p in _ROWS}
+DEFAULT_PROFILE = "quick"
+"""The profile of a model built without one (``make_model``, ``fit``)."""

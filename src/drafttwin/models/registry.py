@@ -13,7 +13,7 @@ from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel
 from drafttwin.models.datadriven import GRUModel, LSTMModel
 from drafttwin.models.hybrid import ParallelHybrid
 from drafttwin.models.mdsl import MDSL
-from drafttwin.models.profiles import PROFILES, Profile
+from drafttwin.models.profiles import DEFAULT_PROFILE, PROFILES, Profile
 from drafttwin.models.source import PhysicsSource, parse_source
 from drafttwin.models.task import Task
 from drafttwin.models.training import Training
@@ -66,7 +66,7 @@ def get_profile(profile: str | Profile) -> Profile:
     return PROFILES[profile]
 
 
-def make_model(name: str, profile: str | Profile = "quick", **overrides: Any) -> BaseModel:
+def make_model(name: str, profile: str | Profile = DEFAULT_PROFILE, **overrides: Any) -> BaseModel:
     """A new, unfitted estimator by registry name with the profile's hyperparameters,
     overridden by ``overrides``.
 

@@ -47,7 +47,8 @@ def _positive_int(value: Any, what: str, *, allow_none: bool) -> None:
     if value is None and allow_none:
         return
     if not isinstance(value, int) or isinstance(value, bool) or value < 1:
-        raise ConfigError(f"{what}={value!r} is invalid", fix=f"{what} must be an integer >= 1")
+        raise ConfigError(f"{{{what}}} is invalid", terms={what: value},
+                          fix=f"{{{what}:name}} must be an integer >= 1")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -83,13 +84,15 @@ class Task:
                               fix="an exogenous input must not be an output channel")  # fmt: skip
         if self.kind == "simulation" and self.horizon != 1:
             raise ConfigError(
-                f"horizon={self.horizon} is only meaningful for task 'prediction'",
-                fix="leave horizon at 1 for a simulation (a free run predicts every row)",
+                "{horizon} is only meaningful for one-step prediction, not {task}",
+                terms={"horizon": self.horizon, "task": self.kind},
+                fix="leave {horizon:name} at 1 for a simulation (a free run predicts every row)",
             )
         if self.kind == "prediction" and self.init_samples is not None:
             raise ConfigError(
-                f"init_samples={self.init_samples} is only meaningful for task 'simulation'",
-                fix="leave init_samples unset for one-step prediction (it uses all history)",
+                "{init_samples} is only meaningful for a simulation, not {task}",
+                terms={"init_samples": self.init_samples, "task": self.kind},
+                fix="leave {init_samples:name} out for one-step prediction (it uses all history)",
             )
 
     @property
@@ -128,9 +131,11 @@ def check_windows(task: Task, **windows: int) -> None:
     for name, w in windows.items():
         if w > task.init_samples:
             raise ConfigError(
-                f"{name}={w} is longer than the {task.init_samples} measured rows a simulation "
-                "may use",
-                fix=f"set init_samples={w} or more, or {name}={task.init_samples} or less",
+                f"{{{name}}} is longer than the {{init_samples:value}} measured rows a "
+                "simulation may use ({init_samples:name})",
+                terms={name: w, "init_samples": task.init_samples},
+                fix=f"set {{init_samples:name}} to {w} or more, or {{{name}:name}} to "
+                f"{task.init_samples} or less",
             )
 
 

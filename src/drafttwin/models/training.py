@@ -86,8 +86,8 @@ class Training:
         for name, (ok, rule) in _TRAINING_RULES.items():
             value = getattr(self, name)
             if not ok(value):
-                raise ConfigError(f"training setting {name}={value!r} is invalid",
-                                  fix=f"{name} must be {rule}")  # fmt: skip
+                raise ConfigError(f"training setting {{{name}}} is invalid",
+                                  terms={name: value}, fix=f"{{{name}:name}} must be {rule}")  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drafttwin._constants import ROLLERS
+from drafttwin.data.preprocess import DEFAULT_TRAIN_FRACTION
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, with_unit
 from drafttwin.report.html import Cell, figure, join, para, section, table, tag
@@ -176,7 +177,7 @@ def comparison_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) ->
     extra = compared_models(results)[1]
     data = results["data"]
     source = "plant-emulator data" if is_plant(results) else f"data set {data.get('name')}"
-    share = 1 - float(data.get("train_fraction") or 0.7)
+    share = 1 - float(data.get("train_fraction") or DEFAULT_TRAIN_FRACTION)
     parts: list[Raw | str] = [
         tag("h3", "Table 2 analogue: relative errors"),
         para(

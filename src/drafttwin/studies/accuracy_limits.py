@@ -25,6 +25,7 @@ import time
 
 import numpy as np
 
+from drafttwin.data.preprocess import DEFAULT_TRAIN_FRACTION
 from drafttwin.datasets import load_default
 from drafttwin.evaluation import accuracy_limits, floor_rows, protocol
 from drafttwin.evaluation.limits import lag1_autocorrelation
@@ -33,7 +34,7 @@ from drafttwin.plant.sensors import quantisation_step_rpm
 from drafttwin.studies.figures import write_results
 
 LAGS = 32
-TRAIN_FRACTION = 0.7
+TRAIN_FRACTION = DEFAULT_TRAIN_FRACTION
 
 
 def _fitted(e: np.ndarray, n_train: int) -> float:

@@ -23,6 +23,7 @@ import pandas as pd
 from scipy import stats
 
 from drafttwin._constants import ROLLERS, __version__
+from drafttwin.data.preprocess import DEFAULT_TRAIN_FRACTION
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.execution.executor import Task, run_tasks
 from drafttwin.execution.store import ResultStore
@@ -110,7 +111,7 @@ class Study:
     # ---- stages -----------------------------------------------------------------------
     def prepare_data(self, series: MeasurementSeries) -> dict[str, Any]:
         t0 = time.perf_counter()
-        self.data, summary = prepare(series, train_fraction=0.7, preset=self.preset, cache_dir=self.cache,
+        self.data, summary = prepare(series, train_fraction=DEFAULT_TRAIN_FRACTION, preset=self.preset, cache_dir=self.cache,
                                      duration_s=self.plan.data_duration_s)  # fmt: skip
         self.data_path = self.cache / f"data-{self.data.digest[:16]}.npz"
         saved = PreparedData.load_checked(self.data_path)

@@ -1,0 +1,134 @@
+"""One fit for the library and the command line: :func:`run_fit` takes a
+:class:`~drafttwin.application.request.FitRequest`, builds the estimator, resolves the
+physics, tunes when asked, splits, fits, scores separate test records and records the
+provenance. ``dt.fit`` and ``drafttwin fit`` both call it, so they give the same numbers and
+the same refusals."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+from drafttwin.application.physics import resolve_physics
+from drafttwin.application.request import FitRequest, Note, build_model
+from drafttwin.data.preprocess import DEFAULT_TRAIN_FRACTION
+from drafttwin.errors import ConfigError
+from drafttwin.evaluation import protocol
+from drafttwin.models import BaseModel, MechanisticModel
+
+if TYPE_CHECKING:
+    from drafttwin.data.series import MeasurementSeries
+    from drafttwin.evaluation.protocol import Evaluation, Split
+
+
+@dataclass
+class FitResult:
+    """What a fit made: the fitted model, its split, the test records' scores (with
+    ``test``), the physics it used, notes and, with ``tune``, the search."""
+
+    model: BaseModel
+    split: Split
+    physics: MechanisticModel | None
+    evaluation: Evaluation | None = None
+    notes: list[Note] = field(default_factory=list)
+    tuning: dict[str, Any] | None = None
+
+
+def plan_physics(
+    request: FitRequest, channels: Sequence[str] | None = None
+) -> tuple[BaseModel, MechanisticModel | None, list[Note]]:
+    """The estimator and the physics a request names, before any data are read (so a
+    command can read the input channels the physics needs); ``channels``: the output
+    channels the data will have (default: the request's data's)."""
+    model, notes = build_model(request)
+    if request.data is not None:
+        channels = request.data.channels
+    physics = resolve_physics(request.mechanistic, model, channels, full_model=request.full_model)
+    if request.full_model and (
+        physics is None or physics.spec()["kind"] not in ("preset", "train")
+    ):
+        what = "uses no physics" if physics is None else "takes its physics from files"
+        notes.append(Note(f"{{full_model:name}} changes nothing: the {model.name} model {what}",
+                          {"full_model": True}))  # fmt: skip
+    return model, physics, notes
+
+
+def run_fit(
+    request: FitRequest, progress: Callable[[dict[str, Any]], None] | None = None
+) -> FitResult:
+    """Fit as ``request`` says (see the module doc); ``progress`` is told of each tuning
+    trial as it ends."""
+    data = request.data
+    if data is None:
+        raise ConfigError("no training data", param="data", fix="pass the training records")
+    if request.test is not None and request.train_fraction is not None:
+        raise ConfigError("{train_fraction} splits the data, but separate test records are given",
+                          terms={"train_fraction": request.train_fraction, "test": None},
+                          fix="with {test:name} every row of the data trains: leave "
+                          "{train_fraction:name} out")  # fmt: skip
+    model, physics, notes = plan_physics(request)
+    fraction = (
+        None if request.test is not None else (request.train_fraction or DEFAULT_TRAIN_FRACTION)
+    )
+    tuning = None
+    if request.tune:
+        from drafttwin.application.tuning import tune
+
+        model, tuning = tune(request, model, physics, fraction, progress)
+    part = protocol.fit_split(model, data, train_fraction=fraction, test=request.test,
+                              mechanistic=physics)  # fmt: skip
+    if request.data_label is not None:
+        model.provenance_["data"] = request.data_label
+    if tuning is not None:
+        model.provenance_["tuning"] = tuning
+    evaluation = None
+    if request.test is not None:
+        evaluation = protocol.evaluate(model, part, mechanistic=physics)
+    return FitResult(model, part, physics, evaluation, notes, tuning)
+
+
+def fit(
+    model: str | BaseModel,
+    data: MeasurementSeries,
+    *,
+    test: MeasurementSeries | None = None,
+    mechanistic: object | None = None,
+    train_fraction: float | None = None,
+    profile: str | None = None,
+    task: str | None = None,
+    init_samples: int | None = None,
+    horizon: int | None = None,
+    inputs: tuple[str, ...] | list[str] | None = None,
+    seed: int | None = None,
+    epochs: int | None = None,
+    full_model: bool = False,
+    tune: bool = False,
+    tune_budget: float | None = None,
+    tune_seed: int | None = None,
+    tune_trials: int | None = None,
+    tune_storage: str | None = None,
+    quiet: bool = True,
+    **settings: Any,
+) -> BaseModel:
+    """Fit a model as ``drafttwin fit`` does and return it, fitted.
+
+    ``model``: a registry name (built under ``profile`` with ``settings`` over its
+    hyperparameters: ``window=30, hidden=64, ...``) or an unfitted estimator. The first
+    ``train_fraction`` (default 0.7) of ``data`` trains, or all of it with separate ``test``
+    records. ``mechanistic``: the physics (a source or its command-line text; default: the
+    FA320A preset, reduced unless ``full_model``, for the roller channels). With ``tune``
+    the hyperparameters are searched on validation data within ``tune_budget`` CPU-minutes
+    first (:mod:`drafttwin.application.tuning`). Use :func:`run_fit` for the split and the
+    test scores as well."""
+    from pathlib import Path
+
+    request = FitRequest(
+        model=model, data=data, test=test, mechanistic=mechanistic, profile=profile,
+        settings=settings, task=task, init_samples=init_samples, horizon=horizon,
+        inputs=None if inputs is None else tuple(inputs), seed=seed, epochs=epochs,
+        train_fraction=train_fraction, full_model=full_model, tune=tune,
+        tune_budget=tune_budget, tune_seed=tune_seed, tune_trials=tune_trials,
+        tune_storage=None if tune_storage is None else Path(tune_storage), quiet=quiet,
+    )  # fmt: skip
+    return run_fit(request).model

@@ -1,0 +1,172 @@
+"""Validation that holds: a hybrid's residual model judged on blocked folds of its training
+records, beside "no correction" (the physics alone).
+
+One validation tail can mislead: a residual gain there need not carry to the next record (a
+two-tank record's tail kept a residual model that doubled the test error). So every hybrid
+also fits a *judge* per fold: the training rows are cut into :data:`DEFAULT_FOLDS` contiguous
+blocks; for block ``k`` a residual net with the final net's settings (its number of epochs,
+as many as the final net needed) is trained on the windows that do not touch block ``k``, then
+predicts block ``k`` (one step ahead; in a simulation a free run over the block, accumulated
+from the measured residual just before it, as a test record runs from its initialisation
+window). Each block scores every candidate (the residual level, accumulated changes, no
+correction) by the NRMSE of the output on that block: RMSE over the standard deviation of the
+measured residual ``y - physics`` there (so the physics alone scores 1 or a little above).
+
+The residual model is kept only when it wins reliably: lower than the physics alone on every
+fold and, on the mean over the folds, by more than
+:data:`~drafttwin.models.accumulation.CORRECTION_MARGIN`. Otherwise the hybrid predicts its
+physics exactly. A judge trains on at most :data:`JUDGE_WINDOWS` windows (every n-th one of a
+long record), which keeps the judges' cost a fraction of the final net's on dense data; on a
+record of a few thousand rows they see all of them. The judges share the final net's scalers
+(fitted on all training rows, so a held-out block's range is known to them: a min-max scale,
+not its values)."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from torch import nn
+
+from drafttwin.models import accumulation as acc
+from drafttwin.models.training import (
+    FitProgress,
+    History,
+    debias_head,
+    predict_network,
+    train_network,
+)
+from drafttwin.models.windows import blocked_folds, causal_ffill, footprint_outside
+
+if TYPE_CHECKING:
+    from drafttwin.models.hybrid import _ResidualHybrid
+
+DEFAULT_FOLDS = 3
+"""Blocked folds of the training rows that judge a hybrid's correction."""
+JUDGE_WINDOWS = 1500
+"""Most training windows a judge trains on (every n-th of a longer record)."""
+MEASURE = (
+    "NRMSE of the output on each held-out block of the training records: RMSE / standard "
+    "deviation of the measured residual (y - physics) there"
+)
+"""What the fold scores measure, as reports print it."""
+
+
+@dataclass(frozen=True)
+class FoldScores:
+    """Per candidate (``none``, ``level``, ``accumulate``, ``residual``), its NRMSE on each
+    block, and the blocks' rows."""
+
+    scores: dict[str, list[float]]
+    blocks: list[tuple[int, int]]
+    rows: list[int]
+
+    def mean(self, candidate: str) -> float:
+        values = [v for v in self.scores[candidate] if np.isfinite(v)]
+        return float(np.mean(values)) if values else math.inf
+
+    def wins(self, candidate: str) -> int:
+        """Folds on which ``candidate`` scores below the physics alone."""
+        return sum(
+            1
+            for c, n in zip(self.scores[candidate], self.scores[acc.CORRECTION_NONE], strict=True)
+            if np.isfinite(c) and c < n
+        )
+
+    def to_dict(self) -> dict[str, object]:
+        clean = {k: [v if np.isfinite(v) else None for v in vals]
+                 for k, vals in self.scores.items()}  # fmt: skip
+        return {"fold_nrmse": clean, "folds": len(self.blocks),
+                "fold_blocks": [list(b) for b in self.blocks], "fold_rows": self.rows}  # fmt: skip
+
+
+def judge(
+    model: _ResidualHybrid,
+    fits: Mapping[bool, tuple[nn.Module, History, np.ndarray]],
+    x: np.ndarray,
+    extra: np.ndarray | None,
+    scaled: dict[str, np.ndarray],
+    rows: np.ndarray,
+    em: np.ndarray,
+    residual: np.ndarray,
+    level: np.ndarray | float,
+    starts: Sequence[int],
+    progress: FitProgress | None,
+) -> FoldScores | None:
+    """Fold scores of every candidate in ``fits`` (accumulate flag -> final net, its history,
+    its usable-window mask) and of no correction; ``None`` with fewer than two folds.
+    ``em``: the residual as the net sees it (relative structure: over the physics' level);
+    ``residual``: ``y - physics`` in the output's units; ``level``: what turns one into the
+    other."""
+    k_folds = int(getattr(model, "val_folds", DEFAULT_FOLDS))
+    if k_folds < 2 or rows.size == 0:
+        return None
+    simulation = model.task.simulation
+    lag = 0 if simulation else model.task.horizon
+    blocks = blocked_folds(int(rows.min()), int(rows.max()) + 1, k_folds)
+    anchors = causal_ffill(em, starts)
+    scores: dict[str, list[float]] = {acc.CORRECTION_NONE: []}
+    n_rows = []
+    for k, block in enumerate(blocks):
+        held = (rows >= block[0]) & (rows < block[1])
+        target_rows = rows[held]
+        measured = residual[target_rows]
+        scale = np.nanstd(measured, axis=0)
+        scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
+        scores[acc.CORRECTION_NONE].append(
+            acc.free_run_nrmse(np.zeros_like(measured), measured, scale)
+        )
+        n_rows.append(int(held.sum()))
+        for accumulate, (_, history, ok) in fits.items():
+            name = _name(model, accumulate)
+            net = _train_judge(model, k, block, accumulate, history, x, extra, scaled, rows, ok,
+                               lag, progress)  # fmt: skip
+            ev = None if extra is None else extra[held]
+            usable = np.isfinite(x[held]).reshape(int(held.sum()), -1).all(axis=1)
+            pred = np.full(measured.shape, np.nan)
+            if usable.any():
+                out = predict_network(net, x[held][usable],
+                                      extra=None if ev is None else ev[usable],
+                                      device=model._device())  # fmt: skip
+                key = "dem" if accumulate else "em"
+                pred[usable] = model.scalers_[key].inverse_transform(out)
+            if accumulate:
+                pred = acc.accumulate_runs(pred, target_rows, anchors, starts)
+            lev = level[target_rows] if isinstance(level, np.ndarray) else level
+            scores.setdefault(name, []).append(acc.free_run_nrmse(pred * lev, measured, scale))
+    return FoldScores(scores, blocks, n_rows)
+
+
+def _name(model: _ResidualHybrid, accumulate: bool) -> str:
+    if not model.task.simulation:
+        return "residual"
+    return "accumulate" if accumulate else "level"
+
+
+def _train_judge(
+    model: _ResidualHybrid, k: int, block: tuple[int, int], accumulate: bool, history: History,
+    x: np.ndarray, extra: np.ndarray | None, scaled: dict[str, np.ndarray], rows: np.ndarray,
+    ok: np.ndarray, lag: int, progress: FitProgress | None,
+) -> nn.Module:  # fmt: skip
+    """A residual net trained on the windows outside ``block`` with the final net's
+    settings, for as many epochs as the final net needed."""
+    keep = ok & footprint_outside(rows, model.window, lag, block)
+    target = scaled["dem" if accumulate else "em"][rows]
+    tr = model.training
+    n = int(keep.sum())
+    stride = max(tr.stride, math.ceil(n / JUDGE_WINDOWS)) if n else tr.stride
+    epochs = max(1, history.best_epoch + 1)
+    settings = tr.replace(epochs=epochs, patience=None, val_fraction=0.0, stride=stride)
+    net = model._build(target.shape[1])
+    ek = None if extra is None else extra[keep]
+    what = " (accumulated changes)" if accumulate else ""
+    train_network(net, x[keep], target[keep], settings, seed=model.seed + 101 + k, extra=ek,
+                  progress=progress,
+                  stage=f"{model.name} validation fold {k + 1}{what}")  # fmt: skip
+    if accumulate:
+        debias_head(net, x[keep][::stride], target[keep][::stride],
+                    None if ek is None else ek[::stride], model._device())  # fmt: skip
+    return net
