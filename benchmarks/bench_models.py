@@ -39,7 +39,7 @@ from drafttwin.models import (
     make_model,
     train_network,
 )
-from drafttwin.models.networks import RecurrentRegressor, ResidualNet
+from drafttwin.models.estimators.networks import RecurrentRegressor, ResidualNet
 from drafttwin.models.training import split_sizes
 
 BASE_RPM = np.array([1815.0, 435.0, 426.0, 355.0])

@@ -35,7 +35,7 @@ from _machine import write_results  # noqa: E402
 from drafttwin.data.io import read_measurements  # noqa: E402
 from drafttwin.diagnosis.detect import FaultDetector  # noqa: E402
 from drafttwin.diagnosis.residuals import roller_ratio  # noqa: E402
-from drafttwin.models.base import BaseModel  # noqa: E402
+from drafttwin.models.estimators.base import BaseModel  # noqa: E402
 from drafttwin.twin.faultwatch import LiveFaultWatch, block_phase  # noqa: E402
 from drafttwin.twin.live import MachineTwin, physics_train  # noqa: E402
 from drafttwin.twin.service import MachineState, TwinService  # noqa: E402

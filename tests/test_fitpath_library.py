@@ -73,8 +73,8 @@ def test_fit_returns_the_fitted_model_and_fit_split_the_split(tmp_path: Path) ->
 def test_one_parser_names_the_physics_for_every_command(tmp_path: Path) -> None:
     from drafttwin.cli._common import load_train
     from drafttwin.diagnosis.physics import physics_train
+    from drafttwin.models.mechanistic.source import PhysicsSource, parse_source
     from drafttwin.models.registry import drive_train
-    from drafttwin.models.source import PhysicsSource, parse_source
 
     toml = Path(__file__).resolve().parents[1] / "docs" / "examples" / "belt_drive.toml"
     assert parse_source("preset") == PhysicsSource("preset", "fa320a")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from drafttwin.models.networks import RecurrentRegressor, ResidualNet, SKConv1d
+from drafttwin.models.estimators.networks import RecurrentRegressor, ResidualNet, SKConv1d
 
 
 def test_sknet_shapes_and_attention_sum_to_one() -> None:

@@ -7,7 +7,7 @@ import pytest
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.models import MechanisticModel, make_model
-from drafttwin.models.windows import (
+from drafttwin.models.estimators.windows import (
     blocked_folds,
     causal_ffill,
     footprint_outside,

@@ -18,7 +18,7 @@ from drafttwin.models import (
     load_model,
     make_model,
 )
-from drafttwin.models.params import encode_params
+from drafttwin.models.estimators.params import encode_params
 
 from ._synthetic import hyper_for, make_series, mechanistic
 

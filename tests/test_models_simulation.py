@@ -16,7 +16,7 @@ import torch
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.models import MechanisticModel, OnlinePredictor, load_model, make_model
-from drafttwin.models.params import encode_params
+from drafttwin.models.estimators.params import encode_params
 from drafttwin.models.training import debias_head
 
 from ._synthetic import TINY, TINY_MDSL

@@ -8,8 +8,8 @@ import torch
 
 from drafttwin.errors import ConfigError
 from drafttwin.models import MechanisticModel, Training, make_model, train_network
-from drafttwin.models.networks import RecurrentRegressor, ResidualNet
-from drafttwin.models.training import FitProgress, _mean_loss, split_sizes
+from drafttwin.models.estimators.networks import RecurrentRegressor, ResidualNet
+from drafttwin.models.training.loop import FitProgress, _mean_loss, split_sizes
 
 from ._synthetic import hyper_for, make_series, mechanistic
 
@@ -126,7 +126,7 @@ def test_networks_train_on_one_thread_unless_drafttwin_threads_says_otherwise(
     import torch
 
     from drafttwin.errors import ConfigError
-    from drafttwin.models.compute import cpu_threads, training_threads
+    from drafttwin.models.training.compute import cpu_threads, training_threads
 
     monkeypatch.delenv("DRAFTTWIN_THREADS", raising=False)
     before = torch.get_num_threads()
@@ -144,7 +144,7 @@ def test_networks_train_on_one_thread_unless_drafttwin_threads_says_otherwise(
 def test_cpu_adam_is_torch_adam_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
     """The CPU training loop's own Adam (no torch.optim: its import of torch._dynamo cost a
     CPU-second per fit) gives exactly torch.optim.Adam's losses and weights."""
-    from drafttwin.models import training as tr
+    from drafttwin.models.training import loop as tr
 
     own = tr.make_adam
     assert isinstance(own([torch.zeros(1, requires_grad=True)], 0.1, torch.device("cpu")),

@@ -21,8 +21,8 @@ from drafttwin.models import (
     clone,
     make_model,
 )
-from drafttwin.models.base import read_model_file
-from drafttwin.models.params import encode_params
+from drafttwin.models.estimators.base import read_model_file
+from drafttwin.models.estimators.params import encode_params
 
 from .._synthetic import hyper_for
 

@@ -52,7 +52,7 @@ class Case:
 def _reseal(payload: Payload) -> None:
     """A valid checksum for the edited payload, so that the check of the field itself runs
     (a crafted file carries a matching checksum; a stale one is a case of its own)."""
-    from drafttwin.models.modelfile import checksum
+    from drafttwin.models.storage.modelfile import checksum
 
     with contextlib.suppress(Exception):  # a payload too broken to hash: load refuses it
         payload["checksum"] = checksum(payload)

@@ -28,7 +28,7 @@ from drafttwin.cli import app
 from drafttwin.data.io import write_measurements
 from drafttwin.errors import ConfigError, ModelFileError
 from drafttwin.models import DeviceFallbackWarning, MechanisticModel, load_model, make_model
-from drafttwin.models.modelfile import checksum
+from drafttwin.models.storage.modelfile import checksum
 
 from .._synthetic import hyper_for, make_series, mechanistic
 from ._model_damage import Case, _RunsCode, cases

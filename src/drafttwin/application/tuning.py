@@ -7,7 +7,7 @@ layers, dropout, learning rate, batch size, epochs and patience, and a hybrid's 
 (and MD-S-L's data-driven model and SKNet width); what the caller set stays fixed. Trial 0 is
 the profile's own setting, so the search never ends below it on validation. A trial fits the
 model on the training part and scores it on validation data: a hybrid by the blocked folds of
-its training records (:mod:`drafttwin.models.folds`: the mean NRMSE of the output on the
+its training records (:mod:`drafttwin.models.estimators.folds`: the mean NRMSE of the output on the
 held-out blocks of what it keeps, its physics alone when it keeps no correction), a GRU/LSTM
 by its validation tail. Once :data:`SEED_PHASE` of the budget is spent, the best
 :data:`TOP_CONFIGS` configurations are run again with other network seeds, and the
@@ -198,8 +198,7 @@ def tune(
         return sum(float(t.user_attrs.get("cpu_s", 0.0)) for t in study.get_trials(deepcopy=False))
 
     def run(params: dict[str, Any], net_seed: int) -> tuple[float | None, float]:
-        settings = {**request.settings, **params}
-        trial_request = request.replace(settings=settings, seed=net_seed, quiet=True, tune=False)
+        trial_request = _with(request, params, net_seed).replace(quiet=True)
         start = cpu_seconds()
         try:
             candidate, _ = build_model(trial_request)
@@ -238,6 +237,14 @@ def tune(
             progress({"number": trial.number, "score": score, "best": best, "cpu_s": spent(),
                       "budget_min": budget_min, "params": _text(params, net_seed)})  # fmt: skip
     return _choose(study, request, model, space, errors, budget_min, seed, name, spent())
+
+
+def _with(request: FitRequest, params: dict[str, Any], seed: int) -> FitRequest:
+    """``request`` with a trial's hyperparameters (``epochs`` is a field of its own)."""
+    settings = {k: v for k, v in params.items() if k != "epochs"}
+    epochs = params.get("epochs", request.epochs)
+    return request.replace(settings={**request.settings, **settings}, epochs=epochs, seed=seed,
+                           tune=False)  # fmt: skip
 
 
 def _text(params: dict[str, Any], seed: int) -> str:
@@ -295,8 +302,7 @@ def _choose(
     chosen = min(groups.values(), key=rank)
     best = min(chosen, key=lambda t: t.value if t.value is not None else math.inf)
     net_seed = int(best.user_attrs.get("seed", request.seed or 0))
-    final, _ = build_model(request.replace(settings={**request.settings, **best.params},
-                                           seed=net_seed, tune=False))  # fmt: skip
+    final, _ = build_model(_with(request, best.params, net_seed))
     table = [{"number": t.number, "state": t.state.name.lower(), "score": t.value,
               "cpu_s": round(float(t.user_attrs.get("cpu_s", 0.0)), 2),
               "params": {**t.params, "seed": int(t.user_attrs.get("seed", 0))}}

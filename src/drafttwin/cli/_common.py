@@ -15,8 +15,8 @@ if TYPE_CHECKING:
 
 def load_train(preset: str | None, config: Path | None) -> DriveTrain:
     """The drive train named by ``--preset`` or ``--config`` (exactly one may be given)."""
+    from drafttwin.models.mechanistic.source import PhysicsSource
     from drafttwin.models.registry import drive_train
-    from drafttwin.models.source import PhysicsSource
 
     if preset and config:
         raise ConfigError(

@@ -208,7 +208,7 @@ def _fitted(
 
     from drafttwin.application import resolve_physics
     from drafttwin.models import load_model
-    from drafttwin.models.modelfile import DeviceFallbackWarning
+    from drafttwin.models.storage.modelfile import DeviceFallbackWarning
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DeviceFallbackWarning)

@@ -34,8 +34,8 @@ from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.evaluation.limits import floor_oracle
 from drafttwin.evaluation.metrics import ChannelMetrics, channel_metrics
-from drafttwin.models.base import BaseModel
-from drafttwin.models.baselines import PersistenceModel
+from drafttwin.models.estimators.base import BaseModel
+from drafttwin.models.estimators.baselines import PersistenceModel
 from drafttwin.models.mechanistic import MechanisticModel, record_names
 
 OUTLIER_THRESHOLD = 0.10

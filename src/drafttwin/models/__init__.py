@@ -14,19 +14,23 @@ load any file with :func:`load_model`, copy one unfitted with :func:`clone`; ste
 record one sample at a time with :class:`OnlinePredictor`.
 """
 
-from drafttwin.models.base import FORMAT_VERSION, BaseModel, NotFittedError
-from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel, persistence_forecast
-from drafttwin.models.cloning import clone
-from drafttwin.models.datadriven import GRUModel, LSTMModel
-from drafttwin.models.hybrid import ParallelHybrid
-from drafttwin.models.mdsl import MDSL
+from drafttwin.models.estimators.base import FORMAT_VERSION, BaseModel, NotFittedError
+from drafttwin.models.estimators.baselines import (
+    MechanisticBaseline,
+    PersistenceModel,
+    persistence_forecast,
+)
+from drafttwin.models.estimators.cloning import clone
+from drafttwin.models.estimators.datadriven import GRUModel, LSTMModel
+from drafttwin.models.estimators.hybrid import ParallelHybrid
+from drafttwin.models.estimators.mdsl import MDSL
+from drafttwin.models.estimators.networks import RecurrentRegressor, ResidualNet, SKConv1d
+from drafttwin.models.estimators.task import TASKS, Task
 from drafttwin.models.mechanistic import MechanisticModel
-from drafttwin.models.modelfile import DeviceFallbackWarning
-from drafttwin.models.networks import RecurrentRegressor, ResidualNet, SKConv1d
 from drafttwin.models.online import OnlinePredictor
 from drafttwin.models.profiles import PROFILES, Profile
 from drafttwin.models.registry import MODEL_NAMES, get_profile, load_model, make_model
-from drafttwin.models.task import TASKS, Task
+from drafttwin.models.storage.modelfile import DeviceFallbackWarning
 from drafttwin.models.training import FitProgress, History, Training, train_network
 
 __all__ = [

@@ -11,8 +11,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from drafttwin.models.datadriven import GRUModel
-from drafttwin.models.task import Task
+from drafttwin.models.estimators.datadriven import GRUModel
+from drafttwin.models.estimators.task import Task
 from drafttwin.models.training import Training
 
 

@@ -8,14 +8,14 @@ from typing import Any
 
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import DriveTrain
-from drafttwin.models.base import MODEL_CLASSES, BaseModel, read_model_file
-from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel
-from drafttwin.models.datadriven import GRUModel, LSTMModel
-from drafttwin.models.hybrid import ParallelHybrid
-from drafttwin.models.mdsl import MDSL
+from drafttwin.models.estimators.base import MODEL_CLASSES, BaseModel, read_model_file
+from drafttwin.models.estimators.baselines import MechanisticBaseline, PersistenceModel
+from drafttwin.models.estimators.datadriven import GRUModel, LSTMModel
+from drafttwin.models.estimators.hybrid import ParallelHybrid
+from drafttwin.models.estimators.mdsl import MDSL
+from drafttwin.models.estimators.task import Task
+from drafttwin.models.mechanistic.source import PhysicsSource, parse_source
 from drafttwin.models.profiles import DEFAULT_PROFILE, PROFILES, Profile
-from drafttwin.models.source import PhysicsSource, parse_source
-from drafttwin.models.task import Task
 from drafttwin.models.training import Training
 
 MODEL_NAMES: tuple[str, ...] = (

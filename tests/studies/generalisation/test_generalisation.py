@@ -16,7 +16,7 @@ from drafttwin._constants import ROLLERS
 from drafttwin.cli import app
 from drafttwin.mechanics import kinematics
 from drafttwin.models import make_model
-from drafttwin.models.hybrid import FADE_WIDTH
+from drafttwin.models.estimators.hybrid import FADE_WIDTH
 from drafttwin.studies.generalisation import records as R
 from drafttwin.studies.generalisation.plan import MODELS, TASKS
 
@@ -64,7 +64,7 @@ def test_faded_hybrid_falls_back_on_its_physics_far_outside_training(
     correction is nothing: the hybrid predicts its physics exactly; inside it the correction
     is kept."""
     from drafttwin.models import load_model
-    from drafttwin.models.base import BaseModel
+    from drafttwin.models.estimators.base import BaseModel
 
     series, _ = make_series(400, seed=2)
     extra = {"folds": 2, "data_window": 8, "data_hidden": 8, "data_layers": 1,
@@ -126,7 +126,7 @@ def test_model_file_without_the_structure_params_reads_as_absolute(tmp_path: Pat
     import torch
 
     from drafttwin.models import load_model
-    from drafttwin.models.modelfile import checksum
+    from drafttwin.models.storage.modelfile import checksum
 
     series, _ = make_series(300, seed=3)
     with one_thread():

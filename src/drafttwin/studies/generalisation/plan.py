@@ -12,7 +12,7 @@ from typing import Any
 
 from drafttwin._constants import ROLLERS
 from drafttwin.errors import ConfigError
-from drafttwin.models.hybrid import FADES, STRUCTURES
+from drafttwin.models.estimators.hybrid import FADES, STRUCTURES
 from drafttwin.studies.generalisation import records as R
 from drafttwin.studies.generalisation.fits import INPUT
 

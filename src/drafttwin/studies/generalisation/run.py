@@ -31,7 +31,7 @@ from drafttwin.data.series import MeasurementSeries
 from drafttwin.execution import integrity
 from drafttwin.execution.executor import run_tasks
 from drafttwin.execution.store import ResultStore, code_fingerprint
-from drafttwin.models.hybrid import FADES, STRUCTURES
+from drafttwin.models.estimators.hybrid import FADES, STRUCTURES
 from drafttwin.studies.generalisation import records as R
 from drafttwin.studies.generalisation.fits import (
     load_records,

@@ -22,8 +22,8 @@ from drafttwin.evaluation import protocol
 from drafttwin.execution import integrity
 from drafttwin.execution.store import task_key
 from drafttwin.models import BaseModel, MechanisticModel, make_model
-from drafttwin.models.datadriven import GRUModel
-from drafttwin.models.mdsl import MDSL
+from drafttwin.models.estimators.datadriven import GRUModel
+from drafttwin.models.estimators.mdsl import MDSL
 from drafttwin.models.training import History
 from drafttwin.studies.paper.prepare import PreparedData
 

@@ -18,12 +18,12 @@ from typing import Protocol
 import numpy as np
 from torch import nn
 
+from drafttwin.models.estimators.windows import record_ids
 from drafttwin.models.training import predict_network, split_sizes
-from drafttwin.models.windows import record_ids
 
 
 class FoldScoresLike(Protocol):
-    """What :func:`choose_on_folds` reads of :class:`drafttwin.models.folds.FoldScores`."""
+    """What :func:`choose_on_folds` reads of :class:`drafttwin.models.estimators.folds.FoldScores`."""
 
     @property
     def scores(self) -> dict[str, list[float]]: ...
@@ -185,7 +185,7 @@ def choose_correction(
 
 def choose_on_folds(candidate: str, folds: FoldScoresLike, test: bool = True) -> CorrectionChoice:
     """Keep ``candidate`` only when it wins reliably on the blocked folds
-    (:mod:`drafttwin.models.folds`): below the physics alone on every fold, and on the mean
+    (:mod:`drafttwin.models.estimators.folds`): below the physics alone on every fold, and on the mean
     over the folds by more than :data:`CORRECTION_MARGIN`. ``test=False``: the user kept it
     (scores still recorded)."""
     physics, model = folds.mean(CORRECTION_NONE), folds.mean(candidate)

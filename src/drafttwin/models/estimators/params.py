@@ -1,7 +1,7 @@
 """Estimator hyperparameters: the checks of the flat ones, and their JSON form in model files.
 
 Hyperparameters are plain values (numbers, strings, booleans, tuples) or settings objects:
-a :class:`~drafttwin.models.task.Task`, a :class:`~drafttwin.models.training.Training`, or an
+a :class:`~drafttwin.models.estimators.task.Task`, a :class:`~drafttwin.models.training.Training`, or an
 unfitted estimator used as a template (MD-S-L's data-driven model). Model files store them as
 JSON, each object tagged with its kind, and never as pickles.
 """
@@ -13,7 +13,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from drafttwin.errors import ConfigError
-from drafttwin.models.task import Task
+from drafttwin.models.estimators.task import Task
 from drafttwin.models.training import Training
 
 MAX_WINDOW = 1_000_000

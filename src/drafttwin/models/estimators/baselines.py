@@ -12,10 +12,10 @@ from typing import ClassVar
 import numpy as np
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.models.base import BaseModel
-from drafttwin.models.task import Task
+from drafttwin.models.estimators.base import BaseModel
+from drafttwin.models.estimators.task import Task
+from drafttwin.models.estimators.windows import causal_ffill, record_ids
 from drafttwin.models.training import FitProgress
-from drafttwin.models.windows import causal_ffill, record_ids
 
 
 def persistence_forecast(

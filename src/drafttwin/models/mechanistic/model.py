@@ -36,8 +36,8 @@ import pandas as pd
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
-from drafttwin.models.simfiles import Table, interpolate, read_table, tables
-from drafttwin.models.source import parse_source
+from drafttwin.models.mechanistic.simfiles import Table, interpolate, read_table, tables
+from drafttwin.models.mechanistic.source import parse_source
 
 if TYPE_CHECKING:
     from drafttwin.mechanics import DriveTrain

@@ -13,7 +13,7 @@ import copy
 from typing import Any, TypeVar
 
 from drafttwin.errors import ConfigError
-from drafttwin.models.base import is_estimator
+from drafttwin.models.estimators.base import is_estimator
 
 M = TypeVar("M")
 

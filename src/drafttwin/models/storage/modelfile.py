@@ -38,7 +38,7 @@ from drafttwin.errors import DrafttwinError, ModelFileError
 
 
 class StoredModel(Protocol):
-    """What a model file builds (:class:`~drafttwin.models.base.BaseModel` is one): named
+    """What a model file builds (:class:`~drafttwin.models.estimators.base.BaseModel` is one): named
     hyperparameters checked on construction. A protocol, so that this module, which the
     base class imports, imports nothing of it."""
 
@@ -250,7 +250,7 @@ def fall_back_to_cpu(path: Path, params: dict[str, Any]) -> None:
     """Replace, in the stored hyperparameters, a training device this machine lacks by
     ``cpu`` (with one :class:`DeviceFallbackWarning`); an unknown device name is left for
     the constructor to refuse."""
-    from drafttwin.models.compute import _valid_device
+    from drafttwin.models.training.compute import _valid_device
 
     for training in _training_settings(params):
         device = training.get("device")
@@ -348,7 +348,7 @@ def construct(
 ) -> _Model:
     """The estimator the stored hyperparameters build, through its constructor and checks
     (as a new model), after the device fallback; they must read back exactly as stored."""
-    from drafttwin.models import params as P
+    from drafttwin.models.estimators import params as P
 
     stored = json_field(path, payload, "params_json")
     fall_back_to_cpu(path, stored)

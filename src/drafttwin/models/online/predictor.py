@@ -22,14 +22,14 @@ from torch import nn
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
-from drafttwin.models.base import BaseModel
-from drafttwin.models.baselines import MechanisticBaseline, PersistenceModel
-from drafttwin.models.compute import place, resolve_device
-from drafttwin.models.datadriven import _RecurrentModel
-from drafttwin.models.hybrid import _ResidualHybrid
-from drafttwin.models.mdsl import MDSL
+from drafttwin.models.estimators.base import BaseModel
+from drafttwin.models.estimators.baselines import MechanisticBaseline, PersistenceModel
+from drafttwin.models.estimators.datadriven import _RecurrentModel
+from drafttwin.models.estimators.hybrid import _ResidualHybrid
+from drafttwin.models.estimators.mdsl import MDSL
+from drafttwin.models.estimators.windows import causal_ffill
 from drafttwin.models.mechanistic import MechanisticModel
-from drafttwin.models.windows import causal_ffill
+from drafttwin.models.training.compute import place, resolve_device
 
 
 def _run(net: nn.Module, x: list[np.ndarray], extra: np.ndarray | None = None) -> np.ndarray:

@@ -14,7 +14,7 @@ measured residual ``y - physics`` there (so the physics alone scores 1 or a litt
 
 The residual model is kept only when it wins reliably: lower than the physics alone on every
 fold and, on the mean over the folds, by more than
-:data:`~drafttwin.models.accumulation.CORRECTION_MARGIN`. Otherwise the hybrid predicts its
+:data:`~drafttwin.models.estimators.accumulation.CORRECTION_MARGIN`. Otherwise the hybrid predicts its
 physics exactly. A judge trains on at most :data:`JUDGE_WINDOWS` windows (every n-th one of a
 long record), which keeps the judges' cost a fraction of the final net's on dense data; on a
 record of a few thousand rows they see all of them. The judges share the final net's scalers
@@ -31,7 +31,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from torch import nn
 
-from drafttwin.models import accumulation as acc
+from drafttwin.models.estimators import accumulation as acc
+from drafttwin.models.estimators.windows import blocked_folds, causal_ffill, footprint_outside
 from drafttwin.models.training import (
     FitProgress,
     History,
@@ -39,10 +40,9 @@ from drafttwin.models.training import (
     predict_network,
     train_network,
 )
-from drafttwin.models.windows import blocked_folds, causal_ffill, footprint_outside
 
 if TYPE_CHECKING:
-    from drafttwin.models.hybrid import _ResidualHybrid
+    from drafttwin.models.estimators.hybrid import _ResidualHybrid
 
 DEFAULT_FOLDS = 3
 """Blocked folds of the training rows that judge a hybrid's correction."""

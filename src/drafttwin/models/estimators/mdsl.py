@@ -16,7 +16,7 @@ Task ``simulation``: the data-driven model is a NARX model run free from its own
 cross-fitting fold runs free over its held-out block (record by record) from its own first
 ``init_samples`` measured rows, an honest out-of-sample free run over the training part. The
 residual model sees ``[yhat_m, dyhat_m, dyhat_d]`` (and the inputs), never a measured residual
-(see :mod:`drafttwin.models.hybrid`). The free run's level is left out: a black-box free run
+(see :mod:`drafttwin.models.estimators.hybrid`). The free run's level is left out: a black-box free run
 drifts far outside the range seen in training, its per-sample change does not.
 """
 
@@ -30,12 +30,12 @@ import torch
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
-from drafttwin.models.datadriven import GRUModel, _RecurrentModel
-from drafttwin.models.folds import DEFAULT_FOLDS
-from drafttwin.models.hybrid import VARIANTS, Groups, _ResidualHybrid
-from drafttwin.models.task import Task, blank_after_init, check_windows, input_matrix
+from drafttwin.models.estimators.datadriven import GRUModel, _RecurrentModel
+from drafttwin.models.estimators.folds import DEFAULT_FOLDS
+from drafttwin.models.estimators.hybrid import VARIANTS, Groups, _ResidualHybrid
+from drafttwin.models.estimators.task import Task, blank_after_init, check_windows, input_matrix
+from drafttwin.models.estimators.windows import blocked_folds, first_target
 from drafttwin.models.training import FitProgress, Training
-from drafttwin.models.windows import blocked_folds, first_target
 
 
 class MDSL(_ResidualHybrid):

@@ -5,13 +5,13 @@ Both correct the mechanistic prediction with a learned residual (paper eq. 15):
 
 Task ``prediction``: ``ehat_m(T)`` comes from residual channels up to ``T-h`` only; the parallel
 hybrid sees the mechanistic residual ``e_m = y - yhat_m``; MD-S-L adds the data-driven
-residual ``e_d`` (:mod:`drafttwin.models.mdsl`).
+residual ``e_d`` (:mod:`drafttwin.models.estimators.mdsl`).
 
 Task ``simulation``: no measured residual exists after each record's initialisation window,
 so the windows hold the inputs and the simulated outputs instead: ``[yhat_m, dyhat_m]``
 (parallel), plus the per-sample change of the data-driven free run ``dyhat_d`` (MD-*), at rows
 ``T-W+1 .. T``. The target is the residual's level ``e_m(T)`` or its per-sample change summed
-from the last measured residual; :mod:`drafttwin.models.accumulation` chooses between them on
+from the last measured residual; :mod:`drafttwin.models.estimators.accumulation` chooses between them on
 validation data unless ``accumulate`` is set.
 
 Structure outside the training range (``structure``, ``fade``): with ``structure="relative"``
@@ -45,13 +45,20 @@ import torch
 from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import ConfigError, DataError
-from drafttwin.models import accumulation as acc
-from drafttwin.models.base import pack_module, unpack_module
-from drafttwin.models.datadriven import _NeuralModel
-from drafttwin.models.features import fit_scaler
-from drafttwin.models.folds import DEFAULT_FOLDS, MEASURE, judge
-from drafttwin.models.networks import ResidualNet
-from drafttwin.models.task import Task, check_windows, input_matrix
+from drafttwin.models.estimators import accumulation as acc
+from drafttwin.models.estimators.base import pack_module, unpack_module
+from drafttwin.models.estimators.datadriven import _NeuralModel
+from drafttwin.models.estimators.features import fit_scaler
+from drafttwin.models.estimators.folds import DEFAULT_FOLDS, MEASURE, judge
+from drafttwin.models.estimators.networks import ResidualNet
+from drafttwin.models.estimators.task import Task, check_windows, input_matrix
+from drafttwin.models.estimators.windows import (
+    causal_ffill,
+    finite_rows,
+    gather_windows,
+    increments,
+    target_rows,
+)
 from drafttwin.models.training import (
     FitProgress,
     History,
@@ -59,13 +66,6 @@ from drafttwin.models.training import (
     debias_head,
     predict_network,
     train_network,
-)
-from drafttwin.models.windows import (
-    causal_ffill,
-    finite_rows,
-    gather_windows,
-    increments,
-    target_rows,
 )
 
 VARIANTS = ("md-s-l", "md-l", "md-s")
@@ -467,7 +467,7 @@ class ParallelHybrid(_ResidualHybrid):
         fallback: keep the residual model only when it beats the physics alone on validation
             data (``False``: keep it untested; the scores are still recorded).
         val_folds: blocked folds of the training rows that judge the residual model against
-            the physics alone and choose accumulation (:mod:`drafttwin.models.folds`); 1: the
+            the physics alone and choose accumulation (:mod:`drafttwin.models.estimators.folds`); 1: the
             validation tail of the training alone (as model files before it).
         task / training / seed / quiet: as :class:`~drafttwin.models.GRUModel`.
     """

@@ -6,7 +6,7 @@ import numpy as np
 
 from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.errors import DataError
-from drafttwin.models.windows import causal_ffill
+from drafttwin.models.estimators.windows import causal_ffill
 
 
 def fit_scaler(values: np.ndarray, what: str) -> MinMaxScaler:

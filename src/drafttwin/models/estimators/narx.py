@@ -16,17 +16,9 @@ import numpy as np
 import torch
 
 from drafttwin.data.scaling import MinMaxScaler
-from drafttwin.models.compute import cpu_threads
-from drafttwin.models.features import fit_scaler, scale_inputs
-from drafttwin.models.networks import RecurrentRegressor
-from drafttwin.models.training import (
-    FitProgress,
-    History,
-    Training,
-    debias_head,
-    train_network,
-)
-from drafttwin.models.windows import (
+from drafttwin.models.estimators.features import fit_scaler, scale_inputs
+from drafttwin.models.estimators.networks import RecurrentRegressor
+from drafttwin.models.estimators.windows import (
     causal_ffill,
     finite_rows,
     footprint_outside,
@@ -34,6 +26,14 @@ from drafttwin.models.windows import (
     increments,
     target_rows,
 )
+from drafttwin.models.training import (
+    FitProgress,
+    History,
+    Training,
+    debias_head,
+    train_network,
+)
+from drafttwin.models.training.compute import cpu_threads
 
 
 class NarxModel(Protocol):

@@ -24,8 +24,8 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from torch import nn
 
 from drafttwin.errors import ConfigError, DataError
-from drafttwin.models._adam import CpuAdam, make_adam
-from drafttwin.models.compute import (
+from drafttwin.models.training.adam import CpuAdam, make_adam
+from drafttwin.models.training.compute import (
     _valid_device,
     compute_context,
     cpu_threads,

@@ -4,7 +4,7 @@ Task ``prediction``: a window of the measured outputs (all channels jointly) at 
 ``T-h-W+1 .. T-h`` (``W`` = window, ``h`` = horizon), min-max scaled with a scaler fitted on
 the training part only, predicts the outputs at ``T``; exogenous ``inputs`` join the window as
 extra channels. Task ``simulation``: a NARX model run free from its own outputs
-(:mod:`drafttwin.models.narx`).
+(:mod:`drafttwin.models.estimators.narx`).
 """
 
 from __future__ import annotations
@@ -16,24 +16,24 @@ import torch
 
 from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.models import narx
-from drafttwin.models.base import BaseModel, pack_module, unpack_module
-from drafttwin.models.features import fit_scaler, scale_inputs
-from drafttwin.models.networks import RecurrentRegressor
-from drafttwin.models.task import Task, check_windows, input_matrix
+from drafttwin.models.estimators import narx
+from drafttwin.models.estimators.base import BaseModel, pack_module, unpack_module
+from drafttwin.models.estimators.features import fit_scaler, scale_inputs
+from drafttwin.models.estimators.networks import RecurrentRegressor
+from drafttwin.models.estimators.task import Task, check_windows, input_matrix
+from drafttwin.models.estimators.windows import (
+    causal_ffill,
+    finite_rows,
+    footprint_outside,
+    gather_windows,
+    target_rows,
+)
 from drafttwin.models.training import (
     FitProgress,
     History,
     Training,
     predict_network,
     train_network,
-)
-from drafttwin.models.windows import (
-    causal_ffill,
-    finite_rows,
-    footprint_outside,
-    gather_windows,
-    target_rows,
 )
 
 
@@ -64,7 +64,7 @@ class _RecurrentModel(_NeuralModel):
             value (``None``: True; an untrained net is then persistence); ``False``: the
             plain regression of the paper. Must stay ``None`` in a simulation, where the NARX
             network always predicts the per-sample change.
-        task: what is predicted from what (:class:`~drafttwin.models.task.Task`).
+        task: what is predicted from what (:class:`~drafttwin.models.estimators.task.Task`).
         training: how the network is trained (:class:`~drafttwin.models.training.Training`).
         seed: weight initialisation and batch order. quiet: no progress bar.
     """

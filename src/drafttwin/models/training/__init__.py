@@ -1,0 +1,25 @@
+"""Training: the one loop every network trains through (:mod:`.loop`: Adam, batches,
+validation, early stopping, the progress bar), where and how it computes (:mod:`.compute`:
+device, threads, determinism) and Adam on the CPU (:mod:`.adam`)."""
+
+from drafttwin.models.training.loop import (
+    FitProgress,
+    History,
+    HistoryDict,
+    Training,
+    debias_head,
+    predict_network,
+    split_sizes,
+    train_network,
+)
+
+__all__ = [
+    "FitProgress",
+    "History",
+    "HistoryDict",
+    "Training",
+    "debias_head",
+    "predict_network",
+    "split_sizes",
+    "train_network",
+]
