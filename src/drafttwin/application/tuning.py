@@ -36,6 +36,7 @@ import numpy as np
 from drafttwin.application.request import FitRequest, build_model
 from drafttwin.errors import ConfigError, DrafttwinError
 from drafttwin.evaluation import protocol
+from drafttwin.execution.interrupt import Interrupted
 from drafttwin.models import BaseModel, MechanisticModel
 
 if TYPE_CHECKING:
@@ -185,8 +186,7 @@ def tune(
     seed = request.tune_seed or 0
     storage = _storage(optuna, request.tune_storage)
     name = f"drafttwin-{_fingerprint(request, physics, fraction)}"
-    sampler = optuna.samplers.TPESampler(seed=seed, n_startup_trials=8)
-    study = optuna.create_study(study_name=name, storage=storage, sampler=sampler,
+    study = optuna.create_study(study_name=name, storage=storage, sampler=_sampler(optuna, seed, 0),
                                 direction="minimize", load_if_exists=True)  # fmt: skip
     for stale in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
         study.tell(stale.number, state=optuna.trial.TrialState.FAIL)  # an interrupted run's
@@ -204,6 +204,8 @@ def tune(
             candidate, _ = build_model(trial_request)
             candidate.fit(train, physics)
             score: float | None = validation_score(candidate)
+        except Interrupted:  # a stop signal: the journal keeps the finished trials
+            raise
         except DrafttwinError as exc:  # a setting these data cannot take: the trial fails
             errors.append(exc)
             score = None
@@ -222,6 +224,8 @@ def tune(
             request.tune_trials is not None and ran >= SEED_PHASE * request.tune_trials
         ):
             _enqueue_seeds(study, base_seed)
+        # seeded per trial: a resumed search draws what an uninterrupted one would
+        study.sampler = _sampler(optuna, seed, len(study.trials))
         trial = study.ask()
         params = _suggest(trial, space)
         net_seed = int(trial.user_attrs.get("seed", base_seed))
@@ -237,6 +241,11 @@ def tune(
             progress({"number": trial.number, "score": score, "best": best, "cpu_s": spent(),
                       "budget_min": budget_min, "params": _text(params, net_seed)})  # fmt: skip
     return _choose(study, request, model, space, errors, budget_min, seed, name, spent())
+
+
+def _sampler(optuna: Any, seed: int, n: int) -> Any:
+    """TPE seeded by the search's seed and the trial's number (8 random trials first)."""
+    return optuna.samplers.TPESampler(seed=(seed * 1_000_003 + n) % 2**32, n_startup_trials=8)
 
 
 def _with(request: FitRequest, params: dict[str, Any], seed: int) -> FitRequest:

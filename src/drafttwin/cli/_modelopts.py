@@ -95,6 +95,18 @@ class TuneOptions:
                               fix="add --tune, or leave the tuning options out")  # fmt: skip
 
     @contextlib.contextmanager
+    def stoppable(self) -> Iterator[None]:
+        """A search stops cleanly on SIGTERM / SIGINT (one line, exit 128 + signal); its
+        journal keeps the finished trials, so the same command resumes it."""
+        if not self.tune:
+            yield
+            return
+        from drafttwin.execution.interrupt import stop_on_signals
+
+        with stop_on_signals("the same command resumes the search from its journal"):
+            yield
+
+    @contextlib.contextmanager
     def progress(self, quiet: bool) -> Iterator[Callable[[dict[str, Any]], None] | None]:
         """A progress line per finished trial on stderr (``None`` when quiet or not tuning)."""
         if quiet or not self.tune:

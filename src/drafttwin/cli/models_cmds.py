@@ -169,7 +169,7 @@ def fit(
         needs = () if physics is None else physics.required_inputs()
         series = parsed.read(source.fit_data, needs)
         test = None if source.test_data is None else parsed.read(source.test_data, needs)
-        with tune.progress(quiet or as_json) as told:
+        with tune.progress(quiet or as_json) as told, tune.stoppable():
             result = run_fit(request.replace(data=series, test=test), progress=told)
     if not quiet:
         for note in result.notes:

@@ -195,9 +195,18 @@ class FitProgress:
         text = f"loss {train_loss:.3g}" + ("" if val_loss is None else f" val {val_loss:.3g}")
         self._progress.update(self._task, advance=1, loss=text)
 
-    def finish(self) -> None:
-        """Fill the bar (early stopping ends a stage before its epoch budget)."""
+    def finish(self, history: History | None = None) -> None:
+        """End the stage: an early stop shows as such (the epochs run of the budget, and the
+        best epoch), not as a full bar."""
         task = self._progress.tasks[0]
+        if history is not None and history.stopped_early:
+            run = len(history.train_loss)
+            self._progress.update(
+                self._task, total=run, completed=run,
+                description=f"{task.description} (stopped early at epoch {run} of "
+                f"{int(task.total or run)}: best {history.best_epoch + 1})",
+            )  # fmt: skip
+            return
         self._progress.update(self._task, completed=task.total)
 
 
@@ -347,7 +356,7 @@ def _run_epochs(
                 break
     net.load_state_dict(best_state)
     if progress is not None:
-        progress.finish()
+        progress.finish(history)
 
 
 def _train_epoch(
