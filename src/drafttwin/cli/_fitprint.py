@@ -145,9 +145,9 @@ def report(result: Evaluation, as_json: bool) -> None:
         if m.rel_note:
             console.print(f"{escape(name)}: {m.rel_note}")
     for line in selection_lines(result.selection):
-        console.print(line, highlight=False, soft_wrap=True)
+        console.print(escape(line), highlight=False, soft_wrap=True)
     for line in tuning_lines(result.tuning):
-        console.print(line, highlight=False, soft_wrap=True)
+        console.print(escape(line), highlight=False, soft_wrap=True)
     console.print("skill = 1 - RMSE / RMSE(persistence); scored: measured samples not flagged "
                   "as outliers" + ("" if result.task == "prediction" else ", after each "
                                    "record's initialisation window"))  # fmt: skip

@@ -186,7 +186,7 @@ def fit(
     )
     if not (quiet or as_json):
         for line in fit_advice(result):
-            console.print(line, highlight=False, soft_wrap=True)
+            console.print(escape(line), highlight=False, soft_wrap=True)
     if result.evaluation is not None:  # separate test records: scored now (else: evaluate)
         report(result.evaluation, as_json)
         return
@@ -195,9 +195,9 @@ def fit(
                     "split": part.summary, "tuning": result.tuning})  # fmt: skip
         return
     for line in selection_lines(estimator.selection_):
-        console.print(line, highlight=False, soft_wrap=True)
+        console.print(escape(line), highlight=False, soft_wrap=True)
     for line in tuning_lines(estimator.provenance_.get("tuning")):
-        console.print(line, highlight=False, soft_wrap=True)
+        console.print(escape(line), highlight=False, soft_wrap=True)
 
 
 def _fitted(
