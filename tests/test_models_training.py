@@ -162,3 +162,40 @@ def test_cpu_adam_is_torch_adam_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> 
     (loss_a, val_a, sd_a), (loss_b, val_b, sd_b) = results
     assert loss_a == loss_b and val_a == val_b
     assert all(torch.equal(sd_a[k], sd_b[k]) for k in sd_a)
+
+
+@pytest.mark.parametrize("max_norm", [1e-3, 1e3, 0.0])  # clipped, within the norm, to zero
+def test_clip_gradients_is_torch_clip_grad_norm_bit_for_bit(max_norm: float) -> None:
+    """The CPU loop's own gradient clipping (no grouping by device per step, no multiply by 1)
+    leaves exactly the gradients ``nn.utils.clip_grad_norm_`` leaves."""
+    from drafttwin.models.training.loop import clip_gradients
+
+    x, y = _toy()
+    grads = []
+    for clip in (clip_gradients, torch.nn.utils.clip_grad_norm_):
+        torch.manual_seed(0)
+        net = ResidualNet(4, 4, use_sknet=True, use_lstm=True, sk_channels=6, hidden=8, layers=2)
+        loss = torch.nn.functional.mse_loss(net(torch.from_numpy(x)), torch.from_numpy(y))
+        loss.backward()  # type: ignore[no-untyped-call]
+        clip(net, max_norm) if clip is clip_gradients else clip(net.parameters(), max_norm)
+        grads.append([p.grad.clone() for p in net.parameters() if p.grad is not None])
+    ours, torchs = grads
+    assert len(ours) == len(torchs) > 0
+    assert all(torch.equal(a, b) for a, b in zip(ours, torchs, strict=True))
+    if max_norm == 1e-3:  # it did clip
+        assert float(torch.linalg.vector_norm(torch.cat([g.flatten() for g in ours]))) < 2e-3
+
+
+def test_predictions_in_cpu_chunks_equal_one_forward_pass() -> None:
+    """Predicting more windows than one CPU chunk holds gives the outputs of one pass over
+    all of them, bit for bit."""
+    from drafttwin.models.training import loop as tr
+
+    rng = np.random.default_rng(1)
+    x = rng.random((tr.CPU_FORWARD_CHUNK * 2 + 37, 6, 4)).astype(np.float32)
+    torch.manual_seed(0)
+    net = ResidualNet(4, 4, use_sknet=True, use_lstm=True, sk_channels=6, hidden=8, layers=2)
+    net.eval()
+    with torch.no_grad():
+        whole = tr._forward(net, torch.from_numpy(x), None).numpy().astype(np.float64)
+    np.testing.assert_array_equal(tr.predict_network(net, x, device="cpu"), whole)

@@ -132,7 +132,7 @@ def _tail_misleads(folder: Path, name: str, **options: object) -> tuple[object, 
 
 
 @pytest.mark.parametrize(("name", "options"), [("parallel", {"accumulate": False}),
-                                               ("md-s-l", {})])  # fmt: skip
+                                               ("parallel", {}), ("md-s-l", {})])  # fmt: skip
 def test_a_gain_on_the_validation_tail_alone_is_not_kept(folder, name, options) -> None:
     model, hybrid, physics = _tail_misleads(folder, name, **options)
     choice = model.selection_["correction"]

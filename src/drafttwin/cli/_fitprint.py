@@ -17,8 +17,9 @@ if TYPE_CHECKING:
     from drafttwin.evaluation.metrics import ChannelMetrics
     from drafttwin.evaluation.protocol import Evaluation
 
-CANDIDATE = {"none": "physics alone", "level": "residual level",
-             "accumulate": "accumulated changes", "residual": "residual model"}  # fmt: skip
+CANDIDATE = {"none": "physics alone", "held": "measured residual held",
+             "level": "residual level", "accumulate": "accumulated changes",
+             "residual": "residual model"}  # fmt: skip
 """How the validation candidates of a hybrid read in the report."""
 
 SMALL_DATA_ROWS = 5000
@@ -75,20 +76,23 @@ def _fold_lines(correction: dict[str, Any], choice: dict[str, Any] | None) -> li
         lines.append(f"  {CANDIDATE.get(name, name):<20} {_num(mean):>7}  [{cells}]")
     if choice and choice.get("chosen_by") != "user":
         what = "accumulated changes" if choice["accumulate"] else "residual level"
-        lines.append(f"residual model predicts the {what} (the lower fold mean of the two)")
+        lines.append(f"residual model predicts the {what} (of the two, the lower fold mean "
+                     "among those that win reliably)")  # fmt: skip
     elif choice:
         lines.append("residual model predicts the " + ("accumulated changes" if choice["accumulate"]
                                                        else "residual level") + " (set)")  # fmt: skip
     kept, wins = correction["kept"], correction.get("wins")
+    rival = ("the physics alone and the measured residual held"
+             if "held" in correction.get("validation_nrmse", {}) else "the physics alone")  # fmt: skip
     if correction.get("chosen_by") == "user":
         lines.append(f"correction kept: {CANDIDATE.get(kept, kept)} (--set fallback=false: "
                      "kept untested)")  # fmt: skip
     elif kept == "none":
-        lines.append(f"no correction: the physics alone predicts (the residual model won {wins} "
-                     f"of {folds} folds; it is kept only when it wins every fold and by more "
-                     "than 1 % on the mean)")  # fmt: skip
+        lines.append(f"no correction: the physics alone predicts (the residual model beat "
+                     f"{rival} on {wins} of {folds} folds; it is kept only when it wins every "
+                     "fold and by more than 1 % on the mean)")  # fmt: skip
     else:
-        lines.append(f"correction kept: {CANDIDATE.get(kept, kept)} (beats the physics alone on "
+        lines.append(f"correction kept: {CANDIDATE.get(kept, kept)} (beats {rival} on "
                      f"{wins} of {folds} folds and by more than 1 % on the mean)")  # fmt: skip
     return lines
 

@@ -35,6 +35,8 @@ class FoldScoresLike(Protocol):
 
     def wins(self, candidate: str) -> int: ...
 
+    def reliable(self, candidate: str) -> bool: ...
+
 
 def validation_slice(n_samples: int, val_fraction: float, stride: int) -> slice:
     """The samples (in chronological order, before ``stride`` subsampling) that
@@ -124,6 +126,11 @@ def choose(scores: dict[bool, float], n_rows: int, by: str = "validation") -> Ch
 
 CORRECTION_NONE = "none"
 """The validation candidate "no correction": the physics alone (the residual taken as 0)."""
+CORRECTION_HELD = "held"
+"""The baseline of accumulated changes on the folds: the measured residual they start from,
+held over the block (accumulation with no change predicted). A gain of accumulated changes
+over the physics alone that this scores as well comes from that measured start, not from the
+residual model, whose changes then only add drift."""
 CORRECTION_MARGIN = 0.01
 """A residual model is kept when its validation NRMSE is below the physics' by more than this
 share: on a residual that is white noise, a net that learnt its training mean beats zero on a
@@ -185,13 +192,28 @@ def choose_correction(
 
 def choose_on_folds(candidate: str, folds: FoldScoresLike, test: bool = True) -> CorrectionChoice:
     """Keep ``candidate`` only when it wins reliably on the blocked folds
-    (:mod:`drafttwin.models.estimators.folds`): below the physics alone on every fold, and on the mean
-    over the folds by more than :data:`CORRECTION_MARGIN`. ``test=False``: the user kept it
-    (scores still recorded)."""
-    physics, model = folds.mean(CORRECTION_NONE), folds.mean(candidate)
-    n_folds = len(folds.scores[CORRECTION_NONE])
-    reliable = folds.wins(candidate) == n_folds and model < (1.0 - CORRECTION_MARGIN) * physics
-    kept = candidate if reliable or not test else CORRECTION_NONE
-    return CorrectionChoice(kept, "validation folds" if test else "user",
-                            {CORRECTION_NONE: physics, candidate: model}, sum(folds.rows),
-                            wins=folds.wins(candidate))  # fmt: skip
+    (:mod:`drafttwin.models.estimators.folds`): below the physics alone on every fold, and on
+    the mean over the folds by more than :data:`CORRECTION_MARGIN`; accumulated changes also
+    below the measured residual held (:data:`CORRECTION_HELD`). ``test=False``: the user kept
+    it (scores still recorded)."""
+    kept = candidate if folds.reliable(candidate) or not test else CORRECTION_NONE
+    scores = {CORRECTION_NONE: folds.mean(CORRECTION_NONE), candidate: folds.mean(candidate)}
+    if candidate == "accumulate" and CORRECTION_HELD in folds.scores:
+        scores[CORRECTION_HELD] = folds.mean(CORRECTION_HELD)
+    return CorrectionChoice(kept, "validation folds" if test else "user", scores,
+                            sum(folds.rows), wins=folds.wins(candidate))  # fmt: skip
+
+
+def choose_accumulation_on_folds(candidates: Sequence[bool], folds: FoldScoresLike) -> Choice:
+    """Accumulation or the level, on the blocked folds: of the candidates that win reliably
+    (:func:`choose_on_folds`'s rule) the one with the lower fold mean; when neither or both
+    do, the lower fold mean (accumulation on a tie). Both means are recorded."""
+    means = {k: folds.mean(_name(k)) for k in candidates}
+    pool = [k for k in candidates if folds.reliable(_name(k))] or list(candidates)
+    best = min(pool, key=lambda k: (means[k], not k))
+    return Choice(best, "validation folds", {_name(k): v for k, v in means.items()},
+                  sum(folds.rows))  # fmt: skip
+
+
+def _name(accumulate: bool) -> str:
+    return "accumulate" if accumulate else "level"

@@ -10,16 +10,23 @@ predicts block ``k`` (one step ahead; in a simulation a free run over the block,
 from the measured residual just before it, as a test record runs from its initialisation
 window). Each block scores every candidate (the residual level, accumulated changes, no
 correction) by the NRMSE of the output on that block: RMSE over the standard deviation of the
-measured residual ``y - physics`` there (so the physics alone scores 1 or a little above).
+measured residual ``y - physics`` there (so the physics alone scores 1, or more where the
+residual has a mean).
+Accumulated changes are also scored with no change predicted (the measured residual they
+start from, held: ``held``).
 
-The residual model is kept only when it wins reliably: lower than the physics alone on every
-fold and, on the mean over the folds, by more than
-:data:`~drafttwin.models.estimators.accumulation.CORRECTION_MARGIN`. Otherwise the hybrid predicts its
-physics exactly. A judge trains on at most :data:`JUDGE_WINDOWS` windows (every n-th one of a
-long record), which keeps the judges' cost a fraction of the final net's on dense data; on a
-record of a few thousand rows they see all of them. The judges share the final net's scalers
-(fitted on all training rows, so a held-out block's range is known to them: a min-max scale,
-not its values)."""
+The residual model is kept only when it wins reliably: lower than its baseline on every fold
+and, on the mean over the folds, by more than
+:data:`~drafttwin.models.estimators.accumulation.CORRECTION_MARGIN`. The baseline is the
+physics alone, and for accumulated changes the lower of that and the held residual: a gain
+that the held anchor scores as well is the measured start's, not the net's (on a record whose
+regime changes, accumulation won every fold over the physics that way and lost on the test).
+Otherwise the hybrid predicts its physics exactly. A judge trains on every window outside its
+block, for at most :data:`JUDGE_WINDOWS` windows' worth of steps per epoch of the final net
+(:func:`judge_epochs`: on a longer record fewer passes over all of them), which keeps the
+judges' cost a fraction of the final net's on dense data. The judges share the final net's
+scalers (fitted on all training rows, so a held-out block's range is known to them: a min-max
+scale, not its values)."""
 
 from __future__ import annotations
 
@@ -46,8 +53,9 @@ if TYPE_CHECKING:
 
 DEFAULT_FOLDS = 3
 """Blocked folds of the training rows that judge a hybrid's correction."""
-JUDGE_WINDOWS = 1500
-"""Most training windows a judge trains on (every n-th of a longer record)."""
+JUDGE_WINDOWS = 600
+"""A judge trains at most this many windows' worth of steps per epoch of the final net: on
+more windows it goes through all of them in fewer epochs (:func:`judge_epochs`)."""
 MEASURE = (
     "NRMSE of the output on each held-out block of the training records: RMSE / standard "
     "deviation of the measured residual (y - physics) there"
@@ -57,8 +65,8 @@ MEASURE = (
 
 @dataclass(frozen=True)
 class FoldScores:
-    """Per candidate (``none``, ``level``, ``accumulate``, ``residual``), its NRMSE on each
-    block, and the blocks' rows."""
+    """Per candidate (``none``, ``held``, ``level``, ``accumulate``, ``residual``), its NRMSE
+    on each block, and the blocks' rows."""
 
     scores: dict[str, list[float]]
     blocks: list[tuple[int, int]]
@@ -68,12 +76,32 @@ class FoldScores:
         values = [v for v in self.scores[candidate] if np.isfinite(v)]
         return float(np.mean(values)) if values else math.inf
 
+    def baseline(self, candidate: str) -> list[float]:
+        """Per fold, what ``candidate`` must beat: the physics alone, and for accumulated
+        changes also the measured residual they start from, held (what they score with a net
+        that predicts no change): the lower of the two."""
+        none = self.scores[acc.CORRECTION_NONE]
+        held = self.scores.get(acc.CORRECTION_HELD)
+        if candidate != "accumulate" or held is None:
+            return list(none)
+        return [float(np.fmin(a, b)) for a, b in zip(none, held, strict=True)]
+
     def wins(self, candidate: str) -> int:
-        """Folds on which ``candidate`` scores below the physics alone."""
+        """Folds on which ``candidate`` scores below its :meth:`baseline`."""
         return sum(
             1
-            for c, n in zip(self.scores[candidate], self.scores[acc.CORRECTION_NONE], strict=True)
-            if np.isfinite(c) and c < n
+            for c, b in zip(self.scores[candidate], self.baseline(candidate), strict=True)
+            if np.isfinite(c) and c < b
+        )
+
+    def reliable(self, candidate: str) -> bool:
+        """Below its :meth:`baseline` on every fold, and on the mean over the folds by more
+        than :data:`~drafttwin.models.estimators.accumulation.CORRECTION_MARGIN`."""
+        base = [v for v in self.baseline(candidate) if np.isfinite(v)]
+        mean_base = float(np.mean(base)) if base else math.inf
+        return (
+            self.wins(candidate) == len(self.blocks)
+            and self.mean(candidate) < (1.0 - acc.CORRECTION_MARGIN) * mean_base
         )
 
     def to_dict(self) -> dict[str, object]:
@@ -120,6 +148,7 @@ def judge(
             acc.free_run_nrmse(np.zeros_like(measured), measured, scale)
         )
         n_rows.append(int(held.sum()))
+        lev = level[target_rows] if isinstance(level, np.ndarray) else level
         for accumulate, (_, history, ok) in fits.items():
             name = _name(model, accumulate)
             net = _train_judge(model, k, block, accumulate, history, x, extra, scaled, rows, ok,
@@ -135,7 +164,12 @@ def judge(
                 pred[usable] = model.scalers_[key].inverse_transform(out)
             if accumulate:
                 pred = acc.accumulate_runs(pred, target_rows, anchors, starts)
-            lev = level[target_rows] if isinstance(level, np.ndarray) else level
+                # the same runs with no change predicted: the anchor held, on the same rows
+                hold = acc.accumulate_runs(np.where(np.isfinite(pred), 0.0, np.nan), target_rows,
+                                           anchors, starts)  # fmt: skip
+                scores.setdefault(acc.CORRECTION_HELD, []).append(
+                    acc.free_run_nrmse(hold * lev, measured, scale)
+                )
             scores.setdefault(name, []).append(acc.free_run_nrmse(pred * lev, measured, scale))
     return FoldScores(scores, blocks, n_rows)
 
@@ -152,14 +186,14 @@ def _train_judge(
     ok: np.ndarray, lag: int, progress: FitProgress | None,
 ) -> nn.Module:  # fmt: skip
     """A residual net trained on the windows outside ``block`` with the final net's
-    settings, for as many epochs as the final net needed."""
+    settings, for as many epochs as the final net needed (:func:`judge_epochs`: fewer over
+    all of them on a long record)."""
     keep = ok & footprint_outside(rows, model.window, lag, block)
     target = scaled["dem" if accumulate else "em"][rows]
     tr = model.training
-    n = int(keep.sum())
-    stride = max(tr.stride, math.ceil(n / JUDGE_WINDOWS)) if n else tr.stride
-    epochs = max(1, history.best_epoch + 1)
-    settings = tr.replace(epochs=epochs, patience=None, val_fraction=0.0, stride=stride)
+    n = len(range(0, int(keep.sum()), tr.stride))  # the windows an epoch goes through
+    settings = tr.replace(epochs=judge_epochs(history.best_epoch + 1, n), patience=None,
+                          val_fraction=0.0)  # fmt: skip
     net = model._build(target.shape[1])
     ek = None if extra is None else extra[keep]
     what = " (accumulated changes)" if accumulate else ""
@@ -167,6 +201,18 @@ def _train_judge(
                   progress=progress,
                   stage=f"{model.name} validation fold {k + 1}{what}")  # fmt: skip
     if accumulate:
-        debias_head(net, x[keep][::stride], target[keep][::stride],
-                    None if ek is None else ek[::stride], model._device())  # fmt: skip
+        s = tr.stride
+        debias_head(net, x[keep][::s], target[keep][::s], None if ek is None else ek[::s],
+                    model._device())  # fmt: skip
     return net
+
+
+def judge_epochs(final_epochs: int, n_windows: int) -> int:
+    """A judge's epochs: the final net's (``final_epochs``, as many as it needed), over at most
+    :data:`JUDGE_WINDOWS` windows' worth of steps each; a judge with more windows than that
+    goes through all of them fewer times (at least once), so its cost stops growing with the
+    record's length."""
+    final_epochs = max(1, final_epochs)
+    if n_windows <= JUDGE_WINDOWS:
+        return final_epochs
+    return max(1, round(final_epochs * JUDGE_WINDOWS / n_windows))

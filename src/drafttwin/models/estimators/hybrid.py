@@ -276,8 +276,7 @@ class _ResidualHybrid(_NeuralModel):
             if self.accumulate is not None:
                 choice = acc.Choice(self.accumulate, "user", {}, 0)
             elif folds is not None:
-                choice = acc.choose({k: folds.mean(_candidate(k)) for k in candidates},
-                                    sum(folds.rows), "validation folds")  # fmt: skip
+                choice = acc.choose_accumulation_on_folds(candidates, folds)
             else:
                 if any(v is None for v in val.values()):
                     raise DataError(

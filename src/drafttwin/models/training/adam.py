@@ -13,6 +13,7 @@ passes hooks, profiler records and a per-parameter ``.item()``. Other devices ke
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import cast
 
 import torch
 
@@ -42,25 +43,39 @@ class CpuAdam:
 
     @torch.no_grad()
     def step(self) -> None:
-        beta1, beta2 = self.beta1, self.beta2
-        for i, param in enumerate(self.params):
-            grad = param.grad
-            if grad is None:
-                continue
-            exp_avg, exp_avg_sq = self.exp_avg[i], self.exp_avg_sq[i]
-            if exp_avg is None or exp_avg_sq is None:
-                exp_avg = self.exp_avg[i] = torch.zeros_like(param)
-                exp_avg_sq = self.exp_avg_sq[i] = torch.zeros_like(param)
+        live = [i for i, p in enumerate(self.params) if p.grad is not None]
+        for i in live:
+            if self.exp_avg[i] is None:
+                self.exp_avg[i] = torch.zeros_like(self.params[i])
+                self.exp_avg_sq[i] = torch.zeros_like(self.params[i])
             self.steps[i] += 1
-            step = float(self.steps[i])  # torch keeps it in a float32 tensor: exact to 2**24
-            exp_avg.lerp_(grad, 1 - beta1)
-            exp_avg_sq.mul_(beta2).addcmul_(grad, grad, value=1 - beta2)
-            bias_correction1 = 1 - beta1**step
-            bias_correction2 = 1 - beta2**step
-            step_size = self.lr / bias_correction1
-            bias_correction2_sqrt = bias_correction2**0.5
-            denom = (exp_avg_sq.sqrt() / bias_correction2_sqrt).add_(self.eps)
-            param.addcdiv_(exp_avg, denom, value=-step_size)
+        counts = {self.steps[i] for i in live}
+        if len(counts) == 1:  # the usual case: every parameter at the same step, in one go
+            self._update(live, float(counts.pop()))
+        else:
+            for i in live:
+                self._update([i], float(self.steps[i]))
+
+    def _update(self, idx: list[int], step: float) -> None:
+        """Torch's single-tensor Adam step on the parameters ``idx`` (all at ``step``; torch
+        keeps it in a float32 tensor: exact to 2**24), each operation applied to all of them
+        at once (``torch._foreach_*``: on the CPU a loop of the same per-tensor kernels, so
+        the same numbers, without a Python call per tensor and operation)."""
+        params = [self.params[i] for i in idx]
+        grads = [cast(torch.Tensor, p.grad) for p in params]
+        exp_avg = [cast(torch.Tensor, self.exp_avg[i]) for i in idx]
+        exp_avg_sq = [cast(torch.Tensor, self.exp_avg_sq[i]) for i in idx]
+        torch._foreach_lerp_(exp_avg, grads, 1 - self.beta1)
+        torch._foreach_mul_(exp_avg_sq, self.beta2)
+        torch._foreach_addcmul_(exp_avg_sq, grads, grads, value=1 - self.beta2)
+        bias_correction1 = 1 - self.beta1**step
+        bias_correction2 = 1 - self.beta2**step
+        step_size = self.lr / bias_correction1
+        bias_correction2_sqrt = bias_correction2**0.5
+        denom = torch._foreach_sqrt(exp_avg_sq)
+        torch._foreach_div_(denom, bias_correction2_sqrt)
+        torch._foreach_add_(denom, self.eps)
+        torch._foreach_addcdiv_(params, exp_avg, denom, value=-step_size)
 
 
 def make_adam(

@@ -219,6 +219,21 @@ def _forward(net: nn.Module, x: torch.Tensor, extra: torch.Tensor | None) -> tor
     return y
 
 
+CPU_FORWARD_CHUNK = 1024
+"""Windows per forward pass when predicting on the CPU: a recurrent net's forward over 1,024
+windows took a fifth less time per window than over 4,096 (2-core AMD EPYC), with the
+same outputs bit for bit."""
+
+
+def _forward_chunks(net: nn.Module, x: torch.Tensor, extra: torch.Tensor | None) -> torch.Tensor:
+    """``net`` over ``x`` in pieces of :data:`CPU_FORWARD_CHUNK` windows on the CPU."""
+    step = CPU_FORWARD_CHUNK if x.device.type == "cpu" else x.shape[0]
+    if x.shape[0] <= step:
+        return _forward(net, x, extra)
+    return torch.cat([_forward(net, x[i : i + step], None if extra is None else extra[i : i + step])
+                      for i in range(0, x.shape[0], step)])  # fmt: skip
+
+
 def _mean_loss(
     net: nn.Module,
     x: torch.Tensor,
@@ -226,13 +241,13 @@ def _mean_loss(
     extra: torch.Tensor | None,
     chunk: int = 4096,
 ) -> float:
-    """MSE over all samples, evaluated in eval mode in chunks."""
+    """MSE over all samples, evaluated in eval mode, summed in chunks of ``chunk``."""
     net.eval()
     total = 0.0
     with torch.no_grad():
         for i in range(0, x.shape[0], chunk):
             e = None if extra is None else extra[i : i + chunk]
-            out = _forward(net, x[i : i + chunk], e)
+            out = _forward_chunks(net, x[i : i + chunk], e)
             total += float(nn.functional.mse_loss(out, y[i : i + chunk], reduction="sum"))
     return total / (y.shape[0] * y.shape[1])
 
@@ -376,10 +391,25 @@ def _train_epoch(
         loss = nn.functional.mse_loss(_forward(net, bx, be), by)
         loss.backward()  # type: ignore[no-untyped-call]  # torch leaves Tensor.backward unannotated
         if config.clip_norm is not None:
-            nn.utils.clip_grad_norm_(net.parameters(), config.clip_norm)
+            clip_gradients(net, config.clip_norm)
         opt.step()
         total += loss.detach() * by.shape[0]
     return float(total) / parts.n_train
+
+
+def clip_gradients(net: nn.Module, max_norm: float) -> None:
+    """``nn.utils.clip_grad_norm_(net.parameters(), max_norm)``, the same numbers: on the CPU
+    without its grouping by device and type per step, and without multiplying the gradients by
+    a factor of exactly 1 (no change) when their norm is within ``max_norm``."""
+    params = [p for p in net.parameters() if p.grad is not None]
+    if not params or params[0].device.type != "cpu":
+        nn.utils.clip_grad_norm_(net.parameters(), max_norm)
+        return
+    grads = [p.grad for p in params if p.grad is not None]
+    total = torch.linalg.vector_norm(torch.stack(torch._foreach_norm(grads, 2.0)), 2.0)
+    coef = torch.clamp(max_norm / (total + 1e-6), max=1.0)
+    if float(coef) != 1.0:  # NaN too, as torch multiplies by it
+        torch._foreach_mul_(grads, coef)
 
 
 def predict_network(
@@ -399,7 +429,7 @@ def predict_network(
             xt = _as_tensor(x[i : i + chunk], dev)
             et = None if extra is None else _as_tensor(extra[i : i + chunk], dev)
             assert xt is not None
-            outs.append(_forward(net, xt, et).cpu().numpy().astype(np.float64))
+            outs.append(_forward_chunks(net, xt, et).cpu().numpy().astype(np.float64))
     if not outs:
         n_out = int(getattr(net, "n_outputs", 0))
         return np.zeros((0, n_out), dtype=np.float64)

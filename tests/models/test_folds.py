@@ -1,0 +1,53 @@
+"""The blocked folds' rule (issue 38, item 2): a residual model is kept only when it beats
+its baseline on every fold and by more than 1 % on the mean; accumulated changes must also
+beat the measured residual they start from, held; a judge's effort stops growing with the
+record's length."""
+
+from __future__ import annotations
+
+import pytest
+
+from drafttwin.models.estimators import accumulation as acc
+from drafttwin.models.estimators.folds import JUDGE_WINDOWS, FoldScores, judge_epochs
+
+BLOCKS = [(0, 10), (10, 20), (20, 30)]
+
+
+def _folds(**scores: list[float]) -> FoldScores:
+    return FoldScores(dict(scores), BLOCKS, [10, 10, 10])
+
+
+def test_a_correction_must_win_every_fold_and_by_one_percent_on_the_mean() -> None:
+    assert _folds(none=[1.0, 1.0, 1.0], level=[0.5, 0.6, 0.7]).reliable("level")
+    two_of_three = _folds(none=[1.0, 1.0, 1.0], level=[0.5, 0.6, 1.2])
+    assert two_of_three.wins("level") == 2 and not two_of_three.reliable("level")
+    too_close = _folds(none=[1.0, 1.0, 1.0], level=[0.995, 0.995, 0.995])
+    assert too_close.wins("level") == 3 and not too_close.reliable("level")
+    assert acc.choose_on_folds("level", two_of_three).kept == acc.CORRECTION_NONE
+    assert acc.choose_on_folds("level", two_of_three, test=False).kept == "level"
+
+
+def test_accumulated_changes_must_beat_the_measured_residual_held() -> None:
+    """A gain over the physics alone that the anchor held scores as well is the measured
+    start's, not the residual model's: no correction, and the level is chosen when it wins."""
+    folds = _folds(none=[2.0, 3.0, 3.0], held=[1.0, 1.5, 1.0], accumulate=[1.1, 1.4, 0.9],
+                   level=[1.8, 2.7, 2.8])  # fmt: skip
+    assert folds.wins("accumulate") == 2 and not folds.reliable("accumulate")
+    assert folds.baseline("level") == [2.0, 3.0, 3.0]  # the held anchor is accumulation's
+    choice = acc.choose_on_folds("accumulate", folds)
+    assert choice.kept == acc.CORRECTION_NONE and choice.wins == 2
+    assert choice.scores[acc.CORRECTION_HELD] == pytest.approx(3.5 / 3)
+    # accumulation has the lower mean, but only the level wins reliably
+    assert folds.mean("accumulate") < folds.mean("level")
+    assert acc.choose_accumulation_on_folds([True, False], folds).accumulate is False
+    beats_held = _folds(none=[2.0, 3.0, 3.0], held=[1.0, 1.5, 1.0], accumulate=[0.5, 0.7, 0.6])
+    assert beats_held.reliable("accumulate")
+    # neither wins reliably: the lower fold mean, accumulation on a tie
+    tie = _folds(none=[1.0] * 3, held=[0.5] * 3, accumulate=[1.1] * 3, level=[1.1] * 3)
+    assert acc.choose_accumulation_on_folds([True, False], tie).accumulate is True
+
+
+def test_a_judge_goes_through_all_windows_in_fewer_epochs_on_a_long_record() -> None:
+    assert judge_epochs(12, JUDGE_WINDOWS) == 12 and judge_epochs(0, 10) == 1
+    assert judge_epochs(12, 4 * JUDGE_WINDOWS) == 3  # the same steps as 12 epochs over 600
+    assert judge_epochs(2, 100 * JUDGE_WINDOWS) == 1  # at least once over all of them
