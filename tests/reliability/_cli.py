@@ -134,6 +134,9 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
     "fit": [
         "--init-samples",
         "--rate-tolerance",
+        "--tune-budget",
+        "--tune-seed",
+        "--tune-trials",
         "--train-fraction",
         "--seed",
         "--horizon",
@@ -193,7 +196,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
 #: values inside the range of options that may be zero (these are not hostile there)
 ZERO_OK = {"--settle", "--rate-tolerance", "--threshold", "--seed", "--machine-seed", "--from",
            "--to", "--history", "--feed-cv", "--fineness-cv", "--sensor-mm", "--qos", "--score-from",
-           "--learn", "--gap", "--lead", "--plant-machines"}  # fmt: skip
+           "--learn", "--gap", "--lead", "--plant-machines", "--tune-seed"}  # fmt: skip
 
 
 def numeric_cases() -> list[tuple[str, str, str]]:
