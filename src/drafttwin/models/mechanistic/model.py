@@ -26,7 +26,6 @@ returns them as an array (what the estimators and hybrids combine with).
 from __future__ import annotations
 
 import copy
-import inspect
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -38,12 +37,15 @@ from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
 from drafttwin.models.mechanistic.simfiles import Table, interpolate, read_table, tables
 from drafttwin.models.mechanistic.source import parse_source
+from drafttwin.models.mechanistic.values import (
+    RecordFunction,
+    adapt_callable,
+    check_values,
+    is_path_list,
+)
 
 if TYPE_CHECKING:
     from drafttwin.mechanics import DriveTrain
-
-RecordFunction = Callable[[np.ndarray, dict[str, np.ndarray], tuple[str, ...], dict[str, str]], Any]
-"""What a source computes for one record: ``f(time_s, inputs, channels, units)``."""
 
 
 class MechanisticModel:
@@ -77,7 +79,7 @@ class MechanisticModel:
         self._series_fn: Callable[[MeasurementSeries], np.ndarray] | None = None
         self._inputs: tuple[str, ...] = ()
         self._spec: dict[str, Any]
-        if isinstance(source, str | Path) or _is_path_list(source):
+        if isinstance(source, str | Path) or is_path_list(source):
             paths = [Path(p) for p in ([source] if isinstance(source, str | Path) else source)]
             per_file = [tables(read_table(p), str(p)) for p in paths]
             self._tables = [t for ts in per_file for t in ts]
@@ -99,7 +101,7 @@ class MechanisticModel:
                 self._array = self._array[:, None]
             self._spec, label = {"kind": "array"}, "array"
         elif callable(source):
-            self._record_fn = _adapt_callable(source)
+            self._record_fn = adapt_callable(source)
             self._spec, label = {"kind": "callable"}, getattr(source, "__name__", "callable")
         else:
             raise DataError(
@@ -358,7 +360,7 @@ class MechanisticModel:
             raise DataError(f"{where} cannot be evaluated at single time stamps",
                             fix="pass a table or a callable of time")  # fmt: skip
         out = self._record_fn(time_s, dict(inputs or {}), names, {})
-        return _check_values(out, len(time_s), names, self.channels, where)
+        return check_values(out, len(time_s), names, self.channels, where)
 
     def _record(
         self, series: MeasurementSeries, k: int, a: int, b: int, names: tuple[str, ...]
@@ -377,7 +379,7 @@ class MechanisticModel:
             inputs = {name: v[a:b] for name, v in series.inputs.items()}
             units = {c: series.unit(c) for c in names}
             out = self._record_fn(time_s, inputs, names, units)
-        return _check_values(out, b - a, names, self.channels, where)
+        return check_values(out, b - a, names, self.channels, where)
 
     def _table_columns(self, names: tuple[str, ...]) -> list[str]:
         return [self._columns.get(n, n).lower() for n in names]
@@ -391,7 +393,7 @@ class MechanisticModel:
                 source="mechanistic array",
                 fix="pass an array aligned with the series, or a table with a time column",
             )
-        return _check_values(self._array, len(series), names, self.channels, "mechanistic array")
+        return check_values(self._array, len(series), names, self.channels, "mechanistic array")
 
     def __repr__(self) -> str:
         return f"MechanisticModel({self.name!r})"
@@ -460,71 +462,3 @@ def describe_spec(spec: Mapping[str, Any] | None) -> str:
         return "the simulator output file(s) " + ", ".join(spec.get("paths", []))
     return {"callable": "a Python callable", "series-callable": "a Python function",
             "table": "a DataFrame", "array": "an array"}.get(str(kind), str(kind))  # fmt: skip
-
-
-# ----- helpers ----------------------------------------------------------------------------
-def _is_path_list(source: object) -> bool:
-    return (
-        isinstance(source, list | tuple)
-        and bool(source)
-        and all(isinstance(p, str | Path) for p in source)
-    )
-
-
-def _adapt_callable(fn: Callable[..., Any]) -> RecordFunction:
-    """``f(time_s)`` or ``f(time_s, inputs)`` as a record function."""
-    try:
-        params = [
-            p
-            for p in inspect.signature(fn).parameters.values()
-            if p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD, p.VAR_POSITIONAL)
-        ]
-    except (TypeError, ValueError):  # builtins without a signature: one argument
-        params = []
-    takes_inputs = len(params) >= 2 or any(p.kind == p.VAR_POSITIONAL for p in params)
-    if takes_inputs:
-        return lambda t, inputs, channels, units: fn(t, inputs)
-    return lambda t, inputs, channels, units: fn(t)
-
-
-def _check_values(
-    values: object,
-    n: int,
-    names: tuple[str, ...],
-    provided: tuple[str, ...] | None,
-    source: str,
-) -> np.ndarray:
-    """Validate a source's result: pick ``names`` from a frame/dict or from ``provided``
-    columns, check the shape and that every value is finite."""
-    if isinstance(values, pd.DataFrame | Mapping):
-        missing = [c for c in names if c not in values]
-        if missing:
-            raise DataError(f"the source gives no channel(s) {missing}", source=source,
-                            fix=f"return a column for each of {', '.join(names)}")  # fmt: skip
-        arr = np.column_stack([np.asarray(values[c], dtype=np.float64) for c in names])
-    else:
-        arr = np.asarray(values, dtype=np.float64)
-        if arr.ndim == 1:
-            arr = arr[:, None]
-        if provided is not None and arr.ndim == 2 and arr.shape[1] == len(provided):
-            if any(c not in provided for c in names):
-                raise DataError(
-                    f"the source gives channels {list(provided)}, not {list(names)}",
-                    source=source,
-                    fix="build the MechanisticModel with channels= the data's output channels",
-                )
-            arr = arr[:, [provided.index(c) for c in names]]
-    if arr.ndim != 2 or arr.shape != (n, len(names)):
-        raise DataError(
-            f"expected values of shape ({n}, {len(names)}) (one column per channel: "
-            f"{', '.join(names)}), got shape {arr.shape}",
-            source=source,
-            fix=f"return one column per channel in the order {', '.join(names)}",
-        )
-    bad = ~np.isfinite(arr)
-    if bad.any():
-        row, col = np.argwhere(bad)[0]
-        raise DataError("mechanistic values must be finite", source=source,
-                        where=f"row {row}, channel {names[col]}",
-                        fix="fill or drop the missing simulator output")  # fmt: skip
-    return arr
