@@ -182,7 +182,7 @@ def test_a_search_stops_on_sigterm_and_resumes(folder: Path, tmp_path: Path) -> 
     out = tmp_path / "t.dtm"
     cmd = [sys.executable, "-m", "drafttwin", "fit", "--model", "parallel", "--data",
            str(data), *DATA, "--task", "simulation", "--init-samples", str(INIT),
-           "--mechanistic", str(folder / "sim_small.csv"), "--epochs", "40", "--set",
+           "--mechanistic", str(folder / "sim_small.csv"), "--epochs", "12", "--set",
            "patience=none", "--tune", "--tune-trials", "3", "--out", str(out)]  # fmt: skip
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert proc.stderr is not None

@@ -51,3 +51,26 @@ def test_a_judge_goes_through_all_windows_in_fewer_epochs_on_a_long_record() -> 
     assert judge_epochs(12, JUDGE_WINDOWS) == 12 and judge_epochs(0, 10) == 1
     assert judge_epochs(12, 4 * JUDGE_WINDOWS) == 3  # the same steps as 12 epochs over 600
     assert judge_epochs(2, 100 * JUDGE_WINDOWS) == 1  # at least once over all of them
+
+
+def test_the_fold_table_labels_every_row_and_names_what_accumulation_had_to_beat() -> None:
+    from drafttwin.cli._fitprint import _fold_lines
+
+    folds = _folds(none=[2.0, 3.0, 3.0], held=[1.0, 1.5, 1.0], accumulate=[1.1, 1.4, 0.9],
+                   level=[2.1, 2.9, 3.1])  # fmt: skip
+    choice = acc.choose_accumulation_on_folds([True, False], folds).to_dict()
+    assert choice["accumulate"] is True  # neither wins reliably: the lower fold mean
+    correction = {**acc.choose_on_folds("accumulate", folds).to_dict(), **folds.to_dict()}
+    text = "\n".join(_fold_lines(correction, choice))
+    rows = [line for line in text.splitlines() if line.startswith("  ")]
+    assert [r.split("  ")[1].strip() for r in rows] == [
+        "physics alone",
+        "measured residual held",
+        "accumulated changes",
+        "residual level",
+    ]
+    assert len({r.index("[") for r in rows}) == 1  # one column of per-fold cells
+    assert (
+        "no correction: the physics alone predicts (the residual model beat the physics "
+        "alone and the measured residual held on 2 of 3 folds" in text
+    )

@@ -53,7 +53,7 @@ SEED_PHASE = 0.6
 """Share of the budget after which the best configurations get their other seeds."""
 MEASURE = (
     "validation score: a hybrid's mean NRMSE of the output on blocked folds of the training "
-    "records (what it keeps; its physics alone scores about 1), a GRU/LSTM's RMSE on its "
+    "records (what it keeps; its physics alone scores 1 or more), a GRU/LSTM's RMSE on its "
     "validation tail (scaled units)"
 )
 

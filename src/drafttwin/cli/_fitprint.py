@@ -73,11 +73,11 @@ def _fold_lines(correction: dict[str, Any], choice: dict[str, Any] | None) -> li
             finite = [v for v in per_fold if v is not None]
             mean = float(np.mean(finite)) if finite else None
         cells = " ".join(_num(v) for v in per_fold)
-        lines.append(f"  {CANDIDATE.get(name, name):<20} {_num(mean):>7}  [{cells}]")
+        lines.append(f"  {CANDIDATE.get(name, name):<22} {_num(mean):>7}  [{cells}]")
     if choice and choice.get("chosen_by") != "user":
         what = "accumulated changes" if choice["accumulate"] else "residual level"
-        lines.append(f"residual model predicts the {what} (of the two, the lower fold mean "
-                     "among those that win reliably)")  # fmt: skip
+        lines.append(f"residual model predicts the {what} (of the two, the lower fold mean; "
+                     "of those that win reliably, if any)")  # fmt: skip
     elif choice:
         lines.append("residual model predicts the " + ("accumulated changes" if choice["accumulate"]
                                                        else "residual level") + " (set)")  # fmt: skip
