@@ -23,7 +23,7 @@ sys.path.insert(0, os.path.dirname(__file__))
 
 from _machine import write_results  # noqa: E402
 from drafttwin import ROLLERS  # noqa: E402
-from drafttwin.data.preprocess import preprocess  # noqa: E402
+from drafttwin.data.preprocessing import preprocess  # noqa: E402
 from drafttwin.datasets import load_default  # noqa: E402
 from drafttwin.mechanics import DriveTrain, simulate  # noqa: E402
 from drafttwin.plant import Plant  # noqa: E402

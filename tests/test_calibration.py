@@ -158,8 +158,8 @@ def test_a_member_acting_against_its_combination_moves_inversely():
     it must move as 1 / factor, or the members' effects would cancel."""
     from types import SimpleNamespace
 
-    from drafttwin.calibration.calibrate import _screen
     from drafttwin.calibration.fit import Objective
+    from drafttwin.calibration.stages import _screen
 
     rng = np.random.default_rng(6)
     a, b = rng.standard_normal((2, 300)) * 10

@@ -497,7 +497,7 @@ def _cli() -> Callable[[list[str]], tuple[int, str]]:
     from typer.testing import CliRunner
 
     import drafttwin.cli.data_cmds  # noqa: F401  (registers `inspect`)
-    from drafttwin.cli.app import app
+    from drafttwin.cli.typer_app import app
 
     runner = CliRunner()
     single = len(app.registered_commands) == 1  # typer collapses a one-command app

@@ -14,7 +14,7 @@ from drafttwin.mechanics import (
     simulate,
 )
 from drafttwin.mechanics.assembly import gear_base_radii_m
-from drafttwin.mechanics.simulate import reference_node_rpm
+from drafttwin.mechanics.simulation import reference_node_rpm
 
 from ._trains import FA320A, fa320a_dict, two_inertia_gear
 

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 from drafttwin import ROLLERS
 from drafttwin.cli import app
 from drafttwin.data.io import read_measurements
-from drafttwin.data.preprocess import preprocess
+from drafttwin.data.preprocessing import preprocess
 from drafttwin.datasets import DEFAULT, build, load_default
 from drafttwin.mechanics import DriveTrain, operating_point, simulate
 from drafttwin.plant import Plant, PlantConfig

@@ -13,7 +13,7 @@ import pytest
 from drafttwin import ROLLERS
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import DriveTrain, simulate, simulate_chunks
-from drafttwin.mechanics.simulate import interval_means
+from drafttwin.mechanics.simulation import interval_means
 from drafttwin.plant import Plant, PlantConfig, PlantRecording
 from drafttwin.plant import surface as S
 from drafttwin.plant.config import Eccentricity

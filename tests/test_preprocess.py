@@ -19,7 +19,7 @@ from drafttwin.data import (
     preprocess,
     smooth_outliers,
 )
-from drafttwin.data.preprocess import outlier_scale
+from drafttwin.data.preprocessing import outlier_scale
 
 NAN = np.nan
 PROPS = settings(max_examples=80, deadline=None)
@@ -263,7 +263,7 @@ def test_a_single_spike_is_found_and_replaced(
 
 
 def test_causal_spike_rejection_uses_only_the_past():
-    from drafttwin.data.preprocess import reject_spikes_causal
+    from drafttwin.data.preprocessing import reject_spikes_causal
 
     x = np.array([100.0, 101.0, 150.0, 100.5, np.nan, 99.0, 60.0, 98.0])
     clean, rejected = reject_spikes_causal(x, 0.10)
@@ -279,7 +279,7 @@ def test_causal_spike_rejection_uses_only_the_past():
 def test_causal_rejection_follows_a_step_after_one_sample():
     """A fast genuine change (a speed step) is held for one sample, then followed: only
     isolated samples are spikes, and the cleaning never stays stuck on the old level."""
-    from drafttwin.data.preprocess import reject_spikes_causal
+    from drafttwin.data.preprocessing import reject_spikes_causal
 
     step = np.r_[np.full(5, 60.0), 50.0, 49.0, np.full(5, 48.5)]  # 10 in one sample > 10 %
     clean, rejected = reject_spikes_causal(step, 0.10)
@@ -378,7 +378,7 @@ def test_records_are_preprocessed_as_if_alone(
 
 
 def test_causal_rejection_restarts_at_each_record() -> None:
-    from drafttwin.data.preprocess import reject_spikes_causal
+    from drafttwin.data.preprocessing import reject_spikes_causal
 
     x = np.array([100.0, 101.0, 200.0, 201.0, 300.0])
     _, rejected = reject_spikes_causal(x)
@@ -452,7 +452,7 @@ def test_channels_clear_of_zero_and_speeds_keep_the_relative_rule() -> None:
 
 
 def test_causal_rejection_with_a_scale() -> None:
-    from drafttwin.data.preprocess import reject_spikes_causal
+    from drafttwin.data.preprocessing import reject_spikes_causal
 
     x = np.array([0.001, -0.001, 0.0015, 0.02, 0.0])
     _, relative = reject_spikes_causal(x)

@@ -32,7 +32,7 @@ _EXPORTS: dict[str, str] = {
     "MeasurementSeries": "drafttwin.data.series",
     "read_measurements": "drafttwin.data.io",
     "write_measurements": "drafttwin.data.io",
-    "preprocess": "drafttwin.data.preprocess",
+    "preprocess": "drafttwin.data.preprocessing",
     "load_default": "drafttwin.datasets",
     # physics
     "DriveTrain": "drafttwin.mechanics",
@@ -144,7 +144,7 @@ def __dir__() -> list[str]:
 if TYPE_CHECKING:  # for type checkers and IDEs; at run time the names load lazily
     from drafttwin.application import FitRequest, fit, run_fit
     from drafttwin.data.io import read_measurements, write_measurements
-    from drafttwin.data.preprocess import preprocess
+    from drafttwin.data.preprocessing import preprocess
     from drafttwin.data.series import MeasurementSeries
     from drafttwin.datasets import load_default
     from drafttwin.errors import ConfigError, DataError, DrafttwinError, ModelFileError

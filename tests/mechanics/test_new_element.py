@@ -24,7 +24,7 @@ from drafttwin.mechanics.components import (
     register_coupling,
     unregister_coupling,
 )
-from drafttwin.mechanics.kinematics import eigenfrequencies_hz
+from drafttwin.mechanics.steady_state import eigenfrequencies_hz
 
 
 class FlexibleCoupling(TorsionalCoupling):

@@ -13,12 +13,12 @@ import pytest
 from scipy.optimize import minimize_scalar
 
 from drafttwin.errors import DataError
-from drafttwin.sliver.evenness import (
+from drafttwin.sliver.irregularity import (
     evenness,
     ideal_variance_length_cv_pct,
     variance_length_curve,
 )
-from drafttwin.sliver.spectrogram import (
+from drafttwin.sliver.spectra import (
     channel_of,
     ideal_psd,
     read_tester_spectrogram,

@@ -6,7 +6,7 @@ Closed forms (research/sliver.md 2, 3.3) for a random sliver of count ``c`` from
 number-mean length ``E[l]`` and fineness CV ``v``:
 
 * point CV of 1 mm bin averages: ``CV_lim(c) * sqrt(s) * sqrt(B(1 mm))``, ``B`` from
-  :func:`~drafttwin.sliver.evenness.variance_length_factor`; for bins shorter than every fibre
+  :func:`~drafttwin.sliver.irregularity.variance_length_factor`; for bins shorter than every fibre
   ``B(h) = 1 - h / (3 E[l])`` (number-mean length: 0.98611 for cotton at 1 mm; the
   mass-mean form ``1 - h / (3 E[l^2]/E[l])`` gives 0.98747, 0.07 % apart in CV);
 * the relative density's two-sided spectral density at wavelengths far above the fibres,
@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from drafttwin.sliver import Feed, FeedFault, Sliver, StapleDiagram, draft
-from drafttwin.sliver.evenness import variance_length_factor
+from drafttwin.sliver.irregularity import variance_length_factor
 from drafttwin.sliver.transfer import fibre_length_gain
 
 from ._speeds import SURFACE_M_S, sine_gain, speeds

@@ -22,7 +22,7 @@ from drafttwin.report.sliver import sliver_page
 from drafttwin.sliver import Feed, StapleDiagram, draft
 from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver
 from drafttwin.sliver.encoders import EncoderCheck, rerank
-from drafttwin.sliver.spectrogram import read_tester_spectrogram
+from drafttwin.sliver.spectra import read_tester_spectrogram
 
 from ._speeds import speeds
 

@@ -11,7 +11,7 @@ import pandas as pd
 import pytest
 
 from drafttwin.data.io import read_measurements
-from drafttwin.data.preprocess import reject_spikes_causal
+from drafttwin.data.preprocessing import reject_spikes_causal
 from drafttwin.mechanics import DriveTrain, Signal, reduce, simulate
 from drafttwin.models import MechanisticModel
 from drafttwin.models.registry import load_model

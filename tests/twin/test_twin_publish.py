@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from drafttwin.errors import ConfigError
-from drafttwin.mechanics.kinematics import kinematics
+from drafttwin.mechanics.steady_state import kinematics
 from drafttwin.twin.build import build_service
 from drafttwin.twin.publish import parse_publish, publishing
 from drafttwin.twin.publish.base import Publisher

@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any
 
 from drafttwin.application.physics import resolve_physics
 from drafttwin.application.request import FitRequest, Note, build_model
-from drafttwin.data.preprocess import DEFAULT_TRAIN_FRACTION
+from drafttwin.data.preprocessing import DEFAULT_TRAIN_FRACTION
 from drafttwin.errors import ConfigError
 from drafttwin.evaluation import protocol
 from drafttwin.models import BaseModel, MechanisticModel

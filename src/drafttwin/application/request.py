@@ -3,7 +3,7 @@ command both build, and the estimator it makes.
 
 Every default lives with the thing it is a default of (the profile in
 :data:`~drafttwin.models.profiles.DEFAULT_PROFILE`, the split in
-:data:`~drafttwin.data.preprocess.DEFAULT_TRAIN_FRACTION`, the physics in
+:data:`~drafttwin.data.preprocessing.DEFAULT_TRAIN_FRACTION`, the physics in
 :mod:`drafttwin.application.physics`, the tuning budget in
 :data:`~drafttwin.application.tuning.DEFAULT_BUDGET_MIN`); a field left ``None`` takes it,
 and only what the caller set is named in an error (:meth:`FitRequest.given`)."""

@@ -2,8 +2,8 @@
 (``drafttwin calibrate``): output-error least squares on block means, identifiability
 verdicts and honest standard errors."""
 
-from drafttwin.calibration.calibrate import Calibration, Estimate, calibrate
-from drafttwin.calibration.parameters import Parameter, parameters, select, with_factors
+from drafttwin.calibration.registry import Parameter, parameters, select, with_factors
+from drafttwin.calibration.stages import Calibration, Estimate, calibrate
 
 __all__ = [
     "Calibration",

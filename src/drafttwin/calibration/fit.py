@@ -21,7 +21,7 @@ from typing import TypeAlias
 import numpy as np
 from scipy.optimize import least_squares
 
-from drafttwin.calibration.parameters import Parameter, with_factors
+from drafttwin.calibration.registry import Parameter, with_factors
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
 from drafttwin.mechanics import STOPPED_SUPPLY_HZ, DriveTrain, convert_rpm, simulate

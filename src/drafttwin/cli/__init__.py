@@ -2,12 +2,12 @@
 
 User errors (:class:`drafttwin.errors.DrafttwinError`), I/O errors (:mod:`drafttwin.cli._oserrors`)
 and bad option values (:mod:`drafttwin.cli._bounds`) print one message and exit with code 2,
-handled by the command group in :mod:`drafttwin.cli.app`.
+handled by the command group in :mod:`drafttwin.cli.typer_app`.
 """
 
 from __future__ import annotations
 
-from drafttwin.cli.app import app, reflow_help
+from drafttwin.cli.typer_app import app, reflow_help
 
 # Importing the command modules registers their commands on ``app``.
 from drafttwin.cli import mechanics_cmds  # noqa: E402,F401  isort: skip

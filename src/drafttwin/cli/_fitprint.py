@@ -10,7 +10,7 @@ import numpy as np
 from rich.markup import escape
 from rich.table import Table
 
-from drafttwin.cli.app import console, print_json
+from drafttwin.cli.typer_app import console, print_json
 
 if TYPE_CHECKING:
     from drafttwin.application import FitResult

@@ -114,7 +114,7 @@ class TuneOptions:
             return
         from rich.markup import escape
 
-        from drafttwin.cli.app import err_console
+        from drafttwin.cli.typer_app import err_console
 
         def told(event: dict[str, Any]) -> None:
             score = event.get("score")

@@ -17,7 +17,7 @@ from drafttwin.cli._options import (
     number,
     path_in,
 )
-from drafttwin.cli.app import app, console, print_json, progress_bar
+from drafttwin.cli.typer_app import app, console, print_json, progress_bar
 
 benchmark_app = typer.Typer(
     help="Validation benchmarks on real measured data (see docs/emps.md).",

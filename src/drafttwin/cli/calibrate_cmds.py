@@ -20,7 +20,7 @@ from drafttwin.cli._options import (
     files_in,
     number,
 )
-from drafttwin.cli.app import app, console, err_console, print_json
+from drafttwin.cli.typer_app import app, console, err_console, print_json
 from drafttwin.errors import ConfigError, DataError
 
 if TYPE_CHECKING:

@@ -15,9 +15,9 @@ from drafttwin.cli._data import ChannelOptions
 from drafttwin.cli._groups import with_group
 from drafttwin.cli._options import JsonOpt, number
 from drafttwin.cli._oserrors import input_paths
-from drafttwin.cli.app import app, console, print_json
+from drafttwin.cli.typer_app import app, console, print_json
 from drafttwin.data.io import read_measurements
-from drafttwin.data.preprocess import preprocess
+from drafttwin.data.preprocessing import preprocess
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
 

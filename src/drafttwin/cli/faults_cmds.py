@@ -23,8 +23,8 @@ from drafttwin.cli._options import (
     file_out,
     number,
 )
-from drafttwin.cli.app import app, console, progress_bar
 from drafttwin.cli.benchmark_cmds import benchmark_app
+from drafttwin.cli.typer_app import app, console, progress_bar
 
 if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries

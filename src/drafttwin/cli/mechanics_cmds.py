@@ -25,7 +25,7 @@ from drafttwin.cli._options import (
     number,
 )
 from drafttwin.cli._stream import FrameStream, RunningStats, frame_stream
-from drafttwin.cli.app import app, console, print_json, progress_bar
+from drafttwin.cli.typer_app import app, console, print_json, progress_bar
 
 if TYPE_CHECKING:
     from drafttwin.mechanics import (
@@ -103,7 +103,7 @@ def _roller_table(train: DriveTrain, kin: Kinematics, op: OperatingPoint) -> Non
 
 def _output_table(train: DriveTrain, op: OperatingPoint) -> None:
     """The measured output channels at the running operating point, in their units."""
-    from drafttwin.mechanics.kinematics import RPM
+    from drafttwin.mechanics.steady_state import RPM
 
     table = Table(title=f"{train.spec.train.name}: output channels at the operating point*")
     for col in ("channel", "node", "unit", "running*"):

@@ -21,7 +21,7 @@ from drafttwin.cli._options import (
     file_out,
     number,
 )
-from drafttwin.cli.app import app, console, progress_bar
+from drafttwin.cli.typer_app import app, console, progress_bar
 from drafttwin.errors import ConfigError
 
 RecordOutOpt = Annotated[Path, file_out("--out", "Measured data file, .csv or .parquet.")]

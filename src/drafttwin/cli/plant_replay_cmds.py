@@ -10,8 +10,8 @@ from typing import Annotated
 import typer
 
 from drafttwin.cli._options import file_in, file_out, files_in, number
-from drafttwin.cli.app import console, err_console
 from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app
+from drafttwin.cli.typer_app import console, err_console
 from drafttwin.errors import ConfigError
 
 RecordsOpt = Annotated[str | None, files_in("--records", (

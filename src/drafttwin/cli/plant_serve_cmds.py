@@ -18,8 +18,8 @@ from drafttwin.cli._options import (
     number,
     path_in,
 )
-from drafttwin.cli.app import console, err_console
 from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app
+from drafttwin.cli.typer_app import console, err_console
 from drafttwin.errors import ConfigError
 
 OpcuaOpt = Annotated[str | None, typer.Option("--opcua", help="Serve over OPC UA at this address, e.g. opc.tcp://127.0.0.1:4840.")]  # fmt: skip

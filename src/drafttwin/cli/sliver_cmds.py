@@ -12,7 +12,7 @@ from rich.table import Table
 from drafttwin.cli._common import check_output_suffix
 from drafttwin.cli._groups import with_group
 from drafttwin.cli._options import JsonOpt, QuietOpt, TrainOptions, file_out, number
-from drafttwin.cli.app import app, console, print_json, progress_bar
+from drafttwin.cli.typer_app import app, console, print_json, progress_bar
 from drafttwin.errors import ConfigError
 
 sliver_app = typer.Typer(
@@ -207,8 +207,8 @@ def simulate_cmd(
     """Draft fed slivers through the drafting zones at the rollers' surface speeds, fibre by
     fibre, and write the delivered sliver's linear density on a delivered-length grid."""
     from drafttwin.sliver import Feed, FeedFault, RealDrafting, draft
-    from drafttwin.sliver.evenness import evenness
-    from drafttwin.sliver.spectrogram import spectrogram
+    from drafttwin.sliver.irregularity import evenness
+    from drafttwin.sliver.spectra import spectrogram
 
     check_output_suffix(out)
     fibres = fibre_options.diagram()

@@ -11,7 +11,6 @@ from rich.table import Table
 from drafttwin.cli._common import check_output_suffix
 from drafttwin.cli._groups import with_group
 from drafttwin.cli._options import JsonOpt, TrainOptions, file_in, file_out, number
-from drafttwin.cli.app import console, print_json
 from drafttwin.cli.sliver_cmds import (
     FibreOptions,
     FibreScaleReadOpt,
@@ -21,6 +20,7 @@ from drafttwin.cli.sliver_cmds import (
     sliver_app,
     zones_from,
 )
+from drafttwin.cli.typer_app import console, print_json
 from drafttwin.errors import ConfigError
 
 SliverRecordOpt = Annotated[Path, file_in("--data", "Sliver record: delivered_length_m and a "
@@ -47,12 +47,12 @@ def spectrogram_cmd(
     channels, chimneys)."""
     from drafttwin.cli._common import write_frame
     from drafttwin.sliver import read_sliver
-    from drafttwin.sliver.evenness import (
+    from drafttwin.sliver.irregularity import (
         evenness,
         ideal_variance_length_cv_pct,
         variance_length_curve,
     )
-    from drafttwin.sliver.spectrogram import spectrogram
+    from drafttwin.sliver.spectra import spectrogram
 
     if out is not None:
         check_output_suffix(out)
@@ -178,7 +178,7 @@ def diagnose_cmd(
     from drafttwin.sliver import read_sliver
     from drafttwin.sliver.diagnose import diagnose_sliver
     from drafttwin.sliver.record import sliver_beside
-    from drafttwin.sliver.spectrogram import read_tester_spectrogram
+    from drafttwin.sliver.spectra import read_tester_spectrogram
 
     if (data is None) == (spectrogram_file is None):
         raise ConfigError("give one of --data and --spectrogram", where="--data",

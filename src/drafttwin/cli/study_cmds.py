@@ -12,7 +12,7 @@ import typer
 
 from drafttwin.cli._groups import with_group
 from drafttwin.cli._options import QuietOpt, dir_out, files_in, number
-from drafttwin.cli.app import app, console, err_console
+from drafttwin.cli.typer_app import app, console, err_console
 
 if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries

@@ -15,7 +15,7 @@ from rich.table import Table
 
 from drafttwin.cli._exit import work_done
 from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, file_out, number, path_in
-from drafttwin.cli.app import app, console, err_console, print_json
+from drafttwin.cli.typer_app import app, console, err_console, print_json
 from drafttwin.errors import ConfigError
 
 if TYPE_CHECKING:

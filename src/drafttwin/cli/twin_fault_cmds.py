@@ -9,8 +9,8 @@ from typing import Annotated
 import typer
 
 from drafttwin.cli._options import FarPerDayOpt, JsonOpt, file_out, files_in, number, path_in
-from drafttwin.cli.app import console, print_json
 from drafttwin.cli.twin_cmds import twin_app
+from drafttwin.cli.typer_app import console, print_json
 from drafttwin.errors import ConfigError
 
 ModelOpt = Annotated[Path, path_in("--model", "The model file (.dtm) the twin runs.")]

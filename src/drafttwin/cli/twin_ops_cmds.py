@@ -17,7 +17,6 @@ from rich.table import Table
 
 from drafttwin.cli._exit import work_done
 from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, number, path_in
-from drafttwin.cli.app import console, err_console, print_json
 from drafttwin.cli.twin_cmds import (
     CommitMsOpt,
     DetectorOpt,
@@ -32,6 +31,7 @@ from drafttwin.cli.twin_cmds import (
     parse_bind,
     twin_app,
 )
+from drafttwin.cli.typer_app import console, err_console, print_json
 from drafttwin.errors import ConfigError, DrafttwinError
 from drafttwin.execution.interrupt import Interrupted, stop_on_signals
 

@@ -1,7 +1,7 @@
 """Measurement data: reading, validation and preprocessing."""
 
 from drafttwin.data.io import read_measurements, write_measurements
-from drafttwin.data.preprocess import (
+from drafttwin.data.preprocessing import (
     DEFAULT_TRAIN_FRACTION,
     PreprocessReport,
     chronological_split,

@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 import numpy as np
 import pandas as pd
 
-from drafttwin.data.preprocess import (
+from drafttwin.data.preprocessing import (
     DEFAULT_TRAIN_FRACTION,
     outlier_scales,
     preprocess,

@@ -15,7 +15,7 @@ Public API::
 :class:`SimulationResult`); ``simulate_chunks`` gives the same run as a
 :class:`SimulationStream` of pieces, so memory stays flat in the duration. (The tests'
 reference integrator, SciPy's DOP853 on the same right-hand side, is
-:func:`drafttwin.mechanics.simulate.reference_node_rpm`: no simulation of its own.)
+:func:`drafttwin.mechanics.simulation.reference_node_rpm`: no simulation of its own.)
 """
 
 from drafttwin.mechanics.assembly import DriveTrain, Signal
@@ -23,15 +23,8 @@ from drafttwin.mechanics.channels import OutputMap, convert_rpm
 from drafttwin.mechanics.components import InputChannel, OutputChannel
 from drafttwin.mechanics.config import PRESETS, TrainSpec
 from drafttwin.mechanics.inputs import drive_from_inputs
-from drafttwin.mechanics.kinematics import (
-    Kinematics,
-    OperatingPoint,
-    eigenfrequencies_hz,
-    kinematics,
-    operating_point,
-)
 from drafttwin.mechanics.reduced import DEFAULT_CUTOFF_HZ, Reduction, reduce
-from drafttwin.mechanics.simulate import (
+from drafttwin.mechanics.simulation import (
     STOPPED_SUPPLY_HZ,
     NonFiniteSimulationError,
     SimulationPiece,
@@ -42,6 +35,13 @@ from drafttwin.mechanics.simulate import (
     static_angles,
 )
 from drafttwin.mechanics.start import starts_at_rest
+from drafttwin.mechanics.steady_state import (
+    Kinematics,
+    OperatingPoint,
+    eigenfrequencies_hz,
+    kinematics,
+    operating_point,
+)
 
 __all__ = [
     "DEFAULT_CUTOFF_HZ",

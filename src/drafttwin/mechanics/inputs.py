@@ -3,7 +3,7 @@
 Each input channel mapped by the train (``[[input]]`` tables, by default a ``supply_hz``
 column) becomes a time-varying VFD supply frequency or an external torque
 (:func:`drive_from_inputs`); :func:`select_outputs` resolves the output channels asked for
-onto nodes and units. :func:`~drafttwin.mechanics.simulate.simulate` with ``time_s`` uses both.
+onto nodes and units. :func:`~drafttwin.mechanics.simulation.simulate` with ``time_s`` uses both.
 
 Time origin: the value at ``time_s[k]`` is the mean over ``(time_s[k] - T, time_s[k]]`` with
 ``T`` the grid step, so recording starts one step before ``time_s[0]``; inputs sampled on the

@@ -1,11 +1,11 @@
 """A reduced drive train: couplings stiffer than a cut-off made rigid, for a much larger step.
 
 :func:`reduce` returns a copy of a :class:`DriveTrain` carrying a :class:`Reduction`;
-:func:`~drafttwin.mechanics.simulate.simulate` (for a duration or on a measurement grid,
+:func:`~drafttwin.mechanics.simulation.simulate` (for a duration or on a measurement grid,
 and so the calibration) then integrates the reduced system and expands it back onto every node.
 
 Which couplings become rigid: the linearised train (mean stiffnesses, as in
-:func:`~drafttwin.mechanics.kinematics.eigenfrequencies_hz`) is solved for its modes; while
+:func:`~drafttwin.mechanics.steady_state.eigenfrequencies_hz`) is solved for its modes; while
 the highest remaining eigenfrequency is above the cut-off, the coupling holding most strain
 energy in that mode is made rigid and its two ends merged (Guyan-style condensation onto
 rigid super-nodes). Belts are never made rigid: their creep, a speed loss proportional to the
@@ -41,8 +41,8 @@ from scipy.linalg import eigh
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics.assembly import DriveTrain, Tables
-from drafttwin.mechanics.kinematics import coupling_stiffness
 from drafttwin.mechanics.reduction import Reduction
+from drafttwin.mechanics.steady_state import coupling_stiffness
 
 DEFAULT_CUTOFF_HZ = 200.0
 """Default cut-off (Hz): above the FA320A's belt mode (55 Hz), below its roller-torsion modes

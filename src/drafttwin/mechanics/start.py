@@ -14,7 +14,7 @@ from drafttwin.mechanics.assembly import (
     gear_base_radii_m,
 )
 from drafttwin.mechanics.components import Belt, ChainDrive, GearMesh, TorsionalCoupling
-from drafttwin.mechanics.kinematics import OperatingPoint, operating_point
+from drafttwin.mechanics.steady_state import OperatingPoint, operating_point
 
 STOPPED_SUPPLY_HZ = 0.5
 """Below this supply frequency (Hz) the machine counts as stopped and a simulation starts from

@@ -1,6 +1,6 @@
 """A drive train stepped sample by sample while its supply set-point arrives live.
 
-:func:`~drafttwin.mechanics.simulate.simulate` needs the whole VFD schedule in advance. A
+:func:`~drafttwin.mechanics.simulation.simulate` needs the whole VFD schedule in advance. A
 live twin learns the set-point one sample at a time, so :class:`LiveStepper` keeps the
 integrator state and advances it one output interval per call, the supply frequency ramping
 linearly over the interval from the previous set-point sample to the new one (the same
@@ -23,13 +23,13 @@ from drafttwin.errors import ConfigError
 from drafttwin.mechanics import kernel as K
 from drafttwin.mechanics import reduced as R
 from drafttwin.mechanics.assembly import DriveTrain, Signal
-from drafttwin.mechanics.kinematics import RPM
-from drafttwin.mechanics.simulate import (
+from drafttwin.mechanics.simulation import (
     NonFiniteSimulationError,
     _grid,
     _integrator,
 )
 from drafttwin.mechanics.start import _start_state
+from drafttwin.mechanics.steady_state import RPM
 
 
 class LiveStepper:

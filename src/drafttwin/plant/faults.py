@@ -8,7 +8,7 @@ later; 0 = an abrupt step)::
 
 Machine faults change physical parameters of the true drive train while the plant runs
 (:class:`FaultSchedule` gives the kernel its tables block by block, see
-:data:`drafttwin.mechanics.simulate.BLOCK_S`; the motor's rotor resistance and a roller's
+:data:`drafttwin.mechanics.simulation.BLOCK_S`; the motor's rotor resistance and a roller's
 load modulation are time signals). Sensor faults change only what an encoder reports; the
 true speeds stay as they are. Every fault is recorded in the sidecar as a label.
 
@@ -68,7 +68,7 @@ from drafttwin.mechanics.faults import SENSOR_CHANNELS as SENSOR_CHANNELS
 from drafttwin.mechanics.faults import SURFACE_ONLY as SURFACE_ONLY
 from drafttwin.mechanics.faults import FaultKind as FaultKind
 from drafttwin.mechanics.faults import catalogue as catalogue
-from drafttwin.mechanics.simulate import BLOCK_S
+from drafttwin.mechanics.simulation import BLOCK_S
 
 
 class FaultSpec(BaseModel):

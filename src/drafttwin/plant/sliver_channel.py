@@ -25,7 +25,7 @@ import pandas as pd
 from drafttwin._io import atomic_path
 from drafttwin.sliver import DraftingZones, Feed, FeedFault, Sliver, StapleDiagram, SurfaceSpeeds
 from drafttwin.sliver import draft as draft_sliver
-from drafttwin.sliver.evenness import evenness
+from drafttwin.sliver.irregularity import evenness
 from drafttwin.sliver.record import frame_to_file
 from drafttwin.sliver.sensor import SliverSensor, infeed_reading
 

@@ -9,7 +9,7 @@ is applied afterwards, to the simulated angles:
 * :func:`simulate_surface` runs the plant's simulation at ``surface_rate_hz`` (an integer
   multiple ``m`` of the recording's rate) and returns the recording's result at ``rate_hz``
   from every ``m``-th angle (bit-identical to a run at ``rate_hz``, see
-  :func:`drafttwin.mechanics.simulate.decimation_factor`) with the rollers' fine angles;
+  :func:`drafttwin.mechanics.simulation.decimation_factor`) with the rollers' fine angles;
 * :func:`roller_surface` turns the fine angles into cumulative surface lengths.
 
 Run-out (:class:`RunOut`): every roller has the healthy eccentricity
@@ -46,7 +46,7 @@ from drafttwin._constants import ROLLERS
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import DriveTrain
 from drafttwin.mechanics.assembly import Tables
-from drafttwin.mechanics.simulate import (
+from drafttwin.mechanics.simulation import (
     SimulationPiece,
     SimulationResult,
     decimation_factor,

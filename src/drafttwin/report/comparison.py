@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from drafttwin._constants import ROLLERS
-from drafttwin.data.preprocess import DEFAULT_TRAIN_FRACTION
+from drafttwin.data.preprocessing import DEFAULT_TRAIN_FRACTION
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, with_unit
 from drafttwin.report.html import Cell, figure, join, para, section, table, tag

@@ -45,9 +45,9 @@ from drafttwin.report.html import (  # noqa: E402
     table,
     tag,
 )
-from drafttwin.sliver.attribute import Candidate, ChimneyCause  # noqa: E402
+from drafttwin.sliver.attribution import Candidate, ChimneyCause  # noqa: E402
 from drafttwin.sliver.diagnose import SliverDiagnosis  # noqa: E402
-from drafttwin.sliver.evenness import Evenness  # noqa: E402
+from drafttwin.sliver.irregularity import Evenness  # noqa: E402
 
 if TYPE_CHECKING:
     from drafttwin.report.html import BodyRow, Content, Row

@@ -6,10 +6,10 @@
   speeds, from records, predictions or the physics;
 * :mod:`~drafttwin.sliver.drafting` (numba core in :mod:`~drafttwin.sliver.kernel`): the
   fibre-level drafting simulator;
-* :mod:`~drafttwin.sliver.evenness`, :mod:`~drafttwin.sliver.spectrogram`: count, CV %, U %,
+* :mod:`~drafttwin.sliver.irregularity`, :mod:`~drafttwin.sliver.spectra`: count, CV %, U %,
   CV(L), the evenness tester's spectrogram with the ideal curve and its chimneys;
 * :mod:`~drafttwin.sliver.transfer`, :mod:`~drafttwin.sliver.wavelengths`,
-  :mod:`~drafttwin.sliver.attribute`: the drafting transfer, the machine's wavelength table
+  :mod:`~drafttwin.sliver.attribution`: the drafting transfer, the machine's wavelength table
   and the element behind each chimney;
 * :mod:`~drafttwin.sliver.sensor`: the drawframe's delivery and infeed sensors.
 
@@ -17,13 +17,13 @@ The package sits below the plant, diagnosis and the twin and imports only the me
 the data layer.
 """
 
-from drafttwin.sliver.attribute import Candidate, ChimneyCause, attribute
+from drafttwin.sliver.attribution import Candidate, ChimneyCause, attribute
 from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver
 from drafttwin.sliver.drafting import DraftingZones, RealDrafting, draft
-from drafttwin.sliver.evenness import Evenness, evenness
 from drafttwin.sliver.feed import Feed, FeedFault
+from drafttwin.sliver.irregularity import Evenness, evenness
 from drafttwin.sliver.record import Sliver, read_sliver
-from drafttwin.sliver.spectrogram import Spectrogram, spectrogram
+from drafttwin.sliver.spectra import Spectrogram, spectrogram
 from drafttwin.sliver.speeds import SurfaceSpeeds
 from drafttwin.sliver.staple import StapleDiagram
 from drafttwin.sliver.wavelengths import Element, WavelengthTable, wavelength_table

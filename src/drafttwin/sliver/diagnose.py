@@ -17,16 +17,16 @@ from typing import Any
 import numpy as np
 
 from drafttwin.mechanics import DriveTrain
-from drafttwin.sliver.attribute import (
+from drafttwin.sliver.attribution import (
     HARMONICS,
     ChimneyCause,
     attribute,
     ranked_elements,
 )
 from drafttwin.sliver.drafting import DraftingZones
-from drafttwin.sliver.evenness import Evenness, evenness
+from drafttwin.sliver.irregularity import Evenness, evenness
 from drafttwin.sliver.record import Sliver
-from drafttwin.sliver.spectrogram import Spectrogram, spectrogram
+from drafttwin.sliver.spectra import Spectrogram, spectrogram
 from drafttwin.sliver.staple import StapleDiagram
 from drafttwin.sliver.wavelengths import WavelengthTable, wavelength_table
 

@@ -16,8 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drafttwin.data.preprocess import interpolate_missing
-from drafttwin.sliver.attribute import Candidate, ChimneyCause
+from drafttwin.data.preprocessing import interpolate_missing
+from drafttwin.sliver.attribution import Candidate, ChimneyCause
 from drafttwin.sliver.diagnose import SliverDiagnosis
 from drafttwin.sliver.drafting import DraftingZones
 from drafttwin.sliver.record import Sliver

@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from drafttwin.data.preprocess import DEFAULT_TRAIN_FRACTION
+from drafttwin.data.preprocessing import DEFAULT_TRAIN_FRACTION
 from drafttwin.datasets import load_default
 from drafttwin.evaluation import accuracy_limits, floor_rows, protocol
 from drafttwin.evaluation.limits import lag1_autocorrelation

@@ -3,7 +3,7 @@
 For each sample (in time order, see :class:`Reorder`):
 
 1. **Cleaning** (:class:`SpikeFilter`): the paper's spike rule in its causal form
-   (:func:`drafttwin.data.preprocess.reject_spikes_causal`, same decisions sample by sample):
+   (:func:`drafttwin.data.preprocessing.reject_spikes_causal`, same decisions sample by sample):
    a spike becomes missing and the models hold the last value.
 2. **Physics**: the drive train (reduced by default) stepped one interval with the supply
    ramping from the last set-point sample to this one (:class:`~drafttwin.mechanics.stepper.LiveStepper`).
@@ -40,7 +40,7 @@ SPIKE_THRESHOLD = 0.10
 
 
 class SpikeFilter:
-    """:func:`~drafttwin.data.preprocess.reject_spikes_causal` one row at a time (relative
+    """:func:`~drafttwin.data.preprocessing.reject_spikes_causal` one row at a time (relative
     rule with a floor per channel)."""
 
     def __init__(self, n: int, threshold: float = SPIKE_THRESHOLD,

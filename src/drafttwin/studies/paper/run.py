@@ -23,7 +23,7 @@ import pandas as pd
 from scipy import stats
 
 from drafttwin._constants import ROLLERS, __version__
-from drafttwin.data.preprocess import DEFAULT_TRAIN_FRACTION
+from drafttwin.data.preprocessing import DEFAULT_TRAIN_FRACTION
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.execution.executor import Task, run_tasks
 from drafttwin.execution.store import ResultStore

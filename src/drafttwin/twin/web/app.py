@@ -185,7 +185,7 @@ def create_app(service: TwinService, token: str | None = None) -> FastAPI:
     def kinematics(machine: str) -> Any:
         """The operating point at the machine's current set-point."""
         from drafttwin.mechanics import Signal
-        from drafttwin.mechanics.kinematics import operating_point
+        from drafttwin.mechanics.steady_state import operating_point
 
         st = state(machine)
         supply = st.twin.last_setpoint

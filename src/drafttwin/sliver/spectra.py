@@ -24,7 +24,7 @@ import numpy as np
 from scipy import stats
 
 from drafttwin.errors import DataError
-from drafttwin.sliver.evenness import check_record
+from drafttwin.sliver.irregularity import check_record
 from drafttwin.sliver.staple import StapleDiagram
 
 if TYPE_CHECKING:

@@ -33,10 +33,10 @@ from drafttwin.mechanics.inputs import (
     grid_step_s,
     select_outputs,
 )
-from drafttwin.mechanics.kinematics import RPM
 from drafttwin.mechanics.start import STOPPED_SUPPLY_HZ as STOPPED_SUPPLY_HZ
 from drafttwin.mechanics.start import _start_state, starts_at_rest
 from drafttwin.mechanics.start import static_angles as static_angles
+from drafttwin.mechanics.steady_state import RPM
 
 ENERGY_NAMES = ("motor", "roller_loads", "bearings", "coupling_losses", "external")
 _Outputs = tuple[np.ndarray, np.ndarray, np.ndarray]

@@ -40,8 +40,8 @@ from drafttwin._io import json_number
 from drafttwin.calibration import fit as F
 from drafttwin.calibration import identify as I
 from drafttwin.calibration import noise as N
-from drafttwin.calibration.parameters import Parameter, nominal_values, select, with_factors
-from drafttwin.data.preprocess import preprocess
+from drafttwin.calibration.registry import Parameter, nominal_values, select, with_factors
+from drafttwin.data.preprocessing import preprocess
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
 from drafttwin.mechanics import DriveTrain
