@@ -1,34 +1,71 @@
-"""How late 'plant serve' publishes, and what it does about it, on this machine.
+"""How late 'plant serve' with the full physics publishes, idle and beside busy processes.
 
-    python benchmarks/bench_plant_lag.py [--machines 2] [--duration 30] [--physics full]
-                                         [--max-lag none,1]
+    python benchmarks/bench_plant_lag.py [--duration 60] [--busy 0,2] [--subscriber off,on]
+                                         [--machines 1] [--src PATH] [--out plant_lag]
 
-Per ``--max-lag`` value (``none``: publish every sample, the default; a number: skip samples
-once that many seconds behind) the plant is served over OPC UA in-process for ``--duration``
-seconds of samples; each published sample's lag (wall clock when it went out minus its source
-time) is collected. Prints a table and writes benchmarks/results/plant_lag.json: samples
-published and skipped per machine, the lag's quantiles, the warnings and the wall time taken.
-Run it beside busy processes (e.g. two ``yes > /dev/null``) to see the lateness said.
+Per combination of ``--busy`` (that many processes spinning a core beside, started before and
+killed after each run: the issue's "two busy neighbours"), ``--subscriber`` (``on``: an asyncua
+client in its own process subscribed to every machine's ``sample`` node at a 10 ms publishing
+interval, as ``twin run`` does) and ``--machines``, the command
+
+    drafttwin plant serve --opcua URL --machines N --physics full --log plant.parquet
+
+runs in its own process (not niced) for ``--duration`` seconds after it says it serves, then
+gets SIGTERM. Figures: the samples its summary counts as late (published more than one sample
+period after their time) and its max lag, the lag's p50/p99 from its log (``lag_s`` of every
+sample), the seconds from SIGTERM to its exit, and the 1-min load average before and after.
+``--src`` runs another checkout's code (e.g. ``--src ../main/src``: the figures before a
+change). Prints one line per run and writes benchmarks/results/<out>.json (figure, unit,
+machine, idle/busy); no figure is asserted.
 """
 
 from __future__ import annotations
 
 import argparse
-import asyncio
-import math
+import itertools
 import os
+import re
+import signal
 import socket
+import subprocess
 import sys
+import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 sys.path.insert(0, os.path.dirname(__file__))
 
 from _machine import write_results  # noqa: E402
-from drafttwin.plant.serve.opcua import serve_opcua  # noqa: E402
-from drafttwin.plant.serve.pacing import Pacing  # noqa: E402
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+SUBSCRIBER = """
+import asyncio, sys
+from asyncua import Client
+
+async def main(url, names):
+    class H:
+        def datachange_notification(self, node, val, data):
+            pass
+    while True:
+        try:
+            async with Client(url, timeout=2.0) as c:
+                sub = await c.create_subscription(10.0, H())
+                await sub.subscribe_data_change([c.get_node(f"ns=2;s={n}.sample") for n in names],
+                                                queuesize=10000)
+                while True:
+                    await asyncio.sleep(1)
+        except (OSError, asyncio.TimeoutError):
+            await asyncio.sleep(0.1)
+
+asyncio.run(main(sys.argv[1], sys.argv[2].split(",")))
+"""
+SUMMARY = re.compile(r"timing: (\d+) samples published late .*?max lag ([0-9.]+) s")
 
 
 def _port() -> int:
@@ -37,47 +74,91 @@ def _port() -> int:
         return int(s.getsockname()[1])
 
 
-def run_one(machines: int, duration_s: float, physics: str, max_lag: float) -> dict[str, Any]:
-    lags: list[float] = []
-    warned: list[str] = []
-    pacing = Pacing(100.0, max_lag_s=max_lag, warn=warned.append)
-    names = [f"m{k + 1}" for k in range(machines)]
+@contextmanager
+def busy(n: int) -> Iterator[None]:
+    """``n`` processes spinning a core each (as benchmarks/bench_stop.py)."""
+    spin = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in spin:
+            p.kill()
+            p.wait()
 
-    def on_sample(name: str, s: Any) -> None:
-        lags.append(time.time() - s.time_s)
 
-    start = time.monotonic()
-    last = asyncio.run(serve_opcua(f"opc.tcp://127.0.0.1:{_port()}", names, physics=physics,
-                                   duration_s=duration_s, on_sample=on_sample, pacing=pacing))  # fmt: skip
-    wall = time.monotonic() - start
-    q = np.quantile(lags, [0.5, 0.9, 0.99, 1.0]) if lags else [math.nan] * 4
-    return {"machines": machines, "physics": physics, "duration_s": duration_s,
-            "max_lag_s": None if math.isinf(max_lag) else max_lag,
-            "published_per_machine": len(lags) // machines, "last_seq": max(last.values()),
-            "skipped": pacing.skipped, "warnings": pacing.warnings,
-            "physics_bound": pacing.physics_bound,
-            "lag_p50_s": float(q[0]), "lag_p90_s": float(q[1]), "lag_p99_s": float(q[2]),
-            "lag_max_s": float(q[3]), "wall_s_incl_startup": wall,
-            "load_average_1min": os.getloadavg()[0]}  # fmt: skip
+def run_one(src: Path, machines: int, duration_s: float, subscriber: bool,
+            busy_n: int) -> dict[str, Any]:  # fmt: skip
+    url = f"opc.tcp://127.0.0.1:{_port()}"
+    names = ["fa320a"] if machines == 1 else [f"fa320a-{k + 1}" for k in range(machines)]
+    env = {**os.environ, "PYTHONPATH": str(src), "OMP_NUM_THREADS": "1"}
+    load0 = os.getloadavg()[0]
+    with tempfile.TemporaryDirectory() as tmp:
+        log = Path(tmp) / "plant.parquet"
+        cmd = [sys.executable, "-c", "from drafttwin.cli import main; main()", "plant", "serve",
+               "--opcua", url, "--machines", str(machines), "--physics", "full", "--log",
+               str(log)]  # fmt: skip
+        plant = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                 text=True)  # fmt: skip
+        sub = None
+        try:
+            assert plant.stderr is not None
+            line = plant.stderr.readline()
+            if not line.startswith("serving"):
+                raise RuntimeError(f"plant serve did not start: {line}{plant.stderr.read()}")
+            if subscriber:
+                sub = subprocess.Popen([sys.executable, "-c", SUBSCRIBER, url, ",".join(names)],
+                                       env=env, stderr=subprocess.DEVNULL)  # fmt: skip
+            time.sleep(duration_s)
+            t_term = time.monotonic()
+            plant.send_signal(signal.SIGTERM)
+            out, err = plant.communicate(timeout=60)
+            stop_s = time.monotonic() - t_term
+        finally:
+            for p in (sub, plant):
+                if p is not None and p.poll() is None:
+                    p.kill()
+                    p.wait()
+        found = SUMMARY.search(out)
+        if found is None:
+            raise RuntimeError(f"no timing summary:\n{out}\n{err}")
+        lag = pd.read_parquet(log)["lag_s"].to_numpy() if log.exists() else np.array([])
+    q = np.quantile(lag, [0.5, 0.99]) if len(lag) else [float("nan")] * 2
+    return {"figure": "samples published late (> 1 sample period) and their lag",
+            "unit": "samples, s", "load": f"busy {busy_n}" if busy_n else "idle",
+            "busy": busy_n, "subscriber": subscriber, "machines": machines, "physics": "full",
+            "src": str(src), "duration_s": duration_s, "published": int(len(lag)),
+            "late": int(found.group(1)), "max_lag_s": float(found.group(2)),
+            "lag_p50_s": float(q[0]), "lag_p99_s": float(q[1]),
+            "sigterm_to_exit_s": round(stop_s, 2), "traceback": "Traceback" in err,
+            "warnings": [x for x in err.splitlines() if x.startswith("warning")],
+            "load_average_1min_before": round(load0, 2),
+            "load_average_1min_after": round(os.getloadavg()[0], 2)}  # fmt: skip
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--machines", type=int, default=2)
-    ap.add_argument("--duration", type=float, default=30.0)
-    ap.add_argument("--physics", default="full", choices=("full", "reduced"))
-    ap.add_argument("--max-lag", default="none,1")
-    args = ap.parse_args()
+    ap.add_argument("--duration", type=float, default=60.0, help="seconds served per run")
+    ap.add_argument("--busy", default="0,2", help="comma-separated, e.g. 0,2")
+    ap.add_argument("--subscriber", default="off,on", help="comma-separated: off, on")
+    ap.add_argument("--machines", default="1", help="comma-separated, e.g. 1,2")
+    ap.add_argument("--src", type=Path, default=SRC, help="the drafttwin source tree to run")
+    ap.add_argument("--out", default="plant_lag")
+    a = ap.parse_args()
     figures = []
-    for text in args.max_lag.split(","):
-        max_lag = math.inf if text == "none" else float(text)
-        fig = run_one(args.machines, args.duration, args.physics, max_lag)
-        figures.append(fig)
-        print(f"max-lag {text:>5}: published {fig['published_per_machine']}/machine, skipped "
-              f"{fig['skipped']}, lag p50 {fig['lag_p50_s']:.3f} p99 {fig['lag_p99_s']:.3f} max "
-              f"{fig['lag_max_s']:.3f} s, {fig['warnings']} warnings, load "
-              f"{fig['load_average_1min']:.1f}")  # fmt: skip
-    print(f"wrote {write_results('plant_lag', figures)}")
+    cases = list(itertools.product(map(int, a.machines.split(",")), a.subscriber.split(",")))
+    for busy_n in map(int, a.busy.split(",")):
+        with busy(busy_n):
+            for machines, sub in cases:
+                f = run_one(a.src.resolve(), machines, a.duration, sub == "on", busy_n)
+                figures.append(f)
+                print(f"{f['load']:>6}, {machines} machine(s), subscriber {sub:>3}: "
+                      f"{f['late']} of {f['published']} samples late, max lag "
+                      f"{f['max_lag_s']:.3f} s, p50 {f['lag_p50_s'] * 1e3:.1f} ms, p99 "
+                      f"{f['lag_p99_s'] * 1e3:.1f} ms, SIGTERM to exit "
+                      f"{f['sigterm_to_exit_s']:.1f} s, load "
+                      f"{f['load_average_1min_before']:.1f}-{f['load_average_1min_after']:.1f}",
+                      flush=True)  # fmt: skip
+    print(f"wrote {write_results(a.out, figures)}")
 
 
 if __name__ == "__main__":

@@ -364,7 +364,7 @@ def _record_reduced(model, y, j, out):
         energy_out[j, i] = y[y.shape[0] - N_ENERGY + i]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def integrate(y, t0, dt, n_out, steps_per_out, tables):
     """Advance the full state ``y`` (in place) by ``n_out * steps_per_out`` RK4 steps of
     ``dt`` seconds (``tables``: the train's :class:`TrainTables`).
@@ -379,7 +379,7 @@ def integrate(y, t0, dt, n_out, steps_per_out, tables):
     return out
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def integrate_reduced(y, t0, dt, n_out, steps_per_out, model):
     """:func:`integrate` for the reduced state ``y`` of a :class:`ReducedTables` ``model``:
     the same outputs on every original node (expanded from the super-nodes)."""

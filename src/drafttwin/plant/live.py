@@ -15,11 +15,25 @@ running integrator; sensor faults change what the encoders report
 (:func:`~drafttwin.plant.faults.apply_sensor_faults`). Not live: the rotor-resistance and
 eccentricity faults (time signals drawn over a whole record) and machine faults on the reduced
 physics (its tables are the reduction's).
+
+**Computed ahead.** A sample is two parts: its physics (the VFD ramp, machine faults, one
+kernel call: the true speeds) and its measurement (encoder edges, spikes, drops, sensor faults:
+the random draws). :meth:`LivePlant.compute` does the first part for the next samples and keeps
+them waiting; :meth:`LivePlant.step` measures the next one, computing it first if none waits.
+A served plant computes up to a fraction of a second ahead in a worker thread
+(:mod:`drafttwin.plant.serve.feed`; the kernel leaves the GIL while it integrates) and
+publishes each sample at its wall-clock time. Each sample's physics is the same kernel call
+whenever it runs, and the measurements draw in sample order, so the samples are the same bit
+for bit however far ahead they were computed (and the same as stepping one by one); what
+changes is when a written set-point takes effect: from the next sample computed, so up to the
+look-ahead later.
 """
 
 from __future__ import annotations
 
 import math
+import threading
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -112,6 +126,13 @@ class LivePlant:
         self._rev = self._rng.uniform(0.0, 1.0, len(ROLLERS) + 1)  # arbitrary encoder zeros
         self._counts = np.floor(self._rev * self._cpr)
         self.seq = 0
+        # the physics computed ahead of what is measured: (true speeds, supply) per sample
+        self._computed = 0  # samples whose physics is done
+        self._ramped_hz = self.supply_hz  # the VFD output at the last sample computed
+        self._ahead: deque[tuple[np.ndarray, float]] = deque()
+        # held while one sample's physics is computed (a worker's compute(), or step() or
+        # skip() when nothing waits); the deque itself needs no lock (appends and pops are atomic)
+        self._physics = threading.Lock()
         self._faults(live_faults(faults, nominal, physics), seed)
 
     def _faults(self, faults: tuple[FaultSpec, ...], seed: int) -> None:
@@ -147,42 +168,79 @@ class LivePlant:
         return x[:4], float(x[4])
 
     def set_supply(self, hz: float) -> None:
-        """A new VFD set-point, Hz; the output ramps to it."""
+        """A new VFD set-point, Hz; the output ramps to it from the next sample computed."""
         if not (math.isfinite(hz) and 0.0 <= hz <= MAX_SUPPLY_HZ):
             raise ConfigError(f"supply set-point {hz!r} Hz", where="supply_setpoint_hz",
                               fix=f"write a number from 0 to {MAX_SUPPLY_HZ:g} Hz")  # fmt: skip
         self.target_hz = float(hz)
 
+    @property
+    def ahead(self) -> int:
+        """Samples whose physics is computed and which are not measured yet."""
+        return len(self._ahead)
+
+    @property
+    def computed(self) -> int:
+        """Samples whose physics is computed (measured, skipped or waiting)."""
+        return self._computed
+
+    def compute(self, n: int = 1) -> None:
+        """Compute the physics of the next ``n`` samples (they wait to be measured). Safe from
+        a worker thread while the loop measures samples computed before."""
+        for _ in range(n):
+            with self._physics:
+                self._advance()
+
+    def _advance(self) -> None:
+        """One sample's physics: ramp the supply, faults at the sample's time, integrate."""
+        dt = 1.0 / self.rate_hz
+        if self.schedule is not None:  # the expression stepping has always used
+            self._apply_machine_faults((self._computed + 1) / self.rate_hz - dt)
+        delta = self.target_hz - self._ramped_hz
+        limit = self.ramp * dt if self.ramp > 0 else math.inf
+        self._ramped_hz += max(-limit, min(limit, delta))
+        node_rpm = self.stepper.step(self._ramped_hz)
+        self._ahead.append((node_rpm[[*self._rollers, self._motor]], self._ramped_hz))
+        self._computed += 1
+
     def skip(self, n: int) -> None:
-        """Advance ``n`` samples in one integration, measuring none (a server that fell
-        behind its clock catches up; the counter jumps by ``n``, which a twin counts as
-        dropped samples). The encoders keep their position, so the next sample measures
-        only its own window. The supply ramps linearly across the span (a set-point reached
-        within it is spread over the whole span: an approximation of the catch-up only)."""
+        """Advance ``n`` samples, measuring none (a server that fell behind its clock catches
+        up; the counter jumps by ``n``, which a twin counts as dropped samples). Samples
+        computed ahead are dropped; the rest is integrated in one call. The encoders keep their
+        position, so the next sample measures only its own window. The supply ramps linearly
+        across that span (a set-point reached within it is spread over the whole span: an
+        approximation of the catch-up only)."""
         if n <= 0:
             return
-        span = n / self.rate_hz
-        if self.schedule is not None:
-            self._apply_machine_faults(self.seq / self.rate_hz)
-        delta = self.target_hz - self.supply_hz
-        limit = self.ramp * span if self.ramp > 0 else math.inf
-        self.supply_hz += max(-limit, min(limit, delta))
-        node_rpm = self.stepper.step(self.supply_hz, span_s=span)
-        self._rev += node_rpm[[*self._rollers, self._motor]] / 60.0 * span
+        dt = 1.0 / self.rate_hz
+        with self._physics:
+            for _ in range(min(n, len(self._ahead))):
+                true, self.supply_hz = self._ahead.popleft()
+                self._rev += true / 60.0 * dt
+            rest = max(0, self.seq + n - self._computed)
+            if rest:
+                span = rest / self.rate_hz
+                if self.schedule is not None:
+                    self._apply_machine_faults(self._computed / self.rate_hz)
+                delta = self.target_hz - self._ramped_hz
+                limit = self.ramp * span if self.ramp > 0 else math.inf
+                self._ramped_hz += max(-limit, min(limit, delta))
+                node_rpm = self.stepper.step(self._ramped_hz, span_s=span)
+                self._rev += node_rpm[[*self._rollers, self._motor]] / 60.0 * span
+                self._computed += rest
+                self.supply_hz = self._ramped_hz
         self._counts = np.floor(self._rev * self._cpr)
         self.seq += n
 
     def step(self) -> LiveSample:
-        """Advance one sample: ramp the supply, integrate, count encoder edges."""
+        """The next sample: its physics (computed ahead, or now), its encoders' edges counted."""
+        if not self._ahead:  # nothing computed ahead: wait for a sample being computed, or compute
+            with self._physics:
+                if not self._ahead:
+                    self._advance()
+        true, supply_hz = self._ahead.popleft()
         dt = 1.0 / self.rate_hz
         t_fault = (self.seq + 1) / self.rate_hz  # machine time of this sample, from the start
-        if self.schedule is not None:
-            self._apply_machine_faults(t_fault - dt)
-        delta = self.target_hz - self.supply_hz
-        limit = self.ramp * dt if self.ramp > 0 else math.inf
-        self.supply_hz += max(-limit, min(limit, delta))
-        node_rpm = self.stepper.step(self.supply_hz)
-        true = node_rpm[[*self._rollers, self._motor]]
         self._rev += true / 60.0 * dt
         counts = np.floor(self._rev * self._cpr)
         measured = (counts - self._counts) / self._cpr * 60.0 / dt
@@ -202,8 +260,9 @@ class LivePlant:
             rollers[:] = np.nan
             motor = math.nan
         self.seq += 1
+        self.supply_hz = supply_hz
         time_s = self.t0_s + self.seq / self.rate_hz
-        return LiveSample(self.seq, time_s, rollers, motor, self.supply_hz, true[:-1])
+        return LiveSample(self.seq, time_s, rollers, motor, supply_hz, true[:-1])
 
 
 __all__ = ["DEFAULT_RAMP_HZ_PER_S", "LivePlant", "LiveSample", "live_faults"]

@@ -37,6 +37,7 @@ from drafttwin.errors import ConfigError
 from drafttwin.plant.faults import FaultSpec
 from drafttwin.plant.live import LivePlant
 from drafttwin.plant.serve.channels import as_published, plant_channels, values_of
+from drafttwin.plant.serve.feed import AHEAD_S, Feed
 from drafttwin.plant.serve.pacing import Pacing, catch_up
 from drafttwin.wire.conventions import (
     OFFLINE,
@@ -185,12 +186,15 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
                      username: str | None = None, password: str | None = None,
                      cert_dir: Path | None = None, broker_mode: str = "auto",
                      on_sample: Any = None, faults: Sequence[FaultSpec] = (),
-                     qos: int = 0, pacing: Pacing | None = None) -> dict[str, int]:  # fmt: skip
+                     qos: int = 0, pacing: Pacing | None = None,
+                     ahead_s: float = AHEAD_S) -> dict[str, int]:  # fmt: skip
     """Publish ``names`` live plants to the broker at ``address``; set-points arrive on
     ``drafttwin/NAME/setpoint``. ``broker_mode``: ``auto`` starts the embedded broker when none
     answers on a local address, ``external`` never starts one (a broker must answer),
     ``embedded`` always starts one (the port must be free). ``qos``: 0 (default) or 1 for the
-    samples. ``on_sample(name, sample)`` is called after each publish (the plant's own log)."""
+    samples. ``on_sample(name, sample)`` is called after each publish (the plant's own log).
+    ``ahead_s``: how far ahead the physics is computed, as for
+    :func:`~drafttwin.plant.serve.opcua.serve_opcua`."""
     if qos not in (0, 1):
         raise ConfigError(f"QoS {qos}", where="--qos", fix="use 0 or 1")
     host, port = parse_hostport(address, "--mqtt")
@@ -207,7 +211,8 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
             ready(f"MQTT {host}:{port}" + (" (embedded amqtt broker)" if broker else
                                            " (external broker)"))  # fmt: skip
         pacing = pacing if pacing is not None else Pacing(rate_hz)
-        return await _publish(publishers, pacing, qos, duration_s, on_sample)
+        with Feed([p.plant for p in publishers], rate_hz, ahead_s=ahead_s) as feed:
+            return await _publish(publishers, pacing, feed, qos, duration_s, on_sample)
     finally:
         for p in publishers:
             _close(p)
@@ -215,29 +220,32 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
             await broker.shutdown()
 
 
-async def _publish(publishers: list[_Publisher], pacing: Pacing, qos: int,
+async def _publish(publishers: list[_Publisher], pacing: Pacing, feed: Feed, qos: int,
                    duration_s: float | None,
                    on_sample: Callable[[str, Any], None] | None) -> dict[str, int]:  # fmt: skip
     t0 = pacing.start()
     for p in publishers:
         p.plant.t0_s = t0
     end = None if duration_s is None else round(duration_s * pacing.rate_hz)
-    pacing.end_tick = end
+    pacing.end_tick = feed.end = end
     while end is None or pacing.tick < end:
         skip = await pacing.next_tick()
         await catch_up([p.plant for p in publishers], skip, pacing.rate_hz)
+        t_s = 0.0
         for p in publishers:
             if p.pending is not None:
                 with contextlib.suppress(ConfigError):
                     p.plant.set_supply(p.pending)
                 p.pending = None
             s = as_published(p.plant.step(), p.channels)
+            t_s = s.time_s
             payload = sample_payload(s.seq, s.time_s, values_of(s), p.channels,
                                      lag_s=pacing.now_s() - s.time_s)  # fmt: skip
             p.client.publish(topic(p.name, "sample"), json.dumps(payload), qos=qos)
             if on_sample is not None:
                 on_sample(p.name, s)
-        pacing.published(s.time_s)
+        feed.took()
+        pacing.published(t_s)
     return {p.name: p.plant.seq for p in publishers}
 
 
