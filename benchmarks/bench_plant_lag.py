@@ -31,8 +31,6 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +39,7 @@ import pandas as pd
 
 sys.path.insert(0, os.path.dirname(__file__))
 
-from _machine import write_results  # noqa: E402
+from _machine import busy, write_results  # noqa: E402
 
 SRC = Path(__file__).resolve().parents[1] / "src"
 SUBSCRIBER = """
@@ -72,18 +70,6 @@ def _port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-@contextmanager
-def busy(n: int) -> Iterator[None]:
-    """``n`` processes spinning a core each (as benchmarks/bench_stop.py)."""
-    spin = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
-    try:
-        yield
-    finally:
-        for p in spin:
-            p.kill()
-            p.wait()
 
 
 def run_one(src: Path, machines: int, duration_s: float, subscriber: bool,

@@ -43,7 +43,7 @@ from pathlib import Path
 
 sys.path.insert(0, os.path.dirname(__file__))
 
-from _machine import write_results  # noqa: E402
+from _machine import busy, write_results  # noqa: E402
 
 LIMIT_S = 5.0
 """What docs/twin.md promises."""
@@ -117,18 +117,6 @@ class Proc:
         if self.p.poll() is None:
             self.p.kill()
             self.p.wait(30)
-
-
-@contextmanager
-def busy(n: int) -> Iterator[None]:
-    """``n`` processes spinning a core each."""
-    spin = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
-    try:
-        yield
-    finally:
-        for p in spin:
-            p.kill()
-            p.wait()
 
 
 @dataclass
