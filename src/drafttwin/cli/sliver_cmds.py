@@ -23,8 +23,10 @@ sliver_app = typer.Typer(
 app.add_typer(sliver_app, name="sliver")
 
 # the options of the sliver commands (sliver_read_cmds.py takes them too)
-StapleOpt = Annotated[str, typer.Option("--staple", help="Fibres: cotton | polyester | a CSV "
-                      "staple diagram (columns length_mm, fraction; give --fineness-dtex).")]  # fmt: skip
+StapleOpt = Annotated[str | None, typer.Option("--staple", help="Fibres: cotton | polyester | a "
+                      "CSV staple diagram (columns length_mm, fraction; give --fineness-dtex). "
+                      "Default: cotton; a record read without it takes the fibres its sidecar "
+                      "names, else says that it assumed cotton.")]  # fmt: skip
 FinenessOpt = Annotated[float | None, number("--fineness-dtex", "Fibre fineness, dtex (default: the preset's).")]  # fmt: skip
 FinenessCvOpt = Annotated[float | None, number("--fineness-cv", "Fineness CV as a fraction (default: the preset's).")]  # fmt: skip
 GaugesOpt = Annotated[str, typer.Option("--gauges", help="Zone gauges main,middle,break in mm "
@@ -38,13 +40,20 @@ FibreScaleReadOpt = Annotated[float, number(
 class FibreOptions:
     """The fibres: ``--staple``, ``--fineness-dtex``, ``--fineness-cv`` (an option group)."""
 
-    staple: StapleOpt = "cotton"
+    staple: StapleOpt = None
     fineness_dtex: FinenessOpt = None
     fineness_cv: FinenessCvOpt = None
 
     def diagram(self) -> Any:
-        """The staple diagram they describe."""
-        return staple_from(self.staple, self.fineness_dtex, self.fineness_cv)
+        """The staple diagram they describe (the cotton preset where none is given)."""
+        return staple_from(self.staple or "cotton", self.fineness_dtex, self.fineness_cv)
+
+    def given(self) -> Any:
+        """The staple diagram they describe, or None where none of them was given (a record
+        read with them then takes its own fibres, or says which it assumed)."""
+        if self.staple is None and self.fineness_dtex is None and self.fineness_cv is None:
+            return None
+        return self.diagram()
 
 
 def staple_from(staple: str, fineness: float | None, fineness_cv: float | None) -> Any:

@@ -23,11 +23,38 @@ from drafttwin.cli.sliver_cmds import (
 from drafttwin.cli.typer_app import console, print_json
 from drafttwin.errors import ConfigError
 
-SliverRecordOpt = Annotated[Path, file_in("--data", "Sliver record: delivered_length_m and a "
-                           "density column (drafttwin sliver simulate, generate --sliver).")]  # fmt: skip
-ColumnOpt = Annotated[str, typer.Option("--column", help="Density column.")]
+SliverRecordOpt = Annotated[Path, file_in("--data", "Sliver record: a length column "
+                           "(delivered_length_m, length_m, ... or --length-column) and a density "
+                           "column (linear_density_ktex or --column): drafttwin sliver simulate, "
+                           "generate --sliver (its speed record or its .sliver file), a tester's "
+                           "export.")]  # fmt: skip
+ColumnOpt = Annotated[str | None, typer.Option("--column", help="Density column (default: "
+                      "linear_density_ktex, else the one numeric column beside the length).")]  # fmt: skip
+LengthColumnOpt = Annotated[str | None, typer.Option("--length-column", help="Delivered-length "
+                            "column (default: delivered_length_m, length_m, position_m, ... with "
+                            "_m, _cm or _mm); its unit from its name or --length-unit.")]  # fmt: skip
+LengthUnitOpt = Annotated[str | None, typer.Option("--length-unit", help="Unit of the length "
+                          "column when its name does not say it: m, cm or mm.")]  # fmt: skip
 SensorOpt = Annotated[float, number("--sensor-mm", "Averaging length of the sensor that read the record, mm (for the ideal curve).")]  # fmt: skip
 ChannelTableOpt = Annotated[Path | None, file_out("--out", "The channel table (.csv or .parquet).")]  # fmt: skip
+
+
+def read_record(data: Path, column: str | None, length_column: str | None,
+                length_unit: str | None, fibre_options: FibreOptions,
+                option: str = "--data") -> tuple[Any, Any, Any]:  # fmt: skip
+    """A sliver record (or the sliver channel beside a plant record), the fibres to read it
+    with (options, else the record's sidecar, else assumed) and what lies beside it."""
+    from dataclasses import replace
+
+    from drafttwin.sliver import read_sliver
+    from drafttwin.sliver.record import sliver_beside
+    from drafttwin.sliver.staple import resolve_fibres
+
+    beside = sliver_beside(data)
+    fibres = resolve_fibres(fibre_options.given(), beside.staple if beside else None)
+    record = read_sliver(beside.sliver if beside else data, column, option=option,
+                         length_column=length_column, length_unit=length_unit)  # fmt: skip
+    return replace(record, staple=fibres.staple), fibres, beside
 
 
 @sliver_app.command("spectrogram")
@@ -35,7 +62,9 @@ ChannelTableOpt = Annotated[Path | None, file_out("--out", "The channel table (.
 def spectrogram_cmd(
     *,  # keyword-only: the option group below has no default
     data: SliverRecordOpt,
-    column: ColumnOpt = "linear_density_ktex",
+    column: ColumnOpt = None,
+    length_column: LengthColumnOpt = None,
+    length_unit: LengthUnitOpt = None,
     fibre_options: FibreOptions,
     sensor_mm: SensorOpt = 0.0,
     fibre_scale: FibreScaleReadOpt = 1.0,
@@ -46,7 +75,6 @@ def spectrogram_cmd(
     (10 channels per octave, ideal curve of a random sliver of the same fibres, significant
     channels, chimneys)."""
     from drafttwin.cli._common import write_frame
-    from drafttwin.sliver import read_sliver
     from drafttwin.sliver.irregularity import (
         evenness,
         ideal_variance_length_cv_pct,
@@ -56,22 +84,24 @@ def spectrogram_cmd(
 
     if out is not None:
         check_output_suffix(out)
-    fibres = fibre_options.diagram()
-    sl = read_sliver(data, column, staple=fibres)
-    ev = evenness(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale)
-    spec = spectrogram(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale=fibre_scale,
+    sl, fibres, _ = read_record(data, column, length_column, length_unit, fibre_options)
+    staple = fibres.staple
+    ev = evenness(sl.linear_density_ktex, sl.step_m, staple, fibre_scale)
+    spec = spectrogram(sl.linear_density_ktex, sl.step_m, staple, fibre_scale=fibre_scale,
                        sensor_length_m=sensor_mm * 1e-3)  # fmt: skip
     frame = spec.to_frame()
     if out is not None:
         write_frame(frame, out)
     if as_json:
         lengths, cv = variance_length_curve(sl.linear_density_ktex, sl.step_m)
-        ideal_cv = ideal_variance_length_cv_pct(fibres, sl.count_ktex, lengths, fibre_scale)
-        print_json({"evenness": ev.to_dict(), "spectrogram": frame.to_dict(orient="list"),
+        ideal_cv = ideal_variance_length_cv_pct(staple, sl.count_ktex, lengths, fibre_scale)
+        print_json({"evenness": ev.to_dict(), "fibres": fibres.to_dict(sl.count_ktex),
+                    "spectrogram": frame.to_dict(orient="list"),
                     "variance_length": {"length_m": lengths.tolist(), "cv_pct": cv.tolist(),
                                         "ideal_cv_pct": ideal_cv.tolist()}})  # fmt: skip
         return
     console.print(evenness_table(ev, f"{data.name}: {sl.length_m:.1f} m"))
+    console.print(fibres.note())
     table = Table(title="spectrogram (significant channels; * chimney)")
     for col in ("wavelength", "amplitude %", "ideal %", "base %", ""):
         table.add_column(col, justify="right")
@@ -142,7 +172,6 @@ HealthySliverOpt = Annotated[Path | None, file_in(
     "--reference", "A healthy sliver record of the same machine (or a speed record with one "
     "beside it): chimneys no higher than 1.5 x its channel are the machine's own lines, named "
     "but not counted as new.")]  # fmt: skip
-DataColumnOpt = Annotated[str, typer.Option("--column", help="Density column of --data.")]
 SensorOrSidecarOpt = Annotated[float | None, number("--sensor-mm", "Averaging length of the "
                               "sensor that read --data, mm (default: the plant's sidecar, else "
                               "0).")]  # fmt: skip
@@ -159,7 +188,9 @@ def diagnose_cmd(
     spectrogram_file: TesterOpt = None,
     speeds: EncodersOpt = None,
     reference: HealthySliverOpt = None,
-    column: DataColumnOpt = "linear_density_ktex",
+    column: ColumnOpt = None,
+    length_column: LengthColumnOpt = None,
+    length_unit: LengthUnitOpt = None,
     drive: TrainOptions,
     fibre_options: FibreOptions,
     gauges: GaugesOpt = "44,40,46",
@@ -175,10 +206,9 @@ def diagnose_cmd(
     wavelength, feed faults; with --speeds, the roller encoders' share of each chimney."""
     from dataclasses import replace
 
-    from drafttwin.sliver import read_sliver
     from drafttwin.sliver.diagnose import diagnose_sliver
-    from drafttwin.sliver.record import sliver_beside
     from drafttwin.sliver.spectra import read_tester_spectrogram
+    from drafttwin.sliver.staple import resolve_fibres
 
     if (data is None) == (spectrogram_file is None):
         raise ConfigError("give one of --data and --spectrogram", where="--data",
@@ -186,25 +216,26 @@ def diagnose_cmd(
     if report is not None and report.suffix.lower() not in (".html", ".htm"):
         raise ConfigError(f"'{report.name}' is not an .html file", where="--report",
                           fix="name the page *.html")  # fmt: skip
-    fibres = fibre_options.diagram()
     zones = zones_from(gauges)
     train = drive.load()
     record: Any
     if data is not None:
-        beside = sliver_beside(data)
+        record, fib, beside = read_record(data, column, length_column, length_unit,
+                                          fibre_options)  # fmt: skip
         if beside is not None:
             speeds = speeds if speeds is not None else beside.speeds
             sensor_mm = beside.sensor_mm if sensor_mm is None else sensor_mm
-        record = read_sliver(beside.sliver if beside else data, column, staple=fibres)
         record = replace(record, fibre_scale=fibre_scale)
     else:
         assert spectrogram_file is not None
-        record = read_tester_spectrogram(spectrogram_file, staple=fibres)
+        fib = resolve_fibres(fibre_options.given())
+        record = read_tester_spectrogram(spectrogram_file, staple=fib.staple)
+    fibres = fib.staple
     ref = None
     if reference is not None:
-        ref_beside = sliver_beside(reference)
-        ref = read_sliver(ref_beside.sliver if ref_beside else reference, column,
-                          option="--reference", staple=fibres)  # fmt: skip
+        ref, _, _ = read_record(reference, column, length_column, length_unit, fibre_options,
+                                option="--reference")  # fmt: skip
+        ref = replace(ref, staple=fibres)
     dx = diagnose_sliver(record, train, fibres, zones, harmonics=harmonics,
                          sensor_length_m=(sensor_mm or 0.0) * 1e-3, reference=ref)  # fmt: skip
     if speeds is not None and data is not None:
@@ -217,10 +248,12 @@ def diagnose_cmd(
             tmp.write_text(sliver_page(dx, title="What the sliver says",
                                        source=str(data or spectrogram_file)), encoding="utf-8")  # fmt: skip
     if as_json:
-        print_json(dx.to_dict())
+        count = dx.evenness.count_ktex if dx.evenness is not None else None
+        print_json({**dx.to_dict(), "fibres": fib.to_dict(count)})
         return
     if dx.evenness is not None:
         console.print(evenness_table(dx.evenness, f"{Path(str(data)).name}"))
+    console.print(fib.note())
     if not dx.causes:
         console.print("no significant chimney" + (" beyond the reference" if ref else ""))
     else:

@@ -274,6 +274,31 @@ def _read_file(source: Path, spec: ChannelSpec, opts: _Options) -> MeasurementSe
     return join_records([s for s, _ in records], metas, metadata)
 
 
+def read_table(path: str | Path, *, option: str | None = None) -> pd.DataFrame:
+    """A CSV or Parquet table (any columns) read through the checks every measurement file
+    passes: an existing, non-empty ``.csv`` / ``.parquet`` file, its first bytes sniffed
+    (binary junk, a compressed or damaged file refused before it is read whole), the CSV's
+    separator, encoding and field counts, at least one data row. Column names are stripped;
+    values are as the file holds them (the caller checks its own columns and rows).
+
+    Raises:
+        DataError: naming the file and ``option`` (the CLI option it came from).
+    """
+    source = Path(path)
+    try:
+        fmt = v.check_file(source)
+        sniff(source, fmt)
+        raw = _read_csv(source) if fmt == "csv" else _read_parquet(source)
+        if len(raw.frame) == 0:
+            raise DataError("no data rows (only a header)", source=source,
+                            fix="the file needs rows below the header")  # fmt: skip
+    except DataError as exc:
+        if option is None or exc.where is not None:
+            raise
+        raise DataError(exc.problem, source=exc.source, where=option, fix=exc.fix) from None
+    return raw.frame
+
+
 @dataclass
 class _Raw:
     frame: pd.DataFrame

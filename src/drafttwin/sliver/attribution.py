@@ -91,7 +91,9 @@ def attribute(chimneys: list[dict[str, Any]], table: WavelengthTable,
         cands = _with_lookalikes(sorted(cands, key=_rank))
         out.append(ChimneyCause(at, amp, base, excess, tuple(cands),
                                 _verdict(cands, at, drafts), at / drafts["total"],
-                                {"channel_m": lam, "tolerance": tol}))  # fmt: skip
+                                {"channel_m": lam, "tolerance": tol,
+                                 **({"channels_m": list(c["channels_m"])}
+                                    if "channels_m" in c else {})}))  # fmt: skip
     return out
 
 

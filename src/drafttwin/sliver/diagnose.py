@@ -119,12 +119,18 @@ def reference_spectrogram(reference: Sliver | Spectrogram, staple: StapleDiagram
 
 
 def _above_reference(cause: ChimneyCause, ref: Spectrogram) -> bool:
-    """The chimney rule against the reference: above 1.5 x the reference's channel."""
-    lam = float(cause.extra.get("channel_m", cause.wavelength_m))
-    j = int(np.argmin(np.abs(np.log(ref.wavelength_m / lam)))) if ref.wavelength_m.size else -1
-    if j < 0 or abs(math.log(ref.wavelength_m[j] / lam)) > 0.04:
-        return True  # the reference does not reach this wavelength
-    return cause.amplitude_pct > 1.5 * float(ref.amplitude_pct[j])
+    """The chimney rule against the reference: above 1.5 x the reference's channel (for a
+    line over two channels, their quadrature sum)."""
+    channels = cause.extra.get("channels_m") or [cause.extra.get("channel_m", cause.wavelength_m)]
+    ref_amp = 0.0
+    for lam in map(float, channels):
+        if not ref.wavelength_m.size:
+            return True
+        j = int(np.argmin(np.abs(np.log(ref.wavelength_m / lam))))
+        if abs(math.log(ref.wavelength_m[j] / lam)) > 0.04:
+            return True  # the reference does not reach this wavelength
+        ref_amp = math.hypot(ref_amp, float(ref.amplitude_pct[j]))
+    return cause.amplitude_pct > 1.5 * ref_amp
 
 
 def _refined_frequency(x: np.ndarray, step_m: float, f0: float, df: float) -> float:
@@ -158,4 +164,33 @@ def _with_peaks(chimneys: list[dict[str, Any]], record: Sliver) -> list[dict[str
         peak = 1.0 / _refined_frequency(x, record.step_m, k / length, 1.0 / length)
         out.append({**c, "peak_m": peak,
                     "tolerance": max(peak / length, SPEED_TOLERANCE)})  # fmt: skip
+    return _one_row_per_line(out)
+
+
+def _one_row_per_line(chimneys: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Chimneys of adjacent channels whose peaks are one line (within the matching
+    tolerance) as one row: a line near a band edge leaks into both channels. The row keeps
+    the larger channel's wavelength and the union of both bands: amplitude and base add in
+    quadrature (band variances add), so the line's excess over the base is kept whole;
+    ``channels_m`` lists the channels it covers."""
+    out: list[dict[str, Any]] = []
+    for c in sorted(chimneys, key=lambda r: float(r["wavelength_m"])):
+        prev = out[-1] if out else None
+        if prev is not None and "peak_m" in c and "peak_m" in prev and _adjacent(prev, c):
+            tol = max(float(prev["tolerance"]), float(c["tolerance"]))
+            if abs(math.log(float(c["peak_m"]) / float(prev["peak_m"]))) <= math.log1p(tol):
+                main = prev if prev["amplitude_pct"] >= c["amplitude_pct"] else c
+                out[-1] = {**main,
+                           "amplitude_pct": math.hypot(prev["amplitude_pct"], c["amplitude_pct"]),
+                           "base_pct": math.hypot(prev["base_pct"], c["base_pct"]),
+                           "lo_m": prev["lo_m"], "hi_m": c["hi_m"],
+                           "channels_m": [*prev.get("channels_m", [prev["wavelength_m"]]),
+                                          c["wavelength_m"]]}  # fmt: skip
+                continue
+        out.append(c)
     return out
+
+
+def _adjacent(a: dict[str, Any], b: dict[str, Any]) -> bool:
+    """Channel ``b`` follows channel ``a`` (their bands touch)."""
+    return math.isclose(float(a["hi_m"]), float(b["lo_m"]), rel_tol=1e-9)

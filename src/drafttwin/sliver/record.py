@@ -90,27 +90,40 @@ def frame_to_file(frame: pd.DataFrame, tmp: Path, suffix: str) -> None:
         frame.to_csv(tmp, index=False, float_format="%.10g")
 
 
-def read_sliver(path: str | Path, column: str = DENSITY_COLUMN, option: str = "--data",
-                staple: StapleDiagram | None = None) -> Sliver:  # fmt: skip
+LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001}
+"""Units a length column may carry (in its name: ``length_cm``, ``length [mm]``), in m."""
+RECOGNISED_LENGTHS = ("delivered_length", "length", "position", "distance", "sliver_length")
+"""Names of a length column recognised without ``--length-column`` (with a unit suffix)."""
+NOT_DENSITY = ("time", "time_s", "infeed_ktex", "fed_length_m", "record")
+"""Columns never taken as the density when the record names none."""
+
+
+def read_sliver(path: str | Path, column: str | None = None, option: str = "--data",
+                staple: StapleDiagram | None = None, length_column: str | None = None,
+                length_unit: str | None = None) -> Sliver:  # fmt: skip
     """Read a sliver record (mass per length on a delivered-length axis) and check it: the
     length column increasing and evenly spaced (within 1 %), the density finite and > 0.
-    ``column`` names the density column (any unit proportional to mass per length)."""
+
+    The file goes through the data layer's checks (:func:`drafttwin.data.io.read_table`:
+    binary or damaged files are refused with one line). ``length_column`` names the length
+    column; without it one of ``delivered_length_m``, ``length_m``, ``position_m``, ... (also
+    ``_cm``, ``_mm``) is taken. Its unit comes from its name (``_m``, ``_cm``, ``_mm``, or
+    ``[cm]``) or ``length_unit``. ``column`` names the density column (any unit proportional
+    to mass per length); without it ``linear_density_ktex``, else the one numeric column
+    left. ``option`` is the CLI option named in errors."""
+    from drafttwin.data.io import read_table
+
     path = Path(path)
-    if path.suffix.lower() not in (".csv", ".parquet"):
-        raise DataError("a sliver record must be .csv or .parquet", source=path, where=option)
-    frame = pd.read_parquet(path) if path.suffix.lower() == ".parquet" else pd.read_csv(path)
-    for col in (LENGTH_COLUMN, column):
-        if col not in frame.columns:
-            raise DataError(f"no column '{col}' (columns: {', '.join(map(str, frame.columns))})",
-                            source=path, where=option,
-                            fix=f"give {LENGTH_COLUMN} (m) and the density column "
-                            "(--column)")  # fmt: skip
-    s = pd.to_numeric(frame[LENGTH_COLUMN], errors="coerce").to_numpy(np.float64)
-    rho = pd.to_numeric(frame[column], errors="coerce").to_numpy(np.float64)
+    frame = read_table(path, option=option)
+    frame.columns = [str(c) for c in frame.columns]
+    length_col, scale = _length_column(frame, length_column, length_unit, path, option)
+    rho_col = _density_column(frame, column, length_col, path, option)
+    s = pd.to_numeric(frame[length_col], errors="coerce").to_numpy(np.float64) * scale
+    rho = pd.to_numeric(frame[rho_col], errors="coerce").to_numpy(np.float64)
     bad = np.flatnonzero(~np.isfinite(s) | ~np.isfinite(rho) | (rho <= 0))
     if bad.size:
         raise DataError(f"row {int(bad[0]) + 2}: length or density not a finite number > 0",
-                        source=path, where=f"{option}, column {column}",
+                        source=path, where=f"{option}, column {rho_col}",
                         fix="a sliver record has no gaps; cut it at the gap")  # fmt: skip
     if s.size < 100:
         raise DataError(f"{s.size} rows: too short for evenness", source=path, where=option,
@@ -118,11 +131,97 @@ def read_sliver(path: str | Path, column: str = DENSITY_COLUMN, option: str = "-
     step = np.diff(s)
     h = float(np.median(step))
     if not (h > 0 and np.all(np.abs(step - h) <= 0.01 * h)):
-        raise DataError(f"{LENGTH_COLUMN} is not increasing in even steps", source=path,
-                        where=option, fix="resample the record on an even length grid")  # fmt: skip
-    time = frame["time"].to_numpy(np.float64) if "time" in frame.columns else None
+        raise DataError(f"{length_col} is not increasing in even steps", source=path,
+                        where=f"{option}, column {length_col}",
+                        fix="resample the record on an even length grid")  # fmt: skip
+    time = None
+    if "time" in frame.columns:
+        t = pd.to_numeric(frame["time"], errors="coerce").to_numpy(np.float64)
+        time = t if bool(np.all(np.isfinite(t))) else None
     return Sliver(rho, h, start_m=float(s[0] - h / 2), time_s=time, staple=staple,
-                  info={"file": path.name, "column": column})  # fmt: skip
+                  info={"file": path.name, "column": rho_col,
+                        "length_column": length_col})  # fmt: skip
+
+
+def _unit_of(name: str) -> tuple[str, str] | None:
+    """The length unit a column name carries (``x_cm``, ``x [cm]``, ``x (cm)``) and the name
+    without it."""
+    low = name.strip().lower()
+    for unit in LENGTH_UNITS:
+        for suffix in (f"_{unit}", f"[{unit}]", f"({unit})", f" {unit}"):
+            if low.endswith(suffix):
+                return unit, low[: -len(suffix)].strip()
+    return None
+
+
+def _length_column(frame: pd.DataFrame, named: str | None, unit: str | None, path: Path,
+                   option: str) -> tuple[str, float]:  # fmt: skip
+    """The length column and its scale to m."""
+    columns = ", ".join(map(str, frame.columns))
+    if unit is not None and unit not in LENGTH_UNITS:
+        raise DataError(f"length unit '{unit}'", where="--length-unit", fix="m, cm or mm")
+    if named is not None:
+        found = _match(frame, named)
+        if found is None:
+            raise DataError(f"no column '{named}' (columns: {columns})", source=path,
+                            where=f"{option}, --length-column",
+                            fix="name the delivered-length column of the file")  # fmt: skip
+    else:
+        candidates = sorted((c for c in frame.columns if _is_length_name(c)), key=_priority)
+        if not candidates:
+            raise DataError(f"no length column (columns: {columns})", source=path, where=option,
+                            fix="name it with --length-column (e.g. --length-column length_m), "
+                            "or call it delivered_length_m")  # fmt: skip
+        found = candidates[0]
+    carried = _unit_of(found)
+    unit = unit or (carried[0] if carried else None)
+    if unit is None:
+        raise DataError(f"column '{found}' does not say its unit", source=path,
+                        where=f"{option}, --length-column",
+                        fix="give --length-unit m|cm|mm (or name it e.g. length_m)")  # fmt: skip
+    return found, LENGTH_UNITS[unit]
+
+
+def _priority(name: str) -> int:
+    carried = _unit_of(name)
+    return RECOGNISED_LENGTHS.index(carried[1]) if carried else len(RECOGNISED_LENGTHS)
+
+
+def _is_length_name(name: str) -> bool:
+    carried = _unit_of(name)
+    return carried is not None and carried[1] in RECOGNISED_LENGTHS
+
+
+def _match(frame: pd.DataFrame, name: str) -> str | None:
+    """The frame's column called ``name`` (exactly, else ignoring case and spaces)."""
+    if name in frame.columns:
+        return name
+    low = name.strip().lower()
+    return next((c for c in frame.columns if c.strip().lower() == low), None)
+
+
+def _density_column(frame: pd.DataFrame, named: str | None, length_col: str, path: Path,
+                    option: str) -> str:  # fmt: skip
+    """The density column: the one named, ``linear_density_ktex``, or the one numeric
+    column left beside length and time."""
+    columns = ", ".join(map(str, frame.columns))
+    if named is not None:
+        found = _match(frame, named)
+        if found is None:
+            raise DataError(f"no column '{named}' (columns: {columns})", source=path,
+                            where=f"{option}, --column",
+                            fix="name the density column with --column")  # fmt: skip
+        return found
+    found = _match(frame, DENSITY_COLUMN)
+    if found is not None:
+        return found
+    left = [c for c in frame.columns if c != length_col and c.strip().lower() not in NOT_DENSITY
+            and pd.to_numeric(frame[c], errors="coerce").notna().any()]  # fmt: skip
+    if len(left) != 1:
+        raise DataError(f"which column is the density? (columns: {columns})", source=path,
+                        where=f"{option}, --column",
+                        fix="name the density column with --column")  # fmt: skip
+    return str(left[0])
 
 
 @dataclass(frozen=True)
@@ -132,6 +231,14 @@ class SliverBeside:
     sliver: Path
     speeds: Path
     sensor_mm: float
+    sidecar: dict[str, Any] = field(default_factory=dict)
+    """The sidecar's ``sliver`` section (settings, fibres, the leveller's)."""
+
+    @property
+    def staple(self) -> dict[str, Any] | None:
+        """The fibres the record was made of, as the sidecar describes them."""
+        described = self.sidecar.get("staple")
+        return described if isinstance(described, dict) else None
 
 
 def sliver_beside(path: str | Path) -> SliverBeside | None:
@@ -153,4 +260,5 @@ def sliver_beside(path: str | Path) -> SliverBeside | None:
     sliver = path.with_name(str(name))
     if Path(str(name)).name != str(name) or not sliver.is_file() or not speeds.is_file():
         return None
-    return SliverBeside(sliver, speeds, sensor)
+    section = info["sliver"] if isinstance(info.get("sliver"), dict) else {}
+    return SliverBeside(sliver, speeds, sensor, section)

@@ -375,17 +375,14 @@ def _bool_column(frame: pd.DataFrame, column: str, path: Path) -> np.ndarray:
 
 
 def _read_table(path: Path) -> pd.DataFrame:
-    """The CSV as a DataFrame, read errors as DataError."""
-    import pandas as pd
+    """The table through the data layer's file checks (a binary or damaged file refused
+    with one line), read errors as DataError naming ``--spectrogram``."""
+    from drafttwin.data.io import read_table
 
     if not path.is_file():
         raise DataError("no such file", source=path, where="--spectrogram",
                         fix="give the path of the evenness tester's CSV export")  # fmt: skip
-    try:
-        return pd.read_csv(path)
-    except (ValueError, UnicodeDecodeError, pd.errors.ParserError) as exc:
-        raise DataError(f"not a readable CSV table ({exc})", source=path, where="--spectrogram",
-                        fix="export the spectrogram as CSV") from None  # fmt: skip
+    return read_table(path, option="--spectrogram")
 
 
 def _wavelength_column(frame: pd.DataFrame, path: Path) -> np.ndarray:
@@ -428,9 +425,6 @@ def read_tester_spectrogram(path: str | Path, staple: StapleDiagram | None = Non
     """
     path = Path(path)
     frame = _read_table(path)
-    if frame.shape[0] == 0:
-        raise DataError("the table has no rows", source=path, where="--spectrogram",
-                        fix="export at least one channel")  # fmt: skip
     lam = _wavelength_column(frame, path)
     if "amplitude_pct" not in frame.columns:
         columns = ", ".join(map(str, frame.columns))

@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy import stats
@@ -203,3 +204,70 @@ class StapleDiagram:
             "fineness_dtex": self.fineness_dtex,
             "fineness_cv": self.fineness_cv,
         }
+
+    @classmethod
+    def from_description(cls, described: dict[str, Any]) -> StapleDiagram:
+        """The fibres a :meth:`describe` dict names (a record's sidecar): the preset of that
+        name with the described fineness when its lengths match the preset's, else a gamma
+        length distribution of the described mean and CV. Raises ConfigError or KeyError,
+        TypeError, ValueError on a dict that does not describe fibres."""
+        mean, cv = float(described["mean_length_mm"]), float(described["length_cv"])
+        dtex, dtex_cv = float(described["fineness_dtex"]), float(described["fineness_cv"])
+        name = str(described.get("name", "fibres"))
+        if name in PRESETS:
+            preset = cls.preset(name)
+            if math.isclose(preset.mean_length_mm, mean, rel_tol=1e-6):
+                return cls(preset.lengths_mm, preset.weights, preset.class_width_mm, dtex,
+                           dtex_cv, name)  # fmt: skip
+        return cls.gamma(mean, cv, dtex, dtex_cv, name=name)
+
+
+PRESETS = ("cotton", "polyester")
+"""The staple presets (:meth:`StapleDiagram.preset`)."""
+
+
+@dataclass(frozen=True)
+class Fibres:
+    """The fibres a sliver record is read with, and where they came from.
+
+    Attributes:
+        staple: the staple diagram (Martindale's limit, the ideal curve, the fibre filter).
+        source: ``options`` (``--staple`` / ``--fineness-dtex``), ``record`` (the record's
+            sidecar names the fibres it was made of) or ``assumed`` (neither: the cotton
+            preset, which the report says).
+    """
+
+    staple: StapleDiagram
+    source: str
+
+    def to_dict(self, count_ktex: float | None = None) -> dict[str, object]:
+        out: dict[str, object] = {**self.staple.describe(), "source": self.source}
+        if count_ktex is not None:
+            out["fibres_in_cross_section"] = self.staple.fibres_in_cross_section(count_ktex)
+            out["martindale_cv_pct"] = self.staple.martindale_cv_pct(count_ktex)
+        return out
+
+    def note(self) -> str:
+        """One line for a report: which fibres, and (when assumed) how to give the real ones."""
+        s = self.staple
+        what = (f"{s.name}, number-mean length {s.mean_length_mm:.1f} mm, {s.fineness_dtex:.2f} "
+                f"dtex (CV {100 * s.fineness_cv:.0f} %)")  # fmt: skip
+        if self.source == "assumed":
+            return (f"fibres assumed: {what}; the record names none, and Martindale's limit, the "
+                    "index of irregularity and the ideal curve follow this assumption (give "
+                    "--staple and --fineness-dtex for the record's fibres)")  # fmt: skip
+        return f"fibres ({'from the record' if self.source == 'record' else 'as given'}): {what}"
+
+
+def resolve_fibres(given: StapleDiagram | None, described: object = None) -> Fibres:
+    """The fibres to read a record with: ``given`` (options) first, else those the record's
+    sidecar ``described`` (a :meth:`StapleDiagram.describe` dict), else the cotton preset,
+    marked as assumed."""
+    if given is not None:
+        return Fibres(given, "options")
+    if isinstance(described, dict):
+        try:
+            return Fibres(StapleDiagram.from_description(described), "record")
+        except (KeyError, TypeError, ValueError, ConfigError):
+            pass  # a sidecar that does not describe fibres names none
+    return Fibres(StapleDiagram.preset("cotton"), "assumed")
