@@ -109,6 +109,11 @@ _RANGES: dict[str, str] = {
     "--post": "(0, 3600] s",
     "--qos": "[0, 1] (MQTT QoS)",
     "--max-lag": "(0, 3600] s",
+    "--action-point": "[0, 10_000] mm of fed sliver",
+    "--intensity": "[0, 2] (fraction of the excess corrected)",
+    "--reference-ktex": "(0, 1600] ktex",
+    "--max-length": "(0, 1e6] m",
+    "--search": "[5, 2000] mm",
 }
 
 

@@ -121,6 +121,15 @@ EpochsOpt = Annotated[int | None, number("--epochs", "Most training epochs per n
 WorkersOpt = Annotated[int, number("--workers", "Parallel processes.")]
 OutDirOpt = Annotated[Path, dir_out("--out", "Output folder.")]
 FarPerDayOpt = Annotated[float, number("--far-per-day", "False alarms allowed per 24 h of healthy running.")]  # fmt: skip
+LevellerOpt = Annotated[str | None, typer.Option("--leveller", help=(
+    "An open-loop autoleveller: INTENSITY[,ACTION_OFFSET_MM] (1,0: full levelling at the true "
+    "action point; the offset in mm of fed sliver is a setting's error). Infeed scanning "
+    "rollers 600 mm before the back nip, a store clocked by the feeding rollers, the "
+    "regulating drive a 5-ms lag (docs/sliver.md)."))]  # fmt: skip
+LevellerFaultOpt = Annotated[list[str] | None, typer.Option("--leveller-fault", help=(
+    "A fault of the leveller (repeatable): infeed-drift=PCT_PER_MIN (the scanning rollers' "
+    "gain drifts) or sluggish-drive=MS (the drive's time constant, nominal 5 ms); a wrong "
+    "action point is --leveller's offset."))]  # fmt: skip
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print the result as JSON.")]
 # derived from the parameter's name, as --quiet/--no-quiet
 QuietOpt = Annotated[bool, typer.Option(help="No progress bar.")]

@@ -14,6 +14,8 @@ from drafttwin.cli._common import check_output_suffix
 from drafttwin.cli._groups import with_group
 from drafttwin.cli._options import (
     DurationOpt,
+    LevellerFaultOpt,
+    LevellerOpt,
     QuietOpt,
     SampleRateOpt,
     TrainOptions,
@@ -42,7 +44,9 @@ SliverOpt = Annotated[bool, typer.Option("--sliver", help=(
     "sliver, 1 mm grid)."))]  # fmt: skip
 FeedFaultOpt = Annotated[list[str] | None, typer.Option("--feed-fault", help=(
     "With --sliver: a periodic fault of the card slivers, "
-    "wavelength=M:amplitude=A[:slivers=one|all][:phase=random|same] (repeatable)."))]  # fmt: skip
+    "wavelength=M:amplitude=A[:slivers=one|all][:phase=random|same]; one sliver running out, "
+    "missing=FROM_M-TO_M; a piecing, piecing=AT_M (fed lengths in m from the record's start; "
+    "repeatable)."))]  # fmt: skip
 FibreScaleOpt = Annotated[float, number("--fibre-scale", "With --sliver: fibres lumped into one "
                           "(1: every fibre, about 1.3e8 per 100 m).")]  # fmt: skip
 
@@ -55,6 +59,7 @@ def generate(
     seed: SeedOpt = 0, machine_seed: MachineSeedOpt = None, machine: MachineFileOpt = None,
     scenario: ScenarioOpt = "steady", fault: FaultOpt = None,
     sliver: SliverOpt = False, feed_fault: FeedFaultOpt = None, fibre_scale: FibreScaleOpt = 1.0,
+    leveller: LevellerOpt = None, leveller_fault: LevellerFaultOpt = None,
     quiet: QuietOpt = False,
 ) -> None:  # fmt: skip
     """Run the plant emulator: measured roller speeds with the machine's real imperfections.
@@ -76,7 +81,7 @@ def generate(
                           where="--machine", fix="give one of them")  # fmt: skip
     plant = Plant(drive.load())
     faults = check_faults([FaultSpec.parse(f) for f in fault or []], plant.train)
-    settings = _sliver_settings(sliver, feed_fault, fibre_scale, out)
+    settings = _sliver_settings(sliver, feed_fault, fibre_scale, out, leveller, leveller_fault)
     # refuse a run that would never end (or write tens of GB) before anything starts
     check_samples(duration, rate, where="--duration, --rate")
     check_rk4_steps(duration, plant.train.spec.solver.dt_s, where="--duration")
@@ -114,6 +119,12 @@ def generate(
                       f"{summary['true_count_ktex']:.4f} ktex, CV {summary['true_cv_pct']:.3f} % "
                       f"(Martindale {summary['martindale_cv_pct']:.3f} %), "
                       f"{summary['fibres']:,} fibres")  # fmt: skip
+        lev = summary.get("leveller")
+        if lev:
+            console.print(f"leveller: intensity {lev['intensity']:g}, action point "
+                          f"{lev['action_point_mm']:.1f} mm (true {lev['true_action_point_mm']:.1f} "
+                          f"mm), drive {1000 * lev['drive']['time_constant_s']:g} ms, infeed drift "
+                          f"{lev['infeed_sensor']['drift_pct_per_min']:g} %/min")  # fmt: skip
     console.print("wrote " + ", ".join(str(p) for p in paths))
 
 
@@ -140,18 +151,23 @@ def _refuse_foreign_beside(out: Path) -> None:
 
 
 def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: float,
-                     out: Path) -> Any:  # fmt: skip
+                     out: Path, leveller: str | None = None,
+                     leveller_fault: list[str] | None = None) -> Any:  # fmt: skip
     """The plant's sliver settings, or None; refuses sliver files beside --out that an
     earlier plant record of this name did not write (they are not the user's to lose)."""
     if not sliver:
-        if feed_fault or fibre_scale != 1.0:
-            raise ConfigError("--feed-fault and --fibre-scale shape the sliver",
-                              where="--feed-fault", fix="add --sliver")  # fmt: skip
+        if feed_fault or fibre_scale != 1.0 or leveller or leveller_fault:
+            raise ConfigError("--feed-fault, --fibre-scale and --leveller shape the sliver",
+                              where="--feed-fault" if feed_fault else "--leveller"
+                              if leveller or leveller_fault else "--fibre-scale",
+                              fix="add --sliver")  # fmt: skip
         return None
     from dataclasses import replace
 
+    from drafttwin.cli.sliver_cmds import leveller_from
     from drafttwin.plant.sliver_channel import SliverSettings, default_feed, sliver_paths
     from drafttwin.sliver import FeedFault
+    from drafttwin.sliver.feed import parse_feed_event
     from drafttwin.sliver.record import sliver_beside
 
     ours = sliver_beside(out)
@@ -161,5 +177,21 @@ def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: fl
             raise ConfigError(f"{p.name} exists and is not the sliver of an earlier plant "
                               "record of this name", source=p, where="--out",
                               fix="choose another --out or move the file")  # fmt: skip
-    faults = tuple(FeedFault.parse(f) for f in feed_fault or [])
-    return replace(SliverSettings(), feed=default_feed(faults), fibre_scale=fibre_scale)
+    periodic, missing, piecings = [], None, []
+    for text in feed_fault or []:
+        event = parse_feed_event(text)
+        if event is None:
+            periodic.append(FeedFault.parse(text))
+        elif event[0] == "missing":
+            if missing is not None:
+                raise ConfigError("two missing= feed faults", where="--feed-fault",
+                                  fix="one sliver runs out once per record")  # fmt: skip
+            missing = (event[1][0], event[1][1])
+        else:
+            piecings.append(event[1][0])
+    feed = replace(default_feed(tuple(periodic)), runs_out_m=missing, piecings_m=tuple(piecings))
+    levelling = leveller_from(leveller, leveller_fault)
+    settings = replace(SliverSettings(), feed=feed, fibre_scale=fibre_scale, leveller=levelling)
+    if levelling is not None:
+        settings = replace(settings, infeed=levelling.sensor)
+    return settings

@@ -11,7 +11,15 @@ from rich.table import Table
 
 from drafttwin.cli._common import check_output_suffix
 from drafttwin.cli._groups import with_group
-from drafttwin.cli._options import JsonOpt, QuietOpt, TrainOptions, file_out, number
+from drafttwin.cli._options import (
+    JsonOpt,
+    LevellerFaultOpt,
+    LevellerOpt,
+    QuietOpt,
+    TrainOptions,
+    file_out,
+    number,
+)
 from drafttwin.cli.typer_app import app, console, print_json, progress_bar
 from drafttwin.errors import ConfigError
 
@@ -180,9 +188,6 @@ RealDraftingOpt = Annotated[str | None, typer.Option("--real-drafting", help=(
     "Real drafting: ACCELERATION_MM,COUPLING (e.g. 8,1): floating fibres accelerate early, "
     "dragged by fast ones (a drafting wave). Both must be calibrated against a mill's "
     "spectrograms; default: ideal drafting."))]  # fmt: skip
-LevellerOpt = Annotated[str | None, typer.Option("--leveller", help=(
-    "An open-loop autoleveller: INTENSITY[,ACTION_OFFSET_MM] (1,0: full levelling at the true "
-    "action point; the offset in mm of fed sliver is a setting's error)."))]  # fmt: skip
 SeedOpt = Annotated[int, number("--seed", "Seed of the fibres.")]
 
 
@@ -209,6 +214,7 @@ def simulate_cmd(
     fibre_scale: FibreScaleOpt = 1.0,
     real_drafting: RealDraftingOpt = None,
     leveller: LevellerOpt = None,
+    leveller_fault: LevellerFaultOpt = None,
     seed: SeedOpt = 0,
     as_json: JsonOpt = False,
     quiet: QuietOpt = False,
@@ -232,7 +238,7 @@ def simulate_cmd(
             raise ConfigError(f"'{real_drafting}' is not ACCELERATION_MM,COUPLING",
                               where="--real-drafting", fix="e.g. 8,1") from None  # fmt: skip
         real = RealDrafting(acc, coupling)
-    levelling = _leveller(leveller)
+    levelling = leveller_from(leveller, leveller_fault)
     train = drive.load()
     if reduced:
         from drafttwin.mechanics import reduce
@@ -262,16 +268,13 @@ def simulate_cmd(
     console.print(f"wrote {out}")
 
 
-def _leveller(text: str | None) -> Any:
+def leveller_from(text: str | None, faults: list[str] | None) -> Any:
+    """The autoleveller of ``--leveller`` and ``--leveller-fault``, or None."""
     from drafttwin.sliver.leveller import Autoleveller
 
     if text is None:
+        if faults:
+            raise ConfigError("--leveller-fault is a fault of the leveller", where="--leveller-fault",
+                              fix="add --leveller INTENSITY[,ACTION_OFFSET_MM]")  # fmt: skip
         return None
-    try:
-        parts = [float(x) for x in text.split(",")]
-    except ValueError:
-        parts = []
-    if len(parts) not in (1, 2):
-        raise ConfigError(f"'{text}' is not INTENSITY[,ACTION_OFFSET_MM]", where="--leveller",
-                          fix="e.g. 1 or 1,15")  # fmt: skip
-    return Autoleveller(parts[0], parts[1] if len(parts) == 2 else 0.0)
+    return Autoleveller.parse(text, faults or [])

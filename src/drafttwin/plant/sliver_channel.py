@@ -15,7 +15,7 @@ Martindale limit (about 0.24 % for 34 000 fibres), but no published nomogram was
 from __future__ import annotations
 
 import contextlib
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -26,13 +26,12 @@ from drafttwin._io import atomic_path
 from drafttwin.sliver import DraftingZones, Feed, FeedFault, Sliver, StapleDiagram, SurfaceSpeeds
 from drafttwin.sliver import draft as draft_sliver
 from drafttwin.sliver.irregularity import evenness
+from drafttwin.sliver.leveller import Autoleveller, InfeedSensor
 from drafttwin.sliver.record import frame_to_file
-from drafttwin.sliver.sensor import SliverSensor, infeed_reading
+from drafttwin.sliver.sensor import SliverSensor
 
 SURFACE_RATE_HZ = 2000.0
 """Rate of the true roller surfaces that draft the plant's sliver (2 mm of sliver)."""
-SCAN_AHEAD_MM = 600.0
-"""Distance from the infeed scanning rollers to the back nip along the sliver (assumption)."""
 
 
 def sliver_paths(path: Path) -> tuple[Path, Path]:
@@ -49,16 +48,19 @@ def default_feed(faults: tuple[FeedFault, ...] = ()) -> Feed:
 
 @dataclass(frozen=True)
 class SliverSettings:
-    """What the plant drafts and how it measures it."""
+    """What the plant drafts, how it measures it, and its autoleveller (None: none).
+
+    The infeed scanning rollers (``infeed``: 20 mm contact, 0.3 % noise, a reading per mm of
+    fed sliver, 600 mm before the back nip; assumptions) are the leveller's sensor where
+    there is one: its readings are the ones written."""
 
     feed: Feed = field(default_factory=default_feed)
     zones: DraftingZones = field(default_factory=DraftingZones)
     delivery: SliverSensor = field(default_factory=SliverSensor)
-    infeed: SliverSensor = field(
-        default_factory=lambda: SliverSensor(averaging_mm=20.0, lag_mm=0.0, noise=0.003)
-    )
+    infeed: InfeedSensor = field(default_factory=InfeedSensor)
     fibre_scale: float = 1.0
     step_mm: float = 1.0
+    leveller: Autoleveller | None = None
 
     def record(self) -> dict[str, Any]:
         feed = self.feed
@@ -66,9 +68,10 @@ class SliverSettings:
                 "feed_ktex": feed.count_ktex, "feed_extra_cv": feed.extra_cv,
                 "feed_extra_correlation_m": feed.extra_correlation_m,
                 "feed_faults": [asdict(f) for f in feed.faults],
+                "feed_events": feed.events(),
                 "gauges_mm": asdict(self.zones), "delivery_sensor": asdict(self.delivery),
                 "infeed_sensor": asdict(self.infeed), "fibre_scale": self.fibre_scale,
-                "step_mm": self.step_mm, "scan_ahead_mm": SCAN_AHEAD_MM}  # fmt: skip
+                "step_mm": self.step_mm, "scan_ahead_mm": self.infeed.scan_ahead_mm}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -79,18 +82,22 @@ class SliverChannel:
         true: the delivered sliver on its fine grid (ktex).
         delivery: the delivery sensor's readings (ktex) on its pitch.
         infeed_ktex: the infeed sensor's readings of all fed slivers (ktex) at the delivery
-            readings' times.
+            readings' times (the reading the scanning rollers hold then).
+        fed_length_m: the feeding (back) roller's travel at those times, m from the record's
+            start: the length clock of a levelling drawframe's store.
         summary: count, CV and the drafting's provenance (JSON-able).
     """
 
     true: Sliver
     delivery: Sliver
     infeed_ktex: np.ndarray
+    fed_length_m: np.ndarray
     summary: dict[str, Any]
 
     def frames(self) -> tuple[pd.DataFrame, pd.DataFrame]:
         measured = self.delivery.to_frame()
         measured["infeed_ktex"] = self.infeed_ktex
+        measured["fed_length_m"] = self.fed_length_m
         return measured, self.true.to_frame()
 
     def write(self, path: Path, truth: Path, stack: contextlib.ExitStack) -> None:
@@ -103,20 +110,35 @@ class SliverChannel:
 def make_sliver(time_s: np.ndarray, length_m: np.ndarray, settings: SliverSettings,
                 rng: np.random.Generator, seed: int) -> SliverChannel:  # fmt: skip
     """Draft the plant's sliver from its true roller surfaces (``length_m`` ``(n, 4)`` on
-    ``time_s``) and read it with the sensors."""
+    ``time_s``), through its autoleveller where it has one, and read it with the sensors."""
     speeds = SurfaceSpeeds.from_lengths(time_s, length_m, "plant: true roller surfaces")
+    leveller = settings.leveller
+    if leveller is not None:
+        leveller = replace(leveller, sensor=settings.infeed)
     true = draft_sliver(speeds, settings.feed, settings.zones, step_mm=settings.step_mm,
-                        seed=seed, fibre_scale=settings.fibre_scale)  # fmt: skip
+                        seed=seed, fibre_scale=settings.fibre_scale, leveller=leveller)  # fmt: skip
     delivery = settings.delivery.read(true, rng)
     assert true.fed is not None and delivery.time_s is not None
-    back_mm = np.interp(delivery.time_s, time_s, (length_m[:, 3] - length_m[0, 3]) * 1e3)
-    start, step, relative = true.fed
-    infeed = infeed_reading(relative, start, step, back_mm, settings.feed.total_ktex,
-                            settings.infeed, SCAN_AHEAD_MM, rng)  # fmt: skip
+    if true.levelling is not None:
+        lev = true.levelling
+        back_mm = np.interp(delivery.time_s, lev.time_s, lev.back_mm)
+        readings = lev.readings
+    else:
+        back_mm = np.interp(delivery.time_s, time_s, (length_m[:, 3] - length_m[0, 3]) * 1e3)
+        start, step, relative = true.fed
+        fed_speed = (length_m[-1, 3] - length_m[0, 3]) * 1e3 / (time_s[-1] - time_s[0])
+        readings = settings.infeed.readings(relative, start, step, settings.feed.staple, rng,
+                                            float(fed_speed))  # fmt: skip
+    infeed = readings.at(back_mm + settings.infeed.scan_ahead_mm) * settings.feed.total_ktex
+    back_mm = back_mm - (
+        np.interp(0.0, true.levelling.time_s, true.levelling.back_mm)
+        if true.levelling is not None
+        else 0.0
+    )  # 0 at the record's start
     ev = evenness(true.linear_density_ktex, true.step_m, settings.feed.staple,
                   settings.fibre_scale)  # fmt: skip
     summary = {**settings.record(), "fibres": true.info.get("fibres"),
                "delivered_m": true.length_m, "true_count_ktex": ev.count_ktex,
                "true_cv_pct": ev.cv_pct, "martindale_cv_pct": ev.martindale_cv_pct,
-               "drafts": speeds.drafts()}  # fmt: skip
-    return SliverChannel(true, delivery, infeed, summary)
+               "drafts": speeds.drafts(), "leveller": true.info.get("leveller")}  # fmt: skip
+    return SliverChannel(true, delivery, infeed, back_mm * 1e-3, summary)

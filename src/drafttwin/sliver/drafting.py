@@ -110,9 +110,12 @@ def draft(speeds: SurfaceSpeeds, feed: Feed, zones: DraftingZones | None = None,
     quantiles, cum, p0, relative = _tables(feed, surface, zones, rng,
                                            extra=0.0 if leveller is None else 1.0)  # fmt: skip
     p_grid = p0 + FED_STEP_MM * np.arange(cum.size)
+    times = _times(speeds, surface)
+    levelling = None
     if leveller is not None:
-        surface = leveller.levelled(surface, p_grid, relative,
-                                    lambda sf: K.transport_map(sf, zones.array(), p_grid))  # fmt: skip
+        sensor_rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
+        surface, levelling = leveller.levelled(surface, times, p_grid, relative, feed.staple,
+                                               zones.array(), sensor_rng)  # fmt: skip
     lead = K.transport_map(surface, zones.array(), p_grid)
     run = _Run(seed, lead, quantiles, cum, p0, fibre_scale, h, n_bins, keep_fibres, progress,
                real is not None)  # fmt: skip
@@ -121,15 +124,16 @@ def draft(speeds: SurfaceSpeeds, feed: Feed, zones: DraftingZones | None = None,
         diff, kept, count = run(_drift_table(real, diff, speeds, zones, h))
     tex = np.cumsum(diff[:-2])
     s_mid = (np.arange(n_bins) + 0.5) * h
-    t = np.interp(s_mid, surface[:, K.FRONT], _times(speeds, surface))
+    t = np.interp(s_mid, surface[:, K.FRONT], times)
     return Sliver(tex / 1000.0, step_mm * 1e-3, time_s=t, staple=feed.staple,
                   fibre_scale=fibre_scale,
                   info={"fibres": count, "seed": seed, "speeds": speeds.source,
                         "drafts": speeds.drafts(), "feed_ktex": feed.total_ktex,
                         "doublings": feed.doublings,
                         "drafting": "ideal" if real is None else "real",
-                        "leveller": None if leveller is None else vars(leveller)},
-                  fibres=kept, fed=(p0, FED_STEP_MM, relative))  # fmt: skip
+                        "leveller": None if leveller is None or levelling is None
+                        else leveller.record(levelling.true_action_point_mm)},
+                  fibres=kept, fed=(p0, FED_STEP_MM, relative), levelling=levelling)  # fmt: skip
 
 
 @dataclass(frozen=True)

@@ -99,6 +99,10 @@ class Feed:
     runs_out_m: tuple[float, float] | None = None
     """One sliver runs out between these fed lengths (m from the record's start): a step of
     ``-1/doublings`` in the fed count (an autoleveller's test, research/sliver.md T10)."""
+    piecings_m: tuple[float, ...] = ()
+    """Piecings of one fed sliver at these fed lengths (m from the record's start): where a
+    can ran out and the next was pieced on, the two ends overlap: that sliver doubled over
+    :data:`PIECING_M` (assumption)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.doublings <= 16:
@@ -111,6 +115,15 @@ class Feed:
             raise ConfigError(f"extra CV {self.extra_cv} / correlation "
                               f"{self.extra_correlation_m} m", where="--feed-cv",
                               fix="a CV in [0, 0.5) and a correlation length of 0.01-1e4 m")  # fmt: skip
+
+    def events(self) -> list[dict[str, float | str]]:
+        """The feed's single events (a sliver running out, piecings), for a sidecar."""
+        out: list[dict[str, float | str]] = []
+        if self.runs_out_m is not None:
+            out.append({"kind": "missing", "from_m": self.runs_out_m[0],
+                        "to_m": self.runs_out_m[1]})  # fmt: skip
+        out += [{"kind": "piecing", "at_m": at, "length_m": PIECING_M} for at in self.piecings_m]
+        return out
 
     @property
     def total_ktex(self) -> float:
@@ -160,8 +173,34 @@ class Feed:
                                    self.extra_cv)  # fmt: skip
             if j == 0 and self.runs_out_m is not None:
                 m[(p_m >= self.runs_out_m[0]) & (p_m < self.runs_out_m[1])] = 0.0
+            if j == 0:
+                for at in self.piecings_m:
+                    m[(p_m >= at) & (p_m < at + PIECING_M)] *= 2.0
             total += m
         return np.maximum(total / self.doublings, 0.05)
+
+
+PIECING_M = 0.15
+"""Length of a piecing's overlap on the fed sliver, m (assumption: hand piecings overlap the
+two ends by 10-20 cm)."""
+
+
+def parse_feed_event(text: str) -> tuple[str, tuple[float, ...]] | None:
+    """``missing=FROM_M-TO_M`` (one sliver runs out between these fed lengths, m) or
+    ``piecing=AT_M`` as ``(kind, numbers)``; None for any other text (a periodic fault)."""
+    m = re.fullmatch(r"\s*(missing|piecing)\s*=\s*(\S+)\s*", text)
+    if m is None:
+        return None
+    try:
+        numbers = tuple(float(x) for x in m.group(2).split("-"))
+    except ValueError:
+        numbers = ()
+    want = 2 if m.group(1) == "missing" else 1
+    if len(numbers) != want or not all(0 <= x <= 1e5 for x in numbers) or (
+            want == 2 and numbers[1] <= numbers[0]):  # fmt: skip
+        raise ConfigError(f"cannot read '{text}'", where="--feed-fault",
+                          fix="missing=FROM_M-TO_M (fed m, from < to) or piecing=AT_M")  # fmt: skip
+    return m.group(1), numbers
 
 
 def _gauss_markov(rng: np.random.Generator, n: int, step_m: float, corr_m: float,

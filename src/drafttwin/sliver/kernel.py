@@ -17,6 +17,8 @@ second, third, back on a uniform time grid; ``gauges`` ``(3,)`` main (front-seco
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numba import njit
 
@@ -223,3 +225,36 @@ def draft_given(lead: np.ndarray, lengths: np.ndarray, tex: np.ndarray, surface:
             _deposit(diff, s_lead, lengths[i], tex[i], h)
         count += 1
     return count
+
+
+@njit(cache=True, error_model="numpy")
+def level_surface(surface: np.ndarray, readings: np.ndarray, setting: np.ndarray,
+                  out: np.ndarray, factor: np.ndarray) -> None:  # fmt: skip
+    """An open-loop leveller through the main draft, step by step along the time grid.
+
+    ``surface`` ``(m, 4)``: the rollers' unlevelled surface lengths (mm); ``readings``: the
+    infeed sensor's relative readings (1: the reference count) at fed positions ``q0 + k
+    pitch``, each held until the next; ``setting = (q0, pitch, scan_minus_store, intensity,
+    drive_a, lo, hi)``. At each step the store hands over the reading of the fed position
+    ``S_back + scan_minus_store`` (clocked by the feeding rollers' own travel, as a levelling
+    computer clocks its store), the command is ``1 / (1 + intensity (reading - 1))`` within
+    ``[lo, hi]``, and the regulating drive follows it as a first-order lag (``drive_a = 1 -
+    exp(-dt / tau)`` per step). Second, third and back roller (``out``) advance by their
+    unlevelled travel times the drive's factor; the front roller keeps its own. ``factor``
+    receives the drive's factor in each step."""
+    q0, pitch, ahead, intensity = setting[0], setting[1], setting[2], setting[3]
+    a, lo, hi = setting[4], setting[5], setting[6]
+    n_read = readings.shape[0]
+    out[0, :] = surface[0, :]
+    f = -1.0
+    for i in range(surface.shape[0] - 1):
+        k = int(math.floor((out[i, BACK] + ahead - q0) / pitch))
+        x = readings[min(max(k, 0), n_read - 1)]
+        cmd = 1.0 / max(1.0 + intensity * (x - 1.0), 1e-9)
+        cmd = min(max(cmd, lo), hi)
+        f = cmd if f < 0.0 else f + (cmd - f) * a  # the drive starts settled
+        factor[i] = f
+        out[i + 1, FRONT] = surface[i + 1, FRONT]
+        for c in range(1, 4):
+            out[i + 1, c] = out[i, c] + (surface[i + 1, c] - surface[i, c]) * f
+    factor[surface.shape[0] - 1] = f

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -19,6 +19,9 @@ import pandas as pd
 from drafttwin._io import atomic_path
 from drafttwin.errors import DataError
 from drafttwin.sliver.staple import StapleDiagram
+
+if TYPE_CHECKING:
+    from drafttwin.sliver.leveller import Levelling
 
 LENGTH_COLUMN = "delivered_length_m"
 DENSITY_COLUMN = "linear_density_ktex"
@@ -41,6 +44,8 @@ class Sliver:
         fed: the feed's relative rate as drafted: ``(start_mm, step_mm, values)`` on the
             fed-length grid (the back roller's surface length, 0 at the record's start), for
             an infeed sensor; None if unknown.
+        levelling: what an autoleveller did (its readings, setting, the feeding roller's
+            levelled travel); None without one.
     """
 
     linear_density_ktex: np.ndarray
@@ -52,6 +57,7 @@ class Sliver:
     info: dict[str, Any] = field(default_factory=dict)
     fibres: np.ndarray | None = None
     fed: tuple[float, float, np.ndarray] | None = None
+    levelling: Levelling | None = None
 
     @property
     def delivered_length_m(self) -> np.ndarray:
@@ -116,7 +122,7 @@ def read_sliver(path: str | Path, column: str | None = None, option: str = "--da
     path = Path(path)
     frame = read_table(path, option=option)
     frame.columns = [str(c) for c in frame.columns]
-    length_col, scale = _length_column(frame, length_column, length_unit, path, option)
+    length_col, scale = find_length_column(frame, length_column, length_unit, path, option)
     rho_col = _density_column(frame, column, length_col, path, option)
     s = pd.to_numeric(frame[length_col], errors="coerce").to_numpy(np.float64) * scale
     rho = pd.to_numeric(frame[rho_col], errors="coerce").to_numpy(np.float64)
@@ -154,9 +160,9 @@ def _unit_of(name: str) -> tuple[str, str] | None:
     return None
 
 
-def _length_column(frame: pd.DataFrame, named: str | None, unit: str | None, path: Path,
+def find_length_column(frame: pd.DataFrame, named: str | None, unit: str | None, path: Path,
                    option: str) -> tuple[str, float]:  # fmt: skip
-    """The length column and its scale to m."""
+    """The length column of a sliver table (named, else recognised) and its scale to m."""
     columns = ", ".join(map(str, frame.columns))
     if unit is not None and unit not in LENGTH_UNITS:
         raise DataError(f"length unit '{unit}'", where="--length-unit", fix="m, cm or mm")

@@ -73,18 +73,3 @@ def _boxcar(x: np.ndarray, width: int) -> np.ndarray:
     lo = np.maximum(idx - width, 0)
     mean: np.ndarray = (c[idx] - c[lo]) / (idx - lo)
     return mean
-
-
-def infeed_reading(fed_relative: np.ndarray, fed_start_mm: float, fed_step_mm: float,
-                   back_length_mm: np.ndarray, total_ktex: float, sensor: SliverSensor,
-                   scan_ahead_mm: float, rng: np.random.Generator) -> np.ndarray:  # fmt: skip
-    """The infeed scanning rollers' readings (ktex of all fed slivers together) at times
-    whose back-roller surface lengths are ``back_length_mm``: the feed's relative rate
-    (``fed_relative`` on its fed-length grid) at ``scan_ahead_mm`` before the back nip,
-    averaged over the sensor's contact length, times the fed count, with the sensor's
-    noise."""
-    grid = fed_start_mm + fed_step_mm * np.arange(fed_relative.size)
-    width = max(1, int(round(sensor.averaging_mm / fed_step_mm)))
-    smooth = _boxcar(fed_relative, width)
-    x: np.ndarray = np.interp(back_length_mm + scan_ahead_mm, grid, smooth) * total_ktex
-    return x * (1.0 + sensor.gain_error) * (1.0 + sensor.noise * rng.standard_normal(x.size))

@@ -1,0 +1,102 @@
+"""``drafttwin sliver level``: the autoleveller's action point and intensity from running data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Any
+
+from rich.table import Table
+
+from drafttwin.cli._groups import with_group
+from drafttwin.cli._options import JsonOpt, file_in, number
+from drafttwin.cli.app import console, print_json
+from drafttwin.cli.sliver_cmds import FibreOptions, sliver_app
+from drafttwin.errors import ConfigError
+
+LevelRecordOpt = Annotated[Path, file_in("--data", "A levelling drawframe's record: a plant "
+                           "record made with generate --sliver (or its .sliver file), or any "
+                           "file with delivered_length_m, time, linear_density_ktex (delivery "
+                           "sensor), infeed_ktex (infeed scanning rollers) and fed_length_m "
+                           "(the store's length clock).")]  # fmt: skip
+ActionPointOpt = Annotated[float | None, number("--action-point", "The leveller's current action point setting, mm of fed sliver from the scanning rollers (default: the record's sidecar).")]  # fmt: skip
+IntensityOpt = Annotated[float | None, number("--intensity", "The leveller's current intensity (default: the record's sidecar; 0: no leveller).")]  # fmt: skip
+ReferenceOpt = Annotated[float | None, number("--reference-ktex", "The fed count the leveller levels to, ktex (default: the sidecar's feed, else the infeed readings' median).")]  # fmt: skip
+MaxLengthOpt = Annotated[float | None, number("--max-length", "Analyse at most this many metres of delivered sliver from the record's start.")]  # fmt: skip
+SearchOpt = Annotated[float, number("--search", "Action points searched either side of the current setting, mm.")]  # fmt: skip
+
+
+@sliver_app.command("level")
+@with_group("fibre_options", FibreOptions)
+def level_cmd(
+    *,  # keyword-only: the option group below has no default
+    data: LevelRecordOpt,
+    action_point: ActionPointOpt = None,
+    intensity: IntensityOpt = None,
+    reference_ktex: ReferenceOpt = None,
+    max_length: MaxLengthOpt = None,
+    search: SearchOpt = 120.0,
+    fibre_options: FibreOptions,
+    as_json: JsonOpt = False,
+) -> None:
+    """Find the autoleveller's action point and intensity from running data (infeed and
+    delivery readings of a few hundred metres) and recommend them, with the CV, CV(1 m),
+    CV(3 m) and CV(5 m) they are expected to give beside the current setting's, a 95 %
+    interval and the metres the estimate needed. Nothing is written to the machine."""
+    from dataclasses import replace
+
+    from drafttwin.sliver.action_point import find_action_point
+    from drafttwin.sliver.leveller_record import LevellerSetting, read_leveller_record
+    from drafttwin.sliver.staple import resolve_fibres
+
+    got = read_leveller_record(data)
+    setting = got.setting
+    if setting is None:
+        if action_point is None:
+            raise ConfigError("the record names no action point setting", source=data,
+                              where="--action-point",
+                              fix="give the current setting (--action-point MM, --intensity "
+                              "I; --intensity 0 for a record without a leveller)")  # fmt: skip
+        setting = LevellerSetting(action_point, 1.0 if got.had_leveller else 0.0)
+    setting = replace(setting,
+                      action_point_mm=setting.action_point_mm if action_point is None
+                      else action_point,
+                      intensity=setting.intensity if intensity is None else intensity,
+                      reference_ktex=setting.reference_ktex if reference_ktex is None
+                      else reference_ktex)  # fmt: skip
+    fibres = resolve_fibres(fibre_options.given(), got.staple)
+    record = got.record if max_length is None else got.record.head(max_length)
+    advice = find_action_point(record, setting, fibres.staple, got.delivery, search_mm=search)
+    if as_json:
+        print_json({**advice.to_dict(), "fibres": fibres.to_dict(advice.current.count_ktex)})
+        return
+    _print(advice, data)
+    if fibres.source == "assumed":
+        console.print(fibres.note())
+
+
+def _print(advice: Any, data: Path) -> None:
+    a = advice
+    lo, hi = a.action_point_interval_mm
+    table = Table(title=f"{data.name}: {a.metres_used:.0f} m of sliver")
+    for col in ("", "action point mm", "intensity", "CV %", "CV 1 m %", "CV 3 m %", "CV 5 m %"):
+        table.add_column(col, justify="right" if col else "left")
+    for name, point, inten, ev in (
+        ("current", a.current_action_point_mm, a.current_intensity, a.current),
+        ("recommended", a.recommended_action_point_mm, a.recommended_intensity, a.recommended),
+    ):  # fmt: skip
+        table.add_row(name, "none" if point is None else f"{point:.1f}", f"{inten:.2f}",
+                      f"{ev.cv_pct:.3f}", f"{ev.cv_1m_pct:.3f}", f"{ev.cv_3m_pct:.3f}",
+                      f"{ev.cv_5m_pct:.3f}")  # fmt: skip
+    console.print(table)
+    needed = "more than the record" if a.metres_needed is None else f"{a.metres_needed:.0f} m"
+    console.print(f"action point {a.recommended_action_point_mm:.1f} mm (95 % {lo:.1f}-{hi:.1f}), "
+                  f"intensity {a.recommended_intensity:.2f} (95 % {a.intensity_interval[0]:.2f}-"
+                  f"{a.intensity_interval[1]:.2f}); within +-5 mm from {needed} of sliver; the "
+                  f"material reaches the delivery at {a.estimated_action_point_mm:.1f} mm, the "
+                  f"drive follows with {1000 * a.drive_time_constant_s:.0f} ms (CVs as the "
+                  "delivery sensor reads them; the twin writes no setting)")  # fmt: skip
+    if not a.identifiable:
+        console.print("the record does not say where the action point is: its feed varies "
+                      "too little (the interval is wider than 50 mm)")  # fmt: skip
+    for note in a.notes:
+        console.print(note)

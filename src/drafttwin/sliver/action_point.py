@@ -1,0 +1,356 @@
+"""The autoleveller's action point and intensity from running data (research/sliver.md 6).
+
+A levelling drawframe records, for every delivery reading, the infeed scanning rollers'
+reading and its store's length clock (the feeding rollers' travel). The leveller's current
+correction follows from those readings and its setting: at each delivery reading it applied
+``f = 1 / (1 + I (x(c - A) - 1))`` through its drive (``x``: the infeed reading relative to
+the reference count, taken when the clock read ``c - A``; ``I`` the intensity, ``A`` the
+action point setting), and a speed factor ``f`` of the feeding rollers changes the delivered
+mass by ``f`` at once (second, third and back roller move together: the drafting transfer's
+gains add up to 1 at every wavelength), spread over the fibres' lengths. So the delivered
+log-mass ``Y`` is ``Z + K * log f``, where ``Z`` is what the machine would deliver without a
+leveller and ``K`` the fibres' and the delivery sensor's smoothing. :func:`find_action_point`
+
+1. takes the current correction out, ``Z = Y - K * log f(A_cur, I_cur, tau)``, with the
+   drive's time constant ``tau`` chosen where ``Z`` is best explained by one delayed copy of
+   the infeed reading (a wrong ``tau`` leaves a filtered copy of the reading at the current
+   setting in ``Z``); that delay is the material's own (``estimated_action_point_mm``);
+2. puts any other setting in, ``Y' = Z + K * log f(A, I, tau)``, and finds the ``(A, I)`` of
+   the least variance: the brute-force tuning run of research/sliver.md 6, on one record;
+3. gives the CV, CV(1 m), CV(3 m), CV(5 m) of ``Y'`` beside the recorded ones, a 95 %
+   interval from a bootstrap over 5-m blocks, and the metres from which that interval is
+   within +-5 mm.
+
+What it cannot see: the feed must vary (its long and medium waves carry the information; a
+feed without them gives a wide interval, which the result says), and the delivered mass of
+another setting is extrapolated from this record's to first order (the fed material reaches
+the delivery a few mm earlier or later).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.signal import lfilter
+
+from drafttwin.errors import DataError
+from drafttwin.sliver.evenness import evenness
+from drafttwin.sliver.leveller import MAX_FACTOR, MIN_FACTOR, mass_kernel
+from drafttwin.sliver.leveller_record import LevellerRecord, LevellerSetting
+from drafttwin.sliver.sensor import SliverSensor
+from drafttwin.sliver.staple import StapleDiagram
+
+SEARCH_MM = 120.0
+"""Action points searched either side of the current setting, mm."""
+BLOCK_M = 5.0
+"""Block length of the bootstrap (delivered sliver), m."""
+PRECISION_MM = 5.0
+"""Half-width of the interval that counts as found (``metres_needed``), mm."""
+DRIVE_GRID_S = (0.0, 0.001, 0.002, 0.003, 0.005, 0.008, 0.012, 0.02, 0.03, 0.05, 0.08, 0.12,
+                0.2, 0.3)  # fmt: skip
+"""Time constants of the regulating drive tried, s."""
+RESAMPLES = 400
+
+
+@dataclass(frozen=True)
+class ExpectedEvenness:
+    """Count and CVs of a delivered sliver as the delivery sensor reads it."""
+
+    count_ktex: float
+    cv_pct: float
+    cv_1m_pct: float
+    cv_3m_pct: float
+    cv_5m_pct: float
+
+    @classmethod
+    def of(cls, ktex: np.ndarray, step_m: float) -> ExpectedEvenness:
+        ev = evenness(ktex, step_m)
+        cut = ev.cv_cut_pct
+        return cls(ev.count_ktex, ev.cv_pct, cut["1 m"], cut["3 m"], cut["5 m"])
+
+
+@dataclass(frozen=True)
+class LevellingAdvice:
+    """The action point and intensity a record recommends, and what they are expected to
+    give (JSON: :meth:`to_dict`).
+
+    Attributes:
+        recommended_action_point_mm: the setting of the least expected CV, mm of fed sliver
+            from the scanning rollers (the machine's frame).
+        action_point_interval_mm: its 95 % interval (block bootstrap), mm.
+        recommended_intensity: the intensity of the least expected CV there.
+        intensity_interval: its 95 % interval.
+        current_action_point_mm: the record's setting (None without a leveller).
+        current_intensity: the record's intensity (0 without a leveller).
+        current: the evenness the record has (the delivery sensor's readings).
+        recommended: the evenness expected at the recommendation.
+        estimated_action_point_mm: where the fed material's mass reaches the delivery, mm
+            from the scanning rollers (the setting of a drive without lag).
+        drive_time_constant_s: the regulating drive's time constant that explains the record.
+        metres_used: delivered sliver analysed, m.
+        metres_needed: the shortest part of it (from its start, in 5-m steps) from which on
+            the interval is within +-5 mm; None if the record is too short for that.
+        identifiable: whether the record says where the action point is (interval within
+            +-25 mm).
+        notes: what the reader should know (drifts, a drive slower than its nominal, ...).
+    """
+
+    recommended_action_point_mm: float
+    action_point_interval_mm: tuple[float, float]
+    recommended_intensity: float
+    intensity_interval: tuple[float, float]
+    current_action_point_mm: float | None
+    current_intensity: float
+    current: ExpectedEvenness
+    recommended: ExpectedEvenness
+    estimated_action_point_mm: float
+    drive_time_constant_s: float
+    metres_used: float
+    metres_needed: float | None
+    identifiable: bool
+    notes: tuple[str, ...] = field(default_factory=tuple)
+
+    def to_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        out["action_point_interval_mm"] = list(self.action_point_interval_mm)
+        out["intensity_interval"] = list(self.intensity_interval)
+        out["notes"] = list(self.notes)
+        return out
+
+
+@dataclass(frozen=True)
+class _Model:
+    """The record prepared once: rows of the analysis window and the smoothing kernel."""
+
+    clock_mm: np.ndarray  # the store's clock of every row, mm
+    reading: np.ndarray  # infeed reading relative to the reference, every row
+    log_y: np.ndarray  # delivered log-mass (mean removed), every row
+    kernel: np.ndarray  # fibres and delivery sensor, on the row grid
+    dt_s: float
+    start: int  # first row of the analysis window
+
+    def log_factor(self, action_mm: float, intensity: float, tau_s: float) -> np.ndarray:
+        """``log f`` of a setting at every row (the drive's lag included)."""
+        at = np.searchsorted(self.clock_mm, self.clock_mm - action_mm, side="right") - 1
+        x = self.reading[np.clip(at, 0, None)]
+        cmd = np.clip(1.0 / np.maximum(1.0 + intensity * (x - 1.0), 1e-9), MIN_FACTOR, MAX_FACTOR)
+        if tau_s > 0:
+            a = -math.expm1(-self.dt_s / tau_s)
+            cmd = lfilter([a], [1.0, a - 1.0], cmd, zi=[(1.0 - a) * cmd[0]])[0]
+        return np.asarray(np.log(cmd))
+
+    def effect(self, action_mm: float, intensity: float, tau_s: float) -> np.ndarray:
+        """The setting's effect on the delivered log-mass, analysis window."""
+        u = lfilter(self.kernel, [1.0], self.log_factor(action_mm, intensity, tau_s))
+        return np.asarray(u[self.start :])
+
+    def linear(self, action_mm: float, tau_s: float) -> np.ndarray:
+        """The effect of unit intensity to first order, analysis window: ``K * h_tau *
+        (x(c - A) - 1)`` (``log f`` is about ``-I (x - 1)``)."""
+        at = np.searchsorted(self.clock_mm, self.clock_mm - action_mm, side="right") - 1
+        x = self.reading[np.clip(at, 0, None)] - 1.0
+        if tau_s > 0:
+            a = -math.expm1(-self.dt_s / tau_s)
+            x = lfilter([a], [1.0, a - 1.0], x, zi=[(1.0 - a) * x[0]])[0]
+        return np.asarray(lfilter(self.kernel, [1.0], x)[self.start :])
+
+    def delayed_reading(self, delay_mm: float) -> np.ndarray:
+        """``log x(c - delay)``: the material path's regressor, analysis window."""
+        at = np.searchsorted(self.clock_mm, self.clock_mm - delay_mm, side="right") - 1
+        return np.asarray(np.log(self.reading[np.clip(at, 0, None)])[self.start :])
+
+
+def _kernel(staple: StapleDiagram, sensor: SliverSensor, step_mm: float) -> np.ndarray:
+    """The fibres' smoothing of a change of end density, then the delivery sensor's boxcar
+    and lag, on the row grid (sum 1)."""
+    k = mass_kernel(staple, step_mm)
+    width = max(1, int(round(sensor.averaging_mm / step_mm)))
+    k = np.convolve(k, np.ones(width) / width)
+    if sensor.lag_mm > 0:
+        a = math.exp(-step_mm / sensor.lag_mm)
+        lag = (1 - a) * a ** np.arange(int(8 * sensor.lag_mm / step_mm) + 1)
+        k = np.convolve(k, lag / lag.sum())
+    return np.asarray(k / k.sum())
+
+
+def _prepare(record: LevellerRecord, setting: LevellerSetting, staple: StapleDiagram,
+             sensor: SliverSensor, reach_mm: float) -> _Model:  # fmt: skip
+    clock = record.fed_length_m * 1e3
+    if np.any(np.diff(clock) < 0) or not np.all(np.isfinite(clock)):
+        raise DataError("fed_length_m is not a non-decreasing length clock",
+                        where="--data, column fed_length_m",
+                        fix="give the feeding rollers' travel at each reading")  # fmt: skip
+    ref = setting.reference_ktex or float(np.median(record.infeed_ktex))
+    reading = record.infeed_ktex / ref
+    if not (np.all(np.isfinite(reading)) and np.all(reading > 0)
+            and np.all(np.isfinite(record.delivery_ktex)) and np.all(record.delivery_ktex > 0)):  # fmt: skip
+        raise DataError("infeed or delivery readings not finite numbers > 0",
+                        where="--data, columns infeed_ktex / linear_density_ktex",
+                        fix="a leveller record has no gaps; cut it at the gap")  # fmt: skip
+    y = np.log(record.delivery_ktex)
+    step_mm = record.step_m * 1e3
+    kernel = _kernel(staple, sensor, step_mm)
+    dt = float(np.median(np.diff(record.time_s)))
+    # rows whose readings at every searched setting exist, and the filters settled
+    first = int(np.searchsorted(clock, clock[0] + reach_mm))
+    settle = kernel.size + int(5 * max(DRIVE_GRID_S) / max(dt, 1e-9))
+    start = first + settle
+    if record.delivered_length_m.size - start < 1000:
+        raise DataError(f"only {record.length_m:.3g} m of sliver: the store's reach "
+                        f"({reach_mm:.0f} mm of fed sliver) leaves too little",
+                        where="--data", fix="give a record of a few hundred metres")  # fmt: skip
+    return _Model(clock, reading, y - y[start:].mean(), kernel, dt, start)
+
+
+def find_action_point(record: LevellerRecord, setting: LevellerSetting,
+                      staple: StapleDiagram | None = None, sensor: SliverSensor | None = None,
+                      *, search_mm: float = SEARCH_MM, seed: int = 0) -> LevellingAdvice:  # fmt: skip
+    """The action point and intensity of the least expected CV from a levelling record (see
+    the module's docstring). ``setting`` is the record's (intensity 0: a record without a
+    leveller, whose action point then only centres the search); ``staple`` the fibres
+    (default cotton) and ``sensor`` the delivery sensor (default the plant's), for the
+    smoothing of a correction."""
+    staple = staple or StapleDiagram.preset("cotton")
+    sensor = sensor or SliverSensor()
+    centre = setting.action_point_mm
+    grid = np.arange(centre - search_mm, centre + search_mm + 0.5, 1.0)
+    grid = grid[grid > 0]
+    model = _prepare(record, setting, staple, sensor, float(grid[-1]))
+    y = model.log_y[model.start :]
+    tau, material = _drive_and_delay(model, setting, grid)
+    current = model.effect(centre, setting.intensity, tau) if setting.intensity > 0 else 0.0
+    z = y - current
+    sums = _block_sums(model, z, grid, tau, record.step_m)
+    best, gain = _argmin(sums.sum(axis=1))
+    rng = np.random.default_rng(seed)
+    counts = rng.multinomial(sums.shape[1], np.full(sums.shape[1], 1 / sums.shape[1]), RESAMPLES)
+    boot = [_argmin(np.einsum("b,gbk->gk", c, sums)) for c in counts]
+    lo, hi = np.percentile([b[0] for b in boot], [2.5, 97.5])
+    g_lo, g_hi = np.percentile([b[1] for b in boot], [2.5, 97.5])
+    action = float(np.interp(best, np.arange(grid.size), grid))
+    intensity = float(np.clip(gain, 0.0, 2.0))
+    interval = (float(np.interp(lo, np.arange(grid.size), grid)),
+                float(np.interp(hi, np.arange(grid.size), grid)))  # fmt: skip
+    expected = np.exp(z + model.effect(action, intensity, tau) + model.log_y.mean())
+    scale = float(np.mean(record.delivery_ktex[model.start :]))
+    notes = _notes(setting, tau, record, model)
+    return LevellingAdvice(
+        recommended_action_point_mm=action,
+        action_point_interval_mm=interval,
+        recommended_intensity=intensity,
+        intensity_interval=(float(np.clip(g_lo, 0, 2)), float(np.clip(g_hi, 0, 2))),
+        current_action_point_mm=centre if setting.intensity > 0 else None,
+        current_intensity=setting.intensity,
+        current=ExpectedEvenness.of(record.delivery_ktex[model.start :], record.step_m),
+        recommended=ExpectedEvenness.of(
+            expected * scale / float(np.mean(np.exp(y))), record.step_m
+        ),  # fmt: skip
+        estimated_action_point_mm=material,
+        drive_time_constant_s=tau,
+        metres_used=float(y.size * record.step_m),
+        metres_needed=_metres_needed(sums, grid, rng, record.step_m, y.size),
+        identifiable=bool(interval[1] - interval[0] <= 50.0),
+        notes=notes,
+    )
+
+
+def _drive_and_delay(model: _Model, setting: LevellerSetting,
+                     grid: np.ndarray) -> tuple[float, float]:  # fmt: skip
+    """The drive's time constant and the material's delay that explain the record best: the
+    least residual of ``Z(tau)`` on one delayed copy of the infeed reading."""
+    y = model.log_y[model.start :]
+    taus = DRIVE_GRID_S if setting.intensity > 0 else (setting.drive_time_constant_s,)
+    zs = np.stack([y - model.effect(setting.action_point_mm, setting.intensity, t)
+                   if setting.intensity > 0 else y for t in taus])  # fmt: skip
+    zs = zs - zs.mean(axis=1, keepdims=True)
+    zz = np.einsum("ij,ij->i", zs, zs)
+    best = (math.inf, 0, float(grid[0]))
+    for delay in grid[::2]:
+        m = model.delayed_reading(float(delay))
+        m = m - m.mean()
+        mm = float(m @ m)
+        if mm <= 0:
+            continue
+        resid = zz - (zs @ m) ** 2 / mm
+        k = int(np.argmin(resid))
+        if resid[k] < best[0]:
+            best = (float(resid[k]), k, float(delay))
+    return float(taus[best[1]]), best[2]
+
+
+def _block_sums(model: _Model, z: np.ndarray, grid: np.ndarray, tau: float,
+                step_m: float) -> np.ndarray:  # fmt: skip
+    """Per action point and block: n, sum z, sum v, sum z^2, sum z v, sum v^2, with ``v``
+    the first-order effect of unit intensity (``Y' = z - I v``)."""
+    rows = max(int(BLOCK_M / step_m), 1)
+    n_blocks = max(z.size // rows, 1)
+    cut = n_blocks * rows
+    zb = z[:cut].reshape(n_blocks, rows)
+    out = np.empty((grid.size, n_blocks, 6))
+    for i, a in enumerate(grid):
+        v = model.linear(float(a), tau)[:cut].reshape(n_blocks, rows)
+        out[i] = np.stack([np.full(n_blocks, float(rows)), zb.sum(1), v.sum(1), (zb * zb).sum(1),
+                           (zb * v).sum(1), (v * v).sum(1)], axis=1)  # fmt: skip
+    return out
+
+
+def _argmin(sums: np.ndarray) -> tuple[float, float]:
+    """The (fractional) grid index of the least variance of ``z - I v`` with the best ``I``
+    at each point, and that ``I`` there: ``sums`` ``(grid, 6)``."""
+    n, sz, sv, szz, szv, svv = (sums[:, k] for k in range(6))
+    var_z = szz / n - (sz / n) ** 2
+    cov = szv / n - sz * sv / n**2
+    var_v = np.maximum(svv / n - (sv / n) ** 2, 1e-300)
+    gain = cov / var_v
+    resid = var_z - cov * gain
+    k = int(np.argmin(resid))
+    frac = float(k)
+    if 0 < k < resid.size - 1:  # a parabola through the least three
+        den = resid[k - 1] - 2 * resid[k] + resid[k + 1]
+        if den > 0:
+            frac = k + 0.5 * (resid[k - 1] - resid[k + 1]) / den
+    return frac, float(np.interp(frac, np.arange(gain.size), gain))
+
+
+def _metres_needed(sums: np.ndarray, grid: np.ndarray, rng: np.random.Generator,
+                   step_m: float, rows: int) -> float | None:  # fmt: skip
+    """The shortest head of the record (whole blocks) from which on the bootstrap interval
+    of the action point is within +-PRECISION_MM."""
+    n_blocks = sums.shape[1]
+    ok = np.zeros(n_blocks + 1, dtype=bool)
+    for k in range(2, n_blocks + 1):
+        part = sums[:, :k]
+        counts = rng.multinomial(k, np.full(k, 1 / k), RESAMPLES // 2)
+        picks = [_argmin(np.einsum("b,gbk->gk", c, part))[0] for c in counts]
+        lo, hi = np.interp(np.percentile(picks, [2.5, 97.5]), np.arange(grid.size), grid)
+        ok[k] = hi - lo <= 2 * PRECISION_MM
+    for k in range(2, n_blocks + 1):
+        if ok[k:].all():
+            return float(k * (rows // n_blocks) * step_m)
+    return None
+
+
+def _notes(
+    setting: LevellerSetting, tau: float, record: LevellerRecord, model: _Model
+) -> tuple[str, ...]:
+    out = []
+    if setting.intensity > 0 and tau > 2 * setting.drive_time_constant_s + 0.002:
+        out.append(f"the regulating drive follows with {1000 * tau:.0f} ms, its nominal is "
+                   f"{1000 * setting.drive_time_constant_s:.0f} ms: a sluggish drive")  # fmt: skip
+    s = record.delivered_length_m[model.start :]
+    y = record.delivery_ktex[model.start :]
+    slope = float(np.polyfit(s - s.mean(), y / y.mean(), 1)[0]) * 100 * 100
+    if abs(slope) > 0.3:
+        out.append(f"the delivered count drifts by {slope:+.2f} % per 100 m: a drifting infeed "
+                   "sensor or a count change of the feed (a levelled count follows the infeed "
+                   "sensor's gain)")  # fmt: skip
+    if setting.intensity == 0:
+        out.append("the record has no leveller: the recommendation is a first setting")
+    return tuple(out)
+
+
+__all__ = ["ExpectedEvenness", "LevellerRecord", "LevellerSetting", "LevellingAdvice",
+           "find_action_point"]  # fmt: skip
