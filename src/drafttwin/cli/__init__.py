@@ -26,6 +26,7 @@ from drafttwin.cli import plant_replay_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import sliver_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import sliver_read_cmds  # noqa: E402,F401  isort: skip
 from drafttwin.cli import sliver_level_cmds  # noqa: E402,F401  isort: skip
+from drafttwin.cli import leveller_cmds  # noqa: E402,F401  isort: skip
 
 reflow_help(app)
 

@@ -49,8 +49,9 @@ BLOCK_M = 5.0
 """Block length of the bootstrap (delivered sliver), m."""
 PRECISION_MM = 5.0
 """Half-width of the interval that counts as found (``metres_needed``), mm."""
-DRIVE_GRID_S = (0.0, 0.001, 0.002, 0.003, 0.005, 0.008, 0.012, 0.02, 0.03, 0.05, 0.08, 0.12,
-                0.2, 0.3)  # fmt: skip
+DRIVE_GRID_S = (0.0, 0.001, 0.0015, 0.002, 0.003, 0.004, 0.005, 0.0065, 0.008, 0.01, 0.013,
+                0.016, 0.02, 0.025, 0.032, 0.04, 0.05, 0.063, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25,
+                0.3)  # fmt: skip
 """Time constants of the regulating drive tried, s."""
 RESAMPLES = 400
 
@@ -131,6 +132,7 @@ class _Model:
     kernel: np.ndarray  # fibres and delivery sensor, on the row grid
     dt_s: float
     start: int  # first row of the analysis window
+    log_mean: float  # the mean log-mass removed from log_y
 
     def log_factor(self, action_mm: float, intensity: float, tau_s: float) -> np.ndarray:
         """``log f`` of a setting at every row (the drive's lag included)."""
@@ -202,7 +204,8 @@ def _prepare(record: LevellerRecord, setting: LevellerSetting, staple: StapleDia
         raise DataError(f"only {record.length_m:.3g} m of sliver: the store's reach "
                         f"({reach_mm:.0f} mm of fed sliver) leaves too little",
                         where="--data", fix="give a record of a few hundred metres")  # fmt: skip
-    return _Model(clock, reading, y - y[start:].mean(), kernel, dt, start)
+    mean = float(y[start:].mean())
+    return _Model(clock, reading, y - mean, kernel, dt, start, mean)
 
 
 def find_action_point(record: LevellerRecord, setting: LevellerSetting,
@@ -221,40 +224,128 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
     model = _prepare(record, setting, staple, sensor, float(grid[-1]))
     y = model.log_y[model.start :]
     tau, material = _drive_and_delay(model, setting, grid)
-    current = model.effect(centre, setting.intensity, tau) if setting.intensity > 0 else 0.0
-    z = y - current
-    sums = _block_sums(model, z, grid, tau, record.step_m)
-    best, gain = _argmin(sums.sum(axis=1))
-    rng = np.random.default_rng(seed)
-    counts = rng.multinomial(sums.shape[1], np.full(sums.shape[1], 1 / sums.shape[1]), RESAMPLES)
-    boot = [_argmin(np.einsum("b,gbk->gk", c, sums)) for c in counts]
-    lo, hi = np.percentile([b[0] for b in boot], [2.5, 97.5])
-    g_lo, g_hi = np.percentile([b[1] for b in boot], [2.5, 97.5])
+    current = _Setting(model, centre, setting.intensity, tau)
+    z = y - current.effect
+    linear = _block_sums(model, z, grid, tau, record.step_m)
+    gains = np.clip(_gains(linear.sum(axis=1)), 0.0, 2.0)
+    exact = np.stack([_weighted_sums(model, z, current, _Setting(model, float(a), float(g), tau),
+                                     linear.shape[1]) for a, g in zip(grid, gains, strict=True)])  # fmt: skip
+    best = _least(exact.sum(axis=1))
     action = float(np.interp(best, np.arange(grid.size), grid))
-    intensity = float(np.clip(gain, 0.0, 2.0))
-    interval = (float(np.interp(lo, np.arange(grid.size), grid)),
-                float(np.interp(hi, np.arange(grid.size), grid)))  # fmt: skip
-    expected = np.exp(z + model.effect(action, intensity, tau) + model.log_y.mean())
-    scale = float(np.mean(record.delivery_ktex[model.start :]))
-    notes = _notes(setting, tau, record, model)
+    intensity = _best_intensity(
+        model, z, current, action, tau, float(np.interp(best, np.arange(grid.size), gains))
+    )
+    rng = np.random.default_rng(seed)
+    counts = rng.multinomial(exact.shape[1], np.full(exact.shape[1], 1 / exact.shape[1]), RESAMPLES)
+    picks = np.array([_least(np.einsum("b,gbk->gk", c, exact)) for c in counts])
+    lo, hi = np.interp(np.percentile(picks, [2.5, 97.5]), np.arange(grid.size), grid)
+    boot_gain = [_argmin(np.einsum("b,gbk->gk", c, linear))[1] for c in counts]
+    g_lo, g_hi = np.clip(np.percentile(boot_gain, [2.5, 97.5]), 0.0, 2.0)
+    new = _Setting(model, action, intensity, tau)
     return LevellingAdvice(
         recommended_action_point_mm=action,
-        action_point_interval_mm=interval,
+        action_point_interval_mm=(float(lo), float(hi)),
         recommended_intensity=intensity,
-        intensity_interval=(float(np.clip(g_lo, 0, 2)), float(np.clip(g_hi, 0, 2))),
+        intensity_interval=(float(g_lo), float(g_hi)),
         current_action_point_mm=centre if setting.intensity > 0 else None,
         current_intensity=setting.intensity,
         current=ExpectedEvenness.of(record.delivery_ktex[model.start :], record.step_m),
         recommended=ExpectedEvenness.of(
-            expected * scale / float(np.mean(np.exp(y))), record.step_m
+            _counterfactual(model, z, current, new, record.step_m), record.step_m
         ),  # fmt: skip
         estimated_action_point_mm=material,
         drive_time_constant_s=tau,
         metres_used=float(y.size * record.step_m),
-        metres_needed=_metres_needed(sums, grid, rng, record.step_m, y.size),
-        identifiable=bool(interval[1] - interval[0] <= 50.0),
-        notes=notes,
+        metres_needed=_metres_needed(exact, grid, rng, record.step_m, y.size),
+        identifiable=bool(hi - lo <= 50.0),
+        notes=_notes(setting, tau, record, model),
     )
+
+
+@dataclass(frozen=True)
+class _Setting:
+    """A setting's factor and its effect on the delivered log-mass, analysis window."""
+
+    factor: np.ndarray  # the drive's speed factor at each row
+    effect: np.ndarray  # K * log f
+
+    def __init__(self, model: _Model, action_mm: float, intensity: float, tau_s: float) -> None:
+        if intensity <= 0:
+            n = model.log_y.size - model.start
+            object.__setattr__(self, "factor", np.ones(n))
+            object.__setattr__(self, "effect", np.zeros(n))
+            return
+        log_f = model.log_factor(action_mm, intensity, tau_s)
+        object.__setattr__(self, "factor", np.exp(log_f[model.start :]))
+        u = lfilter(model.kernel, [1.0], log_f)
+        object.__setattr__(self, "effect", np.asarray(u[model.start :]))
+
+
+def _delivered(z: np.ndarray, current: _Setting, new: _Setting) -> tuple[np.ndarray, np.ndarray]:
+    """The delivered sliver of another setting, per row of the record: its relative mass
+    ``exp(z + K * log f_new)`` and the delivered length each row becomes, relative to the
+    record's (``f_cur / f_new``: a row is a fixed piece of fed sliver, the draft is the
+    drive's factor's inverse)."""
+    return np.exp(z + new.effect), current.factor / new.factor
+
+
+def _weighted_sums(model: _Model, z: np.ndarray, current: _Setting, new: _Setting,
+                   n_blocks: int) -> np.ndarray:  # fmt: skip
+    """Per block: delivered length, mass x length and mass^2 x length of a setting."""
+    y, w = _delivered(z, current, new)
+    rows = z.size // n_blocks
+    cut = n_blocks * rows
+    yb, wb = y[:cut].reshape(n_blocks, rows), w[:cut].reshape(n_blocks, rows)
+    return np.stack([wb.sum(1), (wb * yb).sum(1), (wb * yb * yb).sum(1)], axis=1)
+
+
+def _cv2(sums: np.ndarray) -> np.ndarray:
+    """CV^2 from (length, mass x length, mass^2 x length) sums, ``(..., 3)``."""
+    mean = sums[..., 1] / sums[..., 0]
+    return np.asarray(sums[..., 2] / sums[..., 0] / mean**2 - 1.0)
+
+
+def _least(sums: np.ndarray) -> float:
+    """The (fractional) grid index of the least CV: ``sums`` ``(grid, 3)``."""
+    return _parabola_min(_cv2(sums))
+
+
+def _parabola_min(values: np.ndarray) -> float:
+    k = int(np.argmin(values))
+    if 0 < k < values.size - 1:  # a parabola through the least three
+        den = values[k - 1] - 2 * values[k] + values[k + 1]
+        if den > 0:
+            return float(k + 0.5 * (values[k - 1] - values[k + 1]) / den)
+    return float(k)
+
+
+def _best_intensity(model: _Model, z: np.ndarray, current: _Setting, action: float, tau: float,
+                    start: float) -> float:  # fmt: skip
+    """The intensity of the least CV at ``action`` (Brent within 0-2, from ``start``)."""
+    from scipy.optimize import minimize_scalar
+
+    def cv2(i: float) -> float:
+        return float(_cv2(_weighted_sums(model, z, current, _Setting(model, action, i, tau), 1)[0]))
+
+    lo, hi = max(0.0, start - 0.3), min(2.0, start + 0.3)
+    res = minimize_scalar(cv2, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
+    return float(res.x)
+
+
+def _counterfactual(model: _Model, z: np.ndarray, current: _Setting, new: _Setting,
+                    step_m: float) -> np.ndarray:  # fmt: skip
+    """The delivered sliver of another setting on the record's even grid, ktex."""
+    y, w = _delivered(z, current, new)
+    s = np.cumsum(w) * step_m
+    even = np.arange(s[0], s[-1], step_m)
+    return np.asarray(np.interp(even, s, y) * math.exp(model.log_mean))
+
+
+def _gains(sums: np.ndarray) -> np.ndarray:
+    """The intensity of the least variance of ``z - I v`` at each grid point (first order)."""
+    n, sz, sv, _, szv, svv = (sums[:, k] for k in range(6))
+    cov = szv / n - sz * sv / n**2
+    return np.asarray(cov / np.maximum(svv / n - (sv / n) ** 2, 1e-300))
 
 
 def _drive_and_delay(model: _Model, setting: LevellerSetting,
@@ -299,32 +390,24 @@ def _block_sums(model: _Model, z: np.ndarray, grid: np.ndarray, tau: float,
 
 def _argmin(sums: np.ndarray) -> tuple[float, float]:
     """The (fractional) grid index of the least variance of ``z - I v`` with the best ``I``
-    at each point, and that ``I`` there: ``sums`` ``(grid, 6)``."""
+    at each point (first order), and that ``I`` there: ``sums`` ``(grid, 6)``."""
     n, sz, sv, szz, szv, svv = (sums[:, k] for k in range(6))
-    var_z = szz / n - (sz / n) ** 2
-    cov = szv / n - sz * sv / n**2
-    var_v = np.maximum(svv / n - (sv / n) ** 2, 1e-300)
-    gain = cov / var_v
-    resid = var_z - cov * gain
-    k = int(np.argmin(resid))
-    frac = float(k)
-    if 0 < k < resid.size - 1:  # a parabola through the least three
-        den = resid[k - 1] - 2 * resid[k] + resid[k + 1]
-        if den > 0:
-            frac = k + 0.5 * (resid[k - 1] - resid[k + 1]) / den
+    gain = _gains(sums)
+    resid = szz / n - (sz / n) ** 2 - (szv / n - sz * sv / n**2) * gain
+    frac = _parabola_min(resid)
     return frac, float(np.interp(frac, np.arange(gain.size), gain))
 
 
 def _metres_needed(sums: np.ndarray, grid: np.ndarray, rng: np.random.Generator,
                    step_m: float, rows: int) -> float | None:  # fmt: skip
     """The shortest head of the record (whole blocks) from which on the bootstrap interval
-    of the action point is within +-PRECISION_MM."""
+    of the action point is within +-PRECISION_MM (``sums``: the blocks' weighted sums)."""
     n_blocks = sums.shape[1]
     ok = np.zeros(n_blocks + 1, dtype=bool)
     for k in range(2, n_blocks + 1):
         part = sums[:, :k]
         counts = rng.multinomial(k, np.full(k, 1 / k), RESAMPLES // 2)
-        picks = [_argmin(np.einsum("b,gbk->gk", c, part))[0] for c in counts]
+        picks = [_least(np.einsum("b,gbk->gk", c, part)) for c in counts]
         lo, hi = np.interp(np.percentile(picks, [2.5, 97.5]), np.arange(grid.size), grid)
         ok[k] = hi - lo <= 2 * PRECISION_MM
     for k in range(2, n_blocks + 1):
