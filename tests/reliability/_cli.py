@@ -98,6 +98,8 @@ BASE: dict[str, list[str]] = {
         "--records",
         "{tmp}/none.parquet",
     ],  # fmt: skip
+    "sliver level": ["sliver", "level", "--data", "{tmp}/none.csv"],
+    "benchmark leveller": ["benchmark", "leveller", "--quick", "--quiet", "--out", "{tmp}/bl"],
     "twin hall": [
         "twin",
         "hall",
@@ -191,12 +193,23 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
         "--harmonics",
         "--fibre-scale",
     ],
+    "sliver level": [
+        "--action-point",
+        "--intensity",
+        "--reference-ktex",
+        "--max-length",
+        "--search",
+        "--fineness-dtex",
+        "--fineness-cv",
+    ],
+    "benchmark leveller": ["--machines", "--fault-cases", "--seed", "--workers"],
 }
 
 #: values inside the range of options that may be zero (these are not hostile there)
 ZERO_OK = {"--settle", "--rate-tolerance", "--threshold", "--seed", "--machine-seed", "--from",
            "--to", "--history", "--feed-cv", "--fineness-cv", "--sensor-mm", "--qos", "--score-from",
-           "--learn", "--gap", "--lead", "--plant-machines", "--tune-seed"}  # fmt: skip
+           "--learn", "--gap", "--lead", "--plant-machines", "--action-point", "--intensity",
+           "--fault-cases"}  # fmt: skip
 
 
 def numeric_cases() -> list[tuple[str, str, str]]:

@@ -56,3 +56,79 @@ def test_the_leveller_refuses_settings_out_of_range():
     with pytest.raises(ConfigError, match="--leveller"):
         Autoleveller(intensity=-1.0)
     assert np.isfinite(Autoleveller().sensor_mm)
+
+
+# ---- the leveller's parts (issue 39) ---------------------------------------------------------
+def test_the_leveller_is_parsed_with_its_faults():
+    from drafttwin.errors import ConfigError
+
+    lev = Autoleveller.parse("0.9,-12.5", ["infeed-drift=0.5", "sluggish-drive=40"])
+    assert (lev.intensity, lev.action_offset_mm) == (0.9, -12.5)
+    assert lev.sensor.drift_pct_per_min == 0.5 and lev.drive.time_constant_s == 0.04
+    assert Autoleveller.parse("1").action_offset_mm == 0.0
+    for text, faults, option in (("1,2,3", [], "--leveller"), ("x", [], "--leveller"),
+                                 ("1", ["wobble=3"], "--leveller-fault"),
+                                 ("1", ["sluggish-drive=-5"], "--leveller-fault")):  # fmt: skip
+        with pytest.raises(ConfigError, match=option):
+            Autoleveller.parse(text, faults)
+
+
+def test_the_true_action_point_in_closed_form():
+    """Scanning rollers 600 mm before the back nip, the zones' gauges in feeding-roller
+    travel (46 + 40 / 1.2 + 44 / (1.2 x 1.02)), less half the mass-mean fibre length."""
+    from drafttwin.sliver.leveller import true_action_point_mm
+
+    got = true_action_point_mm(np.array([44.0, 40.0, 46.0]), {"break": 1.2, "middle": 1.02},
+                               COTTON, 600.0)  # fmt: skip
+    mass_mean = COTTON.moment(2) / COTTON.moment(1)
+    assert got == pytest.approx(600 + 46 + 40 / 1.2 + 44 / 1.224 - mass_mean / 2, rel=1e-12)
+    assert got == pytest.approx(702.0, abs=0.1)
+
+
+def test_the_infeed_sensor_reads_mass_centred_half_a_mass_length_behind_the_ends():
+    """A step in the fed slivers' leading ends (one of six runs out) reaches the reading
+    spread over the fibre lengths: the reading's excess over the step integrates to 1/6 of
+    the mass kernel's mean ``E[l^2] / (2 E[l])`` plus half a pitch (a reading holds until the
+    next; the centred contact length moves nothing)."""
+    from drafttwin.sliver.leveller import InfeedSensor, mass_kernel
+
+    step = 0.1
+    kernel = mass_kernel(COTTON, step)
+    mean_u = float(np.sum(kernel * np.arange(kernel.size) * step))
+    assert kernel.sum() == pytest.approx(1.0) and mean_u == pytest.approx(
+        COTTON.moment(2) / (2 * COTTON.moment(1)), rel=0.01)  # fmt: skip
+    p = np.arange(40_000) * step
+    relative = np.where(p < 1000.0, 1.0, 5 / 6)
+    sensor = InfeedSensor(noise=0.0)
+    got = sensor.readings(relative, 0.0, step, COTTON, np.random.default_rng(0), 650.0)
+    q = got.q0_mm + got.pitch_mm * np.arange(got.relative.size)
+    assert got.relative[q < 950].max() == pytest.approx(1.0)
+    assert got.relative[-1] == pytest.approx(5 / 6)
+    area = float(np.sum(got.relative - np.where(q < 1000, 1.0, 5 / 6)) * got.pitch_mm)
+    assert area * 6 == pytest.approx(mean_u + got.pitch_mm / 2, rel=1e-3)
+    drifting = InfeedSensor(noise=0.0, drift_pct_per_min=0.6).readings(
+        np.ones(40_000), 0.0, step, COTTON, np.random.default_rng(0), 650.0)  # fmt: skip
+    minutes = np.maximum(drifting.q0_mm + np.arange(drifting.relative.size) - 600.0, 0) / 650 / 60
+    np.testing.assert_allclose(drifting.relative, 1 + 0.006 * minutes, rtol=1e-12)
+
+
+def test_a_slower_drive_moves_the_best_setting_by_its_lag():
+    """The regulating drive follows its command with a lag ``tau``, so a correction reaches
+    the material ``tau`` times the feeding speed late for waves long against it: the CV's
+    minimum over the setting moves that much shorter (0 without a lag, 3.3 mm at the nominal
+    5 ms and 39 m/min; shorter waves are delayed less, ``atan(omega tau) / omega``)."""
+    from drafttwin.sliver.leveller import RegulatingDrive
+
+    sp = speeds(8.0, rate_hz=2000.0)
+    feed = Feed(COTTON, 1, 33.0, extra_cv=0.05, extra_correlation_m=0.05)
+    fed_mm_s = sp.mean_speed_m_min()["back"] / 60 * 1000
+    for tau in (0.0, 0.005):
+        offsets = np.arange(-12.0, 7.0, 2.0)
+        cv2 = []
+        for offset in offsets:
+            lev = Autoleveller(action_offset_mm=float(offset), drive=RegulatingDrive(tau))
+            x = draft(sp, feed, seed=3, fibre_scale=4, leveller=lev).linear_density_ktex[1000:]
+            cv2.append(float(np.var(x) / np.mean(x) ** 2))
+        k = int(np.argmin(cv2))
+        a, b, _ = np.polyfit(offsets[k - 1 : k + 2], cv2[k - 1 : k + 2], 2)
+        assert -b / (2 * a) == pytest.approx(-tau * fed_mm_s, abs=0.8)

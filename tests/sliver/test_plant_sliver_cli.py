@@ -58,7 +58,7 @@ def test_generate_writes_the_sliver_channel_beside_the_record(records):
     sliver = pd.read_csv(path.with_name("healthy.sliver.csv"))
     truth = pd.read_csv(path.with_name("healthy.sliver.truth.csv"))
     assert list(sliver.columns) == ["delivered_length_m", "time", "linear_density_ktex",
-                                    "infeed_ktex"]  # fmt: skip
+                                    "infeed_ktex", "fed_length_m"]  # fmt: skip
     assert truth["delivered_length_m"].diff().iloc[1:].round(9).eq(0.001).all()
     info = json.loads(path.with_suffix(".json").read_text())
     assert info["files"]["sliver"] == "healthy.sliver.csv"
@@ -67,6 +67,14 @@ def test_generate_writes_the_sliver_channel_beside_the_record(records):
     assert truth["linear_density_ktex"].mean() == pytest.approx(33.0 / drafts["total"], rel=3e-3)
     # the infeed sensor reads the six card slivers together
     assert sliver["infeed_ktex"].mean() == pytest.approx(33.0, rel=0.01)
+    # the store's length clock: the feeding roller's travel, the delivered length over the
+    # draft without a leveller
+    fed = sliver["fed_length_m"].to_numpy()
+    assert fed[0] == pytest.approx(0.0, abs=1e-3) and (fed[1:] >= fed[:-1]).all()
+    slope = (fed[-1] - fed[0]) / (
+        sliver["delivered_length_m"].iloc[-1] - sliver["delivered_length_m"].iloc[0]
+    )
+    assert slope == pytest.approx(1 / drafts["total"], rel=2e-3)
 
 
 def test_a_healthy_record_has_no_chimney_and_the_cv_its_settings_imply(records):
