@@ -78,8 +78,9 @@ def _print(advice: Any, data: Path) -> None:
     a = advice
     lo, hi = a.action_point_interval_mm
     table = Table(title=f"{data.name}: {a.metres_used:.0f} m of sliver")
-    for col in ("", "action point mm", "intensity", "CV %", "CV 1 m %", "CV 3 m %", "CV 5 m %"):
-        table.add_column(col, justify="right" if col else "left")
+    table.add_column("", no_wrap=True)
+    for col in ("action point mm", "intensity", "CV %", "CV 1 m %", "CV 3 m %", "CV 5 m %"):
+        table.add_column(col, justify="right")
     for name, point, inten, ev in (
         ("current", a.current_action_point_mm, a.current_intensity, a.current),
         ("recommended", a.recommended_action_point_mm, a.recommended_intensity, a.recommended),
