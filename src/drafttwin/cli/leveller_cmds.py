@@ -81,3 +81,6 @@ def _print(results: dict[str, Any]) -> None:
         console.print(f"{group}: within 5 mm {s['within_5_mm']} of {s['cases']}, CV within 5 % "
                       f"{s['within_5_pct_cv']} of {s['cases']}, both {s['both']}; median |error| "
                       f"{s['median_abs_error_mm']:.1f} mm, largest {s['max_abs_error_mm']:.1f} mm")  # fmt: skip
+        heads = ", ".join(f"{k} {v[0]} of {v[1]}" for k, v in s["shorter_within_5_mm"].items())
+        if heads:
+            console.print(f"  from the records' first metres alone, within 5 mm: {heads}")

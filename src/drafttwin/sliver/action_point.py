@@ -46,7 +46,10 @@ from drafttwin.sliver.staple import StapleDiagram
 SEARCH_MM = 120.0
 """Action points searched either side of the current setting, mm."""
 BLOCK_M = 5.0
-"""Block length of the bootstrap (delivered sliver), m."""
+"""Block length of the bootstrap (delivered sliver), m; shorter where the record has fewer
+than :data:`MIN_BLOCKS` of them."""
+MIN_BLOCKS = 8
+"""Blocks the bootstrap wants at least."""
 PRECISION_MM = 5.0
 """Half-width of the interval that counts as found (``metres_needed``), mm."""
 DRIVE_GRID_S = (0.0, 0.001, 0.0015, 0.002, 0.003, 0.004, 0.005, 0.0065, 0.008, 0.01, 0.013,
@@ -183,13 +186,14 @@ def _prepare(record: LevellerRecord, setting: LevellerSetting, staple: StapleDia
     clock = record.fed_length_m * 1e3
     if np.any(np.diff(clock) < 0) or not np.all(np.isfinite(clock)):
         raise DataError("fed_length_m is not a non-decreasing length clock",
-                        where="--data, column fed_length_m",
+                        source=record.source or None, where="--data, column fed_length_m",
                         fix="give the feeding rollers' travel at each reading")  # fmt: skip
     ref = setting.reference_ktex or float(np.median(record.infeed_ktex))
     reading = record.infeed_ktex / ref
     if not (np.all(np.isfinite(reading)) and np.all(reading > 0)
             and np.all(np.isfinite(record.delivery_ktex)) and np.all(record.delivery_ktex > 0)):  # fmt: skip
         raise DataError("infeed or delivery readings not finite numbers > 0",
+                        source=record.source or None,
                         where="--data, columns infeed_ktex / linear_density_ktex",
                         fix="a leveller record has no gaps; cut it at the gap")  # fmt: skip
     y = np.log(record.delivery_ktex)
@@ -203,7 +207,8 @@ def _prepare(record: LevellerRecord, setting: LevellerSetting, staple: StapleDia
     if record.delivered_length_m.size - start < 1000:
         raise DataError(f"only {record.length_m:.3g} m of sliver: the store's reach "
                         f"({reach_mm:.0f} mm of fed sliver) leaves too little",
-                        where="--data", fix="give a record of a few hundred metres")  # fmt: skip
+                        source=record.source or None, where="--data",
+                        fix="give a record of a few hundred metres")  # fmt: skip
     mean = float(y[start:].mean())
     return _Model(clock, reading, y - mean, kernel, dt, start, mean)
 
@@ -228,8 +233,9 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
     z = y - current.effect
     linear = _block_sums(model, z, grid, tau, record.step_m)
     gains = np.clip(_gains(linear.sum(axis=1)), 0.0, 2.0)
+    rows = _block_rows(z.size, record.step_m)
     exact = np.stack([_weighted_sums(model, z, current, _Setting(model, float(a), float(g), tau),
-                                     linear.shape[1]) for a, g in zip(grid, gains, strict=True)])  # fmt: skip
+                                     rows) for a, g in zip(grid, gains, strict=True)])  # fmt: skip
     best = _least(exact.sum(axis=1))
     action = float(np.interp(best, np.arange(grid.size), grid))
     intensity = _best_intensity(
@@ -255,8 +261,8 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
         ),  # fmt: skip
         estimated_action_point_mm=material,
         drive_time_constant_s=tau,
-        metres_used=float(y.size * record.step_m),
-        metres_needed=_metres_needed(exact, grid, rng, record.step_m, y.size),
+        metres_used=record.length_m,
+        metres_needed=_metres_needed(exact, grid, rng, record.step_m, rows, model.start),
         identifiable=bool(hi - lo <= 50.0),
         notes=_notes(setting, tau, record, model),
     )
@@ -290,10 +296,12 @@ def _delivered(z: np.ndarray, current: _Setting, new: _Setting) -> tuple[np.ndar
 
 
 def _weighted_sums(model: _Model, z: np.ndarray, current: _Setting, new: _Setting,
-                   n_blocks: int) -> np.ndarray:  # fmt: skip
-    """Per block: delivered length, mass x length and mass^2 x length of a setting."""
+                   rows: int) -> np.ndarray:  # fmt: skip
+    """Per block of ``rows``: delivered length, mass x length and mass^2 x length of a
+    setting."""
     y, w = _delivered(z, current, new)
-    rows = z.size // n_blocks
+    n_blocks = max(z.size // rows, 1)
+    rows = min(rows, z.size)
     cut = n_blocks * rows
     yb, wb = y[:cut].reshape(n_blocks, rows), w[:cut].reshape(n_blocks, rows)
     return np.stack([wb.sum(1), (wb * yb).sum(1), (wb * yb * yb).sum(1)], axis=1)
@@ -325,7 +333,8 @@ def _best_intensity(model: _Model, z: np.ndarray, current: _Setting, action: flo
     from scipy.optimize import minimize_scalar
 
     def cv2(i: float) -> float:
-        return float(_cv2(_weighted_sums(model, z, current, _Setting(model, action, i, tau), 1)[0]))
+        new = _Setting(model, action, i, tau)
+        return float(_cv2(_weighted_sums(model, z, current, new, z.size)[0]))
 
     lo, hi = max(0.0, start - 0.3), min(2.0, start + 0.3)
     res = minimize_scalar(cv2, bounds=(lo, hi), method="bounded", options={"xatol": 1e-3})
@@ -372,11 +381,16 @@ def _drive_and_delay(model: _Model, setting: LevellerSetting,
     return float(taus[best[1]]), best[2]
 
 
+def _block_rows(n: int, step_m: float) -> int:
+    """Rows per bootstrap block: 5 m, or an eighth of the analysed record where shorter."""
+    return max(int(min(BLOCK_M, n * step_m / MIN_BLOCKS) / step_m), 1)
+
+
 def _block_sums(model: _Model, z: np.ndarray, grid: np.ndarray, tau: float,
                 step_m: float) -> np.ndarray:  # fmt: skip
     """Per action point and block: n, sum z, sum v, sum z^2, sum z v, sum v^2, with ``v``
     the first-order effect of unit intensity (``Y' = z - I v``)."""
-    rows = max(int(BLOCK_M / step_m), 1)
+    rows = _block_rows(z.size, step_m)
     n_blocks = max(z.size // rows, 1)
     cut = n_blocks * rows
     zb = z[:cut].reshape(n_blocks, rows)
@@ -399,9 +413,10 @@ def _argmin(sums: np.ndarray) -> tuple[float, float]:
 
 
 def _metres_needed(sums: np.ndarray, grid: np.ndarray, rng: np.random.Generator,
-                   step_m: float, rows: int) -> float | None:  # fmt: skip
-    """The shortest head of the record (whole blocks) from which on the bootstrap interval
-    of the action point is within +-PRECISION_MM (``sums``: the blocks' weighted sums)."""
+                   step_m: float, rows: int, head: int) -> float | None:  # fmt: skip
+    """The shortest head of the record (whole blocks of ``rows``, after the ``head`` rows the
+    store's reach takes) from which on the bootstrap interval of the action point is within
+    +-PRECISION_MM (``sums``: the blocks' weighted sums), m of sliver."""
     n_blocks = sums.shape[1]
     ok = np.zeros(n_blocks + 1, dtype=bool)
     for k in range(2, n_blocks + 1):
@@ -410,9 +425,9 @@ def _metres_needed(sums: np.ndarray, grid: np.ndarray, rng: np.random.Generator,
         picks = [_least(np.einsum("b,gbk->gk", c, part)) for c in counts]
         lo, hi = np.interp(np.percentile(picks, [2.5, 97.5]), np.arange(grid.size), grid)
         ok[k] = hi - lo <= 2 * PRECISION_MM
-    for k in range(2, n_blocks + 1):
+    for k in range(MIN_BLOCKS, n_blocks + 1):
         if ok[k:].all():
-            return float(k * (rows // n_blocks) * step_m)
+            return float((head + k * rows) * step_m)
     return None
 
 

@@ -55,6 +55,7 @@ class LevellerRecord:
         infeed_ktex: the infeed scanning rollers' reading held at that moment, ktex.
         fed_length_m: the store's length clock (the feeding rollers' travel), m.
         time_s: when each reading was taken, s.
+        source: where the readings came from (a file), for messages.
     """
 
     delivered_length_m: np.ndarray
@@ -62,6 +63,7 @@ class LevellerRecord:
     infeed_ktex: np.ndarray
     fed_length_m: np.ndarray
     time_s: np.ndarray
+    source: str = ""
 
     def __post_init__(self) -> None:
         n = self.delivered_length_m.size
@@ -69,6 +71,7 @@ class LevellerRecord:
         if n < 1000 or any(a.shape != (n,) for a in arrays):
             raise DataError(f"{n} readings: a leveller record needs at least 1000 rows of "
                             "delivered length, delivery, infeed, fed length and time",
+                            source=self.source or None,
                             fix="give a record of a few hundred metres")  # fmt: skip
 
     @property
@@ -82,8 +85,9 @@ class LevellerRecord:
     def head(self, length_m: float) -> LevellerRecord:
         """The first ``length_m`` metres."""
         n = min(self.delivered_length_m.size, max(int(length_m / self.step_m), 1000))
-        return LevellerRecord(*(a[:n] for a in (self.delivered_length_m, self.delivery_ktex,
-                                                self.infeed_ktex, self.fed_length_m, self.time_s)))  # fmt: skip
+        return LevellerRecord(self.delivered_length_m[:n], self.delivery_ktex[:n],
+                              self.infeed_ktex[:n], self.fed_length_m[:n], self.time_s[:n],
+                              self.source)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -142,7 +146,7 @@ def read_leveller_record(path: str | Path, option: str = "--data") -> LevellerFi
         raise DataError(f"{length_col} is not increasing in even steps", source=source,
                         where=option, fix="the delivery readings come every few mm")  # fmt: skip
     record = LevellerRecord(s, values["linear_density_ktex"], values["infeed_ktex"],
-                            values["fed_length_m"], values["time"])  # fmt: skip
+                            values["fed_length_m"], values["time"], str(source))  # fmt: skip
     section = beside.sidecar if beside else {}
     return LevellerFile(record, *_setting(section), _described(section),
                         _delivery(section), _true_point(section))  # fmt: skip

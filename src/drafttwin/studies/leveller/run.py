@@ -48,6 +48,8 @@ BRUTE_BOUNDS_MM = (-70.0, 30.0)
 """Action points searched for the CV minimum, mm from the true one."""
 TOLERANCE_MM, TOLERANCE_CV = 5.0, 0.05
 """The done-when: within 5 mm of the CV minimum, a CV within 5 % of it."""
+SHORT_M = (25.0, 50.0, 100.0)
+"""Shorter heads of each record the recommendation is also made from, m."""
 
 
 @dataclass(frozen=True)
@@ -154,8 +156,11 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
     setting = LevellerSetting(
         float(lev["action_point_mm"]), 1.0, settings.feed.total_ktex, NOMINAL_DRIVE_S
     )  # the machine knows its drive's nominal only
-    advice = find_action_point(_channel_record(record), setting, settings.feed.staple,
-                               settings.delivery)  # fmt: skip
+    readings = _channel_record(record)
+    advice = find_action_point(readings, setting, settings.feed.staple, settings.delivery)
+    shorter = {length: find_action_point(readings.head(length), setting, settings.feed.staple,
+                                         settings.delivery)
+               for length in SHORT_M if length < readings.length_m}  # fmt: skip
     evaluations: dict[float, float] = {}
 
     def cv_at(offset_mm: float) -> float:
@@ -187,6 +192,11 @@ def run_case(task: dict[str, Any]) -> dict[str, Any]:
         "cv_ratio": reached / brute_cv,
         "within_mm": abs(advice.recommended_action_point_mm - (true_mm + brute_offset)) <= TOLERANCE_MM,
         "within_cv": reached <= (1 + TOLERANCE_CV) * brute_cv,
+        "shorter": [{"length_m": length, "recommended_action_point_mm":
+                     a.recommended_action_point_mm,
+                     "action_point_interval_mm": list(a.action_point_interval_mm),
+                     "error_mm": a.recommended_action_point_mm - (true_mm + brute_offset)}
+                    for length, a in shorter.items()],
         "wall_s": time.perf_counter() - start,
     }  # fmt: skip
 
@@ -208,7 +218,19 @@ def summarise(cases: list[dict[str, Any]]) -> dict[str, Any]:
             "max_abs_error_mm": float(max(abs(c["error_mm"]) for c in rows)),
             "max_cv_ratio": float(max(c["cv_ratio"] for c in rows)),
             "max_metres_used": float(max(c["advice"]["metres_used"] for c in rows)),
+            "shorter_within_5_mm": _shorter(rows),
         }  # fmt: skip
+    return out
+
+
+def _shorter(rows: list[dict[str, Any]]) -> dict[str, list[int]]:
+    """Per head length: [cases within 5 mm of the CV minimum, cases with such a head]."""
+    out = {}
+    for length in SHORT_M:
+        heads = [h for c in rows for h in c["shorter"] if h["length_m"] == length]
+        if heads:
+            out[f"{length:g} m"] = [sum(abs(h["error_mm"]) <= TOLERANCE_MM for h in heads),
+                                    len(heads)]  # fmt: skip
     return out
 
 
