@@ -114,6 +114,7 @@ _RANGES: dict[str, str] = {
     "--reference-ktex": "(0, 1600] ktex",
     "--max-length": "(0, 1e6] m",
     "--search": "[5, 2000] mm",
+    "--level-window": "[20, 10_000] m",
     "--fault-cases": "[0, 1000] machines",
 }
 

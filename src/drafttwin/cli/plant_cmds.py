@@ -162,12 +162,7 @@ def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: fl
                               if leveller or leveller_fault else "--fibre-scale",
                               fix="add --sliver")  # fmt: skip
         return None
-    from dataclasses import replace
-
-    from drafttwin.cli.sliver_cmds import leveller_from
-    from drafttwin.plant.sliver_channel import SliverSettings, default_feed, sliver_paths
-    from drafttwin.sliver import FeedFault
-    from drafttwin.sliver.feed import parse_feed_event
+    from drafttwin.plant.sliver_channel import sliver_paths
     from drafttwin.sliver.record import sliver_beside
 
     ours = sliver_beside(out)
@@ -177,6 +172,20 @@ def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: fl
             raise ConfigError(f"{p.name} exists and is not the sliver of an earlier plant "
                               "record of this name", source=p, where="--out",
                               fix="choose another --out or move the file")  # fmt: skip
+    return sliver_settings(feed_fault, fibre_scale, leveller, leveller_fault)
+
+
+def sliver_settings(feed_fault: list[str] | None, fibre_scale: float, leveller: str | None,
+                    leveller_fault: list[str] | None) -> Any:  # fmt: skip
+    """The plant's sliver settings of ``--feed-fault``, ``--fibre-scale``, ``--leveller`` and
+    ``--leveller-fault`` (``generate --sliver`` and ``plant serve --sliver``)."""
+    from dataclasses import replace
+
+    from drafttwin.cli.sliver_cmds import leveller_from
+    from drafttwin.plant.sliver_channel import SliverSettings, default_feed
+    from drafttwin.sliver import FeedFault
+    from drafttwin.sliver.feed import parse_feed_event
+
     periodic, missing, piecings = [], None, []
     for text in feed_fault or []:
         event = parse_feed_event(text)

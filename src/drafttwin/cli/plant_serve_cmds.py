@@ -12,12 +12,16 @@ import typer
 
 from drafttwin.cli._exit import work_done
 from drafttwin.cli._options import (
+    LevellerFaultOpt,
+    LevellerOpt,
     SampleRateOpt,
     StopAfterOpt,
     file_out,
     number,
     path_in,
 )
+from drafttwin.cli.typer_app import console, err_console
+from drafttwin.cli.plant_cmds import FeedFaultOpt, FibreScaleOpt
 from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app
 from drafttwin.cli.typer_app import console, err_console
 from drafttwin.errors import ConfigError
@@ -52,7 +56,13 @@ MaxLagOpt = Annotated[float | None, number(
     "be; the lateness is logged, warned past 1 s and summed up either way.")]  # fmt: skip
 LogOpt = Annotated[Path | None, file_out("--log", "Write every published sample to this "
                    ".parquet/.csv file when the plant stops (the plant's own record, for "
-                   "'drafttwin twin audit').")]  # fmt: skip
+                   "'drafttwin twin audit'); with --sliver the sliver readings to "
+                   "LOG.sliver.parquet/.csv beside it (for 'sliver level --data').")]  # fmt: skip
+ServeSliverOpt = Annotated[bool, typer.Option("--sliver", help=(
+    "Make sliver as the machines run (their true roller surfaces draft six card slivers, fibre "
+    "by fibre) and publish the delivery and infeed sensors' readings and the store's length "
+    "clock: OPC UA NAME/Sliver (arrays with units) and NAME/Leveller, MQTT "
+    "drafttwin/NAME/sliver and drafttwin/NAME/leveller (docs/twin.md)."))]  # fmt: skip
 
 
 @plant_app.command("serve")
@@ -62,10 +72,14 @@ def plant_serve(
     physics: PhysicsOpt = "full", ramp: RampOpt = 10.0, duration: StopAfterOpt = None,
     mqtt_user: MqttUserOpt = None, cert: CertOpt = None, broker: BrokerOpt = "auto",
     history: HistoryOpt = 0.0, fault: ServeFaultOpt = None, qos: QosOpt = 0,
-    max_lag: MaxLagOpt = None, log: LogOpt = None,
+    max_lag: MaxLagOpt = None, log: LogOpt = None, sliver: ServeSliverOpt = False,
+    leveller: LevellerOpt = None, leveller_fault: LevellerFaultOpt = None,
+    feed_fault: FeedFaultOpt = None, fibre_scale: FibreScaleOpt = 1.0,
 ) -> None:  # fmt: skip
     """Run the plant emulator in real time as live machines: roller and motor speeds every
-    sample, a writable supply set-point (write it and the plant changes speed)."""
+    sample, a writable supply set-point (write it and the plant changes speed); with
+    --sliver the sliver sensors' readings too, through the machine's autoleveller where it
+    has one (--leveller; its setting is published, never written from outside)."""
     _need_twin_extra()
     from drafttwin.plant.serve.pacing import Pacing
     from drafttwin.wire.plantlog import open_plant_log
@@ -91,6 +105,7 @@ def plant_serve(
     if log is not None and log.suffix.lower() not in (".parquet", ".csv"):
         raise ConfigError(f"unsupported log file type '{log.suffix or '(none)'}'", source=log,
                           where="--log", fix="name the log *.parquet or *.csv")  # fmt: skip
+    settings = _serve_sliver(sliver, feed_fault, fibre_scale, leveller, leveller_fault)
     from drafttwin.mechanics import DriveTrain
     from drafttwin.plant.faults import FaultSpec
     from drafttwin.plant.live import live_faults
@@ -106,14 +121,25 @@ def plant_serve(
     if qos:
         opts["qos"] = qos
     published = dict.fromkeys(names, 0)
-    with open_plant_log(log) as plant_log:
+    slivers: dict[str, Any] = {}
+    with open_plant_log(log, sliver=settings is not None) as plant_log:
 
         def on_sample(machine: str, sample: Any) -> None:
             published[machine] += 1
             if plant_log is not None:
                 plant_log.add(machine, sample)
 
+        def on_sliver(live: Any, batch: Any) -> None:
+            if live.name not in slivers:
+                slivers[live.name] = live
+                if plant_log is not None:
+                    plant_log.describe(live.name, live.describe())
+            if plant_log is not None:
+                plant_log.add_sliver(batch)
+
         opts["on_sample"] = on_sample
+        if settings is not None:
+            opts.update(sliver=settings, on_sliver=on_sliver)
         if history:
             opts["history_s"] = history
         signum = _serve_plant(opcua, mqtt, names, opts, mqtt_user, cert, broker)
@@ -122,8 +148,26 @@ def plant_serve(
         err_console.print(f"stopped by {signal.Signals(signum).name}")
     console.print("published " + ", ".join(f"{k}: {v} samples" for k, v in published.items()))
     console.print(pacing.summary())
+    for live in slivers.values():
+        console.print("sliver " + live.summary())
     if log is not None:
-        console.print(f"wrote {log}")
+        console.print(f"wrote {log}" + (f", {plant_log.sliver_path}" if slivers and plant_log
+                                        and plant_log.sliver_path else ""))  # fmt: skip
+
+
+def _serve_sliver(sliver: bool, feed_fault: list[str] | None, fibre_scale: float,
+                  leveller: str | None, leveller_fault: list[str] | None) -> Any:  # fmt: skip
+    """The served machines' sliver settings, or None without --sliver."""
+    if not sliver:
+        if feed_fault or fibre_scale != 1.0 or leveller or leveller_fault:
+            raise ConfigError("--feed-fault, --fibre-scale and --leveller shape the sliver",
+                              where="--feed-fault" if feed_fault else "--leveller"
+                              if leveller or leveller_fault else "--fibre-scale",
+                              fix="add --sliver")  # fmt: skip
+        return None
+    from drafttwin.cli.plant_cmds import sliver_settings
+
+    return sliver_settings(feed_fault, fibre_scale, leveller, leveller_fault)
 
 
 def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: dict[str, Any],

@@ -104,6 +104,10 @@ LearnOpt = Annotated[float | None, number("--learn", (
     "file that watches the angle lags. 0: no learning, the detector file judges every "
     "machine as it is (one fitted on another machine is flagged)."))]  # fmt: skip
 SilentOpt = Annotated[float, number("--silent", "A machine silent this long (s) is marked as a gap.")]  # fmt: skip
+LevelWindowOpt = Annotated[float, number("--level-window", (
+    "Metres of delivered sliver per recommendation of the leveller's action point (a source "
+    "with the sliver sensors and the leveller's setting: plant serve --sliver, a replayed "
+    "record made with --sliver): 'sliver level' on each window, never a setting written."))]  # fmt: skip
 MaxSamplesOpt = Annotated[int | None, number("--max-samples", "Stop after this many processed samples.")]  # fmt: skip
 # derived from the parameter's name, as --verbose/--no-verbose
 VerboseOpt = Annotated[bool, typer.Option(help="A line per store commit.")]
@@ -116,12 +120,14 @@ def twin_run(
     store: StoreOpt = None, commit_ms: CommitMsOpt = 200.0, retention_hours: RetentionOpt = None,
     http: HttpOpt = None, token: TokenOpt = None, physics: TwinPhysicsOpt = "reduced",
     publish: PublishOpt = None, detector: DetectorOpt = "auto", learn: LearnOpt = None,
-    silent: SilentOpt = 2.0,
+    silent: SilentOpt = 2.0, level_window: LevelWindowOpt = 300.0,
     duration: StopAfterOpt = None, max_samples: MaxSamplesOpt = None,
     verbose: VerboseOpt = False, quiet: TwinQuietOpt = False, as_json: StatusJsonOpt = False,
 ) -> None:  # fmt: skip
     """Run the live twin: per sample, the paper's causal cleaning, the physics following the
-    set-point, the model through one incremental predictor; store and serve the result.
+    set-point, the model through one incremental predictor; store and serve the result. A
+    source with a sliver channel is watched (count, CV, spectrogram, chimneys) and its
+    leveller's action point recommended every --level-window metres.
     Stops when every source ended (a replay), after --duration or --max-samples, or on Ctrl-C."""
     _need_twin_extra()
     import torch
@@ -147,7 +153,8 @@ def twin_run(
     service = build_service(model, source, mapping=mapping, store_dir=store, commit_ms=commit_ms,
                             retention_s=None if retention_hours is None else retention_hours * 3600,
                             physics=physics, silent_s=silent, on_commit=on_commit,
-                            detector=detector, learn_s=learn)  # fmt: skip
+                            detector=detector, learn_s=learn,
+                            level_window_m=level_window)  # fmt: skip
     start = time.monotonic()
     try:
         from drafttwin.twin.aio import run_until_signal
@@ -252,11 +259,38 @@ def _print_status(status: dict[str, Any]) -> None:
             state = "active" if a["active"] else "returned to normal"
             console.print(f"{name}: alarm {a['test']} ({state}, {'acknowledged' if a['acked'] else 'not acknowledged'}): "
                           f"{cause_text(a.get('cause'))}", highlight=False, markup=False, soft_wrap=True)  # fmt: skip
+    for name, m in status["machines"].items():
+        _print_sliver(name, m)
     if status["store"] is not None:
         console.print(f"store: {status['store']['committed']} rows committed")
     for pub in status.get("publish", []):
         console.print(f"published on {pub['spec']}: {pub['sent']} sent, {pub['dropped']} "
                       f"dropped, {pub['failed']} failed")  # fmt: skip
+
+
+def _print_sliver(name: str, m: dict[str, Any]) -> None:
+    """The machine's sliver and its leveller's standing recommendation, if it has them."""
+    s, lev = m.get("sliver"), m.get("leveller")
+    if s is not None:
+        chimneys = ", ".join(f"{100 * c['wavelength_m']:.2f} cm ({c['element']})"
+                             for c in s["chimneys"]) or "none"  # fmt: skip
+        console.print(f"{name}: sliver {s['delivered_m']:.1f} m, count {s['count_ktex']:.4f} ktex, "
+                      f"CV {s['cv_pct']:.3f} %, {s['alarms']} chimney alarm(s); chimneys in "
+                      f"the last spectrogram: {chimneys}", highlight=False)  # fmt: skip
+    a = None if lev is None else lev["advice"]
+    if lev is not None and a is None:
+        console.print(f"{name}: leveller {lev['state']}, {lev['collected_m']:.0f} of "
+                      f"{lev['window_m']:g} m" + (f" ({lev['failed']})" if lev["failed"] else ""),
+                      highlight=False)  # fmt: skip
+    elif a is not None and lev is not None:
+        lo, hi = a["action_point_interval_mm"]
+        now = a["current_action_point_mm"]
+        console.print(f"{name}: leveller action point {a['recommended_action_point_mm']:.1f} mm "
+                      f"(95 % {lo:.1f}-{hi:.1f}), intensity {a['recommended_intensity']:.2f} "
+                      f"recommended; current {'none' if now is None else f'{now:.1f} mm'}: CV "
+                      f"{a['current']['cv_pct']:.3f} % -> {a['recommended']['cv_pct']:.3f} % "
+                      f"expected (last of {lev['checks']} windows of {lev['window_m']:g} m; "
+                      "the twin writes no setting)", highlight=False)  # fmt: skip
 
 
 FromOpt = Annotated[float | None, number("--from", "From this time, s (inclusive).")]

@@ -167,6 +167,12 @@ class LivePlant:
             x[:4], x[4] = r[0], m[0]
         return x[:4], float(x[4])
 
+    @property
+    def revolutions(self) -> np.ndarray:
+        """True revolutions of the rollers (front, second, third, back) and the motor since an
+        arbitrary zero each (the encoders' own), exact at the last sample (or skip)."""
+        return self._rev.copy()
+
     def set_supply(self, hz: float) -> None:
         """A new VFD set-point, Hz; the output ramps to it from the next sample computed."""
         if not (math.isfinite(hz) and 0.0 <= hz <= MAX_SUPPLY_HZ):

@@ -180,6 +180,53 @@ class Feed:
         return np.maximum(total / self.doublings, 0.05)
 
 
+class FeedStream:
+    """A feed's relative rate generated piece by piece along the fed length (a running
+    machine's feed, :mod:`drafttwin.sliver.stream`): the same model as
+    :meth:`Feed.intensity` (each sliver's periodic faults at phases drawn once, its extra
+    irregularity as one Gauss-Markov process carried from piece to piece, the single events
+    at their fed lengths), on the grid ``p0_mm + step_mm * k`` from ``k = 0`` on."""
+
+    def __init__(self, feed: Feed, p0_mm: float, step_mm: float,
+                 rng: np.random.Generator) -> None:  # fmt: skip
+        self.feed, self.p0_mm, self.step_mm, self.rng = feed, p0_mm, step_mm, rng
+        self.k = 0  # grid points generated so far
+        self.phases = [[0.0 if f.phase == "same" else float(rng.uniform(0, 2 * math.pi))
+                        for f in feed.faults] for _ in range(feed.doublings)]  # fmt: skip
+        self._a = math.exp(-step_mm * 1e-3 / feed.extra_correlation_m)
+        # each sliver its own generator: the realisation does not depend on the pieces' sizes
+        self._rngs = rng.spawn(feed.doublings)
+        self._gm = [feed.extra_cv * float(r.standard_normal()) for r in self._rngs]
+
+    def next(self, n: int) -> np.ndarray:
+        """The relative rate (mean 1 for an even feed) at the next ``n`` grid points."""
+        from scipy.signal import lfilter
+
+        feed = self.feed
+        p_m = (self.p0_mm + self.step_mm * np.arange(self.k, self.k + n)) * 1e-3
+        self.k += n
+        total = np.zeros(n)
+        for j in range(feed.doublings):
+            m = np.ones(n)
+            for f, phase in zip(feed.faults, self.phases[j], strict=True):
+                if f.slivers == "one" and j > 0:
+                    continue
+                m += f.amplitude * np.sin(2 * math.pi * p_m / f.wavelength_m + phase)
+            if feed.extra_cv > 0:
+                b = feed.extra_cv * math.sqrt(1 - self._a**2)
+                y, _ = lfilter([b], [1.0, -self._a], self._rngs[j].standard_normal(n),
+                               zi=[self._a * self._gm[j]])  # fmt: skip
+                self._gm[j] = float(y[-1])
+                m += y
+            if j == 0 and feed.runs_out_m is not None:
+                m[(p_m >= feed.runs_out_m[0]) & (p_m < feed.runs_out_m[1])] = 0.0
+            if j == 0:
+                for at in feed.piecings_m:
+                    m[(p_m >= at) & (p_m < at + PIECING_M)] *= 2.0
+            total += m
+        return np.maximum(total / feed.doublings, 0.05)
+
+
 PIECING_M = 0.15
 """Length of a piecing's overlap on the fed sliver, m (assumption: hand piecings overlap the
 two ends by 10-20 cm)."""

@@ -241,12 +241,17 @@ def level_surface(surface: np.ndarray, readings: np.ndarray, setting: np.ndarray
     ``[lo, hi]``, and the regulating drive follows it as a first-order lag (``drive_a = 1 -
     exp(-dt / tau)`` per step). Second, third and back roller (``out``) advance by their
     unlevelled travel times the drive's factor; the front roller keeps its own. ``factor``
-    receives the drive's factor in each step."""
+    receives the drive's factor in each step. A run continued piece by piece
+    (:mod:`drafttwin.sliver.stream`) gives the drive's factor so far as ``setting[7]`` and
+    the levelled first row in ``out[0]``."""
     q0, pitch, ahead, intensity = setting[0], setting[1], setting[2], setting[3]
     a, lo, hi = setting[4], setting[5], setting[6]
     n_read = readings.shape[0]
-    out[0, :] = surface[0, :]
-    f = -1.0
+    if setting.shape[0] > 7:
+        f = setting[7]
+    else:
+        out[0, :] = surface[0, :]
+        f = -1.0
     for i in range(surface.shape[0] - 1):
         k = int(math.floor((out[i, BACK] + ahead - q0) / pitch))
         x = readings[min(max(k, 0), n_read - 1)]

@@ -11,6 +11,7 @@ fibres and the delivery sensor; a file without one takes them from options.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -83,8 +84,12 @@ class LevellerRecord:
         return float(self.delivered_length_m.size * self.step_m)
 
     def head(self, length_m: float) -> LevellerRecord:
-        """The first ``length_m`` metres."""
-        n = min(self.delivered_length_m.size, max(int(length_m / self.step_m), 1000))
+        """The first ``length_m`` metres: the rows before ``start + length_m`` (half a step's
+        margin), at least 1000; the same rows from any longer record that begins alike (the
+        live twin's window is the command's ``--max-length``)."""
+        s = self.delivered_length_m
+        n = int(np.searchsorted(s, s[0] + length_m - 0.5 * self.step_m, side="left"))
+        n = min(s.size, max(n, 1000))
         return LevellerRecord(self.delivered_length_m[:n], self.delivery_ktex[:n],
                               self.infeed_ktex[:n], self.fed_length_m[:n], self.time_s[:n],
                               self.source)  # fmt: skip
@@ -148,8 +153,23 @@ def read_leveller_record(path: str | Path, option: str = "--data") -> LevellerFi
     record = LevellerRecord(s, values["linear_density_ktex"], values["infeed_ktex"],
                             values["fed_length_m"], values["time"], str(source))  # fmt: skip
     section = beside.sidecar if beside else {}
-    return LevellerFile(record, *_setting(section), _described(section),
-                        _delivery(section), _true_point(section))  # fmt: skip
+    return LevellerFile(record, *context_of(section), _true_point(section))
+
+
+def context_of(section: dict[str, Any]) -> tuple[LevellerSetting | None, bool,
+                                                  dict[str, Any] | None, SliverSensor | None]:  # fmt: skip
+    """What a sidecar's (or a served machine's) sliver description says: the leveller's
+    setting (None: none named), whether there is a leveller, the fibres' description and the
+    delivery sensor. Values out of range are not taken (a description from the wire is
+    checked before it is trusted)."""
+    setting, had = _setting(section)
+    if setting is not None and not (
+        math.isfinite(setting.action_point_mm) and 0 <= setting.action_point_mm <= 10_000
+        and math.isfinite(setting.intensity) and 0 <= setting.intensity <= 2
+        and (setting.reference_ktex is None
+             or (math.isfinite(setting.reference_ktex) and 0 < setting.reference_ktex <= 1e3))):  # fmt: skip
+        setting = None
+    return setting, had, _described(section), _delivery(section)
 
 
 def _setting(section: dict[str, Any]) -> tuple[LevellerSetting | None, bool]:
@@ -172,7 +192,13 @@ def _setting(section: dict[str, Any]) -> tuple[LevellerSetting | None, bool]:
 
 def _described(section: dict[str, Any]) -> dict[str, Any] | None:
     staple = section.get("staple")
-    return staple if isinstance(staple, dict) else None
+    if not isinstance(staple, dict):
+        return None
+    try:  # lengths a fibre has (a description gone wrong names none)
+        ok = 1 <= float(staple["mean_length_mm"]) <= 200 and 0 <= float(staple["length_cv"]) <= 1.5
+    except (KeyError, TypeError, ValueError):
+        return None
+    return staple if ok else None
 
 
 def _delivery(section: dict[str, Any]) -> SliverSensor | None:

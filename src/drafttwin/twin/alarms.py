@@ -127,7 +127,7 @@ class AlarmBook:
 
 CONSOLE_KINDS = ("fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack",
                  "sliver-chimney", "learning", "learned", "baseline", "baseline-refused",
-                 "detector-foreign", "identity")  # fmt: skip
+                 "detector-foreign", "identity", "leveller", "leveller-advice")  # fmt: skip
 """Events a running twin prints on its console (its alarms and what its detector does)."""
 
 

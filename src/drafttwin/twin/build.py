@@ -17,6 +17,7 @@ from drafttwin.diagnosis.stream import BLOCK_S, POST_S
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain
 from drafttwin.models.base import BaseModel
+from drafttwin.sliver.levelwatch import WINDOW_M
 from drafttwin.twin.faultwatch import LiveFaultWatch, block_phase, detector_path, load_detector
 from drafttwin.twin.live import MachineTwin, physics_train
 from drafttwin.twin.service import MachineState, TwinService
@@ -54,6 +55,7 @@ def build_service(
     on_commit: Callable[[int, int], None] | None = None,
     detector: str = "auto",
     learn_s: float | None = None,
+    level_window_m: float = WINDOW_M,
 ) -> TwinService:
     """The service for ``sources`` (``--source`` values), each machine with its model.
 
@@ -61,7 +63,8 @@ def build_service(
     ``MODEL.dtm.detector.json`` as a prior when it exists; a baseline it learned before is
     read back from the store), ``none``, or a detector file as the prior of the machines of
     ``model_path`` (the others: auto). ``learn_s``: how long a machine learns (default: what
-    the detector needs, :func:`~drafttwin.diagnosis.learning.learn_time`)."""
+    the detector needs, :func:`~drafttwin.diagnosis.learning.learn_time`). ``level_window_m``:
+    delivered sliver per recommendation of a machine's leveller."""
     if detector != "auto" and detector != "none" and not Path(detector).is_file():
         raise ConfigError(f"no detector file {detector}", where="--detector",
                           fix="give the file 'drafttwin twin fit-detector' wrote, auto or none")  # fmt: skip
@@ -132,7 +135,7 @@ def build_service(
     writer = None
     if store is not None:
         writer = StoreWriter(store, commit_ms, retention_s=retention_s, on_commit=on_commit)
-    service = TwinService(states, built, writer, silent_s=silent_s)
+    service = TwinService(states, built, writer, silent_s=silent_s, level_window_m=level_window_m)
     service.baselines = baselines
     for key, train in service_models.items():
         service.locator.register(key, train)

@@ -15,17 +15,16 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
-from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import numpy as np
 
 from drafttwin.models.online import forecast_many
-from drafttwin.sliver import StapleDiagram
-from drafttwin.sliver.watch import SliverAlarm, SliverWatch
+from drafttwin.sliver.levelwatch import WINDOW_M
 from drafttwin.twin.faults import FaultDesk
 from drafttwin.twin.live import Begun
-from drafttwin.twin.sources.base import Sample, Source
+from drafttwin.twin.sliverdesk import SliverDesk
+from drafttwin.twin.sources.base import Sample, SliverBatch, Source
 from drafttwin.twin.state import (
     LATENCY_WINDOW,
     MachineState,
@@ -37,15 +36,14 @@ from drafttwin.wire.identity import MachineIdentity
 
 SOURCES_STOP_S = 1.5
 """At a stop, how long the sources may take to close their connections."""
-SLIVER_SENSOR_M = 0.005
-"""Averaging length of a delivery sensor (the plant's, docs/sliver.md), m: its ideal curve."""
 
 
 class TwinService:
     """Run ``twins`` fed by ``sources``; rows go to ``writer`` (if any) and subscribers."""
 
     def __init__(self, states: dict[str, MachineState], sources: Sequence[Source],
-                 writer: StoreWriter | None = None, *, silent_s: float = 2.0) -> None:  # fmt: skip
+                 writer: StoreWriter | None = None, *, silent_s: float = 2.0,
+                 level_window_m: float = WINDOW_M) -> None:  # fmt: skip
         self.states, self.sources, self.writer = states, list(sources), writer
         self.silent_s = silent_s
         self.latency_s: deque[float] = deque(maxlen=LATENCY_WINDOW)
@@ -54,7 +52,7 @@ class TwinService:
         self.metrics: Any = None  # drafttwin.twin.web.metrics.Metrics when the page runs
         self.event_hooks: list[Callable[[EventRow], None]] = []
         self.started = time.monotonic()
-        self._sliver_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sliver")
+        self.slivers = SliverDesk(self, level_window_m)
         self.loop: asyncio.AbstractEventLoop | None = None
         self._stop = asyncio.Event()
         self._batch: list[Sample] = []
@@ -88,12 +86,18 @@ class TwinService:
         self.faults.announce(st)
 
     # ---- samples in ---------------------------------------------------------------------
-    def on_sample(self, s: Sample) -> None:
+    def on_sample(self, s: Sample | SliverBatch) -> None:
         """Queue a sample; the samples that arrive in one turn of the event loop (one OPC UA
         publish, one tick of the machines) are processed together, one network pass for all
-        machines that share a model (:func:`~drafttwin.models.online.forecast_many`)."""
+        machines that share a model (:func:`~drafttwin.models.online.forecast_many`). A batch
+        of sliver readings goes to the sliver desk at once."""
         if self._closed:  # stopping: nothing after the signal beyond what was in flight
             self.after_stop += 1
+            return
+        if isinstance(s, SliverBatch):
+            st = self.states.get(s.machine)
+            if st is not None:
+                self.slivers.batch(st, s)
             return
         self._batch.append(s)
         if self._scheduled:
@@ -125,7 +129,7 @@ class TwinService:
                 self._finish(rnd)
                 rnd = []
             if s.sliver is not None:
-                self._sliver(st, s.sliver)
+                self.slivers.batch(st, s.sliver)
             rows, begun = st.twin.receive_deferred(s.ts_us, s.seq, s.values, s.setpoint,
                                                    s.received, s.motor)  # fmt: skip
             self._out(st, rows, s.received)
@@ -167,41 +171,13 @@ class TwinService:
             if self.metrics is not None:
                 self.metrics.observe(st.twin.name, len(rows), lat)
 
-    # ---- the sliver -----------------------------------------------------------------------
-    def _sliver(self, st: MachineState, readings: tuple[np.ndarray, ...]) -> None:
-        """Feed the machine's sliver watch; its checks (a spectrogram of the last 100 m every
-        50 m) run in a worker thread, so the samples keep their pace."""
-        if st.sliver is None:
-            st.sliver = SliverWatch(st.twin.train, StapleDiagram.preset("cotton"),
-                                    sensor_length_m=SLIVER_SENSOR_M, checks_now=False)  # fmt: skip
-        st.sliver.push(*readings)
-        if st.sliver.due() and not st.sliver_busy:
-            st.sliver_busy = True
-            watch = st.sliver
-
-            def checked(fut: Any) -> None:
-                alarms = [] if fut.exception() is not None else fut.result()
-                if self.loop is not None and self.loop.is_running():
-                    self.loop.call_soon_threadsafe(self._sliver_alarms, st, alarms)
-                else:
-                    self._sliver_alarms(st, alarms)
-
-            self._sliver_pool.submit(watch.check).add_done_callback(checked)
-
-    def _sliver_alarms(self, st: MachineState, alarms: list[SliverAlarm]) -> None:
-        st.sliver_busy = False
-        for a in alarms:
-            assert st.sliver is not None
-            ev = EventRow(st.twin.name, "sliver-chimney", int(round(a.time_s * 1e6)),
-                          st.sliver.text(a))  # fmt: skip
-            self.event(st, ev)
-            for push in self.subscribers:
-                push(st.twin.name, [], [ev])
-
     def report(self, machine: str, kind: str, detail: str, count: int = 1) -> None:
         """A source's state change, or ``count`` dropped payloads."""
         st = self.states.get(machine)
         if st is None:
+            return
+        if kind == "leveller":  # the source describes its sliver and leveller
+            self.slivers.describe(st, detail)
             return
         if kind == "identity":  # the source says who the machine is
             self._run_batch()  # the samples before it are the machine it was
@@ -295,7 +271,7 @@ class TwinService:
         for st in self.states.values():
             self._out(st, st.twin.flush(), None)
         await self.faults.settle()
-        self._sliver_pool.shutdown(wait=True, cancel_futures=True)
+        await self.slivers.settle(self.stop_signalled)
 
     def stop(self) -> None:
         """Stop as a signal does (the rankings still running get a short while)."""
@@ -330,7 +306,7 @@ class TwinService:
                                 "identity": None if st.identity is None else st.identity.to_dict(),
                                 "last_fault": fault_summary(st.last_fault),
                                 "active_alarms": [a.to_dict() for a in self.book.retained(name)],
-                                "sliver": None if st.sliver is None else st.sliver.summary(),
+                                **self.slivers.status(st),
                                 "transport_ms": st.transport_ms(),
                                 "data_age_s": st.data_age_s()}
                          for name, st in self.states.items()},

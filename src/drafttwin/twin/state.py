@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from drafttwin.sliver.levelwatch import LevelWatch
 from drafttwin.sliver.watch import SliverWatch
 from drafttwin.twin.faultwatch import LiveFaultWatch
 from drafttwin.twin.live import MachineTwin
@@ -52,6 +53,10 @@ class MachineState:
     last_fault: EventRow | None = None  # the latest alarm or its cause (status, hall page)
     sliver: SliverWatch | None = None  # the sliver channel's watch, once the source sends one
     sliver_busy: bool = False  # a check runs in the worker thread
+    sliver_seq: int = -1  # the last sliver batch taken (a repeated one is dropped)
+    sliver_repeated: int = 0
+    level: LevelWatch | None = None  # the leveller's windows, once the source describes it
+    level_busy: bool = False  # a window runs in the leveller's worker
     # source time -> received (wall clock), s: the transport's share of the latency, for
     # live sources (a replay's times are the file's)
     transport_s: deque[float] = field(default_factory=lambda: deque(maxlen=LATENCY_WINDOW))

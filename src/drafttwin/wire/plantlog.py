@@ -6,6 +6,12 @@ time it was published), so that ``drafttwin twin audit`` can count, sample by sa
 what a twin stored, what it lost, and what it stored twice. ``lag_s`` says how late each sample went out (the
 wall time it was handed to the transport minus its own time; docs/twin.md, "Keeping time").
 
+With the sliver (``plant serve --sliver``) the sensors' readings go to ``LOG.sliver.parquet``
+(or ``.csv``) beside it, one row per reading (:data:`SLIVER_COLUMNS`): the columns a leveller
+record has. For one machine a sidecar ``LOG.json`` names that file and the machine's sliver
+description (the leveller's setting, the fibres, the sensors), so ``sliver level --data LOG``
+reads it as it reads a generated record.
+
 The file is written in row groups to a temporary name beside the target and renamed onto it
 when the plant stops (:func:`drafttwin._io.atomic_path`): a reader sees the whole log or none,
 and memory stays bounded on a long run. A plant killed with SIGKILL leaves no log (only the
@@ -32,13 +38,18 @@ WRITTEN = (*COLUMNS, "lag_s")
 """Columns written: also ``lag_s`` = published - time, s (logs of older versions lack it)."""
 ROW_GROUP = 2000
 """Samples buffered before they are written (20 s of one machine at 100 Hz)."""
+SLIVER_COLUMNS = ("machine", "seq", "delivered_length_m", "time", "linear_density_ktex",
+                  "infeed_ktex", "fed_length_m")  # fmt: skip
+"""Columns of the sliver log (``seq``: the batch a reading came in)."""
+SLIVER_ROW_GROUP = 50_000
+GENERATOR = "drafttwin plant serve --log"
 
 
 class PlantLog:
     """Append published samples to ``path`` (``.parquet`` or ``.csv``); :meth:`close` makes
     it appear. Use as a context manager."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, sliver: bool = False) -> None:
         from drafttwin._io import atomic_path
 
         suffix = path.suffix.lower()
@@ -51,6 +62,21 @@ class PlantLog:
         self._buf: dict[str, list[Any]] = {c: [] for c in WRITTEN}
         self._writer: Any = None
         self._parquet = suffix == ".parquet"
+        self.sliver_path = path.with_name(f"{path.stem}.sliver{path.suffix}") if sliver else None
+        self._described: dict[str, dict[str, Any]] = {}
+        self._sliver: _Columns | None = None
+        if self.sliver_path is not None:
+            self._sliver = _Columns(self.sliver_path, SLIVER_COLUMNS, self._parquet)
+
+    def add_sliver(self, batch: Any) -> None:
+        """Record one batch of sliver readings (a :class:`drafttwin.wire.sliver.SliverBatch`)."""
+        if self._sliver is None:
+            return
+        n = batch.time_s.size
+        self._sliver.add({"machine": [batch.machine] * n, "seq": [batch.seq] * n,
+                          "delivered_length_m": batch.delivered_m, "time": batch.time_s,
+                          "linear_density_ktex": batch.ktex, "infeed_ktex": batch.infeed_ktex,
+                          "fed_length_m": batch.fed_length_m}, n)  # fmt: skip
 
     def add(self, machine: str, s: Any) -> None:
         """Record one sample (a :class:`drafttwin.plant.live.LiveSample`: ``seq``, ``time_s``,
@@ -100,6 +126,37 @@ class PlantLog:
             self._open(_schema())
         self._writer.close()
         self._ctx.__exit__(None, None, None)
+        if self._sliver is not None:
+            self._sliver.close()
+            self._sidecar()
+
+    def describe(self, machine: str, description: dict[str, Any]) -> None:
+        """A machine's sliver description, for the sidecar."""
+        self._described[machine] = description
+
+    def _sidecar(self) -> None:
+        """``LOG.json`` naming the sliver file and describing its one machine (not written
+        over a file it did not write)."""
+        import json
+
+        from drafttwin._io import atomic_path
+
+        if len(self._described) != 1 or self.sliver_path is None:
+            return
+        sidecar = self.path.with_name(self.path.stem + ".json")
+        if sidecar.exists():
+            try:
+                ours = json.loads(sidecar.read_text(encoding="utf-8")).get("generator") == GENERATOR
+            except (OSError, ValueError, AttributeError):
+                ours = False
+            if not ours:
+                return
+        ((machine, section),) = self._described.items()
+        doc = {"generator": GENERATOR, "machine": machine,
+               "files": {"log": self.path.name, "sliver": self.sliver_path.name},
+               "sliver": {k: v for k, v in section.items() if k != "v"}}  # fmt: skip
+        with atomic_path(sidecar) as tmp:
+            tmp.write_text(json.dumps(doc, indent=2), encoding="utf-8")
 
     def abandon(self, exc: BaseException) -> None:
         """Remove the temporary file (the run failed before anything was published)."""
@@ -108,6 +165,8 @@ class PlantLog:
                 self._writer.close()
         with contextlib.suppress(BaseException):
             self._ctx.__exit__(type(exc), exc, exc.__traceback__)
+        if self._sliver is not None:
+            self._sliver.abandon(exc)
 
     def __enter__(self) -> PlantLog:
         return self
@@ -116,14 +175,72 @@ class PlantLog:
         self.close()
 
 
+class _Columns:
+    """A second file written as the log is (row groups to a temporary name, renamed at the end)."""
+
+    def __init__(self, path: Path, columns: tuple[str, ...], parquet: bool) -> None:
+        from drafttwin._io import atomic_path
+
+        self.columns, self.parquet = columns, parquet
+        self._ctx = atomic_path(path)
+        self._tmp = self._ctx.__enter__()
+        self._buf: dict[str, list[Any]] = {c: [] for c in columns}
+        self._n = 0
+        self._writer: Any = None
+
+    def add(self, values: dict[str, Any], n: int) -> None:
+        for c in self.columns:
+            self._buf[c].extend(np.asarray(values[c]).tolist())
+        self._n += n
+        if self._n >= SLIVER_ROW_GROUP:
+            self._write()
+
+    def _schema(self) -> Any:
+        import pyarrow as pa
+
+        kinds = {"machine": pa.string(), "seq": pa.int64()}
+        return pa.schema([(c, kinds.get(c, pa.float64())) for c in self.columns])
+
+    def _write(self) -> None:
+        import pyarrow as pa
+
+        schema = self._schema()
+        if self._writer is None:
+            if self.parquet:
+                import pyarrow.parquet as pq
+
+                self._writer = pq.ParquetWriter(self._tmp, schema)
+            else:
+                import pyarrow.csv as pcsv
+
+                self._writer = pcsv.CSVWriter(str(self._tmp), schema)
+        if self._n:
+            self._writer.write_table(pa.table({c: pa.array(self._buf[c], schema.field(c).type)
+                                               for c in self.columns}))  # fmt: skip
+        self._buf, self._n = {c: [] for c in self.columns}, 0
+
+    def close(self) -> None:
+        self._write()
+        self._writer.close()
+        self._ctx.__exit__(None, None, None)
+
+    def abandon(self, exc: BaseException) -> None:
+        with contextlib.suppress(Exception):
+            if self._writer is not None:
+                self._writer.close()
+        with contextlib.suppress(BaseException):
+            self._ctx.__exit__(type(exc), exc, exc.__traceback__)
+
+
 @contextlib.contextmanager
-def open_plant_log(path: Path | None) -> Iterator[PlantLog | None]:
+def open_plant_log(path: Path | None, *, sliver: bool = False) -> Iterator[PlantLog | None]:
     """The log of a ``plant serve`` run (``None``: no log): written when the run ends, by
-    its duration, Ctrl-C or an error after samples went out; nothing when it failed first."""
+    its duration, Ctrl-C or an error after samples went out; nothing when it failed first.
+    ``sliver``: the sliver readings' log beside it too."""
     if path is None:
         yield None
         return
-    log = PlantLog(path)
+    log = PlantLog(path, sliver=sliver)
     try:
         yield log
     except BaseException as exc:
@@ -178,4 +295,5 @@ def read_plant_log(path: Path) -> Any:
     return frame
 
 
-__all__ = ["WRITTEN", "COLUMNS", "PlantLog", "open_plant_log", "read_plant_log"]
+__all__ = ["COLUMNS", "SLIVER_COLUMNS", "WRITTEN", "PlantLog", "open_plant_log",
+           "read_plant_log"]  # fmt: skip

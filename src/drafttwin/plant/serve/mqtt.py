@@ -13,6 +13,9 @@ Topics, per machine ``NAME`` (docs/twin.md, "The plant's MQTT payload"):
 * ``drafttwin/NAME/identification``: who the machine is (serial number, product instance
   URI, manufacturer, model: :mod:`drafttwin.wire.identity`), retained, QoS 1; schema
   ``schemas/identification.schema.json``.
+* with ``--sliver``: ``drafttwin/NAME/sliver`` (a batch of the sliver sensors' readings,
+  ``schemas/sliver.schema.json``) and ``drafttwin/NAME/leveller`` (retained: the leveller's
+  setting, the fibres, the sensors; ``schemas/leveller.schema.json``); :mod:`.sliver`.
 
 Each machine has its own connection (a will message belongs to a connection).
 
@@ -126,6 +129,7 @@ class _Publisher:
     channels: tuple[Channel, ...]
     client: Any = None
     pending: float | None = None
+    sliver: Any = None  # its LiveSliver (plant serve --sliver)
 
 
 async def _connect(p: _Publisher, host: str, port: int, qos: int, username: str | None,
@@ -146,6 +150,10 @@ async def _connect(p: _Publisher, host: str, port: int, qos: int, username: str 
         announced[:] = [client.publish(status_topic(p.name), ONLINE, qos=1, retain=True),
                         client.publish(topic(p.name, "identification"), json.dumps(who), qos=1,
                                        retain=True)]  # fmt: skip
+        if p.sliver is not None:
+            from drafttwin.plant.serve.sliver import announce_leveller
+
+            announced.append(announce_leveller(client, p.name, p.sliver))
 
     client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2, protocol=mqtt.MQTTv311)
     client.on_message, client.on_connect = on_message, on_connect
@@ -187,14 +195,17 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
                      cert_dir: Path | None = None, broker_mode: str = "auto",
                      on_sample: Any = None, faults: Sequence[FaultSpec] = (),
                      qos: int = 0, pacing: Pacing | None = None,
-                     ahead_s: float = AHEAD_S) -> dict[str, int]:  # fmt: skip
+                     ahead_s: float = AHEAD_S, sliver: Any = None,
+                     on_sliver: Callable[[Any, Any], None] | None = None) -> dict[str, int]:  # fmt: skip
     """Publish ``names`` live plants to the broker at ``address``; set-points arrive on
     ``drafttwin/NAME/setpoint``. ``broker_mode``: ``auto`` starts the embedded broker when none
     answers on a local address, ``external`` never starts one (a broker must answer),
     ``embedded`` always starts one (the port must be free). ``qos``: 0 (default) or 1 for the
     samples. ``on_sample(name, sample)`` is called after each publish (the plant's own log).
     ``ahead_s``: how far ahead the physics is computed, as for
-    :func:`~drafttwin.plant.serve.opcua.serve_opcua`."""
+    :func:`~drafttwin.plant.serve.opcua.serve_opcua`. ``sliver``
+    (:class:`~drafttwin.plant.sliver_channel.SliverSettings`) makes each machine's sliver and
+    publishes its sensors; ``on_sliver(live_sliver, batch)`` after each batch."""
     if qos not in (0, 1):
         raise ConfigError(f"QoS {qos}", where="--qos", fix="use 0 or 1")
     host, port = parse_hostport(address, "--mqtt")
@@ -203,7 +214,12 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
     for k, n in enumerate(names):
         plant = LivePlant(seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s,
                           faults=faults)  # fmt: skip
-        publishers.append(_Publisher(n, plant, plant_channels(plant)))
+        pub = _Publisher(n, plant, plant_channels(plant))
+        if sliver is not None:  # before the feed's worker computes ahead
+            from drafttwin.plant.live_sliver import LiveSliver
+
+            pub.sliver = LiveSliver(plant, sliver, seed + k, n)
+        publishers.append(pub)
     try:
         for p in publishers:
             await _connect(p, host, port, qos, username, password, cert_dir)
@@ -212,7 +228,8 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
                                            " (external broker)"))  # fmt: skip
         pacing = pacing if pacing is not None else Pacing(rate_hz)
         with Feed([p.plant for p in publishers], rate_hz, ahead_s=ahead_s) as feed:
-            return await _publish(publishers, pacing, feed, qos, duration_s, on_sample)
+            return await _publish(publishers, pacing, feed, qos, duration_s, on_sample,
+                                  on_sliver)  # fmt: skip
     finally:
         for p in publishers:
             _close(p)
@@ -221,8 +238,8 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
 
 
 async def _publish(publishers: list[_Publisher], pacing: Pacing, feed: Feed, qos: int,
-                   duration_s: float | None,
-                   on_sample: Callable[[str, Any], None] | None) -> dict[str, int]:  # fmt: skip
+                   duration_s: float | None, on_sample: Callable[[str, Any], None] | None,
+                   on_sliver: Callable[[Any, Any], None] | None = None) -> dict[str, int]:  # fmt: skip
     t0 = pacing.start()
     for p in publishers:
         p.plant.t0_s = t0
@@ -244,6 +261,13 @@ async def _publish(publishers: list[_Publisher], pacing: Pacing, feed: Feed, qos
             p.client.publish(topic(p.name, "sample"), json.dumps(payload), qos=qos)
             if on_sample is not None:
                 on_sample(p.name, s)
+            batch = None if p.sliver is None else p.sliver.after()
+            if batch is not None:
+                from drafttwin.plant.serve.sliver import publish_sliver_mqtt
+
+                publish_sliver_mqtt(p.client, batch, qos)
+                if on_sliver is not None:
+                    on_sliver(p.sliver, batch)
         feed.took()
         pacing.published(t_s)
     return {p.name: p.plant.seq for p in publishers}

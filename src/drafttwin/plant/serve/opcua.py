@@ -14,6 +14,8 @@ address space")::
                                            (UNECE), EURange, ValuePrecision
         supply_setpoint_hz                 AnalogItemType, writable: the VFD set-point
         lag_s                              AnalogItemType: how late the last sample went out
+        Sliver/, Leveller/                 with --sliver: the sliver sensors' readings and the
+                                           leveller's setting (:mod:`.sliver`)
 
 Every value of one tick carries the sample's own time as SourceTimestamp. The twin subscribes
 to ``sample`` (one notification per tick carrying the whole row and its counter); the scalars
@@ -80,6 +82,9 @@ class ServedMachine:
     channels: tuple[Channel, ...]
     refused: int = 0
     executing: bool | None = None
+    obj: Any = None  # the machine's object node
+    sliver: Any = None  # its LiveSliver (plant serve --sliver)
+    sliver_nodes: Any = None
 
 
 def parse_opcua_url(text: str) -> tuple[str, int]:
@@ -183,7 +188,8 @@ async def _add_machine(server: Any, idx: int, parent: Any, name: str, plant: Liv
     await sp.set_writable()
     lag = await analog_item(obj, idx, f"{name}.lag_s", "lag_s", 0.0, SECOND, (0.0, 10.0),
                             "how late the last sample went out: wall clock minus its time")  # fmt: skip
-    return ServedMachine(name, plant, sample, sp, scalars, plant.target_hz, state, lag, channels)
+    return ServedMachine(name, plant, sample, sp, scalars, plant.target_hz, state, lag, channels,
+                         obj=obj)  # fmt: skip
 
 
 async def _identify_server(server: Any, secure: bool) -> None:
@@ -213,13 +219,18 @@ async def serve_opcua(
     faults: Sequence[FaultSpec] = (),
     pacing: Pacing | None = None,
     ahead_s: float = AHEAD_S,
+    sliver: Any = None,
+    on_sliver: Callable[[Any, Any], None] | None = None,
 ) -> dict[str, int]:
     """Serve ``names`` live plants at ``url`` until ``duration_s`` (or cancelled); returns
     the samples published per machine. With ``history_s`` the server keeps each machine's
     samples of the last ``history_s`` seconds for OPC UA HistoryRead (in memory), so that a
     restarted twin recovers what was published while it was down. ``pacing`` keeps the wall
     clock and records lateness (a default one when ``None``). The physics is computed up to
-    ``ahead_s`` ahead in a worker thread (:mod:`~drafttwin.plant.serve.feed`)."""
+    ``ahead_s`` ahead in a worker thread (:mod:`~drafttwin.plant.serve.feed`). ``sliver``
+    (plant :class:`~drafttwin.plant.sliver_channel.SliverSettings`) makes each machine's sliver
+    and publishes its sensors (:mod:`.sliver`); ``on_sliver(live_sliver, batch)`` is called
+    after each batch."""
     from asyncua import Server, ua
 
     host, port = parse_opcua_url(url)
@@ -244,7 +255,14 @@ async def serve_opcua(
     for k, name in enumerate(names):
         plant = LivePlant(seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s,
                           faults=faults)  # fmt: skip
-        machines.append(await _add_machine(server, idx, folder, name, plant, seed + k))
+        served = await _add_machine(server, idx, folder, name, plant, seed + k)
+        if sliver is not None:  # before the feed's worker computes ahead
+            from drafttwin.plant.live_sliver import LiveSliver
+            from drafttwin.plant.serve.sliver import add_sliver_nodes
+
+            served.sliver = LiveSliver(plant, sliver, seed + k, name)
+            served.sliver_nodes = await add_sliver_nodes(served.obj, idx, name, served.sliver)
+        machines.append(served)
     pacing = pacing if pacing is not None else Pacing(rate_hz)
     async with server:
         if history_s > 0:
@@ -258,12 +276,13 @@ async def serve_opcua(
             if ready is not None:
                 ready()
             return await _tick(server, machines, pacing, feed, duration_s, scalar_nodes,
-                               on_sample)  # fmt: skip
+                               on_sample, on_sliver)  # fmt: skip
 
 
 async def _tick(server: Any, machines: list[ServedMachine], pacing: Pacing, feed: Feed,
                 duration_s: float | None, scalar_nodes: bool,
-                on_sample: Callable[[str, LiveSample], None] | None) -> dict[str, int]:  # fmt: skip
+                on_sample: Callable[[str, LiveSample], None] | None,
+                on_sliver: Callable[[Any, Any], None] | None = None) -> dict[str, int]:  # fmt: skip
     """Publish every plant's samples at their instants (wall clock), apply set-points."""
     end = None if duration_s is None else round(duration_s * pacing.rate_hz)
     pacing.end_tick = feed.end = end
@@ -279,6 +298,13 @@ async def _tick(server: Any, machines: list[ServedMachine], pacing: Pacing, feed
             await _publish(server, m, s, scalar_nodes, now)
             if on_sample is not None:
                 on_sample(m.name, s)
+            batch = None if m.sliver is None else m.sliver.after()
+            if batch is not None:
+                from drafttwin.plant.serve.sliver import publish_sliver_opcua
+
+                await publish_sliver_opcua(m.sliver_nodes, batch)
+                if on_sliver is not None:
+                    on_sliver(m.sliver, batch)
         feed.took()
         lag = pacing.published(t_s)
         if skip or pacing.tick % max(1, round(pacing.rate_hz)) == 0:  # once a second

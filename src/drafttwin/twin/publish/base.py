@@ -16,7 +16,7 @@ import time
 from collections import deque
 from typing import Any
 
-from drafttwin.twin.publish.payload import ALARM_KINDS, Health
+from drafttwin.twin.publish.payload import ALARM_KINDS, Health, sliver
 from drafttwin.twin.service import MachineState, TwinService
 from drafttwin.twin.store.db import EventRow, SampleRow
 
@@ -47,6 +47,7 @@ class Publisher:
         self._wake: asyncio.Event | None = None
         self.health: Health | None = None
         self.service: TwinService | None = None
+        self._sliver_sent: dict[str, Any] = {}  # the sliver state last sent, per machine
 
     # ---- the twin's processing path: append only ------------------------------------------
     def on_rows(self, machine: str, rows: list[SampleRow], _events: list[EventRow]) -> None:
@@ -104,6 +105,13 @@ class Publisher:
         assert self.health is not None
         for st in service.states.values():
             await self._guard(self.send_status(st, self.health.status(st, state)))
+            doc = sliver(st)  # the sliver and the leveller's recommendation, when they change
+            if doc is None:
+                continue
+            same = {k: v for k, v in doc.items() if k not in ("time", "timestamp")}
+            if self._sliver_sent.get(st.twin.name) != same:
+                self._sliver_sent[st.twin.name] = same
+                await self._guard(self.send_sliver(st, doc))
 
     async def _guard(self, send: Any) -> None:
         try:
@@ -133,6 +141,9 @@ class Publisher:
 
     async def send_status(self, st: MachineState, status: dict[str, Any]) -> None:
         raise NotImplementedError
+
+    async def send_sliver(self, st: MachineState, doc: dict[str, Any]) -> None:
+        """The machine's sliver and leveller (:func:`~.payload.sliver`), when they change."""
 
 
 __all__ = ["CLOSE_S", "QUEUE_LEN", "STATUS_S", "Publisher"]

@@ -8,6 +8,9 @@ Topics, per machine ``NAME`` (``PREFIX`` = ``drafttwin/twin`` unless ``?prefix=`
                              operator, most severe first (twin-alarms.schema.json)
     PREFIX/NAME/status       retained: health and current alarm, once a second
                              (twin-status.schema.json); the will message sets it offline
+    PREFIX/NAME/sliver       retained: the sliver watched (count, CV, chimneys) and the
+                             leveller's recommended action point, when they change
+                             (twin-sliver.schema.json); a recommendation, never a setting
 
 Each machine has its own connection, so that its will message (MQTT allows one per
 connection) marks exactly that machine offline when the twin dies; a clean stop publishes
@@ -106,6 +109,9 @@ class MqttPublisher(Publisher):
 
     async def send_status(self, st: MachineState, status: dict[str, Any]) -> None:
         self._publish(st.twin.name, "status", status, retain=True)
+
+    async def send_sliver(self, st: MachineState, doc: dict[str, Any]) -> None:
+        self._publish(st.twin.name, "sliver", doc, retain=True)
 
     async def close(self, service: TwinService) -> None:
         if not self.clients:

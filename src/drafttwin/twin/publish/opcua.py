@@ -13,6 +13,13 @@ Address space, namespace ``urn:drafttwin:twin`` (index 2), per machine ``NAME``:
         Alarm/   Active (Boolean), Kind, Cause, Detail (String), Time (UtcTime)
         Identification/  Manufacturer, Model, SerialNumber, ProductInstanceUri (the machine's,
                  as its source said: OPC 40001-1; empty until known), ComponentName (NAME)
+        Sliver/  Count (ktex), CV (%), DeliveredLength (m) AnalogItemType; Chimneys (String,
+                 JSON: the last spectrogram's chimneys and their elements)
+        Leveller/  State (no leveller, collecting, recommending), ActionPoint (mm), Intensity:
+                 the machine's setting; RecommendedActionPoint, RecommendedActionPointLow,
+                 RecommendedActionPointHigh (mm, 95 %), RecommendedIntensity, CV and ExpectedCV
+                 (%), MetresUsed, MetresNeeded (m); Advice (String, 'sliver level' JSON).
+                 Read only: a recommendation, the twin never writes a setting.
 
 The server itself says ApplicationUri ``urn:drafttwin:twin:server`` and ProductUri
 ``urn:drafttwin:twin`` (the plant's: ``urn:drafttwin:plant:server``, ``urn:drafttwin:plant``;
@@ -55,6 +62,22 @@ HEALTH = (("DataAge", "s", "wall clock minus the newest sample's source time (no
           ("SinceLastSample", "s", "time since the twin received the machine's last sample"),
           ("LatencyP99", "ms", "the twin's p99 latency, sample received -> stored and pushed"))  # fmt: skip
 COUNTS = ("Received", "Processed", "Late", "Dropped")
+SLIVER_NODES = (("Count", "ktex", 200.0, "running mean count of the delivered sliver"),
+                ("CV", "%", 100.0, "running CV of the delivery sensor's readings"),
+                ("DeliveredLength", "m", 1e7, "delivered length of the newest reading"))  # fmt: skip
+LEVELLER_NODES = (
+    ("ActionPoint", "mm", 10_000.0, "the leveller's action point setting (mm of fed sliver "
+     "from the scanning rollers), as the machine says"),
+    ("Intensity", "", 2.0, "the leveller's intensity setting, as the machine says"),
+    ("RecommendedActionPoint", "mm", 10_000.0, "the recommended action point"),
+    ("RecommendedActionPointLow", "mm", 10_000.0, "its 95 % interval's low end"),
+    ("RecommendedActionPointHigh", "mm", 10_000.0, "its 95 % interval's high end"),
+    ("RecommendedIntensity", "", 2.0, "the recommended intensity"),
+    ("CV", "%", 100.0, "the CV of the window the recommendation came from"),
+    ("ExpectedCV", "%", 100.0, "the CV expected at the recommendation"),
+    ("MetresUsed", "m", 1e5, "delivered sliver the recommendation came from"),
+    ("MetresNeeded", "m", 1e5, "metres from which its interval was within +-5 mm"),
+)  # fmt: skip
 
 
 def _ua() -> Any:
@@ -97,6 +120,7 @@ class MachineNodes:
     alarm: dict[str, Any] = field(default_factory=dict)
     events: Any = None  # the AlarmConditionType event generator
     ident: dict[str, Any] = field(default_factory=dict)  # Identification's properties
+    sliver: dict[str, Any] = field(default_factory=dict)  # Sliver/ and Leveller/ nodes
     known: tuple[str, ...] = ()  # the identity last written there
 
 
@@ -192,6 +216,7 @@ class OpcUaPublisher(Publisher):
                 self._nid(f"{name}.Identification.{prop}"), f"{self.idx}:{prop}",
                 ua.LocalizedText(v) if vtype == ua.VariantType.LocalizedText else v,
                 varianttype=vtype)  # fmt: skip
+        await self._add_sliver(server, obj, name, out)
         al = await obj.add_object(self._nid(f"{name}.Alarm"), f"{self.idx}:Alarm")
         out.alarm["Active"] = await self._plain(al, f"{name}.Alarm.Active", "Active", False,
                                                 f"{name}: an alarm was raised")  # fmt: skip
@@ -211,6 +236,53 @@ class OpcUaPublisher(Publisher):
         gen.event.NodeId = self._nid(f"{name}.Alarm")  # the condition's id
         out.events = gen
         return out
+
+    async def _add_sliver(self, server: Any, obj: Any, name: str, out: MachineNodes) -> None:
+        """The machine's Sliver and Leveller objects (values once a source sends them)."""
+        sl = await obj.add_object(self._nid(f"{name}.Sliver"), f"{self.idx}:Sliver")
+        for key, unit, hi, what in SLIVER_NODES:
+            out.sliver[key] = await self._analog(server, sl, f"{name}.Sliver.{key}", key,
+                                                 f"{name}: {what}", unit, (0.0, hi))  # fmt: skip
+        out.sliver["Chimneys"] = await self._plain(sl, f"{name}.Sliver.Chimneys", "Chimneys", "",
+                                                   f"{name}: the last spectrogram's chimneys "
+                                                   "with their elements (JSON)")  # fmt: skip
+        lev = await obj.add_object(self._nid(f"{name}.Leveller"), f"{self.idx}:Leveller")
+        out.sliver["State"] = await self._plain(lev, f"{name}.Leveller.State", "State", "",
+                                                "no leveller, collecting or recommending")  # fmt: skip
+        for key, unit, hi, what in LEVELLER_NODES:
+            out.sliver[key] = await self._analog(server, lev, f"{name}.Leveller.{key}", key,
+                                                 f"{name}: {what}", unit, (0.0, hi))  # fmt: skip
+        out.sliver["Advice"] = await self._plain(lev, f"{name}.Leveller.Advice", "Advice", "",
+                                                 f"{name}: the recommendation as 'drafttwin "
+                                                 "sliver level --json' gives it; the twin writes "
+                                                 "no setting")  # fmt: skip
+
+    async def send_sliver(self, st: MachineState, doc: dict[str, Any]) -> None:
+        ua = _ua()
+
+        nodes, now = self.nodes[st.twin.name].sliver, dt.datetime.now(dt.UTC)
+        w, lev = doc["sliver"] or {}, doc["leveller"] or {}
+        for key, field_ in (("Count", "count_ktex"), ("CV", "cv_pct"),
+                            ("DeliveredLength", "delivered_m")):  # fmt: skip
+            v = w.get(field_)
+            await self._write(nodes[key], math.nan if v is None else float(v), now)
+        await self._set(nodes["Chimneys"], json.dumps(w.get("chimneys", [])), ua.VariantType.String)
+        await self._set(nodes["State"], lev.get("state", ""), ua.VariantType.String)
+        setting, advice = lev.get("setting") or {}, lev.get("advice") or {}
+        lo, hi = advice.get("action_point_interval_mm") or (None, None)
+        values = {"ActionPoint": setting.get("action_point_mm"),
+                  "Intensity": setting.get("intensity"),
+                  "RecommendedActionPoint": advice.get("recommended_action_point_mm"),
+                  "RecommendedActionPointLow": lo, "RecommendedActionPointHigh": hi,
+                  "RecommendedIntensity": advice.get("recommended_intensity"),
+                  "CV": (advice.get("current") or {}).get("cv_pct"),
+                  "ExpectedCV": (advice.get("recommended") or {}).get("cv_pct"),
+                  "MetresUsed": advice.get("metres_used"),
+                  "MetresNeeded": advice.get("metres_needed")}  # fmt: skip
+        for key, v in values.items():
+            await self._write(nodes[key], math.nan if v is None else float(v), now)
+        await self._set(nodes["Advice"], json.dumps(advice) if advice else "",
+                        ua.VariantType.String)  # fmt: skip
 
     async def _plain(self, parent: Any, nid: str, name: str, value: Any, description: str) -> Any:
         ua = _ua()

@@ -23,19 +23,22 @@ from drafttwin.twin.service import MachineState, TwinService
 from drafttwin.twin.store.db import EventRow, SampleRow
 from drafttwin.wire.conventions import HERTZ, PAYLOAD_VERSION, RPM, SECOND, Unit
 from drafttwin.wire.conventions import iso_time as iso_s
+from drafttwin.wire.sliver import KTEX, METRE, MILLIMETRE, PERCENT
 
 SCHEMA_FILES = {
     "prediction": "twin-prediction.schema.json",
     "alarm": "twin-alarm.schema.json",
     "status": "twin-status.schema.json",
     "alarms": "twin-alarms.schema.json",
+    "sliver": "twin-sliver.schema.json",
 }
 """The JSON Schema of each payload, in the package's ``twin/publish/schemas`` folder."""
 ALARM_KINDS = ("fault", "sensor-fault", "fault-cause", "fault-cleared", "alarm-ack",
                "sliver-chimney")  # fmt: skip
 """Events published as alarms, or changes of them (the others change a machine's health)."""
 MILLISECOND = Unit("C26", "ms", "millisecond")
-UNITS = {"rpm": RPM, "r/min": RPM, "Hz": HERTZ, "s": SECOND, "ms": MILLISECOND}
+UNITS = {"rpm": RPM, "r/min": RPM, "Hz": HERTZ, "s": SECOND, "ms": MILLISECOND, "ktex": KTEX,
+         "%": PERCENT, "m": METRE, "mm": MILLIMETRE}  # fmt: skip
 """A unit as a model file or a field name writes it -> its UNECE Rec 20 unit."""
 
 
@@ -169,6 +172,25 @@ class Health:
         }
 
 
+def sliver(st: MachineState) -> dict[str, Any] | None:
+    """The machine's sliver as the twin watches it (running count and CV, the last
+    spectrogram's chimneys named) and its leveller (state, setting, the standing
+    recommendation): retained on ``PREFIX/NAME/sliver``; None without a sliver channel.
+    A recommendation only: the twin never writes a setting."""
+    if st.sliver is None and st.level is None:
+        return None
+    w = st.sliver
+    watch = None if w is None else {
+        "count_ktex": number(w.count_ktex), "cv_pct": number(w.cv_pct),
+        "delivered_m": number(w.summary()["delivered_m"]), "alarms": len(w.alarms),
+        "chimneys": w.summary()["chimneys"]}  # fmt: skip
+    from drafttwin._json import to_strict
+
+    level = None if st.level is None else to_strict(st.level.summary())  # NaN: null
+    return {"v": PAYLOAD_VERSION, "machine": st.twin.name, **stamp(int(time.time() * 1e6)),
+            "sliver": watch, "leveller": level}  # fmt: skip
+
+
 def active_alarms(service: TwinService, machine: str) -> dict[str, Any]:
     """The machine's retained alarms (active, or not yet acknowledged and confirmed), most
     severe first: what the MQTT publisher retains and every late client reads."""
@@ -210,6 +232,7 @@ __all__ = [
     "iso_time",
     "prediction",
     "probable_cause",
+    "sliver",
     "schema",
     "schema_dir",
     "stamp",

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from drafttwin.twin.sources.mapping import MachineMap
+from drafttwin.wire.sliver import SliverBatch
 
 BACKOFF_S = (0.2, 0.5, 1.0, 2.0, 5.0, 10.0)
 """Waits between reconnect attempts (the last one repeats)."""
@@ -38,12 +39,13 @@ class Sample:
     setpoint: float
     motor: float = math.nan  # rpm, for the fault detector (NaN: the source has none)
     received: float = field(default_factory=time.perf_counter)
-    sliver: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-    """Delivery-sensor readings since the previous sample (delivered m, ktex, time s), where
-    the source has a sliver channel."""
+    sliver: SliverBatch | None = None
+    """The sliver sensors' readings since the previous sample, where a replayed record has a
+    sliver channel (live sources emit their batches on their own)."""
 
 
-Emit = Callable[[Sample], None]
+Emit = Callable[[Sample | SliverBatch], None]
+"""A source's samples, and the batches of sliver readings a live source receives."""
 Report = Callable[..., None]  # (machine, kind, detail[, count]): state changes, drops
 
 
@@ -66,4 +68,4 @@ class Source(ABC):
                 report(m.name, f"source-{state}", detail or self.spec)
 
 
-__all__ = ["BACKOFF_S", "Emit", "Report", "Sample", "Source"]
+__all__ = ["BACKOFF_S", "Emit", "Report", "Sample", "SliverBatch", "Source"]

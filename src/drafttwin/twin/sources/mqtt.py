@@ -11,6 +11,9 @@ Topics, per machine ``NAME`` (a mapping file may name others):
 * ``drafttwin/NAME/setpoint``: a new VFD set-point for the live plant, a JSON number (Hz).
 * ``drafttwin/NAME/identification``: who the machine is (retained; the twin keeps each
   machine's learned baseline with its serial number, :mod:`drafttwin.wire.identity`).
+* ``drafttwin/NAME/sliver`` and ``drafttwin/NAME/leveller`` (retained): the sliver sensors'
+  readings in batches and their description (``plant serve --sliver``,
+  :mod:`drafttwin.wire.sliver`), subscribed at QoS 1.
 
 Payloads are checked before use: over ``MAX_PAYLOAD`` bytes, not JSON, not an object, a
 field missing, of the wrong type, out of range or not finite: dropped and counted. The paho
@@ -23,12 +26,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from drafttwin.twin.sources.base import BACKOFF_S, Emit, Report, Sample, Source
 from drafttwin.twin.sources.mapping import MachineMap
 from drafttwin.wire.conventions import parse_hostport, setpoint_topic
+from drafttwin.wire.sliver import MAX_DESCRIPTION, SliverBatch, parse_sliver
 
 MAX_PAYLOAD = 16_384
 """Largest accepted payload, bytes (a sample is about 150)."""
@@ -63,6 +68,8 @@ class MqttSource(Source):
         beside = {t.rsplit("/", 1)[0]: m for t, m in self.by_topic.items() if t.endswith("/sample")}
         self.by_ident = {f"{base}/identification": m for base, m in beside.items()}
         self.by_batch = {f"{base}/samples": m for base, m in beside.items()}
+        self.by_sliver = {f"{base}/sliver": m for base, m in beside.items()}
+        self.by_leveller = {f"{base}/leveller": m for base, m in beside.items()}
         self.username, self.password = username, password
         self.ca_file = ca_file  # TLS, trusting exactly this certificate
         self.share = share
@@ -78,9 +85,9 @@ class MqttSource(Source):
         self.flooded: dict[str, int] = {}  # dropped in the network thread, per machine
         self._flood_reported: dict[str, int] = {}
 
-    def _deliver(self, item: Sample | tuple[str, str]) -> None:
+    def _deliver(self, item: Sample | SliverBatch | tuple[str, str]) -> None:
         self.handled += 1
-        if isinstance(item, Sample):
+        if isinstance(item, Sample | SliverBatch):
             self._emit(item)
         else:
             self._report(item[0], "dropped", item[1])
@@ -113,7 +120,9 @@ class MqttSource(Source):
         prefix = "" if self.share is None else f"$share/{self.share}/"
         for topic in (*self.by_topic, *self.by_batch):
             client.subscribe(prefix + topic, qos=0)
-        for topic in self.by_ident:  # retained: every member gets it (not shared)
+        for topic in self.by_sliver:  # batches of sliver readings: at least once
+            client.subscribe(prefix + topic, qos=1)
+        for topic in (*self.by_ident, *self.by_leveller):  # retained: every member gets it
             client.subscribe(topic, qos=1)
 
     def on_message(self, client: Any, userdata: Any, msg: Any) -> None:
@@ -124,13 +133,25 @@ class MqttSource(Source):
             if batch is not None:
                 self._queue(batch, _parse_batch(batch, msg.payload))
                 return
+            sliver = self.by_sliver.get(msg.topic)
+            if sliver is not None:
+                got = parse_sliver(sliver.name, msg.payload)
+                self._queue(sliver, [got if isinstance(got, SliverBatch) else (sliver.name, got)])
+                return
+            lev = self.by_leveller.get(msg.topic)
+            if lev is not None:
+                text = (msg.payload[: MAX_DESCRIPTION + 1]).decode("utf-8", errors="replace")
+                self._loop.call_soon_threadsafe(self._report, lev.name, "leveller", text)
+                return
             who = self.by_ident.get(msg.topic)
             if who is not None and len(msg.payload) <= MAX_PAYLOAD:
                 self._loop.call_soon_threadsafe(self._identified, who.name, msg.payload)
             return
         self._queue(m, [_parse(m, msg.payload)])
 
-    def _queue(self, m: MachineMap, items: list[Sample | tuple[str, str]]) -> None:
+    def _queue(
+        self, m: MachineMap, items: Sequence[Sample | SliverBatch | tuple[str, str]]
+    ) -> None:
         """Hand parsed samples (or drops) to the loop; past the backlog, count them dropped."""
         if self.queued - self.handled + len(items) > MAX_BACKLOG:
             self.flooded[m.name] = self.flooded.get(m.name, 0) + len(items)  # memory flat

@@ -1,5 +1,8 @@
 """An OPC UA server as a live source (asyncua): a subscription to each machine's sample node,
-reconnecting with backoff, reading the server's history after a restart (``--source opcua:URL``)."""
+reconnecting with backoff, reading the server's history after a restart (``--source opcua:URL``).
+Where the server has a machine's sliver block beside its sample node (``NAME.Sliver.block``,
+``plant serve --sliver``) it is subscribed too, and the leveller's description read
+(``NAME.Leveller.Description``, :mod:`drafttwin.wire.sliver`)."""
 
 from __future__ import annotations
 
@@ -11,6 +14,7 @@ from typing import Any, cast
 
 from drafttwin.twin.sources.base import BACKOFF_S, Emit, Report, Sample, Source
 from drafttwin.twin.sources.mapping import MachineMap
+from drafttwin.wire.sliver import MAX_DESCRIPTION, SliverBatch, from_block
 
 SERVER_QUEUE = 10_000
 """Monitored-item queue asked of an OPC UA server (samples kept while the twin is busy)."""
@@ -55,6 +59,7 @@ class OpcUaSource(Source):
                     async with sub:
                         nodes = [client.get_node(n) for n in by_node]
                         await sub.subscribe_data_change(nodes, queuesize=SERVER_QUEUE)
+                        by_sliver = await self._sliver_nodes(client, sub, report)
                         self._set("live", report)
                         attempt = 0
                         for each in self.machines:  # who each machine is, if the server says
@@ -73,9 +78,10 @@ class OpcUaSource(Source):
                                     ev = await anext(sub)
                             except asyncio.CancelledError:  # the stop: hand over what arrived
                                 for ev in _received(sub):
-                                    self._take(ev, by_node, DataChangeEvent, emit, report)
+                                    self._take(ev, by_node, DataChangeEvent, emit, report,
+                                               by_sliver)  # fmt: skip
                                 raise
-                            self._take(ev, by_node, DataChangeEvent, emit, report)
+                            self._take(ev, by_node, DataChangeEvent, emit, report, by_sliver)
             except asyncio.CancelledError:
                 raise
             except TimeoutError:
@@ -93,19 +99,52 @@ class OpcUaSource(Source):
 
     @staticmethod
     def _take(ev: Any, by_node: dict[str, MachineMap], change: type, emit: Emit,
-              report: Report) -> None:  # fmt: skip
-        """One subscription item: a machine's sample emitted, a malformed one counted."""
+              report: Report, by_sliver: dict[str, MachineMap] | None = None) -> None:  # fmt: skip
+        """One subscription item: a machine's sample (or sliver batch) emitted, a malformed
+        one counted."""
         if not isinstance(ev, change):
             return
         ev = cast(Any, ev)
-        m = by_node.get(ev.node.nodeid.to_string())
+        key = ev.node.nodeid.to_string()
+        m = by_node.get(key)
         if m is None:
+            s = (by_sliver or {}).get(key)
+            if s is not None and ev.value is not None and len(ev.value) > 1:  # [0.0]: none yet
+                got = from_block(s.name, ev.value)
+                if isinstance(got, SliverBatch):
+                    emit(got)
+                else:
+                    report(s.name, "dropped", got)
             return
         row = m.from_array(ev.value)
         if row is None:
             report(m.name, "dropped", f"malformed value {str(ev.value)[:80]}")
         else:
             emit(Sample(m.name, *row))
+
+    async def _sliver_nodes(self, client: Any, sub: Any, report: Report) -> dict[str, MachineMap]:
+        """Subscribe each machine's sliver block where the server has one beside its sample
+        node, and report the leveller's description; node id -> machine."""
+        out: dict[str, MachineMap] = {}
+        for m in self.machines:
+            if not m.node.endswith(".sample"):
+                continue
+            base = m.node.removesuffix(".sample")
+            block = client.get_node(f"{base}.Sliver.block")
+            try:
+                await asyncio.wait_for(block.read_browse_name(), 5.0)
+            except Exception:  # noqa: BLE001  asyncua's BadNodeIdUnknown: no sliver here
+                continue
+            await sub.subscribe_data_change([block], queuesize=SERVER_QUEUE)
+            out[block.nodeid.to_string()] = m
+            try:
+                text = await asyncio.wait_for(
+                    client.get_node(f"{base}.Leveller.Description").read_value(), 5.0)  # fmt: skip
+            except Exception:  # noqa: BLE001  none to read: the twin levels nothing
+                continue
+            if isinstance(text, str) and len(text) <= MAX_DESCRIPTION:
+                report(m.name, "leveller", text)
+        return out
 
     async def _identify(self, client: Any, m: MachineMap, report: Report) -> None:
         """Read the machine's Identification (OPC 40001-1: SerialNumber, ProductInstanceUri,

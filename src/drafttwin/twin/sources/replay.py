@@ -1,12 +1,17 @@
 """A plant (or measured) file replayed as a live source, at a speed or at once
-(``--source replay:FILE``), with the delivery sensor's sliver channel recorded beside it."""
+(``--source replay:FILE``), with the sliver channel recorded beside it: the delivery sensor's
+readings, and where the record has them the infeed readings and the store's length clock
+with the leveller's description (its sidecar's ``sliver`` section), as a served plant sends
+them."""
 
 from __future__ import annotations
 
 import asyncio
+import json
 import math
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -14,6 +19,7 @@ from drafttwin.errors import DataError
 from drafttwin.twin.sources.base import Emit, Report, Sample, Source
 from drafttwin.twin.sources.mapping import MachineMap
 from drafttwin.wire.identity import recorded_identity
+from drafttwin.wire.sliver import SliverBatch
 
 
 class ReplaySource(Source):
@@ -36,7 +42,7 @@ class ReplaySource(Source):
         self.motor = (np.full(len(self.ts_us), np.nan) if series.motor_rpm is None
                       else np.asarray(series.motor_rpm, dtype=np.float64))  # fmt: skip
         self.first = 0
-        self.sliver = _sliver_channel(path)
+        self.sliver, self.sliver_section = _sliver_channel(path)
         self.identity = recorded_identity(path)
 
     def skip_to(self, after_us: int | None) -> None:
@@ -47,6 +53,8 @@ class ReplaySource(Source):
     async def run(self, emit: Emit, report: Report) -> None:
         self._set("live", report)
         name = self.machines[0].name
+        if self.sliver_section is not None:  # the leveller's setting, as a served plant says
+            report(name, "leveller", json.dumps({"v": 1, **self.sliver_section}))
         start_wall = time.monotonic()
         t0 = self.ts_us[self.first] if self.first < len(self.ts_us) else 0
         for i in range(self.first, len(self.ts_us)):
@@ -58,31 +66,48 @@ class ReplaySource(Source):
             elif i % 50 == 0:
                 await asyncio.sleep(0)  # let the other machines and the page run
             emit(Sample(name, int(self.ts_us[i]), i, self.values[i], float(self.setpoints[i]),
-                        float(self.motor[i]), sliver=self._sliver_until(i)))  # fmt: skip
+                        float(self.motor[i]), sliver=self._sliver_until(name, i)))  # fmt: skip
         self._set("ended", report)
 
-    def _sliver_until(self, i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    def _sliver_until(self, name: str, i: int) -> SliverBatch | None:
         """The sliver readings delivered after sample ``i - 1`` up to sample ``i``."""
         if self.sliver is None:
             return None
-        s, x, t = self.sliver
+        s, x, t, infeed, fed = self.sliver
         lo = 0 if i == 0 else int(np.searchsorted(t, self.ts_us[i - 1] / 1e6, "right"))
         hi = int(np.searchsorted(t, self.ts_us[i] / 1e6, "right"))
-        return (s[lo:hi], x[lo:hi], t[lo:hi]) if hi > lo else None
+        if hi <= lo:
+            return None
+        return SliverBatch(name, i, t[lo:hi], s[lo:hi], x[lo:hi], infeed[lo:hi], fed[lo:hi])
 
 
-def _sliver_channel(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    """The delivery sensor's readings recorded beside a replayed file, if any."""
+def _sliver_channel(path: Path) -> tuple[tuple[np.ndarray, ...] | None, dict[str, Any] | None]:
+    """The sliver readings recorded beside a replayed file (delivered m, ktex, time s, infeed
+    ktex, fed m; the last two NaN where the record has no leveller columns) and its sidecar's
+    description of them (None: no leveller columns); None without a sliver channel."""
     from drafttwin.sliver import read_sliver
+    from drafttwin.sliver.leveller_record import read_leveller_record
     from drafttwin.sliver.record import sliver_beside
 
     beside = sliver_beside(path)
     if beside is None:
-        return None
-    sl = read_sliver(beside.sliver, option="--source replay (its sliver channel)")
-    if sl.time_s is None:
-        return None
-    return sl.delivered_length_m, sl.linear_density_ktex, np.asarray(sl.time_s)
+        return None, None
+    option = "--source replay (its sliver channel)"
+    try:  # what a levelling drawframe records, read as 'sliver level' reads it
+        r = read_leveller_record(path, option=option).record
+    except DataError:
+        sl = read_sliver(beside.sliver, option=option)
+        if sl.time_s is None:
+            return None, None
+        nan = np.full(sl.linear_density_ktex.size, np.nan)
+        return (sl.delivered_length_m, sl.linear_density_ktex, np.asarray(sl.time_s), nan,
+                nan), None  # fmt: skip
+    section = dict(beside.sidecar)
+    if isinstance(section.get("leveller"), dict):  # the setting, not the sidecar's truth
+        section["leveller"] = {k: v for k, v in section["leveller"].items()
+                               if k not in ("true_action_point_mm", "action_offset_mm")}  # fmt: skip
+    return (r.delivered_length_m, r.delivery_ktex, r.time_s, r.infeed_ktex,
+            r.fed_length_m), section  # fmt: skip
 
 
 __all__ = ["ReplaySource"]

@@ -292,10 +292,72 @@ function build() {
   sp.append(u.root);
   main.append(sp);
   state.charts.push({ kind: "setpoint", u });
+  const sl = el("div", { class: "card", id: "sliver-card", hidden: "" });
+  sl.append(el("h2", {}, "sliver and leveller"), el("div", { id: "sliver" }));
+  const spec = chartSpectrogram(width);
+  sl.append(spec.root);
+  main.append(sl);
+  state.spectrogram = spec;
   const ev = el("div", { class: "card" });
   ev.append(el("h2", {}, "alarms and events"), el("div", { id: "events" }));
   main.append(ev);
   drawPage();
+  drawSliver();
+}
+
+// ---- the sliver: running count and CV, the last spectrogram, the leveller's recommendation ----
+function chartSpectrogram(width) {
+  const opts = {
+    width, height: 160, legend: { live: true },
+    scales: { x: { time: false, distr: 3 }, y: { range: (u, lo, hi) => [0, Math.max(hi || 0, 0.1) * 1.1] } },
+    series: [{ label: "wavelength", value: (u, v) => (v === null || v === undefined ? "–" : v < 1 ? `${fmt(100 * v, 2)} cm` : `${fmt(v, 2)} m`) },
+             { label: "amplitude", stroke: C.twin, width: 2, points: { show: true, size: 4 }, value: (u, v) => withUnit(v, 3, "%") },
+             { label: "random sliver", stroke: C.physics, width: 1, dash: [6, 4], value: (u, v) => withUnit(v, 3, "%") },
+             { label: "chimney", stroke: C.limit, width: 0, points: { show: true, size: 9, fill: C.limit }, paths: () => null, value: (u, v) => withUnit(v, 3, "%") }],
+    axes: [{ values: (u, s) => s.map(v => (v < 1 ? `${+(100 * v).toPrecision(2)} cm` : `${+v.toPrecision(2)} m`)) },
+           { size: 64, label: "amplitude, %", labelSize: 14 }],
+  };
+  return new uPlot(opts, [[], [], [], []], null);
+}
+function drawSliver() {
+  const card = document.getElementById("sliver-card"), box = document.getElementById("sliver");
+  if (!card || !box) return;
+  const m = state.status && state.status.machines[state.selected];
+  const s = m ? m.sliver : null, l = m ? m.leveller : null;
+  card.hidden = !s && !l;
+  if (card.hidden) return;
+  const lines = [];
+  if (s) {
+    lines.push(el("div", { class: "sliver-count" }, `count ${withUnit(s.count_ktex, 4, "ktex")} · CV ${withUnit(s.cv_pct, 3, "%")} · ` +
+      `${withUnit(s.delivered_m, 1, "m")} delivered · ${s.alarms} chimney alarm(s)`));
+    const ch = s.chimneys || [];
+    lines.push(el("div", { class: "chimneys" }, ch.length ? "chimneys: " + ch.map(c =>
+      `${fmt(100 * c.wavelength_m, 2)} cm ${fmt(c.amplitude_pct, 3)} % (${c.element})`).join(", ") :
+      s.spectrogram ? "no chimney in the last spectrogram" : "the first spectrogram after 100 m"));
+  }
+  if (l) {
+    const set = l.setting || {};
+    const setting = set.leveller ? `action point ${withUnit(set.action_point_mm, 1, "mm")}, intensity ${fmt(set.intensity, 2)}` : "no leveller";
+    lines.push(el("div", {}, `leveller (${l.state}): the machine's setting ${setting}`));
+    const a = l.advice;
+    if (a) {
+      const [lo, hi] = a.action_point_interval_mm;
+      lines.push(el("div", { class: "advice" }, `recommended: action point ${withUnit(a.recommended_action_point_mm, 1, "mm")} ` +
+        `(95 % ${fmt(lo, 1)}–${fmt(hi, 1)}), intensity ${fmt(a.recommended_intensity, 2)}: CV ${withUnit(a.current.cv_pct, 3, "%")} → ` +
+        `${withUnit(a.recommended.cv_pct, 3, "%")} expected, CV 1 m ${fmt(a.current.cv_1m_pct, 3)} → ${fmt(a.recommended.cv_1m_pct, 3)} %; ` +
+        `from ${withUnit(a.metres_used, 0, "m")} (within ±5 mm from ${withUnit(a.metres_needed, 0, "m")}). The twin writes no setting.`));
+    } else {
+      lines.push(el("div", {}, l.failed ? `no recommendation: ${l.failed}` :
+        `collecting ${withUnit(l.collected_m, 0, "m")} of ${withUnit(l.window_m, 0, "m")}`));
+    }
+  }
+  const html = lines.map(x => x.outerHTML).join("");
+  if (box.dataset.shown !== html) { box.replaceChildren(...lines); box.dataset.shown = html; }
+  const g = s && s.spectrogram, u = state.spectrogram;
+  if (u && g) {
+    const chim = g.amplitude_pct.map((v, i) => (g.chimney[i] ? v : null));
+    u.setData([g.wavelength_m, g.amplitude_pct, g.ideal_pct || g.wavelength_m.map(() => null), chim]);
+  }
 }
 
 // the rows shown: live (the buffer's last span) or a range (history from the store, or a zoom)
@@ -482,6 +544,7 @@ async function startTwin() {
       state.status = s;
       for (const [m, st] of Object.entries(s.machines)) if (state.machines[m]) state.machines[m].state = st.state;
       status(`${Object.keys(s.machines).length} machine(s) · ${s.rows} samples · p99 ${withUnit(s.latency_ms.p99, 1, "ms")} (all machines)`);
+      drawSliver();
     } catch (e) { status(String(e)); }
     loadAlarms();
   };

@@ -1,0 +1,169 @@
+"""The twin's sliver desk: each machine's sliver readings watched as they arrive (running count
+and CV, a spectrogram of the last 100 m every 50 m, chimneys named with their element:
+:class:`~drafttwin.sliver.watch.SliverWatch`) and its leveller's action point recommended
+from every window of delivered sliver (:class:`~drafttwin.sliver.levelwatch.LevelWatch`, the
+function behind ``drafttwin sliver level``). The same for a replayed record and a served
+plant (``plant serve --sliver``): the live path computes with the offline functions.
+
+Both run in worker threads, so the samples keep their pace: a spectrogram takes a fraction of
+a second, a 300-m window of the leveller a few seconds. At a stop by signal the leveller's
+window in progress is abandoned (SIGTERM ends the twin within 5 s); a replay that ends or a
+run of fixed duration waits for it. The twin recommends; it never writes a setting.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import Any, Protocol
+
+from drafttwin.sliver import StapleDiagram
+from drafttwin.sliver.levelwatch import WINDOW_M, LevelContext, LevelWatch
+from drafttwin.sliver.watch import SliverAlarm, SliverWatch
+from drafttwin.twin.state import MachineState
+from drafttwin.twin.store.db import EventRow
+from drafttwin.wire.sliver import SliverBatch, parse_description
+
+SLIVER_SENSOR_M = 0.005
+"""Averaging length of a delivery sensor (the plant's, docs/sliver.md), m: its ideal curve."""
+
+
+class Host(Protocol):
+    """What the desk needs of the service."""
+
+    loop: asyncio.AbstractEventLoop | None
+    subscribers: list[Callable[[str, list[Any], list[EventRow]], None]]
+
+    def event(self, st: MachineState, ev: EventRow) -> None: ...
+
+    def report(self, machine: str, kind: str, detail: str, count: int = 1) -> None: ...
+
+
+class SliverDesk:
+    """The sliver watch and the leveller's recommendation of every machine of ``service``."""
+
+    def __init__(self, service: Host, window_m: float = WINDOW_M) -> None:
+        self.service = service
+        self.window_m = window_m
+        self._watch_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sliver")
+        self._level_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leveller")
+        self._pending: set[Future[Any]] = set()
+
+    # ---- readings in ----------------------------------------------------------------------
+    def batch(self, st: MachineState, b: SliverBatch) -> None:
+        """A batch of readings: a repeated or older one (QoS 1 may send one twice) is
+        counted and dropped; the others feed the sliver watch and the leveller's window."""
+        if b.seq <= st.sliver_seq:
+            st.sliver_repeated += 1
+            return
+        st.sliver_seq = b.seq
+        if st.sliver is None:
+            st.sliver = SliverWatch(st.twin.train, StapleDiagram.preset("cotton")
+                                    if st.level is None else st.level.context.staple,
+                                    sensor_length_m=SLIVER_SENSOR_M, checks_now=False)  # fmt: skip
+        st.sliver.push(b.delivered_m, b.ktex, b.time_s)
+        if st.sliver.due() and not st.sliver_busy:
+            st.sliver_busy = True
+            fut = self._watch_pool.submit(st.sliver.check)
+            fut.add_done_callback(lambda f: self._soon(self._alarms, st, f))
+        if st.level is not None:
+            st.level.push(b.delivered_m, b.ktex, b.time_s, b.infeed_ktex, b.fed_length_m)
+            self._level(st)
+
+    def describe(self, st: MachineState, text: str) -> None:
+        """The machine's description of its sliver (the leveller's setting, the fibres, the
+        sensors), checked before it is trusted; a new one starts the leveller's window."""
+        section = parse_description(text)
+        if isinstance(section, str):
+            self.service.report(st.twin.name, "dropped", section)
+            return
+        context = LevelContext.of(section)
+        if st.level is not None and st.level.context == context:
+            return
+        st.level = LevelWatch(context, self.window_m)
+        s = context.setting
+        what = ("no leveller" if s is None else
+                f"intensity {s.intensity:g}, action point {s.action_point_mm:.1f} mm")  # fmt: skip
+        self._event(st, "leveller", f"the machine's leveller: {what}; fibres "
+                    f"{context.staple.name} ({context.fibres}); a recommendation every "
+                    f"{self.window_m:g} m of sliver")  # fmt: skip
+
+    # ---- the workers ----------------------------------------------------------------------
+    def _soon(self, fn: Any, *args: Any) -> None:
+        loop = self.service.loop
+        if loop is not None and loop.is_running():
+            with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+                loop.call_soon_threadsafe(fn, *args)
+                return
+        fn(*args)
+
+    def _alarms(self, st: MachineState, fut: Future[list[SliverAlarm]]) -> None:
+        st.sliver_busy = False
+        alarms = [] if fut.cancelled() or fut.exception() is not None else fut.result()
+        for a in alarms:
+            assert st.sliver is not None
+            self._event(st, "sliver-chimney", st.sliver.text(a), a.time_s)
+
+    def _level(self, st: MachineState) -> None:
+        """Hand a complete window to the leveller's worker (one at a time per twin)."""
+        level = st.level
+        if level is None or st.level_busy or not level.due():
+            return
+        record = level.take()
+        st.level_busy = True
+        fut = self._level_pool.submit(level.check, record)
+        self._pending.add(fut)
+        fut.add_done_callback(lambda f: self._soon(self._levelled, st, level, record, f))
+
+    def _levelled(self, st: MachineState, level: LevelWatch, record: Any, fut: Future[Any]) -> None:
+        self._pending.discard(fut)
+        st.level_busy = False
+        if fut.cancelled():
+            return
+        if fut.exception() is not None:
+            level.failed = f"{type(fut.exception()).__name__}: {fut.exception()}"[:200]
+        else:
+            level.accept(record, fut.result())
+        if level is st.level:
+            self._event(st, "leveller-advice", level.text(), float(record.time_s[-1]))
+            self._level(st)  # the next window may be complete already
+
+    def _event(self, st: MachineState, kind: str, text: str, time_s: float | None = None) -> None:
+        import time
+
+        ts = int(round((time.time() if time_s is None else time_s) * 1e6))
+        ev = EventRow(st.twin.name, kind, ts, text)
+        self.service.event(st, ev)
+        for push in self.service.subscribers:
+            push(st.twin.name, [], [ev])
+
+    # ---- the end ---------------------------------------------------------------------------
+    async def settle(self, signalled: bool) -> None:
+        """Let the windows in progress finish (not after a stop signal: abandoned), then
+        close the workers."""
+        while self._pending and not signalled:
+            await asyncio.wait([asyncio.wrap_future(f) for f in list(self._pending)])
+            await asyncio.sleep(0)  # their results, handed to the loop
+        self._watch_pool.shutdown(wait=True, cancel_futures=True)
+        await asyncio.sleep(0)
+        self._level_pool.shutdown(wait=False, cancel_futures=True)
+
+    # ---- figures ---------------------------------------------------------------------------
+    @staticmethod
+    def status(st: MachineState) -> dict[str, Any]:
+        """The machine's sliver and leveller, as /api/status shows them."""
+        sliver = None if st.sliver is None else st.sliver.summary()
+        if sliver is not None:
+            sliver["repeated_batches"] = st.sliver_repeated
+            last = st.sliver.last  # type: ignore[union-attr]
+            g = None if last is None else last.spectrogram
+            sliver["spectrogram"] = None if g is None else {
+                "wavelength_m": g.wavelength_m.tolist(), "amplitude_pct": g.amplitude_pct.tolist(),
+                "ideal_pct": None if g.ideal_pct is None else g.ideal_pct.tolist(),
+                "chimney": g.chimney.tolist(), "length_m": g.length_m}  # fmt: skip
+        return {"sliver": sliver, "leveller": None if st.level is None else st.level.summary()}
+
+
+__all__ = ["SLIVER_SENSOR_M", "SliverDesk"]
