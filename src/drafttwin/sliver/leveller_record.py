@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from drafttwin.errors import DataError
+from drafttwin.errors import ConfigError, DataError
 from drafttwin.sliver.leveller import NOMINAL_DRIVE_S
 from drafttwin.sliver.sensor import SliverSensor
 
@@ -204,7 +204,7 @@ def _described(section: dict[str, Any]) -> dict[str, Any] | None:
 def _delivery(section: dict[str, Any]) -> SliverSensor | None:
     try:
         return SliverSensor(**section["delivery_sensor"])
-    except (KeyError, TypeError, ValueError):
+    except (KeyError, TypeError, ValueError, ConfigError):  # none, or out of its ranges
         return None
 
 

@@ -69,6 +69,7 @@ class LevelWatch:
     checks: int = 0
     gaps: int = 0
     failed: str | None = None  # why the last window gave no recommendation
+    took_s: float | None = None  # how long the last window took to compute (wall clock)
     _cols: list[list[np.ndarray]] = field(default_factory=lambda: [[] for _ in range(5)])
     _first_m: float = math.nan
     _last_m: float = math.nan
@@ -151,6 +152,7 @@ class LevelWatch:
         return {"state": self.state, "setting": self.context.to_dict(),
                 "window_m": self.window_m, "collected_m": round(self.collected_m, 3),
                 "checks": self.checks, "gaps": self.gaps, "failed": self.failed,
+                "took_s": None if self.took_s is None else round(self.took_s, 3),
                 "window": None if self.window is None else list(self.window),
                 "advice": None if self.advice is None else self.advice.to_dict()}  # fmt: skip
 

@@ -15,10 +15,12 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from typing import Any, Protocol
 
+from drafttwin.errors import DrafttwinError
 from drafttwin.sliver import StapleDiagram
 from drafttwin.sliver.levelwatch import WINDOW_M, LevelContext, LevelWatch
 from drafttwin.sliver.watch import SliverAlarm, SliverWatch
@@ -79,7 +81,11 @@ class SliverDesk:
         if isinstance(section, str):
             self.service.report(st.twin.name, "dropped", section)
             return
-        context = LevelContext.of(section)
+        try:
+            context = LevelContext.of(section)
+        except (DrafttwinError, KeyError, TypeError, ValueError) as exc:  # never trusted
+            self.service.report(st.twin.name, "dropped", f"description refused: {exc}"[:200])
+            return
         if st.level is not None and st.level.context == context:
             return
         st.level = LevelWatch(context, self.window_m)
@@ -113,13 +119,16 @@ class SliverDesk:
             return
         record = level.take()
         st.level_busy = True
+        t0 = time.monotonic()
         fut = self._level_pool.submit(level.check, record)
         self._pending.add(fut)
-        fut.add_done_callback(lambda f: self._soon(self._levelled, st, level, record, f))
+        fut.add_done_callback(lambda f: self._soon(self._levelled, st, level, record, f, t0))
 
-    def _levelled(self, st: MachineState, level: LevelWatch, record: Any, fut: Future[Any]) -> None:
+    def _levelled(self, st: MachineState, level: LevelWatch, record: Any, fut: Future[Any],
+                  t0: float) -> None:  # fmt: skip
         self._pending.discard(fut)
         st.level_busy = False
+        level.took_s = time.monotonic() - t0
         if fut.cancelled():
             return
         if fut.exception() is not None:
@@ -131,8 +140,6 @@ class SliverDesk:
             self._level(st)  # the next window may be complete already
 
     def _event(self, st: MachineState, kind: str, text: str, time_s: float | None = None) -> None:
-        import time
-
         ts = int(round((time.time() if time_s is None else time_s) * 1e6))
         ev = EventRow(st.twin.name, kind, ts, text)
         self.service.event(st, ev)

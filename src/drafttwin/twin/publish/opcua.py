@@ -17,8 +17,8 @@ Address space, namespace ``urn:drafttwin:twin`` (index 2), per machine ``NAME``:
                  JSON: the last spectrogram's chimneys and their elements)
         Leveller/  State (no leveller, collecting, recommending), ActionPoint (mm), Intensity:
                  the machine's setting; RecommendedActionPoint, RecommendedActionPointLow,
-                 RecommendedActionPointHigh (mm, 95 %), RecommendedIntensity, CV and ExpectedCV
-                 (%), MetresUsed, MetresNeeded (m); Advice (String, 'sliver level' JSON).
+                 RecommendedActionPointHigh (mm, 95 %), RecommendedIntensity, CurrentCV and
+                 ExpectedCV (%), MetresUsed, MetresNeeded (m); Advice (String, 'sliver level' JSON).
                  Read only: a recommendation, the twin never writes a setting.
 
 The server itself says ApplicationUri ``urn:drafttwin:twin:server`` and ProductUri
@@ -73,7 +73,7 @@ LEVELLER_NODES = (
     ("RecommendedActionPointLow", "mm", 10_000.0, "its 95 % interval's low end"),
     ("RecommendedActionPointHigh", "mm", 10_000.0, "its 95 % interval's high end"),
     ("RecommendedIntensity", "", 2.0, "the recommended intensity"),
-    ("CV", "%", 100.0, "the CV of the window the recommendation came from"),
+    ("CurrentCV", "%", 100.0, "the CV of the window the recommendation came from"),
     ("ExpectedCV", "%", 100.0, "the CV expected at the recommendation"),
     ("MetresUsed", "m", 1e5, "delivered sliver the recommendation came from"),
     ("MetresNeeded", "m", 1e5, "metres from which its interval was within +-5 mm"),
@@ -275,7 +275,7 @@ class OpcUaPublisher(Publisher):
                   "RecommendedActionPoint": advice.get("recommended_action_point_mm"),
                   "RecommendedActionPointLow": lo, "RecommendedActionPointHigh": hi,
                   "RecommendedIntensity": advice.get("recommended_intensity"),
-                  "CV": (advice.get("current") or {}).get("cv_pct"),
+                  "CurrentCV": (advice.get("current") or {}).get("cv_pct"),
                   "ExpectedCV": (advice.get("recommended") or {}).get("cv_pct"),
                   "MetresUsed": advice.get("metres_used"),
                   "MetresNeeded": advice.get("metres_needed")}  # fmt: skip

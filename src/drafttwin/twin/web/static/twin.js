@@ -306,6 +306,12 @@ function build() {
 }
 
 // ---- the sliver: running count and CV, the last spectrogram, the leveller's recommendation ----
+function wavelengthTick(v) {  // a log axis: 1, 2 and 5 of each decade labelled
+  if (!(v > 0)) return null;
+  const m = v / 10 ** Math.floor(Math.log10(v) + 1e-9);
+  if (![1, 2, 5].some(k => Math.abs(m - k) < 1e-6)) return null;
+  return v < 1 ? `${+(100 * v).toPrecision(2)} cm` : `${+v.toPrecision(2)} m`;
+}
 function chartSpectrogram(width) {
   const opts = {
     width, height: 160, legend: { live: true },
@@ -314,7 +320,7 @@ function chartSpectrogram(width) {
              { label: "amplitude", stroke: C.twin, width: 2, points: { show: true, size: 4 }, value: (u, v) => withUnit(v, 3, "%") },
              { label: "random sliver", stroke: C.physics, width: 1, dash: [6, 4], value: (u, v) => withUnit(v, 3, "%") },
              { label: "chimney", stroke: C.limit, width: 0, points: { show: true, size: 9, fill: C.limit }, paths: () => null, value: (u, v) => withUnit(v, 3, "%") }],
-    axes: [{ values: (u, s) => s.map(v => (v < 1 ? `${+(100 * v).toPrecision(2)} cm` : `${+v.toPrecision(2)} m`)) },
+    axes: [{ values: (u, s) => s.map(wavelengthTick) },
            { size: 64, label: "amplitude, %", labelSize: 14 }],
   };
   return new uPlot(opts, [[], [], [], []], null);
