@@ -186,3 +186,38 @@ def test_the_mqtt_source_counts_a_hostile_sliver_or_description_as_dropped(serve
     (lev,) = [r for r in reported if r[1] == "leveller"]
     assert len(lev[2]) == 16_385  # cut at the limit + 1: the twin refuses it by its size
     assert "bytes" in str(parse_description(lev[2]))
+
+
+def test_a_description_said_again_keeps_the_window_a_new_one_starts_it_again(served) -> None:
+    """A reconnect or a retained message repeats the description: the leveller's window goes
+    on; another setting starts a new one (the window's rows are of one setting)."""
+    import asyncio
+    from types import SimpleNamespace
+
+    from drafttwin.twin.sliverdesk import SliverDesk
+
+    live, batches = served
+    reported: list[tuple[str, ...]] = []
+    host = SimpleNamespace(loop=None, subscribers=[], event=lambda st, ev: None,
+                           report=lambda *a: reported.append(a))  # fmt: skip
+    desk = SliverDesk(host, window_m=20.0)  # type: ignore[arg-type]
+    from drafttwin.mechanics import DriveTrain
+
+    twin = SimpleNamespace(name="m1", train=DriveTrain.preset("fa320a"))
+    st = SimpleNamespace(twin=twin, level=None, sliver=None, sliver_seq=-1,
+                         sliver_repeated=0, sliver_busy=False, level_busy=False)  # fmt: skip
+    text = json.dumps(live.describe())
+    desk.describe(st, text)  # type: ignore[arg-type]
+    first = st.level
+    for b in batches[:5]:
+        desk.batch(st, b)  # type: ignore[arg-type]
+    desk.describe(st, text)  # type: ignore[arg-type]
+    assert st.level is first and first.collected_m > 0
+    desk.batch(st, batches[2])  # type: ignore[arg-type]  # QoS 1 sent it twice
+    assert st.sliver_repeated == 1
+    other = {**live.describe(), "leveller": {"intensity": 1.0, "action_point_mm": 650.0}}
+    desk.describe(st, json.dumps(other))  # type: ignore[arg-type]
+    assert st.level is not first and st.level.context.setting.action_point_mm == 650.0
+    desk.describe(st, "{not json")  # type: ignore[arg-type]
+    assert reported and reported[-1][1] == "dropped"
+    asyncio.run(desk.settle(True))

@@ -185,15 +185,15 @@ def _check_round_trip(service: Any, st: Any, frame: pd.DataFrame, live: Any, tmp
 def test_plant_serve_sliver_over_mqtt_reaches_the_twins_recommendation(twin_files, tmp_path):
     """plant serve --sliver (embedded broker, QoS 1) -> twin run over MQTT on 127.0.0.1: the
     twin's recommendation equals `sliver level` on the window's readings as published."""
-    service, st, frame, live = _round_trip("mqtt", twin_files, 8.0, 20.0)
-    _check_round_trip(service, st, frame, live, tmp_path, 20.0)
+    service, st, frame, live = _round_trip("mqtt", twin_files, 7.0, 18.0)
+    _check_round_trip(service, st, frame, live, tmp_path, 18.0)
 
 
 def test_plant_serve_sliver_over_opcua_reaches_the_twins_recommendation(twin_files, tmp_path):
     """The same over OPC UA: the twin subscribes the plant's sliver block beside the sample
     node and reads the leveller's description there."""
-    service, st, frame, live = _round_trip("opcua", twin_files, 8.0, 20.0)
-    _check_round_trip(service, st, frame, live, tmp_path, 20.0)
+    service, st, frame, live = _round_trip("opcua", twin_files, 7.0, 18.0)
+    _check_round_trip(service, st, frame, live, tmp_path, 18.0)
 
 
 @pytest.mark.long

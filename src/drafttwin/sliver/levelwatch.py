@@ -29,7 +29,7 @@ WINDOW_M = 300.0
 """Delivered sliver per recommendation, m (issue 39: at most 300 m)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class LevelContext:
     """A machine's leveller as its description names it: the setting (None: none named),
     whether there is a leveller, the fibres (and where they came from) and the delivery

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -52,6 +53,7 @@ class SliverDesk:
         self._watch_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sliver")
         self._level_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leveller")
         self._pending: set[Future[Any]] = set()
+        self._described: dict[str, str] = {}  # each machine's description, as last taken
 
     # ---- readings in ----------------------------------------------------------------------
     def batch(self, st: MachineState, b: SliverBatch) -> None:
@@ -81,13 +83,15 @@ class SliverDesk:
         if isinstance(section, str):
             self.service.report(st.twin.name, "dropped", section)
             return
+        key = json.dumps(section, sort_keys=True)
+        if st.level is not None and self._described.get(st.twin.name) == key:
+            return  # said again (a reconnect, a retained message): the window goes on
         try:
             context = LevelContext.of(section)
         except (DrafttwinError, KeyError, TypeError, ValueError) as exc:  # never trusted
             self.service.report(st.twin.name, "dropped", f"description refused: {exc}"[:200])
             return
-        if st.level is not None and st.level.context == context:
-            return
+        self._described[st.twin.name] = key
         st.level = LevelWatch(context, self.window_m)
         s = context.setting
         what = ("no leveller" if s is None else

@@ -109,7 +109,8 @@ class OpcUaSource(Source):
         m = by_node.get(key)
         if m is None:
             s = (by_sliver or {}).get(key)
-            if s is not None and ev.value is not None and len(ev.value) > 1:  # [0.0]: none yet
+            placeholder = isinstance(ev.value, list | tuple) and len(ev.value) == 1  # none yet
+            if s is not None and not placeholder:
                 got = from_block(s.name, ev.value)
                 if isinstance(got, SliverBatch):
                     emit(got)
