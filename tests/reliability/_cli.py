@@ -210,8 +210,8 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
 #: values inside the range of options that may be zero (these are not hostile there)
 ZERO_OK = {"--settle", "--rate-tolerance", "--threshold", "--seed", "--machine-seed", "--from",
            "--to", "--history", "--feed-cv", "--fineness-cv", "--sensor-mm", "--qos", "--score-from",
-           "--learn", "--gap", "--lead", "--plant-machines", "--action-point", "--intensity",
-           "--fault-cases"}  # fmt: skip
+           "--learn", "--gap", "--lead", "--plant-machines", "--tune-seed", "--action-point",
+           "--intensity", "--fault-cases"}  # fmt: skip
 
 
 def numeric_cases() -> list[tuple[str, str, str]]:

@@ -27,7 +27,7 @@ import pytest
 from drafttwin.mechanics import DriveTrain
 from drafttwin.plant import Machine, Plant
 from drafttwin.plant.sliver_channel import SliverSettings
-from drafttwin.sliver.spectrogram import spectrogram
+from drafttwin.sliver.spectra import spectrogram
 from drafttwin.sliver.transfer import fibre_length_gain, roller_gains, transit_lengths_m
 
 pytestmark = pytest.mark.slow

@@ -18,7 +18,7 @@ from typer.testing import CliRunner
 from drafttwin.cli import app
 from drafttwin.plant import Machine, Plant
 from drafttwin.plant.sliver_channel import SliverSettings, default_feed, make_sliver
-from drafttwin.sliver.evenness import evenness
+from drafttwin.sliver.irregularity import evenness
 from drafttwin.sliver.leveller import NOMINAL_DRIVE_S, Autoleveller, RegulatingDrive
 
 pytestmark = pytest.mark.slow

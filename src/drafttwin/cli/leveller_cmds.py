@@ -9,8 +9,8 @@ import typer
 from rich.table import Table
 
 from drafttwin.cli._options import JsonOpt, OutDirOpt, QuietOpt, WorkersOpt, number
-from drafttwin.cli.app import console, print_json, progress_bar
 from drafttwin.cli.benchmark_cmds import benchmark_app
+from drafttwin.cli.typer_app import console, print_json, progress_bar
 
 QuickLevelOpt = Annotated[bool, typer.Option("--quick", help="Two machines, 80 m records, eight "
                           "fibres lumped into one (a smoke run, minutes).")]  # fmt: skip

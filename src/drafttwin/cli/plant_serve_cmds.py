@@ -20,7 +20,6 @@ from drafttwin.cli._options import (
     number,
     path_in,
 )
-from drafttwin.cli.typer_app import console, err_console
 from drafttwin.cli.plant_cmds import FeedFaultOpt, FibreScaleOpt
 from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app
 from drafttwin.cli.typer_app import console, err_console

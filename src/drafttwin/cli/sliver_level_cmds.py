@@ -9,8 +9,8 @@ from rich.table import Table
 
 from drafttwin.cli._groups import with_group
 from drafttwin.cli._options import JsonOpt, file_in, number
-from drafttwin.cli.app import console, print_json
 from drafttwin.cli.sliver_cmds import FibreOptions, sliver_app
+from drafttwin.cli.typer_app import console, print_json
 from drafttwin.errors import ConfigError
 
 LevelRecordOpt = Annotated[Path, file_in("--data", "A levelling drawframe's record: a plant "

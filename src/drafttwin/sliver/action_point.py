@@ -37,7 +37,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from drafttwin.errors import DataError
-from drafttwin.sliver.evenness import evenness
+from drafttwin.sliver.irregularity import evenness
 from drafttwin.sliver.leveller import MAX_FACTOR, MIN_FACTOR, mass_kernel
 from drafttwin.sliver.leveller_record import LevellerRecord, LevellerSetting
 from drafttwin.sliver.sensor import SliverSensor

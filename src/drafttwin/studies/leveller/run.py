@@ -30,7 +30,7 @@ from drafttwin.plant.sliver_channel import (
 )
 from drafttwin.sliver import FeedFault
 from drafttwin.sliver.action_point import find_action_point
-from drafttwin.sliver.evenness import evenness
+from drafttwin.sliver.irregularity import evenness
 from drafttwin.sliver.leveller import NOMINAL_DRIVE_S, Autoleveller, InfeedSensor, RegulatingDrive
 from drafttwin.sliver.leveller_record import LevellerRecord, LevellerSetting
 
