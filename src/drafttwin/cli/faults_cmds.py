@@ -324,6 +324,7 @@ def _live_variant(out: Path, quick: bool, seed: int, workers: int, healthy_hours
     from drafttwin._io import atomic_path
     from drafttwin._json import dumps_strict
     from drafttwin.cli.twin_cmds import _need_twin_extra
+    from drafttwin.execution.interrupt import stop_on_signals
     from drafttwin.report.faults_bench import HEAD, render_live, score_rows
     from drafttwin.studies.faults.live import LivePlan, run_live
     from drafttwin.studies.faults.plan import PLANS, with_healthy_hours
@@ -341,12 +342,13 @@ def _live_variant(out: Path, quick: bool, seed: int, workers: int, healthy_hours
         def advance(done: int, total: int) -> None:
             bar.update(task, total=total, completed=done)
 
-        results = run_live(plan, seed, records if records is not None else out / "records",
-                           out / "live", workers=workers,
-                           live=LivePlan(machines=args.machines, speed=args.speed,
-                                         plant_machines=args.plant_machines,
-                                         plant_s=360.0 if quick else 600.0),
-                           on_stage=stage, on_progress=advance)  # fmt: skip
+        with stop_on_signals("the records made so far are kept; the same command reuses them"):
+            results = run_live(plan, seed, records if records is not None else out / "records",
+                               out / "live", workers=workers,
+                               live=LivePlan(machines=args.machines, speed=args.speed,
+                                             plant_machines=args.plant_machines,
+                                             plant_s=360.0 if quick else 600.0),
+                               on_stage=stage, on_progress=advance)  # fmt: skip
     with atomic_path(out / "faults_live.json") as tmp:
         tmp.write_text(dumps_strict(results, sort_keys=True) + "\n", encoding="utf-8")
     with atomic_path(out / "faults_live.html") as tmp:

@@ -23,7 +23,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from types import FrameType
 from typing import Any
 
@@ -58,6 +58,21 @@ def _exit_with_parent(parent_pid: int) -> None:
         os._exit(1)
 
     threading.Thread(target=watch, name="drafttwin-parent-watch", daemon=True).start()
+
+
+def die_with_parent() -> Callable[[], None] | None:
+    """The ``preexec_fn`` for a child command: the kernel sends the child SIGTERM when its
+    parent dies, so a killed parent leaves no twin, replay or broker behind (Linux; ``None``
+    elsewhere). libc is loaded here, in the parent: the child only makes one system call.
+    The signal comes when the thread that started the child ends: start it from the thread
+    that outlives it."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        prctl = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    return lambda: prctl(_PR_SET_PDEATHSIG, signal.SIGTERM, 0, 0, 0)
 
 
 def worker_init(parent_pid: int) -> None:

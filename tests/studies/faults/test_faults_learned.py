@@ -51,7 +51,9 @@ def test_the_angle_lags_are_the_physics_not_the_networks(fitted):
     """The lags measure the gears' positive drive through the kinematic ratio: a network's
     predicted ratio is off by ~1e-4, which made the lag drift by mrad per second and the
     hybrid's ranking blame gear wear (benchmark, 2026-11-26). Both learned methods take the
-    lags against the physics."""
+    lags against the physics. (The hybrid, judged on validation folds, may keep no
+    correction on these records and then predicts the physics itself: its own lags are the
+    physics' and show nothing; the data-driven network's always drift.)"""
     from drafttwin.diagnosis.residuals import block_features
 
     rec = _record(4, 0.0)
@@ -60,4 +62,7 @@ def test_the_angle_lags_are_the_physics_not_the_networks(fitted):
         pred = fitted.prediction(method, rec)
         own = block_features(rec["y"], pred, rec["time_s"], 1.0).lag
         np.testing.assert_array_equal(fitted.features(method, rec).lag, physics)
-        assert np.abs(own - physics).max() > np.abs(physics).max()  # the network's would drift
+        ok = np.isfinite(pred).all(axis=1)  # past the window's first rows
+        corrected = not np.array_equal(pred[ok], rec["physics"][ok])
+        if method == "data-driven" or corrected:  # a network's own lags would drift
+            assert np.abs(own - physics).max() > np.abs(physics).max(), method

@@ -44,6 +44,7 @@ import numpy as np
 
 from drafttwin.errors import RunError
 from drafttwin.execution.executor import run_tasks
+from drafttwin.execution.interrupt import die_with_parent
 from drafttwin.studies.faults.plan import BenchmarkPlan, plant_record, run_record, task_configs
 from drafttwin.studies.faults.records import record_path
 from drafttwin.studies.faults.score import onset_of, outcome, physics_rows, score
@@ -268,7 +269,9 @@ def _wait_live(http: int, twin: subprocess.Popen[bytes], names: set[str]) -> Non
 def _process(cmd: list[str], log: Path) -> Iterator[subprocess.Popen[bytes]]:
     """A child process writing to ``log``, ended (SIGTERM, then kill) if still running."""
     with log.open("wb") as f:
-        p = subprocess.Popen(cmd, stdout=f, stderr=subprocess.STDOUT, env=_env())
+        p = subprocess.Popen(
+            cmd, stdout=f, stderr=subprocess.STDOUT, env=_env(), preexec_fn=die_with_parent()
+        )
         try:
             yield p
         finally:
