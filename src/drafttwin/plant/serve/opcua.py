@@ -33,7 +33,6 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
-import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,13 +43,13 @@ from drafttwin.plant.faults import FaultSpec
 from drafttwin.plant.live import MAX_SUPPLY_HZ, LivePlant, LiveSample
 from drafttwin.plant.serve.channels import as_published, plant_channels, values_of
 from drafttwin.plant.serve.feed import AHEAD_S, Feed
+from drafttwin.plant.serve.opcua_nodes import analog_item, describe, nid
 from drafttwin.plant.serve.pacing import Pacing, catch_up
 from drafttwin.wire.certs import SERVER_URI
 from drafttwin.wire.conventions import (
     HERTZ,
     SAMPLE_FIELDS,
     SECOND,
-    UNECE_NAMESPACE,
     UNITLESS,
     Channel,
     utc,
@@ -98,42 +97,6 @@ def parse_opcua_url(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-async def analog_item(parent: Any, idx: int, node_id: str, name: str, value: float,
-                      unit: Any, eu_range: tuple[float, float], description: str,
-                      decimals: int | None = None) -> Any:  # fmt: skip
-    """An AnalogItemType variable (OPC UA Part 8 §5.3.2.2) of Double under ``parent``: EURange
-    (mandatory), EngineeringUnits (UNECE ``unit``), ValuePrecision (``decimals``), a
-    description. Instantiated from the type, so clients see TypeDefinition AnalogItemType."""
-    from asyncua import Node, ua
-    from asyncua.common.instantiate_util import instantiate
-
-    kind = Node(parent.session, _ns0(ua.ObjectIds.AnalogItemType))
-    log = logging.getLogger("asyncua.common.copy_node_util")
-    level = log.level
-    log.setLevel(logging.ERROR)  # it warns of attributes a type has no value for
-    try:
-        var, *_ = await instantiate(parent, kind, _nid(idx, node_id), f"{idx}:{name}",
-                                    ua.LocalizedText(name), instantiate_optional=False)  # fmt: skip
-    finally:
-        log.setLevel(level)
-    await var.write_attribute(ua.AttributeIds.DataType,
-                              ua.DataValue(ua.Variant(_ns0(ua.ObjectIds.Double))))  # fmt: skip
-    await var.write_attribute(ua.AttributeIds.ValueRank, ua.DataValue(ua.Variant(-1, ua.VariantType.Int32)))  # fmt: skip
-    await var.write_value(ua.Variant(float(value), ua.VariantType.Double))
-    await _describe(var, description)
-    rng = await var.get_child(["0:EURange"])
-    await rng.write_value(ua.Range(Low=float(eu_range[0]), High=float(eu_range[1])))
-    eu = ua.EUInformation(NamespaceUri=UNECE_NAMESPACE, UnitId=unit.unit_id,
-                          DisplayName=ua.LocalizedText(unit.symbol),
-                          Description=ua.LocalizedText(unit.name))  # fmt: skip
-    await var.add_property(_nid(idx, f"{node_id}.EngineeringUnits"), "0:EngineeringUnits", eu,
-                           datatype=_ns0(ua.ObjectIds.EUInformation))  # fmt: skip
-    if decimals is not None:
-        await var.add_property(_nid(idx, f"{node_id}.ValuePrecision"), "0:ValuePrecision",
-                               float(decimals), varianttype=ua.VariantType.Double)  # fmt: skip
-    return var
-
-
 async def _identification(obj: Any, idx: int, name: str, seed: int) -> None:
     """OPC 40001-1 §8 identification (the mandatory Manufacturer, SerialNumber and
     ProductInstanceUri, and Model, SoftwareRevision, ComponentName)."""
@@ -141,7 +104,7 @@ async def _identification(obj: Any, idx: int, name: str, seed: int) -> None:
 
     from drafttwin._constants import __version__
 
-    ident = await obj.add_object(_nid(idx, f"{name}.Identification"), f"{idx}:Identification")
+    ident = await obj.add_object(nid(idx, f"{name}.Identification"), f"{idx}:Identification")
     props: list[tuple[str, Any, Any]] = [
         ("Manufacturer", ua.LocalizedText(MANUFACTURER), ua.VariantType.LocalizedText),
         ("Model", ua.LocalizedText(MODEL), ua.VariantType.LocalizedText),
@@ -151,7 +114,7 @@ async def _identification(obj: Any, idx: int, name: str, seed: int) -> None:
         ("ComponentName", ua.LocalizedText(name), ua.VariantType.LocalizedText),
     ]
     for prop, value, vtype in props:
-        await ident.add_property(_nid(idx, f"{name}.Identification.{prop}"), f"{idx}:{prop}",
+        await ident.add_property(nid(idx, f"{name}.Identification.{prop}"), f"{idx}:{prop}",
                                  value, varianttype=vtype)  # fmt: skip
 
 
@@ -160,24 +123,24 @@ async def _add_machine(server: Any, idx: int, parent: Any, name: str, plant: Liv
     from asyncua import ua
 
     channels = plant_channels(plant)
-    obj = await parent.add_object(_nid(idx, name), f"{idx}:{name}")
-    await _describe(obj, f"{MODEL} {name}, live (drafttwin plant serve)")
+    obj = await parent.add_object(nid(idx, name), f"{idx}:{name}")
+    await describe(obj, f"{MODEL} {name}, live (drafttwin plant serve)")
     await _identification(obj, idx, name, seed)
-    blocks = await obj.add_object(_nid(idx, f"{name}.MachineryBuildingBlocks"),
+    blocks = await obj.add_object(nid(idx, f"{name}.MachineryBuildingBlocks"),
                                   f"{idx}:MachineryBuildingBlocks")  # fmt: skip
-    item_state = await blocks.add_object(_nid(idx, f"{name}.MachineryItemState"),
+    item_state = await blocks.add_object(nid(idx, f"{name}.MachineryItemState"),
                                          f"{idx}:MachineryItemState")  # fmt: skip
-    state = await item_state.add_variable(_nid(idx, f"{name}.MachineryItemState.CurrentState"),
+    state = await item_state.add_variable(nid(idx, f"{name}.MachineryItemState.CurrentState"),
                                           f"{idx}:CurrentState", ua.LocalizedText("NotExecuting"))  # fmt: skip
-    sample = await obj.add_variable(_nid(idx, f"{name}.sample"), f"{idx}:sample",
+    sample = await obj.add_variable(nid(idx, f"{name}.sample"), f"{idx}:sample",
                                     [0.0] * len(SAMPLE_FIELDS), varianttype=ua.VariantType.Double)  # fmt: skip
     await sample.write_array_dimensions([len(SAMPLE_FIELDS)])
     await sample.write_value_rank(1)
-    await _describe(sample, "one sample: " + ", ".join(SAMPLE_FIELDS) + " (time: epoch s)")
+    await describe(sample, "one sample: " + ", ".join(SAMPLE_FIELDS) + " (time: epoch s)")
     units = {c.name: c.unit.symbol for c in channels} | {"seq": UNITLESS.symbol, "time": "s"}
-    await sample.add_property(_nid(idx, f"{name}.sample.FieldNames"), f"{idx}:FieldNames",
+    await sample.add_property(nid(idx, f"{name}.sample.FieldNames"), f"{idx}:FieldNames",
                               list(SAMPLE_FIELDS), varianttype=ua.VariantType.String)  # fmt: skip
-    await sample.add_property(_nid(idx, f"{name}.sample.FieldUnits"), f"{idx}:FieldUnits",
+    await sample.add_property(nid(idx, f"{name}.sample.FieldUnits"), f"{idx}:FieldUnits",
                               [units[f] for f in SAMPLE_FIELDS], varianttype=ua.VariantType.String)  # fmt: skip
     scalars = [await analog_item(obj, idx, f"{name}.{s}", s, 0.0, c.unit, c.eu_range,
                                  c.description, c.decimals)
@@ -250,7 +213,7 @@ async def serve_opcua(
     idx = await server.register_namespace(NAMESPACE)
     if idx != 2:
         raise RuntimeError(f"namespace index {idx}, expected 2")
-    folder = await server.nodes.objects.add_folder(_nid(idx, "Machines"), f"{idx}:Machines")
+    folder = await server.nodes.objects.add_folder(nid(idx, "Machines"), f"{idx}:Machines")
     machines = []
     for k, name in enumerate(names):
         plant = LivePlant(seed + k, rate_hz, physics=physics, ramp_hz_per_s=ramp_hz_per_s,
@@ -353,25 +316,4 @@ async def _apply_setpoint(server: Any, m: ServedMachine) -> None:
                 ua.Variant(float(m.last_setpoint), ua.VariantType.Double)))  # fmt: skip
 
 
-async def _describe(node: Any, text: str) -> None:
-    from asyncua import ua
-
-    value = ua.DataValue(ua.Variant(ua.LocalizedText(text)))
-    await node.write_attribute(ua.AttributeIds.Description, value)
-
-
-def _ns0(i: int) -> Any:
-    """A node of namespace 0 (the OPC UA standard's)."""
-    from asyncua import ua
-
-    return ua.NodeId.from_string(f"i={i}")
-
-
-def _nid(idx: int, name: str) -> Any:
-    from asyncua import ua
-
-    return ua.NodeId.from_string(f"ns={idx};s={name}")
-
-
-__all__ = ["NAMESPACE", "SCALARS", "SERVER_URI", "analog_item", "parse_opcua_url",
-           "serve_opcua"]  # fmt: skip
+__all__ = ["NAMESPACE", "SCALARS", "SERVER_URI", "parse_opcua_url", "serve_opcua"]

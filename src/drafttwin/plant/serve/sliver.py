@@ -54,32 +54,32 @@ async def _array_item(parent: Any, idx: int, node_id: str, name: str, unit: Unit
     from asyncua import Node, ua
     from asyncua.common.instantiate_util import instantiate
 
-    from drafttwin.plant.serve.opcua import _describe, _nid, _ns0
+    from drafttwin.plant.serve.opcua_nodes import describe, nid, ns0
 
-    kind = Node(parent.session, _ns0(ua.ObjectIds.AnalogItemType))
+    kind = Node(parent.session, ns0(ua.ObjectIds.AnalogItemType))
     log = logging.getLogger("asyncua.common.copy_node_util")
     level = log.level
     log.setLevel(logging.ERROR)  # it warns of attributes a type has no value for
     var: Any
     try:
-        var, *_ = await instantiate(parent, kind, _nid(idx, node_id), f"{idx}:{name}",
+        var, *_ = await instantiate(parent, kind, nid(idx, node_id), f"{idx}:{name}",
                                     ua.LocalizedText(name), instantiate_optional=False)  # fmt: skip
     finally:
         log.setLevel(level)
     await var.write_attribute(ua.AttributeIds.DataType,
-                              ua.DataValue(ua.Variant(_ns0(ua.ObjectIds.Double))))  # fmt: skip
+                              ua.DataValue(ua.Variant(ns0(ua.ObjectIds.Double))))  # fmt: skip
     await var.write_value_rank(1)
     await var.write_array_dimensions([0])
     await var.write_value(ua.Variant([], ua.VariantType.Double))
-    await _describe(var, description)
+    await describe(var, description)
     rng = await var.get_child(["0:EURange"])
     await rng.write_value(ua.Range(Low=float(eu_range[0]), High=float(eu_range[1])))
     eu = ua.EUInformation(NamespaceUri=UNECE_NAMESPACE, UnitId=unit.unit_id,
                           DisplayName=ua.LocalizedText(unit.symbol),
                           Description=ua.LocalizedText(unit.name))  # fmt: skip
-    await var.add_property(_nid(idx, f"{node_id}.EngineeringUnits"), "0:EngineeringUnits", eu,
-                           datatype=_ns0(ua.ObjectIds.EUInformation))  # fmt: skip
-    await var.add_property(_nid(idx, f"{node_id}.ValuePrecision"), "0:ValuePrecision",
+    await var.add_property(nid(idx, f"{node_id}.EngineeringUnits"), "0:EngineeringUnits", eu,
+                           datatype=ns0(ua.ObjectIds.EUInformation))  # fmt: skip
+    await var.add_property(nid(idx, f"{node_id}.ValuePrecision"), "0:ValuePrecision",
                            float(decimals), varianttype=ua.VariantType.Double)  # fmt: skip
     return var
 
@@ -88,30 +88,30 @@ async def add_sliver_nodes(obj: Any, idx: int, name: str, live: LiveSliver) -> S
     """The machine's Sliver and Leveller objects (see the module)."""
     from asyncua import ua
 
-    from drafttwin.plant.serve.opcua import _describe, _nid, analog_item
+    from drafttwin.plant.serve.opcua_nodes import analog_item, describe, nid
 
-    sliver = await obj.add_object(_nid(idx, f"{name}.Sliver"), f"{idx}:Sliver")
-    await _describe(sliver, "the drawframe's sliver sensors: delivery funnel and infeed "
+    sliver = await obj.add_object(nid(idx, f"{name}.Sliver"), f"{idx}:Sliver")
+    await describe(sliver, "the drawframe's sliver sensors: delivery funnel and infeed "
                     "scanning rollers, one batch of readings at a time")  # fmt: skip
-    block = await sliver.add_variable(_nid(idx, f"{name}.Sliver.block"), f"{idx}:block", [0.0],
+    block = await sliver.add_variable(nid(idx, f"{name}.Sliver.block"), f"{idx}:block", [0.0],
                                       varianttype=ua.VariantType.Double)  # fmt: skip
     await block.write_value_rank(1)
     await block.write_array_dimensions([0])
-    await _describe(block, "one batch: seq, n, then the n values of each of "
+    await describe(block, "one batch: seq, n, then the n values of each of "
                     + ", ".join(SLIVER_FIELDS) + " (time: epoch s)")  # fmt: skip
-    await block.add_property(_nid(idx, f"{name}.Sliver.block.FieldNames"), f"{idx}:FieldNames",
+    await block.add_property(nid(idx, f"{name}.Sliver.block.FieldNames"), f"{idx}:FieldNames",
                              ["seq", "n", *SLIVER_FIELDS], varianttype=ua.VariantType.String)  # fmt: skip
     units = [UNITLESS.symbol, UNITLESS.symbol, *(c.unit.symbol for c in SLIVER_CHANNELS)]
-    await block.add_property(_nid(idx, f"{name}.Sliver.block.FieldUnits"), f"{idx}:FieldUnits",
+    await block.add_property(nid(idx, f"{name}.Sliver.block.FieldUnits"), f"{idx}:FieldUnits",
                              units, varianttype=ua.VariantType.String)  # fmt: skip
     fields = [await _array_item(sliver, idx, f"{name}.Sliver.{c.name}", c.name, c.unit,
                                 c.eu_range, c.description, c.decimals)
               for c in SLIVER_CHANNELS]  # fmt: skip
-    lev = await obj.add_object(_nid(idx, f"{name}.Leveller"), f"{idx}:Leveller")
+    lev = await obj.add_object(nid(idx, f"{name}.Leveller"), f"{idx}:Leveller")
     described = json.dumps(live.describe())
-    desc = await lev.add_variable(_nid(idx, f"{name}.Leveller.Description"),
+    desc = await lev.add_variable(nid(idx, f"{name}.Leveller.Description"),
                                   f"{idx}:Description", described)  # fmt: skip
-    await _describe(desc, "the sliver's description (JSON, drafttwin plant leveller schema): "
+    await describe(desc, "the sliver's description (JSON, drafttwin plant leveller schema): "
                     "the leveller's setting, the fibres, the sensors")  # fmt: skip
     setting = live.leveller
     await analog_item(lev, idx, f"{name}.Leveller.Intensity", "Intensity",

@@ -26,16 +26,11 @@ import contextlib
 import hashlib
 import json
 import math
-import os
 import shutil
 import signal
 import subprocess
-import sys
-import tempfile
-import threading
 import time
-import urllib.request
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,7 +39,17 @@ import numpy as np
 
 from drafttwin.errors import RunError
 from drafttwin.execution.executor import run_tasks
-from drafttwin.execution.interrupt import die_with_parent
+from drafttwin.studies.faults.harness import (
+    LEARN_MARGIN_S,
+    broker,
+    child_process,
+    cli_command,
+    free_port,
+    run_command,
+    twin_events,
+    twin_status,
+    wait_live,
+)
 from drafttwin.studies.faults.plan import BenchmarkPlan, plant_record, run_record, task_configs
 from drafttwin.studies.faults.records import record_path
 from drafttwin.studies.faults.score import onset_of, outcome, physics_rows, score
@@ -53,7 +58,6 @@ PRELUDE_S = 130.0
 """Healthy running before each test record, s: the machine learns :data:`LEARN_MARGIN_S`
 less (120 s, what it needs on top of a prior that watches the lags), its blocks being final a
 block late."""
-LEARN_MARGIN_S = 10.0
 GAP_S = 10.0
 """Silence between two files of a slot, s of source time (the twin's physics restarts)."""
 MACHINES = 10
@@ -91,11 +95,6 @@ def _make_prelude(config: dict[str, Any]) -> dict[str, Any]:
     return {"path": str(record_path(config["_records"], config))}
 
 
-def cli_command(*args: str) -> list[str]:
-    """A drafttwin command in a process of its own (this interpreter)."""
-    return [sys.executable, "-m", "drafttwin", *args]
-
-
 def run_live(plan: BenchmarkPlan, seed: int, records: Path, out: Path, *, workers: int = 2,
              live: LivePlan | None = None, on_stage: Callable[[str], None] | None = None,
              on_progress: Callable[[int, int], None] | None = None) -> dict[str, Any]:  # fmt: skip
@@ -125,7 +124,7 @@ def run_live(plan: BenchmarkPlan, seed: int, records: Path, out: Path, *, worker
     stage(f"serving {len(pairs)} machines' records on {len(lists)} slots at {live.speed:g}x")
     served = _serve(out, model, playlist, lists, live, on_progress)
     manifest = json.loads((out / "manifest.json").read_text(encoding="utf-8"))
-    events = _events(out / "store")
+    events = twin_events(out / "store")
     rows = live_rows(test, manifest, events, detector.reference_s)
     machine_s = sum(r["rows"] for s in manifest["machines"].values() for r in s) * 0.01
     plant = None
@@ -161,20 +160,12 @@ def _model_files(out: Path, tuning: Sequence[str]) -> tuple[Path, Path]:
     """The twin's model (the physics of the fa320a preset) and its detector file, fitted on
     the benchmark's tuning records: the prior each machine learns on."""
     model = out / "physics.dtm"
-    _run(cli_command("fit", "--model", "mechanistic", "--data", tuning[0], "--out", str(model),
+    run_command(cli_command("fit", "--model", "mechanistic", "--data", tuning[0], "--out", str(model),
                      "--quiet"))  # fmt: skip
-    _run(cli_command("twin", "fit-detector", "--model", str(model), "--healthy", ",".join(tuning)))
+    run_command(
+        cli_command("twin", "fit-detector", "--model", str(model), "--healthy", ",".join(tuning))
+    )
     return model, out / "physics.dtm.detector.json"
-
-
-def _run(cmd: list[str]) -> None:
-    done = subprocess.run(cmd, capture_output=True, text=True, check=False, env=_env())
-    if done.returncode != 0:
-        raise RunError(f"'{' '.join(cmd[3:6])}' failed: {done.stderr.strip()[-300:]}")
-
-
-def _env() -> dict[str, str]:
-    return {**os.environ, "OMP_NUM_THREADS": "1"}
 
 
 def _serve(out: Path, model: Path, playlist: Path, lists: dict[str, list[str]], live: LivePlan,
@@ -186,15 +177,15 @@ def _serve(out: Path, model: Path, playlist: Path, lists: dict[str, list[str]], 
     store = out / "store"
     if store.exists():
         shutil.rmtree(store)
-    with _broker() as port, contextlib.ExitStack() as stack:
-        http = _free_port()
-        twin = stack.enter_context(_process(cli_command(
+    with broker() as port, contextlib.ExitStack() as stack:
+        http = free_port()
+        twin = stack.enter_context(child_process(cli_command(
             "twin", "run", "--model", str(model), "--source", f"mqtt://127.0.0.1:{port}",
             "--mapping", str(mapping), "--store", str(store), "--http", f"127.0.0.1:{http}",
             "--learn", f"{live.prelude_s - LEARN_MARGIN_S:g}", "--quiet"), out / "twin.log"))  # fmt: skip
-        _wait_live(http, twin, set(lists))
+        wait_live(http, twin, set(lists))
         started = time.perf_counter()
-        replay = stack.enter_context(_process(cli_command(
+        replay = stack.enter_context(child_process(cli_command(
             "plant", "replay", "--playlist", str(playlist), "--mqtt", f"127.0.0.1:{port}",
             "--broker", "external", "--speed", f"{live.speed:g}", "--batch", str(live.batch),
             "--gap", f"{GAP_S:g}", "--manifest", str(out / "manifest.json"), "--hold"),
@@ -202,7 +193,7 @@ def _serve(out: Path, model: Path, playlist: Path, lists: dict[str, list[str]], 
         total = _rows_to_publish(lists)
         received = _drain(http, twin, replay, out / "manifest.json", total, on_progress)
         wall_s = time.perf_counter() - started
-        status = _status(http)
+        status = twin_status(http)
         twin.send_signal(signal.SIGTERM)
         twin.wait(timeout=120)
         replay.send_signal(signal.SIGTERM)
@@ -231,7 +222,7 @@ def _drain(http: int, twin: subprocess.Popen[bytes], replay: subprocess.Popen[by
             if p.poll() is not None:
                 raise RunError(f"{what} ended early (exit {p.returncode})",
                                source=manifest.parent / ("twin.log" if p is twin else "replay.log"))  # fmt: skip
-        status = _status(http)
+        status = twin_status(http)
         got = sum(m["received"] for m in status["machines"].values()) if status else last
         if on_progress is not None:
             on_progress(got, total)
@@ -241,123 +232,6 @@ def _drain(http: int, twin: subprocess.Popen[bytes], replay: subprocess.Popen[by
         if got >= total or (out_done and time.monotonic() - last_change > STALL_S):
             return got
         time.sleep(1.0)
-
-
-def _status(http: int) -> dict[str, Any] | None:
-    try:
-        with urllib.request.urlopen(f"http://127.0.0.1:{http}/api/status", timeout=10) as r:  # noqa: S310  the twin this run started, on 127.0.0.1
-            doc: dict[str, Any] = json.loads(r.read())
-            return doc
-    except (OSError, ValueError):
-        return None
-
-
-def _wait_live(http: int, twin: subprocess.Popen[bytes], names: set[str]) -> None:
-    """Until the twin answers and its source is subscribed (at most two minutes)."""
-    deadline = time.monotonic() + 120.0
-    while time.monotonic() < deadline:
-        if twin.poll() is not None:
-            raise RunError(f"the twin ended at its start (exit {twin.returncode}); see twin.log")
-        status = _status(http)
-        if status and all(status["machines"].get(n, {}).get("state") == "live" for n in names):
-            return
-        time.sleep(0.5)
-    raise RunError("the twin did not connect to the broker within two minutes")
-
-
-@contextlib.contextmanager
-def _process(cmd: list[str], log: Path) -> Iterator[subprocess.Popen[bytes]]:
-    """A child process writing to ``log``, ended (SIGTERM, then kill) if still running."""
-    with log.open("wb") as f:
-        p = subprocess.Popen(
-            cmd, stdout=f, stderr=subprocess.STDOUT, env=_env(), preexec_fn=die_with_parent()
-        )
-        try:
-            yield p
-        finally:
-            if p.poll() is None:
-                p.send_signal(signal.SIGTERM)
-                try:
-                    p.wait(timeout=20)
-                except subprocess.TimeoutExpired:
-                    p.kill()
-                    p.wait()
-
-
-@contextlib.contextmanager
-def _broker() -> Iterator[int]:
-    """A broker on 127.0.0.1 for the run: Mosquitto when installed, else the embedded one in
-    a thread of this process; its port."""
-    port = _free_port()
-    exe = shutil.which("mosquitto") or (
-        "/usr/sbin/mosquitto" if Path("/usr/sbin/mosquitto").exists() else None
-    )
-    if exe is not None:
-        with tempfile.TemporaryDirectory() as tmp:
-            conf = Path(tmp) / "mosquitto.conf"
-            conf.write_text(f"listener {port} 127.0.0.1\nallow_anonymous true\n"
-                            "max_queued_messages 0\n", encoding="utf-8")  # fmt: skip
-            with _process([exe, "-c", str(conf)], Path(tmp) / "mosquitto.log"):
-                _wait_port(port)
-                yield port
-        return
-    yield from _embedded_broker(port)
-
-
-def _embedded_broker(port: int) -> Iterator[int]:
-    import asyncio
-
-    from drafttwin.plant.serve.mqtt import start_broker
-
-    loop = asyncio.new_event_loop()
-    ready = threading.Event()
-    holder: dict[str, Any] = {}
-
-    def run() -> None:
-        asyncio.set_event_loop(loop)
-        holder["broker"] = loop.run_until_complete(start_broker("127.0.0.1", port))
-        ready.set()
-        loop.run_forever()
-
-    thread = threading.Thread(target=run, daemon=True, name="mqtt-broker")
-    thread.start()
-    ready.wait(30)
-    try:
-        yield port
-    finally:
-        if "broker" in holder:
-            asyncio.run_coroutine_threadsafe(holder["broker"].shutdown(), loop).result(10)
-        loop.call_soon_threadsafe(loop.stop)
-        thread.join(10)
-
-
-def _wait_port(port: int) -> None:
-    import socket
-
-    deadline = time.monotonic() + 10.0
-    while time.monotonic() < deadline:
-        with contextlib.suppress(OSError), socket.create_connection(("127.0.0.1", port), 0.5):
-            return
-        time.sleep(0.1)
-    raise RunError(f"the broker did not open port {port}")
-
-
-def _free_port() -> int:
-    import socket
-
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _events(store: Path) -> list[dict[str, Any]]:
-    """The twin's events, read back with ``twin query``."""
-    target = store.parent / "events.parquet"
-    _run(cli_command("twin", "query", "--store", str(store), "--events", "--out", str(target)))
-    import pandas as pd
-
-    frame = pd.read_parquet(target)
-    return frame.to_dict("records")  # type: ignore[no-any-return]
 
 
 def _event_counts(events: Sequence[dict[str, Any]]) -> dict[str, int]:

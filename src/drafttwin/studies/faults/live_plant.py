@@ -19,15 +19,15 @@ from typing import Any
 import numpy as np
 
 from drafttwin.errors import RunError
-from drafttwin.studies.faults.live import (
+from drafttwin.studies.faults.harness import (
     LEARN_MARGIN_S,
-    _broker,
-    _events,
-    _free_port,
-    _process,
-    _status,
-    _wait_live,
+    broker,
+    child_process,
     cli_command,
+    free_port,
+    twin_events,
+    twin_status,
+    wait_live,
 )
 from drafttwin.studies.faults.plan import ELEMENTS, RATE_HZ
 from drafttwin.studies.faults.score import outcome, score
@@ -85,16 +85,16 @@ def run_live_plant(out: Path, model: Path, *, machines: int = 4, duration_s: flo
                        encoding="utf-8")  # fmt: skip
     store = out / "plant_store"
     stage(f"{machines} live plants for {duration_s / 60:.0f} min, faults at random times")
-    with _broker() as port, contextlib.ExitStack() as stack:
-        http = _free_port()
-        twin = stack.enter_context(_process(cli_command(
+    with broker() as port, contextlib.ExitStack() as stack:
+        http = free_port()
+        twin = stack.enter_context(child_process(cli_command(
             "twin", "run", "--model", str(model), "--source", f"mqtt://127.0.0.1:{port}",
             "--mapping", str(mapping), "--store", str(store), "--http", f"127.0.0.1:{http}",
             "--learn", f"{LEARN_S:g}", "--quiet"), out / "plant_twin.log"))  # fmt: skip
-        _wait_live(http, twin, {c["name"] for c in cases})
+        wait_live(http, twin, {c["name"] for c in cases})
         plants = [
             stack.enter_context(
-                _process(
+                child_process(
                     cli_command(
                         "plant",
                         "serve",
@@ -123,10 +123,10 @@ def run_live_plant(out: Path, model: Path, *, machines: int = 4, duration_s: flo
             if p.returncode != 0:
                 raise RunError(f"a plant ended with exit {p.returncode}", source=out)
         time.sleep(3.0)  # the last samples reach the twin
-        status = _status(http)
+        status = twin_status(http)
         twin.send_signal(signal.SIGTERM)
         twin.wait(timeout=120)
-    events = _events(store)
+    events = twin_events(store)
     rows = _plant_rows(cases, events, out)
     stage("the same machines and faults recorded, diagnosed offline")
     offline = _recorded_rows(cases, model)
