@@ -33,7 +33,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 from torch import nn
@@ -48,8 +48,27 @@ from drafttwin.models.training import (
     train_network,
 )
 
-if TYPE_CHECKING:
-    from drafttwin.models.estimators.hybrid import _ResidualHybrid
+
+class JudgedHybrid(Protocol):
+    """What the folds ask of the residual hybrid they judge (``hybrid.JudgedHybrid``): its
+    task, window, training settings, seed and name, its fitted scalers, its network and device
+    (a protocol, so the judge does not import the hybrid that calls it)."""
+
+    @property
+    def task(self) -> Any: ...
+    @property
+    def window(self) -> int: ...
+    @property
+    def training(self) -> Any: ...
+    @property
+    def seed(self) -> int: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def scalers_(self) -> Any: ...
+    def _build(self, n_out: int) -> nn.Module: ...
+    def _device(self) -> str: ...
+
 
 DEFAULT_FOLDS = 3
 """Blocked folds of the training rows that judge a hybrid's correction."""
@@ -112,7 +131,7 @@ class FoldScores:
 
 
 def judge(
-    model: _ResidualHybrid,
+    model: JudgedHybrid,
     fits: Mapping[bool, tuple[nn.Module, History, np.ndarray]],
     x: np.ndarray,
     extra: np.ndarray | None,
@@ -174,14 +193,14 @@ def judge(
     return FoldScores(scores, blocks, n_rows)
 
 
-def _name(model: _ResidualHybrid, accumulate: bool) -> str:
+def _name(model: JudgedHybrid, accumulate: bool) -> str:
     if not model.task.simulation:
         return "residual"
     return "accumulate" if accumulate else "level"
 
 
 def _train_judge(
-    model: _ResidualHybrid, k: int, block: tuple[int, int], accumulate: bool, history: History,
+    model: JudgedHybrid, k: int, block: tuple[int, int], accumulate: bool, history: History,
     x: np.ndarray, extra: np.ndarray | None, scaled: dict[str, np.ndarray], rows: np.ndarray,
     ok: np.ndarray, lag: int, progress: FitProgress | None,
 ) -> nn.Module:  # fmt: skip
