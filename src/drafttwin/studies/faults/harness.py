@@ -155,9 +155,8 @@ def free_port() -> int:
 
 def twin_events(store: Path) -> list[dict[str, Any]]:
     """The twin's events, read back with ``twin query``."""
-    target = (
-        store.parent / f"{store.name}_events.parquet"
-    )  # one per store: the replay and plant runs share a folder
+    # one file per store: the replay's and the plant's runs share a folder
+    target = store.parent / f"{store.name}_events.parquet"
     run_command(
         cli_command("twin", "query", "--store", str(store), "--events", "--out", str(target))
     )
