@@ -10,12 +10,13 @@ from typing import Any
 from drafttwin.wire.conventions import UNECE_NAMESPACE
 
 
-async def analog_item(parent: Any, idx: int, node_id: str, name: str, value: float,
+async def analog_item(parent: Any, idx: int, node_id: str, name: str, value: float | None,
                       unit: Any, eu_range: tuple[float, float], description: str,
                       decimals: int | None = None) -> Any:  # fmt: skip
     """An AnalogItemType variable (OPC UA Part 8 §5.3.2.2) of Double under ``parent``: EURange
     (mandatory), EngineeringUnits (UNECE ``unit``), ValuePrecision (``decimals``), a
-    description. Instantiated from the type, so clients see TypeDefinition AnalogItemType."""
+    description. Instantiated from the type, so clients see TypeDefinition AnalogItemType.
+    ``value`` ``None``: a Double array (value rank 1), empty until the first write."""
     from asyncua import Node, ua
     from asyncua.common.instantiate_util import instantiate
 
@@ -23,6 +24,7 @@ async def analog_item(parent: Any, idx: int, node_id: str, name: str, value: flo
     log = logging.getLogger("asyncua.common.copy_node_util")
     level = log.level
     log.setLevel(logging.ERROR)  # it warns of attributes a type has no value for
+    var: Any  # asyncua's stubs type the array dimensions as one int
     try:
         var, *_ = await instantiate(parent, kind, nid(idx, node_id), f"{idx}:{name}",
                                     ua.LocalizedText(name), instantiate_optional=False)  # fmt: skip
@@ -30,8 +32,13 @@ async def analog_item(parent: Any, idx: int, node_id: str, name: str, value: flo
         log.setLevel(level)
     await var.write_attribute(ua.AttributeIds.DataType,
                               ua.DataValue(ua.Variant(ns0(ua.ObjectIds.Double))))  # fmt: skip
-    await var.write_attribute(ua.AttributeIds.ValueRank, ua.DataValue(ua.Variant(-1, ua.VariantType.Int32)))  # fmt: skip
-    await var.write_value(ua.Variant(float(value), ua.VariantType.Double))
+    if value is None:
+        await var.write_value_rank(1)
+        await var.write_array_dimensions([0])
+        await var.write_value(ua.Variant([], ua.VariantType.Double))
+    else:
+        await var.write_attribute(ua.AttributeIds.ValueRank, ua.DataValue(ua.Variant(-1, ua.VariantType.Int32)))  # fmt: skip
+        await var.write_value(ua.Variant(float(value), ua.VariantType.Double))
     await describe(var, description)
     rng = await var.get_child(["0:EURange"])
     await rng.write_value(ua.Range(Low=float(eu_range[0]), High=float(eu_range[1])))

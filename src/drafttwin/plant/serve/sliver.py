@@ -18,14 +18,13 @@ retained (QoS 1). Every value of a batch carries its last reading's time as Sour
 from __future__ import annotations
 
 import json
-import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from drafttwin.plant.live_sliver import LiveSliver
-from drafttwin.wire.conventions import UNECE_NAMESPACE, UNITLESS, Unit, topic, utc
+from drafttwin.wire.conventions import UNITLESS, topic, utc
 from drafttwin.wire.sliver import (
     MILLIMETRE,
     SLIVER_CHANNELS,
@@ -45,43 +44,6 @@ DESCRIPTION_SCHEMA = Path(__file__).with_name("schemas") / "leveller.schema.json
 class SliverNodes:
     block: Any
     fields: list[Any]
-
-
-async def _array_item(parent: Any, idx: int, node_id: str, name: str, unit: Unit,
-                      eu_range: tuple[float, float], description: str,
-                      decimals: int) -> Any:  # fmt: skip
-    """An AnalogItemType variable holding a Double array (OPC UA Part 8 §5.3.2.2)."""
-    from asyncua import Node, ua
-    from asyncua.common.instantiate_util import instantiate
-
-    from drafttwin.plant.serve.opcua_nodes import describe, nid, ns0
-
-    kind = Node(parent.session, ns0(ua.ObjectIds.AnalogItemType))
-    log = logging.getLogger("asyncua.common.copy_node_util")
-    level = log.level
-    log.setLevel(logging.ERROR)  # it warns of attributes a type has no value for
-    var: Any
-    try:
-        var, *_ = await instantiate(parent, kind, nid(idx, node_id), f"{idx}:{name}",
-                                    ua.LocalizedText(name), instantiate_optional=False)  # fmt: skip
-    finally:
-        log.setLevel(level)
-    await var.write_attribute(ua.AttributeIds.DataType,
-                              ua.DataValue(ua.Variant(ns0(ua.ObjectIds.Double))))  # fmt: skip
-    await var.write_value_rank(1)
-    await var.write_array_dimensions([0])
-    await var.write_value(ua.Variant([], ua.VariantType.Double))
-    await describe(var, description)
-    rng = await var.get_child(["0:EURange"])
-    await rng.write_value(ua.Range(Low=float(eu_range[0]), High=float(eu_range[1])))
-    eu = ua.EUInformation(NamespaceUri=UNECE_NAMESPACE, UnitId=unit.unit_id,
-                          DisplayName=ua.LocalizedText(unit.symbol),
-                          Description=ua.LocalizedText(unit.name))  # fmt: skip
-    await var.add_property(nid(idx, f"{node_id}.EngineeringUnits"), "0:EngineeringUnits", eu,
-                           datatype=ns0(ua.ObjectIds.EUInformation))  # fmt: skip
-    await var.add_property(nid(idx, f"{node_id}.ValuePrecision"), "0:ValuePrecision",
-                           float(decimals), varianttype=ua.VariantType.Double)  # fmt: skip
-    return var
 
 
 async def add_sliver_nodes(obj: Any, idx: int, name: str, live: LiveSliver) -> SliverNodes:
@@ -104,7 +66,7 @@ async def add_sliver_nodes(obj: Any, idx: int, name: str, live: LiveSliver) -> S
     units = [UNITLESS.symbol, UNITLESS.symbol, *(c.unit.symbol for c in SLIVER_CHANNELS)]
     await block.add_property(nid(idx, f"{name}.Sliver.block.FieldUnits"), f"{idx}:FieldUnits",
                              units, varianttype=ua.VariantType.String)  # fmt: skip
-    fields = [await _array_item(sliver, idx, f"{name}.Sliver.{c.name}", c.name, c.unit,
+    fields = [await analog_item(sliver, idx, f"{name}.Sliver.{c.name}", c.name, None, c.unit,
                                 c.eu_range, c.description, c.decimals)
               for c in SLIVER_CHANNELS]  # fmt: skip
     lev = await obj.add_object(nid(idx, f"{name}.Leveller"), f"{idx}:Leveller")
