@@ -155,12 +155,8 @@ def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: fl
                      leveller_fault: list[str] | None = None) -> Any:  # fmt: skip
     """The plant's sliver settings, or None; refuses sliver files beside --out that an
     earlier plant record of this name did not write (they are not the user's to lose)."""
-    if not sliver:
-        if feed_fault or fibre_scale != 1.0 or leveller or leveller_fault:
-            raise ConfigError("--feed-fault, --fibre-scale and --leveller shape the sliver",
-                              where="--feed-fault" if feed_fault else "--leveller"
-                              if leveller or leveller_fault else "--fibre-scale",
-                              fix="add --sliver")  # fmt: skip
+    settings = sliver_settings(sliver, feed_fault, fibre_scale, leveller, leveller_fault)
+    if settings is None:
         return None
     from drafttwin.plant.sliver_channel import sliver_paths
     from drafttwin.sliver.record import sliver_beside
@@ -172,13 +168,21 @@ def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: fl
             raise ConfigError(f"{p.name} exists and is not the sliver of an earlier plant "
                               "record of this name", source=p, where="--out",
                               fix="choose another --out or move the file")  # fmt: skip
-    return sliver_settings(feed_fault, fibre_scale, leveller, leveller_fault)
+    return settings
 
 
-def sliver_settings(feed_fault: list[str] | None, fibre_scale: float, leveller: str | None,
-                    leveller_fault: list[str] | None) -> Any:  # fmt: skip
+def sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: float,
+                    leveller: str | None, leveller_fault: list[str] | None) -> Any:  # fmt: skip
     """The plant's sliver settings of ``--feed-fault``, ``--fibre-scale``, ``--leveller`` and
-    ``--leveller-fault`` (``generate --sliver`` and ``plant serve --sliver``)."""
+    ``--leveller-fault`` (``generate --sliver`` and ``plant serve --sliver``); ``None``
+    without ``--sliver``, where those options are refused."""
+    if not sliver:
+        if feed_fault or fibre_scale != 1.0 or leveller or leveller_fault:
+            raise ConfigError("--feed-fault, --fibre-scale and --leveller shape the sliver",
+                              where="--feed-fault" if feed_fault else "--leveller"
+                              if leveller or leveller_fault else "--fibre-scale",
+                              fix="add --sliver")  # fmt: skip
+        return None
     from dataclasses import replace
 
     from drafttwin.cli.sliver_cmds import leveller_from

@@ -104,7 +104,9 @@ def plant_serve(
     if log is not None and log.suffix.lower() not in (".parquet", ".csv"):
         raise ConfigError(f"unsupported log file type '{log.suffix or '(none)'}'", source=log,
                           where="--log", fix="name the log *.parquet or *.csv")  # fmt: skip
-    settings = _serve_sliver(sliver, feed_fault, fibre_scale, leveller, leveller_fault)
+    from drafttwin.cli.plant_cmds import sliver_settings
+
+    settings = sliver_settings(sliver, feed_fault, fibre_scale, leveller, leveller_fault)
     from drafttwin.mechanics import DriveTrain
     from drafttwin.plant.faults import FaultSpec
     from drafttwin.plant.live import live_faults
@@ -152,21 +154,6 @@ def plant_serve(
     if log is not None:
         console.print(f"wrote {log}" + (f", {plant_log.sliver_path}" if slivers and plant_log
                                         and plant_log.sliver_path else ""))  # fmt: skip
-
-
-def _serve_sliver(sliver: bool, feed_fault: list[str] | None, fibre_scale: float,
-                  leveller: str | None, leveller_fault: list[str] | None) -> Any:  # fmt: skip
-    """The served machines' sliver settings, or None without --sliver."""
-    if not sliver:
-        if feed_fault or fibre_scale != 1.0 or leveller or leveller_fault:
-            raise ConfigError("--feed-fault, --fibre-scale and --leveller shape the sliver",
-                              where="--feed-fault" if feed_fault else "--leveller"
-                              if leveller or leveller_fault else "--fibre-scale",
-                              fix="add --sliver")  # fmt: skip
-        return None
-    from drafttwin.cli.plant_cmds import sliver_settings
-
-    return sliver_settings(feed_fault, fibre_scale, leveller, leveller_fault)
 
 
 def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: dict[str, Any],
