@@ -11,9 +11,11 @@ comes from what the detector needs, measured on the plant (docs/faults.md, "Lear
 * on top of a *prior* (a detector fitted on longer healthy running of machines of the type,
   ``drafttwin twin fit-detector``), :data:`LEARN_WITH_PRIOR_S`: the level streams settle in
   two minutes, and the machine's detector is the two combined (:func:`combine`): per stream
-  the larger scale, the larger limits, so a machine noisier than the fleet is judged by its
-  own noise and a quieter one by the fleet's (never less conservative than the prior); the
-  machine's own belt level (the physics' creep mismatch on it) goes to the ranking.
+  the prior's dynamics (its AR(1) coefficient and long-run factor, which two minutes
+  underestimate) with the larger SD, the larger limits, so a machine noisier than the fleet
+  is judged by its own noise and a quieter one by the fleet's (never less conservative than
+  the prior); the machine's own belt level (the physics' creep mismatch on it) goes to the
+  ranking.
 """
 
 from __future__ import annotations
@@ -107,8 +109,8 @@ class Learner:
 
 def combine(own: FaultDetector, prior: FaultDetector) -> FaultDetector:
     """A machine's detector from its own short learning (``own``) and a ``prior`` fitted on
-    longer running of machines of its type: per stream the larger whitened scale (its sigma,
-    AR(1) coefficient and long-run factor taken together from the one that gives it), the
+    longer running of machines of its type: per stream the prior's AR(1) coefficient and
+    long-run factor with the larger SD (the machine's own all three where only it watches), the
     larger jump, stuck and lost limits and lag walk, each feature's larger SD on the prior's
     correlations, a stream watched where either watches it (its scale then from one that
     does), and the machine's own belt level (the ranking's creep mismatch on it)."""
@@ -117,11 +119,15 @@ def combine(own: FaultDetector, prior: FaultDetector) -> FaultDetector:
                           f"{own.block_s_:g} s", where="--detector",
                           fix="fit the prior with the twin's block length")  # fmt: skip
     out = copy.deepcopy(own)
-    scale = {d: d.sigma_ * np.sqrt((1 - d.phi_**2) * d.long_run_) for d in (own, prior)}
-    # a stream the own detector does not watch (too short for the lags) takes the prior's
-    from_prior = (scale[prior] > scale[own]) | (~own.watched_ & prior.watched_)
-    for name in ("sigma_", "phi_", "long_run_"):
-        setattr(out, name, np.where(from_prior, getattr(prior, name), getattr(own, name)))
+    # A stream's dynamics (AR(1) coefficient, long-run factor) need long running: two
+    # minutes underestimate both (the rollers' coefficient 0.78 against the fleet's 0.92),
+    # and a CUSUM whitened with them sums what is left of the slow wander into false alarms
+    # (3 in 12 h of the live benchmark). Where the prior watches a stream its dynamics
+    # stand; the machine's own noise can only widen the stream's SD.
+    theirs = prior.watched_
+    out.phi_ = np.where(theirs, prior.phi_, own.phi_)
+    out.long_run_ = np.where(theirs, prior.long_run_, own.long_run_)
+    out.sigma_ = np.where(theirs, np.maximum(own.sigma_, prior.sigma_), own.sigma_)
     out.watched_ = own.watched_ | prior.watched_
     out.jump_limit_ = np.maximum(own.jump_limit_, prior.jump_limit_)
     out.run_limit_ = np.maximum(own.run_limit_, prior.run_limit_)
