@@ -76,3 +76,21 @@ def test_online_refuses_row_aligned_mechanistic_arrays(series) -> None:
     model = make_model("parallel", **hyper_for("parallel")).fit(series, mech)
     with pytest.raises(ConfigError, match="one time stamp at a time"):
         OnlinePredictor(model, MechanisticModel(mechanistic(series.time_s)))
+
+
+def test_online_with_the_callers_mechanistic_rows_equals_asking_the_source(series) -> None:
+    """The live twin hands the physics row it stepped itself: same forecasts bit for bit;
+    a row of the wrong shape or not finite is refused."""
+    mech = MechanisticModel(mechanistic)
+    model = make_model("md-s-l+d", **hyper_for("md-s-l+d")).fit(series.slice(0, 200), mech)
+    asked, given = OnlinePredictor(model, mech), OnlinePredictor(model, mech)
+    rows = mech.values_at(series.time_s, model.channels_)
+    for i in range(120):
+        t = float(series.time_s[i])
+        np.testing.assert_array_equal(asked.forecast(t), given.forecast(t, rows[i]))
+        asked.observe(t, series.values[i])
+        given.observe(t, series.values[i], rows[i])
+    with pytest.raises(DataError, match="is not 4 finite values"):
+        given.observe(1.0, series.values[0], rows[0][:3])
+    with pytest.raises(DataError, match="is not 4 finite values"):
+        given.forecast(1.0, np.full(4, np.nan))

@@ -284,7 +284,7 @@ class MachineTwin:
         begun = self._begin(ts_us, seq, values, setpoint, motor)
         if self.horizon == 1:  # this sample's set-point is known now: exact physics at t
             assert self.predictor is not None
-            twin = self.predictor.forecast(ts_us / 1e6)
+            twin = self.predictor.forecast(ts_us / 1e6, begun.physics)
         else:
             twin = self._forecast.pop(ts_us, np.full(len(self.channels), np.nan))
         return self._end(begun, twin)
@@ -304,7 +304,7 @@ class MachineTwin:
 
     def _end(self, b: Begun, twin: np.ndarray) -> SampleRow:
         assert self.predictor is not None
-        self.predictor.observe(b.ts_us / 1e6, self.filter(b.values))
+        self.predictor.observe(b.ts_us / 1e6, self.filter(b.values), b.physics)
         if self.horizon > 1:
             self._look_ahead(b.ts_us, b.setpoint)
         else:

@@ -140,7 +140,8 @@ class TwinService:
     def _finish(self, rnd: list[tuple[MachineState, Begun, float]]) -> None:
         if not rnd:
             return
-        twins = forecast_many([b.predictor for _, b, _ in rnd], [b.ts_us / 1e6 for _, b, _ in rnd])
+        twins = forecast_many([b.predictor for _, b, _ in rnd], [b.ts_us / 1e6 for _, b, _ in rnd],
+                              [b.physics for _, b, _ in rnd])  # fmt: skip
         for (st, b, received), twin in zip(rnd, twins, strict=True):
             self._out(st, [st.twin.end(b, twin)], received)
 

@@ -102,9 +102,12 @@ class OnlinePredictor:
         return [n for n in nets if n is not None]
 
     # ----- feeding measurements -----------------------------------------------------
-    def observe(self, time_s: float, values: Sequence[float] | np.ndarray) -> None:
+    def observe(self, time_s: float, values: Sequence[float] | np.ndarray,
+                mechanistic_row: np.ndarray | None = None) -> None:  # fmt: skip
         """Append one measured row (time in s, one value per output channel; ``NaN`` =
-        missing)."""
+        missing). ``mechanistic_row``: the mechanistic source's values at ``time_s`` when the
+        caller has them already (the live twin steps the physics itself; finite, one per
+        output channel), instead of asking the source again."""
         y = np.asarray(values, dtype=np.float64).reshape(-1)
         if y.shape != (self.n_channels,):
             raise DataError(
@@ -115,7 +118,7 @@ class OnlinePredictor:
         data = self._data_forecast(row) if isinstance(self.model, MDSL) else None
         self._yf.append(self._carry(self._yf, y))
         if self._mech is not None:
-            m = self._mech.values_at(np.array([float(time_s)]), self.model.channels_)[0]
+            m = self._mech_at(time_s, mechanistic_row)
             self._em.append(self._carry(self._em, y - m))
             if data is not None:
                 self._ed.append(self._carry(self._ed, y - data))
@@ -166,15 +169,31 @@ class OnlinePredictor:
         self._pending[target] = pred
         return pred
 
-    def forecast(self, time_s: float) -> np.ndarray:
+    def forecast(self, time_s: float, mechanistic_row: np.ndarray | None = None) -> np.ndarray:
         """Predicted values (channels,) for the row ``horizon`` samples after the last observed
-        one, at time ``time_s`` (s); ``NaN`` while the history is too short."""
-        step = self._prepare(time_s)
+        one, at time ``time_s`` (s); ``NaN`` while the history is too short.
+        ``mechanistic_row`` as in :meth:`observe`."""
+        step = self._prepare(time_s, mechanistic_row)
         if isinstance(step, np.ndarray):
             return step
         return step.finish(_run(step.net, list(step.x), step.extra))
 
-    def _prepare(self, time_s: float) -> np.ndarray | _NetStep:
+    def _mech_at(self, time_s: float, row: np.ndarray | None) -> np.ndarray:
+        """The mechanistic values at ``time_s``: ``row`` where the caller gave it (checked
+        for shape and finiteness only: the source's own check costs 14 us a call, twice per
+        sample and machine in the live twin), else the source's."""
+        assert self._mech is not None
+        if row is None:
+            m: np.ndarray = self._mech.values_at(np.array([float(time_s)]), self.model.channels_)[0]
+            return m
+        if row.shape != (self.n_channels,) or not np.isfinite(row).all():
+            raise DataError(f"the mechanistic row at {time_s:g} s is not {self.n_channels} "
+                            f"finite values", fix="give one finite value per output channel")  # fmt: skip
+        return row
+
+    def _prepare(
+        self, time_s: float, mechanistic_row: np.ndarray | None = None
+    ) -> np.ndarray | _NetStep:
         """The forecast, or the network input it needs and how to finish it (so that
         :func:`forecast_many` can run one network pass for many predictors)."""
         target = self.n_observed - 1 + self.horizon
@@ -184,7 +203,7 @@ class OnlinePredictor:
         if isinstance(model, _RecurrentModel):
             return self._recurrent(model)
         assert self._mech is not None
-        m: np.ndarray = self._mech.values_at(np.array([float(time_s)]), self.model.channels_)[0]
+        m = self._mech_at(time_s, mechanistic_row)
         if isinstance(model, MechanisticBaseline):
             return m
         if isinstance(model, _ResidualHybrid) and not model.correct_:
@@ -231,15 +250,18 @@ class _NetStep:
 
 
 def forecast_many(
-    predictors: Sequence[OnlinePredictor], times_s: Sequence[float]
+    predictors: Sequence[OnlinePredictor],
+    times_s: Sequence[float],
+    mechanistic_rows: Sequence[np.ndarray | None] | None = None,
 ) -> list[np.ndarray]:
-    """``[p.forecast(t) ...]`` with one network pass per network for all predictors that
-    share it (machines with one model): a batch of windows costs little more than one.
+    """``[p.forecast(t, row) ...]`` with one network pass per network for all predictors
+    that share it (machines with one model): a batch of windows costs little more than one.
     Equal to the one-by-one forecasts up to float32 rounding of batched evaluation."""
     out: list[np.ndarray | None] = [None] * len(predictors)
     groups: dict[int, list[tuple[int, _NetStep]]] = {}
-    for i, (p, t) in enumerate(zip(predictors, times_s, strict=True)):
-        step = p._prepare(t)
+    rows = [None] * len(predictors) if mechanistic_rows is None else mechanistic_rows
+    for i, (p, t, row) in enumerate(zip(predictors, times_s, rows, strict=True)):
+        step = p._prepare(t, row)
         if isinstance(step, np.ndarray):
             out[i] = step
         else:
