@@ -172,7 +172,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
         "--max-lag",
         "--fibre-scale",
     ],
-    "twin hall": ["--shards", "--commit-ms", "--duration", "--learn"],
+    "twin hall": ["--shards", "--commit-ms", "--duration", "--learn", "--level-window"],
     "plant replay": ["--machines", "--speed", "--batch", "--gap", "--lead"],
     "sliver simulate": [
         "--duration",

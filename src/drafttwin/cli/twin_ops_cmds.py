@@ -21,6 +21,7 @@ from drafttwin.cli.twin_cmds import (
     CommitMsOpt,
     DetectorOpt,
     LearnOpt,
+    LevelWindowOpt,
     MachineOpt,
     StoreReadOpt,
     TokenOpt,
@@ -110,6 +111,7 @@ def twin_hall(
     physics: TwinPhysicsOpt = "reduced", duration: StopAfterOpt = None,
     quiet: TwinQuietOpt = False, http: HallHttpOpt = None, token: TokenOpt = None,
     as_json: ShardsJsonOpt = False, detector: DetectorOpt = "auto", learn: LearnOpt = None,
+    level_window: LevelWindowOpt = 300.0,
 ) -> None:  # fmt: skip
     """Run a hall as K live twins, one Ray actor each: shard I takes the mapping's machines
     I, I+K, I+2K... (each machine whole in one twin) and writes its own store in
@@ -172,7 +174,7 @@ def twin_hall(
             results = run_hall(model, source, mapping, store, shards, address=ray_address,
                                commit_ms=commit_ms, physics=physics, duration_s=duration,
                                on_status=status, status_every_s=1.0, detector=detector,
-                               learn_s=learn)  # fmt: skip
+                               learn_s=learn, level_window_m=level_window)  # fmt: skip
     except Interrupted as exc:  # a service manager's stop is a clean end: exit code 0
         work_done()
         note = str(exc).partition("; ")[2]  # what the hall did, shard by shard

@@ -28,6 +28,7 @@ from typing import Any
 
 from drafttwin.errors import ConfigError
 from drafttwin.execution.interrupt import Interrupted
+from drafttwin.sliver.levelwatch import WINDOW_M
 
 SHARD_DIR = re.compile(r"^shard-(\d+)-of-(\d+)$")
 RESTARTS = 3
@@ -117,7 +118,8 @@ def _actor_class(ray: Any) -> Any:
             self.service = build_service(o["model"], [o["source"]], mapping=o["mapping"],
                                          store_dir=o["store"], commit_ms=o["commit_ms"],
                                          physics=o["physics"], silent_s=o["silent_s"],
-                                         detector=o["detector"], learn_s=o["learn_s"])  # fmt: skip
+                                         detector=o["detector"], learn_s=o["learn_s"],
+                                         level_window_m=o["level_window_m"])  # fmt: skip
             failed: list[BaseException] = []
 
             def loop() -> None:  # a thread of its own: Ray's method thread runs its own loop
@@ -165,11 +167,13 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
              silent_s: float = 2.0, duration_s: float | None = None,
              on_status: Callable[[list[dict[str, Any] | None]], None] | None = None,
              status_every_s: float = 10.0, detector: str = "auto",
-             learn_s: float | None = None) -> list[dict[str, Any]]:  # fmt: skip
+             learn_s: float | None = None,
+             level_window_m: float = WINDOW_M) -> list[dict[str, Any]]:  # fmt: skip
     """Run ``shards`` twin actors on Ray (the cluster at ``address``, else a private instance
     with ``shards`` CPUs) until ``duration_s`` or Ctrl-C; each shard's final status. Each
     shard's machines learn their own healthy state (``detector``, ``learn_s``: as ``twin
-    run``'s), kept in the shard's store."""
+    run``'s), kept in the shard's store; ``level_window_m``: metres of sliver per leveller
+    recommendation, as ``twin run``'s."""
     from drafttwin.execution.executor import ray_session
 
     check_store(store, shards)
@@ -179,6 +183,7 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
         cls = _actor_class(ray)
         opts = {"model": model.resolve(), "mapping": mapping.resolve(), "commit_ms": commit_ms,
                 "physics": physics, "silent_s": silent_s, "learn_s": learn_s,
+                "level_window_m": level_window_m,
                 "detector": detector if detector in ("auto", "none") else
                 str(Path(detector).resolve())}  # fmt: skip
         actors = [cls.remote({**opts, "source": shard_source(source, i, shards),
