@@ -130,3 +130,22 @@ def test_retention_keeps_the_newest_hours(twin_files: tuple[Path, Path], tmp_pat
     (m,) = json.loads(res.stdout)["machines"]
     assert m["samples"] == 201  # the last 2 s at 100 Hz, both ends included
     assert m["last_s"] == pytest.approx(6.0)
+
+
+def test_the_summary_gives_no_transport_figure_for_a_source_off_the_wall_clock(capsys):
+    """A replay of old records stamps its samples years back: its 'transport' is the age of the
+    records, not a latency (it printed 95,867,089,617 ms); a live source's figure stays."""
+    from drafttwin.cli.twin_cmds import _print_status
+
+    def machine(p50_ms: float) -> dict:
+        return {"state": "live", "received": 1, "processed": 1, "dropped": 0, "late": 0,
+                "duplicate": 0, "skipped": 0, "spikes_rejected": 0,
+                "transport_ms": {"p50": p50_ms, "p99": p50_ms + 5.0}}  # fmt: skip
+
+    _print_status({"rows": 2, "wall_s": 1.0, "store": None,
+                   "latency_ms": {"p50": 1.0, "p99": 2.0, "max": 3.0},
+                   "machines": {"replayed": machine(9.5867e10), "live": machine(12.0)}})  # fmt: skip
+    out = capsys.readouterr().out
+    assert "replayed: the source's times are +26629.7 h off the wall clock" in out, out
+    assert "replayed: source -> received" not in out
+    assert "live: source -> received (transport and the source's own lateness): p50 12.0 ms" in out

@@ -233,6 +233,11 @@ async def _status_lines(service: TwinService) -> None:
                           highlight=False)  # fmt: skip
 
 
+_OFF_CLOCK_MS = 3.6e6
+"""A source whose times lie more than an hour off the wall clock is not stamping live samples
+(``plant replay`` of records from 2023, a machine with its clock unset)."""
+
+
 def _print_status(status: dict[str, Any]) -> None:
     table = Table(title=f"live twin: {status['rows']} samples in {status['wall_s']:.1f} s")
     for col in ("machine", "state", "received", "processed", "dropped", "late", "duplicate",
@@ -250,6 +255,10 @@ def _print_status(status: dict[str, Any]) -> None:
     for name, m in status["machines"].items():
         if m.get("transport_ms") is not None:  # live sources: the source stamps each sample
             tr = m["transport_ms"]
+            if abs(tr["p50"]) > _OFF_CLOCK_MS:  # a replay of old records, a source's clock off
+                console.print(f"{name}: the source's times are {tr['p50'] / 3.6e6:+.1f} h off "
+                              f"the wall clock (a replay?): no transport figure")  # fmt: skip
+                continue
             console.print(f"{name}: source -> received (transport and the source's own "
                           f"lateness): p50 {tr['p50']:.1f} ms, p99 {tr['p99']:.1f} ms")  # fmt: skip
     for name, m in status["machines"].items():
