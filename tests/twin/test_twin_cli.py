@@ -149,3 +149,13 @@ def test_the_summary_gives_no_transport_figure_for_a_source_off_the_wall_clock(c
     assert "replayed: the source's times are +26629.7 h off the wall clock" in out, out
     assert "replayed: source -> received" not in out
     assert "live: source -> received (transport and the source's own lateness): p50 12.0 ms" in out
+
+
+def test_the_live_benchmarks_speed_default_is_the_studys():
+    """The CLI states the default apart (it imports the study lazily): the two must agree."""
+    import inspect
+
+    from drafttwin.cli.faults_cmds import benchmark_faults
+    from drafttwin.studies.faults.live import SPEED
+
+    assert inspect.signature(benchmark_faults).parameters["speed"].default == SPEED
