@@ -298,7 +298,7 @@ def test_live_twin_metrics_history_load_and_prometheus(
     from prometheus_client.parser import text_string_to_metric_families
 
     from drafttwin.twin.build import build_service
-    from drafttwin.twin.web.app import serve_with
+    from drafttwin.twin.web.server import serve_with
 
     record, model = twin_files
     store = TwinStore(tmp_path / "store")

@@ -25,7 +25,7 @@ from typer.testing import CliRunner
 from drafttwin.cli import app
 from drafttwin.twin.build import build_service
 from drafttwin.twin.service import TwinService
-from drafttwin.twin.web.app import serve_with
+from drafttwin.twin.web.server import serve_with
 
 from ._twin import free_port
 

@@ -199,7 +199,7 @@ async def _serve(service: TwinService, bind: tuple[str, int] | None, token: str 
             if bind is None:
                 await service.run(duration_s=duration, max_rows=max_samples)
                 return
-            from drafttwin.twin.web.app import serve_with
+            from drafttwin.twin.web.server import serve_with
 
             def started(_: object) -> None:
                 err_console.print(f"page on http://{bind[0]}:{bind[1]}/")

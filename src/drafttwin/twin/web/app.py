@@ -21,7 +21,7 @@ import asyncio
 import contextlib
 import json
 import math
-import socket
+import threading
 import time
 from typing import Any
 
@@ -34,6 +34,7 @@ from drafttwin._json import to_strict
 from drafttwin.twin.service import TwinService
 from drafttwin.twin.store.db import EventRow, SampleRow
 from drafttwin.twin.web.assets import page_text, serve_docs, serve_static
+from drafttwin.twin.web.bridge import Bridge
 from drafttwin.twin.web.guard import guard, ws_admits
 from drafttwin.twin.web.history import FAULT_KINDS, HistoryApi
 from drafttwin.twin.web.history import event_dict as _event
@@ -55,43 +56,51 @@ def _row(r: SampleRow) -> list[Any]:
 
 
 class Hub:
-    """Collects processed rows and pushes them to the WebSocket clients every ``PUSH_S``."""
+    """Collects processed rows (on the twin's loop) and pushes them to the WebSocket clients
+    every ``PUSH_S`` (on the page's loop): the JSON is made on the page's side of the lock."""
 
     def __init__(self) -> None:
         self.clients: set[asyncio.Queue[str]] = set()
         self.rows: dict[str, list[list[Any]]] = {}
         self.events: list[dict[str, Any]] = []
+        self._lock = threading.Lock()
 
     def add(self, machine: str, rows: list[SampleRow], events: list[EventRow]) -> None:
         if not self.clients:
             return
-        self.rows.setdefault(machine, []).extend(_row(r) for r in rows)
-        self.events.extend(_event(e) for e in events)
+        got, seen = [_row(r) for r in rows], [_event(e) for e in events]
+        with self._lock:
+            self.rows.setdefault(machine, []).extend(got)
+            self.events.extend(seen)
 
     def flush(self) -> None:
-        if not (self.rows or self.events) or not self.clients:
+        with self._lock:
+            if not (self.rows or self.events):
+                return
+            rows, events = self.rows, self.events
+            self.rows, self.events = {}, []
+        if not self.clients:
             return
-        text = json.dumps(to_strict({"rows": self.rows, "events": self.events}), allow_nan=False)
-        self.rows, self.events = {}, []
-        for q in self.clients:
+        text = json.dumps(to_strict({"rows": rows, "events": events}), allow_nan=False)
+        for q in list(self.clients):
             if q.qsize() >= MAX_WS_QUEUE:
                 with contextlib.suppress(asyncio.QueueEmpty):
                     q.get_nowait()
             q.put_nowait(text)
 
 
-WEB_STOP_S = 1.0
-"""At a stop, how long the page's server may take to close."""
-
-
-def create_app(service: TwinService, token: str | None = None) -> FastAPI:
+def create_app(service: TwinService, token: str | None = None,
+               twin_loop: asyncio.AbstractEventLoop | None = None) -> FastAPI:  # fmt: skip
     """The FastAPI app of ``service`` (a token, if given, guards every route). Its OpenAPI
-    schema is ``/openapi.json``, the interactive docs ``/docs``."""
+    schema is ``/openapi.json``, the interactive docs ``/docs``. Served on a loop other than
+    ``twin_loop`` (:mod:`~drafttwin.twin.web.server`), its handlers read and change the twin's
+    state only through a :class:`~drafttwin.twin.web.bridge.Bridge` to that loop."""
     app = FastAPI(title="drafttwin live twin", summary="The live twin's REST API, WebSocket "
                   "and metrics (docs/twin.md)", docs_url=None, redoc_url=None)  # fmt: skip
     hub = Hub()
     metrics = Metrics(service)
-    api = HistoryApi(service)
+    bridge = Bridge(twin_loop)
+    api = HistoryApi(service, bridge)
     service.metrics = metrics
     service.subscribers.append(hub.add)
     service.event_hooks.append(metrics.event)
@@ -111,53 +120,66 @@ def create_app(service: TwinService, token: str | None = None) -> FastAPI:
     serve_docs(app)
 
     @app.get("/api/machines")
-    def machines() -> list[dict[str, Any]]:
+    async def machines() -> list[dict[str, Any]]:
         """Each machine: its channels, state, source and sample rate."""
-        return [{"machine": n, "channels": list(st.mapping.channels), "state": st.state,
-                 "source": st.source, "rate_hz": st.mapping.rate_hz}
-                for n, st in service.states.items()]  # fmt: skip
+        return await bridge.shared("machines", lambda: [
+            {"machine": n, "channels": list(st.mapping.channels), "state": st.state,
+             "source": st.source, "rate_hz": st.mapping.rate_hz}
+            for n, st in service.states.items()])  # fmt: skip
 
     @app.get("/api/status")
-    def status() -> Any:
+    async def status() -> Any:
         """Rows, latency percentiles, the store, and per machine its counts and last alarm."""
-        return to_strict(service.status())
+        return await bridge.shared("status", lambda: to_strict(service.status()))
 
     @app.post("/api/machines/{machine}/relearn")
-    def relearn(machine: str) -> Any:
+    async def relearn(machine: str) -> Any:
         """After maintenance: forget the machine's learned healthy state and learn it again
         (no fault alarm meanwhile); its detector's state afterwards."""
         from drafttwin.twin.service import detector_state
 
-        st = state(machine)
-        if not service.relearn(machine, "operator's command (REST)"):
-            raise HTTPException(409, f"machine {machine!r} has no fault detector")
-        return to_strict({"machine": machine, "detector": detector_state(st)})
+        def forget() -> Any:
+            st = state(machine)
+            if not service.relearn(machine, "operator's command (REST)"):
+                raise HTTPException(409, f"machine {machine!r} has no fault detector")
+            return to_strict({"machine": machine, "detector": detector_state(st)})
+
+        return await bridge.call(forget)
 
     @app.get("/api/alarms/active")
-    def active_alarms(machine: str | None = None) -> Any:
+    async def active_alarms(machine: str | None = None) -> Any:
         """The alarms that are active or wait for an operator (acknowledge, confirm), most
         severe first, each with its cause: what the page's banner shows."""
-        if machine is not None:
-            state(machine)
-        return to_strict([a.to_dict() for a in service.book.retained(machine)])
+
+        def retained() -> Any:
+            if machine is not None:
+                state(machine)
+            return to_strict([a.to_dict() for a in service.book.retained(machine)])
+
+        return await bridge.call(retained)
 
     @app.post("/api/machines/{machine}/alarms/{what}")
-    def acknowledge(machine: str, what: str, comment: str = "", alarm: str | None = None) -> Any:
+    async def acknowledge(machine: str, what: str, comment: str = "",
+                          alarm: str | None = None) -> Any:  # fmt: skip
         """``what`` = acknowledge or confirm (those acknowledged) the machine's retained alarms,
         or the one whose id is ``alarm`` (an operator's, as over OPC UA); the alarms after."""
-        state(machine)
         if what not in ("acknowledge", "confirm"):
             raise HTTPException(404, "acknowledge or confirm")
-        if alarm is not None and alarm not in {a.id for a in service.book.retained(machine)}:
-            raise HTTPException(404, f"machine {machine!r} has no retained alarm {alarm!r}")
-        n = service.faults.acknowledge(machine, comment[:500], what == "confirm", alarm)
-        return to_strict({"machine": machine, "taken": n,
-                          "alarms": [a.to_dict() for a in service.book.retained(machine)]})  # fmt: skip
+
+        def take() -> Any:
+            state(machine)
+            if alarm is not None and alarm not in {a.id for a in service.book.retained(machine)}:
+                raise HTTPException(404, f"machine {machine!r} has no retained alarm {alarm!r}")
+            n = service.faults.acknowledge(machine, comment[:500], what == "confirm", alarm)
+            return to_strict({"machine": machine, "taken": n,
+                              "alarms": [a.to_dict() for a in service.book.retained(machine)]})  # fmt: skip
+
+        return await bridge.call(take)
 
     @app.get("/api/model/{machine}")
-    def model(machine: str) -> Any:
+    async def model(machine: str) -> Any:
         """The machine's model: class, channels, horizon, physics."""
-        st = state(machine)
+        st = await bridge.call(state, machine)
         m = st.twin.model
         return to_strict({"machine": machine, "model": m.name, "class": type(m).__name__,
                           "channels": list(m.channels_), "horizon": m.task.horizon,
@@ -210,8 +232,10 @@ def create_app(service: TwinService, token: str | None = None) -> FastAPI:
 
     @app.get("/metrics")
     async def prometheus() -> Response:
-        """Prometheus exposition (read in the event loop: the state does not move meanwhile)."""
-        return Response(metrics.text(), media_type="text/plain; version=0.0.4")
+        """Prometheus exposition (read on the twin's loop, where the state does not move
+        meanwhile; one read shared by the scrapes of a tenth of a second)."""
+        text = await bridge.shared("metrics", metrics.text)
+        return Response(text, media_type="text/plain; version=0.0.4")
 
     @app.websocket("/ws")
     async def stream(ws: WebSocket) -> None:
@@ -239,6 +263,7 @@ def create_app(service: TwinService, token: str | None = None) -> FastAPI:
 
     app.state.hub = hub
     app.state.history = api
+    app.state.bridge = bridge
     return app
 
 
@@ -270,49 +295,4 @@ async def _read_bounded(ws: WebSocket) -> tuple[int, str] | None:
             return 1008, f"more than {WS_IN_RATE_HZ:g} messages per second"
 
 
-async def _pump(hub: Hub, stop: asyncio.Event) -> None:
-    while not stop.is_set():
-        await asyncio.sleep(PUSH_S)
-        hub.flush()
-
-
-async def serve_with(service: TwinService, bind: tuple[str, int], token: str | None,
-                     duration_s: float | None, max_rows: int | None,
-                     started: Any = None) -> None:  # fmt: skip
-    """Run ``service`` and its page on ``bind`` until the service stops."""
-    import uvicorn
-
-    app = create_app(service, token)
-    family = socket.AF_INET6 if ":" in bind[0] else socket.AF_INET
-    sock = socket.socket(family, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    sock.bind(bind)  # an address in use fails here, as an OSError the CLI reports
-    config = uvicorn.Config(app, log_level="warning", ws_max_size=1 << 16, lifespan="off")
-    server = uvicorn.Server(config)
-    stop = asyncio.Event()
-    web = asyncio.create_task(server.serve(sockets=[sock]))
-    pump = asyncio.create_task(_pump(app.state.hub, stop))
-    try:
-        while not server.started:
-            if web.done():
-                web.result()  # the bind failed: raise its error
-                raise OSError(f"cannot serve on {bind[0]}:{bind[1]}")
-            await asyncio.sleep(0.02)
-        if started is not None:
-            started(server)
-        await service.run(duration_s=duration_s, max_rows=max_rows)
-    finally:
-        stop.set()
-        app.state.history.close()
-        server.should_exit = True
-        server.force_exit = True  # open WebSockets and keep-alive clients do not hold the stop
-        start = time.monotonic()
-        while not web.done() and time.monotonic() - start < WEB_STOP_S:
-            await asyncio.sleep(0.05)
-        for task in (web, pump):
-            task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await task
-
-
-__all__ = ["FAULT_KINDS", "LATENCY_BUCKETS", "Hub", "Metrics", "create_app", "serve_with"]
+__all__ = ["FAULT_KINDS", "LATENCY_BUCKETS", "PUSH_S", "Hub", "Metrics", "create_app"]

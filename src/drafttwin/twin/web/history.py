@@ -44,6 +44,7 @@ from drafttwin.twin.store.history import (
     stored_channels,
     stored_range,
 )
+from drafttwin.twin.web.bridge import Bridge
 
 T = TypeVar("T")
 
@@ -158,8 +159,9 @@ class HistoryApi:
     """History, alarms and events of ``service``: from its store when it has one (the whole
     stored range), else from the rows it keeps in memory (the last 30 s, said in the answer)."""
 
-    def __init__(self, service: TwinService) -> None:
+    def __init__(self, service: TwinService, bridge: Bridge | None = None) -> None:
         self.service = service
+        self.bridge = bridge if bridge is not None else Bridge()
         writer = service.writer
         self.store: Path | None = None if writer is None else writer.store.path
         self.pool = ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="history",
@@ -244,11 +246,8 @@ class HistoryApi:
         limit = _bounded(limit, "limit", 1, MAX_PAGE_ROWS, DEFAULT_PAGE_ROWS)
         if points is not None:
             _bounded(points, "points", 2, MAX_POINTS, points)
-        if self.store is None:  # a snapshot here, in the loop; the JSON in a history thread
-            st = self.service.states.get(machine)
-            if st is None:
-                raise HTTPException(404, f"no machine {machine!r}")
-            kept = (list(st.recent), list(st.mapping.channels), st.recent.maxlen)
+        if self.store is None:  # a snapshot on the twin's loop; the JSON in a history thread
+            kept = await self.bridge.call(self._kept, machine)
             return await self.run(self._from_memory, machine, kept, seconds, start, end, limit,
                                   cursor)  # fmt: skip
         return await self.run(self._from_store, machine, seconds, start, end, limit, cursor,
@@ -292,6 +291,12 @@ class HistoryApi:
                 "stored": rng, "start": max(start_us, got[0]) / 1e6 if got else None,
                 "end": min(end_us, got[1]) / 1e6 if got else None, "clipped": clipped}  # fmt: skip
 
+    def _kept(self, machine: str) -> tuple[list[SampleRow], list[str], int]:
+        st = self.service.states.get(machine)
+        if st is None:
+            raise HTTPException(404, f"no machine {machine!r}")
+        return list(st.recent), list(st.mapping.channels), st.recent.maxlen or 0
+
     def _from_memory(self, _con: None, machine: str, kept: tuple[list[SampleRow], list[str], int],
                      seconds: float | None, start: str | None, end: str | None, limit: int,
                      cursor: str | None) -> Response:  # fmt: skip
@@ -318,13 +323,16 @@ class HistoryApi:
         limit = _bounded(limit, "limit", 1, MAX_EVENTS, 200)
         start_us = parse_time(start, "start") if start is not None else -(2**62)
         end_us = parse_time(end, "end") if end is not None else 2**62
-        if machine is not None and machine not in self.service.states and self.store is None:
-            raise HTTPException(404, f"no machine {machine!r}")
         if self.store is None:
-            found = [e for st in self.service.states.values() for e in st.alarms
-                     if (e.kind in ALARM_KINDS) == alarms and start_us <= e.ts_us <= end_us
-                     and machine in (None, e.machine)]  # fmt: skip
-            found = sorted(found, key=lambda e: e.ts_us)[-limit:]
+
+            def kept() -> list[EventRow]:  # on the twin's loop: its lists do not move meanwhile
+                if machine is not None and machine not in self.service.states:
+                    raise HTTPException(404, f"no machine {machine!r}")
+                return [e for st in self.service.states.values() for e in st.alarms
+                        if (e.kind in ALARM_KINDS) == alarms and start_us <= e.ts_us <= end_us
+                        and machine in (None, e.machine)]  # fmt: skip
+
+            found = sorted(await self.bridge.call(kept), key=lambda e: e.ts_us)[-limit:]
         else:
             rows = await self.run(events_window, machine, ALARM_KINDS, not alarms, start_us,
                                   end_us, limit)  # fmt: skip
