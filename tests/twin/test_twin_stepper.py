@@ -50,3 +50,31 @@ def test_a_train_without_motor_is_refused(train: DriveTrain) -> None:
     raw.pop("motor")
     with pytest.raises(ConfigError, match="no motor"):
         LiveStepper(DriveTrain.from_dict(raw), RATE, 48.0)
+
+
+@pytest.mark.parametrize("reduced", [False, True])
+def test_the_compiled_kernel_steps_exactly_as_the_dispatcher(train: DriveTrain, reduced: bool,
+                                                             monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """The stepper calls numba's compiled overload directly and keeps its last angles for the
+    next step: bit for bit the rows of the dispatcher recomputing both, look-aheads included."""
+    import drafttwin.mechanics.stepper as S
+
+    t = reduce(train) if reduced else train
+
+    def run(recompute: bool) -> np.ndarray:
+        live = LiveStepper(t, RATE, 48.0, settle_s=0.2)
+        assert (live._kernel is live._integrate) == recompute
+        rows = []
+        for f in _supply()[25:45]:
+            snap = live.snapshot()
+            rows.append(live.step(f - 1.0))  # a look-ahead, undone
+            live.restore(snap)
+            for span in (None, 2 / RATE):
+                if recompute:
+                    live._after = None
+                rows.append(live.step(f, span))
+        return np.array(rows)
+
+    fast = run(False)
+    monkeypatch.setattr(S, "_compiled", lambda dispatcher, args: dispatcher)
+    np.testing.assert_array_equal(fast, run(True))

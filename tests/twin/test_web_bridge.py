@@ -146,3 +146,23 @@ def test_the_twin_keeps_its_pace_while_the_pages_loop_is_held(twin_files) -> Non
     assert found["page_thread"] == "twin-page"
     assert found["held"] >= 150, found["held"]  # 100 Hz for 2 s: ~200 rows
     assert found["status"]["machines"]["m1"]["processed"] > 0
+
+
+def test_the_hubs_push_is_the_strict_json_of_its_rows_and_events() -> None:
+    """Made without walking the rows in Python: the same document as :func:`to_strict`, every
+    non-finite number null, a machine's name left as it is even when it reads NaN."""
+    import math
+
+    import numpy as np
+
+    from drafttwin._json import to_strict
+    from drafttwin.twin.web.app import _push_json
+
+    rng = np.random.default_rng(3)
+    rows = {name: rng.normal(0, 1e3, (40, 11)).tolist() for name in ("m1", "NaN", 'a"b')}
+    for r in rows["m1"][::3]:
+        r[1], r[5], r[-1] = math.nan, math.inf, -math.inf
+    events = [{"machine": "m1", "kind": "gap", "detail": "NaN Infinity", "x": math.nan}]
+    text = _push_json(rows, events)
+    assert json.loads(text) == to_strict({"rows": rows, "events": events})
+    assert "NaN," not in text and "Infinity]" not in text

@@ -46,25 +46,29 @@ class SpikeFilter:
     def __init__(self, n: int, threshold: float = SPIKE_THRESHOLD,
                  floor: np.ndarray | None = None) -> None:  # fmt: skip
         self.threshold = threshold
-        self.floor = np.zeros(n) if floor is None else np.asarray(floor, dtype=np.float64)
-        self.last = np.full(n, np.nan)  # last accepted value per channel
-        self.held = np.full(n, np.nan)  # the sample rejected just before, if any
+        # Python floats, not NumPy scalars: a row of a few channels is cheaper in plain
+        # arithmetic (the same IEEE doubles, so the same decisions)
+        given = np.zeros(n) if floor is None else np.asarray(floor, dtype=np.float64)
+        self.floor: list[float] = given.tolist()
+        self.last = [math.nan] * n  # last accepted value per channel
+        self.held = [math.nan] * n  # the sample rejected just before, if any
         self.rejected = 0
 
     def __call__(self, row: np.ndarray) -> np.ndarray:
-        out = np.array(row, dtype=np.float64, copy=True)
+        out: list[float] = np.asarray(row, dtype=np.float64).tolist()
+        last_, held_, floor_ = self.last, self.held, self.floor
         for j, v in enumerate(out):
-            if math.isnan(v):
+            if v != v:  # NaN
                 continue
-            last, held = self.last[j], self.held[j]
-            tol = self.threshold * max(abs(last) if not math.isnan(last) else 0.0, self.floor[j])
-            moved = not math.isnan(held) and abs(v - held) <= tol
-            if not math.isnan(last) and abs(v - last) > tol and not moved:
-                self.held[j], out[j] = v, np.nan
+            last, held = last_[j], held_[j]
+            tol = self.threshold * max(abs(last) if last == last else 0.0, floor_[j])
+            moved = held == held and abs(v - held) <= tol
+            if last == last and abs(v - last) > tol and not moved:
+                held_[j], out[j] = v, math.nan
                 self.rejected += 1
             else:
-                self.last[j], self.held[j] = v, np.nan
-        return out
+                last_[j], held_[j] = v, math.nan
+        return np.array(out, dtype=np.float64)
 
 
 @dataclass(order=True)

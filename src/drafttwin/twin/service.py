@@ -10,6 +10,7 @@ released; the others run on.
 from __future__ import annotations
 
 import asyncio
+import gc
 import json
 import math
 import time
@@ -114,6 +115,7 @@ class TwinService:
         self._scheduled = False
         batch, self._batch = self._batch, []
         rnd: list[tuple[MachineState, Begun, float]] = []
+        in_round: set[str] = set()  # the machines in rnd (a set: 100 machines a tick)
         for s in batch:
             st = self.states.get(s.machine)
             if st is None:
@@ -125,9 +127,9 @@ class TwinService:
             if st.resume_after_us is not None and s.ts_us <= st.resume_after_us:
                 st.skipped += 1  # stored before a restart: not again
                 continue
-            if any(r[0] is st for r in rnd):  # a second sample of a machine: finish the first
+            if s.machine in in_round:  # a second sample of a machine: finish the first
                 self._finish(rnd)
-                rnd = []
+                rnd, in_round = [], set()
             if s.sliver is not None:
                 self.slivers.batch(st, s.sliver)
             rows, begun = st.twin.receive_deferred(s.ts_us, s.seq, s.values, s.setpoint,
@@ -135,6 +137,7 @@ class TwinService:
             self._out(st, rows, s.received)
             if begun is not None:
                 rnd.append((st, begun, s.received))
+                in_round.add(s.machine)
         self._finish(rnd)
 
     def _finish(self, rnd: list[tuple[MachineState, Begun, float]]) -> None:
@@ -163,7 +166,9 @@ class TwinService:
         for push in self.subscribers:
             push(st.twin.name, rows, events)
         self.rows += len(rows)
-        st.newest_source_s = float(np.fmax(st.newest_source_s, rows[-1].ts_us * 1e-6))
+        newest = rows[-1].ts_us * 1e-6
+        if not st.newest_source_s >= newest:  # NaN (none yet) or older
+            st.newest_source_s = newest
         if received is not None and math.isfinite(received):  # NaN: recovered, not live
             lat = time.perf_counter() - received
             # the wall time it arrived, minus the time its source gave it
@@ -232,6 +237,10 @@ class TwinService:
         tasks = [asyncio.create_task(src.run(self.on_sample, self.report)) for src in self.sources]
         watch = asyncio.create_task(self._watch())
         deadline = math.inf if duration_s is None else time.monotonic() + duration_s
+        # what exists now (models, trains, kernels, the libraries) lives as long as the twin:
+        # out of the collector's full passes, which walked it in one 200-400 ms pause every
+        # few seconds at 100 machines (p99 9 -> 23 ms, measured); given back at the end
+        gc.freeze()
         try:
             while time.monotonic() < deadline and not self._stop.is_set():
                 if max_rows is not None and self.rows >= max_rows:
@@ -255,6 +264,7 @@ class TwinService:
                     await asyncio.shield(ending)
                 except asyncio.CancelledError:
                     self.stop_signalled = late_cancel = True
+            gc.unfreeze()
             ending.result()
             if late_cancel:  # the caller cancelled during the end: it is told so
                 raise asyncio.CancelledError

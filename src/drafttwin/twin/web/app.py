@@ -21,6 +21,7 @@ import asyncio
 import contextlib
 import json
 import math
+import re
 import threading
 import time
 from typing import Any
@@ -52,7 +53,22 @@ WS_IN_BURST = 20
 
 
 def _row(r: SampleRow) -> list[Any]:
-    return [r.ts_us / 1e6, r.seq, r.setpoint, *r.measured, *r.physics, *r.twin, *r.residual]
+    return [r.ts_us / 1e6, r.seq, r.setpoint, *r.measured.tolist(), *r.physics.tolist(),
+            *r.twin.tolist(), *r.residual.tolist()]  # fmt: skip
+
+
+_NONFINITE = re.compile(r"(?<=[\[ ])(?:-?Infinity|NaN)(?=[,\]])")
+"""A non-finite number in a list of numbers as ``json.dumps`` writes it (never in a string)."""
+
+
+def _numbers_json(rows: list[list[Any]]) -> str:
+    """Rows of numbers as strict JSON (NaN -> null) without walking them in Python."""
+    return _NONFINITE.sub("null", json.dumps(rows))
+
+
+def _push_json(rows: dict[str, list[list[Any]]], events: list[dict[str, Any]]) -> str:
+    machines = ", ".join(f"{json.dumps(m)}: {_numbers_json(r)}" for m, r in rows.items())
+    return f'{{"rows": {{{machines}}}, "events": {json.dumps(to_strict(events), allow_nan=False)}}}'
 
 
 class Hub:
@@ -81,7 +97,7 @@ class Hub:
             self.rows, self.events = {}, []
         if not self.clients:
             return
-        text = json.dumps(to_strict({"rows": rows, "events": events}), allow_nan=False)
+        text = _push_json(rows, events)
         for q in list(self.clients):
             if q.qsize() >= MAX_WS_QUEUE:
                 with contextlib.suppress(asyncio.QueueEmpty):

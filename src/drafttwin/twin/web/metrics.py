@@ -86,6 +86,7 @@ class Metrics:
         self.causes = Counter("drafttwin_fault_causes", "Fault alarms localised, by the most "
                               "probable cause (element:kind; none when not localised)",
                               ["machine", "cause"], registry=self.registry)  # fmt: skip
+        self._samples: dict[str, Any] = {}
         if service is not None:
             self.registry.register(StateCollector(service))
 
@@ -93,7 +94,10 @@ class Metrics:
         self.causes.labels(machine, cause).inc()
 
     def observe(self, machine: str, rows: int, latency_s: float) -> None:
-        self.samples.labels(machine).inc(rows)
+        counter = self._samples.get(machine)
+        if counter is None:  # the labelled child once per machine: its lookup took 3 us a row
+            counter = self._samples[machine] = self.samples.labels(machine)
+        counter.inc(rows)
         self.latency.observe(latency_s)
 
     def dropped(self, machine: str, count: int = 1) -> None:
