@@ -166,3 +166,17 @@ def test_the_hubs_push_is_the_strict_json_of_its_rows_and_events() -> None:
     text = _push_json(rows, events)
     assert json.loads(text) == to_strict({"rows": rows, "events": events})
     assert "NaN," not in text and "Infinity]" not in text
+
+
+def test_a_snapshot_is_not_shared_across_event_loops() -> None:
+    """A test client runs each request in a loop of its own: the second request, within the
+    snapshot's tenth of a second, computes its own instead of awaiting a closed loop's."""
+    bridge = Bridge()  # no twin loop: the handlers' own loop is the twin's
+    calls: list[int] = []
+
+    def status() -> int:
+        calls.append(1)
+        return len(calls)
+
+    assert asyncio.run(bridge.shared("status", status)) == 1
+    assert asyncio.run(bridge.shared("status", status)) == 2

@@ -65,9 +65,10 @@ class Bridge:
         """``fn()`` on the twin's loop, its result shared by every request for ``key`` within
         :data:`SNAPSHOT_S` (the result must not be changed by its readers; ``key`` is one of
         a few fixed names, never taken from a request)."""
-        now = time.monotonic()
+        now, loop = time.monotonic(), asyncio.get_running_loop()
         got = self._shared.get(key)
-        stale = got is None or now - got[0] >= SNAPSHOT_S
+        # a snapshot of another loop (a test client opens one per request) is not awaited here
+        stale = got is None or now - got[0] >= SNAPSHOT_S or got[1].get_loop() is not loop
         if got is not None and got[1].done() and (got[1].cancelled() or got[1].exception()):
             stale = True  # a failure is not shared: the next request asks again
         if stale or got is None:
