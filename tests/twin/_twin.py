@@ -3,11 +3,16 @@ and a way to run the CLI in a subprocess with a timeout."""
 
 from __future__ import annotations
 
+import asyncio
 import os
 import socket
 import subprocess
 import sys
+import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -43,6 +48,29 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
+
+
+def serve_beside(service: Any, port: int, seconds: float, load: Callable[[Any], None],
+                 join_s: float = 60.0) -> None:  # fmt: skip
+    """Run ``service`` with its page on 127.0.0.1:``port`` for at most ``seconds``, and
+    ``load(page)`` in a thread once the page listens (it ends the run with ``service.stop()``)."""
+    from drafttwin.twin.web.server import serve_with
+
+    pages: list[Any] = []
+
+    def run_load() -> None:
+        deadline = time.monotonic() + join_s
+        while not pages and time.monotonic() < deadline:
+            time.sleep(0.02)
+        if pages:
+            load(pages[0])
+
+    clients = threading.Thread(target=run_load)
+    clients.start()
+    try:
+        asyncio.run(serve_with(service, ("127.0.0.1", port), None, seconds, None, pages.append))
+    finally:
+        clients.join(timeout=join_s)
 
 
 def env() -> dict[str, str]:

@@ -29,7 +29,7 @@ from drafttwin.twin.store.db import EventRow, StoreWriter, TwinStore
 from drafttwin.twin.web.app import WS_IN_BURST, WS_IN_MAX_BYTES, create_app
 from drafttwin.twin.web.hall import HallServer, HallView
 
-from ._twin import CHANNELS, free_port
+from ._twin import CHANNELS, free_port, serve_beside
 
 pytestmark = pytest.mark.timeout(120)
 T0_US = 1_764_216_000_000_000  # 2025-11-27T04:00:00Z
@@ -298,7 +298,6 @@ def test_live_twin_metrics_history_load_and_prometheus(
     from prometheus_client.parser import text_string_to_metric_families
 
     from drafttwin.twin.build import build_service
-    from drafttwin.twin.web.server import serve_with
 
     record, model = twin_files
     store = TwinStore(tmp_path / "store")
@@ -311,9 +310,7 @@ def test_live_twin_metrics_history_load_and_prometheus(
     prom = _prometheus(tmp_path, port)
     found: dict[str, Any] = {}
 
-    def load() -> None:
-        while "up" not in found:
-            time.sleep(0.02)
+    def load(_: object) -> None:
         time.sleep(0.5)  # past the start
         rows0, t0 = service.rows, time.monotonic()
         url = f"{base}/api/history/old-01?start={(T0_US - 86_400_000_000) / 1e6}&limit=10000"
@@ -327,15 +324,9 @@ def test_live_twin_metrics_history_load_and_prometheus(
             found["scraped"] = _scraped(prom[1], 5.0)
         service.stop()  # done: the record need not play to its end
 
-    def started(_: object) -> None:
-        found["up"] = True
-
-    clients = threading.Thread(target=load)
-    clients.start()
     try:
-        asyncio.run(serve_with(service, ("127.0.0.1", port), None, 20, None, started))
+        serve_beside(service, port, 20, load)
     finally:
-        clients.join(timeout=60)
         assert service.writer is not None
         service.writer.close()
         service.writer.store.close()

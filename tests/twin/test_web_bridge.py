@@ -20,7 +20,7 @@ from fastapi import HTTPException
 
 from drafttwin.twin.web.bridge import SNAPSHOT_S, Bridge
 
-from ._twin import free_port
+from ._twin import free_port, serve_beside
 
 
 class _TwinLoop:
@@ -114,35 +114,23 @@ def test_the_twin_keeps_its_pace_while_the_pages_loop_is_held(twin_files) -> Non
     """The page's loop held for 2 s (as by a hundred clients): the twin processes about 200
     rows meanwhile, and the page answers again afterwards with the twin's status."""
     from drafttwin.twin.build import build_service
-    from drafttwin.twin.web.server import serve_with
 
     record, model = twin_files
     service = build_service(model, [f"replay:{record}?speed=1&machine=m1"], detector="none")
     port = free_port()
     found: dict[str, Any] = {}
 
-    def load() -> None:
-        while "server" not in found:
-            time.sleep(0.02)
+    def load(page: Any) -> None:
         time.sleep(0.5)
-        page_loop = found["page"].loop
         before = service.rows
-        page_loop.call_soon_threadsafe(time.sleep, 2.0)  # the page's loop held for 2 s
+        page.loop.call_soon_threadsafe(time.sleep, 2.0)  # the page's loop held for 2 s
         time.sleep(2.0)
         found["held"] = service.rows - before
         found["status"] = _get(f"http://127.0.0.1:{port}/api/status")
-        found["page_thread"] = found["page"].thread.name
+        found["page_thread"] = page.thread.name
         service.stop()
 
-    def started(page: Any) -> None:
-        found["server"] = found["page"] = page
-
-    clients = threading.Thread(target=load)
-    clients.start()
-    try:
-        asyncio.run(serve_with(service, ("127.0.0.1", port), None, 30, None, started))
-    finally:
-        clients.join(timeout=30)
+    serve_beside(service, port, 30, load, join_s=30)
     assert found["page_thread"] == "twin-page"
     assert found["held"] >= 150, found["held"]  # 100 Hz for 2 s: ~200 rows
     assert found["status"]["machines"]["m1"]["processed"] > 0

@@ -65,17 +65,23 @@ class Bridge:
         """``fn()`` on the twin's loop, its result shared by every request for ``key`` within
         :data:`SNAPSHOT_S` (the result must not be changed by its readers; ``key`` is one of
         a few fixed names, never taken from a request)."""
-        now, loop = time.monotonic(), asyncio.get_running_loop()
+        now = time.monotonic()
         got = self._shared.get(key)
-        # a snapshot of another loop (a test client opens one per request) is not awaited here
-        stale = got is None or now - got[0] >= SNAPSHOT_S or got[1].get_loop() is not loop
-        if got is not None and got[1].done() and (got[1].cancelled() or got[1].exception()):
-            stale = True  # a failure is not shared: the next request asks again
-        if stale or got is None:
+        if got is None or not _fresh(got, now):
             got = (now, asyncio.ensure_future(self.call(fn)))
             self._shared[key] = got
         result: T = await asyncio.shield(got[1])
         return result
+
+
+def _fresh(got: tuple[float, asyncio.Future[Any]], now: float) -> bool:
+    """Whether a shared snapshot may still be handed out: younger than :data:`SNAPSHOT_S`, of
+    this event loop (a test client opens one per request) and not a failure (the next request
+    asks again)."""
+    made, snap = got
+    if now - made >= SNAPSHOT_S or snap.get_loop() is not asyncio.get_running_loop():
+        return False
+    return not (snap.done() and (snap.cancelled() or snap.exception() is not None))
 
 
 __all__ = ["CALL_TIMEOUT_S", "SNAPSHOT_S", "Bridge"]

@@ -86,14 +86,11 @@ class HallServer:
     """uvicorn in a thread of the driver (the driver's own thread waits on Ray)."""
 
     def __init__(self, view: HallView, bind: tuple[str, int], token: str | None) -> None:
-        import socket
-
         import uvicorn
 
-        family = socket.AF_INET6 if ":" in bind[0] else socket.AF_INET
-        self.sock = socket.socket(family, socket.SOCK_STREAM)
-        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        self.sock.bind(bind)  # an address in use fails here, as an OSError the CLI reports
+        from drafttwin.twin.web.server import bound_socket
+
+        self.sock = bound_socket(bind)
         config = uvicorn.Config(create_hall_app(view, token), log_level="warning", lifespan="off")
         self.server = uvicorn.Server(config)
         self.thread = threading.Thread(target=self.server.run, kwargs={"sockets": [self.sock]},

@@ -23,12 +23,14 @@ WEB_STOP_S = 1.0
 """At a stop, how long the page's server may take to close."""
 
 
-def _bound(bind: tuple[str, int]) -> socket.socket:
+def bound_socket(bind: tuple[str, int]) -> socket.socket:
+    """A TCP socket bound to ``bind`` (IPv6 when the host has a colon) for uvicorn to serve on;
+    an address in use fails here, as an OSError the CLI reports."""
     family = socket.AF_INET6 if ":" in bind[0] else socket.AF_INET
     sock = socket.socket(family, socket.SOCK_STREAM)
     sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
     try:
-        sock.bind(bind)  # an address in use fails here, as an OSError the CLI reports
+        sock.bind(bind)
     except OSError:
         sock.close()
         raise
@@ -95,7 +97,7 @@ async def serve_with(service: TwinService, bind: tuple[str, int], token: str | N
                      started: Any = None) -> None:  # fmt: skip
     """Run ``service`` on this loop and its page on ``bind`` in a thread, until the service
     stops; ``started(page)`` (the :class:`PageThread`) once the page listens."""
-    sock = _bound(bind)
+    sock = bound_socket(bind)
     app = create_app(service, token, twin_loop=asyncio.get_running_loop())
     page = PageThread(app, sock)
     try:
@@ -108,4 +110,4 @@ async def serve_with(service: TwinService, bind: tuple[str, int], token: str | N
         app.state.history.close()
 
 
-__all__ = ["WEB_STOP_S", "PageThread", "serve_with"]
+__all__ = ["WEB_STOP_S", "PageThread", "bound_socket", "serve_with"]
