@@ -200,3 +200,50 @@ def test_a_search_stops_on_sigterm_and_resumes(folder: Path, tmp_path: Path) -> 
     assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
     record = dt.load_model(out).provenance_["tuning"]
     assert record["n_trials"] == 3 and record["n_complete"] >= 2
+
+
+def _offset_record(n: int, low: float, offset: float, seed: int) -> tuple[pd.DataFrame, ...]:
+    """y = physics + a constant ``offset`` (the record's load) + noise, u in [low, low + 0.5]."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * 0.02
+    u = np.repeat(rng.uniform(low, low + 0.5, n // 20 + 1), 20)[:n]
+    y = _physics(u, t) + offset + rng.normal(0.0, 0.02, n)
+    return pd.DataFrame({"t": t, "u": u, "y": y}), pd.DataFrame({"time": t, "y": _physics(u, t)})
+
+
+def test_several_training_records_are_judged_one_record_a_fold(tmp_path: Path) -> None:
+    """Each training record has a load offset of its own, tied to its input range: blocks of
+    the concatenated rows share their record's offset with the judge's training rows and keep
+    a correction that loses on a test record with a new offset; whole records as folds show
+    that it does not carry, and the hybrid equals its physics."""
+    parts = {"a": _offset_record(300, 0.5, 0.3, 1), "b": _offset_record(300, 1.5, -0.3, 2),
+             "test": _offset_record(300, 0.5, -0.3, 3)}  # fmt: skip
+    for name, (frame, sim) in parts.items():
+        frame.to_csv(tmp_path / f"{name}.csv", index=False)
+        sim.to_csv(tmp_path / f"sim_{name}.csv", index=False)
+    joined = pd.concat([parts["a"][0], parts["b"][0].assign(t=parts["b"][0]["t"] + 6.0)])
+    joined.to_csv(tmp_path / "ab.csv", index=False)
+    sims = [parts["a"][1], parts["b"][1].assign(time=parts["b"][1]["time"] + 6.0)]
+    pd.concat(sims).to_csv(tmp_path / "sim_ab.csv", index=False)
+
+    def fit(data: str, physics: str, model: str = "parallel") -> dict:
+        return json.loads(_cli([
+            "fit", "--model", model, "--data", data, "--test-data", tmp_path / "test.csv",
+            *DATA, "--task", "simulation", "--init-samples", INIT, "--mechanistic",
+            f"{physics},{tmp_path / 'sim_test.csv'}", "--epochs", "20", "--set",
+            "window=8,hidden=16,layers=1,accumulate=false,lr=0.01", "--quiet", "--json", "--out",
+            tmp_path / f"{model}.dtm",
+        ]))  # fmt: skip
+
+    two = f"{tmp_path / 'a.csv'},{tmp_path / 'b.csv'}"
+    sims = f"{tmp_path / 'sim_a.csv'},{tmp_path / 'sim_b.csv'}"
+    physics = fit(two, sims, "mechanistic")["channels"]["y"]["rmse"]
+    records = fit(two, sims)
+    choice = records["selection"]["correction"]
+    assert choice["fold_by"] == "record" and choice["folds"] == 2, choice
+    assert choice["fold_blocks"][1][0] == 300  # the second record's first row
+    assert choice["kept"] == "none" and records["channels"]["y"]["rmse"] == physics
+    blocks = fit(str(tmp_path / "ab.csv"), str(tmp_path / "sim_ab.csv"))
+    choice = blocks["selection"]["correction"]
+    assert choice["fold_by"] == "block" and choice["kept"] != "none", choice
+    assert blocks["channels"]["y"]["rmse"] > physics

@@ -74,3 +74,13 @@ def test_the_fold_table_labels_every_row_and_names_what_accumulation_had_to_beat
         "no correction: the physics alone predicts (the residual model beat the physics "
         "alone and the measured residual held on 2 of 3 folds" in text
     )
+
+
+def test_folds_follow_the_records_when_there_are_several() -> None:
+    from drafttwin.models.estimators.windows import blocked_folds, record_folds
+
+    assert record_folds(19, 1000, (0, 500), 3) == [(19, 500), (500, 1000)]
+    assert record_folds(0, 300, (0,), 3) == blocked_folds(0, 300, 3)  # one record: blocks
+    six = tuple(range(0, 600, 100))  # six records of 100 rows: three runs of two records
+    assert record_folds(0, 600, six, 3) == [(0, 200), (200, 400), (400, 600)]
+    assert record_folds(0, 600, (0, 100, 550), 3) == [(0, 100), (100, 550), (550, 600)]

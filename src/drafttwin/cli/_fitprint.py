@@ -63,9 +63,14 @@ def selection_lines(selection: dict[str, Any]) -> list[str]:
 
 def _fold_lines(correction: dict[str, Any], choice: dict[str, Any] | None) -> list[str]:
     folds = correction["folds"]
-    lines = [f"validation on {folds} blocked folds of the training records (NRMSE of the output "
-             "on each held-out block = RMSE / std of the measured residual y - physics there; "
-             "mean [per fold], lower is better):"]  # fmt: skip
+    what = (
+        "folds of whole training records"
+        if correction.get("fold_by") == "record"
+        else "blocked folds of the training rows"
+    )
+    lines = [f"validation on {folds} {what} (NRMSE of the output on each held-out fold = "
+             "RMSE / std of the measured residual y - physics there; mean [per fold], lower is "
+             "better):"]  # fmt: skip
     means = correction.get("validation_nrmse", {})
     for name, per_fold in correction.get("fold_nrmse", {}).items():
         mean = means.get(name)

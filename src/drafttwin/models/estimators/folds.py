@@ -3,8 +3,12 @@ records, beside "no correction" (the physics alone).
 
 One validation tail can mislead: a residual gain there need not carry to the next record (a
 two-tank record's tail kept a residual model that doubled the test error). So every hybrid
-also fits a *judge* per fold: the training rows are cut into :data:`DEFAULT_FOLDS` contiguous
-blocks; for block ``k`` a residual net with the final net's settings (its number of epochs,
+also fits a *judge* per fold. With two or more training records the folds are whole records
+(one each, or contiguous runs of them when there are more than :data:`DEFAULT_FOLDS`): a
+held-out record brings its own offsets and load, as a test record does, where a block of one
+record shares them with the rows its judge trained on (on two belt-drive records every block
+judge kept a correction that lost to the physics on the test record). With one record its
+rows are cut into :data:`DEFAULT_FOLDS` contiguous blocks. For block ``k`` a residual net with the final net's settings (its number of epochs,
 as many as the final net needed) is trained on the windows that do not touch block ``k``, then
 predicts block ``k`` (one step ahead; in a simulation a free run over the block, accumulated
 from the measured residual just before it, as a test record runs from its initialisation
@@ -39,7 +43,12 @@ import numpy as np
 from torch import nn
 
 from drafttwin.models.estimators import accumulation as acc
-from drafttwin.models.estimators.windows import blocked_folds, causal_ffill, footprint_outside
+from drafttwin.models.estimators.windows import (
+    blocked_folds,
+    causal_ffill,
+    footprint_outside,
+    record_folds,
+)
 from drafttwin.models.training import (
     FitProgress,
     History,
@@ -71,12 +80,13 @@ class JudgedHybrid(Protocol):
 
 
 DEFAULT_FOLDS = 3
-"""Blocked folds of the training rows that judge a hybrid's correction."""
+"""Folds (records, or blocks of one record) of the training rows that judge a hybrid's
+correction."""
 JUDGE_WINDOWS = 600
 """A judge trains at most this many windows' worth of steps per epoch of the final net: on
 more windows it goes through all of them in fewer epochs (:func:`judge_epochs`)."""
 MEASURE = (
-    "NRMSE of the output on each held-out block of the training records: RMSE / standard "
+    "NRMSE of the output on each held-out fold of the training rows: RMSE / standard "
     "deviation of the measured residual (y - physics) there"
 )
 """What the fold scores measure, as reports print it."""
@@ -90,6 +100,7 @@ class FoldScores:
     scores: dict[str, list[float]]
     blocks: list[tuple[int, int]]
     rows: list[int]
+    by_record: bool = False
 
     def mean(self, candidate: str) -> float:
         values = [v for v in self.scores[candidate] if np.isfinite(v)]
@@ -127,7 +138,8 @@ class FoldScores:
         clean = {k: [v if np.isfinite(v) else None for v in vals]
                  for k, vals in self.scores.items()}  # fmt: skip
         return {"fold_nrmse": clean, "folds": len(self.blocks),
-                "fold_blocks": [list(b) for b in self.blocks], "fold_rows": self.rows}  # fmt: skip
+                "fold_blocks": [list(b) for b in self.blocks], "fold_rows": self.rows,
+                "fold_by": "record" if self.by_record else "block"}  # fmt: skip
 
 
 def judge(
@@ -153,7 +165,7 @@ def judge(
         return None
     simulation = model.task.simulation
     lag = 0 if simulation else model.task.horizon
-    blocks = blocked_folds(int(rows.min()), int(rows.max()) + 1, k_folds)
+    blocks, by_record = _folds(rows, starts, k_folds)
     anchors = causal_ffill(em, starts)
     scores: dict[str, list[float]] = {acc.CORRECTION_NONE: []}
     n_rows = []
@@ -190,7 +202,22 @@ def judge(
                     acc.free_run_nrmse(hold * lev, measured, scale)
                 )
             scores.setdefault(name, []).append(acc.free_run_nrmse(pred * lev, measured, scale))
-    return FoldScores(scores, blocks, n_rows)
+    return FoldScores(scores, blocks, n_rows, by_record)
+
+
+def _folds(
+    rows: np.ndarray, starts: Sequence[int], k_folds: int
+) -> tuple[list[tuple[int, int]], bool]:
+    """The held-out blocks and whether they are records: whole training records when two or
+    more hold target rows (:func:`~drafttwin.models.estimators.windows.record_folds`),
+    contiguous blocks of the rows otherwise."""
+    start, stop = int(rows.min()), int(rows.max()) + 1
+    if any(start < s < stop for s in starts):
+        blocks = [b for b in record_folds(start, stop, starts, k_folds)
+                  if ((rows >= b[0]) & (rows < b[1])).any()]  # fmt: skip
+        if len(blocks) > 1:
+            return blocks, True
+    return blocked_folds(start, stop, k_folds), False
 
 
 def _name(model: JudgedHybrid, accumulate: bool) -> str:

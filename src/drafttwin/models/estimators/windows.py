@@ -113,6 +113,25 @@ def blocked_folds(start: int, stop: int, n_folds: int) -> list[tuple[int, int]]:
     return [(int(edges[k]), int(edges[k + 1])) for k in range(n_folds)]
 
 
+def record_folds(
+    start: int, stop: int, starts: Sequence[int], n_folds: int
+) -> list[tuple[int, int]]:
+    """Folds of rows ``start .. stop-1`` that follow the records (first rows ``starts``): with
+    two or more records in the span, whole records, one a fold, or with more records than
+    ``n_folds`` contiguous runs of records cut nearest to equal sizes; with one record,
+    :func:`blocked_folds`. A held-out record is then new to its judge as a test record is
+    (its own offsets and load), where a block of a record shares them with its neighbours."""
+    inner = sorted({int(s) for s in starts if start < s < stop})
+    if not inner:
+        return blocked_folds(start, stop, n_folds)
+    if len(inner) + 1 > n_folds:
+        marks = np.asarray(inner)
+        wanted = np.linspace(start, stop, n_folds + 1)[1:-1]
+        inner = sorted({int(marks[np.abs(marks - w).argmin()]) for w in wanted})
+    edges = [start, *inner, stop]
+    return [(edges[k], edges[k + 1]) for k in range(len(edges) - 1)]
+
+
 def footprint_outside(
     targets: np.ndarray, window: int, horizon: int, block: tuple[int, int]
 ) -> np.ndarray:
