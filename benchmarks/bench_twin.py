@@ -1,7 +1,7 @@
 """Live twin load: machines at 100 Hz in one process, ramped until it saturates.
 
     python benchmarks/bench_twin.py [--model M.dtm] [--seconds 5] [--machines 1,2,5,10,20,50]
-                                    [--detector] [--busy 2]
+                                    [--detector] [--busy 2] [--processes K]
 
 An in-process feed ticks at 100 Hz and hands every machine one sample per tick (rows of a
 plant record, the set-point included), as a source would; each machine runs the whole live
@@ -16,6 +16,9 @@ the live fault watch (a detector fitted on the record itself, 5 s baseline; the 
 the motor speed) and the results go to twin_detector.json. With --busy N, N processes spin a
 core each beside it (the busy neighbours of a shared box; results in ..._busy.json). Prints a
 table (CPU per machine in ms of core time per second) and writes benchmarks/results/twin.json.
+With --processes K, K such twin processes run at once as Ray tasks of one CPU each (a hall as
+``twin hall`` shards it, each process with its own feed), per count of --machines: each
+process's row and the hall's worst p99 (results in twin_hall.json).
 """
 
 from __future__ import annotations
@@ -136,6 +139,42 @@ async def _step(model: BaseModel, record: Path, n: int, seconds: float, folder: 
     }
 
 
+def _one_process(model_file: Path, record: Path, n: int, seconds: float, detector: bool,
+                 folder: Path) -> dict:  # fmt: skip
+    """One twin process of a hall: ``n`` machines from its own feed, as :func:`_step`."""
+    import torch
+
+    from drafttwin.models.registry import load_model
+
+    torch.set_num_threads(1)
+    model = load_model(model_file)
+    folder.mkdir(parents=True, exist_ok=True)
+    return asyncio.run(_step(model, record, n, seconds, folder, _detector(model, record)
+                             if detector else None))  # fmt: skip
+
+
+def _hall(model: BaseModel, record: Path, n: int, processes: int, seconds: float,
+          detector: bool, folder: Path) -> list[dict]:  # fmt: skip
+    """``processes`` twin processes of ``n`` machines each, one Ray task (1 CPU) each, run at
+    once on a private Ray instance (as ``twin hall`` starts its shards)."""
+    from drafttwin.execution.executor import ray_session
+
+    model_file = model.save(folder / "model.dtm")
+    with ray_session(processes, None) as ray:
+        task = ray.remote(num_cpus=1)(_one_process)
+        refs = [task.remote(model_file, record, n, seconds, detector, folder / f"p{k}")
+                for k in range(processes)]  # fmt: skip
+        return list(ray.get(refs))
+
+
+def _detector(model: BaseModel, record: Path) -> FaultDetector:
+    """A detector fitted on the record itself (5 s baseline)."""
+    from drafttwin.diagnosis.residuals import record_features
+
+    feats = record_features(physics_train(model, "reduced"), read_measurements(record))
+    return FaultDetector(reference_s=5.0).fit([feats])
+
+
 def _model(path: str | None, folder: Path) -> tuple[BaseModel, Path]:
     from drafttwin.models import MechanisticModel, make_model
     from drafttwin.models.registry import load_model
@@ -158,7 +197,12 @@ def main() -> None:
     parser.add_argument("--machines", default="1,2,5,10,20,35,50")
     parser.add_argument("--detector", action="store_true", help="run the live fault watch too")
     parser.add_argument("--busy", type=int, default=0, help="processes spinning beside it")
+    parser.add_argument("--processes", type=int, default=1,
+                        help="twin processes (Ray tasks of 1 CPU), each with --machines")  # fmt: skip
     args = parser.parse_args()
+    if args.processes > 1:
+        hall_main(args)
+        return
     import torch
 
     torch.set_num_threads(1)
@@ -166,12 +210,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         model, record = _model(args.model, folder)
-        detector = None
-        if args.detector:
-            from drafttwin.diagnosis.residuals import record_features
-
-            feats = record_features(physics_train(model, "reduced"), read_measurements(record))
-            detector = FaultDetector(reference_s=5.0).fit([feats])
+        detector = _detector(model, record) if args.detector else None
         rows = []
         load = f"busy {args.busy}" if args.busy else "idle"
         print(f"{load}; {'machines':>8} {'offered/s':>10} {'done/s':>8} {'p50 ms':>7} {'p99 ms':>7} "
@@ -207,6 +246,40 @@ def main() -> None:
         figures += [{"figure": f"{r['machines']} machines: fault alarms", "value": r["fault_alarms"],
                      "unit": "alarms", "load": load} for r in rows]  # fmt: skip
     name = ("twin_detector" if args.detector else "twin") + ("_busy" if args.busy else "")
+    print(f"wrote {write_results(name, figures)}")
+
+
+def hall_main(args: argparse.Namespace) -> None:
+    """--processes K: K twin processes at once, each with every count of --machines."""
+    load = f"busy {args.busy}" if args.busy else "idle"
+    figures = []
+    print(f"{load}; {args.processes} processes on Ray; per process: {'machines':>8} "
+          f"{'done/s':>8} {'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'cpu s/s':>7}")  # fmt: skip
+    with tempfile.TemporaryDirectory() as tmp:
+        folder = Path(tmp)
+        model, record = _model(args.model, folder)
+        for n in (int(x) for x in args.machines.split(",")):
+            with busy(args.busy):
+                rows = _hall(model, record, n, args.processes, args.seconds, args.detector,
+                             folder / f"n{n}")  # fmt: skip
+            for k, r in enumerate(rows):
+                print(f"process {k}: {n:>8} {r['processed_samples_per_s']:>8.0f} "
+                      f"{r['latency_p50_ms']:>7.2f} {r['latency_p99_ms']:>7.2f} "
+                      f"{r['latency_max_ms']:>7.1f} {r['cpu_s_per_s']:>7.2f}", flush=True)  # fmt: skip
+            worst = max(r["latency_p99_ms"] or 0.0 for r in rows)
+            done = sum(r["processed_samples_per_s"] for r in rows)
+            print(f"hall of {args.processes} x {n}: {done:.0f} of {args.processes * n * RATE:.0f} "
+                  f"samples/s, worst p99 {worst:.2f} ms")  # fmt: skip
+            figures += [
+                {"figure": f"{args.processes} x {n} machines: worst process p99", "value": worst,
+                 "unit": "ms", "load": load},
+                {"figure": f"{args.processes} x {n} machines: processed", "value": done,
+                 "unit": "samples/s", "load": load},
+                {"figure": f"{args.processes} x {n} machines: cpu per machine",
+                 "value": sum(r["cpu_s_per_s"] for r in rows) / (args.processes * n) * 1e3,
+                 "unit": "core ms/s per machine", "load": load},
+            ]  # fmt: skip
+    name = ("twin_hall_detector" if args.detector else "twin_hall") + ("_busy" if args.busy else "")
     print(f"wrote {write_results(name, figures)}")
 
 
