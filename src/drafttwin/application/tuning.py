@@ -14,8 +14,9 @@ by its validation tail. Once :data:`SEED_PHASE` of the budget is spent, the best
 configuration with the best mean over :data:`SEEDS` seeds is chosen (one seed is not a
 result: their spread is large on small data), fitted with its best seed.
 
-The budget is CPU time (user + system) of this process, in minutes; the search stops when
-the next trial (its cost estimated by the mean so far) and the final fit would not fit in it.
+The budget is CPU time (user + system) of this process, in minutes, its start-up and data
+reading included; the search stops when the next trial (its cost estimated by the mean so
+far) and the final fit (at worst the costliest trial so far) would not fit in it.
 The trials go to a journal file (``tune_storage``): a second run with the same request and
 file resumes the search where it stopped, with what it had spent. The trial table is kept in
 the fitted model's provenance (``provenance_["tuning"]``, in its file) and ``evaluate``
@@ -194,8 +195,14 @@ def tune(
         study.enqueue_trial(_own_values(model, list(space)), user_attrs={"seed": base_seed})
     errors: list[DrafttwinError] = []
 
+    mine: list[float] = []  # this process's trials (a resumed journal holds earlier ones)
+
     def spent() -> float:
-        return sum(float(t.user_attrs.get("cpu_s", 0.0)) for t in study.get_trials(deepcopy=False))
+        """The journal's trials, and this process's CPU outside its trials (start-up,
+        reading the data, the sampler)."""
+        trials = sum(float(t.user_attrs.get("cpu_s", 0.0))
+                     for t in study.get_trials(deepcopy=False))  # fmt: skip
+        return trials + max(0.0, cpu_seconds() - sum(mine))
 
     def run(params: dict[str, Any], net_seed: int) -> tuple[float | None, float]:
         trial_request = _with(request, params, net_seed).replace(quiet=True)
@@ -209,13 +216,15 @@ def tune(
         except DrafttwinError as exc:  # a setting these data cannot take: the trial fails
             errors.append(exc)
             score = None
-        return score, cpu_seconds() - start
+        mine.append(cpu_seconds() - start)
+        return score, mine[-1]
 
     while True:
         done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
         used = spent()
         costs = [float(t.user_attrs.get("cpu_s", 0.0)) for t in done] or [0.0]
-        need = 2 * float(np.mean(costs)) if done else 0.0  # the next trial and the final fit
+        # the next trial (the mean so far) and the final fit (at worst the costliest so far)
+        need = float(np.mean(costs) + np.max(costs)) if done else 0.0
         ran = len([t for t in study.trials if t.state != optuna.trial.TrialState.WAITING])
         if used + need > budget_min * 60 or (request.tune_trials is not None
                                              and ran >= request.tune_trials):  # fmt: skip
