@@ -6,9 +6,10 @@ two-tank record's tail kept a residual model that doubled the test error). So ev
 also fits a *judge* per fold. With two or more training records the folds are whole records
 (one each, or contiguous runs of them when there are more than :data:`DEFAULT_FOLDS`): a
 held-out record brings its own offsets and load, as a test record does, where a block of one
-record shares them with the rows its judge trained on (on two belt-drive records every block
-judge kept a correction that lost to the physics on the test record). With one record its
-rows are cut into :data:`DEFAULT_FOLDS` contiguous blocks. For block ``k`` a residual net with the final net's settings (its number of epochs,
+record shares them with the rows its judge trained on (two records whose load offsets follow
+their input ranges: blocks keep a correction that loses on a record with a new offset,
+records do not). With one record its rows are cut into :data:`DEFAULT_FOLDS` contiguous
+blocks. For block ``k`` a residual net with the final net's settings (its number of epochs,
 as many as the final net needed) is trained on the windows that do not touch block ``k``, then
 predicts block ``k`` (one step ahead; in a simulation a free run over the block, accumulated
 from the measured residual just before it, as a test record runs from its initialisation
