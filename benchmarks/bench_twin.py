@@ -190,6 +190,16 @@ def _model(path: str | None, folder: Path) -> tuple[BaseModel, Path]:
     return model, record
 
 
+def _load(args: argparse.Namespace) -> str:
+    """The load the figures were taken under, as the results name it."""
+    return f"busy {args.busy}" if args.busy else "idle"
+
+
+def _result_name(stem: str, args: argparse.Namespace) -> str:
+    """``STEM[_detector][_busy]``: one results file per variant."""
+    return stem + ("_detector" if args.detector else "") + ("_busy" if args.busy else "")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--model", default=None)
@@ -212,7 +222,7 @@ def main() -> None:
         model, record = _model(args.model, folder)
         detector = _detector(model, record) if args.detector else None
         rows = []
-        load = f"busy {args.busy}" if args.busy else "idle"
+        load = _load(args)
         print(f"{load}; {'machines':>8} {'offered/s':>10} {'done/s':>8} {'p50 ms':>7} {'p99 ms':>7} "
               f"{'max ms':>7} {'cpu s/s':>7} {'cpu ms/s/machine':>16} {'commit p99 ms':>13}")  # fmt: skip
         for n in counts:
@@ -232,7 +242,6 @@ def main() -> None:
                 break
     ok = [r for r in rows if r["processed_samples_per_s"] >= 0.95 * r["offered_samples_per_s"]
           and (r["latency_p99_ms"] or 0) <= 20]  # fmt: skip
-    load = f"busy {args.busy}" if args.busy else "idle"
     figures = [
         {"figure": "machines kept at 100 Hz with p99 <= 20 ms", "value": max((r["machines"] for r in ok), default=0),
          "unit": "machines", "load": load},
@@ -245,13 +254,12 @@ def main() -> None:
     if args.detector:
         figures += [{"figure": f"{r['machines']} machines: fault alarms", "value": r["fault_alarms"],
                      "unit": "alarms", "load": load} for r in rows]  # fmt: skip
-    name = ("twin_detector" if args.detector else "twin") + ("_busy" if args.busy else "")
-    print(f"wrote {write_results(name, figures)}")
+    print(f"wrote {write_results(_result_name('twin', args), figures)}")
 
 
 def hall_main(args: argparse.Namespace) -> None:
     """--processes K: K twin processes at once, each with every count of --machines."""
-    load = f"busy {args.busy}" if args.busy else "idle"
+    load = _load(args)
     figures = []
     print(f"{load}; {args.processes} processes on Ray; per process: {'machines':>8} "
           f"{'done/s':>8} {'p50 ms':>7} {'p99 ms':>7} {'max ms':>7} {'cpu s/s':>7}")  # fmt: skip
@@ -279,8 +287,7 @@ def hall_main(args: argparse.Namespace) -> None:
                  "value": sum(r["cpu_s_per_s"] for r in rows) / (args.processes * n) * 1e3,
                  "unit": "core ms/s per machine", "load": load},
             ]  # fmt: skip
-    name = ("twin_hall_detector" if args.detector else "twin_hall") + ("_busy" if args.busy else "")
-    print(f"wrote {write_results(name, figures)}")
+    print(f"wrote {write_results(_result_name('twin_hall', args), figures)}")
 
 
 if __name__ == "__main__":
