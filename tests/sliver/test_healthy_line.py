@@ -60,8 +60,14 @@ def _run(machine: Machine, duration_s: float):
     return Plant().run(duration_s, 100.0, seed=32, machine=machine, sliver=SliverSettings())
 
 
-def test_the_healthy_line_is_the_front_shaft_gears_run_out(machine: Machine) -> None:
-    rec = _run(machine, 30.0)
+@pytest.fixture(scope="module")
+def as_drawn(machine: Machine):
+    """30 s of the machine as drawn, with its sliver (both checks read it)."""
+    return _run(machine, 30.0)
+
+
+def test_the_healthy_line_is_the_front_shaft_gears_run_out(machine: Machine, as_drawn) -> None:
+    rec = as_drawn
     s = rec.surface
     v = np.diff(s.length_m, axis=0) / np.diff(s.time_s)[:, None]
     t = 0.5 * (s.time_s[1:] + s.time_s[:-1])
@@ -89,7 +95,7 @@ def test_the_healthy_line_is_the_front_shaft_gears_run_out(machine: Machine) -> 
     assert 100 * measured > 0.2
 
 
-def test_with_gears_b_and_c_round_the_line_falls_to_the_base(machine: Machine) -> None:
+def test_with_gears_b_and_c_round_the_line_falls_to_the_base(machine: Machine, as_drawn) -> None:
     raw = machine.train.to_dict()
     for g in raw["gear"]:
         if g["name"] == "A-B":
@@ -98,8 +104,8 @@ def test_with_gears_b_and_c_round_the_line_falls_to_the_base(machine: Machine) -
             g["driver_eccentricity_um"] = 0.0
     round_gears = replace(machine, train=DriveTrain.from_dict(raw, source="B, C round"))
     at = {}
-    for name, m in (("as drawn", machine), ("round", round_gears)):
-        true = _run(m, 30.0).sliver.true
+    for name, rec in (("as drawn", as_drawn), ("round", _run(round_gears, 30.0))):
+        true = rec.sliver.true
         spec = spectrogram(true.linear_density_ktex, true.step_m, true.staple)
         j = int(np.argmin(np.abs(spec.wavelength_m - 0.1414)))
         at[name] = (float(spec.amplitude_pct[j]), float(spec.base_pct[j]))

@@ -8,7 +8,9 @@ import asyncio
 import json
 import subprocess
 import time
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -134,6 +136,11 @@ def test_a_flood_is_counted_and_dropped_with_flat_memory() -> None:
 
 
 @pytest.mark.slow  # a broker with argon2 logins and two twins: about 20 s
+async def _run_together(services: Iterable[Any], duration_s: float) -> None:
+    """Several twins side by side on one loop (each its own client), for ``duration_s``."""
+    await asyncio.gather(*(s.run(duration_s=duration_s) for s in services))
+
+
 def test_mqtt_with_a_user_admits_only_that_user(twin_files: tuple[Path, Path]) -> None:
     _, model = twin_files
     port = free_port()
@@ -145,17 +152,17 @@ def test_mqtt_with_a_user_admits_only_that_user(twin_files: tuple[Path, Path]) -
         assert proc.stderr is not None
         line = proc.stderr.readline()
         assert "serving fa320a on MQTT" in line, line + proc.stderr.read()
-        results = {}
+        services = {}
         for name, url, password in (("user", f"mqtt://twin@127.0.0.1:{port}", secret["DRAFTTWIN_MQTT_PASSWORD"]),
                                     ("wrong", f"mqtt://twin@127.0.0.1:{port}", "wrong-password"),
                                     ("anonymous", f"mqtt://127.0.0.1:{port}", None)):  # fmt: skip
-            with pytest.MonkeyPatch.context() as mp:
+            with pytest.MonkeyPatch.context() as mp:  # the password is read when it is built
                 if password is not None:
                     mp.setenv("DRAFTTWIN_MQTT_PASSWORD", password)
-                service = build_service(model, [url])
-            run_bounded(service.run(duration_s=3.0))
-            st = service.states["fa320a"]
-            results[name] = (st.received > 50, st.state)
+                services[name] = build_service(model, [url])
+        run_bounded(_run_together(services.values(), 3.0))
+        results = {n: (s.states["fa320a"].received > 50, s.states["fa320a"].state)
+                   for n, s in services.items()}  # fmt: skip
     finally:
         proc.kill()
         proc.wait(timeout=30)
@@ -184,12 +191,10 @@ def test_mqtt_over_tls_with_the_generated_certificate(
         assert proc.stderr is not None
         line = proc.stderr.readline()
         assert "serving fa320a on MQTT" in line, line + proc.stderr.read()
-        results = {}
-        for name, url in (("tls", f"mqtts://127.0.0.1:{port}?cert={certs}"),
-                          ("plain", f"mqtt://127.0.0.1:{port}")):  # fmt: skip
-            service = build_service(model, [url])
-            run_bounded(service.run(duration_s=3.0))
-            results[name] = service.states["fa320a"].received
+        services = {name: build_service(model, [url]) for name, url in (
+            ("tls", f"mqtts://127.0.0.1:{port}?cert={certs}"), ("plain", f"mqtt://127.0.0.1:{port}"))}  # fmt: skip
+        run_bounded(_run_together(services.values(), 3.0))
+        results = {n: s.states["fa320a"].received for n, s in services.items()}
     finally:
         proc.kill()
         proc.wait(timeout=30)
