@@ -147,7 +147,10 @@ def _run_local(fn: Task, todo: Pending, finish: Finish, workers: int, address: s
     pool = cf.ProcessPoolExecutor(max_workers=min(workers, len(todo)), mp_context=mp.get_context("spawn"),
                                   initializer=worker_init, initargs=(os.getpid(),))  # fmt: skip
     try:
-        with spawn_without_sigint():  # Python 3.11 spawns the workers in submit()
+        # Python 3.11 spawns the workers in submit(). A signal that lands meanwhile waits
+        # until every worker has its start-up data: raised between a worker's start and that
+        # write, it left the worker to read an empty pipe (an EOFError traceback).
+        with spawn_without_sigint(), signals_deferred():
             futures = {pool.submit(fn, config): i for i, config in todo}
         for fut in cf.as_completed(futures):
             finish(futures[fut], fut.result())

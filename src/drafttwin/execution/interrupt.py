@@ -9,7 +9,10 @@
   its workers. A second Ctrl-C while that runs stops at once.
 * :func:`spawn_without_sigint` keeps SIGINT blocked while worker processes are spawned: a
   Ctrl-C in a terminal goes to the whole process group, and a worker still importing its
-  modules (before :func:`worker_init` runs) would otherwise print a traceback.
+  modules (before :func:`worker_init` runs) would otherwise print a traceback. The block is
+  the spawning thread's only: the kernel hands a signal for the process to another thread,
+  and Python still runs its handler in the main thread, so the executor also defers the
+  handler's exception (:func:`signals_deferred`) until every worker is started.
 """
 
 from __future__ import annotations
