@@ -204,6 +204,31 @@ def test_a_signal_while_the_workers_start_waits_until_each_has_its_data(monkeypa
     assert len(submitted) == 3
 
 
+@pytest.mark.parametrize("wrapped", [True, False])
+def test_an_interruption_inside_compiled_code_is_one_line(wrapped, monkeypatch, tmp_path) -> None:
+    """A SIGTERM whose handler raised while numba's dispatcher ran Python (loading a cached
+    function) comes back as a SystemError caused by the interruption: `reproduce` stopped in
+    its data preparation printed that traceback (exit 1). It is the interruption: one line,
+    exit 143. Any other SystemError is not swallowed."""
+    from drafttwin.execution.interrupt import Interrupted
+    from drafttwin.studies.paper.run import Study
+
+    def prepare_data(self, series):
+        stop = Interrupted(signal.SIGTERM, "finished results are kept")
+        if wrapped:
+            raise SystemError("CPUDispatcher returned a result with an exception set") from stop
+        raise SystemError("a real fault of compiled code")
+
+    monkeypatch.setattr(Study, "prepare_data", prepare_data)
+    result = CliRunner().invoke(app, ["reproduce", "--out", str(tmp_path / "study")])
+    if wrapped:
+        assert result.exit_code == 143, result.output
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and "interrupted by SIGTERM" in lines[0], lines
+    else:
+        assert isinstance(result.exception, SystemError)
+
+
 # the SIGTERM variant is a second one of the same resume (long, as are the Ray study's
 # SIGKILL and group SIGINT: the process executor's test covers them every run)
 @pytest.mark.parametrize("how", ["SIGKILL", pytest.param("SIGTERM", marks=pytest.mark.long)])

@@ -184,3 +184,17 @@ def restore_handler(signum: int, handler: Any) -> None:
     """Put ``handler`` back for ``signum`` if a library (Ray's ``init``) replaced it."""
     if threading.current_thread() is threading.main_thread() and handler is not None:
         signal.signal(signum, handler)
+
+
+def interruption_behind(exc: BaseException) -> Interrupted | None:
+    """The :class:`Interrupted` that ``exc`` stands for, if any: compiled code (numba's
+    dispatcher loading a cached function) that was running Python when the handler of
+    :func:`stop_on_signals` raised reports a ``SystemError`` whose cause is the interruption."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, Interrupted):
+            return cur
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return None
