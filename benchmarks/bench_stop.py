@@ -182,7 +182,9 @@ def visit(port: int) -> None:
 
 
 def twin_tries(setup: Setup, source: str, tries: int, sig: int, page: bool, store: bool,
-               trigger: Callable[[Proc], None], *extra: str) -> list[dict]:  # fmt: skip
+               trigger: Callable[[Proc], None], *extra: str, first: int = 1) -> list[dict]:  # fmt: skip
+    """``tries`` runs of ``twin run`` on ``source``, each stopped by ``sig`` after ``trigger``;
+    printed as tries ``first``, ``first + 1``, ..."""
     out = []
     for k in range(tries):
         args = ["twin", "run", "--model", str(setup.model), "--source", source, *extra]
@@ -200,7 +202,7 @@ def twin_tries(setup: Setup, source: str, tries: int, sig: int, page: bool, stor
             out.append(twin.stop(sig))
         finally:
             twin.kill()
-        print(f"  try {k + 1}: {out[-1]['stop_s']:.2f} s, rc {out[-1]['rc']}", flush=True)
+        print(f"  try {first + k}: {out[-1]['stop_s']:.2f} s, rc {out[-1]['rc']}", flush=True)
     return out
 
 
@@ -236,7 +238,7 @@ def case(name: str, setup: Setup, tries: int, sig: int) -> list[dict]:
                        "main_belt:belt_wear:severity=0.8:onset=35"):  # fmt: skip
                 out += twin_tries(setup, f"opcua:{url}", 1, sig, False, True,
                                   lambda t: (t.wait_for("ALARM", 120), time.sleep(1.0)),
-                                  "--learn", "0")  # fmt: skip
+                                  "--learn", "0", first=len(out) + 1)  # fmt: skip
         return out
     if name == "twin-replay-page":
         return twin_tries(setup, f"replay:{setup.record}?speed=1", tries, sig, True, False, wait2)
