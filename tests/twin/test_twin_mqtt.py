@@ -135,12 +135,12 @@ def test_a_flood_is_counted_and_dropped_with_flat_memory() -> None:
     assert len(service.states["df-01"].alarms) <= 32  # one event per 1000 drops, not 30 000
 
 
-@pytest.mark.slow  # a broker with argon2 logins and two twins: about 20 s
 async def _run_together(services: Iterable[Any], duration_s: float) -> None:
     """Several twins side by side on one loop (each its own client), for ``duration_s``."""
     await asyncio.gather(*(s.run(duration_s=duration_s) for s in services))
 
 
+@pytest.mark.slow  # a broker with argon2 logins and three twins side by side: about 7 s
 def test_mqtt_with_a_user_admits_only_that_user(twin_files: tuple[Path, Path]) -> None:
     _, model = twin_files
     port = free_port()

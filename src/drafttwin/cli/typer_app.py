@@ -56,16 +56,6 @@ class _UserErrorsExit2(typer.core.TyperGroup):
 
             print_error(exc.render(renderer_for(exc)))
             raise typer.Exit(exc.exit_code) from None
-        except SystemError as exc:  # a signal's Interrupted, wrapped by compiled code
-            from drafttwin.execution.interrupt import interruption_behind
-
-            stop = interruption_behind(exc)
-            if stop is None:
-                raise
-            from drafttwin.cli._terms import renderer_for
-
-            print_error(stop.render(renderer_for(stop)))
-            raise typer.Exit(stop.exit_code) from None
         except KeyboardInterrupt:  # Ctrl-C outside a study's own handling: no traceback
             err_console.print("interrupted", highlight=False)
             raise typer.Exit(130) from None

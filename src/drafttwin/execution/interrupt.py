@@ -6,7 +6,8 @@
   available, notices a dead parent from a watcher thread.
 * :func:`stop_on_signals` turns SIGTERM and SIGINT in the parent into :class:`Interrupted`, an
   error with exit code 128 + signal and a one-line message; the executor then cancels and joins
-  its workers. A second Ctrl-C while that runs stops at once.
+  its workers. A second Ctrl-C while that runs stops at once. An :class:`Interrupted` that
+  compiled code wrapped in a ``SystemError`` leaves the block as itself.
 * :func:`spawn_without_sigint` keeps SIGINT blocked while worker processes are spawned: a
   Ctrl-C in a terminal goes to the whole process group, and a worker still importing its
   modules (before :func:`worker_init` runs) would otherwise print a traceback. The block is
@@ -137,6 +138,18 @@ class _Stopping:
 _active: list[_Stopping] = []
 
 
+def _interruption_behind(exc: BaseException) -> Interrupted | None:
+    """The :class:`Interrupted` in ``exc``'s chain of causes, if any."""
+    seen: set[int] = set()
+    cur: BaseException | None = exc
+    while cur is not None and id(cur) not in seen:
+        if isinstance(cur, Interrupted):
+            return cur
+        seen.add(id(cur))
+        cur = cur.__cause__ or cur.__context__
+    return None
+
+
 @contextlib.contextmanager
 def stop_on_signals(note: str = "") -> Iterator[None]:
     """SIGTERM and SIGINT raise :class:`Interrupted` (``note`` ends its message) in this block.
@@ -153,6 +166,13 @@ def stop_on_signals(note: str = "") -> Iterator[None]:
     _active.append(state)
     try:
         yield
+    except SystemError as exc:
+        # compiled code that was running Python when the handler raised (numba's dispatcher
+        # loading a cached function) hands the interruption back as a SystemError caused by it
+        stop = _interruption_behind(exc)
+        if stop is None:
+            raise
+        raise stop from None
     finally:
         _active.remove(state)
         for s, h in previous.items():
@@ -184,17 +204,3 @@ def restore_handler(signum: int, handler: Any) -> None:
     """Put ``handler`` back for ``signum`` if a library (Ray's ``init``) replaced it."""
     if threading.current_thread() is threading.main_thread() and handler is not None:
         signal.signal(signum, handler)
-
-
-def interruption_behind(exc: BaseException) -> Interrupted | None:
-    """The :class:`Interrupted` that ``exc`` stands for, if any: compiled code (numba's
-    dispatcher loading a cached function) that was running Python when the handler of
-    :func:`stop_on_signals` raised reports a ``SystemError`` whose cause is the interruption."""
-    seen: set[int] = set()
-    cur: BaseException | None = exc
-    while cur is not None and id(cur) not in seen:
-        if isinstance(cur, Interrupted):
-            return cur
-        seen.add(id(cur))
-        cur = cur.__cause__ or cur.__context__
-    return None
