@@ -273,7 +273,19 @@ def _prometheus(tmp_path: Path, target: int) -> tuple[subprocess.Popen[bytes], i
     proc = subprocess.Popen([binary, f"--config.file={conf}", f"--storage.tsdb.path={tmp_path}/tsdb",
                              f"--web.listen-address=127.0.0.1:{port}"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
-    return proc, port
+    # ready before the 6-s replay starts: on a busy CI machine the server's own start-up
+    # (TSDB, WAL) took the whole window in which the twin could be scraped
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and proc.poll() is None:
+        try:
+            if _get(f"http://127.0.0.1:{port}/-/ready")[0] == 200:
+                return proc, port
+        except OSError:
+            pass
+        time.sleep(0.2)
+    proc.terminate()
+    proc.wait(timeout=10)
+    raise AssertionError(f"prometheus did not answer ready within 60 s (exit {proc.returncode})")
 
 
 def _scraped(port: int, deadline_s: float) -> list[dict[str, Any]]:
