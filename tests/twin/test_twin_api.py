@@ -29,7 +29,7 @@ from drafttwin.twin.store.db import EventRow, StoreWriter, TwinStore
 from drafttwin.twin.web.app import WS_IN_BURST, WS_IN_MAX_BYTES, create_app
 from drafttwin.twin.web.hall import HallServer, HallView
 
-from ._twin import CHANNELS, free_port, serve_beside
+from ._twin import CHANNELS, free_port, plant_record, serve_beside
 
 pytestmark = pytest.mark.timeout(120)
 T0_US = 1_764_216_000_000_000  # 2025-11-27T04:00:00Z
@@ -311,7 +311,10 @@ def test_live_twin_metrics_history_load_and_prometheus(
 
     from drafttwin.twin.build import build_service
 
-    record, model = twin_files
+    _, model = twin_files
+    # 30 s: the load stops the twin when it is done; on a busy machine the niced clients alone
+    # took longer than the fixture's 6-s record, which then ended under them (500s, a low rate)
+    record = plant_record(tmp_path, 30.0)
     store = TwinStore(tmp_path / "store")
     _fill(store, "old-01", 86_400, T0_US - 86_400_000_000)  # a stored day
     store.close()
@@ -337,7 +340,7 @@ def test_live_twin_metrics_history_load_and_prometheus(
         service.stop()  # done: the record need not play to its end
 
     try:
-        serve_beside(service, port, 20, load)
+        serve_beside(service, port, 60, load)
     finally:
         assert service.writer is not None
         service.writer.close()
