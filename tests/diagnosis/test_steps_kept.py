@@ -81,13 +81,15 @@ def test_a_one_row_wear_step_on_one_roller_is_kept(plant):
     assert got == pytest.approx(true, abs=1.0)
 
 
-@pytest.mark.long  # 2 x 100 s healthy and a 60-s fault record of the full plant: about 20 CPU-s
+@pytest.mark.long  # 2 x 300 s healthy and a 60-s fault record of the full plant: about 60 CPU-s
 @pytest.mark.parametrize("machine_seed", [7, 9])
 def test_diagnose_sizes_an_elongation_after_a_lost_row_within_its_interval(plant, machine_seed):
     """The issue's done-when: a 1.1 % chain elongation with a logger row lost 30 ms before
     its step is named first and its interval holds 1.1 (on machines 7 and 9 it did not
     before the lags' walk and the signature's model error entered the ranking: 1.081
-    [1.067, 1.095] and 1.052 [1.011, 1.094])."""
+    [1.067, 1.095] and 1.052 [1.011, 1.094]). The healthy records are long enough for the
+    angle lags to be watched (``LAG_TUNING_BLOCKS`` decided blocks: 2 x 100 s, this test's
+    records until that rule came, leave them unwatched and nothing alarms)."""
     from dataclasses import replace
 
     from drafttwin.diagnosis.detect import FaultDetector
@@ -97,7 +99,7 @@ def test_diagnose_sizes_an_elongation_after_a_lost_row_within_its_interval(plant
 
     p, draw, train = plant
     machine = draw(machine_seed)
-    healthy = [record_features(train, p.run(100.0, seed=100 * machine_seed + i,
+    healthy = [record_features(train, p.run(300.0, seed=100 * machine_seed + i,
                                             machine=machine).series, 1.0) for i in (1, 2)]  # fmt: skip
     rec = p.run(60.0, seed=100 * machine_seed, machine=machine,
                 faults=[FaultSpec.parse("rear_chain:elongation:severity=1.1:onset=30")])  # fmt: skip
@@ -109,6 +111,8 @@ def test_diagnose_sizes_an_elongation_after_a_lost_row_within_its_interval(plant
     values, motor = rec.series.values.copy(), rec.series.motor_rpm.copy()
     values[row], motor[row] = np.nan, np.nan
     series = replace(rec.series, values=values, motor_rpm=motor)
-    top = Diagnoser(train, FaultDetector().fit(healthy)).diagnose(series).causes[0]
+    detector = FaultDetector().fit(healthy)
+    assert detector.lags_watched, detector.lags_note()
+    top = Diagnoser(train, detector).diagnose(series).causes[0]
     assert (top.element, top.kind) == ("rear_chain", "elongation")
     assert top.interval[0] <= 1.1 <= top.interval[1] and top.fits
