@@ -398,3 +398,58 @@ def test_without_a_store_history_says_it_holds_only_memory() -> None:
         api._from_memory(None, "m", kept, None, "0", "100", 5000, None)
     assert refused.value.status_code == 416 and "--store" in refused.value.detail
     api.close()
+
+
+def test_a_stop_under_history_load_answers_503_and_logs_no_traceback(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """The twin stops (as at SIGTERM) while clients' history queries run and wait: they are
+    answered 'the twin is stopping' (503) or find the page closed, never a 500, and the
+    page's log holds no 'Exception in ASGI application' traceback."""
+    import logging
+
+    from drafttwin.twin.build import build_service
+
+    record, model = twin_files
+    store = TwinStore(tmp_path / "store")
+    _fill(store, "old-01", 86_400, T0_US - 86_400_000_000)
+    store.close()
+    port = free_port()
+    url = (f"http://127.0.0.1:{port}/api/history/old-01?start="
+           f"{(T0_US - 86_400_000_000) / 1e6}&limit=10000")  # fmt: skip
+    service = build_service(model, [f"replay:{record}?speed=1&machine=df-01"],
+                            store_dir=tmp_path / "store", detector="none")  # fmt: skip
+    codes: list[int | str] = []
+    logged: list[logging.LogRecord] = []
+    catch = logging.Handler(logging.ERROR)
+    catch.emit = logged.append  # type: ignore[method-assign]
+    # uvicorn's own logger (not propagated to the root), once the page has configured it
+    page_log = logging.getLogger("uvicorn.error")
+    stop = threading.Event()
+
+    def ask() -> None:
+        while not stop.is_set():
+            try:
+                codes.append(_get(url)[0])
+            except OSError as exc:  # the page closed under the request
+                codes.append(type(exc).__name__)
+
+    def load(_: object) -> None:
+        page_log.addHandler(catch)
+        clients = [threading.Thread(target=ask) for _ in range(8)]
+        [t.start() for t in clients]
+        time.sleep(1.0)  # queries running and queued
+        service.stop()
+        time.sleep(2.0)
+        stop.set()
+        [t.join(timeout=30) for t in clients]
+
+    try:
+        serve_beside(service, port, 30, load)
+    finally:
+        page_log.removeHandler(catch)
+        assert service.writer is not None
+        service.writer.close()
+        service.writer.store.close()
+    assert not logged, [r.getMessage() for r in logged]
+    assert 200 in codes and 503 in codes and 500 not in codes, codes

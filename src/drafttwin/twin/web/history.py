@@ -149,6 +149,11 @@ def _lower_priority() -> None:
             os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), NICE)
 
 
+def _stopping() -> HTTPException:
+    return HTTPException(503, "the twin is stopping: ask again once it runs",
+                         headers={"Retry-After": "5"})  # fmt: skip
+
+
 class _Query:
     """One query's connection, so that a timeout can interrupt it."""
 
@@ -168,11 +173,14 @@ class HistoryApi:
                                        initializer=_lower_priority)  # fmt: skip
         self.in_flight = 0
         self.refused = 0
+        self.closing = False
         self._local = threading.local()
         self._cons: list[Any] = []
 
     def close(self) -> None:
-        """Stop the threads (a running query is interrupted) and close their connections."""
+        """Stop the threads (a running query is interrupted, it and the waiting ones are
+        answered 503) and close their connections."""
+        self.closing = True
         self.pool.shutdown(wait=False, cancel_futures=True)
         for con in self._cons:
             con.interrupt()
@@ -191,6 +199,8 @@ class HistoryApi:
 
     async def run(self, work: Callable[..., T], *args: Any) -> T:
         """``work(con, *args)`` in a history thread: bounded in number and in time."""
+        if self.closing:
+            raise _stopping()
         if self.in_flight >= MAX_IN_FLIGHT:
             self.refused += 1
             raise HTTPException(429, f"{MAX_IN_FLIGHT} history requests already running "
@@ -211,6 +221,15 @@ class HistoryApi:
                 q.con.interrupt()
             raise HTTPException(503, f"the history query ran past {QUERY_TIMEOUT_S:g} s (the "
                                 "bound): ask for a shorter window or fewer points") from None  # fmt: skip
+        except asyncio.CancelledError:
+            task = asyncio.current_task()
+            if not self.closing or (task is not None and task.cancelling()):
+                raise  # the request itself was cancelled
+            raise _stopping() from None  # its query, by close()
+        except Exception:
+            if not self.closing:
+                raise
+            raise _stopping() from None  # an interrupted query, by close()
         finally:
             self.in_flight -= 1
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 import socket
 import threading
 import time
@@ -81,15 +82,31 @@ class PageThread:
             await asyncio.sleep(0.02)
 
     async def stop(self) -> None:
-        """Close every connection (open WebSockets and keep-alive clients do not hold the
-        stop) and wait at most :data:`WEB_STOP_S` for the thread."""
+        """Stop listening, let the answers in progress go out for half of
+        :data:`WEB_STOP_S`, then close every connection (open WebSockets and keep-alive
+        clients do not hold the stop); wait at most :data:`WEB_STOP_S` for the thread."""
+        quiet = _QuietCancellations()
+        uvicorn_log = logging.getLogger("uvicorn.error")
+        uvicorn_log.addFilter(quiet)
         self.server.should_exit = True
+        start = time.monotonic()
+        while self.thread.is_alive() and time.monotonic() < start + WEB_STOP_S / 2:
+            await asyncio.sleep(0.02)
         self.server.force_exit = True
-        deadline = time.monotonic() + WEB_STOP_S
-        while self.thread.is_alive() and time.monotonic() < deadline:
+        while self.thread.is_alive() and time.monotonic() < start + WEB_STOP_S:
             await asyncio.sleep(0.02)
         if not self.thread.is_alive():
             self.sock.close()
+            uvicorn_log.removeFilter(quiet)
+
+
+class _QuietCancellations(logging.Filter):
+    """While a page stops, a request still running is cancelled with its loop: uvicorn
+    would log that as 'Exception in ASGI application' with a traceback; it is the stop."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        exc = record.exc_info[1] if record.exc_info else None
+        return not isinstance(exc, asyncio.CancelledError)
 
 
 async def serve_with(service: TwinService, bind: tuple[str, int], token: str | None,
@@ -106,8 +123,9 @@ async def serve_with(service: TwinService, bind: tuple[str, int], token: str | N
             started(page)
         await service.run(duration_s=duration_s, max_rows=max_rows)
     finally:
-        await page.stop()
+        # the history first: its queries answer 'stopping' (503) while the page still serves
         app.state.history.close()
+        await page.stop()
 
 
 __all__ = ["WEB_STOP_S", "PageThread", "bound_socket", "serve_with"]
