@@ -221,15 +221,13 @@ class HistoryApi:
                 q.con.interrupt()
             raise HTTPException(503, f"the history query ran past {QUERY_TIMEOUT_S:g} s (the "
                                 "bound): ask for a shorter window or fewer points") from None  # fmt: skip
-        except asyncio.CancelledError:
+        except (asyncio.CancelledError, Exception):
+            # close() cancelled or interrupted its query: 'stopping'; a cancellation of the
+            # request itself (its task cancelling) stays one
             task = asyncio.current_task()
             if not self.closing or (task is not None and task.cancelling()):
-                raise  # the request itself was cancelled
-            raise _stopping() from None  # its query, by close()
-        except Exception:
-            if not self.closing:
                 raise
-            raise _stopping() from None  # an interrupted query, by close()
+            raise _stopping() from None
         finally:
             self.in_flight -= 1
 

@@ -88,16 +88,19 @@ class PageThread:
         quiet = _QuietCancellations()
         uvicorn_log = logging.getLogger("uvicorn.error")
         uvicorn_log.addFilter(quiet)
-        self.server.should_exit = True
         start = time.monotonic()
-        while self.thread.is_alive() and time.monotonic() < start + WEB_STOP_S / 2:
-            await asyncio.sleep(0.02)
+        self.server.should_exit = True
+        await self._joined(start + WEB_STOP_S / 2)
         self.server.force_exit = True
-        while self.thread.is_alive() and time.monotonic() < start + WEB_STOP_S:
-            await asyncio.sleep(0.02)
-        if not self.thread.is_alive():
+        if await self._joined(start + WEB_STOP_S):
             self.sock.close()
             uvicorn_log.removeFilter(quiet)
+
+    async def _joined(self, deadline: float) -> bool:
+        """Whether the thread ended by ``deadline`` (monotonic), waiting on this loop."""
+        while self.thread.is_alive() and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+        return not self.thread.is_alive()
 
 
 class _QuietCancellations(logging.Filter):
