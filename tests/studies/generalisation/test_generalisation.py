@@ -264,3 +264,19 @@ def test_the_results_json_gives_the_markdown_tables_and_the_figures_file(quick_r
     figures = json.loads((out / "benchmarks" / "results" / "generalisation.json").read_text())
     assert figures["benchmark"] == "generalisation" and figures["figures"]
     assert all(f["unit"] in ("rpm", "s") for f in figures["figures"])
+
+
+def test_the_floor_table_reads_a_channel_without_a_floor() -> None:
+    """The oracle gives no floor where a channel's encoder errors lack the counting premise
+    (None in the JSON): the table says so instead of failing (TypeError before)."""
+    from drafttwin.report.generalisation import floor_rows
+
+    floors = [
+        {"channel": "front", "floor": 0.21, "best_rmse": 0.25, "best_model": "gru"},
+        {"channel": "second", "floor": None, "best_rmse": 0.3, "best_model": "parallel"},
+        {"channel": "third", "floor": 0.2, "best_rmse": 0.1, "best_model": "gru"},
+        {"channel": "back", "floor": 0.2, "best_rmse": None, "best_model": None},
+    ]
+    _, rows = floor_rows({"floors": floors})
+    assert [r[-1] for r in rows] == ["no", "no floor", "YES (the floor is wrong)", "no run"]
+    assert rows[1][1] == "n/a"
