@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any, Literal
 
 import numpy as np
 import typer
@@ -26,6 +26,9 @@ from drafttwin.cli._options import (
 from drafttwin.cli.typer_app import app, console, progress_bar
 from drafttwin.errors import ConfigError
 
+if TYPE_CHECKING:
+    from drafttwin.plant import PlantConfig
+
 RecordOutOpt = Annotated[Path, file_out("--out", "Measured data file, .csv or .parquet.")]
 SeedOpt = Annotated[int, number("--seed", "Seed of the recording: same seeds, byte-identical files.")]  # fmt: skip
 MachineSeedOpt = Annotated[int | None, number(
@@ -47,8 +50,25 @@ FeedFaultOpt = Annotated[list[str] | None, typer.Option("--feed-fault", help=(
     "wavelength=M:amplitude=A[:slivers=one|all][:phase=random|same]; one sliver running out, "
     "missing=FROM_M-TO_M; a piecing, piecing=AT_M (fed lengths in m from the record's start; "
     "repeatable)."))]  # fmt: skip
+GearRunoutOpt = Annotated[str, typer.Option("--gear-runout", help=(
+    "Each gear's own radial run-out: 'allowable' gives every gear ISO 1328's allowable 35 um "
+    "(the worst accepted gear everywhere); 'rayleigh' draws each gear's own below it, "
+    "Rayleigh's law with 99.73 % within 35 um (docs/plant.md). Machine parameters from "
+    "--machine are kept as they are."))]  # fmt: skip
 FibreScaleOpt = Annotated[float, number("--fibre-scale", "With --sliver: fibres lumped into one "
                           "(1: every fibre, about 1.3e8 per 100 m).")]  # fmt: skip
+
+
+def _plant_config(gear_runout: str) -> PlantConfig:
+    """The plant's settings with the gears' run-out law named by --gear-runout."""
+    from drafttwin.plant import PlantConfig
+    from drafttwin.plant.config import Eccentricity
+
+    if gear_runout not in ("allowable", "rayleigh"):
+        raise ConfigError(f"{gear_runout!r} is not a run-out law",
+                          where="--gear-runout", fix="give allowable or rayleigh")  # fmt: skip
+    law: Literal["rayleigh", "allowable"] = "rayleigh" if gear_runout == "rayleigh" else "allowable"
+    return PlantConfig(eccentricity=Eccentricity(gear_runout_law=law))
 
 
 @app.command()
@@ -60,7 +80,7 @@ def generate(
     scenario: ScenarioOpt = "steady", fault: FaultOpt = None,
     sliver: SliverOpt = False, feed_fault: FeedFaultOpt = None, fibre_scale: FibreScaleOpt = 1.0,
     leveller: LevellerOpt = None, leveller_fault: LevellerFaultOpt = None,
-    quiet: QuietOpt = False,
+    gear_runout: GearRunoutOpt = "allowable", quiet: QuietOpt = False,
 ) -> None:  # fmt: skip
     """Run the plant emulator: measured roller speeds with the machine's real imperfections.
 
@@ -79,7 +99,7 @@ def generate(
     if machine is not None and machine_seed is not None:
         raise ConfigError("--machine and --machine-seed both name the machine",
                           where="--machine", fix="give one of them")  # fmt: skip
-    plant = Plant(drive.load())
+    plant = Plant(drive.load(), config=_plant_config(gear_runout))
     faults = check_faults([FaultSpec.parse(f) for f in fault or []], plant.train)
     settings = _sliver_settings(sliver, feed_fault, fibre_scale, out, leveller, leveller_fault)
     # refuse a run that would never end (or write tens of GB) before anything starts

@@ -22,7 +22,7 @@ from scipy.signal import lfilter
 
 from drafttwin.mechanics import DriveTrain, Signal, operating_point
 from drafttwin.mechanics.components import Roller
-from drafttwin.plant.config import PlantConfig
+from drafttwin.plant.config import Eccentricity, PlantConfig
 
 FORCE_GRID_S = 1e-3  # drafting force and roller load grid (lines up to ~30 Hz once-per-rev)
 SUPPLY_GRID_S = 1e-2
@@ -39,6 +39,8 @@ def true_train(
     raw.pop("drafting_zone", None)
     mm = cfg.mismatch
     draws: dict[str, float] = {}
+    # the gears' own run-outs from a child stream, so that every other draw stays as it was
+    (runout_rng,) = rng.spawn(1)
 
     def scale(item: dict[str, Any], key: str, half_range: float, label: str) -> None:
         u = float(rng.uniform(-half_range, half_range))
@@ -55,7 +57,7 @@ def true_train(
         scale(g, "mesh_stiffness_n_per_m", mm.mesh_stiffness, f"gear.{g['name']}")
         g["backlash_um"] = cfg.backlash_module_fraction * g["module_mm"] * 1000.0
         for side in ("driver", "driven"):
-            g[f"{side}_eccentricity_um"] = 0.5 * cfg.eccentricity.gear_runout_um
+            g[f"{side}_eccentricity_um"] = gear_eccentricity_um(cfg.eccentricity, runout_rng)
             g[f"{side}_eccentricity_phase_deg"] = float(rng.uniform(0.0, 360.0))
     for s in raw["shaft"]:
         scale(s, "stiffness_nm_per_rad", mm.roller_torsion, f"shaft.{s['name']}")
@@ -67,6 +69,18 @@ def true_train(
     scale(raw["motor"], "breakdown_torque_ratio", mm.breakdown_torque_ratio, "motor")
     raw["train"]["name"] = f"{raw['train']['name']} (plant)"
     return DriveTrain.from_dict(raw, source="plant"), draws
+
+
+# P(R <= k sigma) = 1 - exp(-k^2 / 2) = 0.9973 for a Rayleigh R: the 99.73 % field (3.44 sigma)
+RAYLEIGH_FIELD_SIGMAS = math.sqrt(-2.0 * math.log(1.0 - 0.9973))
+
+
+def gear_eccentricity_um(ecc: Eccentricity, rng: np.random.Generator) -> float:
+    """One gear's eccentricity (um, half its radial run-out) under ``ecc.gear_runout_law``."""
+    allowable_um = 0.5 * ecc.gear_runout_um
+    if ecc.gear_runout_law == "allowable":
+        return allowable_um
+    return float(rng.rayleigh(allowable_um / RAYLEIGH_FIELD_SIGMAS))
 
 
 def ou_process(

@@ -105,14 +105,26 @@ def _candidate(e: Element, h: int, lam: float, excess: float, table: WavelengthT
     gain = float(abs(mass_gain(moved, lam, gauges_mm, drafts, staple)[0]))
     plausible = gain >= MIN_GAIN
     required = excess / gain if plausible else math.inf
-    seen = sum(1 for k in range(1, harmonics + 1) if k != h and any(
+    orders = range(1, harmonics + 1, 2 if e.kind == "rattle" else 1)
+    seen = sum(1 for k in orders if k != h and any(
         abs(math.log(e.wavelength_m / k / w)) <= math.log1p(tol) for w in waves))  # fmt: skip
     offset = abs(math.log(e.wavelength_m / h / lam)) / math.log1p(tol)
     return Candidate(e.name, e.kind, h, e.wavelength_m / h, gain, required, plausible, seen,
                      offset=offset)  # fmt: skip
 
 
-KIND_PRIOR = ("roller", "gear", "sprocket", "pulley", "chain", "belt", "mesh", "shaft", "motor")
+KIND_PRIOR = (
+    "roller",
+    "gear",
+    "sprocket",
+    "pulley",
+    "chain",
+    "belt",
+    "mesh",
+    "rattle",
+    "shaft",
+    "motor",
+)
 """At equal evidence the kind of element more often behind such a chimney in practice comes
 first: an eccentric or damaged roller, then the gears on its shaft; the others stay named as
 look-alikes. The modulation an element would need only rules it in or out: real defects

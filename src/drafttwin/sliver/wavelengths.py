@@ -35,7 +35,10 @@ class Element:
 
     Attributes:
         name: e.g. ``gear B (A-B)``, ``roller front``, ``belt pass main_belt``.
-        kind: motor | shaft | gear | mesh | pulley | belt | sprocket | chain | roller.
+        kind: motor | shaft | gear | mesh | pulley | belt | sprocket | chain | roller |
+            rattle (half a mesh's or a chain's tooth frequency: a lightly loaded mesh below it
+            that loses contact once every two teeth, the period doubling of a gear pair with
+            backlash; its odd orders only, the even ones are the tooth frequency's own).
         node: the drive-train node it turns with ('' for a belt or chain pass).
         frequency_hz: its rotation (or pass, or mesh) frequency at the running point.
         wavelength_m: ``v_delivery / frequency_hz`` on the delivered sliver.
@@ -84,7 +87,7 @@ class WavelengthTable:
         """Elements (and harmonic order) within relative distance ``rel`` of a wavelength."""
         out = []
         for e in self.elements:
-            for h in range(1, (harmonics or self.harmonics) + 1):
+            for h in range(1, (harmonics or self.harmonics) + 1, 2 if e.kind == "rattle" else 1):
                 if abs(math.log(e.wavelength_m / h / wavelength_m)) <= math.log1p(rel):
                     out.append((e, h))
         return out
@@ -195,7 +198,8 @@ def _coupling_elements(train: DriveTrain, rps: np.ndarray, v: float,
             g_drv, g_dvn = _gear_names(c)
             out += [_element(g_drv, "gear", names[drv], rps[drv], v, moved),
                     _element(g_dvn, "gear", names[dvn], rps[dvn], v, moved),
-                    _element(f"mesh {c.name}", "mesh", "", rps[drv] * c.driver_teeth, v, moved)]  # fmt: skip
+                    _element(f"mesh {c.name}", "mesh", "", rps[drv] * c.driver_teeth, v, moved),
+                    _rattle(f"of {c.name}", rps[drv] * c.driver_teeth, v, moved)]  # fmt: skip
         elif isinstance(c, Belt):
             out += [_element(f"driver pulley ({c.name})", "pulley", names[drv], rps[drv], v, moved),
                     _element(f"driven pulley ({c.name})", "pulley", names[dvn], rps[dvn], v,
@@ -210,8 +214,15 @@ def _coupling_elements(train: DriveTrain, rps: np.ndarray, v: float,
                     _element(f"driven sprocket ({c.name})", "sprocket", names[dvn], rps[dvn], v,
                              moved),
                     _element(f"chain teeth {c.name}", "chain", "", rps[drv] * c.driver_teeth, v,
-                             moved)]  # fmt: skip
+                             moved),
+                    _rattle(f"below {c.name}", rps[drv] * c.driver_teeth, v, moved)]  # fmt: skip
             if links:
                 out.append(_element(f"chain pass {c.name}", "chain", "",
                                     rps[drv] * c.driver_teeth / links, v, moved))  # fmt: skip
     return out
+
+
+def _rattle(where: str, tooth_hz: float, v: float, moved: tuple[str, ...]) -> Element:
+    """Half a tooth frequency: a mesh (that one, or one below a chain) rattling in its
+    backlash with period 2."""
+    return _element(f"rattle {where}", "rattle", "", tooth_hz / 2, v, moved)
