@@ -450,6 +450,10 @@ HOW_TO_READ: tuple[tuple[str, str], ...] = (
      "(a non-sinusoidal defect also at a half, a third, ... of it). Elements whose lines share a "
      "wavelength are look-alikes: the sliver alone cannot tell them apart; the roller encoders "
      "or an inspection can."),
+    ("A rattle line", " sits at half a mesh's or a chain's tooth frequency (twice its "
+     "wavelength): a lightly loaded mesh with backlash that loses contact once every two teeth. "
+     "It comes with the gears' backlash and light load; one that grows points to backlash "
+     "grown by wear."),
     ("The speed modulation needed", " is what the element would have to do to the rollers it "
      "drives to leave this chimney through the drafting. An element that moves every roller "
      "alike (gain near 0) cannot leave one."),
