@@ -78,8 +78,8 @@ def build(
     spec = DEFAULT.copy()
     if duration_s is not None:
         spec["duration_s"] = duration_s
-    # made when the plant gave every gear its allowable run-out: kept so, so that the study's
-    # figures stay those of this very record (its metadata says so)
+    # made when the plant gave every gear its allowable run-out, and kept so whatever the
+    # plant's default: the study's figures are those of this very record
     config = PlantConfig(eccentricity=Eccentricity(gear_runout_law="allowable"))
     rec = Plant(config=config).run(spec["duration_s"], spec["rate_hz"], seed=spec["seed"],
                       scenario=spec["scenario"], progress=progress)  # fmt: skip

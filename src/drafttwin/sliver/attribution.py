@@ -105,8 +105,7 @@ def _candidate(e: Element, h: int, lam: float, excess: float, table: WavelengthT
     gain = float(abs(mass_gain(moved, lam, gauges_mm, drafts, staple)[0]))
     plausible = gain >= MIN_GAIN
     required = excess / gain if plausible else math.inf
-    orders = range(1, harmonics + 1, 2 if e.kind == "rattle" else 1)
-    seen = sum(1 for k in orders if k != h and any(
+    seen = sum(1 for k in e.orders(harmonics) if k != h and any(
         abs(math.log(e.wavelength_m / k / w)) <= math.log1p(tol) for w in waves))  # fmt: skip
     offset = abs(math.log(e.wavelength_m / h / lam)) / math.log1p(tol)
     return Candidate(e.name, e.kind, h, e.wavelength_m / h, gain, required, plausible, seen,

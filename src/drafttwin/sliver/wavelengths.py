@@ -52,6 +52,11 @@ class Element:
     wavelength_m: float
     rollers: tuple[str, ...]
 
+    def orders(self, count: int) -> range:
+        """The harmonic orders up to ``count`` that are this element's own: all, or the odd
+        ones of a rattle line (its even ones are the tooth frequency's)."""
+        return range(1, count + 1, 2 if self.kind == "rattle" else 1)
+
     def harmonics_m(self, count: int) -> list[float]:
         return [self.wavelength_m / h for h in range(1, count + 1)]
 
@@ -87,7 +92,7 @@ class WavelengthTable:
         """Elements (and harmonic order) within relative distance ``rel`` of a wavelength."""
         out = []
         for e in self.elements:
-            for h in range(1, (harmonics or self.harmonics) + 1, 2 if e.kind == "rattle" else 1):
+            for h in e.orders(harmonics or self.harmonics):
                 if abs(math.log(e.wavelength_m / h / wavelength_m)) <= math.log1p(rel):
                     out.append((e, h))
         return out
