@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, Literal
+from typing import TYPE_CHECKING, Annotated, Any, cast, get_args
 
 import numpy as np
 import typer
@@ -62,12 +62,13 @@ FibreScaleOpt = Annotated[float, number("--fibre-scale", "With --sliver: fibres 
 def _plant_config(gear_runout: str) -> PlantConfig:
     """The plant's settings with the gears' run-out law named by --gear-runout."""
     from drafttwin.plant import PlantConfig
-    from drafttwin.plant.config import Eccentricity
+    from drafttwin.plant.config import Eccentricity, GearRunoutLaw
 
-    if gear_runout not in ("allowable", "rayleigh"):
+    laws = get_args(GearRunoutLaw)
+    if gear_runout not in laws:
         raise ConfigError(f"{gear_runout!r} is not a run-out law",
-                          where="--gear-runout", fix="give allowable or rayleigh")  # fmt: skip
-    law: Literal["rayleigh", "allowable"] = "rayleigh" if gear_runout == "rayleigh" else "allowable"
+                          where="--gear-runout", fix=f"give {' or '.join(sorted(laws))}")  # fmt: skip
+    law = cast(GearRunoutLaw, gear_runout)
     return PlantConfig(eccentricity=Eccentricity(gear_runout_law=law))
 
 

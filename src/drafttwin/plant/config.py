@@ -14,6 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field
 Frac = Annotated[float, Field(ge=0, le=1)]
 NonNeg = Annotated[float, Field(ge=0, le=1e9)]
 Pos = Annotated[float, Field(gt=0, le=1e9)]
+GearRunoutLaw = Literal["rayleigh", "allowable"]
 
 
 class _Cfg(BaseModel):
@@ -64,7 +65,7 @@ class Eccentricity(_Cfg):
     # chimney, docs/sliver.md). Still the default: with "rayleigh" the diagnosis's stuck-sensor
     # rule, fitted on one machine, false-alarms on another (docs/sliver.md, "Why `allowable`
     # is still the default")
-    gear_runout_law: Literal["rayleigh", "allowable"] = "allowable"
+    gear_runout_law: GearRunoutLaw = "allowable"
     roller_load_modulation: Frac = 0.05  # assumption: TIR 10-30 um on the cot's compliance
     # radius eccentricity of every bottom roller, the same run-out as roller_load_modulation
     # (long radius where the load is highest): it moves the surface speed once per revolution

@@ -112,18 +112,8 @@ def _candidate(e: Element, h: int, lam: float, excess: float, table: WavelengthT
                      offset=offset)  # fmt: skip
 
 
-KIND_PRIOR = (
-    "roller",
-    "gear",
-    "sprocket",
-    "pulley",
-    "chain",
-    "belt",
-    "mesh",
-    "rattle",
-    "shaft",
-    "motor",
-)
+KIND_PRIOR = ("roller", "gear", "sprocket", "pulley", "chain", "belt", "mesh", "rattle", "shaft",
+              "motor")  # fmt: skip
 """At equal evidence the kind of element more often behind such a chimney in practice comes
 first: an eccentric or damaged roller, then the gears on its shaft; the others stay named as
 look-alikes. The modulation an element would need only rules it in or out: real defects
