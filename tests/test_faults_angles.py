@@ -221,17 +221,19 @@ def test_a_stuck_encoder_seen_first_by_a_cusum_is_named_not_a_machine_element():
     det = FaultDetector().fit(healthy)
     y, true = counted(0.0, 1e9, n, seed=13)
     f = block_features(y, true, t, 1.0)
-    level, run = f.level.copy(), f.run.copy()
+    level, run, stale = f.level.copy(), f.run.copy(), f.stale_runs.copy()
     level[40:42, 3] += 4e-4  # the held value's block means
     run[41, 3] = 2 * det.run_limit_[3]  # the rule fires one block after the CUSUM
-    f = replace(f, level=level, run=run)
+    stale[41, 3] = run[41, 3]  # a held value's run moves its lag
+    f = replace(f, level=level, run=run, stale=stale)
     first = det.run(f).first
     assert first is not None and first.test == "parity_back" and first.block == 40
     dx = Diagnoser(DriveTrain.preset("fa320a"), det).from_features(f)
     assert dx.causes[0].name == "back:stuck" and dx.causes[0].family == "sensor"
     # without the stuck run the same shift is ranked as a machine or encoder-gain cause
-    run[41, 3] = 1
-    dx = Diagnoser(DriveTrain.preset("fa320a"), det).from_features(replace(f, run=run))
+    run[41, 3] = stale[41, 3] = 1
+    dx = Diagnoser(DriveTrain.preset("fa320a"), det).from_features(replace(f, run=run,
+                                                                        stale=stale))  # fmt: skip
     assert dx.causes and dx.causes[0].kind != "stuck"
 
 

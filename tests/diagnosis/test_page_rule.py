@@ -68,9 +68,9 @@ def test_a_lag_jump_alarm_is_shown_as_the_jump_rule_with_its_own_statistic(detec
 
 def test_a_sensor_alarm_names_the_sensor_rule(detector):
     _, _, f = features(0.0, 25)
-    run = f.run.copy()
-    run[40, 3] = 3 * detector.run_limit_[3]
-    f = replace(f, run=run)
+    run, stale = f.run.copy(), f.stale_runs.copy()
+    run[40, 3] = stale[40, 3] = 3 * detector.stale_limit_[3]  # a held value: it moved the lag
+    f = replace(f, run=run, stale=stale)
     det = detector.run(f)
     a = det.first
     assert a is not None

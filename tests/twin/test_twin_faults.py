@@ -375,7 +375,7 @@ def test_a_sensor_rule_in_the_window_takes_the_machine_ranking_over(detector):
     import copy
 
     detector = copy.copy(detector)
-    detector.run_limit_ = np.full(5, 30.0)
+    detector.run_limit_ = detector.stale_limit_ = np.full(5, 30.0)
     t, y, yhat = samples(5, 60)
     y[3175:3300, 3] = y[3174, 3] * 1.009
     watch = watch_of(detector, post_s=5)

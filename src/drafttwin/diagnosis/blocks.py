@@ -10,8 +10,21 @@ final one block after it closed (at 1-s blocks and 100 Hz).
 
 Per block (see :class:`~drafttwin.diagnosis.residuals.BlockFeatures`): the mean relative
 residual of each channel with data-path spikes left out, the share of samples lost on a
-channel alone, the longest run of identical values, and the mean angle lag of the second,
-third and back roller behind the front.
+channel alone, the longest run of identical values, the longest such run that moved the
+channel's angle lag (a stale reading, below), and the mean angle lag of the second, third and
+back roller behind the front.
+
+A counting encoder's counts add up to its roller's angle: however long it repeats one count
+(its count per sample sitting near a whole number), the lag behind the front roller stays
+within an edge or two of quantisation and the drive's own wobble. A stuck encoder repeats a
+stale value while the roller turns on, so the lag walks by the true count's fractional part
+per sample. A run of identical values is *stale* when its lag moved by more than
+:data:`STALE_EDGES` edges (one edge of the lagged roller's encoder and one of the front's
+through the ratio; an encoder's edge is the smallest step its readings took so far); the
+front roller's runs are judged by all three lags together (each behind the front), the
+motor's (no lag) all count.
+(Until 2026-11-29 only a run's length was judged: a machine whose gears leave longer healthy
+runs than the tuning machines' (6-22 samples against 5-15 in 60 s) was called stuck.)
 
 The angle lags (:class:`LagCounter`) are running sums of the counted speeds, the front's
 times the kinematic ratio subtracted. A lost row (or a data-path spike) loses its counts,
@@ -54,6 +67,7 @@ MIN_HISTORY = 10  # fewer counted steps than this: no row counts as a move yet
 MOVED = 3.0  # a row's lag step this many times the 90th percentile of the history: a move
 MOVING_RPM = 1.0  # below this predicted speed a roller counts as stopped (no spike test)
 MRAD_PER_RPM_S = 2e3 * math.pi / 60.0  # a speed of 1 rpm for 1 s turns this many mrad
+STALE_EDGES = 8.0  # a run whose lag moved this many edges is stale (see the module docstring)
 
 
 class BlockStream:
@@ -79,8 +93,11 @@ class BlockStream:
         self._yhat = np.full((self.per, N_CHANNELS), np.nan)
         self._t = np.zeros(self.per)
         self._k = 0  # rows in the open block
-        self._waiting: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self._waiting: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                   np.ndarray]] = deque()  # fmt: skip
         self._lag_rows = np.zeros((0, N_LAGGED))  # final lags not yet averaged into a block
+        self._edge_rpm = np.full(4, np.inf)  # each roller's smallest reading step so far
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None  # the last block's y and lags
         self.blocks = 0  # blocks handed out so far
         self.finished = False
 
@@ -117,30 +134,46 @@ class BlockStream:
 
     def _close(self) -> list[BlockRow]:
         level, lost, run, good = block_levels(self._y, self._yhat)
-        self._waiting.append((float(self._t[-1]), level, lost, run))
-        return self._emit(self.lags.add(self._y[:, :4].copy(), good[:, :4]))
+        final = self.lags.add(self._y[:, :4].copy(), good[:, :4])
+        step = np.abs(np.diff(self._y[:, :4], axis=0))
+        step[~(step > 0)] = np.inf  # NaN too
+        self._edge_rpm = np.minimum(self._edge_rpm, step.min(axis=0))
+        edge = (self._edge_rpm[1:] + self.lags.ratio * self._edge_rpm[0]) * self.lags.mrad_per_row
+        self._waiting.append((float(self._t[-1]), level, lost, run, self._y.copy(), edge))
+        return self._emit(final)
 
     def _emit(self, lag: np.ndarray) -> list[BlockRow]:
         self._lag_rows = np.vstack([self._lag_rows, lag])
         out = []
         while self._waiting and len(self._lag_rows) >= self.per:
-            t, level, lost, run = self._waiting.popleft()
-            mean_lag = self._lag_rows[: self.per].mean(axis=0)
+            t, level, lost, run, y, edge = self._waiting.popleft()
+            lag = self._lag_rows[: self.per]
             self._lag_rows = self._lag_rows[self.per :]
-            out.append(BlockRow(self.blocks, t, level, lost, run, mean_lag))
+            stale = self._stale(y, lag, edge)
+            out.append(BlockRow(self.blocks, t, level, lost, run, lag.mean(axis=0), stale))
+            self._prev = (y, lag)
             self.blocks += 1
         return out
+
+    def _stale(self, y: np.ndarray, lag: np.ndarray, edge: np.ndarray) -> np.ndarray:
+        """The block's longest stale runs, judged with the previous block's rows before it."""
+        if self._prev is None:
+            return stale_runs(y, lag, edge, 0)
+        return stale_runs(np.vstack([self._prev[0], y]), np.vstack([self._prev[1], lag]), edge,
+                          len(self._prev[0]))  # fmt: skip
 
 
 class BlockRow:
     """One block's features (see :class:`~drafttwin.diagnosis.residuals.BlockFeatures`)."""
 
-    __slots__ = ("index", "time_s", "level", "lost", "run", "lag")
+    __slots__ = ("index", "time_s", "level", "lost", "run", "lag", "stale")
 
     def __init__(self, index: int, time_s: float, level: np.ndarray, lost: np.ndarray,
-                 run: np.ndarray, lag: np.ndarray) -> None:  # fmt: skip
+                 run: np.ndarray, lag: np.ndarray, stale: np.ndarray | None = None) -> None:  # fmt: skip
         self.index, self.time_s = index, time_s
         self.level, self.lost, self.run, self.lag = level, lost, run, lag
+        # without it (features kept before 2026-11-29) every run counts as stale: the old rule
+        self.stale = run if stale is None else stale
 
     @property
     def features(self) -> np.ndarray:
@@ -183,6 +216,49 @@ def longest_runs(y: np.ndarray) -> np.ndarray:
     # the count where each run began: the count at the last row that broke a run
     began = np.maximum.accumulate(np.where(same, 0, count), axis=0)
     out: np.ndarray = (count - began).max(axis=0) + 1.0
+    return out
+
+
+def stale_runs(y: np.ndarray, lag: np.ndarray, edge: np.ndarray, first: int) -> np.ndarray:
+    """Per channel, the longest run of identical finite values reaching into the block that
+    starts at row ``first`` of ``y (n, 5)`` (the rows before it: the previous block's) during
+    which the angle lag moved by more than :data:`STALE_EDGES` ``edge`` s while over as many
+    rows before the run it moved by no more than that, or than a quarter of its move during
+    the run (a wrong gain walks the lag all the time, a stale value only while it repeats;
+    readings that are not counts have tiny edges); ``lag (n, 3)`` and ``edge (3,)`` in mrad; 1 when
+    none. The front roller's run is judged by all three lags together; the motor's runs
+    all count."""
+    out = np.ones(N_CHANNELS)
+    for c in range(N_CHANNELS):
+        x = y[:, c]
+        new = np.concatenate([[True], (x[1:] != x[:-1]) | ~np.isfinite(x[1:])])
+        start = np.flatnonzero(new)
+        end = np.concatenate([start[1:], [len(x)]])
+        keep = (end - start >= 2) & (end > first) & np.isfinite(x[start])
+        if not keep.any():
+            continue
+        start, end = start[keep], end[keep]
+        if c == N_CHANNELS - 1:
+            stale = np.ones(len(start), dtype=bool)
+        else:
+            span = end - 1 - start  # rows the lag moved over during the run
+            before = np.maximum(start - span, 0)
+            scale = span / np.maximum(start - before, 1)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                during = np.abs(lag[end - 1] - lag[start]) / edge  # (runs, 3), in edges
+                ahead = np.abs(lag[start] - lag[before]) / edge * scale[:, None]
+            ahead_ok = np.where(start > 0, _lag_of(ahead, c), 0.0)
+            moved = _lag_of(during, c)
+            stale = (moved > STALE_EDGES) & (ahead_ok <= np.maximum(STALE_EDGES, moved / 4))
+        if stale.any():
+            out[c] = float((end - start)[stale].max())
+    return out
+
+
+def _lag_of(moves: np.ndarray, channel: int) -> np.ndarray:
+    """Per run, the move of ``channel``'s lag among ``moves (runs, 3)``; the front roller's:
+    the least of the three (each lag behind the front moves with it)."""
+    out: np.ndarray = moves.min(axis=1) if channel == 0 else moves[:, channel - 1]
     return out
 
 

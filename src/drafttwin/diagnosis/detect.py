@@ -15,7 +15,11 @@ fitted on healthy tuning records, and watched by a two-sided CUSUM (Page 1954) w
 so that all streams together raise ``far_per_day`` false alarms per 24 h of running.
 
 Sensor validity rules run beside them: a channel that loses samples while the others keep
-them, or repeats one value for longer than healthy tuning data ever did, is a sensor fault.
+them is a sensor fault, and so is one that repeats one value while its angle lag moves (a
+stale value: a counting encoder's identical counts leave the lag put, see
+:mod:`~drafttwin.diagnosis.blocks`) for longer than any run in the healthy tuning data (and
+than twice the longest such stale run there), or repeats one value, lag moved or not, for
+longer than :data:`STILL_FACTOR` times twice the longest run there.
 """
 
 from __future__ import annotations
@@ -39,6 +43,11 @@ FEATURES = (*CHANNELS, *(f"lag_{c}" for c in LAGGED))
 SIEGMUND_OFFSET = 1.166
 JUMP_MARGIN = 2.0  # a lag's one-block jump rule: this many times the largest in tuning
 LAG_TUNING_BLOCKS = 400
+STILL_FACTOR = 4.0  # any run is stuck past this many times the run limit: a counting
+# encoder repeats a count for L samples when its count per sample lies within about 1/L of a
+# whole number, so healthy runs are long-tailed and differ from machine to machine and speed
+# to speed (6-22 samples in 60 s of a roller; 30 after a belt wear slowed the machine, against
+# 6 in its 30-s tuning record); only a run that moves the lag is evidence by itself
 """Decided blocks (after the reference windows, all tuning records together) the angle-lag
 streams need before they are watched. Their slow wander (long-run variance, random walk) is
 measured badly on less: detectors fitted on one machine's first 300, 420, 540 and 630 s,
@@ -184,6 +193,11 @@ class FaultDetector:
         arl = 2 * len(STREAMS) * blocks_per_day / self.far_per_day
         self.h_ = threshold_for_arl(arl, self.k)
         self.run_limit_ = 2 * np.max(np.vstack([f.run for f in healthy]), axis=0)
+        # a stale run is stuck past twice the longest in tuning (none: 1) and past the longest
+        # healthy run: a gain fault walks the lag too, and a run that starts with it moved
+        # nothing before it (runs of a gained channel are as long as a healthy one's)
+        stale = 2 * np.max(np.vstack([f.stale_runs for f in healthy]), axis=0)
+        self.stale_limit_ = np.maximum(stale, self.run_limit_ / 2)
         self.lost_limit_ = np.max(np.vstack([f.lost for f in healthy]), axis=0) + 0.02
         return self
 
@@ -285,10 +299,12 @@ class FaultDetector:
         dev = np.full((nb, len(FEATURES)), np.nan)
         stat = np.zeros((nb, ns))
         jump = np.zeros((nb, ns))
-        det = Detection(f.time_s, dev, stat, jump=jump, sensor=self.sensor_ratio(f.lost, f.run))
+        stale = f.stale_runs
+        det = Detection(f.time_s, dev, stat, jump=jump,
+                        sensor=self.sensor_ratio(f.lost, f.run, stale))  # fmt: skip
         state = CusumState(self, n_ref, f.block_s)
         for j in range(nb):
-            alarms = state.update(float(f.time_s[j]), x[j], f.lost[j], f.run[j])
+            alarms = state.update(float(f.time_s[j]), x[j], f.lost[j], f.run[j], stale[j])
             sensor_first = stop_at_first and alarms and alarms[0].direction == 0
             if state.deviation is not None and not sensor_first:  # (it stopped before them)
                 dev[j], stat[j] = state.deviation, state.statistic
@@ -301,22 +317,27 @@ class FaultDetector:
         return det
 
     def sensor_alarm(self, time_s: float, block: int, lost: np.ndarray, run: np.ndarray,
-                     block_s: float) -> Alarm | None:  # fmt: skip
-        """The sensor rules on one block: a channel losing samples alone, or stuck."""
-        for kind, values, limit in (("lost", lost, self.lost_limit_),
-                                    ("stuck", run, self.run_limit_)):  # fmt: skip
-            bad = np.flatnonzero(values > limit)
+                     stale: np.ndarray, block_s: float) -> Alarm | None:  # fmt: skip
+        """The sensor rules on one block (its lost shares, longest runs and longest stale
+        runs per channel): a channel losing samples alone, or stuck."""
+        ratio = self.sensor_ratio(lost, run, stale).reshape(2, len(CHANNELS))
+        for kind, values in zip(("lost", "stuck"), ratio, strict=True):
+            bad = np.flatnonzero(values > 1.0)
             if bad.size:
-                ch = int(bad[np.argmax(values[bad] / np.maximum(limit[bad], 1e-12))])
+                ch = int(bad[np.argmax(values[bad])])
                 return Alarm(time_s, block, f"{kind}_{CHANNELS[ch]}", 0, time_s - block_s,
                              "sensor")  # fmt: skip
         return None
 
-    def sensor_ratio(self, lost: np.ndarray, run: np.ndarray) -> np.ndarray:
-        """The sensor rules' statistics over their limits, ``(blocks, 2 x channels)``: each
-        channel's lost fraction, then its longest run (a rule fires above 1)."""
-        return np.hstack([lost / np.maximum(self.lost_limit_, 1e-12),
-                          run / np.maximum(self.run_limit_, 1e-12)])  # fmt: skip
+    def sensor_ratio(self, lost: np.ndarray, run: np.ndarray, stale: np.ndarray) -> np.ndarray:
+        """The sensor rules' statistics over their limits, ``(..., 2 x channels)``: each
+        channel's lost fraction, then the larger of its longest stale run over its limit and
+        its longest run over :data:`STILL_FACTOR` times the run limit (a rule fires above 1)."""
+        stuck = np.maximum(
+            np.asarray(stale) / np.maximum(self.stale_limit_, 1e-12),
+            np.asarray(run) / np.maximum(STILL_FACTOR * self.run_limit_, 1e-12),
+        )
+        return np.concatenate([lost / np.maximum(self.lost_limit_, 1e-12), stuck], axis=-1)
 
     def describe(self) -> dict[str, Any]:
         """The fitted settings, JSON-able."""
@@ -330,6 +351,7 @@ class FaultDetector:
                                 "jump_limit": float(self.jump_limit_[i])}
                             for i, s in enumerate(STREAMS)},
                 "run_limit": dict(zip(CHANNELS, map(float, self.run_limit_), strict=True)),
+                "stale_limit": dict(zip(CHANNELS, map(float, self.stale_limit_), strict=True)),
                 "lost_limit": dict(zip(CHANNELS, map(float, self.lost_limit_), strict=True)),
                 "lag_walk_mrad2_per_block": dict(zip(LAGGED, map(float, np.diag(self.lag_walk_)),
                                                      strict=True))}  # fmt: skip
@@ -344,7 +366,7 @@ class FaultDetector:
                 "long_run_blocks": self.long_run_blocks, "long_run": self.long_run_.tolist(),
                 "watched": self.watched_.tolist(), "jump_limit": self.jump_limit_.tolist(),
                 "run_limit": self.run_limit_.tolist(), "lost_limit": self.lost_limit_.tolist(),
-                "lag_walk": self.lag_walk_.tolist()}  # fmt: skip
+                "stale_limit": self.stale_limit_.tolist(), "lag_walk": self.lag_walk_.tolist()}  # fmt: skip
 
     @classmethod
     def from_state(cls, state: dict[str, Any], source: str = "detector") -> FaultDetector:
@@ -368,6 +390,9 @@ class FaultDetector:
             det.phi_ = _array(state["phi"], (ns,), "phi", source)
             det.sigma_ = _array(state["sigma"], (ns,), "sigma", source)
             det.run_limit_ = _array(state["run_limit"], (nc,), "run_limit", source)
+            # a detector fitted before 2026-11-29 judged every run by its length alone
+            det.stale_limit_ = _array(state.get("stale_limit", state["run_limit"]), (nc,),
+                                      "stale_limit", source)  # fmt: skip
             det.lost_limit_ = _array(state["lost_limit"], (nc,), "lost_limit", source)
             nl = len(LAGGED)  # a state written before the walk was measured: none
             det.lag_walk_ = _array(
@@ -438,10 +463,10 @@ class CusumState:
         """The baseline is set and no new reference window is being collected."""
         return self.base is not None and not self.rebasing
 
-    def update(self, time_s: float, level: np.ndarray, lost: np.ndarray,
-               run: np.ndarray) -> list[Alarm]:  # fmt: skip
+    def update(self, time_s: float, level: np.ndarray, lost: np.ndarray, run: np.ndarray,
+               stale: np.ndarray) -> list[Alarm]:  # fmt: skip
         """One block's features (``level``: a :data:`FEATURES` row, the five levels then the
-        angle lags); the alarms it raises (a sensor rule and a CUSUM may both
+        angle lags; ``lost``, ``run``, ``stale``: the sensor rules'); the alarms it raises (a sensor rule and a CUSUM may both
         fire on one block)."""
         j = self.block
         self.block += 1
@@ -452,7 +477,7 @@ class CusumState:
                 self.base = np.nanmean(self.reference, axis=0)
             return []
         out = []
-        sensor = self.det.sensor_alarm(time_s, j, lost, run, self.block_s)
+        sensor = self.det.sensor_alarm(time_s, j, lost, run, stale, self.block_s)
         if sensor is not None:
             out.append(sensor)
             self.baseline_at_alarm = self.base.copy()

@@ -131,6 +131,7 @@ def combine(own: FaultDetector, prior: FaultDetector) -> FaultDetector:
     out.watched_ = own.watched_ | prior.watched_
     out.jump_limit_ = np.maximum(own.jump_limit_, prior.jump_limit_)
     out.run_limit_ = np.maximum(own.run_limit_, prior.run_limit_)
+    out.stale_limit_ = np.maximum(own.stale_limit_, prior.stale_limit_)
     out.lost_limit_ = np.maximum(own.lost_limit_, prior.lost_limit_)
     walks = (own.lag_walk_, prior.lag_walk_)
     out.lag_walk_ = max(walks, key=lambda w: float(np.trace(w))).copy()

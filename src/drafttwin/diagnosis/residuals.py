@@ -8,7 +8,9 @@ relative residual of each channel is ``y / yhat - 1``; per block of ``block_s`` 
   path, > 1 % from the block median, are left out; a block needs half its samples);
 * ``lost_<ch>``: fraction of the block's samples lost on that channel alone (the logger row
   kept by the other channels);
-* ``run_<ch>``: the longest run of identical consecutive values (samples);
+* ``run_<ch>``: the longest run of identical consecutive values (samples), and ``stale``: the
+  longest such run during which the channel's angle lag moved (a counting encoder's
+  identical counts do not move it, a stuck one's do; see :mod:`~drafttwin.diagnosis.blocks`);
 * ``lag_<roller>``: mean angle of the second, third and back roller against the front's
   through the kinematic ratio, mrad of that roller, from the cumulative counts (lost rows
   and data-path spikes carried through, see :mod:`~drafttwin.diagnosis.blocks`). Gears and chain are positive
@@ -51,6 +53,8 @@ class BlockFeatures:
         block_s: block length, s.
         lag: mean angle of each of ``LAGGED`` against the front roller, mrad (see module);
             zeros when not measured (older feature files).
+        stale: longest run of identical values that moved the angle lag, samples; ``run``
+            when not measured (older feature files: every run judged by its length alone).
     """
 
     time_s: np.ndarray
@@ -59,6 +63,12 @@ class BlockFeatures:
     run: np.ndarray
     block_s: float
     lag: np.ndarray | None = None
+    stale: np.ndarray | None = None
+
+    @property
+    def stale_runs(self) -> np.ndarray:
+        """``stale``, or ``run`` without it."""
+        return self.run if self.stale is None else self.stale
 
     @property
     def lags(self) -> np.ndarray:
@@ -71,7 +81,8 @@ class BlockFeatures:
         out, in order."""
         return cls(np.array([r.time_s for r in rows]), np.vstack([r.level for r in rows]),
                    np.vstack([r.lost for r in rows]), np.vstack([r.run for r in rows]),
-                   block_s, np.vstack([r.lag for r in rows]))  # fmt: skip
+                   block_s, np.vstack([r.lag for r in rows]),
+                   np.vstack([r.stale for r in rows]))  # fmt: skip
 
 
 def physics_prediction(train: DriveTrain, series: MeasurementSeries) -> np.ndarray:

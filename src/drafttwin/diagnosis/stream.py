@@ -50,13 +50,15 @@ MIN_BLOCKS = 5
 @dataclass(frozen=True)
 class Window:
     """One block the stream remembers: its end time (s), index, features
-    (:data:`~drafttwin.diagnosis.detect.FEATURES`), lost shares and longest runs."""
+    (:data:`~drafttwin.diagnosis.detect.FEATURES`), lost shares, longest runs and longest
+    stale runs (see :mod:`~drafttwin.diagnosis.blocks`)."""
 
     time_s: float
     block: int
     row: np.ndarray
     lost: np.ndarray
     run: np.ndarray
+    stale: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,7 @@ class RankRequest:
                 "sensor": None if self.sensor is None else list(self.sensor),
                 "sensor_window": None if w is None else {
                     "time_s": w.time_s, "block": w.block, "row": arr(w.row), "lost": arr(w.lost),
-                    "run": arr(w.run)},
+                    "run": arr(w.run), "stale": arr(w.stale)},
                 "raw_time_s": arr(self.raw_time_s), "raw_y": arr(self.raw_y),
                 "machine": self.machine}  # fmt: skip
 
@@ -130,7 +132,9 @@ class RankRequest:
             w, sensor = doc["sensor_window"], doc["sensor"]
             window = None if w is None else Window(
                 float(w["time_s"]), int(w["block"]), arr(w["row"], (nf,), "row", finite=False),
-                arr(w["lost"], (nc,), "lost"), arr(w["run"], (nc,), "run"))  # fmt: skip
+                arr(w["lost"], (nc,), "lost"), arr(w["run"], (nc,), "run"),
+                # a window kept before 2026-11-29 has no stale runs: its runs judged alone
+                arr(w.get("stale", w["run"]), (nc,), "stale"))  # fmt: skip
             raw_t = (
                 None if doc["raw_time_s"] is None else arr(doc["raw_time_s"], (-1,), "raw_time_s")
             )
@@ -211,9 +215,9 @@ class Decisions:
     def add(self, row: BlockRow) -> Step:
         """One block's features: the alarms it raised and the window it closed, if any."""
         x = row.features
-        here = Window(row.time_s, row.index, x, row.lost, row.run)
+        here = Window(row.time_s, row.index, x, row.lost, row.run, row.stale)
         self.recent.append(here)
-        raised = self.state.update(row.time_s, x, row.lost, row.run)
+        raised = self.state.update(row.time_s, x, row.lost, row.run, row.stale)
         self._record(here, raised)
         step = Step()
         sensor = {a.test for a in raised if a.direction == 0}
@@ -273,7 +277,8 @@ class Decisions:
         # a sensor rule from the change estimate on (before the alarm) takes it over
         for w in self.recent:
             if a.change_s <= w.time_s and w.block <= a.block:
-                s = self.detector.sensor_alarm(w.time_s, w.block, w.lost, w.run, self.block_s)
+                s = self.detector.sensor_alarm(w.time_s, w.block, w.lost, w.run, w.stale,
+                                               self.block_s)  # fmt: skip
                 if s is not None:
                     self.open.sensor, self.open.sensor_window = _sensor_of(s), w
                     break
@@ -298,7 +303,7 @@ class Decisions:
         dev = np.full(len(FEATURES), np.nan) if s.deviation is None else s.deviation
         stat = np.zeros(ns) if s.statistic is None else s.statistic
         jump = s.jump_ratio if s.deviation is not None else np.zeros(ns)
-        sensor = self.detector.sensor_ratio(here.lost[None, :], here.run[None, :])[0]
+        sensor = self.detector.sensor_ratio(here.lost, here.run, here.stale)
         self.trace.append((dev.copy(), stat.copy(), jump.copy(), sensor))
 
     def detection(self) -> Detection:
@@ -323,10 +328,10 @@ def decide(
     fault is not sized): every alarm and every window, as the stream makes them."""
     decisions = Decisions(detector, f.block_s, post_s=post_s, trace=trace)
     step = Step()
-    lags = f.lags
+    lags, stale = f.lags, f.stale_runs
     for j in range(len(f.time_s)):
         step += decisions.add(BlockRow(j, float(f.time_s[j]), f.level[j], f.lost[j], f.run[j],
-                                       lags[j]))  # fmt: skip
+                                       lags[j], stale[j]))  # fmt: skip
     step += decisions.finish()
     return decisions, step
 

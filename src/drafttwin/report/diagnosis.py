@@ -21,7 +21,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from drafttwin.data.series import MeasurementSeries  # noqa: E402
-from drafttwin.diagnosis.detect import STREAMS, Alarm, stream_matrix  # noqa: E402
+from drafttwin.diagnosis.detect import STILL_FACTOR, STREAMS, Alarm, stream_matrix  # noqa: E402
 from drafttwin.diagnosis.diagnose import Diagnosis  # noqa: E402
 from drafttwin.diagnosis.locate import Cause  # noqa: E402
 from drafttwin.diagnosis.residuals import CHANNELS  # noqa: E402
@@ -54,7 +54,11 @@ def rule_statistic(dx: Diagnosis) -> tuple[np.ndarray, str, str]:
     if rule == "sensor" and a is not None and det.sensor is not None:
         kind, channel = a.test.split("_", 1)
         j = CHANNELS.index(channel) + (len(CHANNELS) if kind == "stuck" else 0)
-        what = "longest run of one value" if kind == "stuck" else "samples lost alone"
+        what = (
+            "run of one value (moving its lag, or twice as long)"
+            if kind == "stuck"
+            else ("samples lost alone")
+        )
         return det.sensor[:, j], f"{channel}: {what} / its limit", "limit from healthy records"
     if rule == "jump" and a is not None and det.jump is not None:
         i = STREAMS.index(a.test)
@@ -265,6 +269,7 @@ def _rule_rows(d: Mapping[str, Any]) -> list[list[str]]:
     jumps = ", ".join(f"{s} {streams[s].get('jump_limit', 0):.3g}" for s in lags
                       if streams[s].get("jump_limit", 0) > 0) or "off"  # fmt: skip
     runs = ", ".join(f"{c} {v:.0f}" for c, v in (d.get("run_limit") or {}).items())
+    stale = ", ".join(f"{c} {v:.0f}" for c, v in (d.get("stale_limit") or {}).items())
     losts = ", ".join(f"{c} {100 * v:.1f} %" for c, v in (d.get("lost_limit") or {}).items())
     return [
         ["CUSUM", levels + (f"; angle lags {', '.join(lags)}" if lags else ""),
@@ -275,8 +280,11 @@ def _rule_rows(d: Mapping[str, Any]) -> list[list[str]]:
          f"one block's innovation over: {jumps} (its own units)",
          "twice the largest in the healthy records"],
         ["sensor rules", "every channel",
-         f"longest run of one value (samples): {runs}; samples lost alone: {losts}",
-         "twice the longest healthy run; the most lost in a healthy block + 2 %"],
+         f"run of one value that moves the channel's angle lag (samples): {stale}; any run "
+         f"of one value: {STILL_FACTOR:g} x ({runs}); samples lost alone: {losts}",
+         f"the longest healthy run (twice the longest that moved its lag, if longer); "
+         f"{STILL_FACTOR:g} x twice the longest healthy run; the most lost in a healthy block "
+         "+ 2 %"],
     ]  # fmt: skip
 
 

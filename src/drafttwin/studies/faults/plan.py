@@ -157,5 +157,6 @@ def run_record(config: dict[str, Any]) -> dict[str, Any]:
     physics = physics_prediction(train, series)
     f = block_features(measured(series), physics, series.time_s, BLOCK_S, roller_ratio(train))
     return {"time_s": f.time_s.tolist(), "level": f.level.tolist(), "lost": f.lost.tolist(),
-            "run": f.run.tolist(), "block_s": f.block_s, "lag": f.lags.tolist(),
+            "run": f.run.tolist(), "stale": f.stale_runs.tolist(), "block_s": f.block_s,
+            "lag": f.lags.tolist(),
             "labels": labels, "raw": raw_record(series, physics)}  # fmt: skip

@@ -51,11 +51,12 @@ def _head(raw: dict[str, Any], seconds: float) -> dict[str, Any]:
 
 
 def features(result: dict[str, Any]) -> BlockFeatures:
-    lag = result.get("lag")
+    lag, stale = result.get("lag"), result.get("stale")
     return BlockFeatures(np.asarray(result["time_s"]), np.asarray(result["level"], dtype=float),
                          np.asarray(result["lost"]), np.asarray(result["run"]),
                          float(result["block_s"]),
-                         None if lag is None else np.asarray(lag, dtype=float))  # fmt: skip
+                         None if lag is None else np.asarray(lag, dtype=float),
+                         None if stale is None else np.asarray(stale, dtype=float))  # fmt: skip
 
 
 class RawThreshold:

@@ -219,14 +219,16 @@ class BaselineStore:
 
 def _row(r: BlockRow) -> list[float]:
     return [float(r.index), r.time_s, *r.level.tolist(), *r.lost.tolist(), *r.run.tolist(),
-            *r.lag.tolist()]  # fmt: skip
+            *r.lag.tolist(), *r.stale.tolist()]  # fmt: skip
 
 
 def _unrow(v: Any) -> BlockRow:
     a = np.asarray(v, dtype=np.float64)
-    if a.shape != (20,) or not np.isfinite(a).all():
-        raise ValueError("a learned block is not 20 finite numbers")
-    return BlockRow(int(a[0]), float(a[1]), a[2:7], a[7:12], a[12:17], a[17:20])
+    # 20 numbers: a block learned before 2026-11-29, without its stale runs
+    if a.shape not in ((20,), (25,)) or not np.isfinite(a).all():
+        raise ValueError("a learned block is not 25 (or 20) finite numbers")
+    return BlockRow(int(a[0]), float(a[1]), a[2:7], a[7:12], a[12:17], a[17:20],
+                    a[20:25] if len(a) == 25 else None)  # fmt: skip
 
 
 __all__ = ["Baseline", "BaselineStore"]
