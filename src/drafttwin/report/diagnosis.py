@@ -55,7 +55,7 @@ def rule_statistic(dx: Diagnosis) -> tuple[np.ndarray, str, str]:
         kind, channel = a.test.split("_", 1)
         j = CHANNELS.index(channel) + (len(CHANNELS) if kind == "stuck" else 0)
         what = (
-            "run of one value (moving its lag, or twice as long)"
+            f"run of one value (moving its lag; any run: {STILL_FACTOR:g} x the run limit)"
             if kind == "stuck"
             else ("samples lost alone")
         )
