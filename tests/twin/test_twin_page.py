@@ -99,7 +99,7 @@ def _serve(service: TwinService, port: int) -> tuple[threading.Thread, dict[str,
     def run() -> None:
         async def go() -> None:
             found["loop"] = asyncio.get_running_loop()
-            await serve_with(service, ("127.0.0.1", port), TOKEN, 120, None,
+            await serve_with(service, ("127.0.0.1", port), TOKEN, 300, None,
                              lambda _: found.setdefault("up", True))  # fmt: skip
 
         asyncio.run(go())
@@ -118,7 +118,7 @@ def _alarm(service: TwinService, test: str, cause: dict[str, object] | None) -> 
     row's time: what the detector's fault events go through (test_twin_faults.py raises them
     from a faulted plant; here the page's part is checked). ``stuck_*``: a sensor rule's."""
     from drafttwin.diagnosis.detect import Alarm
-    from drafttwin.diagnosis.stream import Step
+    from drafttwin.diagnosis.stream import Step, Window
     from drafttwin.twin.faultwatch import alarm_detail
     from drafttwin.twin.store.db import EventRow
 
@@ -128,7 +128,11 @@ def _alarm(service: TwinService, test: str, cause: dict[str, object] | None) -> 
     alarm = Alarm(time_s=t, block=0, test=test, direction=0 if sensor else -1, change_s=t - 3.0,
                   rule="sensor" if sensor else "cusum")  # fmt: skip
     RAISED[test] = alarm
-    events = service.faults.fault_events(st, Step(alarms=[alarm]))
+    # a sensor rule's step brings the block that raised it (its cause is sized on it when the
+    # watch has started by then: a race the test must not depend on)
+    runs = np.where(np.arange(5) == 3, 150.0, 5.0)
+    block = Window(t, 0, np.zeros(8), np.zeros(5), runs, runs)
+    events = service.faults.fault_events(st, Step(alarms=[alarm], blocks={0: block}))
     for push in service.subscribers:
         push("df-01", [], events)
     if cause is not None:
