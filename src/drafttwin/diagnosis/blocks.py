@@ -225,9 +225,9 @@ def stale_runs(y: np.ndarray, lag: np.ndarray, edge: np.ndarray, first: int) -> 
     which the angle lag moved by more than :data:`STALE_EDGES` ``edge`` s while over as many
     rows before the run it moved by no more than that, or than a quarter of its move during
     the run (a wrong gain walks the lag all the time, a stale value only while it repeats;
-    readings that are not counts have tiny edges); ``lag (n, 3)`` and ``edge (3,)`` in mrad; 1 when
-    none. The front roller's run is judged by all three lags together; the motor's runs
-    all count."""
+    readings that are not counts have tiny edges); ``lag (n, 3)`` and ``edge (3,)`` in mrad;
+    1 when none. The front roller's run is judged by all three lags together; the motor's
+    runs all count."""
     out = np.ones(N_CHANNELS)
     for c in range(N_CHANNELS):
         x = y[:, c]

@@ -57,7 +57,7 @@ def rule_statistic(dx: Diagnosis) -> tuple[np.ndarray, str, str]:
         what = (
             f"run of one value (moving its lag; any run: {STILL_FACTOR:g} x the run limit)"
             if kind == "stuck"
-            else ("samples lost alone")
+            else "samples lost alone"
         )
         return det.sensor[:, j], f"{channel}: {what} / its limit", "limit from healthy records"
     if rule == "jump" and a is not None and det.jump is not None:
