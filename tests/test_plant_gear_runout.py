@@ -6,8 +6,8 @@ gear's eccentricity is a 2-D error vector of its bore against its teeth; with no
 independent components its length follows Rayleigh's law (the "law of eccentricity" of
 manufacturing metrology), its angle is the gear's random phase. A process that just holds
 the tolerance puts 99.73 % of its gears within it (``C_p = 1``): ``sigma = (F_r / 2) / 3.44``.
-With every gear at ``F_r / 2`` (17.5 um, ``gear_runout_law = "allowable"``, still the
-default) gears B and C on the front roller's shaft add up to a 14.14-cm chimney on half of
+With every gear at ``F_r / 2`` (17.5 um, ``gear_runout_law = "allowable"``, the embedded
+data set's plant; ``"rayleigh"`` is the default) gears B and C on the front roller's shaft add up to a 14.14-cm chimney on half of
 all machines (docs/sliver.md).
 """
 
@@ -96,6 +96,13 @@ def test_generate_takes_the_law_and_records_it(tmp_path: Path) -> None:
     assert side["plant_config"]["eccentricity"]["gear_runout_law"] == "rayleigh"
     ab = next(g for g in side["true_train"]["gear"] if g["name"] == "A-B")
     assert ab["driven_eccentricity_um"] == pytest.approx(7.0, abs=0.05)  # machine 4711's gear B
+    # without the option: the plant's own default law, each gear's own run-out
+    plain = tmp_path / "plain.csv"
+    res = CliRunner().invoke(app, [*args[:-1], str(plain)])
+    assert res.exit_code == 0, res.output
+    side = json.loads(plain.with_suffix(".json").read_text())
+    assert side["plant_config"]["eccentricity"]["gear_runout_law"] == "rayleigh"
+    assert PlantConfig().eccentricity.gear_runout_law == "rayleigh"
     bad = tmp_path / "bad.csv"
     res = CliRunner().invoke(app, [*args[:-1], str(bad), "--gear-runout", "worst"])
     assert res.exit_code == 2

@@ -50,20 +50,24 @@ FeedFaultOpt = Annotated[list[str] | None, typer.Option("--feed-fault", help=(
     "wavelength=M:amplitude=A[:slivers=one|all][:phase=random|same]; one sliver running out, "
     "missing=FROM_M-TO_M; a piecing, piecing=AT_M (fed lengths in m from the record's start; "
     "repeatable)."))]  # fmt: skip
-GearRunoutOpt = Annotated[str, typer.Option("--gear-runout", help=(
-    "Each gear's own radial run-out: 'allowable' gives every gear ISO 1328's allowable 35 um "
-    "(the worst accepted gear everywhere); 'rayleigh' draws each gear's own below it, "
-    "Rayleigh's law with 99.73 % within 35 um (docs/plant.md). Machine parameters from "
-    "--machine are kept as they are."))]  # fmt: skip
+GearRunoutOpt = Annotated[str | None, typer.Option("--gear-runout", help=(
+    "Each gear's own radial run-out: 'rayleigh' (the plant's default) draws each gear's own "
+    "below ISO 1328's allowable 35 um, Rayleigh's law with 99.73 % within it; 'allowable' "
+    "gives every gear the allowable value itself (the worst accepted gear everywhere; the "
+    "embedded data set's plant; docs/plant.md). Machine parameters from --machine are kept "
+    "as they are."), show_default=False)]  # fmt: skip
 FibreScaleOpt = Annotated[float, number("--fibre-scale", "With --sliver: fibres lumped into one "
                           "(1: every fibre, about 1.3e8 per 100 m).")]  # fmt: skip
 
 
-def _plant_config(gear_runout: str) -> PlantConfig:
-    """The plant's settings with the gears' run-out law named by --gear-runout."""
+def _plant_config(gear_runout: str | None) -> PlantConfig:
+    """The plant's settings with the gears' run-out law named by --gear-runout (none named:
+    the plant's default)."""
     from drafttwin.plant import PlantConfig
     from drafttwin.plant.config import Eccentricity, GearRunoutLaw
 
+    if gear_runout is None:
+        return PlantConfig()
     laws = get_args(GearRunoutLaw)
     if gear_runout not in laws:
         raise ConfigError(f"{gear_runout!r} is not a run-out law",
@@ -81,7 +85,7 @@ def generate(
     scenario: ScenarioOpt = "steady", fault: FaultOpt = None,
     sliver: SliverOpt = False, feed_fault: FeedFaultOpt = None, fibre_scale: FibreScaleOpt = 1.0,
     leveller: LevellerOpt = None, leveller_fault: LevellerFaultOpt = None,
-    gear_runout: GearRunoutOpt = "allowable", quiet: QuietOpt = False,
+    gear_runout: GearRunoutOpt = None, quiet: QuietOpt = False,
 ) -> None:  # fmt: skip
     """Run the plant emulator: measured roller speeds with the machine's real imperfections.
 

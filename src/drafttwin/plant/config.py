@@ -64,7 +64,7 @@ class Eccentricity(_Cfg):
     # F_r / 2, the worst accepted gear everywhere (half of all machines then show a 14.14-cm
     # chimney, docs/sliver.md). Which law is the default, and why: docs/sliver.md, "Why
     # `allowable` is still the default"
-    gear_runout_law: GearRunoutLaw = "allowable"
+    gear_runout_law: GearRunoutLaw = "rayleigh"
     roller_load_modulation: Frac = 0.05  # assumption: TIR 10-30 um on the cot's compliance
     # radius eccentricity of every bottom roller, the same run-out as roller_load_modulation
     # (long radius where the load is highest): it moves the surface speed once per revolution

@@ -235,15 +235,21 @@ def check_lines(doc: Mapping[str, Any]) -> list[str]:
 def floor_rows(doc: Mapping[str, Any]) -> tuple[list[str], list[list[str]]]:
     head = ["roller", "floor, rpm", "best one-step RMSE, rpm", "best model", "below the floor?"]
     rows = [[f["channel"], _num(f["floor"]), _num(f["best_rmse"]), str(f["best_model"]),
-             _below_floor(f["best_rmse"], f["floor"])] for f in doc["floors"]]  # fmt: skip
+             _below_floor(f["best_rmse"], f["floor"], f.get("sensor_error_lag1"))]
+            for f in doc["floors"]]  # fmt: skip
     return head, rows
 
 
-def _below_floor(best_rmse: float | None, floor: float | None) -> str:
+def _below_floor(best_rmse: float | None, floor: float | None, lag1: float | None) -> str:
     """The floor's verdict; the oracle gives no floor (None in the JSON) where the channel's
-    encoder errors lack the counting premise's lag-one autocorrelation, or without a run."""
-    if floor is None or best_rmse is None:
-        return "no floor" if floor is None else "no run"
+    encoder errors lack the counting premise's lag-one autocorrelation (-1/2), or without a
+    run."""
+    if floor is None:
+        return "no floor" if lag1 is None else (
+            f"no floor (sensor errors' lag-1 autocorrelation {lag1:.2f}, not a counting "
+            "encoder's -0.5)")  # fmt: skip
+    if best_rmse is None:
+        return "no run"
     return "YES (the floor is wrong)" if best_rmse < floor else "no"
 
 

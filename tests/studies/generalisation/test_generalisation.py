@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from drafttwin._constants import ROLLERS
 from drafttwin.cli import app
+from drafttwin.evaluation.limits import LAG1_PREMISE
 from drafttwin.mechanics import kinematics
 from drafttwin.models import make_model
 from drafttwin.models.estimators.hybrid import FADE_WIDTH
@@ -193,8 +194,15 @@ def test_quick_benchmark_values_are_finite_and_sane(quick_run) -> None:
             and r["task"] == "prediction"]  # fmt: skip
     assert max(pers) < 10.0
     for f in doc["floors"]:
-        assert 0 < f["floor"] < f["best_rmse"], f  # nothing scores below a floor
+        if f["floor"] is None:
+            # the oracle refuses only where its counting premise (lag-1 -1/2) fails
+            lo, hi = LAG1_PREMISE
+            assert not lo <= f["sensor_error_lag1"] <= hi, f
+        else:
+            assert lo_ok(f["sensor_error_lag1"]), f
+            assert 0 < f["floor"] < f["best_rmse"], f  # nothing scores below a floor
         assert f["below_floor"] == [], f
+    assert sum(f["floor"] is not None for f in doc["floors"]) >= 2, doc["floors"]
     chosen = {(c["model"], c["task"]) for c in doc["structure_choice"]}
     assert chosen == {(m, t) for m in ("parallel", "md-s-l") for t in TASKS}
     assert {c["scenario"] for c in doc["checks"]} == {"draft-gears", "speed+25", "speed-25"}
@@ -266,6 +274,11 @@ def test_the_results_json_gives_the_markdown_tables_and_the_figures_file(quick_r
     assert all(f["unit"] in ("rpm", "s") for f in figures["figures"])
 
 
+def lo_ok(lag1: float) -> bool:
+    """Whether a lag-1 autocorrelation lies within the floor oracle's premise."""
+    return LAG1_PREMISE[0] <= lag1 <= LAG1_PREMISE[1]
+
+
 def test_the_floor_table_reads_a_channel_without_a_floor() -> None:
     """The oracle gives no floor where a channel's encoder errors lack the counting premise
     (None in the JSON): the table says so instead of failing (TypeError before)."""
@@ -280,3 +293,8 @@ def test_the_floor_table_reads_a_channel_without_a_floor() -> None:
     _, rows = floor_rows({"floors": floors})
     assert [r[-1] for r in rows] == ["no", "no floor", "YES (the floor is wrong)", "no run"]
     assert rows[1][1] == "n/a"
+    floors[1]["sensor_error_lag1"] = -0.213
+    _, rows = floor_rows({"floors": floors})
+    assert rows[1][-1] == (
+        "no floor (sensor errors' lag-1 autocorrelation -0.21, not a counting encoder's -0.5)"
+    )

@@ -25,9 +25,10 @@ from typing import Any
 import numpy as np
 
 from drafttwin._constants import ROLLERS, __version__
-from drafttwin._io import sha256_file
+from drafttwin._io import json_number, sha256_file
 from drafttwin._json import dumps_strict
 from drafttwin.data.series import MeasurementSeries
+from drafttwin.evaluation.limits import lag1_autocorrelation
 from drafttwin.execution import integrity
 from drafttwin.execution.executor import run_tasks
 from drafttwin.execution.store import ResultStore, code_fingerprint
@@ -147,6 +148,7 @@ def floors(
     run that scored below its own floor (none, unless the floor is wrong)."""
     if "little-data" not in config.scenarios or "prediction" not in config.tasks:
         return []
+    lag1 = _sensor_error_lag1(path, "little-data")
     out = []
     for channel in ROLLERS:
         runs = [r for r in rows if r["scenario"] == "little-data" and r["task"] == "prediction"
@@ -161,9 +163,19 @@ def floors(
                     "best_train_s": None if best is None else best["train_s"],
                     "best_seed": None if best is None else best["seed"],
                     "below_floor": below,
+                    # why the oracle may give no floor: its premise is -1/2 (evaluation.limits)
+                    "sensor_error_lag1": json_number(lag1[channel]),
                     "floor_kind": "one-step floor oracle (evaluation.limits): true speed and "
                     "every earlier measurement known, on the best run's scored samples"})  # fmt: skip
     return out
+
+
+def _sensor_error_lag1(path: Path, record: str) -> dict[str, float]:
+    """Per channel: the lag-one autocorrelation of ``record``'s sensor errors (measured minus
+    true speed), the figure the floor oracle's counting premise rests on."""
+    series = load_records(path)[0][record]
+    err = np.asarray(series.values, float) - np.asarray(series.truth, float)
+    return {c: lag1_autocorrelation(err[:, j]) for j, c in enumerate(series.channels)}
 
 
 def _records_key(config: GeneralisationConfig) -> str:
