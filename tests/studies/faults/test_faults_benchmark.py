@@ -90,3 +90,21 @@ def test_by_kind_counts_every_record_and_places_only_detected_ones():
 def test_cli_refuses_bad_numbers(tmp_path):
     res = CliRunner().invoke(app, ["benchmark", "faults", "--workers", "0", "--out", str(tmp_path)])
     assert res.exit_code == 2 and "--workers" in res.output
+
+
+def test_the_sliver_variant_names_what_each_healthy_chimney_is_put_down_to() -> None:
+    """A healthy record's chimney is listed with its first candidate, or as the feed's (the
+    printout called every one 'their own gears' lines' before, a feed excursion too)."""
+    from drafttwin.studies.faults.sliver import score
+
+    feed = {"wavelength_m": 0.9888, "candidates": []}
+    gear = {"wavelength_m": 0.1414, "candidates": ["gear B (A-B)", "roller front"]}
+    rows = [{"set": "healthy", "sliver_m": 128.0, "causes": [feed], "new_causes": [feed]},
+            {"set": "healthy", "sliver_m": 128.0, "causes": [gear], "new_causes": []},
+            {"set": "healthy", "sliver_m": 128.0, "causes": [], "new_causes": []}]  # fmt: skip
+    s = score(rows)
+    assert s["healthy_lines"] == [{"wavelength_m": 0.9888, "cause": "from the feed"},
+                                  {"wavelength_m": 0.1414, "cause": "gear B (A-B)"}]  # fmt: skip
+    assert (s["healthy_chimneys"], s["healthy_records_with_chimney"]) == (2, 2)
+    assert s["healthy_chimneys_per_100m"] == pytest.approx(2 / 384 * 100)
+    assert s["healthy_new_chimneys"] == 1

@@ -108,11 +108,16 @@ def run_record(config: dict[str, Any]) -> dict[str, Any]:
             "new_causes": [c for c in causes if round(float(c["wavelength_m"]), 5) in new_at]}  # fmt: skip
 
 
+def _source(cause: dict[str, Any]) -> str:
+    """What a chimney is put down to, in a few words: its first candidate, or the feed."""
+    return str(cause["candidates"][0]) if cause["candidates"] else "from the feed"
+
+
 def score(rows: list[dict[str, Any]]) -> dict[str, Any]:
     """Per kind and level: detected (a chimney at the faulty element's wavelength or one of
     its harmonics, within 1 %), top-1 (named first there), group (among the first
-    candidate's look-alikes); healthy: chimneys per 100 m and their wavelengths (a healthy
-    machine's own lines: its gears' eccentricity)."""
+    candidate's look-alikes); healthy: chimneys per 100 m, their wavelengths and what each
+    is put down to (a machine's own gear or roller line, a rattle, or the feed)."""
     table = wavelength_table(DriveTrain.preset("fa320a"), harmonics=4)
     lines = {e.name: e.wavelength_m for e in table.elements}
     per: dict[str, dict[str, int]] = {}
@@ -146,6 +151,8 @@ def score(rows: list[dict[str, Any]]) -> dict[str, Any]:
             "healthy_records_with_chimney": sum(1 for r in healthy if r["causes"]),
             "healthy_chimneys_per_100m": false / metres * 100 if metres else None,
             "healthy_wavelengths_m": seen, "healthy_new_chimneys": new,
+            "healthy_lines": [{"wavelength_m": c["wavelength_m"], "cause": _source(c)}
+                              for r in healthy for c in r["causes"]],
             "healthy_new_per_100m": new / metres * 100 if metres else None}  # fmt: skip
 
 
