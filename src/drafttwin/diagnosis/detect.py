@@ -44,6 +44,13 @@ FEATURES = (*CHANNELS, *(f"lag_{c}" for c in LAGGED))
 SIEGMUND_OFFSET = 1.166
 JUMP_MARGIN = 2.0  # a lag's one-block jump rule: this many times the largest in tuning
 LAG_TUNING_BLOCKS = 400
+"""Decided blocks (after the reference windows, all tuning records together) the angle-lag
+streams need before they are watched. Their slow wander (long-run variance, random walk) is
+measured badly on less: detectors fitted on one machine's first 300, 420, 540 and 630 s,
+each tried on another 10-min record of the same machine (8 plant machines, both ways, 2.7 h),
+raised 19, 8, 6 and 4 lag alarms at a budget of 100 per day (9 expected), and 22, 7, 6 and 4
+at 1000 per day (about 110 expected, the levels' about 65); on 2 x 100-s synthetic records 6
+of 20 healthy records alarmed (2026-11-28)."""
 STILL_FACTOR = 4.0  # any run is stuck past this many times the run limit: a counting
 # encoder repeats a count for L samples when its count per sample lies within about 1/L of a
 # whole number, so healthy runs are long-tailed and differ from machine to machine and speed
@@ -55,13 +62,6 @@ held value moves the slower rollers' lags by its ratio (0.2-0.24) only, and the 
 lag). A lagged roller's run that leaves its lag put is a right reading however long: after a
 belt wear slowed a machine, the second roller's count sat on a whole number for 62 samples
 at a time on the live plant (a run limit of 15) and the rule called it stuck."""
-"""Decided blocks (after the reference windows, all tuning records together) the angle-lag
-streams need before they are watched. Their slow wander (long-run variance, random walk) is
-measured badly on less: detectors fitted on one machine's first 300, 420, 540 and 630 s,
-each tried on another 10-min record of the same machine (8 plant machines, both ways, 2.7 h),
-raised 19, 8, 6 and 4 lag alarms at a budget of 100 per day (9 expected), and 22, 7, 6 and 4
-at 1000 per day (about 110 expected, the levels' about 65); on 2 x 100-s synthetic records 6
-of 20 healthy records alarmed (2026-11-28)."""
 
 
 def stream_matrix() -> np.ndarray:
