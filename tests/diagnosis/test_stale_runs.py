@@ -52,6 +52,27 @@ def test_a_wrong_gain_walks_the_lag_before_the_run_too():
     assert 0.004 * RPM[1] / EDGE_RPM * 3 > STALE_EDGES  # it moved past the limit in 3 rows
 
 
+def test_a_lagged_rollers_long_run_that_leaves_its_lag_put_is_not_stuck():
+    """The still rule (any run past STILL_FACTOR x the run limit) judges the front roller and
+    the motor only: a slower roller's run that leaves its lag put is a right reading however
+    long (live, after a belt wear slowed a machine, the second roller's count sat on a whole
+    number for 62 samples at a time against a run limit of 15, and was called stuck)."""
+    from drafttwin.diagnosis.detect import STILL_FACTOR, FaultDetector
+
+    y, true = counted(1)
+    f = features(y, true)
+    det = FaultDetector()
+    det.run_limit_ = det.stale_limit_ = np.full(5, 10.0)
+    det.lost_limit_ = np.full(5, 0.02)
+    long_runs = np.flatnonzero(f.run[:, 3] > STILL_FACTOR * 10.0)
+    assert long_runs.size > 10  # the back encoder's counting runs, past the still limit
+    for b in long_runs:
+        assert det.sensor_alarm(float(b), int(b), f.lost[b], f.run[b], f.stale_runs[b], 1.0) is None
+    front = np.array([STILL_FACTOR * 10.0 + 1, 1, 1, 1, 1])
+    a = det.sensor_alarm(0.0, 0, np.zeros(5), front, np.ones(5), 1.0)
+    assert a is not None and a.test == "stuck_front"
+
+
 @pytest.mark.slow
 def test_a_detector_tuned_on_other_machines_names_a_stuck_encoder():
     """Each gear's own run-out: tuning machine 201's back encoder repeats one count for 78

@@ -401,6 +401,25 @@ def test_a_sensor_rule_in_the_window_takes_the_machine_ranking_over(detector):
     assert cause.name == "back:stuck" and cause.severity == pytest.approx(1.25, abs=0.011)
 
 
+def test_a_sensor_alarm_after_learning_is_named_with_its_block():
+    """A machine that learned first counts its decided blocks from the learning's end, its
+    block stream from the start: a sensor alarm after learning must still find the block that
+    raised it (a KeyError in the twin's loop before: every live sensor alarm after learning
+    lost its event and its cause)."""
+    watch = watch_of(None, learn_s=60.0, post_s=5)
+    t, y, yhat = samples(14, 120)
+    y[9175:9300, 3] = y[9174, 3] * 1.009  # the back encoder holds a value 0.9 % high
+    causes: list[dict[str, object]] = []
+    step = fed(watch, t, y, yhat, causes)
+    assert step.learned is not None
+    sensor = [a for a in step.alarms if a.direction == 0]
+    assert [a.test for a in sensor] == ["stuck_back"]
+    assert [(c["element"], c["kind"]) for c in causes] == [("back", "stuck")]
+    assert (
+        sensor[0].block in step.blocks and step.blocks[sensor[0].block].time_s == sensor[0].time_s
+    )
+
+
 def test_the_locator_worker_ends_with_a_twin_killed_outright(tmp_path: Path) -> None:
     """The ranking worker process watches its twin: a twin killed by SIGKILL (no cleanup at
     all) leaves no worker behind (orphans of 290 MB each piled up before)."""

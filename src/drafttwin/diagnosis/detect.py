@@ -18,8 +18,9 @@ Sensor validity rules run beside them: a channel that loses samples while the ot
 them is a sensor fault, and so is one that repeats one value while its angle lag moves (a
 stale value: a counting encoder's identical counts leave the lag put, see
 :mod:`~drafttwin.diagnosis.blocks`) for longer than any run in the healthy tuning data (and
-than twice the longest such stale run there), or repeats one value, lag moved or not, for
-longer than :data:`STILL_FACTOR` times twice the longest run there.
+than twice the longest such stale run there); the front roller and the motor are stuck too
+when they repeat one value, lag moved or not, for longer than :data:`STILL_FACTOR` times
+twice the longest run there (:data:`STILL_CHANNELS`).
 """
 
 from __future__ import annotations
@@ -43,11 +44,6 @@ FEATURES = (*CHANNELS, *(f"lag_{c}" for c in LAGGED))
 SIEGMUND_OFFSET = 1.166
 JUMP_MARGIN = 2.0  # a lag's one-block jump rule: this many times the largest in tuning
 LAG_TUNING_BLOCKS = 400
-STILL_FACTOR = 4.0  # any run is stuck past this many times the run limit: a counting
-# encoder repeats a count for L samples when its count per sample lies within about 1/L of a
-# whole number, so healthy runs are long-tailed and differ from machine to machine and speed
-# to speed (6-22 samples in 60 s of a roller; 30 after a belt wear slowed the machine, against
-# 6 in its 30-s tuning record); only a run that moves the lag is evidence by itself
 """Decided blocks (after the reference windows, all tuning records together) the angle-lag
 streams need before they are watched. Their slow wander (long-run variance, random walk) is
 measured badly on less: detectors fitted on one machine's first 300, 420, 540 and 630 s,
@@ -55,6 +51,17 @@ each tried on another 10-min record of the same machine (8 plant machines, both 
 raised 19, 8, 6 and 4 lag alarms at a budget of 100 per day (9 expected), and 22, 7, 6 and 4
 at 1000 per day (about 110 expected, the levels' about 65); on 2 x 100-s synthetic records 6
 of 20 healthy records alarmed (2026-11-28)."""
+STILL_FACTOR = 4.0  # any run is stuck past this many times the run limit: a counting
+# encoder repeats a count for L samples when its count per sample lies within about 1/L of a
+# whole number, so healthy runs are long-tailed and differ from machine to machine and speed
+# to speed (6-22 samples in 60 s of a roller; 30 after a belt wear slowed the machine, against
+# 6 in its 30-s tuning record); only a run that moves the lag is evidence by itself
+STILL_CHANNELS = np.array([True, False, False, False, True])
+"""Channels whose runs :data:`STILL_FACTOR` judges by length alone: the front roller, whose
+held value moves the slower rollers' lags by its ratio (0.2-0.24) only, and the motor (no
+lag). A lagged roller's run that leaves its lag put is a right reading however long: after a
+belt wear slowed a machine, the second roller's count sat on a whole number for 62 samples
+at a time on the live plant (a run limit of 15) and the rule called it stuck."""
 
 
 def stream_matrix() -> np.ndarray:
@@ -331,12 +338,12 @@ class FaultDetector:
 
     def sensor_ratio(self, lost: np.ndarray, run: np.ndarray, stale: np.ndarray) -> np.ndarray:
         """The sensor rules' statistics over their limits, ``(..., 2 x channels)``: each
-        channel's lost fraction, then the larger of its longest stale run over its limit and
-        its longest run over :data:`STILL_FACTOR` times the run limit (a rule fires above 1)."""
-        stuck = np.maximum(
-            np.asarray(stale) / np.maximum(self.stale_limit_, 1e-12),
-            np.asarray(run) / np.maximum(STILL_FACTOR * self.run_limit_, 1e-12),
-        )
+        channel's lost fraction, then its longest stale run over its limit, or where larger on
+        :data:`STILL_CHANNELS` its longest run over :data:`STILL_FACTOR` times the run limit (a
+        rule fires above 1)."""
+        still = np.asarray(run) / np.maximum(STILL_FACTOR * self.run_limit_, 1e-12)
+        stuck = np.maximum(np.asarray(stale) / np.maximum(self.stale_limit_, 1e-12),
+                           np.where(STILL_CHANNELS, still, 0.0))  # fmt: skip
         return np.concatenate([lost / np.maximum(self.lost_limit_, 1e-12), stuck], axis=-1)
 
     def describe(self) -> dict[str, Any]:

@@ -49,7 +49,8 @@ MIN_BLOCKS = 5
 
 @dataclass(frozen=True)
 class Window:
-    """One block the stream remembers: its end time (s), index, features
+    """One block the stream remembers: its end time (s), index (among the blocks its
+    detector decided, the frame of the alarms and the baseline), features
     (:data:`~drafttwin.diagnosis.detect.FEATURES`), lost shares, longest runs and longest
     stale runs (see :mod:`~drafttwin.diagnosis.blocks`)."""
 
@@ -215,7 +216,9 @@ class Decisions:
     def add(self, row: BlockRow) -> Step:
         """One block's features: the alarms it raised and the window it closed, if any."""
         x = row.features
-        here = Window(row.time_s, row.index, x, row.lost, row.run, row.stale)
+        # blocks are counted from this detector's start, as its alarms and baseline are (a
+        # machine that learned first has a block stream that started before it)
+        here = Window(row.time_s, self.state.block, x, row.lost, row.run, row.stale)
         self.recent.append(here)
         raised = self.state.update(row.time_s, x, row.lost, row.run, row.stale)
         self._record(here, raised)

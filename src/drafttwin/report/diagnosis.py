@@ -55,7 +55,8 @@ def rule_statistic(dx: Diagnosis) -> tuple[np.ndarray, str, str]:
         kind, channel = a.test.split("_", 1)
         j = CHANNELS.index(channel) + (len(CHANNELS) if kind == "stuck" else 0)
         what = (
-            f"run of one value (moving its lag; any run: {STILL_FACTOR:g} x the run limit)"
+            f"run of one value (moving its lag; front and motor, any run: {STILL_FACTOR:g} x "
+            "the run limit)"
             if kind == "stuck"
             else "samples lost alone"
         )
@@ -281,7 +282,8 @@ def _rule_rows(d: Mapping[str, Any]) -> list[list[str]]:
          "twice the largest in the healthy records"],
         ["sensor rules", "every channel",
          f"run of one value that moves the channel's angle lag (samples): {stale}; any run "
-         f"of one value: {STILL_FACTOR:g} x ({runs}); samples lost alone: {losts}",
+         f"of one value of the front roller and the motor: {STILL_FACTOR:g} x ({runs}); "
+         f"samples lost alone: {losts}",
          f"the longest healthy run (twice the longest that moved its lag, if longer); "
          f"{STILL_FACTOR:g} x twice the longest healthy run; the most lost in a healthy block "
          "+ 2 %"],
