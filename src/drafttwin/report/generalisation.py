@@ -283,9 +283,12 @@ def report_html(doc: Mapping[str, Any]) -> str:
     parts += ["<h2>Hybrid / GRU (same seed)</h2>", html_table(*ratio_rows(doc)),
               "<h2>Learning curves (little-data test record)</h2>",
               _img(learning_png(doc), "learning curves"), html_table(*learning_rows(doc)),
-              "<h2>One-step floor</h2><p>Oracle floor: the true speed known, the encoder error "
-              "regressed on its previous 10 values; no predictor of the measured value can "
-              "do better. The best one-step RMSE of any run on the same record beside it.</p>",
+              "<h2>One-step floor</h2><p>Oracle floor: the true speed and every earlier "
+              "measurement known, the counting encoder's error predicted with its exact best "
+              "linear weights (evaluation.limits); no predictor of the measured value can do "
+              "better. The best one-step RMSE of any run on the same record beside it. No "
+              "floor where the sensor errors lack a counting encoder's lag-1 autocorrelation "
+              "(-0.5).</p>",
               html_table(*floor_rows(doc)),
               "<p>Method and findings: docs/generalisation.md.</p>"]  # fmt: skip
     return f"""<!doctype html>
