@@ -62,8 +62,8 @@ class Eccentricity(_Cfg):
     # Rayleigh with 99.73 % of gears within F_r / 2 (a process that just holds the tolerance,
     # C_p = 1 [d24]); its angle is the gear's random phase. "allowable": every gear exactly at
     # F_r / 2, the worst accepted gear everywhere (half of all machines then show a 14.14-cm
-    # chimney, docs/sliver.md). Which law is the default, and why: docs/sliver.md, "Why
-    # `allowable` is still the default"
+    # chimney, docs/sliver.md; the default until 2026-11-29, still the embedded data set's).
+    # Why each gear's own is the default: docs/sliver.md, "Each gear's own run-out, the default"
     gear_runout_law: GearRunoutLaw = "rayleigh"
     roller_load_modulation: Frac = 0.05  # assumption: TIR 10-30 um on the cot's compliance
     # radius eccentricity of every bottom roller, the same run-out as roller_load_modulation
