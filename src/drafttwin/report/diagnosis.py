@@ -21,7 +21,13 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from drafttwin.data.series import MeasurementSeries  # noqa: E402
-from drafttwin.diagnosis.detect import STILL_FACTOR, STREAMS, Alarm, stream_matrix  # noqa: E402
+from drafttwin.diagnosis.detect import (  # noqa: E402
+    STILL_CHANNELS,
+    STILL_FACTOR,
+    STREAMS,
+    Alarm,
+    stream_matrix,
+)
 from drafttwin.diagnosis.diagnose import Diagnosis  # noqa: E402
 from drafttwin.diagnosis.locate import Cause  # noqa: E402
 from drafttwin.diagnosis.residuals import CHANNELS  # noqa: E402
@@ -54,12 +60,10 @@ def rule_statistic(dx: Diagnosis) -> tuple[np.ndarray, str, str]:
     if rule == "sensor" and a is not None and det.sensor is not None:
         kind, channel = a.test.split("_", 1)
         j = CHANNELS.index(channel) + (len(CHANNELS) if kind == "stuck" else 0)
-        what = (
-            f"run of one value (moving its lag; front and motor, any run: {STILL_FACTOR:g} x "
-            "the run limit)"
-            if kind == "stuck"
-            else "samples lost alone"
-        )
+        still = f"; any run: {STILL_FACTOR:g} x the run limit" if STILL_CHANNELS[
+            CHANNELS.index(channel)] else ""  # fmt: skip
+        what = f"run of one value (moving its lag{still})" if kind == "stuck" else (
+            "samples lost alone")  # fmt: skip
         return det.sensor[:, j], f"{channel}: {what} / its limit", "limit from healthy records"
     if rule == "jump" and a is not None and det.jump is not None:
         i = STREAMS.index(a.test)
