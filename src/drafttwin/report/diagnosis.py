@@ -273,7 +273,11 @@ def _rule_rows(d: Mapping[str, Any]) -> list[list[str]]:
     levels = ", ".join(s for s in watched if not s.startswith("lag_"))
     jumps = ", ".join(f"{s} {streams[s].get('jump_limit', 0):.3g}" for s in lags
                       if streams[s].get("jump_limit", 0) > 0) or "off"  # fmt: skip
-    runs = ", ".join(f"{c} {v:.0f}" for c, v in (d.get("run_limit") or {}).items())
+    runs = ", ".join(
+        f"{c} {v:.0f}"
+        for c, v in (d.get("run_limit") or {}).items()
+        if STILL_CHANNELS[CHANNELS.index(c)]
+    )  # the channels the length test judges
     stale = ", ".join(f"{c} {v:.0f}" for c, v in (d.get("stale_limit") or {}).items())
     losts = ", ".join(f"{c} {100 * v:.1f} %" for c, v in (d.get("lost_limit") or {}).items())
     return [
