@@ -21,7 +21,8 @@ def series():
 
 def test_training_settings_are_checked_on_construction() -> None:
     for bad in ({"epochs": 0}, {"lr": float("nan")}, {"val_fraction": 1.0}, {"stride": 0},
-                {"patience": 0}, {"clip_norm": -1.0}, {"device": "tpu-9"}, {"batch_size": True}):  # fmt: skip
+                {"patience": 0}, {"clip_norm": -1.0}, {"device": "tpu-9"}, {"batch_size": True},
+                {"schedule": "linear"}):  # fmt: skip
         name = next(iter(bad))
         with pytest.raises(ConfigError, match=f"training setting {name}="):
             Training(**bad)
@@ -141,9 +142,37 @@ def test_networks_train_on_one_thread_unless_drafttwin_threads_says_otherwise(
             training_threads()
 
 
-def test_cpu_adam_is_torch_adam_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_cosine_schedule_lowers_the_rate_along_half_a_cosine(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Epoch e trains with lr (1 + cos(pi e / epochs)) / 2: the full rate first, half of it
+    half-way; a constant schedule keeps lr; the loop sets the optimiser's rate each epoch."""
+    from drafttwin.models.training import loop as tr
+
+    cfg = Training(epochs=4, lr=0.02, schedule="cosine")
+    rates = [tr.epoch_lr(cfg, e) for e in range(4)]
+    assert rates == pytest.approx([0.02, 0.02 * (1 + 2**-0.5) / 2, 0.01, 0.02 * (1 - 2**-0.5) / 2])
+    assert [tr.epoch_lr(cfg.replace(schedule="constant"), e) for e in range(4)] == [0.02] * 4
+    seen: list[float] = []
+    train_epoch = tr._train_epoch
+
+    def spy(net, opt, parts, config, gen):  # type: ignore[no-untyped-def]
+        seen.append(opt.lr)
+        return train_epoch(net, opt, parts, config, gen)
+
+    monkeypatch.setattr(tr, "_train_epoch", spy)
+    x, y = _toy()
+    torch.manual_seed(0)
+    train_network(RecurrentRegressor(4, 4, hidden=4, layers=1), x, y,
+                  cfg.replace(patience=None, device="cpu"))  # fmt: skip
+    assert seen == pytest.approx(rates)
+
+
+@pytest.mark.parametrize("schedule", ["constant", "cosine"])
+def test_cpu_adam_is_torch_adam_bit_for_bit(monkeypatch: pytest.MonkeyPatch, schedule: str) -> None:
     """The CPU training loop's own Adam (no torch.optim: its import of torch._dynamo cost a
-    CPU-second per fit) gives exactly torch.optim.Adam's losses and weights."""
+    CPU-second per fit) gives exactly torch.optim.Adam's losses and weights, with the rate
+    held or lowered each epoch."""
     from drafttwin.models.training import loop as tr
 
     own = tr.make_adam
@@ -151,7 +180,8 @@ def test_cpu_adam_is_torch_adam_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> 
                       tr.CpuAdam)  # fmt: skip
 
     x, y = _toy()
-    cfg = Training(epochs=3, batch_size=16, lr=0.01, patience=None, device="cpu")
+    cfg = Training(epochs=3, batch_size=16, lr=0.01, patience=None, device="cpu",
+                   schedule=schedule)  # fmt: skip
     results = []
     for adam in (own, lambda p, lr, dev: torch.optim.Adam(p, lr=lr)):
         monkeypatch.setattr(tr, "make_adam", adam)

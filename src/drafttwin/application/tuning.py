@@ -3,7 +3,7 @@ validation data of the training records only, within a CPU budget.
 
 The search is Optuna's (the optional extra ``tune``): a seeded TPE sampler (the same
 ``tune_seed`` gives the same trials in the same order) over the windows, hidden sizes,
-layers, dropout, learning rate, batch size, epochs and patience, and a hybrid's structure
+layers, dropout, learning rate and its schedule, batch size, epochs and patience, and a hybrid's structure
 (and MD-S-L's data-driven model and SKNet width); what the caller set stays fixed. Trial 0 is
 the profile's own setting, so the search never ends below it on validation. A trial fits the
 model on the training part and scores it on validation data: a hybrid by the blocked folds of
@@ -105,7 +105,8 @@ def search_space(model: BaseModel, fixed: set[str]) -> dict[str, list[Any] | tup
         space |= {"lr": (3e-4, 1e-2),
                   "batch_size": _choices([16, 32, 64], training.batch_size),
                   "epochs": _choices([30, 80, 150, 300], training.epochs),
-                  "patience": _choices([5, 15, 30], training.patience)}  # fmt: skip
+                  "patience": _choices([5, 15, 30], training.patience),
+                  "schedule": _choices(["constant", "cosine"], training.schedule)}  # fmt: skip
     if "structure" in params:
         space["structure"] = ["absolute", "relative"]
     data_model = params.get("data_model")

@@ -33,6 +33,12 @@ from drafttwin.models.training.compute import (
     resolve_device,
 )
 
+SCHEDULES = ("constant", "cosine")
+"""How the learning rate moves over the epochs: ``constant`` keeps ``lr``; ``cosine`` lowers it
+from ``lr`` towards 0 along half a cosine over ``epochs`` (epoch ``e`` trains with
+``lr * (1 + cos(pi * e / epochs)) / 2``), so the last epochs fine-tune instead of jumping."""
+
+
 _TRAINING_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
     "epochs": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
     "batch_size": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
@@ -41,6 +47,7 @@ _TRAINING_RULES: dict[str, tuple[Callable[[Any], bool], str]] = {
     "val_fraction": (lambda v: _is_real(v) and 0 <= v < 1, "in [0, 1)"),
     "clip_norm": (lambda v: v is None or (_is_real(v) and 0 < v < math.inf), "None or > 0"),
     "stride": (lambda v: _is_int(v) and v >= 1, "an integer >= 1"),
+    "schedule": (lambda v: v in SCHEDULES, '"constant" or "cosine"'),
     "device": (lambda v: _valid_device(v), '"auto", "cpu", "cuda", "cuda:N" or "mps"'),
 }
 
@@ -70,6 +77,8 @@ class Training:
         val_fraction: share of the training samples, taken from the end, that validates.
         clip_norm: gradient-norm clipping threshold (``None``: no clipping).
         stride: use every ``stride``-th training sample (chronological order kept); 1 = all.
+        schedule: the learning rate over the epochs, ``"constant"`` or ``"cosine"``
+            (:data:`SCHEDULES`).
         device: ``"auto"`` (CUDA when available), ``"cpu"``, ``"cuda"`` or ``"cuda:N"``.
     """
 
@@ -80,6 +89,7 @@ class Training:
     val_fraction: float = 0.2
     clip_norm: float | None = 1.0
     stride: int = 1
+    schedule: str = "constant"
     device: str = "auto"
 
     def __post_init__(self) -> None:
@@ -346,6 +356,7 @@ def _run_epochs(
     best_state = copy.deepcopy(net.state_dict())
     stale = 0
     for epoch in range(config.epochs):
+        _set_lr(opt, epoch_lr(config, epoch))
         train_loss = _train_epoch(net, opt, parts, config, gen)
         history.train_loss.append(train_loss)
         val_loss = None
@@ -372,6 +383,21 @@ def _run_epochs(
     net.load_state_dict(best_state)
     if progress is not None:
         progress.finish(history)
+
+
+def epoch_lr(config: Training, epoch: int) -> float:
+    """The learning rate of 0-based ``epoch`` under ``config.schedule``."""
+    if config.schedule == "cosine":
+        return config.lr * 0.5 * (1.0 + math.cos(math.pi * epoch / config.epochs))
+    return config.lr
+
+
+def _set_lr(opt: CpuAdam | torch.optim.Optimizer, lr: float) -> None:
+    if isinstance(opt, CpuAdam):
+        opt.lr = lr
+        return
+    for group in opt.param_groups:
+        group["lr"] = lr
 
 
 def _train_epoch(

@@ -98,7 +98,11 @@ class Study:
         """Hyperparameter overrides for the data-driven GRU and the residual models."""
         train = {
             k: v
-            for k, v in (("epochs", self.plan.epochs), ("patience", self.plan.patience))
+            for k, v in (
+                ("epochs", self.plan.epochs),
+                ("patience", self.plan.patience),
+                ("schedule", self.plan.schedule),
+            )
             if v is not None
         }
         if not self.plan.use_grid_best:
