@@ -100,7 +100,11 @@ def figure_png(result: EmpsResult) -> bytes:
     axes[2].set_xlabel("time, s")
     for ax in axes:
         ax.grid(alpha=0.3)
-        ax.legend(loc="upper left", fontsize=8, ncol=3)
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="upper left", fontsize=8, ncol=3)
+        else:  # a task left out by --tasks: say so rather than draw an empty legend
+            ax.text(0.5, 0.5, "not run (--tasks)", ha="center", va="center",
+                    transform=ax.transAxes, color="#666666")  # fmt: skip
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
     plt.close(fig)

@@ -196,3 +196,20 @@ def test_benchmark_cli_end_to_end_on_a_slice(tmp_path: Path) -> None:
     assert "data:image/png;base64," in page and "smoke test" in page
     assert "physics only (refitted)" in page and "MD-S-L (refitted physics)" in page
     assert (out / "emps_predictions.csv").is_file()
+
+
+def test_figure_of_one_task_says_the_other_was_not_run() -> None:
+    """``--tasks simulation`` leaves the prediction axis empty: no matplotlib warning about a
+    legend without artists (it reached the user's terminal), the axis says why it is empty."""
+    import warnings
+
+    from drafttwin.report.emps import figure_png
+    from drafttwin.studies.emps.run import EmpsResult
+
+    t = np.linspace(0.0, 1.0, 50)
+    y = 0.1 * np.sin(t)
+    result = EmpsResult({}, {("simulation", "mechanistic"): y + 0.001}, t, y)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        png = figure_png(result)
+    assert png.startswith(b"\x89PNG")
