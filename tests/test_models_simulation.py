@@ -118,19 +118,37 @@ def test_parallel_simulation_accumulates_from_the_measured_residual(data):
 
 
 @pytest.mark.parametrize("name", ["parallel", "md-s-l"])
-def test_accumulation_is_chosen_on_validation_data(name, fitted):
-    """Both variants are trained; the one with the smaller free-run error over the blocked
-    validation folds is kept, and the model file records the scores."""
-    model = fitted[name]
+def test_accumulation_is_chosen_on_validation_data(name):
+    """With two training records both variants are trained; the one with the smaller free-run
+    error over the held-out records is kept, and the model file records the scores."""
+    records = MeasurementSeries.concat([make_io_series(200, seed=4), make_io_series(200, seed=5)])
+    model = build(name).fit(records, physics())
     choice = model.selection_["accumulate"]
     scores = choice["validation_nrmse"]
     assert choice["chosen_by"] == "validation folds" and choice["validation_rows"] > 0
+    assert model.selection_["correction"]["fold_by"] == "record"
     folds = model.selection_["correction"]["fold_nrmse"]
     for key in ("accumulate", "level"):  # the choice's scores are the folds' means
         assert scores[key] == pytest.approx(np.mean(folds[key]))
     assert set(scores) == {"accumulate", "level"}
     best = min(scores, key=scores.get)
     assert model.accumulate_ is (best == "accumulate") is choice["accumulate"]
+
+
+@pytest.mark.parametrize("name", ["parallel", "md-s-l"])
+def test_one_training_record_predicts_the_level(name, fitted):
+    """On one record the folds are blocks of it, shorter than the runs the model will make, so
+    accumulated changes (whose error grows with the run) are not offered: the level, judged
+    against the physics alone on the blocks, as the selection records."""
+    model = fitted[name]
+    choice = model.selection_["accumulate"]
+    correction = model.selection_["correction"]
+    assert choice["chosen_by"] == "one record" and choice["accumulate"] is False
+    assert model.accumulate_ is False and correction["fold_by"] == "block"
+    assert set(correction["fold_nrmse"]) == {"none", "level"}
+    assert choice["validation_nrmse"]["level"] == pytest.approx(
+        np.mean(correction["fold_nrmse"]["level"])
+    )
 
 
 def test_hybrid_simulation_beats_the_biased_physics(data):

@@ -11,6 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from drafttwin.cli.typer_app import console, print_json
+from drafttwin.models.estimators.accumulation import ONE_RECORD
 
 if TYPE_CHECKING:
     from drafttwin.application import FitResult
@@ -79,7 +80,11 @@ def _fold_lines(correction: dict[str, Any], choice: dict[str, Any] | None) -> li
             mean = float(np.mean(finite)) if finite else None
         cells = " ".join(_num(v) for v in per_fold)
         lines.append(f"  {CANDIDATE.get(name, name):<22} {_num(mean):>7}  [{cells}]")
-    if choice and choice.get("chosen_by") != "user":
+    if choice and choice.get("chosen_by") == ONE_RECORD:
+        lines.append("residual model predicts the residual level (one training record: its folds "
+                     "are blocks of it, too short to judge accumulated changes, whose error grows "
+                     "with the run)")  # fmt: skip
+    elif choice and choice.get("chosen_by") != "user":
         what = "accumulated changes" if choice["accumulate"] else "residual level"
         lines.append(f"residual model predicts the {what} (of the two, the lower fold mean; "
                      "of those that win reliably, if any)")  # fmt: skip

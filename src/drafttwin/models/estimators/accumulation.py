@@ -204,6 +204,14 @@ def choose_on_folds(candidate: str, folds: FoldScoresLike, test: bool = True) ->
                             sum(folds.rows), wins=folds.wins(candidate))  # fmt: skip
 
 
+ONE_RECORD = "one record"
+"""How the level is chosen without a contest when the training data are one record: its folds
+are blocks of it, and a block's free run is shorter than the runs the model will make, while an
+accumulated change's error grows with the run (on a 1000-row friction drive the thirds of its
+one record chose accumulation, which then lost to the physics by 41 % on a record three times
+as long as a fold; the level, tuned the same way, beat it by 21 %: docs/models.md, "Tuning")."""
+
+
 def choose_accumulation_on_folds(candidates: Sequence[bool], folds: FoldScoresLike) -> Choice:
     """Accumulation or the level, on the blocked folds: of the candidates that win reliably
     (:func:`choose_on_folds`'s rule) the one with the lower fold mean; when neither or both

@@ -206,6 +206,15 @@ def judge(
     return FoldScores(scores, blocks, n_rows, by_record)
 
 
+def folds_are_records(model: JudgedHybrid, rows: np.ndarray, starts: Sequence[int]) -> bool | None:
+    """Whether :func:`judge` will hold out whole training records (``True``) or blocks of
+    one record (``False``); ``None`` when it judges nothing (fewer than two folds)."""
+    k_folds = int(getattr(model, "val_folds", DEFAULT_FOLDS))
+    if k_folds < 2 or rows.size == 0:
+        return None
+    return _folds(rows, starts, k_folds)[1]
+
+
 def _folds(
     rows: np.ndarray, starts: Sequence[int], k_folds: int
 ) -> tuple[list[tuple[int, int]], bool]:

@@ -49,7 +49,7 @@ from drafttwin.models.estimators import accumulation as acc
 from drafttwin.models.estimators.base import pack_module, unpack_module
 from drafttwin.models.estimators.datadriven import _NeuralModel
 from drafttwin.models.estimators.features import fit_scaler
-from drafttwin.models.estimators.folds import DEFAULT_FOLDS, MEASURE, judge
+from drafttwin.models.estimators.folds import DEFAULT_FOLDS, MEASURE, folds_are_records, judge
 from drafttwin.models.estimators.networks import ResidualNet
 from drafttwin.models.estimators.task import Task, check_windows, input_matrix
 from drafttwin.models.estimators.windows import (
@@ -262,6 +262,9 @@ class _ResidualHybrid(_NeuralModel):
             candidates = [False]
         else:
             candidates = [True, False] if self.accumulate is None else [self.accumulate]
+        one_record = self.accumulate is None and folds_are_records(self, rows, starts) is False
+        if self.task.simulation and one_record:
+            candidates = [False]  # acc.ONE_RECORD: a fold is too short to judge accumulation
         fits = {}
         for accumulate in candidates:
             target = scaled["dem" if accumulate else "em"][rows]
@@ -275,6 +278,9 @@ class _ResidualHybrid(_NeuralModel):
         if self.task.simulation:
             if self.accumulate is not None:
                 choice = acc.Choice(self.accumulate, "user", {}, 0)
+            elif folds is not None and one_record:
+                choice = acc.Choice(False, acc.ONE_RECORD, {"level": folds.mean("level")},
+                                    sum(folds.rows))  # fmt: skip
             elif folds is not None:
                 choice = acc.choose_accumulation_on_folds(candidates, folds)
             else:
