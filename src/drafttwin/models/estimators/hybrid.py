@@ -260,11 +260,12 @@ class _ResidualHybrid(_NeuralModel):
         x, extra, scaled, rows = self._windows(groups, starts)
         if not self.task.simulation:
             candidates = [False]
-        else:
-            candidates = [True, False] if self.accumulate is None else [self.accumulate]
-        one_record = self.accumulate is None and folds_are_records(self, rows, starts) is False
-        if self.task.simulation and one_record:
+        elif self.accumulate is not None:
+            candidates = [self.accumulate]
+        elif folds_are_records(self, rows, starts) is False:
             candidates = [False]  # acc.ONE_RECORD: a fold is too short to judge accumulation
+        else:
+            candidates = [True, False]
         fits = {}
         for accumulate in candidates:
             target = scaled["dem" if accumulate else "em"][rows]
@@ -278,7 +279,7 @@ class _ResidualHybrid(_NeuralModel):
         if self.task.simulation:
             if self.accumulate is not None:
                 choice = acc.Choice(self.accumulate, "user", {}, 0)
-            elif folds is not None and one_record:
+            elif folds is not None and not folds.by_record:
                 choice = acc.Choice(False, acc.ONE_RECORD, {"level": folds.mean("level")},
                                     sum(folds.rows))  # fmt: skip
             elif folds is not None:
