@@ -241,7 +241,8 @@ def test_a_lag_step_alarms_in_its_block_by_the_jump_rule():
     """A worn mesh steps the lag at once. Whitened with a coefficient near its cap, the step
     is all in one block's innovation, which the CUSUM (widened for the lags' slow wander)
     need not reach; the one-block jump rule (twice the largest innovation in tuning) does."""
-    from drafttwin.diagnosis.detect import STREAMS, FaultDetector
+    from drafttwin.diagnosis.cusum import STREAMS
+    from drafttwin.diagnosis.detect import FaultDetector
 
     def feats(step: float, seed: int, n: int = 10_000) -> object:
         y, true = counted(step, 50.0, n, seed)

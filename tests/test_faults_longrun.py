@@ -3,7 +3,8 @@ CUSUM's scale, and with it the false alarms of long healthy running fall to the 
 
 import numpy as np
 
-from drafttwin.diagnosis.detect import STREAMS, FaultDetector
+from drafttwin.diagnosis.cusum import STREAMS
+from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.residuals import BlockFeatures
 
 SIGMA = 1e-4

@@ -4,7 +4,8 @@ only widens a stream's SD."""
 
 import numpy as np
 
-from drafttwin.diagnosis.detect import STREAMS, FaultDetector
+from drafttwin.diagnosis.cusum import STREAMS
+from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.learning import combine
 from drafttwin.diagnosis.residuals import BlockFeatures
 

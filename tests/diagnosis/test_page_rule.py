@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.diagnosis.detect import RULES, FaultDetector
+from drafttwin.diagnosis.cusum import RULES
+from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.diagnose import Diagnosis, sensor_cause
 from drafttwin.diagnosis.locate import Cause
 from drafttwin.diagnosis.residuals import block_features

@@ -117,7 +117,7 @@ def _alarm(service: TwinService, test: str, cause: dict[str, object] | None) -> 
     """An alarm (and its probable cause) through the service's own event path, at the newest
     row's time: what the detector's fault events go through (test_twin_faults.py raises them
     from a faulted plant; here the page's part is checked). ``stuck_*``: a sensor rule's."""
-    from drafttwin.diagnosis.detect import Alarm
+    from drafttwin.diagnosis.cusum import Alarm
     from drafttwin.diagnosis.stream import Step, Window
     from drafttwin.twin.faultwatch import alarm_detail
     from drafttwin.twin.store.db import EventRow

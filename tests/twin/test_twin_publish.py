@@ -335,7 +335,7 @@ class _Events:
 
 def _raise(service: Any, test: str, time_s: float, cause: str) -> Any:
     """An alarm raised on the machine as the fault desk raises one, then its cause."""
-    from drafttwin.diagnosis.detect import Alarm
+    from drafttwin.diagnosis.cusum import Alarm
     from drafttwin.diagnosis.stream import Step
     from drafttwin.twin.faultwatch import alarm_detail
 

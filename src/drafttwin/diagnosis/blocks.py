@@ -177,7 +177,7 @@ class BlockRow:
 
     @property
     def features(self) -> np.ndarray:
-        """The five levels, then the three lags (:data:`~drafttwin.diagnosis.detect.FEATURES`)."""
+        """The five levels, then the three lags (:data:`~drafttwin.diagnosis.cusum.FEATURES`)."""
         return np.concatenate([self.level, self.lag])
 
 

@@ -18,7 +18,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drafttwin.diagnosis.detect import STREAMS, Alarm, FaultDetector, stream_matrix
+from drafttwin.diagnosis.cusum import STREAMS, Alarm, stream_matrix
+from drafttwin.diagnosis.detect import FaultDetector
 
 CLEAR_Z = 2.0
 """A mean deviation within this many of the stream's healthy block SDs counts as normal."""

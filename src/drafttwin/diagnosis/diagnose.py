@@ -19,7 +19,8 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.diagnosis.detect import STREAMS, Alarm, Detection, FaultDetector, feature_matrix
+from drafttwin.diagnosis.cusum import STREAMS, Alarm, feature_matrix
+from drafttwin.diagnosis.detect import Detection, FaultDetector
 from drafttwin.diagnosis.growth import block_severities, severity_trend
 from drafttwin.diagnosis.locate import (
     ANGLE_KINDS,

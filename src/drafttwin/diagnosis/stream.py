@@ -5,7 +5,7 @@ ranked. One implementation for both paths: the offline diagnosis
 rows as they arrive and ranks the windows in a worker process. The same rows give the same
 alarms, windows and causes.
 
-Per block the detector's :class:`~drafttwin.diagnosis.detect.CusumState` decides. After an
+Per block the detector's :class:`~drafttwin.diagnosis.cusum.CusumState` decides. After an
 alarm the stream goes on (the CUSUMs restart from a new reference window, as at a record's
 start) and keeps a *window*: the :data:`POST_S` seconds of blocks after a CUSUM alarm (the
 shift of a ramp grows by then), handed out as a :class:`RankRequest` when it is full, or
@@ -28,14 +28,8 @@ import numpy as np
 
 from drafttwin.diagnosis.blocks import BlockRow, BlockStream
 from drafttwin.diagnosis.clearance import Clearance
-from drafttwin.diagnosis.detect import (
-    FEATURES,
-    STREAMS,
-    Alarm,
-    CusumState,
-    Detection,
-    FaultDetector,
-)
+from drafttwin.diagnosis.cusum import FEATURES, STREAMS, Alarm, CusumState
+from drafttwin.diagnosis.detect import Detection, FaultDetector
 from drafttwin.diagnosis.learning import Learner
 from drafttwin.diagnosis.residuals import CHANNELS, BlockFeatures
 
@@ -51,7 +45,7 @@ MIN_BLOCKS = 5
 class Window:
     """One block the stream remembers: its end time (s), index (among the blocks its
     detector decided, the frame of the alarms and the baseline), features
-    (:data:`~drafttwin.diagnosis.detect.FEATURES`), lost shares, longest runs and longest
+    (:data:`~drafttwin.diagnosis.cusum.FEATURES`), lost shares, longest runs and longest
     stale runs (see :mod:`~drafttwin.diagnosis.blocks`)."""
 
     time_s: float

@@ -21,13 +21,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from drafttwin.data.series import MeasurementSeries  # noqa: E402
-from drafttwin.diagnosis.detect import (  # noqa: E402
-    STILL_CHANNELS,
-    STILL_FACTOR,
-    STREAMS,
-    Alarm,
-    stream_matrix,
-)
+from drafttwin.diagnosis.cusum import STREAMS, Alarm, stream_matrix  # noqa: E402
+from drafttwin.diagnosis.detect import STILL_CHANNELS, STILL_FACTOR  # noqa: E402
 from drafttwin.diagnosis.diagnose import Diagnosis  # noqa: E402
 from drafttwin.diagnosis.locate import Cause  # noqa: E402
 from drafttwin.diagnosis.residuals import CHANNELS  # noqa: E402

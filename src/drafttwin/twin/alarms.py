@@ -17,7 +17,7 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from drafttwin.diagnosis.detect import Alarm
+from drafttwin.diagnosis.cusum import Alarm
 
 SEVERITY = {"fault": 700, "sensor-fault": 500, "sliver-chimney": 400}
 """OPC UA severity (1-1000) of each alarm kind: a machine fault first."""

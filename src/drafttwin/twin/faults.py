@@ -16,7 +16,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any, Protocol
 
-from drafttwin.diagnosis.detect import Alarm, FaultDetector
+from drafttwin.diagnosis.cusum import Alarm
+from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.stream import POST_S, RankRequest, Step
 from drafttwin.twin.alarms import AlarmBook
 from drafttwin.twin.faultwatch import Locator, alarm_detail

@@ -32,7 +32,8 @@ import numpy as np
 from drafttwin._constants import ROLLERS
 from drafttwin._io import sha256_file
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.diagnosis.detect import Alarm, FaultDetector
+from drafttwin.diagnosis.cusum import Alarm
+from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.diagnose import Diagnoser, sensor_cause
 from drafttwin.diagnosis.learning import Learner, learn_time
 from drafttwin.diagnosis.locate import SignatureModel

@@ -31,7 +31,8 @@ from typing import Any
 
 import numpy as np
 
-from drafttwin.diagnosis.detect import FEATURES, STREAMS, FaultDetector, feature_matrix
+from drafttwin.diagnosis.cusum import FEATURES, STREAMS, feature_matrix
+from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.residuals import BlockFeatures
 from drafttwin.studies.faults.plan import run_record
 from drafttwin.studies.faults.score import features

@@ -30,7 +30,8 @@ from typing import Any
 import numpy as np
 
 from drafttwin._io import write_text_atomic
-from drafttwin.diagnosis.detect import STREAMS, FaultDetector
+from drafttwin.diagnosis.cusum import STREAMS
+from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.locate import ANGLE_KINDS, LEVEL_KINDS, SignatureModel
 from drafttwin.diagnosis.residuals import record_features
 from drafttwin.mechanics import DriveTrain, operating_point
