@@ -298,3 +298,19 @@ def test_the_floor_table_reads_a_channel_without_a_floor() -> None:
     assert rows[1][-1] == (
         "no floor (sensor errors' lag-1 autocorrelation -0.21, not a counting encoder's -0.5)"
     )
+
+
+def test_learning_curves_of_equal_seeds_draw_without_negative_error_bars() -> None:
+    """Three seeds that score alike (a hybrid keeping no correction equals its physics on
+    every seed): the float mean of 3 x 0.7 lies 1.1e-16 below 0.7, which made the full run's
+    report fail in matplotlib ("'yerr' must not contain negative values")."""
+    from drafttwin.report.generalisation import learning_png
+    from drafttwin.studies.generalisation.summary import learning_curves
+
+    rows = [{"scenario": "little-data", "task": task, "model": "parallel", "train_s": 10.0,
+             "seed": seed, "channel": channel, "rmse": 0.7}
+            for task in TASKS for channel in ROLLERS for seed in range(3)]  # fmt: skip
+    curves = learning_curves(rows)
+    for c in curves:
+        assert c["rmse"]["min"] <= c["rmse"]["mean"] <= c["rmse"]["max"]
+    assert learning_png({"learning_curves": curves})[:4] == b"\x89PNG"

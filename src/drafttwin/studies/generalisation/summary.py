@@ -20,7 +20,10 @@ def _stats(values: Iterable[float | None]) -> dict[str, Any]:
     x = np.array([v for v in values if v is not None and np.isfinite(v)], dtype=np.float64)
     if x.size == 0:
         return {"mean": None, "std": None, "min": None, "max": None, "n": 0}
-    return {"mean": float(x.mean()), "std": float(x.std(ddof=1)) if x.size > 1 else 0.0,
+    # the float mean of equal values can sit an ulp outside them (3 x 0.7: -1.1e-16), and the
+    # report's error bars (mean - min, max - mean) must not be negative
+    mean = float(np.clip(x.mean(), x.min(), x.max()))
+    return {"mean": mean, "std": float(x.std(ddof=1)) if x.size > 1 else 0.0,
             "min": float(x.min()), "max": float(x.max()), "n": int(x.size)}  # fmt: skip
 
 
