@@ -313,4 +313,5 @@ def test_learning_curves_of_equal_seeds_draw_without_negative_error_bars() -> No
     curves = learning_curves(rows)
     for c in curves:
         assert c["rmse"]["min"] <= c["rmse"]["mean"] <= c["rmse"]["max"]
+        assert c["rmse"]["std"] == 0.0
     assert learning_png({"learning_curves": curves})[:4] == b"\x89PNG"

@@ -23,7 +23,8 @@ def _stats(values: Iterable[float | None]) -> dict[str, Any]:
     # the float mean of equal values can sit an ulp outside them (3 x 0.7: -1.1e-16), and the
     # report's error bars (mean - min, max - mean) must not be negative
     mean = float(np.clip(x.mean(), x.min(), x.max()))
-    return {"mean": mean, "std": float(x.std(ddof=1)) if x.size > 1 else 0.0,
+    spread = x.size > 1 and x.max() > x.min()  # equal values: 0, not 6.8e-17
+    return {"mean": mean, "std": float(x.std(ddof=1)) if spread else 0.0,
             "min": float(x.min()), "max": float(x.max()), "n": int(x.size)}  # fmt: skip
 
 
