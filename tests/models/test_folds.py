@@ -49,8 +49,20 @@ def test_accumulated_changes_must_beat_the_measured_residual_held() -> None:
 
 def test_a_judge_goes_through_all_windows_in_fewer_epochs_on_a_long_record() -> None:
     assert judge_epochs(12, JUDGE_WINDOWS) == 12 and judge_epochs(0, 10) == 1
-    assert judge_epochs(12, 4 * JUDGE_WINDOWS) == 3  # the same steps as 12 epochs over 600
+    assert (
+        judge_epochs(12, 4 * JUDGE_WINDOWS) == 3
+    )  # the same steps as 12 epochs over JUDGE_WINDOWS
     assert judge_epochs(2, 100 * JUDGE_WINDOWS) == 1  # at least once over all of them
+
+
+def test_a_judge_of_a_300_s_record_trains_a_quarter_of_the_final_nets_steps() -> None:
+    """100 Hz, stride 4, 15 epochs: the final net goes 15 times through 7500 windows, each of
+    three judges through the 5000 outside its block. With 600 windows' worth per epoch the
+    judges got 2 epochs (9 % of the final net's steps), lost a fold on the generalisation
+    benchmark's training record and refused corrections that fully trained judges kept on
+    every fold (docs/models.md, "Validation on folds")."""
+    final_steps, judge_windows = 15 * 7500, 5000
+    assert judge_epochs(15, judge_windows) * judge_windows >= final_steps / 4
 
 
 def test_the_fold_table_labels_every_row_and_names_what_accumulation_had_to_beat() -> None:

@@ -83,9 +83,15 @@ class JudgedHybrid(Protocol):
 DEFAULT_FOLDS = 3
 """Folds (records, or blocks of one record) of the training rows that judge a hybrid's
 correction."""
-JUDGE_WINDOWS = 600
+JUDGE_WINDOWS = 2400
 """A judge trains at most this many windows' worth of steps per epoch of the final net: on
-more windows it goes through all of them in fewer epochs (:func:`judge_epochs`)."""
+more windows it goes through all of them in fewer epochs (:func:`judge_epochs`). An
+undertrained judge is a pessimistic one: at 600 (before 2026-11-29) the judges of a 300-s
+plant record (7500 windows at stride 4) trained 9 % of the final net's steps, lost a fold and
+threw away corrections that uncapped judges kept on every fold (MD-S-L one step ahead: test
+RMSE front 1.04 -> 0.54 rpm, the GRU's 0.58); 1200 still refused MD-S-L's, 2400 gives the
+uncapped judges' verdict on both hybrids (docs/models.md, "Validation on folds"). On the
+default data it costs about 4 s of a 20-s fit."""
 MEASURE = (
     "NRMSE of the output on each held-out fold of the training rows: RMSE / standard "
     "deviation of the measured residual (y - physics) there"
