@@ -315,3 +315,29 @@ def test_learning_curves_of_equal_seeds_draw_without_negative_error_bars() -> No
         assert c["rmse"]["min"] <= c["rmse"]["mean"] <= c["rmse"]["max"]
         assert c["rmse"]["std"] == 0.0
     assert learning_png({"learning_curves": curves})[:4] == b"\x89PNG"
+
+
+def test_sensor_error_lag1_is_measured_on_the_scored_rows(tmp_path: Path) -> None:
+    """A counting encoder's error (a quantisation error's difference: lag-one
+    autocorrelation -1/2) with a few spikes the paper's outlier rule flags: the figure the
+    floor table prints must be the scored rows' -1/2 (with the spikes it read -0.008 on the
+    full run's second roller, beside a floor that was computed without them)."""
+    from drafttwin.data.series import MeasurementSeries
+    from drafttwin.studies.generalisation.fits import INPUT, save_records
+    from drafttwin.studies.generalisation.run import _sensor_error_lag1
+
+    rng = np.random.default_rng(0)
+    n = 4000
+    truth = np.full((n, len(ROLLERS)), 100.0) + rng.normal(0, 2.0, (n, 1)).cumsum(0) * 0.01
+    q = rng.uniform(-0.5, 0.5, (n + 1, len(ROLLERS)))
+    values = truth + (q[1:] - q[:-1])
+    values[rng.choice(n - 2, 12, replace=False) + 1] += 40.0  # spikes: 40 % jumps
+    series = MeasurementSeries(np.arange(n) / 100.0, values, ROLLERS,
+                               inputs={INPUT: np.full(n, 50.0)}, truth=truth)  # fmt: skip
+    path = tmp_path / "records.npz"
+    save_records(path, {"little-data": series}, {})
+    raw = values - truth
+    raw_lag1 = [float(np.corrcoef(raw[:-1, j], raw[1:, j])[0, 1]) for j in range(len(ROLLERS))]
+    assert all(abs(r) < 0.2 for r in raw_lag1)  # the spikes hide the premise in the raw errors
+    for channel, rho in _sensor_error_lag1(path, "little-data").items():
+        assert -0.6 <= rho <= -0.4, (channel, rho)
