@@ -11,14 +11,11 @@ sensor rules.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from drafttwin.diagnosis.residuals import CHANNELS, LAGGED, BlockFeatures
-
-if TYPE_CHECKING:
-    from drafttwin.diagnosis.detect import FaultDetector
 
 STREAMS = ("rollers", "motor", "belt", *(f"parity_{c}" for c in CHANNELS[:4]),
            *(f"lag_{c}" for c in LAGGED))  # fmt: skip
@@ -66,15 +63,38 @@ class Alarm:
     rule: str = "cusum"  # which rule fired, a key of RULES
 
 
+class FittedDetector(Protocol):
+    """What :class:`CusumState` reads of a fitted
+    :class:`~drafttwin.diagnosis.detect.FaultDetector` (a protocol, so that the decisions do
+    not import the detector that runs them): per stream its AR(1) coefficient, scale,
+    long-run factor, whether it is watched, its jump limit; the CUSUM's ``k`` and ``h_``; the
+    baseline's drift weight, and the sensor rules."""
+
+    k: float
+    h_: float
+    phi_: np.ndarray
+    sigma_: np.ndarray
+    long_run_: np.ndarray
+    watched_: np.ndarray
+    jump_limit_: np.ndarray
+
+    @property
+    def drift_alpha(self) -> float: ...
+
+    def sensor_alarm(self, time_s: float, block: int, lost: np.ndarray, run: np.ndarray,
+                     stale: np.ndarray, block_s: float) -> Alarm | None: ...  # fmt: skip
+
+
 class CusumState:
-    """The decisions of :meth:`FaultDetector.run`, one block at a time (the live twin feeds
-    it each block as it closes; ``run`` feeds it a whole record: the same code decides).
+    """The decisions of :meth:`~drafttwin.diagnosis.detect.FaultDetector.run`, one block at a
+    time (the live twin feeds it each block as it closes; ``run`` feeds it a whole record: the
+    same code decides).
 
     The first ``n_ref`` blocks make the baseline; after an alarm the CUSUMs restart from a new
     reference window. After :meth:`update`, ``deviation`` and ``statistic`` hold the block's
     level minus baseline and CUSUM over ``h`` (``None`` when the block was not decided)."""
 
-    def __init__(self, detector: FaultDetector, n_ref: int, block_s: float) -> None:
+    def __init__(self, detector: FittedDetector, n_ref: int, block_s: float) -> None:
         ns = len(STREAMS)
         self.det, self.n_ref, self.block_s = detector, n_ref, block_s
         self.a = stream_matrix()
