@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.errors import DataError
+from drafttwin.errors import DataError, ModelFileError
 from drafttwin.models import MechanisticModel, load_model, make_model
 
 from ._synthetic import TINY, TINY_MDSL
@@ -116,3 +116,71 @@ def test_mdsl_shares_a_data_model_through_its_public_api() -> None:
                                                           donor.crossfit_blocks_)  # fmt: skip
     with pytest.raises(DataError, match="same training rows"):
         other.fit(train, physics())
+
+
+def _two_physics(time_s: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.sin(2 * np.pi * 0.4 * time_s), np.cos(2 * np.pi * 0.3 * time_s)])
+
+
+def _two_channels(seed: int = 3) -> MeasurementSeries:
+    """Channel ``a``: physics + a slowly wandering offset (AR(1), learnable one step ahead);
+    ``b``: physics + white noise (nothing to learn)."""
+    rng = np.random.default_rng(seed)
+    time_s = np.arange(N) * 0.02
+    wander = np.zeros(N)
+    for i in range(1, N):
+        wander[i] = 0.97 * wander[i - 1] + rng.normal(0.0, 0.08)
+    noise = rng.normal(0.0, 0.05, (N, 2))
+    y = _two_physics(time_s) + np.column_stack([0.4 + wander, np.zeros(N)]) + noise
+    return MeasurementSeries(time_s, y, channels=("a", "b"))
+
+
+def test_a_correction_is_kept_per_output_channel(tmp_path) -> None:
+    """One channel's residual is learnable, the other's white noise: the residual model
+    corrects the first and leaves the second to its physics, exactly, in batch, after the
+    model file and on the stream (live = offline)."""
+    from drafttwin.models import OnlinePredictor
+
+    data, mech = _two_channels(), MechanisticModel(_two_physics)
+    train, test = data.slice(0, 280), data.slice(280)
+    hyper = {**TINY, "epochs": 6, "task": "prediction", "outputs": ("a", "b"), "seed": 2}
+    model = make_model("parallel", **hyper).fit(train, mech)
+    choice = model.selection_["correction"]
+    assert choice["kept"] == "residual" and choice["corrected"] == {"a": True, "b": False}, choice
+    assert choice["channel_wins"]["a"] == 3, choice
+    pred, physics_alone = model.predict_values(test, mech), mech.predict_values(test)
+    np.testing.assert_array_equal(pred[:, 1], physics_alone[:, 1])
+    ok = np.isfinite(pred[:, 0])
+    assert _rmse(pred[:, :1], test.values[:, :1]) < 0.5 * _rmse(physics_alone[ok, :1],
+                                                                 test.values[ok, :1])  # fmt: skip
+    model.save(tmp_path / "m.dtm")
+    again = load_model(tmp_path / "m.dtm")
+    np.testing.assert_array_equal(again.predict_values(test, mech), pred)
+    online = OnlinePredictor(again, mech)
+    steps = []
+    for i in range(len(test)):
+        steps.append(online.forecast(float(test.time_s[i])))
+        online.observe(float(test.time_s[i]), test.values[i])
+    np.testing.assert_allclose(np.array(steps), pred, rtol=0, atol=1e-3, equal_nan=True)
+    for bad in ([True], [True, "no"], "all"):  # read back checked: one bool per channel
+        damaged = tmp_path / f"bad{len(bad)}.dtm"
+        _rewrite_state(tmp_path / "m.dtm", damaged, corrected=bad)
+        with pytest.raises(ModelFileError, match="corrected"):
+            load_model(damaged)
+
+
+def _rewrite_state(good, target, **fields) -> None:
+    """A copy of the model file with state fields replaced (checksum resealed, as a forger
+    would)."""
+    import json
+
+    import torch
+
+    from drafttwin.models.storage.modelfile import checksum
+
+    payload = torch.load(good, weights_only=True)
+    state = json.loads(payload["state_json"])
+    state.update(fields)
+    payload["state_json"] = json.dumps(state)
+    payload["checksum"] = checksum(payload)
+    torch.save(payload, target)

@@ -5,6 +5,7 @@ record's length."""
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 from drafttwin.models.estimators import accumulation as acc
@@ -96,3 +97,59 @@ def test_folds_follow_the_records_when_there_are_several() -> None:
     six = tuple(range(0, 600, 100))  # six records of 100 rows: three runs of two records
     assert record_folds(0, 600, six, 3) == [(0, 200), (200, 400), (400, 600)]
     assert record_folds(0, 600, (0, 100, 550), 3) == [(0, 100), (100, 550), (550, 600)]
+
+
+def test_each_output_channel_is_corrected_only_where_it_wins_every_fold() -> None:
+    """A correction that helps one roller may hurt another: the verdict is per channel, the
+    other channels predict their physics, and the tuning's score is that of the mix."""
+    channel = {"none": [[1.0, 1.0]] * 3, "level": [[0.5, 1.6], [0.6, 1.5], [0.7, 0.9]]}
+    means = {k: [sum(f) / 2 for f in v] for k, v in channel.items()}
+    folds = FoldScores(means, BLOCKS, [10, 10, 10], channel_scores=channel)
+    assert folds.channel_wins("level") == [3, 1]
+    assert folds.channel_reliable("level") == [True, False]
+    choice = acc.choose_on_folds("level", folds)
+    assert choice.kept == "level" and choice.channels == (True, False)
+    assert choice.corrected(2).tolist() == [True, False]
+    assert list(choice.chosen_fold_nrmse) == pytest.approx([0.75, 0.8, 0.85])
+    assert acc.choose_on_folds("level", folds, test=False).channels == (True, True)
+    # by the mean over the channels it won 1 fold of 3: one verdict for all refused it
+    assert folds.wins("level") == 1 and not folds.reliable("level")
+    nowhere = FoldScores(means, BLOCKS, [10, 10, 10],
+                         channel_scores={"none": channel["none"],
+                                         "level": [[0.995, 1.2]] * 3})  # fmt: skip
+    refused = acc.choose_on_folds("level", nowhere)
+    assert refused.kept == acc.CORRECTION_NONE and refused.channels == (False, False)
+    assert list(refused.chosen_fold_nrmse) == [1.0, 1.0, 1.0]
+
+
+def test_per_channel_accumulated_changes_must_beat_that_channels_held_residual() -> None:
+    channel = {"none": [[2.0, 2.0]] * 3, "held": [[1.0, 3.0]] * 3,
+               "accumulate": [[1.1, 1.5]] * 3}  # fmt: skip
+    means = {k: [sum(f) / 2 for f in v] for k, v in channel.items()}
+    folds = FoldScores(means, BLOCKS, [10, 10, 10], channel_scores=channel)
+    assert folds.channel_reliable("accumulate") == [False, True]
+
+
+def test_the_tail_verdict_is_per_channel_too() -> None:
+    rng = np.random.default_rng(0)
+    residual = rng.normal(0.0, 1.0, (200, 2)) + np.array([3.0, 0.0])
+    correction = np.column_stack([np.full(200, 3.0), np.full(200, 0.5)])
+    choice = acc.choose_correction("residual", correction, residual)
+    assert choice.kept == "residual" and choice.channels == (True, False)
+
+
+def test_the_fit_printout_gives_each_channels_verdict_with_its_scores() -> None:
+    from drafttwin.cli._fitprint import _fold_lines
+
+    channel = {"none": [[1.0, 1.0]] * 3, "residual": [[0.5, 1.6], [0.6, 1.5], [0.7, 0.9]]}
+    means = {k: [sum(f) / 2 for f in v] for k, v in channel.items()}
+    folds = FoldScores(means, BLOCKS, [10, 10, 10], channel_scores=channel)
+    correction = {**acc.choose_on_folds("residual", folds).to_dict(), **folds.to_dict()}
+    correction["corrected"] = dict(zip(("front", "second"), correction["corrected"], strict=True))
+    correction["channel_wins"] = dict(zip(("front", "second"), correction["channel_wins"],
+                                          strict=True))  # fmt: skip
+    lines = _fold_lines(correction, None)
+    front = next(line for line in lines if line.strip().startswith("front"))
+    second = next(line for line in lines if line.strip().startswith("second"))
+    assert front.split() == ["front", "1", "->", "0.6", "3", "of", "3", "corrected"]
+    assert second.split() == ["second", "1", "->", "1.33", "1", "of", "3", "physics", "alone"]

@@ -8,7 +8,7 @@ layers, dropout, learning rate and its schedule, batch size, epochs and patience
 the profile's own setting, so the search never ends below it on validation. A trial fits the
 model on the training part and scores it on validation data: a hybrid by the blocked folds of
 its training records (:mod:`drafttwin.models.estimators.folds`: the mean NRMSE of the output on the
-held-out blocks of what it keeps, its physics alone when it keeps no correction), a GRU/LSTM
+held-out blocks of what it keeps: per output channel the correction or its physics alone), a GRU/LSTM
 by its validation tail. Once :data:`SEED_PHASE` of the budget is spent, the best
 :data:`TOP_CONFIGS` configurations are run again with other network seeds, and the
 configuration with the best mean over :data:`SEEDS` seeds is chosen (one seed is not a
@@ -74,7 +74,8 @@ def validation_score(model: BaseModel) -> float:
     correction = getattr(model, "selection_", {}).get("correction") or {}
     folds = correction.get("fold_nrmse")
     if folds:
-        values = [v for v in folds.get(correction["kept"], []) if v is not None]
+        chosen = correction.get("chosen_fold_nrmse") or folds.get(correction["kept"], [])
+        values = [v for v in chosen if v is not None]
         return float(np.mean(values)) if values else math.inf
     history = getattr(model, "history_", None)
     if history is not None and history.val_loss:

@@ -97,6 +97,8 @@ def _fold_lines(correction: dict[str, Any], choice: dict[str, Any] | None) -> li
     if correction.get("chosen_by") == "user":
         lines.append(f"correction kept: {CANDIDATE.get(kept, kept)} (--set fallback=false: "
                      "kept untested)")  # fmt: skip
+    elif isinstance(correction.get("corrected"), dict):
+        lines += _channel_lines(correction, rival)
     elif kept == "none":
         lines.append(f"no correction: the physics alone predicts (the residual model beat "
                      f"{rival} on {wins} of {folds} folds; it is kept only when it wins every "
@@ -105,6 +107,36 @@ def _fold_lines(correction: dict[str, Any], choice: dict[str, Any] | None) -> li
         lines.append(f"correction kept: {CANDIDATE.get(kept, kept)} (beats {rival} on "
                      f"{wins} of {folds} folds and by more than 1 % on the mean)")  # fmt: skip
     return lines
+
+
+def _channel_lines(correction: dict[str, Any], rival: str) -> list[str]:
+    """The verdict per output channel: the correction is kept on a channel only where it wins
+    there on every fold and by more than 1 % on that channel's mean."""
+    kept, folds = correction["kept"], correction["folds"]
+    corrected: dict[str, bool] = correction["corrected"]
+    wins: dict[str, int] = correction.get("channel_wins") or {}
+    per_fold = correction.get("channel_fold_nrmse") or {}
+    judged = [k for k in correction.get("validation_nrmse", {}) if k not in ("none", "held")]
+    cand = judged[0] if judged else kept  # the candidate judged (kept, or refused everywhere)
+    name = CANDIDATE.get(cand, cand)
+    lines = [f"per output channel (mean fold NRMSE, physics alone -> {name}; folds on which it "
+             f"beat {rival}); corrected only where it wins every fold and by more than 1 % on "
+             "the channel's mean:"]  # fmt: skip
+    for j, channel in enumerate(corrected):
+        means = [_channel_mean(per_fold.get(k), j) for k in ("none", cand)]
+        verdict = "corrected" if corrected[channel] else "physics alone"
+        lines.append(f"  {channel:<22} {_num(means[0]):>7} -> {_num(means[1]):<7} "
+                     f"{wins.get(channel, '-')} of {folds}  {verdict}")  # fmt: skip
+    if kept == "none":
+        lines.append("no correction: the physics alone predicts every channel")
+    return lines
+
+
+def _channel_mean(per_fold: list[list[float | None]] | None, j: int) -> float | None:
+    if not per_fold:
+        return None
+    values = [float(v) for fold in per_fold if (v := fold[j]) is not None]
+    return float(np.mean(values)) if values else None
 
 
 def tuning_lines(tuning: dict[str, Any] | None, limit: int = 12) -> list[str]:

@@ -37,6 +37,12 @@ class FoldScoresLike(Protocol):
 
     def reliable(self, candidate: str) -> bool: ...
 
+    def channel_reliable(self, candidate: str) -> list[bool]: ...
+
+    def channel_wins(self, candidate: str) -> list[int]: ...
+
+    def chosen(self, candidate: str, corrected: Sequence[bool]) -> list[float]: ...
+
 
 def validation_slice(n_samples: int, val_fraction: float, stride: int) -> slice:
     """The samples (in chronological order, before ``stride`` subsampling) that
@@ -105,16 +111,20 @@ class Choice:
         return {"accumulate": self.accumulate, **_evidence(self)}
 
 
+def channel_nrmse(pred: np.ndarray, measured: np.ndarray, scale: np.ndarray) -> np.ndarray:
+    """Per channel, RMSE / scale on the rows where both are finite (``inf`` where none is)."""
+    err = pred - measured
+    ok = np.isfinite(err)
+    return np.array([
+        np.sqrt(np.mean(err[ok[:, j], j] ** 2)) / scale[j] if ok[:, j].any() else np.inf
+        for j in range(err.shape[1])
+    ])  # fmt: skip
+
+
 def free_run_nrmse(pred: np.ndarray, measured: np.ndarray, scale: np.ndarray) -> float:
     """Mean over channels of RMSE / scale on the rows where both are finite (channels in
     different units weigh alike)."""
-    err = pred - measured
-    ok = np.isfinite(err)
-    per_channel = [
-        np.sqrt(np.mean(err[ok[:, j], j] ** 2)) / scale[j] if ok[:, j].any() else np.inf
-        for j in range(err.shape[1])
-    ]
-    return float(np.mean(per_channel))
+    return float(np.mean(channel_nrmse(pred, measured, scale)))
 
 
 def choose(scores: dict[bool, float], n_rows: int, by: str = "validation") -> Choice:
@@ -148,15 +158,31 @@ class CorrectionChoice:
     scores: dict[str, float]
     validation_rows: int
     wins: int | None = None  # folds on which the residual model beat the physics alone
+    channels: tuple[bool, ...] = ()  # per output channel: corrected (empty: all as `correct`)
+    channel_wins: tuple[int, ...] = ()  # per output channel: folds won (judged on folds)
+    chosen_fold_nrmse: tuple[float, ...] = ()  # per fold: the prediction as chosen
 
     @property
     def correct(self) -> bool:
         return self.kept != CORRECTION_NONE
 
+    def corrected(self, n_channels: int) -> np.ndarray:
+        """Per output channel, whether the residual model corrects it."""
+        if self.channels:
+            return np.array(self.channels, dtype=bool)
+        return np.full(n_channels, self.correct)
+
     def to_dict(self) -> dict[str, object]:
         out = {"kept": self.kept, **_evidence(self)}
         if self.wins is not None:
             out["wins"] = self.wins
+        if len(self.channels) > 1:
+            out["corrected"] = list(self.channels)
+        if len(self.channel_wins) > 1:
+            out["channel_wins"] = list(self.channel_wins)
+        if self.chosen_fold_nrmse:
+            out["chosen_fold_nrmse"] = [v if np.isfinite(v) else None
+                                        for v in self.chosen_fold_nrmse]  # fmt: skip
         return out
 
 
@@ -182,26 +208,33 @@ def choose_correction(
         return CorrectionChoice(candidate, "no validation part", {}, 0)
     scale = np.nanstd(residual, axis=0)
     scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
-    with_model = free_run_nrmse(correction, residual, scale)
-    physics = free_run_nrmse(np.zeros_like(residual), residual, scale)
+    with_model = channel_nrmse(correction, residual, scale)
+    physics = channel_nrmse(np.zeros_like(residual), residual, scale)
     better = with_model < (1.0 - CORRECTION_MARGIN) * physics
-    kept = candidate if better or not test else CORRECTION_NONE
-    return CorrectionChoice(kept, "validation" if test else "user", {CORRECTION_NONE: physics, candidate: with_model},
-                            int(residual.shape[0]))  # fmt: skip
+    channels = tuple(bool(b) or not test for b in better)
+    kept = candidate if any(channels) else CORRECTION_NONE
+    scores = {CORRECTION_NONE: float(np.mean(physics)), candidate: float(np.mean(with_model))}
+    return CorrectionChoice(kept, "validation" if test else "user", scores,
+                            int(residual.shape[0]), channels=channels)  # fmt: skip
 
 
 def choose_on_folds(candidate: str, folds: FoldScoresLike, test: bool = True) -> CorrectionChoice:
-    """Keep ``candidate`` only when it wins reliably on the blocked folds
-    (:mod:`drafttwin.models.estimators.folds`): below the physics alone on every fold, and on
-    the mean over the folds by more than :data:`CORRECTION_MARGIN`; accumulated changes also
-    below the measured residual held (:data:`CORRECTION_HELD`). ``test=False``: the user kept
-    it (scores still recorded)."""
-    kept = candidate if folds.reliable(candidate) or not test else CORRECTION_NONE
+    """Keep ``candidate`` on each output channel only where it wins reliably on the blocked
+    folds (:mod:`drafttwin.models.estimators.folds`): that channel below the physics alone on
+    every fold, and on the mean over the folds by more than :data:`CORRECTION_MARGIN`;
+    accumulated changes also below the measured residual held (:data:`CORRECTION_HELD`). The
+    other channels predict their physics (a correction that helps three rollers may hurt the
+    fourth). ``test=False``: the user kept it on every channel (scores still recorded)."""
+    reliable = folds.channel_reliable(candidate)
+    channels = tuple(bool(r) or not test for r in reliable)
+    kept = candidate if any(channels) else CORRECTION_NONE
     scores = {CORRECTION_NONE: folds.mean(CORRECTION_NONE), candidate: folds.mean(candidate)}
     if candidate == "accumulate" and CORRECTION_HELD in folds.scores:
         scores[CORRECTION_HELD] = folds.mean(CORRECTION_HELD)
     return CorrectionChoice(kept, "validation folds" if test else "user", scores,
-                            sum(folds.rows), wins=folds.wins(candidate))  # fmt: skip
+                            sum(folds.rows), wins=folds.wins(candidate), channels=channels,
+                            channel_wins=tuple(folds.channel_wins(candidate)),
+                            chosen_fold_nrmse=tuple(folds.chosen(candidate, channels)))  # fmt: skip
 
 
 ONE_RECORD = "one record"

@@ -20,13 +20,14 @@ residual has a mean).
 Accumulated changes are also scored with no change predicted (the measured residual they
 start from, held: ``held``).
 
-The residual model is kept only when it wins reliably: lower than its baseline on every fold
-and, on the mean over the folds, by more than
-:data:`~drafttwin.models.estimators.accumulation.CORRECTION_MARGIN`. The baseline is the
+The residual model is kept on an output channel only when it wins reliably there: that
+channel's NRMSE lower than its baseline on every fold and, on its mean over the folds, by more
+than :data:`~drafttwin.models.estimators.accumulation.CORRECTION_MARGIN` (the other channels
+predict their physics). The baseline is the
 physics alone, and for accumulated changes the lower of that and the held residual: a gain
 that the held anchor scores as well is the measured start's, not the net's (on a record whose
 regime changes, accumulation won every fold over the physics that way and lost on the test).
-Otherwise the hybrid predicts its physics exactly. A judge trains on every window outside its
+Where it keeps none, the hybrid predicts its physics exactly. A judge trains on every window outside its
 block, for at most :data:`JUDGE_WINDOWS` windows' worth of steps per epoch of the final net
 (:func:`judge_epochs`: on a longer record fewer passes over all of them), which keeps the
 judges' cost a fraction of the final net's on dense data. The judges share the final net's
@@ -102,12 +103,15 @@ MEASURE = (
 @dataclass(frozen=True)
 class FoldScores:
     """Per candidate (``none``, ``held``, ``level``, ``accumulate``, ``residual``), its NRMSE
-    on each block, and the blocks' rows."""
+    on each block (the mean over the output channels), the blocks' rows, and per candidate,
+    block and channel the channel's NRMSE (``channel_scores``; ``None``: one channel, the
+    mean's)."""
 
     scores: dict[str, list[float]]
     blocks: list[tuple[int, int]]
     rows: list[int]
     by_record: bool = False
+    channel_scores: dict[str, list[list[float]]] | None = None
 
     def mean(self, candidate: str) -> float:
         values = [v for v in self.scores[candidate] if np.isfinite(v)]
@@ -141,12 +145,55 @@ class FoldScores:
             and self.mean(candidate) < (1.0 - acc.CORRECTION_MARGIN) * mean_base
         )
 
+    def _per_channel(self, candidate: str) -> np.ndarray:
+        """(folds, channels) NRMSE of ``candidate``."""
+        if self.channel_scores is None:
+            return np.asarray(self.scores[candidate], dtype=float)[:, None]
+        return np.asarray(self.channel_scores[candidate], dtype=float)
+
+    def _channel_baseline(self, candidate: str) -> np.ndarray:
+        """:meth:`baseline`, per fold and channel."""
+        none = self._per_channel(acc.CORRECTION_NONE)
+        if candidate != "accumulate" or acc.CORRECTION_HELD not in self.scores:
+            return none
+        return np.asarray(np.fmin(none, self._per_channel(acc.CORRECTION_HELD)), dtype=float)
+
+    def channel_wins(self, candidate: str) -> list[int]:
+        """Per output channel, the folds on which ``candidate`` scores below its baseline."""
+        c, b = self._per_channel(candidate), self._channel_baseline(candidate)
+        return [int(n) for n in (np.isfinite(c) & (c < b)).sum(axis=0)]
+
+    def channel_reliable(self, candidate: str) -> list[bool]:
+        """Per output channel, :meth:`reliable`'s rule on that channel's NRMSE alone."""
+        c, b = self._per_channel(candidate), self._channel_baseline(candidate)
+        out = []
+        for j, wins in enumerate(self.channel_wins(candidate)):
+            base = b[np.isfinite(b[:, j]), j]
+            mean_base = float(np.mean(base)) if base.size else math.inf
+            mean_c = float(np.mean(c[:, j])) if np.isfinite(c[:, j]).all() else math.inf
+            out.append(wins == len(self.blocks)
+                       and mean_c < (1.0 - acc.CORRECTION_MARGIN) * mean_base)  # fmt: skip
+        return out
+
+    def chosen(self, candidate: str, corrected: Sequence[bool]) -> list[float]:
+        """Per fold, the mean NRMSE over the channels of the prediction as chosen:
+        ``candidate`` on the ``corrected`` channels, the physics alone on the others."""
+        mask = np.asarray(corrected, dtype=bool)
+        c, none = self._per_channel(candidate), self._per_channel(acc.CORRECTION_NONE)
+        return [float(v) for v in np.where(mask[None, :], c, none).mean(axis=1)]
+
     def to_dict(self) -> dict[str, object]:
         clean = {k: [v if np.isfinite(v) else None for v in vals]
                  for k, vals in self.scores.items()}  # fmt: skip
-        return {"fold_nrmse": clean, "folds": len(self.blocks),
-                "fold_blocks": [list(b) for b in self.blocks], "fold_rows": self.rows,
-                "fold_by": "record" if self.by_record else "block"}  # fmt: skip
+        out: dict[str, object] = {
+            "fold_nrmse": clean, "folds": len(self.blocks),
+            "fold_blocks": [list(b) for b in self.blocks], "fold_rows": self.rows,
+            "fold_by": "record" if self.by_record else "block"}  # fmt: skip
+        if self.channel_scores is not None and len(self.channel_scores[acc.CORRECTION_NONE][0]) > 1:
+            out["channel_fold_nrmse"] = {
+                k: [[v if np.isfinite(v) else None for v in fold] for fold in per_fold]
+                for k, per_fold in self.channel_scores.items()}  # fmt: skip
+        return out
 
 
 def judge(
@@ -174,7 +221,7 @@ def judge(
     lag = 0 if simulation else model.task.horizon
     blocks, by_record = _folds(rows, starts, k_folds)
     anchors = causal_ffill(em, starts)
-    scores: dict[str, list[float]] = {acc.CORRECTION_NONE: []}
+    channel: dict[str, list[list[float]]] = {acc.CORRECTION_NONE: []}
     n_rows = []
     for k, block in enumerate(blocks):
         held = (rows >= block[0]) & (rows < block[1])
@@ -182,8 +229,8 @@ def judge(
         measured = residual[target_rows]
         scale = np.nanstd(measured, axis=0)
         scale = np.where(np.isfinite(scale) & (scale > 0), scale, 1.0)
-        scores[acc.CORRECTION_NONE].append(
-            acc.free_run_nrmse(np.zeros_like(measured), measured, scale)
+        channel[acc.CORRECTION_NONE].append(
+            acc.channel_nrmse(np.zeros_like(measured), measured, scale).tolist()
         )
         n_rows.append(int(held.sum()))
         lev = level[target_rows] if isinstance(level, np.ndarray) else level
@@ -205,11 +252,14 @@ def judge(
                 # the same runs with no change predicted: the anchor held, on the same rows
                 hold = acc.accumulate_runs(np.where(np.isfinite(pred), 0.0, np.nan), target_rows,
                                            anchors, starts)  # fmt: skip
-                scores.setdefault(acc.CORRECTION_HELD, []).append(
-                    acc.free_run_nrmse(hold * lev, measured, scale)
+                channel.setdefault(acc.CORRECTION_HELD, []).append(
+                    acc.channel_nrmse(hold * lev, measured, scale).tolist()
                 )
-            scores.setdefault(name, []).append(acc.free_run_nrmse(pred * lev, measured, scale))
-    return FoldScores(scores, blocks, n_rows, by_record)
+            channel.setdefault(name, []).append(
+                acc.channel_nrmse(pred * lev, measured, scale).tolist()
+            )
+    scores = {k: [float(np.mean(v)) for v in per_fold] for k, per_fold in channel.items()}
+    return FoldScores(scores, blocks, n_rows, by_record, channel)
 
 
 def folds_are_records(model: JudgedHybrid, rows: np.ndarray, starts: Sequence[int]) -> bool | None:

@@ -31,8 +31,9 @@ generalisation``); the defaults keep the plain structure.
 
 Never worse than the physics on validation (``fallback``): every hybrid scores "no
 correction" (the physics alone) beside its residual model on the validation part of the
-training data, and keeps the residual model only when it beats the physics there; otherwise
-it predicts the physics' values exactly (``selection_["correction"]["kept"] == "none"``).
+training data, and keeps the residual model on each output channel only where it beats the
+physics there; the other channels (all of them: ``selection_["correction"]["kept"] ==
+"none"``) predict the physics' values exactly (``corrected_``, per channel).
 """
 
 from __future__ import annotations
@@ -50,6 +51,7 @@ from drafttwin.models.estimators.base import pack_module, unpack_module
 from drafttwin.models.estimators.datadriven import _NeuralModel
 from drafttwin.models.estimators.features import fit_scaler
 from drafttwin.models.estimators.folds import DEFAULT_FOLDS, MEASURE, folds_are_records, judge
+from drafttwin.models.estimators.hybrid_state import corrected_channels, relative_state
 from drafttwin.models.estimators.networks import ResidualNet
 from drafttwin.models.estimators.task import Task, check_windows, input_matrix
 from drafttwin.models.estimators.windows import (
@@ -298,15 +300,16 @@ class _ResidualHybrid(_NeuralModel):
         if folds is not None:
             name = _candidate(kept) if self.task.simulation else "residual"
             correction = acc.choose_on_folds(name, folds, test=self.fallback)
-            self.correct_ = correction.correct
-            self.selection_["correction"] = {**correction.to_dict(), **folds.to_dict(),
+            self._keep(correction, series.channels)
+            self.selection_["correction"] = {**self.selection_["correction"], **folds.to_dict(),
                                              "measure": MEASURE}  # fmt: skip
             return
-        self._choose_correction(val[kept], y - mech, mech)
+        self._choose_correction(val[kept], y - mech, mech, series.channels)
 
     def _choose_correction(
-        self, val: tuple[float, np.ndarray, np.ndarray] | None, em: np.ndarray, mech: np.ndarray
-    ) -> None:
+        self, val: tuple[float, np.ndarray, np.ndarray] | None, em: np.ndarray, mech: np.ndarray,
+        channels: tuple[str, ...],
+    ) -> None:  # fmt: skip
         """Keep the residual model only when it beats the physics alone on validation rows
         (compared in the output's units, whatever the structure)."""
         name = (
@@ -318,9 +321,18 @@ class _ResidualHybrid(_NeuralModel):
             level = self._level(mech)
             correction = pred * (level[vrows] if isinstance(level, np.ndarray) else level)
             residual = em[vrows]
-        choice = acc.choose_correction(name, correction, residual, test=self.fallback)
-        self.correct_ = choice.correct
-        self.selection_["correction"] = choice.to_dict()
+        self._keep(acc.choose_correction(name, correction, residual, test=self.fallback),
+                   channels)  # fmt: skip
+
+    def _keep(self, choice: acc.CorrectionChoice, channels: tuple[str, ...]) -> None:
+        """Take the correction choice: per output channel, residual model or physics alone."""
+        self.corrected_ = choice.corrected(len(channels))
+        self.correct_ = bool(self.corrected_.any())
+        out = choice.to_dict()
+        for key in ("corrected", "channel_wins"):  # per channel: named
+            if key in out:
+                out[key] = dict(zip(channels, out[key], strict=True))  # type: ignore[call-overload]
+        self.selection_["correction"] = out
 
     def _train(
         self, x: np.ndarray, target: np.ndarray, extra: np.ndarray | None, ok: np.ndarray,
@@ -402,7 +414,14 @@ class _ResidualHybrid(_NeuralModel):
                     seg = np.arange(a + init, b)
                     pred[seg] = acc.accumulate_runs(pred[seg], seg, anchors, starts)
                 pred[a : min(b, a + init)] = np.nan
-        return mech + pred * self._level(mech) * keep[:, None]
+        corrected = mech + pred * self._level(mech) * keep[:, None]
+        if self.corrected_.all():
+            return corrected
+        out = np.where(self.corrected_[None, :], corrected, mech)
+        if self.task.simulation:  # the physics-alone channels wait for the same rows
+            for a, b in series.record_bounds():
+                out[a : min(b, a + self._init_rows())] = np.nan
+        return out
 
     # --- persistence ------------------------------------------------------------------
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
@@ -412,6 +431,8 @@ class _ResidualHybrid(_NeuralModel):
         }
         if not self.correct_:  # written only when the physics alone was chosen, so that a
             state["correct"] = False  # file from before the choice reads back as it was stored
+        if self.correct_ and not self.corrected_.all():
+            state["corrected"] = self.corrected_.tolist()
         if self.task.simulation:
             state["accumulate"] = bool(self.accumulate_)
         if self.structure == "relative":
@@ -423,26 +444,15 @@ class _ResidualHybrid(_NeuralModel):
         self.scalers_ = {k: MinMaxScaler.from_dict(v) for k, v in state["scalers"].items()}
         self.history_ = History.from_dict(state["history"])
         self.correct_ = bool(state.get("correct", True))  # files before the choice: kept
+        self.corrected_ = corrected_channels(state, self.correct_, len(self.channels_))
         if self.task.simulation:
             self.accumulate_ = bool(state["accumulate"])
         if self.structure == "relative":
-            self.level_floor_, self.input_ref_ = _relative_state(state, len(self.channels_),
+            self.level_floor_, self.input_ref_ = relative_state(state, len(self.channels_),
                                                                  len(self.task.inputs))  # fmt: skip
         net = self._new_net(len(self.channels_))
         unpack_module("net", tensors, net)
         self.net_ = net
-
-
-def _relative_state(state: dict[str, Any], n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray]:
-    """The relative structure's references from a model file (checked: finite, positive,
-    one per channel / input)."""
-    rel = state["relative"]
-    floor = np.asarray(rel["level_floor"], dtype=np.float64)
-    ref = np.asarray(rel["input_ref"], dtype=np.float64)
-    for what, arr, n in (("level_floor", floor, n_out), ("input_ref", ref, n_in)):
-        if arr.shape != (n,) or not (np.isfinite(arr).all() and (arr > 0).all()):
-            raise ValueError(f"relative.{what} must hold {n} finite positive numbers")
-    return floor, ref
 
 
 def _candidate(accumulate: bool) -> str:

@@ -223,7 +223,7 @@ class OnlinePredictor:
         w = model.window
         scalers = model.scalers_
         if len(self._em) < w or (isinstance(model, MDSL) and len(self._ed) < w):
-            return np.full(self.n_channels, np.nan)
+            return np.where(model.corrected_, np.nan, m)
         parts = [scalers["em"].transform(np.asarray(list(self._em)[-w:]))]
         extra = None
         if isinstance(model, MDSL):
@@ -231,11 +231,15 @@ class OnlinePredictor:
             if model.use_disagreement:
                 extra = scalers["dis"].transform(self._data_forecast(target) - m)
         if not all(np.isfinite(p).all() for p in parts):
-            return np.full(self.n_channels, np.nan)
+            return np.where(model.corrected_, np.nan, m)
         if extra is not None and not np.isfinite(extra).all():
-            return np.full(self.n_channels, np.nan)
-        return _NetStep(model.net_, np.hstack(parts), extra,
-                        lambda e: m + scalers["em"].inverse_transform(e))  # fmt: skip
+            return np.where(model.corrected_, np.nan, m)
+        corrected = model.corrected_  # the other channels: their physics, as predict_values
+
+        def finish(e: np.ndarray) -> np.ndarray:
+            return np.where(corrected, m + scalers["em"].inverse_transform(e), m)
+
+        return _NetStep(model.net_, np.hstack(parts), extra, finish)
 
 
 @dataclass
