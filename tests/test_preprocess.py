@@ -164,6 +164,25 @@ def test_preprocess_interpolates_then_smooths() -> None:
     assert json.loads(json.dumps(report.to_dict()))["filled"]["front"] == 1
 
 
+def test_a_spike_next_to_a_gap_does_not_anchor_the_gaps_interpolation() -> None:
+    """A dropped sample followed by a spike (the generalisation benchmark's 300-s record: 434
+    rpm, a gap, 584 rpm, 434 rpm): the gap must not be filled towards the spike. Filled first
+    and smoothed after (before 2026-11-29) the gap kept 509 rpm, which then set the second
+    roller's min-max scaling range 40x wider than its signal and made every learned model's
+    second roller worse than its physics."""
+    rpm = np.tile([1815.0, 434.4, 426.0, 355.0], (9, 1))
+    rpm[3, 1], rpm[4, 1] = NAN, 584.45
+    rpm[3, 2], rpm[4, 2] = NAN, 470.0  # a spike the filled neighbour would hide (+10 %)
+    rpm[2:4, 3], rpm[4, 3] = NAN, 400.0  # after a gap left open (max_gap=1): an edge
+    clean, report = preprocess(_series(rpm), max_gap=1)
+    np.testing.assert_allclose(clean.values[:, :3], np.tile([1815.0, 434.4, 426.0], (9, 1)))
+    assert report.n_outliers == {"front": 0, "second": 1, "third": 1, "back": 0}
+    assert report.n_filled == {"front": 0, "second": 1, "third": 1, "back": 0}
+    assert np.isnan(clean.values[2:4, 3]).all() and clean.values[4, 3] == 400.0
+    everything, _ = preprocess(_series(rpm))  # every gap bridged: the back spike is one
+    np.testing.assert_allclose(everything.values[:, 3], 355.0)
+
+
 def test_preprocess_without_smoothing() -> None:
     rpm = np.full((5, 4), 1000.0)
     rpm[2, 1] = 3000.0

@@ -1,12 +1,13 @@
 """Measurement data: reading, validation and preprocessing."""
 
+from drafttwin.data.gaps import interpolate_missing
 from drafttwin.data.io import read_measurements, write_measurements
 from drafttwin.data.preprocessing import (
     DEFAULT_TRAIN_FRACTION,
     PreprocessReport,
     chronological_split,
+    find_measured_outliers,
     find_outliers,
-    interpolate_missing,
     outlier_scale,
     outlier_scales,
     preprocess,
@@ -22,6 +23,7 @@ __all__ = [
     "MinMaxScaler",
     "PreprocessReport",
     "chronological_split",
+    "find_measured_outliers",
     "find_outliers",
     "interpolate_missing",
     "outlier_scale",

@@ -16,12 +16,18 @@ Policies (see ``docs/data.md``):
   and for channels whose values stay clear of zero; for a channel that crosses or sits near
   zero (a position, a voltage) 10 % of the value means nothing, so the tolerance is
   ``threshold`` times the channel's scale, the spread between its 1st and 99th percentiles. "Both" rather than the paper's "either": with "either", the two samples
-  next to a spike, and both sides of every genuine step change, would be flagged too. The
-  first and last samples (one neighbour) and samples next to a missing value are never
-  flagged. An outlier is replaced by the mean of its neighbours (paper); a run of adjacent
-  outliers (alternating spikes) is interpolated between its nearest good neighbours. Bursts
-  of two or more equal wrong samples are not one-sample spikes and are not detected.
-* **Order**: interpolation first, then smoothing (the paper's order), on each channel.
+  next to a spike, and both sides of every genuine step change, would be flagged too. In
+  :func:`preprocess` a sample's neighbours are the nearest *measured* samples
+  (:func:`find_measured_outliers`), across the gaps interpolation bridges: the samples that
+  anchor a gap's interpolation are tested against each other. The first and last samples
+  (one neighbour) and samples next to a gap left open are never flagged. An outlier is
+  replaced by the mean of its neighbours (paper); a run of adjacent outliers (alternating
+  spikes) is interpolated between its nearest good neighbours. Bursts of two or more equal
+  wrong samples are not one-sample spikes and are not detected.
+* **Order**: the paper interpolates first, then smooths. Where no spike touches a gap that is
+  what :func:`preprocess` gives; a spike next to a gap is found against the measured samples
+  and the gap and the spike are filled together from the good ones (filled first, a gap took
+  the spike as an anchor: 509 rpm on a 434-rpm roller, which survived the smoothing).
 * **Records** (separate experiments in one series) are preprocessed apart: no interpolation
   or outlier test uses a sample of another record; a record's first and last samples are edges.
 """
@@ -34,6 +40,8 @@ from typing import Any
 
 import numpy as np
 
+from drafttwin.data.gaps import interpolate_missing, nan_runs
+from drafttwin.data.gaps import record_bounds as _bounds
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.data.units import is_rpm
 from drafttwin.errors import DataError
@@ -43,66 +51,6 @@ RELATIVE = "relative"
 SCALE = "scale"
 """Outlier rule: tolerance = threshold x the channel's 1st-99th percentile spread."""
 SCALE_PERCENTILES: tuple[float, float] = (1.0, 99.0)
-
-
-def nan_runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Start indices and lengths of the runs of ``True`` in a 1-D boolean array."""
-    edges = np.diff(np.concatenate(([0], missing.astype(np.int8), [0])))
-    starts = np.flatnonzero(edges == 1)
-    ends = np.flatnonzero(edges == -1)
-    return starts, ends - starts
-
-
-def _bounds(n: int, record_starts: Sequence[int] | None) -> list[tuple[int, int]]:
-    """``[(start, stop), ...]`` of the records of ``n`` rows (one record by default)."""
-    starts = [int(s) for s in (record_starts or (0,)) if 0 < int(s) < n]
-    return [(a, b) for a, b in zip([0, *starts], [*starts, n], strict=True) if b > a]
-
-
-def _fill_column(x: np.ndarray, max_gap: int | None) -> np.ndarray:
-    """One column with its gaps filled (eq. 12; edges: nearest value); long gaps kept NaN."""
-    missing = np.isnan(x)
-    good = np.flatnonzero(~missing)
-    if good.shape[0] == 0 or good.shape[0] == x.shape[0]:
-        return x.copy()
-    out = x.copy()
-    todo = np.flatnonzero(missing)
-    out[todo] = np.interp(todo, good, x[good])  # np.interp holds the edge values outside
-    if max_gap is not None:
-        starts, lengths = nan_runs(missing)
-        long = lengths > max_gap
-        if long.any():
-            keep = np.repeat(long, lengths)  # one flag per missing sample, in order
-            out[todo[keep]] = np.nan
-    return out
-
-
-def interpolate_missing(
-    values: np.ndarray, max_gap: int | None = None, record_starts: Sequence[int] | None = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Fill missing samples (``NaN``) by linear interpolation (paper eq. 12), record by record.
-
-    Args:
-        values: samples, shape ``(n,)`` or ``(n, k)``, in any unit.
-        max_gap: the longest run of missing samples to fill (samples); longer runs stay
-            ``NaN``. ``None`` fills every gap. Leading and trailing gaps (of each record) take
-            the nearest valid value. A column without any valid sample stays ``NaN``.
-        record_starts: first row of each record; a gap is never bridged across records.
-
-    Returns:
-        ``(filled, filled_mask)``: the new array (same shape, float64) and a boolean mask of
-        the samples that were filled.
-    """
-    if max_gap is not None and max_gap < 0:
-        raise ValueError(f"max_gap must be >= 0 or None, got {max_gap}")
-    x = np.asarray(values, dtype=np.float64)
-    x2 = x.reshape(x.shape[0], -1)
-    out = np.empty_like(x2)
-    for a, b in _bounds(x2.shape[0], record_starts):
-        for j in range(x2.shape[1]):
-            out[a:b, j] = _fill_column(x2[a:b, j], max_gap)
-    filled = out.reshape(x.shape)
-    return filled, np.isnan(x) & ~np.isnan(filled)
 
 
 def _tolerance(neighbour: np.ndarray, threshold: float, scale: np.ndarray | None) -> np.ndarray:
@@ -145,6 +93,35 @@ def find_outliers(
     for a, _ in _bounds(x.shape[0], record_starts)[1:]:
         mask[a - 1 : a + 1] = False  # the neighbour across a record boundary is not one
     return mask
+
+
+def find_measured_outliers(
+    values: np.ndarray,
+    threshold: float = 0.10,
+    scale: float | np.ndarray | None = None,
+    record_starts: Sequence[int] | None = None,
+    max_gap: int | None = None,
+) -> np.ndarray:
+    """:func:`find_outliers` on the measured samples (``NaN`` = missing): a sample's
+    neighbours are the nearest measured samples of its record on either side, across the gaps
+    that interpolation bridges (every gap with ``max_gap=None``, else those of at most
+    ``max_gap`` samples), the samples that anchor the gap's interpolation. A sample next to a
+    gap left open is an edge, never flagged. Shape ``(n, k)`` (or ``(n,)``)."""
+    x = np.asarray(values, dtype=np.float64)
+    x2 = x.reshape(x.shape[0], -1)
+    mask = np.zeros(x2.shape, dtype=bool)
+    sc = None if scale is None else np.broadcast_to(np.asarray(scale, dtype=np.float64),
+                                                    (x2.shape[1],))  # fmt: skip
+    for a, b in _bounds(x2.shape[0], record_starts):
+        for j in range(x2.shape[1]):
+            idx = np.flatnonzero(~np.isnan(x2[a:b, j]))
+            cut = (np.flatnonzero(np.diff(idx) - 1 > max_gap) + 1 if max_gap is not None
+                   else np.zeros(0, dtype=int))  # fmt: skip
+            for seg in np.split(idx, cut):
+                col = None if sc is None else sc[j : j + 1]
+                flags = find_outliers(x2[a + seg, j][:, None], threshold, col)[:, 0]
+                mask[a + seg[flags], j] = True
+    return mask.reshape(x.shape)
 
 
 def smooth_outliers(
@@ -349,7 +326,12 @@ def preprocess(
         clean, outliers = filled_values, np.zeros(filled.shape, dtype=bool)
     else:
         scale = np.array([np.nan if s is None else s for s in scales.values()])
-        clean, outliers = smooth_outliers(filled_values, outlier_threshold, scale, starts)
+        outliers = find_measured_outliers(series.values, outlier_threshold, scale, starts,
+                                          max_gap)  # fmt: skip
+        # outliers and gaps filled together from the measured samples that are neither, so
+        # that a spike next to a gap does not anchor the gap's interpolation
+        again, _ = interpolate_missing(np.where(outliers, np.nan, series.values), None, starts)
+        clean = np.where(np.isnan(filled_values), np.nan, again)
     changes, extra = _fill_optional(series, max_gap)
     report = PreprocessReport(
         channels=series.channels,

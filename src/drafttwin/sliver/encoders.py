@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drafttwin.data.preprocessing import interpolate_missing
+from drafttwin.data.gaps import interpolate_missing
 from drafttwin.sliver.attribution import Candidate, ChimneyCause
 from drafttwin.sliver.diagnose import SliverDiagnosis
 from drafttwin.sliver.drafting import DraftingZones

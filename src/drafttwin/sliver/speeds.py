@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from drafttwin.data.preprocessing import interpolate_missing
+from drafttwin.data.gaps import interpolate_missing
 from drafttwin.errors import DataError
 
 ROLLER_ORDER = ("front", "second", "third", "back")
