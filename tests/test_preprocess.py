@@ -478,3 +478,54 @@ def test_causal_rejection_with_a_scale() -> None:
     assert relative.sum() >= 2  # near zero every change is "more than 10 %"
     _, scaled = reject_spikes_causal(x, scale=0.04)  # tolerance 4 mm
     assert scaled.tolist() == [False, False, False, True, False]
+
+
+def _speeds_with_burst(
+    n: int = 3000, burst: float | None = 520.0, start_up: bool = False
+) -> MeasurementSeries:
+    rng = np.random.default_rng(4)
+    rpm = np.column_stack([1815.0 + rng.normal(0, 0.6, n), 434.4 + rng.normal(0, 0.3, n)])
+    if start_up:  # 3 s from standstill
+        rpm[:300, :] *= np.linspace(0.0, 1.0, 300)[:, None]
+    if burst is not None:
+        rpm[2000:2002, 1] = burst  # two equal wrong samples: not a one-sample spike
+    return MeasurementSeries(np.arange(n) * 0.01, rpm, channels=("front", "second"))
+
+
+def test_a_burst_the_spike_rule_leaves_is_reported_as_stretching_the_range() -> None:
+    """Two equal wrong samples survive the smoothing and set the channel's range (the networks
+    scale by it); a start-up from standstill, 300 samples, is no glitch."""
+    clean, report = preprocess(_speeds_with_burst())
+    assert set(report.stretched) == {"second"}
+    found = report.stretched["second"]
+    assert found["value"] == 520.0 and found["time_s"] == pytest.approx(20.0)
+    assert found["ratio"] > 20 and 433 < found["core_low"] < found["core_high"] < 436
+    assert clean.metadata["preprocess"]["range_stretched"]["second"]["value"] == 520.0
+    _, without = preprocess(_speeds_with_burst(burst=None))
+    assert without.stretched == {} and "range_stretched" not in without.to_dict()
+    _, start_up = preprocess(_speeds_with_burst(burst=None, start_up=True))
+    assert start_up.stretched == {}
+
+
+def test_fit_and_inspect_name_the_sample_that_stretches_a_range(tmp_path) -> None:
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    series = _speeds_with_burst()
+    path = tmp_path / "burst.csv"
+    pd.DataFrame({"time": series.time_s, "front": series.values[:, 0],
+                  "second": series.values[:, 1]}).to_csv(path, index=False)  # fmt: skip
+    runner = CliRunner()
+    shown = runner.invoke(app, ["inspect", str(path), "--outputs", "front,second", "--json"])
+    assert shown.exit_code == 0, shown.output
+    channels = json.loads(shown.output)["channels"]
+    assert channels["second"]["range_stretched"]["value"] == 520.0
+    assert channels["front"]["range_stretched"] is None
+    fitted = runner.invoke(app, ["fit", "--model", "gru", "--data", str(path), "--outputs",
+                                 "front,second", "--epochs", "1", "--out",
+                                 str(tmp_path / "m.dtm")])  # fmt: skip
+    assert fitted.exit_code == 0, fitted.output
+    assert "note: the training part's second spans" in " ".join(fitted.output.split())
+    assert "520 rpm at 20 s" in " ".join(fitted.output.split())

@@ -78,6 +78,7 @@ def run_fit(
         model, tuning = tune(request, model, physics, fraction, progress)
     part = protocol.fit_split(model, data, train_fraction=fraction, test=request.test,
                               mechanistic=physics)  # fmt: skip
+    notes += _stretched_notes(part.summary["preprocessing"]["train"], data)
     if request.data_label is not None:
         model.provenance_["data"] = request.data_label
     if tuning is not None:
@@ -86,6 +87,21 @@ def run_fit(
     if request.test is not None:
         evaluation = protocol.evaluate(model, part, mechanistic=physics)
     return FitResult(model, part, physics, evaluation, notes, tuning)
+
+
+def _stretched_notes(report: dict[str, Any], data: MeasurementSeries) -> list[Note]:
+    """A note per training channel whose range a few samples set (``range_stretched`` of the
+    preprocessing report, :mod:`drafttwin.data.extremes`)."""
+    notes = []
+    for name, s in report.get("range_stretched", {}).items():
+        unit = data.unit(name)
+        notes.append(Note(
+            f"the training part's {name} spans {s['ratio']:.0f}x the range its other samples "
+            f"keep to ({s['core_low']:.6g} to {s['core_high']:.6g} {unit}): {s['value']:.6g} "
+            f"{unit} at {s['time_s']:.6g} s, a glitch the one-sample spike rule leaves (a "
+            "burst of wrong samples?), sets the range the networks scale it by, and they "
+            "learn it poorly; correct or cut that sample"))  # fmt: skip
+    return notes
 
 
 def fit(

@@ -81,6 +81,7 @@ def summarize(series: MeasurementSeries, *, outlier_threshold: float = 0.10) -> 
             "longest_gap": gaps[c]["longest"],
             "outliers": report.n_outliers[c],
             "outlier_rule": rules[c],
+            "range_stretched": report.stretched.get(c),
         }
         for j, c in enumerate(series.channels)
     }
@@ -156,6 +157,15 @@ def _print_summary(s: dict[str, Any]) -> None:
             *(str(st[k]) for k in ("missing", "gaps", "longest_gap", "outliers")),
         )
     console.print(table)
+    for name, st in s["channels"].items():
+        if (w := st.get("range_stretched")) is not None:  # what the spike rule left
+            unit = f" {st['unit']}" if st["unit"] else ""
+            console.print(
+                f"[yellow]warning:[/] {escape(name)}: {w['value']:.6g}{unit} at {w['time_s']:.6g} "
+                f"s stretches the range {w['ratio']:.0f}x beyond the {w['core_low']:.6g} to "
+                f"{w['core_high']:.6g}{unit} its other samples keep to (after smoothing: a "
+                "burst of wrong samples?); a model scales the channel by that range",
+                highlight=False, soft_wrap=True)  # fmt: skip
 
 
 FileArg = Annotated[str, typer.Argument(

@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from drafttwin.data.extremes import range_stretchers
 from drafttwin.data.gaps import interpolate_missing, nan_runs
 from drafttwin.data.gaps import record_bounds as _bounds
 from drafttwin.data.series import MeasurementSeries
@@ -192,6 +193,7 @@ class PreprocessReport:
     extra: dict[str, int] = field(default_factory=dict)  # motor / input samples filled
     scales: dict[str, float | None] = field(default_factory=dict)  # None: relative rule
     record_starts: tuple[int, ...] = (0,)
+    stretched: dict[str, dict[str, float]] = field(default_factory=dict)  # see data.extremes
 
     @property
     def rollers(self) -> tuple[str, ...]:
@@ -247,6 +249,8 @@ class PreprocessReport:
             "gaps": self.gaps(),
             "other_channels_filled": dict(self.extra),
         }
+        if self.stretched:  # only when found: the metadata of clean data stay as they were
+            out["range_stretched"] = {c: dict(v) for c, v in self.stretched.items()}
         if self.threshold is not None:
             out["outlier_rule"] = self.rules
             scaled = {c: s for c, s in self.scales.items() if s is not None}
@@ -343,6 +347,7 @@ def preprocess(
         extra=extra,
         scales=scales,
         record_starts=starts,
+        stretched=range_stretchers(clean, series.time_s, series.channels),
     )
     metadata = {**series.metadata, "preprocess": report.to_dict()}
     return replace(series, values=clean, metadata=metadata, **changes), report
