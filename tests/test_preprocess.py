@@ -529,3 +529,12 @@ def test_fit_and_inspect_name_the_sample_that_stretches_a_range(tmp_path) -> Non
     assert fitted.exit_code == 0, fitted.output
     assert "note: the training part's second spans" in " ".join(fitted.output.split())
     assert "520 rpm at 20 s" in " ".join(fitted.output.split())
+
+
+def test_the_library_fit_raises_the_note_as_a_warning() -> None:
+    """``dt.fit`` says what ``drafttwin fit`` prints as a note: as a FitNote warning."""
+    import drafttwin as dt
+    from drafttwin.application import FitNote
+
+    with pytest.warns(FitNote, match="second spans .* 520 rpm at 20 s"):
+        dt.fit("gru", _speeds_with_burst(), epochs=1)

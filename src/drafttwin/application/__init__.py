@@ -7,9 +7,10 @@ prints the result; it decides nothing itself."""
 
 from drafttwin.application.fitting import FitResult, fit, plan_physics, run_fit
 from drafttwin.application.physics import resolve_physics
-from drafttwin.application.request import FitRequest, Note, build_model, setting_names
+from drafttwin.application.request import FitNote, FitRequest, Note, build_model, setting_names
 
 __all__ = [
+    "FitNote",
     "FitRequest",
     "FitResult",
     "Note",

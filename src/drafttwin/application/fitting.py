@@ -6,12 +6,13 @@ the same refusals."""
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from drafttwin.application.physics import resolve_physics
-from drafttwin.application.request import FitRequest, Note, build_model
+from drafttwin.application.request import FitNote, FitRequest, Note, build_model
 from drafttwin.data.preprocessing import DEFAULT_TRAIN_FRACTION
 from drafttwin.errors import ConfigError
 from drafttwin.evaluation import protocol
@@ -135,8 +136,10 @@ def fit(
     records. ``mechanistic``: the physics (a source or its command-line text; default: the
     FA320A preset, reduced unless ``full_model``, for the roller channels). With ``tune``
     the hyperparameters are searched on validation data within ``tune_budget`` CPU-minutes
-    first (:mod:`drafttwin.application.tuning`). Use :func:`run_fit` for the split and the
-    test scores as well."""
+    first (:mod:`drafttwin.application.tuning`). What ``drafttwin fit`` prints as a note (a
+    setting that changes nothing, a sample that stretches a channel's range) is raised as a
+    :class:`~drafttwin.application.request.FitNote` warning. Use :func:`run_fit` for the
+    split, the test scores and the notes as well."""
     from pathlib import Path
 
     request = FitRequest(
@@ -147,4 +150,7 @@ def fit(
         tune_budget=tune_budget, tune_seed=tune_seed, tune_trials=tune_trials,
         tune_storage=None if tune_storage is None else Path(tune_storage), quiet=quiet,
     )  # fmt: skip
-    return run_fit(request).model
+    result = run_fit(request)
+    for note in result.notes:  # what drafttwin fit prints as "note: ..."
+        warnings.warn(note.render(), FitNote, stacklevel=2)
+    return result.model

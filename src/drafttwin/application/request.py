@@ -32,6 +32,11 @@ WINDOWS = ("window", "data_window")
 """The windows that follow ``init_samples`` in a simulation when the caller set none."""
 
 
+class FitNote(UserWarning):
+    """A :class:`Note` of a fit, as :func:`drafttwin.fit` raises it (``drafttwin fit`` prints
+    it as ``note: ...``)."""
+
+
 @dataclass(frozen=True)
 class Note:
     """Something the fit did that the caller should know: a ``{name}`` template and its
