@@ -16,7 +16,7 @@ def nan_runs(missing: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return starts, ends - starts
 
 
-def record_bounds(n: int, record_starts: Sequence[int] | None) -> list[tuple[int, int]]:
+def record_spans(n: int, record_starts: Sequence[int] | None) -> list[tuple[int, int]]:
     """``[(start, stop), ...]`` of the records of ``n`` rows (one record by default)."""
     starts = [int(s) for s in (record_starts or (0,)) if 0 < int(s) < n]
     return [(a, b) for a, b in zip([0, *starts], [*starts, n], strict=True) if b > a]
@@ -61,7 +61,7 @@ def interpolate_missing(
     x = np.asarray(values, dtype=np.float64)
     x2 = x.reshape(x.shape[0], -1)
     out = np.empty_like(x2)
-    for a, b in record_bounds(x2.shape[0], record_starts):
+    for a, b in record_spans(x2.shape[0], record_starts):
         for j in range(x2.shape[1]):
             out[a:b, j] = _fill_column(x2[a:b, j], max_gap)
     filled = out.reshape(x.shape)

@@ -42,7 +42,7 @@ import numpy as np
 
 from drafttwin.data.extremes import range_stretchers
 from drafttwin.data.gaps import interpolate_missing, nan_runs
-from drafttwin.data.gaps import record_bounds as _bounds
+from drafttwin.data.gaps import record_spans as _bounds
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.data.units import is_rpm
 from drafttwin.errors import DataError
