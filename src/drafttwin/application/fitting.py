@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 from drafttwin.application.physics import resolve_physics
 from drafttwin.application.request import FitNote, FitRequest, Note, build_model
+from drafttwin.data.extremes import describe
 from drafttwin.data.preprocessing import DEFAULT_TRAIN_FRACTION
 from drafttwin.errors import ConfigError
 from drafttwin.evaluation import protocol
@@ -93,16 +94,10 @@ def run_fit(
 def _stretched_notes(report: dict[str, Any], data: MeasurementSeries) -> list[Note]:
     """A note per training channel whose range a few samples set (``range_stretched`` of the
     preprocessing report, :mod:`drafttwin.data.extremes`)."""
-    notes = []
-    for name, s in report.get("range_stretched", {}).items():
-        unit = data.unit(name)
-        notes.append(Note(
-            f"the training part's {name} spans {s['ratio']:.0f}x the range its other samples "
-            f"keep to ({s['core_low']:.6g} to {s['core_high']:.6g} {unit}): {s['value']:.6g} "
-            f"{unit} at {s['time_s']:.6g} s, a glitch the one-sample spike rule leaves (a "
-            "burst of wrong samples?), sets the range the networks scale it by, and they "
-            "learn it poorly; correct or cut that sample"))  # fmt: skip
-    return notes
+    return [Note(f"the training part's {describe(name, found, data.unit(name))}, a glitch the "
+                 "one-sample spike rule leaves (a burst of wrong samples?), sets the range the "
+                 "networks scale it by, and they learn it poorly; correct or cut that sample")
+            for name, found in report.get("range_stretched", {}).items()]  # fmt: skip
 
 
 def fit(

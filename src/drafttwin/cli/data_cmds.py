@@ -16,6 +16,7 @@ from drafttwin.cli._groups import with_group
 from drafttwin.cli._options import JsonOpt, number
 from drafttwin.cli._oserrors import input_paths
 from drafttwin.cli.typer_app import app, console, print_json
+from drafttwin.data.extremes import describe
 from drafttwin.data.io import read_measurements
 from drafttwin.data.preprocessing import preprocess
 from drafttwin.data.series import MeasurementSeries
@@ -158,14 +159,11 @@ def _print_summary(s: dict[str, Any]) -> None:
         )
     console.print(table)
     for name, st in s["channels"].items():
-        if (w := st.get("range_stretched")) is not None:  # what the spike rule left
-            unit = f" {st['unit']}" if st["unit"] else ""
-            console.print(
-                f"[yellow]warning:[/] {escape(name)}: {w['value']:.6g}{unit} at {w['time_s']:.6g} "
-                f"s stretches the range {w['ratio']:.0f}x beyond the {w['core_low']:.6g} to "
-                f"{w['core_high']:.6g}{unit} its other samples keep to (after smoothing: a "
-                "burst of wrong samples?); a model scales the channel by that range",
-                highlight=False, soft_wrap=True)  # fmt: skip
+        if (found := st.get("range_stretched")) is not None:  # what the spike rule left
+            console.print(f"[yellow]warning:[/] {escape(describe(name, found, st['unit']))}, a "
+                          "glitch the one-sample spike rule leaves (a burst of wrong samples?); "
+                          "a model scales the channel by that range",
+                          highlight=False, soft_wrap=True)  # fmt: skip
 
 
 FileArg = Annotated[str, typer.Argument(

@@ -45,3 +45,12 @@ def range_stretchers(
         out[name] = {"value": float(x[i]), "time_s": float(time_s[i]), "core_low": low,
                      "core_high": high, "ratio": full / core}  # fmt: skip
     return out
+
+
+def describe(channel: str, found: dict[str, float], unit: str = "") -> str:
+    """One :func:`range_stretchers` finding in words: ``second spans 36x the range its other
+    samples keep to (433.2 to 435.6 rpm): 520 rpm at 20.01 s``."""
+    u = f" {unit}" if unit else ""
+    return (f"{channel} spans {found['ratio']:.0f}x the range its other samples keep to "
+            f"({found['core_low']:.6g} to {found['core_high']:.6g}{u}): {found['value']:.6g}{u} "
+            f"at {found['time_s']:.6g} s")  # fmt: skip

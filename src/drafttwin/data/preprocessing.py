@@ -332,10 +332,12 @@ def preprocess(
         scale = np.array([np.nan if s is None else s for s in scales.values()])
         outliers = find_measured_outliers(series.values, outlier_threshold, scale, starts,
                                           max_gap)  # fmt: skip
-        # outliers and gaps filled together from the measured samples that are neither, so
-        # that a spike next to a gap does not anchor the gap's interpolation
-        again, _ = interpolate_missing(np.where(outliers, np.nan, series.values), None, starts)
-        clean = np.where(np.isnan(filled_values), np.nan, again)
+        clean = filled_values
+        if outliers.any():  # filled with the gaps from the measured samples that are neither,
+            # so that a spike next to a gap does not anchor the gap's interpolation
+            again, _ = interpolate_missing(np.where(outliers, np.nan, series.values), None,
+                                           starts)  # fmt: skip
+            clean = np.where(np.isnan(filled_values), np.nan, again)
     changes, extra = _fill_optional(series, max_gap)
     report = PreprocessReport(
         channels=series.channels,

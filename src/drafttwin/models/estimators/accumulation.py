@@ -172,14 +172,16 @@ class CorrectionChoice:
             return np.array(self.channels, dtype=bool)
         return np.full(n_channels, self.correct)
 
-    def to_dict(self) -> dict[str, object]:
+    def to_dict(self, channel_names: Sequence[str] = ()) -> dict[str, object]:
+        """As JSON; with several channels their verdicts and folds won, keyed by
+        ``channel_names`` where given (else lists in channel order)."""
         out = {"kept": self.kept, **_evidence(self)}
         if self.wins is not None:
             out["wins"] = self.wins
-        if len(self.channels) > 1:
-            out["corrected"] = list(self.channels)
-        if len(self.channel_wins) > 1:
-            out["channel_wins"] = list(self.channel_wins)
+        for key, values in (("corrected", self.channels), ("channel_wins", self.channel_wins)):
+            if len(values) > 1:
+                out[key] = (dict(zip(channel_names, values, strict=True)) if channel_names
+                            else list(values))  # fmt: skip
         if self.chosen_fold_nrmse:
             out["chosen_fold_nrmse"] = [v if np.isfinite(v) else None
                                         for v in self.chosen_fold_nrmse]  # fmt: skip

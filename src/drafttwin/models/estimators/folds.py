@@ -37,7 +37,7 @@ scale, not its values)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -121,59 +121,46 @@ class FoldScores:
         """Per fold, what ``candidate`` must beat: the physics alone, and for accumulated
         changes also the measured residual they start from, held (what they score with a net
         that predicts no change): the lower of the two."""
-        none = self.scores[acc.CORRECTION_NONE]
-        held = self.scores.get(acc.CORRECTION_HELD)
-        if candidate != "accumulate" or held is None:
-            return list(none)
-        return [float(np.fmin(a, b)) for a, b in zip(none, held, strict=True)]
+        return [float(v) for v in self._against(candidate, self._means)[1]]
 
     def wins(self, candidate: str) -> int:
         """Folds on which ``candidate`` scores below its :meth:`baseline`."""
-        return sum(
-            1
-            for c, b in zip(self.scores[candidate], self.baseline(candidate), strict=True)
-            if np.isfinite(c) and c < b
-        )
+        return _wins(*self._against(candidate, self._means))
 
     def reliable(self, candidate: str) -> bool:
         """Below its :meth:`baseline` on every fold, and on the mean over the folds by more
         than :data:`~drafttwin.models.estimators.accumulation.CORRECTION_MARGIN`."""
-        base = [v for v in self.baseline(candidate) if np.isfinite(v)]
-        mean_base = float(np.mean(base)) if base else math.inf
-        return (
-            self.wins(candidate) == len(self.blocks)
-            and self.mean(candidate) < (1.0 - acc.CORRECTION_MARGIN) * mean_base
-        )
+        return _wins_reliably(*self._against(candidate, self._means))
+
+    def channel_wins(self, candidate: str) -> list[int]:
+        """Per output channel, the folds on which ``candidate`` scores below its baseline."""
+        c, b = self._against(candidate, self._per_channel)
+        return [_wins(c[:, j], b[:, j]) for j in range(c.shape[1])]
+
+    def channel_reliable(self, candidate: str) -> list[bool]:
+        """Per output channel, :meth:`reliable`'s rule on that channel's NRMSE alone."""
+        c, b = self._against(candidate, self._per_channel)
+        return [_wins_reliably(c[:, j], b[:, j]) for j in range(c.shape[1])]
+
+    def _means(self, candidate: str) -> np.ndarray:
+        """(folds,) NRMSE of ``candidate``, the mean over the channels."""
+        return np.asarray(self.scores[candidate], dtype=float)
 
     def _per_channel(self, candidate: str) -> np.ndarray:
         """(folds, channels) NRMSE of ``candidate``."""
         if self.channel_scores is None:
-            return np.asarray(self.scores[candidate], dtype=float)[:, None]
+            return self._means(candidate)[:, None]
         return np.asarray(self.channel_scores[candidate], dtype=float)
 
-    def _channel_baseline(self, candidate: str) -> np.ndarray:
-        """:meth:`baseline`, per fold and channel."""
-        none = self._per_channel(acc.CORRECTION_NONE)
-        if candidate != "accumulate" or acc.CORRECTION_HELD not in self.scores:
-            return none
-        return np.asarray(np.fmin(none, self._per_channel(acc.CORRECTION_HELD)), dtype=float)
-
-    def channel_wins(self, candidate: str) -> list[int]:
-        """Per output channel, the folds on which ``candidate`` scores below its baseline."""
-        c, b = self._per_channel(candidate), self._channel_baseline(candidate)
-        return [int(n) for n in (np.isfinite(c) & (c < b)).sum(axis=0)]
-
-    def channel_reliable(self, candidate: str) -> list[bool]:
-        """Per output channel, :meth:`reliable`'s rule on that channel's NRMSE alone."""
-        c, b = self._per_channel(candidate), self._channel_baseline(candidate)
-        out = []
-        for j, wins in enumerate(self.channel_wins(candidate)):
-            base = b[np.isfinite(b[:, j]), j]
-            mean_base = float(np.mean(base)) if base.size else math.inf
-            mean_c = float(np.mean(c[:, j])) if np.isfinite(c[:, j]).all() else math.inf
-            out.append(wins == len(self.blocks)
-                       and mean_c < (1.0 - acc.CORRECTION_MARGIN) * mean_base)  # fmt: skip
-        return out
+    def _against(
+        self, candidate: str, table: Callable[[str], np.ndarray]
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """``candidate``'s scores and its baseline's (see :meth:`baseline`) from ``table``
+        (the means over the channels, or per channel)."""
+        none = table(acc.CORRECTION_NONE)
+        if candidate == "accumulate" and acc.CORRECTION_HELD in self.scores:
+            none = np.fmin(none, table(acc.CORRECTION_HELD))
+        return table(candidate), none
 
     def chosen(self, candidate: str, corrected: Sequence[bool]) -> list[float]:
         """Per fold, the mean NRMSE over the channels of the prediction as chosen:
@@ -194,6 +181,21 @@ class FoldScores:
                 k: [[v if np.isfinite(v) else None for v in fold] for fold in per_fold]
                 for k, per_fold in self.channel_scores.items()}  # fmt: skip
         return out
+
+
+def _wins(scores: np.ndarray, baseline: np.ndarray) -> int:
+    """Folds on which ``scores`` lie below ``baseline`` (one value per fold each)."""
+    return int((np.isfinite(scores) & (scores < baseline)).sum())
+
+
+def _wins_reliably(scores: np.ndarray, baseline: np.ndarray) -> bool:
+    """Below ``baseline`` on every fold, and on the mean over the folds by more than
+    :data:`~drafttwin.models.estimators.accumulation.CORRECTION_MARGIN` (the baseline's mean
+    over its finite folds)."""
+    base = baseline[np.isfinite(baseline)]
+    mean_base = float(np.mean(base)) if base.size else math.inf
+    return (_wins(scores, baseline) == scores.size
+            and float(np.mean(scores)) < (1.0 - acc.CORRECTION_MARGIN) * mean_base)  # fmt: skip
 
 
 def judge(

@@ -328,11 +328,7 @@ class _ResidualHybrid(_NeuralModel):
         """Take the correction choice: per output channel, residual model or physics alone."""
         self.corrected_ = choice.corrected(len(channels))
         self.correct_ = bool(self.corrected_.any())
-        out = choice.to_dict()
-        for key in ("corrected", "channel_wins"):  # per channel: named
-            if key in out:
-                out[key] = dict(zip(channels, out[key], strict=True))  # type: ignore[call-overload]
-        self.selection_["correction"] = out
+        self.selection_["correction"] = choice.to_dict(channels)
 
     def _train(
         self, x: np.ndarray, target: np.ndarray, extra: np.ndarray | None, ok: np.ndarray,
