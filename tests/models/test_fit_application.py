@@ -250,3 +250,30 @@ def test_several_training_records_are_judged_one_record_a_fold(tmp_path: Path) -
     choice = blocks["selection"]["correction"]
     assert choice["fold_by"] == "block" and choice["kept"] != "none", choice
     assert blocks["channels"]["y"]["rmse"] > physics
+
+
+def test_a_search_judged_on_two_folds_says_so() -> None:
+    from types import SimpleNamespace
+
+    from drafttwin.application.fitting import _few_folds_notes
+
+    own = {"window": 20, "hidden": 48}
+    other = {"window": 20, "hidden": 64}
+    trials = [
+        {"number": 0, "params": {**own, "seed": 0}},
+        {"number": 1, "params": {**other, "seed": 0}},
+    ]
+
+    def notes(chosen: dict[str, int], folds: int | None) -> list[str]:
+        model = SimpleNamespace(
+            selection_={} if folds is None else {"correction": {"folds": folds}}
+        )
+        tuning = {"trials": trials, "chosen": chosen, "n_trials": 2}
+        return [n.render() for n in _few_folds_notes(tuning, model)]  # type: ignore[arg-type]
+
+    assert notes(own, 2) == []  # the profile's own setting kept: nothing to doubt
+    assert notes(other, 3) == []
+    (two,) = notes(other, 2)
+    assert "2 held-out folds alone" in two and "test" in two
+    (tail,) = notes(other, None)  # a GRU/LSTM: its validation tail
+    assert "its validation tail alone" in tail
