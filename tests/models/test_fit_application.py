@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -192,17 +193,62 @@ def test_a_search_stops_on_sigterm_and_resumes(folder: Path, tmp_path: Path) -> 
     for line in proc.stderr:  # the first trial done: the second one is running
         if line.startswith("tune: trial 0"):
             break
+    time.sleep(0.3)  # into the second trial (each takes seconds)
     start = time.monotonic()
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=30)
     assert time.monotonic() - start < 5
     assert proc.returncode == 128 + signal.SIGTERM and "Traceback" not in err, err
     assert "interrupted by SIGTERM" in err and not out.exists()
-    assert Path(str(out) + ".tune.jsonl").exists()
+    journal = Path(str(out) + ".tune.jsonl")
+    optuna = pytest.importorskip("optuna")
+    from optuna.storages.journal import JournalFileBackend
+
+    storage = optuna.storages.JournalStorage(JournalFileBackend(str(journal)))
+    (name,) = optuna.get_all_study_names(storage)
+    states = [t.state for t in optuna.load_study(study_name=name, storage=storage).trials]
+    assert states.count(optuna.trial.TrialState.RUNNING) == 1  # the stop cut a trial short
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=900)  # the same command
     assert done.returncode == 0 and "Traceback" not in done.stderr, done.stderr
     record = dt.load_model(out).provenance_["tuning"]
-    assert record["n_trials"] == 3 and record["n_complete"] >= 2
+    # the cut trial ran again: the completed trials are an uninterrupted search's
+    whole = tmp_path / "whole.dtm"
+    straight = subprocess.run([*cmd[:-1], str(whole)], capture_output=True, text=True, timeout=900)
+    assert straight.returncode == 0, straight.stderr
+    uncut = dt.load_model(whole).provenance_["tuning"]
+
+    def complete(r: dict[str, Any]) -> list[tuple[dict[str, Any], float]]:
+        return [(t["params"], t["score"]) for t in r["trials"] if t["state"] == "complete"]
+
+    assert complete(record) == complete(uncut) and len(complete(uncut)) == 3
+    assert len(record["trials"]) == 3  # the cut trial finished, under its own number
+    assert record["default_score"] == uncut["default_score"] is not None
+
+
+def test_a_damaged_tuning_journal_is_refused_before_it_is_touched(
+    folder: Path, tmp_path: Path
+) -> None:
+    data = _small(folder)
+    base = ["fit", "--model", "parallel", "--data", data, *DATA, "--task", "simulation",
+            "--init-samples", INIT, "--mechanistic", folder / "sim_small.csv", "--epochs", "2",
+            "--tune", "--quiet"]  # fmt: skip
+    args = [*base, "--tune-trials", "2", "--out", tmp_path / "m.dtm"]
+    journal = tmp_path / "m.dtm.tune.jsonl"
+    _cli(args)
+    whole = journal.read_bytes()
+    journal.write_bytes(whole[:-40])  # a run killed while writing
+    err = _cli([*base, "--tune-trials", "3", "--out", tmp_path / "m.dtm"], code=2)
+    assert "ends in a cut line" in err and "--tune-storage" in err and "Traceback" not in err
+    assert journal.read_bytes() == whole[:-40]  # nothing appended
+    for content in (b"garbage\n", bytes(range(256))):
+        journal.write_bytes(content)
+        err = _cli(args, code=2)
+        assert "is not a journal" in err and "--tune-storage" in err
+        assert journal.read_bytes() == content
+    gone = tmp_path / "g.dtm"
+    err = _cli([*base, "--tune-budget", "0.001", "--out", gone], code=2)
+    assert "ended before one trial ran" in err
+    assert not Path(f"{gone}.tune.jsonl").exists()  # no journal of nothing left behind
 
 
 def _offset_record(n: int, low: float, offset: float, seed: int) -> tuple[pd.DataFrame, ...]:

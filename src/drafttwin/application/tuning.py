@@ -187,12 +187,12 @@ def tune(
     space = search_space(model, fixed)
     base_seed = request.seed or 0
     seed = request.tune_seed or 0
-    storage = _storage(optuna, request.tune_storage)
+    journal = request.tune_storage
+    created = journal is not None and not journal.exists()
+    storage = _storage(optuna, journal)
     name = f"drafttwin-{_fingerprint(request, physics, fraction)}"
     study = optuna.create_study(study_name=name, storage=storage, sampler=_sampler(optuna, seed, 0),
                                 direction="minimize", load_if_exists=True)  # fmt: skip
-    for stale in study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,)):
-        study.tell(stale.number, state=optuna.trial.TrialState.FAIL)  # an interrupted run's
     if not study.trials:
         study.enqueue_trial(_own_values(model, list(space)), user_attrs={"seed": base_seed})
     errors: list[DrafttwinError] = []
@@ -222,26 +222,30 @@ def tune(
         return score, mine[-1]
 
     while True:
-        done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
-        used = spent()
-        costs = [float(t.user_attrs.get("cpu_s", 0.0)) for t in done] or [0.0]
-        # the next trial (the mean so far) and the final fit (at worst the costliest so far)
-        need = float(np.mean(costs) + np.max(costs)) if done else 0.0
-        ran = len([t for t in study.trials if t.state != optuna.trial.TrialState.WAITING])
-        if used + need > budget_min * 60 or (request.tune_trials is not None
-                                             and ran >= request.tune_trials):  # fmt: skip
-            break
-        if used >= SEED_PHASE * budget_min * 60 or (
-            request.tune_trials is not None and ran >= SEED_PHASE * request.tune_trials
-        ):
-            _enqueue_seeds(study, base_seed)
-        # seeded per trial: a resumed search draws what an uninterrupted one would
-        study.sampler = _sampler(optuna, seed, len(study.trials))
-        trial = study.ask()
-        params = _suggest(trial, space)
+        # a trial a stop cut short is still running in the journal: it runs again first, so
+        # that the search goes on as an uninterrupted one would (same trials, same order)
+        cut = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))
+        if cut:
+            trial = optuna.trial.Trial(study, cut[0]._trial_id)  # no public way to reopen one
+            params, before = dict(cut[0].params), float(cut[0].user_attrs.get("cpu_s", 0.0))
+        else:
+            if _stop(study, spent(), budget_min, request.tune_trials):
+                break
+            if _seed_phase(study, spent(), budget_min, request.tune_trials):
+                _enqueue_seeds(study, base_seed)
+            # seeded per trial: a resumed search draws what an uninterrupted one would
+            study.sampler = _sampler(optuna, seed, len(study.trials))
+            trial = study.ask()
+            params, before = _suggest(trial, space), 0.0
         net_seed = int(trial.user_attrs.get("seed", base_seed))
         trial.set_user_attr("seed", net_seed)
-        score, cost = run(params, net_seed)
+        start = cpu_seconds()
+        try:
+            score, cost = run(params, net_seed)
+        except Interrupted:  # its CPU counts against the budget; it stays open in the journal
+            trial.set_user_attr("cpu_s", before + cpu_seconds() - start)
+            raise
+        cost += before
         trial.set_user_attr("cpu_s", cost)
         if score is None or not math.isfinite(score):
             study.tell(trial, state=optuna.trial.TrialState.FAIL)
@@ -251,7 +255,42 @@ def tune(
             best = min((t.value for t in study.trials if t.value is not None), default=None)
             progress({"number": trial.number, "score": score, "best": best, "cpu_s": spent(),
                       "budget_min": budget_min, "params": _text(params, net_seed)})  # fmt: skip
-    return _choose(study, request, model, space, errors, budget_min, seed, name, spent())
+    try:
+        return _choose(study, request, model, space, errors, budget_min, seed, name, spent())
+    except DrafttwinError:
+        if created and journal is not None and not _complete(study):
+            journal.unlink(missing_ok=True)  # a journal of nothing, in a file the user did not name
+        raise
+
+
+def _complete(study: optuna.Study) -> list[optuna.trial.FrozenTrial]:
+    import optuna
+
+    return [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+
+
+def _ran(study: optuna.Study) -> int:
+    import optuna
+
+    return sum(1 for t in study.trials if t.state != optuna.trial.TrialState.WAITING)
+
+
+def _stop(study: optuna.Study, used: float, budget_min: float, max_trials: int | None) -> bool:
+    """Whether the search ends here: the next trial (the mean so far) and the final fit (at
+    worst the costliest so far) would not fit in the budget, or the trials are all run."""
+    costs = [float(t.user_attrs.get("cpu_s", 0.0)) for t in _complete(study)]
+    need = float(np.mean(costs) + np.max(costs)) if costs else 0.0
+    return used + need > budget_min * 60 or (max_trials is not None
+                                              and _ran(study) >= max_trials)  # fmt: skip
+
+
+def _seed_phase(
+    study: optuna.Study, used: float, budget_min: float, max_trials: int | None
+) -> bool:
+    """Whether the best configurations get their other seeds now (:data:`SEED_PHASE`)."""
+    return used >= SEED_PHASE * budget_min * 60 or (
+        max_trials is not None and _ran(study) >= SEED_PHASE * max_trials
+    )
 
 
 def _sampler(optuna: Any, seed: int, n: int) -> Any:
@@ -358,6 +397,7 @@ def _storage(optuna: Any, path: Path | None) -> Any:
         return optuna.storages.InMemoryStorage()
     from optuna.storages.journal import JournalFileBackend
 
+    _check_journal(path)
     try:
         backend = JournalFileBackend(str(path))
     except OSError as exc:
@@ -365,3 +405,35 @@ def _storage(optuna: Any, path: Path | None) -> Any:
                           param="tune_storage", terms={"tune_storage": path},
                           fix="give {tune_storage:name} a writable file") from None  # fmt: skip
     return optuna.storages.JournalStorage(backend)
+
+
+def _check_journal(path: Path) -> None:
+    """Refuse a file that is not an intact tuning journal before anything is appended to it:
+    every line one JSON operation of Optuna's journal, the last one ended (a run killed while
+    writing leaves it cut, and an append would weld the next operation onto it)."""
+    if not path.is_file() or path.stat().st_size == 0:
+        return
+
+    def refuse(what: str, fix: str) -> ConfigError:
+        return ConfigError(f"the tuning journal {what}", source=path, param="tune_storage",
+                           terms={"tune_storage": path}, fix=fix)  # fmt: skip
+
+    other = "name another {tune_storage:name} (or delete the file to start afresh)"
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except (OSError, UnicodeDecodeError):
+        raise refuse("is not a journal (binary content)", other) from None
+    lines = text.split("\n")
+    for number, line in enumerate(lines[:-1], start=1):
+        try:
+            op = json.loads(line)
+        except ValueError:
+            op = None
+        if not isinstance(op, dict) or "op_code" not in op:
+            raise refuse(f"is not a journal of fit --tune (line {number})", other)
+    if lines[-1].strip():
+        raise refuse(
+            f"ends in a cut line {len(lines)} (a run killed while writing?)",
+            "cut that last line off to resume the search, or delete the file to start "
+            "afresh, or name another {tune_storage:name}",
+        )
