@@ -25,6 +25,11 @@ def atomic_path(target: str | Path) -> Iterator[Path]:
     gave.
     """
     target = Path(target)
+    if target.exists() and not target.is_file() and not target.is_dir():
+        # a device or a pipe (/dev/null, /dev/stdout): written in place; a rename would put a
+        # plain file where the device was (as root: /dev/null itself)
+        yield target
+        return
     target.parent.mkdir(parents=True, exist_ok=True)
     try:
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix,

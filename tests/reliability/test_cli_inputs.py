@@ -289,3 +289,19 @@ def test_files_written_together_are_all_kept_old_when_one_does_not_fit(tmp_path:
         assert leftovers(disk) == []
         assert err.value.filename == str(report)  # named by the target, not the temp file
         assert "no space left" in describe(err.value).message
+
+
+def test_a_device_given_as_output_stays_a_device() -> None:
+    """``--out /dev/null`` discards the output; a rename onto it would (as root) put a plain
+    file where the device was, and every later write to /dev/null would land in it."""
+    import stat
+
+    from drafttwin._io import atomic_path
+
+    device = Path("/dev/null")
+    if not device.exists() or not stat.S_ISCHR(device.stat().st_mode):
+        pytest.skip("no /dev/null device here")
+    with atomic_path(device) as path:
+        path.write_text("discarded\n")
+    assert stat.S_ISCHR(device.stat().st_mode)
+    assert device.read_text() == ""

@@ -22,7 +22,13 @@ import typer
 
 from drafttwin.cli._bounds import bounded
 from drafttwin.cli._common import load_train
-from drafttwin.cli._oserrors import input_path, input_paths, output_dir, output_file
+from drafttwin.cli._oserrors import (
+    input_path,
+    input_paths,
+    output_dir,
+    output_file,
+    physics_paths,
+)
 
 if TYPE_CHECKING:
     from drafttwin.mechanics import DriveTrain
@@ -100,7 +106,8 @@ FullModelOpt = Annotated[bool, typer.Option("--full-model/--reduced-model", help
 MechanisticOpt = Annotated[str | None, typer.Option("--mechanistic", help=(
     "The physics: 'preset' / 'preset:NAME' (fa320a), 'config:FILE.toml' (your drive train), or "
     "simulator output file(s) FILE[,FILE...] (time + one column per output, one file for all "
-    "records or one per record). Default: the model file's."))]  # fmt: skip
+    "records or one per record). Default: the model file's."),
+    callback=physics_paths("--mechanistic"))]  # fmt: skip
 TaskOpt = Annotated[str | None, typer.Option("--task", help="prediction (one step ahead, "
                     "default) or simulation (free run from the inputs and --init-samples measured "
                     "samples).")]  # fmt: skip

@@ -20,6 +20,8 @@ from drafttwin.errors import ConfigError, DrafttwinError
 PathCallback = Callable[[Path | None], Path | None]  # typer reads the returned callback's signature
 
 _OPTIONS: dict[Path, str] = {}  # path as given (absolute) -> the option that named it
+_INPUTS: dict[Path, str] = {}  # input files of this command -> their option
+_OUTPUTS: dict[Path, str] = {}  # output files of this command -> their option
 
 _REASONS: dict[int, tuple[str, str]] = {
     errno.EACCES: ("permission denied", "make it accessible to you (chmod, chown) or choose "
@@ -51,6 +53,31 @@ def remember(path: str | Path, option: str) -> None:
 def forget_paths() -> None:
     """Forget the paths remembered so far (a new command starts)."""
     _OPTIONS.clear()
+    _INPUTS.clear()
+    _OUTPUTS.clear()
+
+
+def _same(a: Path, b: Path) -> bool:
+    if a == b:
+        return True
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def _no_clash(path: Path, option: str, *, output: bool) -> None:
+    """Refuse an output file that is also an input of the same command (whichever option the
+    parser reads first): writing it would destroy what the command reads."""
+    mine, others = (_OUTPUTS, _INPUTS) if output else (_INPUTS, _OUTPUTS)
+    p = Path(os.path.abspath(path))
+    for other, other_option in others.items():
+        if _same(p, other):
+            out_option, in_option = (option, other_option) if output else (other_option, option)
+            raise ConfigError(f"is both {in_option} and {out_option}: writing it would replace "
+                              "the input", source=path, where=out_option,
+                              fix=f"give {out_option} another file name")  # fmt: skip
+    mine[p] = option
 
 
 def option_of(path: str | Path) -> str | None:
@@ -86,6 +113,8 @@ def input_path(option: str) -> PathCallback:
     def callback(value: Path | None) -> Path | None:
         if value is not None:
             remember(value, option)
+            if not value.is_dir():
+                _no_clash(value, option, output=False)
         return value
 
     return callback
@@ -98,6 +127,7 @@ def input_paths(option: str) -> Callable[[str | None], str | None]:
         for part in (value or "").split(","):
             if part.strip() and part.strip() != "default":
                 remember(part.strip(), option)
+                _no_clash(Path(part.strip()), option, output=False)
         return value
 
     return callback
@@ -119,6 +149,8 @@ def _output(option: str, *, folder: bool) -> PathCallback:
         if value is not None:
             remember(value, option)
             check_output(value, option, folder=folder)
+            if not folder:
+                _no_clash(value, option, output=True)
         return value
 
     return callback
@@ -148,3 +180,19 @@ def check_output(path: Path, option: str, *, folder: bool) -> None:
 
 def _read_only(folder: Path) -> bool:
     return bool(os.statvfs(folder).f_flag & os.ST_RDONLY)
+
+
+def physics_paths(option: str) -> Callable[[str | None], str | None]:
+    """Callback of ``--mechanistic``: its files (``config:FILE`` or simulator files) are
+    inputs like the data's; a preset names none."""
+    files = input_paths(option)
+
+    def callback(value: str | None) -> str | None:
+        text = (value or "").strip()
+        if text.startswith("config:"):
+            files(text.split(":", 1)[1])
+        elif text and not (text == "preset" or text.startswith("preset:")):
+            files(text)
+        return value
+
+    return callback

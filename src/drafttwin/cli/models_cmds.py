@@ -164,6 +164,7 @@ def fit(
     given = request.given() | {"outputs", "inputs"}
     terms = CliTerms(given)
     with typed(given):
+        _replaceable_model_file(out)
         tune.check(out)
         _, physics, _ = plan_physics(request, channels=parsed.outputs)
         needs = () if physics is None else physics.required_inputs()
@@ -285,3 +286,14 @@ def evaluate(
                                mechanistic=physics, skip_rows=score_from,
                                free_run_from=free_run_from)  # fmt: skip
     report(result, as_json)
+
+
+def _replaceable_model_file(out: Path) -> None:
+    """Refuse an ``--out`` that exists and is not a model file (a model file is a zip
+    archive): a data file or a report given by mistake would be lost."""
+    import zipfile
+
+    if out.is_file() and out.stat().st_size > 0 and not zipfile.is_zipfile(out):
+        raise ConfigError("exists and is not a model file, which --out would replace",
+                          source=out, where="--out",
+                          fix="name a new file (or a model file to replace)")  # fmt: skip

@@ -1,0 +1,74 @@
+"""An output file is never one of the command's inputs, and ``fit --out`` never replaces a
+file that is not a model file: the refusal comes before any work, and the file is untouched."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from drafttwin.cli import app
+
+runner = CliRunner()
+EXAMPLES = Path(__file__).resolve().parents[1] / "docs" / "examples"
+
+
+def _refused(args: list[str]) -> str:
+    result = runner.invoke(app, args)
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+    return " ".join(result.output.split())
+
+
+@pytest.fixture
+def record(tmp_path: Path) -> Path:
+    path = tmp_path / "r.csv"
+    path.write_text("t,u,y\n" + "".join(f"{0.02 * (k + 1):.2f},4,{30 + k % 3}\n"
+                                        for k in range(200)))  # fmt: skip
+    return path
+
+
+@pytest.mark.parametrize("out_first", [False, True])
+def test_fit_and_predict_refuse_an_out_that_is_an_input(record: Path, out_first: bool) -> None:
+    before = record.read_bytes()
+    opts = ["--outputs", "y", "--inputs", "u", "--mechanistic",
+            f"config:{EXAMPLES / 'belt_drive.toml'}"]  # fmt: skip
+    data, out = ["--data", str(record)], ["--out", str(record)]
+    said = _refused(
+        ["fit", "--model", "parallel", *(out + data if out_first else data + out), *opts]
+    )
+    assert "is both --data and --out" in said and "give --out another file name" in said
+    said = _refused(["predict", "--model", str(record.with_suffix(".dtm")), "--data", str(record),
+                     "--out", str(record.parent / "." / record.name)])  # fmt: skip
+    assert "is both --data and --out" in said
+    assert record.read_bytes() == before
+
+
+def test_a_link_to_the_input_is_the_input(record: Path) -> None:
+    link = record.parent / "link.csv"
+    os.symlink(record, link)
+    before = record.read_bytes()
+    said = _refused(["simulate", "--config", str(EXAMPLES / "belt_drive.toml"), "--setpoints",
+                     str(link), "--out", str(record)])  # fmt: skip
+    assert "is both --setpoints and --out" in said
+    assert record.read_bytes() == before
+
+
+def test_the_physics_file_is_an_input(record: Path, tmp_path: Path) -> None:
+    config = tmp_path / "drive.toml"
+    config.write_text((EXAMPLES / "belt_drive.toml").read_text())
+    said = _refused(["fit", "--model", "parallel", "--data", str(record), "--outputs", "y",
+                     "--inputs", "u", "--mechanistic", f"config:{config}", "--out", str(config)])  # fmt: skip
+    assert "is both --mechanistic and --out" in said
+
+
+def test_fit_replaces_no_file_that_is_not_a_model(record: Path, tmp_path: Path) -> None:
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes\n")
+    said = _refused(["fit", "--model", "parallel", "--data", str(record), "--outputs", "y",
+                     "--inputs", "u", "--mechanistic", f"config:{EXAMPLES / 'belt_drive.toml'}",
+                     "--out", str(notes)])  # fmt: skip
+    assert "exists and is not a model file" in said and "--out" in said
+    assert notes.read_text() == "my notes\n"
