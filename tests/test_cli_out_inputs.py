@@ -72,3 +72,12 @@ def test_fit_replaces_no_file_that_is_not_a_model(record: Path, tmp_path: Path) 
                      "--out", str(notes)])  # fmt: skip
     assert "exists and is not a model file" in said and "--out" in said
     assert notes.read_text() == "my notes\n"
+
+
+@pytest.mark.parametrize("option", ["--data", "--test-data"])
+@pytest.mark.parametrize("value", ["", ",", " , "])
+def test_a_file_list_that_names_no_file_is_refused(record: Path, option: str, value: str) -> None:
+    args = ["fit", "--model", "gru", "--outputs", "y", "--out", str(record.with_suffix(".dtm"))]
+    data = ["--data", str(record)] if option == "--test-data" else []
+    said = _refused([*args, *data, option, value])
+    assert f"{option}: names no file" in said

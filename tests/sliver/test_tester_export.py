@@ -58,6 +58,24 @@ def test_a_binary_or_damaged_file_is_refused_in_one_line(tmp_path: Path, command
         assert str(path) in out and "--data" in out and words in out
 
 
+@pytest.mark.parametrize("command", ["spectrogram", "diagnose"])
+def test_a_staple_file_that_cannot_be_read_is_refused_in_one_line(
+    tmp_path: Path, export: tuple[Path, np.ndarray], command: str
+) -> None:
+    header = tmp_path / "header.csv"
+    header.write_text("length_mm,fraction\n")
+    empty = tmp_path / "empty.csv"
+    empty.write_text("")
+    junk = tmp_path / "junk.csv"
+    junk.write_bytes(bytes(range(256)) * 40)
+    for path, words in ((header, "no data rows"), (empty, "file is empty"),
+                        (junk, "binary content")):  # fmt: skip
+        code, out = _invoke("sliver", command, "--data", str(export[0]), "--staple", str(path),
+                            "--fineness-dtex", "1.5")  # fmt: skip
+        assert code == 2 and "Traceback" not in out, out
+        assert len(out.strip().splitlines()) == 1 and "--staple" in out and words in out
+
+
 def test_a_tester_export_is_read_with_its_length_column(export) -> None:
     path, rho = export
     sl = read_sliver(path)  # length_m recognised

@@ -124,6 +124,9 @@ def input_paths(option: str) -> Callable[[str | None], str | None]:
     """Callback of a comma-separated list of input files (``--data a.csv,b.csv``)."""
 
     def callback(value: str | None) -> str | None:
+        if value is not None and not any(part.strip() for part in value.split(",")):
+            raise ConfigError(f"names no file ({value!r})", where=option,
+                              fix="name a file, or several separated by commas")  # fmt: skip
         for part in (value or "").split(","):
             if part.strip() and part.strip() != "default":
                 remember(part.strip(), option)

@@ -110,12 +110,16 @@ class StapleDiagram:
     @classmethod
     def from_table(cls, path: str | Path, fineness_dtex: float,
                    fineness_cv: float = 0.0) -> StapleDiagram:  # fmt: skip
-        """Read a staple diagram from CSV: columns ``length_mm`` (class centres, equally spaced)
-        and ``fraction`` (number fraction; any scale, normalised here)."""
+        """Read a staple diagram from CSV (or Parquet): columns ``length_mm`` (class centres,
+        equally spaced) and ``fraction`` (number fraction; any scale, normalised here). The
+        file goes through the data layer's checks (empty, binary or damaged files are refused
+        in one line naming ``--staple``)."""
         import pandas as pd
 
+        from drafttwin.data.io import read_table
+
         path = Path(path)
-        frame = pd.read_csv(path)
+        frame = read_table(path, option="--staple")
         for col in ("length_mm", "fraction"):
             if col not in frame.columns:
                 raise DataError(f"no column '{col}' (columns: {', '.join(map(str, frame.columns))})",
