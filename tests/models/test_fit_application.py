@@ -21,7 +21,7 @@ from typer.testing import CliRunner
 import drafttwin as dt
 from drafttwin.cli import app
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.errors import ConfigError
+from drafttwin.errors import ConfigError, DataError
 from drafttwin.models import MechanisticModel
 
 runner = CliRunner()
@@ -323,3 +323,39 @@ def test_a_search_judged_on_two_folds_says_so() -> None:
     assert "2 held-out folds alone" in two and "test" in two
     (tail,) = notes(other, None)  # a GRU/LSTM: its validation tail
     assert "its validation tail alone" in tail
+
+
+def test_a_test_record_in_another_rate_or_unit_is_refused_as_evaluate_refuses_it(
+    tmp_path: Path,
+) -> None:
+    frame, _ = _record(400, np.ones(400), 3)
+    train, slow, in_mm = tmp_path / "train.csv", tmp_path / "slow.csv", tmp_path / "mm.csv"
+    frame.to_csv(train, index=False)
+    frame.iloc[::2].to_csv(slow, index=False)  # 25 Hz
+    frame.rename(columns={"y": "y [mm]"}).assign(**{"y [mm]": frame.y * 1e3}).to_csv(
+        in_mm, index=False
+    )
+    plain = ["--outputs", "y", "--inputs", "u", "--time-column", "t", "--epochs", "1"]
+    for test, words in ((slow, "sampled at 25 Hz but the training records at 50 Hz"),
+                        (in_mm, "'y' is in mm in the test records (--test-data) but in no "
+                         "declared unit")):  # fmt: skip
+        said = _cli(["fit", "--model", "gru", "--data", train, "--test-data", test, *plain,
+                     "--out", tmp_path / "m.dtm"], code=2)  # fmt: skip
+        assert words in " ".join(said.split())
+    read = {"outputs": ["y"], "inputs": ["u"], "time_column": "t"}
+    with pytest.raises(DataError, match="sampled at 25 Hz"):
+        dt.fit("gru", dt.read_measurements(train, **read), epochs=1, inputs=("u",),
+               test=dt.read_measurements(slow, **read))  # fmt: skip
+    assert not (tmp_path / "m.dtm").exists()
+
+
+def test_evaluate_never_scores_rows_the_model_trained_on(tmp_path: Path) -> None:
+    frame, _ = _record(300, np.ones(300), 4)
+    data = tmp_path / "d.csv"
+    frame.to_csv(data, index=False)
+    plain = ["--outputs", "y", "--inputs", "u", "--time-column", "t"]
+    _cli(["fit", "--model", "gru", "--data", data, *plain, "--epochs", "1", "--quiet", "--out",
+          tmp_path / "m.dtm"])  # fmt: skip
+    said = _cli(["evaluate", "--model", tmp_path / "m.dtm", "--train-fraction", "0.5"], code=2)
+    assert "below the 0.7 the model was fitted with" in " ".join(said.split())
+    _cli(["evaluate", "--model", tmp_path / "m.dtm", "--train-fraction", "0.8"])

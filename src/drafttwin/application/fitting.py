@@ -15,6 +15,7 @@ from drafttwin.application.physics import resolve_physics
 from drafttwin.application.request import FitNote, FitRequest, Note, build_model
 from drafttwin.data.extremes import describe
 from drafttwin.data.preprocessing import DEFAULT_TRAIN_FRACTION
+from drafttwin.data.records import check_test_like_training
 from drafttwin.errors import ConfigError
 from drafttwin.evaluation import protocol
 from drafttwin.models import BaseModel, MechanisticModel
@@ -73,6 +74,8 @@ def run_fit(
     fraction = (
         None if request.test is not None else (request.train_fraction or DEFAULT_TRAIN_FRACTION)
     )
+    if request.test is not None:
+        check_test_like_training(request.test, data)
     tuning = None
     if request.tune:
         from drafttwin.application.tuning import tune

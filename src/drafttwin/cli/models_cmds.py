@@ -281,6 +281,7 @@ def evaluate(
                           terms={"free_run_from": free_run_from},
                           fix=f"use one of {', '.join(protocol.FREE_RUN_FROM)}")  # fmt: skip
     estimator, physics, series = _fitted(model, source, channels, quiet)
+    _no_training_rows_scored(estimator, source, train_fraction)
     data, test = (None, series) if source.test_data is not None else (series, None)
     result = protocol.evaluate(estimator, data, test=test, train_fraction=train_fraction,
                                mechanistic=physics, skip_rows=score_from,
@@ -297,3 +298,19 @@ def _replaceable_model_file(out: Path) -> None:
         raise ConfigError("exists and is not a model file, which --out would replace",
                           source=out, where="--out",
                           fix="name a new file (or a model file to replace)")  # fmt: skip
+
+
+def _no_training_rows_scored(
+    model: BaseModel, source: SourceOptions, train_fraction: float | None
+) -> None:
+    """Refuse a ``--train-fraction`` below the model's own on the data it was fitted on: the
+    test part would hold rows the model trained on, and flatter it."""
+    fitted = model.provenance_.get("train_fraction")
+    fitted_on = model.provenance_.get("data")
+    own = source.data is None or source.data == fitted_on
+    if train_fraction is None or not fitted or not own or train_fraction >= fitted - 1e-12:
+        return
+    raise ConfigError(f"--train-fraction {train_fraction:g} is below the {fitted:g} the model was "
+                      "fitted with: its test part would hold rows the model trained on",
+                      where="--train-fraction",
+                      fix=f"give {fitted:g} or more, or leave --train-fraction out")  # fmt: skip

@@ -201,3 +201,30 @@ def join_files(
         "inserted_rows": sum(int(p.metadata.get("inserted_rows", 0)) for p in parts),
     }
     return join_records(parts, metas, top)
+
+
+def check_test_like_training(test: MeasurementSeries, train: MeasurementSeries) -> None:
+    """Refuse separate test records that a model fitted on ``train`` would misread: another
+    unit for one of its channels or inputs (a test record in mm scored against a model in m),
+    or another sample rate (the windows would span another time). ``evaluate`` refuses the
+    same against a model file; this is the same check at fit time."""
+    for name in (*train.channels, *train.inputs):
+        if name not in (*test.channels, *test.inputs):
+            continue  # the reader already asked for the model's columns
+        here, there = test.unit(name), train.unit(name)
+        if normalise_unit(here) != normalise_unit(there):
+            raise DataError(
+                f"'{name}' is in {here or 'no declared unit'} in the test records ({{test:name}}) but in "
+                f"{there or 'no declared unit'} in the training records",
+                param="test", terms={"test": None},
+                fix="give both the same unit (convert the test records, or declare the units)",
+            )  # fmt: skip
+    if not np.isclose(test.sample_rate_hz, train.sample_rate_hz, rtol=0.01):
+        raise DataError(
+            f"the test records ({{test:name}}) are sampled at {test.sample_rate_hz:g} Hz but the "
+            f"training records at "
+            f"{train.sample_rate_hz:g} Hz",
+            param="test", terms={"test": None},
+            fix="resample the test records to the training rate (the model's windows span "
+            "samples, not seconds)",
+        )  # fmt: skip
