@@ -150,3 +150,11 @@ def test_reduced_physics_speeds_and_the_variance_length_curve(tmp_path):
     for length, cv, ideal in zip(got["length_m"], got["cv_pct"], got["ideal_cv_pct"], strict=True):
         if length <= 0.1:
             assert cv == pytest.approx(ideal, rel=0.1), length
+
+
+def test_a_simulated_sliver_too_short_to_judge_is_not_written(tmp_path: Path) -> None:
+    out = tmp_path / "y.csv"
+    out.write_text("precious\n")
+    said = _refused("sliver", "simulate", "--quiet", "--out", str(out), "--duration", "0.01")
+    assert "--duration" in said and "too short" in said
+    assert out.read_text() == "precious\n"

@@ -162,3 +162,14 @@ def test_a_line_in_two_adjacent_channels_is_listed_once() -> None:
 
 def test_the_export_has_the_count_of_its_fibres(export) -> None:
     assert export[1].mean() == pytest.approx(count_for(COARSE, N_FIBRES), rel=0.01)
+
+
+def test_a_length_unit_against_the_column_name_is_refused(
+    export: tuple[Path, np.ndarray],
+) -> None:
+    code, out = _invoke("sliver", "spectrogram", "--data", str(export[0]), "--length-unit", "mm")
+    assert code == 2 and "Traceback" not in out, out
+    assert "says its lengths are in m, but --length-unit says mm" in " ".join(out.split())
+    code, out = _invoke("sliver", "spectrogram", "--data", str(export[0]), "--length-unit", "m",
+                        "--json")  # fmt: skip
+    assert code == 0 and json.loads(out)["evenness"]["length_m"] > 39

@@ -21,7 +21,7 @@ from drafttwin.cli._options import (
     number,
 )
 from drafttwin.cli.typer_app import app, console, print_json, progress_bar
-from drafttwin.errors import ConfigError
+from drafttwin.errors import ConfigError, DataError
 
 sliver_app = typer.Typer(
     help="The sliver: drafting simulator, evenness, spectrogram, wavelength table, and the "
@@ -251,10 +251,15 @@ def simulate_cmd(
         sl = draft(sp, feed, zones, step_mm=step_mm, seed=seed, fibre_scale=fibre_scale,
                    real=real, leveller=levelling,
                    progress=lambda m: bar.advance(task, m))  # fmt: skip
+    try:  # judged before it is written: a record too short to judge is no result
+        ev = evenness(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale)
+        chimneys = spectrogram(sl.linear_density_ktex, sl.step_m, fibres,
+                               fibre_scale=fibre_scale).chimneys()  # fmt: skip
+    except DataError:
+        raise DataError(f"the drafted sliver is {sl.length_m:.3g} m ({sl.linear_density_ktex.size} "
+                        "points), too short for its evenness", where="--duration",
+                        fix="simulate a longer --duration (or a finer --step-mm)") from None  # fmt: skip
     sl.write(out)
-    ev = evenness(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale)
-    chimneys = spectrogram(sl.linear_density_ktex, sl.step_m, fibres,
-                           fibre_scale=fibre_scale).chimneys()  # fmt: skip
     if as_json:
         print_json({"out": str(out), "evenness": ev.to_dict(), "info": sl.info,
                     "chimneys": chimneys})  # fmt: skip

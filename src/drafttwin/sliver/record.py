@@ -180,6 +180,10 @@ def find_length_column(frame: pd.DataFrame, named: str | None, unit: str | None,
                             "or call it delivered_length_m")  # fmt: skip
         found = candidates[0]
     carried = _unit_of(found)
+    if unit is not None and carried and carried[0] != unit:
+        raise DataError(f"column '{found}' says its lengths are in {carried[0]}, but "
+                        f"--length-unit says {unit}", source=path, where="--length-unit",
+                        fix="leave --length-unit out (the column's name says the unit)")  # fmt: skip
     unit = unit or (carried[0] if carried else None)
     if unit is None:
         raise DataError(f"column '{found}' does not say its unit", source=path,
