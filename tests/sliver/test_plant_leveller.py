@@ -153,3 +153,31 @@ def test_sliver_level_refuses_what_it_cannot_read(tmp_path: Path, record: Path) 
     code, out = _invoke("generate", "--duration", "1", "--leveller", "1", "--out",
                         str(tmp_path / "x.csv"))  # fmt: skip
     assert code == 2 and "--sliver" in out
+
+
+def test_sliver_level_says_when_the_record_cannot_place_the_action_point(
+    tmp_path: Path, record: Path
+) -> None:
+    """A search too narrow (its optimum on the edge) and a stuck infeed sensor (a reading that
+    never varies) give no confident recommendation: not identifiable, and a note why."""
+    code, out = _invoke("sliver", "level", "--data", str(record), "--search", "5", "--json")
+    assert code == 0, out
+    narrow = json.loads(out)
+    assert not narrow["identifiable"]
+    assert any("edge of the searched range" in n for n in narrow["notes"])
+    code, text = _invoke("sliver", "level", "--data", str(record), "--search", "5")
+    assert "--search widens the searched range" in " ".join(text.split())
+    stuck = tmp_path / "stuck.csv"
+    readings = record.with_name("rec.sliver.csv").read_text().splitlines()
+    head = readings[0].split(",")
+    col = head.index("infeed_ktex")
+    rows = [line.split(",") for line in readings[1:]]
+    for row in rows:
+        row[col] = "33.0"
+    stuck.write_text("\n".join([readings[0], *(",".join(r) for r in rows)]) + "\n")
+    sidecar = json.loads(record.with_suffix(".json").read_text())["sliver"]["leveller"]
+    code, out = _invoke("sliver", "level", "--data", str(stuck), "--action-point",
+                        str(sidecar["action_point_mm"]), "--intensity", "1", "--json")  # fmt: skip
+    assert code == 0, out
+    flat = json.loads(out)
+    assert not flat["identifiable"] and any("does not vary" in n for n in flat["notes"])

@@ -416,9 +416,8 @@ def _sliver_variant(out: Path, quick: bool, seed: int, workers: int, as_json: bo
     console.print(f"healthy machines: {scores['healthy_chimneys']} chimneys in "
                   f"{scores['healthy_sliver_m']:.0f} m of sliver "
                   f"({scores['healthy_records_with_chimney']} of {scores['healthy_records']} "
-                  "records; at "
-                  + ", ".join(f"{c['wavelength_m'] * 100:.2f} cm ({c['cause']})"
-                              for c in scores["healthy_lines"])
+                  "records" + "".join(f"; at {c['wavelength_m'] * 100:.2f} cm ({c['cause']})"
+                                      for c in scores["healthy_lines"])
                   + f"); new against the record's own first {10:g} s: "
                   f"{scores['healthy_new_chimneys']}; the encoders' diagnosis leaves these kinds "
                   "not assessed (docs/faults.md)")  # fmt: skip

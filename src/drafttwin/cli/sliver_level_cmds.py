@@ -97,7 +97,9 @@ def _print(advice: Any, data: Path) -> None:
                   f"drive follows with {1000 * a.drive_time_constant_s:.0f} ms (CVs as the "
                   "delivery sensor reads them; the twin writes no setting)")  # fmt: skip
     if not a.identifiable:
-        console.print("the record does not say where the action point is: its feed varies "
-                      "too little (the interval is wider than 50 mm)")  # fmt: skip
+        edge = any("searched range" in note for note in a.notes)
+        why = ("its feed varies too little (the interval is wider than 50 mm)" if hi - lo > 50
+               else "--search widens the searched range" if edge else "why, below")  # fmt: skip
+        console.print(f"the record does not say where the action point is: {why}")
     for note in a.notes:
         console.print(note)

@@ -248,6 +248,7 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
     boot_gain = [_argmin(np.einsum("b,gbk->gk", c, linear))[1] for c in counts]
     g_lo, g_hi = np.clip(np.percentile(boot_gain, [2.5, 97.5]), 0.0, 2.0)
     new = _Setting(model, action, intensity, tau)
+    limits = _limits(record, model, grid, best, material)
     return LevellingAdvice(
         recommended_action_point_mm=action,
         action_point_interval_mm=(float(lo), float(hi)),
@@ -263,8 +264,8 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
         drive_time_constant_s=tau,
         metres_used=record.length_m,
         metres_needed=_metres_needed(exact, grid, rng, record.step_m, rows, model.start),
-        identifiable=bool(hi - lo <= 50.0),
-        notes=_notes(setting, tau, record, model),
+        identifiable=bool(hi - lo <= 50.0) and not limits,
+        notes=limits + _notes(setting, tau, record, model),
     )
 
 
@@ -429,6 +430,25 @@ def _metres_needed(sums: np.ndarray, grid: np.ndarray, rng: np.random.Generator,
         if ok[k:].all():
             return float((head + k * rows) * step_m)
     return None
+
+
+def _limits(record: LevellerRecord, model: _Model, grid: np.ndarray, best: float,
+            material: float) -> tuple[str, ...]:  # fmt: skip
+    """Why the record cannot place the action point, if it cannot: a reading that does not
+    vary, or an optimum (or the material's delay) on the edge of the searched range, where
+    the true one may lie beyond it."""
+    infeed = record.infeed_ktex[model.start :]
+    if float(np.std(infeed)) <= 1e-6 * abs(float(np.mean(infeed))):
+        return ("the infeed reading does not vary (a stuck infeed sensor?): nothing in the "
+                "record places the action point",)  # fmt: skip
+    span = f"{grid[0]:.0f}-{grid[-1]:.0f} mm"
+    if best < 0.5 or best > grid.size - 1.5:
+        return (f"the least CV lies on the edge of the searched range ({span}): the action "
+                "point may lie beyond it; search a wider range",)  # fmt: skip
+    if material <= grid[0] + 1.0 or material >= grid[-2] - 1.0:
+        return (f"the material's delay lies on the edge of the searched range ({span}): "
+                "search a wider range",)  # fmt: skip
+    return ()
 
 
 def _notes(
