@@ -158,3 +158,11 @@ def test_a_simulated_sliver_too_short_to_judge_is_not_written(tmp_path: Path) ->
     said = _refused("sliver", "simulate", "--quiet", "--out", str(out), "--duration", "0.01")
     assert "--duration" in said and "too short" in said
     assert out.read_text() == "precious\n"
+
+
+@pytest.mark.parametrize("rate", ["10", "50", "250"])
+def test_a_rate_the_sliver_cannot_be_made_at_is_refused_up_front(tmp_path: Path, rate: str) -> None:
+    said = _refused("generate", "--duration", "1", "--rate", rate, "--sliver", "--quiet",
+                    "--out", str(tmp_path / "g.csv"))  # fmt: skip
+    assert "--rate" in said and "cannot carry the sliver" in said and "give --rate 100" in said
+    assert not list(tmp_path.iterdir())

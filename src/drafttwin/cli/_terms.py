@@ -38,6 +38,7 @@ PARAM_FLAGS: dict[str, str] = {
     "tune_seed": "--tune-seed",
     "tune_trials": "--tune-trials",
     "out": "--out",
+    "rate_hz": "--rate",
 }
 """Parameter -> option. Every other hyperparameter is set with ``--set NAME=VALUE``."""
 

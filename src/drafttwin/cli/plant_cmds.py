@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, cast, get_args
 
@@ -107,6 +108,8 @@ def generate(
     plant = Plant(drive.load(), config=_plant_config(gear_runout))
     faults = check_faults([FaultSpec.parse(f) for f in fault or []], plant.train)
     settings = _sliver_settings(sliver, feed_fault, fibre_scale, out, leveller, leveller_fault)
+    if settings is not None:
+        check_sliver_rate(rate)
     # refuse a run that would never end (or write tens of GB) before anything starts
     check_samples(duration, rate, where="--duration, --rate")
     check_rk4_steps(duration, plant.train.spec.solver.dt_s, where="--duration")
@@ -173,6 +176,26 @@ def _refuse_foreign_beside(out: Path) -> None:
             raise ConfigError(f"{p.name} exists and is not a file of an earlier plant record "
                               f"{out.name}", source=p, where="--out",
                               fix="choose another --out, or move that file")  # fmt: skip
+
+
+def check_sliver_rate(rate_hz: float) -> None:
+    """Refuse a recording rate the sliver cannot be made at: the roller surfaces are simulated
+    at 2 kHz on the recording's own kernel blocks (bit for bit the same record), so the rate
+    must divide 2 kHz and fill each block of ``BLOCK_S`` with whole samples (checked after
+    the whole simulation otherwise, with the plant's internal words)."""
+    from drafttwin.mechanics.simulation import BLOCK_S
+    from drafttwin.plant.sliver_channel import SURFACE_RATE_HZ
+
+    m = SURFACE_RATE_HZ / rate_hz
+    if m == math.floor(m) and rate_hz * BLOCK_S == math.floor(rate_hz * BLOCK_S):
+        return
+    good = [r for r in (100, 200, 250, 400, 500, 1000, 2000)
+            if SURFACE_RATE_HZ % r == 0 and (r * BLOCK_S) % 1 == 0]  # fmt: skip
+    raise ConfigError(f"{rate_hz:g} Hz cannot carry the sliver: its roller surfaces are "
+                      f"simulated at {SURFACE_RATE_HZ:g} Hz on the recording's blocks of "
+                      f"{BLOCK_S:g} s, so the rate must divide {SURFACE_RATE_HZ:g} Hz in whole "
+                      "samples per block", where="--rate",
+                      fix="give --rate " + ", ".join(f"{r:g}" for r in good))  # fmt: skip
 
 
 def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: float,
