@@ -288,3 +288,28 @@ def test_bad_executor_option_is_refused_before_the_data_are_prepared(command, ca
     assert len(lines) <= 2 and "Traceback" not in res.output, lines
     assert not out.exists()  # nothing read, prepared or cached
     assert time.perf_counter() - t0 < 10.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("command", ["generate", "fit"])
+def test_a_plain_command_stops_on_sigterm_in_one_line_leaving_no_file(
+    tmp_path: Path, command: str
+) -> None:
+    """``generate`` (while it writes, too) and a fit without --tune: exit 143 within 5 s,
+    one line, no traceback, no output file and no temporary beside it."""
+    out = tmp_path / ("r.csv" if command == "generate" else "m.dtm")
+    if command == "generate":
+        args = ["generate", "--duration", "30", "--sliver", "--quiet", "--out", str(out)]
+    else:
+        args = ["fit", "--model", "parallel", "--epochs", "50", "--set", "patience=none",
+                "--quiet", "--out", str(out)]  # fmt: skip
+    proc = subprocess.Popen([sys.executable, "-m", "drafttwin", *args], cwd=tmp_path,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    time.sleep(6.0)  # past the imports, into the work
+    start = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    assert time.monotonic() - start < 5
+    assert proc.returncode == 128 + signal.SIGTERM and "Traceback" not in err, err
+    assert "interrupted by SIGTERM" in err and len(err.strip().splitlines()) == 1, err
+    assert [p.name for p in tmp_path.iterdir()] == [], list(tmp_path.iterdir())

@@ -96,14 +96,13 @@ class TuneOptions:
 
     @contextlib.contextmanager
     def stoppable(self) -> Iterator[None]:
-        """A search stops cleanly on SIGTERM / SIGINT (one line, exit 128 + signal); its
-        journal keeps the finished trials, so the same command resumes it."""
-        if not self.tune:
-            yield
-            return
+        """A fit stops cleanly on SIGTERM / SIGINT (one line, exit 128 + signal, no model
+        file); a search's journal keeps the finished trials, so the same command resumes it."""
         from drafttwin.execution.interrupt import stop_on_signals
 
-        with stop_on_signals("the same command resumes the search from its journal"):
+        note = ("the same command resumes the search from its journal" if self.tune
+                else "no model file was written")  # fmt: skip
+        with stop_on_signals(note):
             yield
 
     @contextlib.contextmanager

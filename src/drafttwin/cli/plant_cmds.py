@@ -119,12 +119,16 @@ def generate(
         chosen = Machine.draw(
             plant.train, plant.config, seed if machine_seed is None else machine_seed
         )
-    with progress_bar("plant (machine s)", duration, quiet=quiet) as bar:
-        task = bar.task_ids[0]
-        rec = plant.run(duration, rate, seed=seed, scenario=scenario, machine=chosen,
-                        progress=lambda s: bar.advance(task, s), faults=faults,
-                        sliver=settings)  # fmt: skip
-    paths = rec.write(out)
+    from drafttwin.execution.interrupt import stop_on_signals
+
+    # SIGTERM / SIGINT: one line, exit 128 + signal, no file half-written (temporaries removed)
+    with stop_on_signals("nothing was written"):
+        with progress_bar("plant (machine s)", duration, quiet=quiet) as bar:
+            task = bar.task_ids[0]
+            rec = plant.run(duration, rate, seed=seed, scenario=scenario, machine=chosen,
+                            progress=lambda s: bar.advance(task, s), faults=faults,
+                            sliver=settings)  # fmt: skip
+        paths = rec.write(out)
     table = Table(title=f"plant, scenario '{scenario}', seed {seed}, machine "
                   f"{chosen.source}: {duration:g} s at {rate:g} Hz")  # fmt: skip
     for col in ("roller", "mean rpm", "true std %", "missing", "spikes", "noise rms rpm"):
