@@ -359,3 +359,24 @@ def test_evaluate_never_scores_rows_the_model_trained_on(tmp_path: Path) -> None
     said = _cli(["evaluate", "--model", tmp_path / "m.dtm", "--train-fraction", "0.5"], code=2)
     assert "below the 0.7 the model was fitted with" in " ".join(said.split())
     _cli(["evaluate", "--model", tmp_path / "m.dtm", "--train-fraction", "0.8"])
+
+
+def test_nothing_left_to_score_or_predict_is_refused_not_printed_as_nan(tmp_path: Path) -> None:
+    frame, sim = _record(300, np.ones(300), 5)
+    data, physics = tmp_path / "d.csv", tmp_path / "sim.csv"
+    frame.to_csv(data, index=False)
+    sim.to_csv(physics, index=False)
+    plain = ["--outputs", "y", "--inputs", "u", "--time-column", "t", "--epochs", "1", "--quiet"]
+    said = _cli(["fit", "--model", "parallel", "--data", data, *plain, "--task", "simulation",
+                 "--init-samples", "400", "--mechanistic", physics, "--out", tmp_path / "a.dtm"],
+                code=2)  # fmt: skip
+    assert "longest training record has 300 rows: no free run would start" in said
+    assert not (tmp_path / "a.dtm").exists()
+    _cli(["fit", "--model", "gru", "--data", data, *plain, "--out", tmp_path / "g.dtm"])
+    said = _cli(["evaluate", "--model", tmp_path / "g.dtm", "--score-from", "5000"], code=2)
+    assert "no test row is left to score" in " ".join(said.split())
+    short = tmp_path / "short.csv"
+    frame.iloc[:3].to_csv(short, index=False)
+    said = _cli(["predict", "--model", tmp_path / "g.dtm", "--data", short, "--out",
+                 tmp_path / "p.csv"], code=2)  # fmt: skip
+    assert "no prediction" in " ".join(said.split()) and not (tmp_path / "p.csv").exists()

@@ -76,6 +76,7 @@ def run_fit(
     )
     if request.test is not None:
         check_test_like_training(request.test, data)
+    _free_run_starts(model, data)
     tuning = None
     if request.tune:
         from drafttwin.application.tuning import tune
@@ -103,6 +104,18 @@ def _stretched_notes(report: dict[str, Any], data: MeasurementSeries) -> list[No
                  "one-sample spike rule leaves (a burst of wrong samples?), sets the range the "
                  "networks scale it by, and they learn it poorly; correct or cut that sample")
             for name, found in report.get("range_stretched", {}).items()]  # fmt: skip
+
+
+def _free_run_starts(model: BaseModel, data: MeasurementSeries) -> None:
+    """Refuse a simulation whose measured start is as long as every training record: its
+    free run would never start, and nothing it learnt could be scored."""
+    init = model.task.init_samples if model.task.simulation else None
+    longest = max(b - a for a, b in data.record_bounds())
+    if init is not None and init >= longest:
+        raise ConfigError(f"{{init_samples}} measured rows start each free run, but the longest "
+                          f"training record has {longest} rows: no free run would start",
+                          terms={"init_samples": init},
+                          fix=f"give {{init_samples:name}} fewer than {longest} rows")  # fmt: skip
 
 
 FEW_FOLDS = 2

@@ -306,6 +306,23 @@ def evaluate(
     return score(part, pred, model, skip_rows=skip_rows, free_run_from=free_run_from)
 
 
+def _nothing_to_score(test: MeasurementSeries, model: BaseModel, skip_rows: int) -> None:
+    """Refuse a score of no row: a table of NaN would read as a result."""
+    longest = max(b - a for a, b in test.record_bounds())
+    init = model._init_rows() if model.task.simulation else 0
+    terms: dict[str, object] = {"skip_rows": skip_rows}
+    used = []
+    if init:
+        terms["init_samples"] = init
+        used.append("{init_samples} measured rows start the free run")
+    if skip_rows:
+        used.append("{skip_rows} rows are left unscored")
+    why = " and ".join(used) or "no measured value is left in them"
+    raise DataError(f"no test row is left to score: the longest test record has {longest} rows, "
+                    f"and {why}", terms=terms,
+                    fix="score longer test records, or start the scoring earlier")  # fmt: skip
+
+
 def score(
     part: Split, pred: np.ndarray, model: BaseModel, *, skip_rows: int = 0,
     free_run_from: str = "test",
@@ -325,6 +342,8 @@ def score(
         target[measured[first:]] = np.nan
     for a, b in test.record_bounds():
         target[a : min(b, a + skip_rows)] = np.nan
+    if target.size and not np.isfinite(target).any():
+        _nothing_to_score(test, model, skip_rows)
     units = {c: test.unit(c) for c in test.channels}
     truth = test.truth
     metrics = channel_metrics(target, pred, channels=test.channels, units=units,
