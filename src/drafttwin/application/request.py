@@ -171,9 +171,10 @@ def build_model(request: FitRequest) -> tuple[BaseModel, list[Note]]:
     clash = sorted(set(settings) & set(OWN_PARAMETERS))
     if clash:
         raise ConfigError(
-            f"{', '.join(clash)} are set as hyperparameters and have their own parameters",
+            f"{', '.join(clash)} cannot be given among the hyperparameters: "
+            + ("it is a parameter" if len(clash) == 1 else "each is a parameter") + " of its own",
             terms={k: settings[k] for k in clash},
-            fix="set " + ", ".join(f"{{{k}:name}}" for k in clash) + " instead",
+            fix="give " + ", ".join(f"{{{k}:name}} {settings[k]}" for k in clash) + " instead",
         )  # fmt: skip
     profile = get_profile(request.profile or DEFAULT_PROFILE)
     if trains and options["task"] == "simulation" and request.init_samples is not None:

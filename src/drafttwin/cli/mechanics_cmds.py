@@ -124,7 +124,7 @@ StepOpt = Annotated[float | None, number("--dt", "RK4 step, s (default from conf
 SettleOpt = Annotated[float | None, number("--settle", "Settling time before recording, s "
                       "(default from config).")]  # fmt: skip
 SetpointsOpt = Annotated[Path | None, file_in(
-    "--setpoints", "Follow the input columns of a recorded file (those the train's [[input]] "
+    "--setpoints", "Follow the input columns of a recorded file (those the train's \\[\\[input]] "
     "tables map, e.g. supply_hz or u) on its time grid, record by record, and write the output "
     "channels: a simulator output file for --mechanistic. --duration and --rate then come from "
     "the file.")]  # fmt: skip

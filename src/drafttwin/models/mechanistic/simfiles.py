@@ -31,6 +31,9 @@ def read_table(path: Path) -> pd.DataFrame:
             return pd.read_csv(path)
     except (ValueError, OSError) as exc:
         raise DataError(f"cannot read the file ({exc})", source=path) from exc
+    if suffix == ".toml":  # a drive-train file given as a simulator output
+        raise DataError("a drive-train file, not a simulator output", source=path,
+                        fix=f"to simulate it, give config:{path}")  # fmt: skip
     raise DataError(
         f"unsupported file type {suffix or '(none)'}",
         source=path,
