@@ -53,8 +53,12 @@ def test_cv_against_the_action_point_is_v_shaped():
 def test_the_leveller_refuses_settings_out_of_range():
     from drafttwin.errors import ConfigError
 
-    with pytest.raises(ConfigError, match="--leveller"):
+    with pytest.raises(ConfigError, match="--leveller") as err:
         Autoleveller(intensity=-1.0)
+    assert str(err.value) == "--leveller: autoleveller intensity -1; fix: intensity 0-2"
+    with pytest.raises(ConfigError) as err:  # only the field out of range, in words
+        Autoleveller.parse("1", ["infeed-drift=1e9"])
+    assert "drift 1e+09 % per minute" in str(err.value) and "{" not in str(err.value)
     assert np.isfinite(Autoleveller().sensor_mm)
 
 

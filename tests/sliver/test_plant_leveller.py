@@ -181,3 +181,10 @@ def test_sliver_level_says_when_the_record_cannot_place_the_action_point(
     assert code == 0, out
     flat = json.loads(out)
     assert not flat["identifiable"] and any("does not vary" in n for n in flat["notes"])
+
+
+def test_sliver_level_names_the_option_a_slip_came_from(record: Path) -> None:
+    code, out = _invoke("sliver", "level", "--data", str(record), "--reference-ktex", "5.5")
+    assert code == 2 and "--reference-ktex" in out and "all slivers together" in out
+    code, out = _invoke("sliver", "level", "--data", str(record), "--max-length", "1")
+    assert code == 2 and "--max-length" in out and "Traceback" not in out

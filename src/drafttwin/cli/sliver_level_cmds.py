@@ -11,7 +11,7 @@ from drafttwin.cli._groups import with_group
 from drafttwin.cli._options import JsonOpt, file_in, number
 from drafttwin.cli.sliver_cmds import FibreOptions, sliver_app
 from drafttwin.cli.typer_app import console, print_json
-from drafttwin.errors import ConfigError
+from drafttwin.errors import ConfigError, DataError
 
 LevelRecordOpt = Annotated[Path, file_in("--data", "A levelling drawframe's record: a plant "
                            "record made with generate --sliver (or its .sliver file), or any "
@@ -20,7 +20,7 @@ LevelRecordOpt = Annotated[Path, file_in("--data", "A levelling drawframe's reco
                            "(the store's length clock).")]  # fmt: skip
 ActionPointOpt = Annotated[float | None, number("--action-point", "The leveller's current action point setting, mm of fed sliver from the scanning rollers (default: the record's sidecar).")]  # fmt: skip
 IntensityOpt = Annotated[float | None, number("--intensity", "The leveller's current intensity (default: the record's sidecar; 0: no leveller).")]  # fmt: skip
-ReferenceOpt = Annotated[float | None, number("--reference-ktex", "The fed count the leveller levels to, ktex (default: the sidecar's feed, else the infeed readings' median).")]  # fmt: skip
+ReferenceOpt = Annotated[float | None, number("--reference-ktex", "The fed count the leveller levels to, all slivers together, ktex (default: the sidecar's feed, else the infeed readings' median; refused beyond 0.5-2 x that median).")]  # fmt: skip
 MaxLengthOpt = Annotated[float | None, number("--max-length", "Analyse at most this many metres of delivered sliver from the record's start.")]  # fmt: skip
 SearchOpt = Annotated[float, number("--search", "Action points searched either side of the current setting, mm.")]  # fmt: skip
 
@@ -63,15 +63,39 @@ def level_cmd(
                       intensity=setting.intensity if intensity is None else intensity,
                       reference_ktex=setting.reference_ktex if reference_ktex is None
                       else reference_ktex)  # fmt: skip
+    if reference_ktex is not None:
+        _check_reference(reference_ktex, got.record.infeed_ktex)
     fibres = resolve_fibres(fibre_options.given(), got.staple)
     record = got.record if max_length is None else got.record.head(max_length)
-    advice = find_action_point(record, setting, fibres.staple, got.delivery, search_mm=search)
+    try:
+        advice = find_action_point(record, setting, fibres.staple, got.delivery,
+                                   search_mm=search)  # fmt: skip
+    except DataError as exc:
+        if max_length is None or record.length_m >= got.record.length_m:
+            raise
+        raise DataError(exc.problem, source=data, where="--max-length",
+                        fix=f"give a larger --max-length (the record holds "
+                        f"{got.record.length_m:.0f} m)") from None  # fmt: skip
     if as_json:
         print_json({**advice.to_dict(), "fibres": fibres.to_dict(advice.current.count_ktex)})
         return
     _print(advice, data)
     if fibres.source == "assumed":
         console.print(fibres.note())
+
+
+def _check_reference(reference_ktex: float, infeed_ktex: Any) -> None:
+    """Refuse a reference count far from what the infeed sensor reads (the fed count of all
+    slivers together: one sliver's count is a common slip)."""
+    import numpy as np
+
+    median = float(np.nanmedian(infeed_ktex))
+    if not 0.5 * median <= reference_ktex <= 2.0 * median:
+        raise ConfigError(f"{reference_ktex:g} ktex, but the infeed sensor reads a median of "
+                          f"{median:.4g} ktex (the fed count of all slivers together)",
+                          where="--reference-ktex",
+                          fix=f"give the fed count, about {median:.4g} ktex, or leave "
+                          "--reference-ktex out")  # fmt: skip
 
 
 def _print(advice: Any, data: Path) -> None:

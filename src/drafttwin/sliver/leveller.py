@@ -66,13 +66,15 @@ class InfeedSensor:
     drift_pct_per_min: float = 0.0
 
     def __post_init__(self) -> None:
-        ok = (0 < self.averaging_mm <= 1000 and 0 <= self.noise < 0.5
-              and 0.1 <= self.pitch_mm <= 100 and 0 <= self.scan_ahead_mm <= 5000
-              and abs(self.drift_pct_per_min) <= 10)  # fmt: skip
-        if not ok:
-            raise ConfigError(f"infeed sensor {asdict(self)}", where="--leveller-fault",
-                              fix="averaging 0-1000 mm, noise below 0.5, pitch 0.1-100 mm, "
-                              "scan ahead 0-5000 mm, drift within +-10 % per minute")  # fmt: skip
+        _refuse_out_of_range("infeed sensor", "--leveller-fault", (
+            ("averaging", self.averaging_mm, "mm", 0 < self.averaging_mm <= 1000, "0-1000 mm"),
+            ("noise", self.noise, "", 0 <= self.noise < 0.5, "below 0.5"),
+            ("pitch", self.pitch_mm, "mm", 0.1 <= self.pitch_mm <= 100, "0.1-100 mm"),
+            ("scan ahead", self.scan_ahead_mm, "mm", 0 <= self.scan_ahead_mm <= 5000,
+             "0-5000 mm"),
+            ("drift", self.drift_pct_per_min, "% per minute", abs(self.drift_pct_per_min) <= 10,
+             "within +-10 % per minute"),
+        ))  # fmt: skip
 
     def readings(self, relative: np.ndarray, p0_mm: float, step_mm: float,
                  staple: StapleDiagram, rng: np.random.Generator,
@@ -178,12 +180,12 @@ class Autoleveller:
 
     def __post_init__(self) -> None:
         point = self.action_point_mm
-        if not (0 <= self.intensity <= 2 and abs(self.action_offset_mm) <= 5000
-                and (point is None or 0 <= point <= 10000)):  # fmt: skip
-            raise ConfigError(f"autoleveller intensity {self.intensity}, action offset "
-                              f"{self.action_offset_mm} mm, action point {point} mm",
-                              where="--leveller", fix="intensity 0-2, action offset within "
-                              "+-5000 mm, action point 0-10000 mm")  # fmt: skip
+        _refuse_out_of_range("autoleveller", "--leveller", (
+            ("intensity", self.intensity, "", 0 <= self.intensity <= 2, "0-2"),
+            ("action offset", self.action_offset_mm, "mm", abs(self.action_offset_mm) <= 5000,
+             "within +-5000 mm"),
+            ("action point", point, "mm", point is None or 0 <= point <= 10000, "0-10000 mm"),
+        ))  # fmt: skip
 
     @classmethod
     def parse(cls, text: str, faults: Sequence[str] = ()) -> Autoleveller:
@@ -285,3 +287,13 @@ def mass_kernel(staple: StapleDiagram, step_mm: float) -> np.ndarray:
     inside = np.clip((hi[None, :] - u[:, None]) / (hi - lo)[None, :], 0.0, 1.0)
     survival = inside @ staple.weights
     return np.asarray(survival / survival.sum(), dtype=np.float64)
+
+
+def _refuse_out_of_range(what: str, where: str,
+                         fields: Sequence[tuple[str, object, str, bool, str]]) -> None:  # fmt: skip
+    """One error naming only the fields out of their range (name, value, unit, ok, range)."""
+    bad = [f for f in fields if not f[3]]
+    if bad:
+        raise ConfigError(f"{what} " + ", ".join(f"{n} {v:g}{' ' + u if u else ''}"
+                                                 for n, v, u, _, _ in bad),
+                          where=where, fix="; ".join(f"{n} {r}" for n, _, _, _, r in bad))  # fmt: skip
