@@ -166,3 +166,16 @@ def test_a_rate_the_sliver_cannot_be_made_at_is_refused_up_front(tmp_path: Path,
                     "--out", str(tmp_path / "g.csv"))  # fmt: skip
     assert "--rate" in said and "cannot carry the sliver" in said and "give --rate 100" in said
     assert not list(tmp_path.iterdir())
+
+
+def test_a_speed_file_that_cannot_be_read_names_speeds_not_an_option_the_command_lacks(
+    tmp_path: Path,
+) -> None:
+    table = tmp_path / "table.csv"
+    table.write_text("length_m,linear_density_ktex\n"
+                     + "".join(f"{(k + 0.5) * 1e-3:.4f},{5 + 0.01 * (k % 7):.3f}\n"
+                               for k in range(200)))  # fmt: skip
+    for args in (["sliver", "simulate", "--out", str(tmp_path / "s.csv")],
+                 ["sliver", "diagnose", "--data", str(table)]):  # fmt: skip
+        said = _refused(*args, "--speeds", str(table))
+        assert "--speeds" in said and "--columns" not in said, said

@@ -173,3 +173,22 @@ def test_a_length_unit_against_the_column_name_is_refused(
     code, out = _invoke("sliver", "spectrogram", "--data", str(export[0]), "--length-unit", "m",
                         "--json")  # fmt: skip
     assert code == 0 and json.loads(out)["evenness"]["length_m"] > 39
+
+
+def test_a_tester_export_that_is_not_read_as_numbers_says_why(tmp_path: Path) -> None:
+    s = (np.arange(200) + 0.5) * 1e-3
+    rho = 5.0 + 0.01 * np.sin(s * 50)
+    comma = tmp_path / "comma.csv"
+    comma.write_text("length_m;linear_density_ktex\n"
+                     + "".join(f"{a:.4f};{b:.5f}\n".replace(".", ",") for a, b in zip(s, rho, strict=True)))  # fmt: skip
+    units = tmp_path / "units.csv"
+    units.write_text("length_m,linear_density_ktex\nm,ktex\n"
+                     + "".join(f"{a:.4f},{b:.5f}\n" for a, b in zip(s, rho, strict=True)))  # fmt: skip
+    deviation = tmp_path / "deviation.csv"
+    deviation.write_text("length_m,dev_pct\n"
+                         + "".join(f"{a:.4f},{(b - 5) * 20:.4f}\n" for a, b in zip(s, rho, strict=True)))  # fmt: skip
+    for path, words in ((comma, "a decimal comma"), (units, "a units row below the header"),
+                        (deviation, "is no density")):  # fmt: skip
+        code, out = _invoke("sliver", "spectrogram", "--data", str(path))
+        assert code == 2 and "Traceback" not in out, out
+        assert words in " ".join(out.split()), out

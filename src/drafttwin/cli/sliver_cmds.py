@@ -124,6 +124,22 @@ def causes_table(causes: list[Any]) -> Table:
     return table
 
 
+def read_speed_file(path: Path) -> Any:
+    """A roller speed file of ``--speeds``, through the data layer's checks; its errors name
+    ``--speeds`` (these commands map no columns: the file must name the rollers)."""
+    from drafttwin.data.io import read_measurements
+
+    try:
+        return read_measurements(path)
+    except DataError as exc:
+        fix = exc.fix
+        if fix is None or "--columns" in fix:
+            fix = ("a speed file is a plant record: a time column and the rollers front, "
+                   "second, third, back in rpm (generate writes one)")  # fmt: skip
+        raise DataError(exc.problem, source=exc.source or path, where="--speeds",
+                        fix=fix) from None  # fmt: skip
+
+
 def _speeds(speeds: str, truth: bool, duration: float, train: Any, detail: bool,
             quiet: bool) -> Any:  # fmt: skip
     """The rollers' surface speeds from ``--speeds``: the physics, or a speed file (measured,
@@ -137,10 +153,8 @@ def _speeds(speeds: str, truth: bool, duration: float, train: Any, detail: bool,
         with progress_bar("physics at 2 kHz (machine s)", duration, quiet=quiet) as bar:
             task = bar.task_ids[0]
             return physics_speeds(train, duration, progress=lambda s: bar.advance(task, s))
-    from drafttwin.data.io import read_measurements
-
     path = Path(speeds)
-    series = read_measurements(path)
+    series = read_speed_file(path)
     values = series.values
     if truth:
         from drafttwin.plant.emulator import attach_truth

@@ -266,9 +266,9 @@ def diagnose_cmd(
 
 
 def _with_speeds(dx: Any, record: Any, speeds: Path, fibres: Any, zones: Any) -> Any:
-    from drafttwin.data.io import read_measurements
+    from drafttwin.cli.sliver_cmds import read_speed_file
     from drafttwin.sliver.encoders import with_encoders
 
-    series = read_measurements(speeds)
+    series = read_speed_file(speeds)
     rpm = {r: series.values[:, series.channels.index(r)] for r in series.channels}
     return with_encoders(dx, record, series.time_s, rpm, fibres, zones)

@@ -128,9 +128,10 @@ def read_sliver(path: str | Path, column: str | None = None, option: str = "--da
     rho = pd.to_numeric(frame[rho_col], errors="coerce").to_numpy(np.float64)
     bad = np.flatnonzero(~np.isfinite(s) | ~np.isfinite(rho) | (rho <= 0))
     if bad.size:
-        raise DataError(f"row {int(bad[0]) + 2}: length or density not a finite number > 0",
-                        source=path, where=f"{option}, column {rho_col}",
-                        fix="a sliver record has no gaps; cut it at the gap")  # fmt: skip
+        row = int(bad[0])
+        what, fix = _bad_value(frame[length_col].iloc[row], frame[rho_col].iloc[row], row)
+        raise DataError(f"row {row + 2}: {what}", source=path,
+                        where=f"{option}, column {rho_col}", fix=fix)  # fmt: skip
     if s.size < 100:
         raise DataError(f"{s.size} rows: too short for evenness", source=path, where=option,
                         fix="give at least 100 points")  # fmt: skip
@@ -158,6 +159,37 @@ def _unit_of(name: str) -> tuple[str, str] | None:
             if low.endswith(suffix):
                 return unit, low[: -len(suffix)].strip()
     return None
+
+
+def _bad_value(length: object, density: object, row: int) -> tuple[str, str]:
+    """What is wrong with a row's length or density cell, and the fix, in a tester's terms."""
+    cells = [str(c).strip() for c in (length, density)]
+    if any("," in c and c.replace(",", "").replace("-", "").isdigit() for c in cells):
+        return (
+            f"'{cells[0]}', '{cells[1]}': a decimal comma",
+            "export with a decimal point (or convert the file)",
+        )
+    numbers = pd.to_numeric(pd.Series(cells), errors="coerce")
+    if row == 0 and numbers.isna().all():
+        return (
+            f"'{cells[0]}', '{cells[1]}' is not a number: a units row below the header?",
+            "delete that row (units go in the column name, e.g. length_m)",
+        )
+    if numbers.isna().any():
+        return (
+            f"'{cells[0]}', '{cells[1]}': a missing or non-numeric value",
+            "a sliver record has no gaps; cut it at the gap",
+        )
+    if float(numbers.iloc[1]) <= 0:
+        return (
+            f"density {cells[1]} is not above 0",
+            "give the mass per length (a tester's deviation in % is no density; "
+            "--column names the density column)",
+        )
+    return (
+        f"'{cells[0]}', '{cells[1]}': length or density not a finite number",
+        "a sliver record has no gaps; cut it at the gap",
+    )
 
 
 def find_length_column(frame: pd.DataFrame, named: str | None, unit: str | None, path: Path,
