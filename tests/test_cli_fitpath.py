@@ -99,7 +99,7 @@ def test_hyperparameter_errors_name_cli_options(folder):
     text = _run([*args, "--set", "window=8,patiense=3"], code=2)
     assert "--set patiense" in text and "valid hyperparameters:" in text and "patience" in text
     text = _run([*args, "--set", "init_samples=8"], code=2)
-    assert "set --init-samples instead" in text
+    assert "give --init-samples 8 instead" in " ".join(text.split())
     pred = ["evaluate", "--model", folder / "m2.dtm", "--data", folder / "train.csv",
             "--time-column", "t", "--free-run-from", "begin"]  # fmt: skip
     assert "--free-run-from" in _run(pred, code=2)
