@@ -164,3 +164,9 @@ def test_metrics_table_names_units_for_any_channels():
     two = np.column_stack([y + 2, y + 5])
     mixed = render(channel_metrics(two, two, channels=["a", "b"], units={"a": "m", "b": "V"}))
     assert "unit" in mixed and " V " in mixed and "RMSE m" not in mixed
+
+
+def test_fit_json_names_the_task_with_or_without_test_records(data_file, tmp_path):
+    out = json.loads(_ok(["fit", "--model", "persistence", "--data", str(data_file), "--out",
+                          str(tmp_path / "p.dtm"), "--json"]).stdout)  # fmt: skip
+    assert out["task"] == "prediction" and out["model"] == "persistence"

@@ -192,8 +192,9 @@ def fit(
         report(result.evaluation, as_json)
         return
     if as_json:
-        print_json({"model": estimator.name, "selection": estimator.selection_,
-                    "split": part.summary, "tuning": result.tuning})  # fmt: skip
+        print_json({"model": estimator.name, "task": estimator.task.kind,
+                    "selection": estimator.selection_, "split": part.summary,
+                    "tuning": result.tuning})  # fmt: skip
         return
     for line in selection_lines(estimator.selection_):
         console.print(escape(line), highlight=False, soft_wrap=True)
