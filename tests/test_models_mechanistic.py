@@ -82,7 +82,7 @@ def test_file_source_problems_are_named(series, tmp_path: Path) -> None:
     bad = tmp_path / "bad.csv"
     rows = "".join(f"{0.01 * k:.2f},1,{'x' if k == 5 else 2},3,4\n" for k in range(300))
     bad.write_text("time,front,second,third,back\n" + rows)
-    with pytest.raises(DataError, match=r"row 7 \(data row 5\), column 'second'"):
+    with pytest.raises(DataError, match=r"row 6 \(line 7\), column 'second'"):
         MechanisticModel(bad).predict_values(series)
     back = tmp_path / "back.csv"
     back.write_text("time,front,second,third,back\n0,1,2,3,4\n0,1,2,3,4\n")

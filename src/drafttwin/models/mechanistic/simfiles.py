@@ -90,10 +90,12 @@ def _refuse_non_finite(values: np.ndarray, raw: pd.Series, column: str, source: 
     bad = ~np.isfinite(values)
     if bad.any():
         row = int(np.argmax(bad))
+        cell = raw.iloc[row]
+        text = isinstance(cell, str) and cell.strip() != ""
         raise DataError(
-            f"non-numeric or missing value {raw.iloc[row]!r}",
+            f"non-numeric value '{cell}'" if text else "a missing or non-numeric value",
             source=source,
-            where=f"row {row + 2} (data row {row}), column {column!r}",
+            where=f"row {row + 1} (line {row + 2}), column {column!r}",
             fix="the simulator output must be complete numbers (time in seconds, values in "
             "the channels' units)",
         )
