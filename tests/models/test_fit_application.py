@@ -380,3 +380,17 @@ def test_nothing_left_to_score_or_predict_is_refused_not_printed_as_nan(tmp_path
     said = _cli(["predict", "--model", tmp_path / "g.dtm", "--data", short, "--out",
                  tmp_path / "p.csv"], code=2)  # fmt: skip
     assert "no prediction" in " ".join(said.split()) and not (tmp_path / "p.csv").exists()
+
+
+def test_evaluate_refuses_a_free_run_start_that_separate_test_records_ignore(
+    tmp_path: Path,
+) -> None:
+    frame, _ = _record(300, np.ones(300), 6)
+    data = tmp_path / "d.csv"
+    frame.to_csv(data, index=False)
+    plain = ["--outputs", "y", "--inputs", "u", "--time-column", "t"]
+    _cli(["fit", "--model", "gru", "--data", data, *plain, "--epochs", "1", "--quiet", "--out",
+          tmp_path / "m.dtm"])  # fmt: skip
+    said = _cli(["evaluate", "--model", tmp_path / "m.dtm", "--test-data", data, "--free-run-from",
+                 "start"], code=2)  # fmt: skip
+    assert "--free-run-from" in said and "--test-data is given" in " ".join(said.split())

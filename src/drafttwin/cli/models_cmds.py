@@ -282,6 +282,12 @@ def evaluate(
     from drafttwin.evaluation import protocol
 
     source.refuse_fraction_with_test_data(train_fraction)
+    if free_run_from != "test" and source.test_data is not None:
+        raise ConfigError(f"--free-run-from {free_run_from} places the free run's start in a "
+                          "chronological split, but --test-data is given",
+                          where="--free-run-from",
+                          fix="leave --free-run-from out: each test record runs free from its "
+                          "own first --init-samples rows")  # fmt: skip
     if free_run_from not in protocol.FREE_RUN_FROM:
         raise ConfigError("unknown free-run start {free_run_from}",
                           terms={"free_run_from": free_run_from},
