@@ -179,3 +179,15 @@ def test_a_speed_file_that_cannot_be_read_names_speeds_not_an_option_the_command
                  ["sliver", "diagnose", "--data", str(table)]):  # fmt: skip
         said = _refused(*args, "--speeds", str(table))
         assert "--speeds" in said and "--columns" not in said, said
+
+
+def test_options_that_would_be_ignored_are_refused(tmp_path: Path) -> None:
+    said = _refused("sliver", "simulate", "--out", str(tmp_path / "s.csv"), "--truth",
+                    "--duration", "1")  # fmt: skip
+    assert "--truth" in said and "--speeds is physics" in said
+    table = tmp_path / "spec.csv"
+    table.write_text("wavelength_cm,amplitude_pct\n1.0,0.1\n2.0,0.1\n")
+    said = _refused("sliver", "diagnose", "--spectrogram", str(table), "--speeds",
+                    str(tmp_path / "any.csv"))  # fmt: skip
+    assert "--speeds" in said and "spectrogram table" in said
+    assert not list(p for p in tmp_path.iterdir() if p.name != "spec.csv")

@@ -149,6 +149,11 @@ def _speeds(speeds: str, truth: bool, duration: float, train: Any, detail: bool,
     from drafttwin.sliver.speeds import ROLLER_ORDER, SurfaceSpeeds
 
     roller_diameters_mm(train)  # a train without the four rollers: refused before any work
+    if truth and speeds == "physics":
+        raise ConfigError("--truth takes the plant's true speeds beside a speed file, and "
+                          "--speeds is physics", where="--truth",
+                          fix="give --speeds FILE (a plant record) with --truth, or leave "
+                          "--truth out")  # fmt: skip
     if speeds == "physics":
         with progress_bar("physics at 2 kHz (machine s)", duration, quiet=quiet) as bar:
             task = bar.task_ids[0]

@@ -216,6 +216,11 @@ def diagnose_cmd(
     if report is not None and report.suffix.lower() not in (".html", ".htm"):
         raise ConfigError(f"'{report.name}' is not an .html file", where="--report",
                           fix="name the page *.html")  # fmt: skip
+    if speeds is not None and spectrogram_file is not None:
+        raise ConfigError("--speeds places a chimney by the encoders along a sliver record, "
+                          "which a tester's spectrogram table is not", where="--speeds",
+                          fix="give the sliver record (--data) with --speeds, or leave --speeds "
+                          "out")  # fmt: skip
     zones = zones_from(gauges)
     train = drive.load()
     record: Any
