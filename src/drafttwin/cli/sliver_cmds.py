@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
@@ -105,8 +106,12 @@ def evenness_table(ev: Any, title: str) -> Table:
     table.add_row("count", f"{ev.count_ktex:.4f} ktex")
     table.add_row("CV", f"{ev.cv_pct:.3f} %")
     table.add_row("U", f"{ev.u_pct:.3f} %")
+    from drafttwin.sliver.irregularity import CUT_LENGTHS_M
+
     for k, v in ev.cv_cut_pct.items():
-        table.add_row(f"CV at {k}", f"{v:.3f} %" if v == v else "record too short")
+        why = ("grid coarser than the cut" if CUT_LENGTHS_M.get(k, math.inf) < ev.step_m / 2
+               else "record too short")  # fmt: skip
+        table.add_row(f"CV at {k}", f"{v:.3f} %" if v == v else why)
     if ev.martindale_cv_pct is not None:
         table.add_row("Martindale limit", f"{ev.martindale_cv_pct:.3f} %")
         table.add_row("index of irregularity", f"{ev.index_of_irregularity:.2f}")
