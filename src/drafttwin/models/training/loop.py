@@ -302,7 +302,9 @@ def train_network(
     if n < 2:
         raise DataError(
             f"only {n} usable training window(s) for {stage}",
-            fix="use a longer training part, a shorter window or fewer cross-fitting folds",
+            fix="use a longer training part ({data:name}, {train_fraction:name}), or shorten "
+            "{window:name}",
+            terms={"data": None, "train_fraction": None, "window": None},
         )
     device = resolve_device(config.device)
     n_train, n_val = split_sizes(n, config.val_fraction)
