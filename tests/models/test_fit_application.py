@@ -349,13 +349,18 @@ def test_a_test_record_in_another_rate_or_unit_is_refused_as_evaluate_refuses_it
     assert not (tmp_path / "m.dtm").exists()
 
 
-def test_evaluate_never_scores_rows_the_model_trained_on(tmp_path: Path) -> None:
-    frame, _ = _record(300, np.ones(300), 4)
+def _small_gru(tmp_path: Path, seed: int) -> Path:
+    """A 300-row record and a one-epoch GRU fitted on it (its file); returns the record."""
+    frame, _ = _record(300, np.ones(300), seed)
     data = tmp_path / "d.csv"
     frame.to_csv(data, index=False)
-    plain = ["--outputs", "y", "--inputs", "u", "--time-column", "t"]
-    _cli(["fit", "--model", "gru", "--data", data, *plain, "--epochs", "1", "--quiet", "--out",
-          tmp_path / "m.dtm"])  # fmt: skip
+    _cli(["fit", "--model", "gru", "--data", data, "--outputs", "y", "--inputs", "u",
+          "--time-column", "t", "--epochs", "1", "--quiet", "--out", tmp_path / "m.dtm"])  # fmt: skip
+    return data
+
+
+def test_evaluate_never_scores_rows_the_model_trained_on(tmp_path: Path) -> None:
+    _small_gru(tmp_path, 4)
     said = _cli(["evaluate", "--model", tmp_path / "m.dtm", "--train-fraction", "0.5"], code=2)
     assert "below the 0.7 the model was fitted with" in " ".join(said.split())
     _cli(["evaluate", "--model", tmp_path / "m.dtm", "--train-fraction", "0.8"])
@@ -385,12 +390,7 @@ def test_nothing_left_to_score_or_predict_is_refused_not_printed_as_nan(tmp_path
 def test_evaluate_refuses_a_free_run_start_that_separate_test_records_ignore(
     tmp_path: Path,
 ) -> None:
-    frame, _ = _record(300, np.ones(300), 6)
-    data = tmp_path / "d.csv"
-    frame.to_csv(data, index=False)
-    plain = ["--outputs", "y", "--inputs", "u", "--time-column", "t"]
-    _cli(["fit", "--model", "gru", "--data", data, *plain, "--epochs", "1", "--quiet", "--out",
-          tmp_path / "m.dtm"])  # fmt: skip
+    data = _small_gru(tmp_path, 6)
     said = _cli(["evaluate", "--model", tmp_path / "m.dtm", "--test-data", data, "--free-run-from",
                  "start"], code=2)  # fmt: skip
     assert "--free-run-from" in said and "--test-data is given" in " ".join(said.split())
