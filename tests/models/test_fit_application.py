@@ -394,3 +394,14 @@ def test_evaluate_refuses_a_free_run_start_that_separate_test_records_ignore(
     said = _cli(["evaluate", "--model", tmp_path / "m.dtm", "--test-data", data, "--free-run-from",
                  "start"], code=2)  # fmt: skip
     assert "--free-run-from" in said and "--test-data is given" in " ".join(said.split())
+
+
+def test_a_clock_that_steps_by_whole_seconds_gets_a_milliseconds_note(tmp_path: Path) -> None:
+    frame, _ = _record(300, np.ones(300), 7)
+    data = tmp_path / "ms.csv"
+    frame.assign(t=(frame.t * 1000).round(3)).to_csv(data, index=False)  # 20 ms read as 20 s
+    result = runner.invoke(app, ["fit", "--model", "gru", "--data", str(data), "--outputs", "y",
+                                 "--inputs", "u", "--time-column", "t", "--epochs", "1",
+                                 "--out", str(tmp_path / "m.dtm")])  # fmt: skip
+    said = " ".join(result.output.split())
+    assert result.exit_code == 0 and "note: the records step by 20 s (0.05 Hz)" in said

@@ -85,6 +85,7 @@ def run_fit(
     part = protocol.fit_split(model, data, train_fraction=fraction, test=request.test,
                               mechanistic=physics)  # fmt: skip
     notes += _stretched_notes(part.summary["preprocessing"]["train"], data)
+    notes += _slow_clock_notes(data)
     if tuning is not None:
         notes += _few_folds_notes(tuning, model)
     if request.data_label is not None:
@@ -104,6 +105,16 @@ def _stretched_notes(report: dict[str, Any], data: MeasurementSeries) -> list[No
                  "one-sample spike rule leaves (a burst of wrong samples?), sets the range the "
                  "networks scale it by, and they learn it poorly; correct or cut that sample")
             for name, found in report.get("range_stretched", {}).items()]  # fmt: skip
+
+
+def _slow_clock_notes(data: MeasurementSeries) -> list[Note]:
+    """A note when the records step by a whole number of seconds, 1 s or more: a time column
+    in milliseconds read as seconds looks so (20 ms read as 20 s), and nothing else tells."""
+    step = 1.0 / data.sample_rate_hz
+    if step < 1.0 or abs(step - round(step)) > 1e-9:
+        return []
+    return [Note(f"the records step by {step:g} s ({data.sample_rate_hz:.3g} Hz): if the time "
+                 "column counts milliseconds, name it 'time [ms]' (or divide it by 1000)")]  # fmt: skip
 
 
 def _free_run_starts(model: BaseModel, data: MeasurementSeries) -> None:
