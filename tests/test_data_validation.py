@@ -574,3 +574,8 @@ def test_console_script_exits_2_without_traceback(
     err = " ".join(capsys.readouterr().err.split())
     assert "Traceback" not in err
     assert str(path) in err and "row 2 (line 3)" in err and "duplicate time stamp" in err
+
+
+def test_a_time_column_that_is_not_in_the_file_names_time_column(tmp_path: Path) -> None:
+    refuse(csv(tmp_path, [HEADER, *rows()]), "--time-column", "'zz' is not in the file",
+           time_column="zz")  # fmt: skip

@@ -190,18 +190,23 @@ def _target(name: str, spec: ChannelSpec) -> str | None:
 
 
 def _mapping_targets(
-    columns: Mapping[str, str], headers: Sequence[str], spec: ChannelSpec, source: str | Path
+    columns: Mapping[str, str],
+    headers: Sequence[str],
+    spec: ChannelSpec,
+    source: str | Path,
+    option: str = "--columns",
 ) -> dict[str, str]:
-    """Resolve a user mapping {file column: target} against the headers (case-insensitive)."""
+    """Resolve a user mapping {file column: target} against the headers (case-insensitive);
+    ``option`` is the one that named it (errors name it)."""
     by_lower = {h.strip().lower(): h for h in headers}
     out: dict[str, str] = {}
     for key, target in columns.items():
         header = key if key in headers else by_lower.get(key.strip().lower())
         if header is None:
             raise DataError(
-                f"mapped column '{key}' is not in the file",
+                f"column '{key}' is not in the file",
                 source=source,
-                where="--columns",
+                where=option,
                 fix=f"the file's columns are: {', '.join(headers)}",
             )
         tgt = _target(target.strip().lower(), spec)
@@ -273,7 +278,8 @@ def plan_columns(
     headers = [str(h) for h in headers]
     mapping = _mapping_targets(columns or {}, headers, spec, source)
     if time_column is not None:
-        mapping.update(_mapping_targets({time_column: "time"}, headers, spec, source))
+        mapping.update(_mapping_targets({time_column: "time"}, headers, spec, source,
+                                        option="--time-column"))  # fmt: skip
     assigned, unknown = _assign(headers, mapping, spec, source)
     v.check_time_present(assigned, headers, source)
     kind = "roller" if spec.rollers else "output"
