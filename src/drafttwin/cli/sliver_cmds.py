@@ -270,11 +270,15 @@ def simulate_cmd(
         train = reduce(train)
     sp = _speeds(speeds, truth, duration, train, detail, quiet or as_json)
     fed_m = sp.delivered_length_m / sp.drafts()["total"] * (2 if real else 1)
-    with progress_bar("drafting (fed m)", round(fed_m, 1), quiet=quiet or as_json) as bar:
+    total = round(fed_m, 1)
+    with progress_bar("drafting (fed m)", total, quiet=quiet or as_json) as bar:
         task = bar.task_ids[0]
+
+        def fed(metres: float) -> None:  # the estimate leaves out the sliver in the zones
+            bar.update(task, completed=min(total, bar.tasks[0].completed + metres))
+
         sl = draft(sp, feed, zones, step_mm=step_mm, seed=seed, fibre_scale=fibre_scale,
-                   real=real, leveller=levelling,
-                   progress=lambda m: bar.advance(task, m))  # fmt: skip
+                   real=real, leveller=levelling, progress=fed)  # fmt: skip
     try:  # judged before it is written: a record too short to judge is no result
         ev = evenness(sl.linear_density_ktex, sl.step_m, fibres, fibre_scale)
         chimneys = spectrogram(sl.linear_density_ktex, sl.step_m, fibres,
