@@ -299,7 +299,7 @@ def test_a_plain_command_stops_on_sigterm_in_one_line_leaving_no_file(
     one line, no traceback, no output file and no temporary beside it."""
     out = tmp_path / ("r.csv" if command == "generate" else "m.dtm")
     if command == "generate":
-        args = ["generate", "--duration", "30", "--sliver", "--quiet", "--out", str(out)]
+        args = ["generate", "--duration", "120", "--sliver", "--quiet", "--out", str(out)]
     else:
         args = ["fit", "--model", "parallel", "--epochs", "50", "--set", "patience=none",
                 "--quiet", "--out", str(out)]  # fmt: skip

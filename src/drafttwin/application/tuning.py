@@ -229,9 +229,10 @@ def tune(
             trial = optuna.trial.Trial(study, cut[0]._trial_id)  # no public way to reopen one
             params, before = dict(cut[0].params), float(cut[0].user_attrs.get("cpu_s", 0.0))
         else:
-            if _stop(study, spent(), budget_min, request.tune_trials):
+            used = spent()
+            if _stop(study, used, budget_min, request.tune_trials):
                 break
-            if _seed_phase(study, spent(), budget_min, request.tune_trials):
+            if _seed_phase(study, used, budget_min, request.tune_trials):
                 _enqueue_seeds(study, base_seed)
             # seeded per trial: a resumed search draws what an uninterrupted one would
             study.sampler = _sampler(optuna, seed, len(study.trials))
@@ -342,7 +343,7 @@ def _choose(
     with its best seed; and the search's record (the trial table)."""
     import optuna
 
-    done = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    done = _complete(study)
     if not done:
         if errors:
             raise errors[0]

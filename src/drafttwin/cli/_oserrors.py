@@ -191,11 +191,10 @@ def physics_paths(option: str) -> Callable[[str | None], str | None]:
     files = input_paths(option)
 
     def callback(value: str | None) -> str | None:
-        text = (value or "").strip()
-        if text.startswith("config:"):
-            files(text.split(":", 1)[1])
-        elif text and not (text == "preset" or text.startswith("preset:")):
-            files(text)
+        from drafttwin.models.mechanistic.source import parse_source
+
+        if value is not None:
+            files(",".join(str(p) for p in parse_source(value, where=option).paths) or None)
         return value
 
     return callback

@@ -251,8 +251,8 @@ def predict(
         physics.match_records(series)  # a simulator file of another record is refused
     frame = estimator.predict(series, physics)
     if len(frame) and frame[list(estimator.channels_)].isna().all().all():
-        raise DataError(f"no prediction: every row of the data is the model's history or start "
-                        f"({len(frame)} rows; the model needs {estimator._init_rows()} first)",
+        raise DataError(f"no prediction: every one of the data's {len(frame)} rows is the "
+                        "model's history or its measured start",
                         source=source.spec(None), where="--data",
                         fix="give a longer record")  # fmt: skip
     write_frame(frame, out)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, cast, get_args
 
@@ -190,11 +189,12 @@ def check_sliver_rate(rate_hz: float) -> None:
     from drafttwin.mechanics.simulation import BLOCK_S
     from drafttwin.plant.sliver_channel import SURFACE_RATE_HZ
 
-    m = SURFACE_RATE_HZ / rate_hz
-    if m == math.floor(m) and rate_hz * BLOCK_S == math.floor(rate_hz * BLOCK_S):
+    def carries(rate: float) -> bool:
+        return (SURFACE_RATE_HZ / rate).is_integer() and (rate * BLOCK_S).is_integer()
+
+    if carries(rate_hz):
         return
-    good = [r for r in (100, 200, 250, 400, 500, 1000, 2000)
-            if SURFACE_RATE_HZ % r == 0 and (r * BLOCK_S) % 1 == 0]  # fmt: skip
+    good = [r for r in (100, 200, 400, 500, 1000, 2000) if carries(r)]
     raise ConfigError(f"{rate_hz:g} Hz cannot carry the sliver: its roller surfaces are "
                       f"simulated at {SURFACE_RATE_HZ:g} Hz on the recording's blocks of "
                       f"{BLOCK_S:g} s, so the rate must divide {SURFACE_RATE_HZ:g} Hz in whole "

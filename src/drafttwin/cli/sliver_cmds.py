@@ -100,14 +100,14 @@ def zones_from(gauges: str) -> Any:
 
 
 def evenness_table(ev: Any, title: str) -> Table:
+    from drafttwin.sliver.irregularity import CUT_LENGTHS_M
+
     table = Table(title=title)
     table.add_column("measure")
     table.add_column("value", justify="right")
     table.add_row("count", f"{ev.count_ktex:.4f} ktex")
     table.add_row("CV", f"{ev.cv_pct:.3f} %")
     table.add_row("U", f"{ev.u_pct:.3f} %")
-    from drafttwin.sliver.irregularity import CUT_LENGTHS_M
-
     for k, v in ev.cv_cut_pct.items():
         why = ("grid coarser than the cut" if CUT_LENGTHS_M.get(k, math.inf) < ev.step_m / 2
                else "record too short")  # fmt: skip

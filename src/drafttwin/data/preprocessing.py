@@ -41,8 +41,7 @@ from typing import Any
 import numpy as np
 
 from drafttwin.data.extremes import range_stretchers
-from drafttwin.data.gaps import interpolate_missing, nan_runs
-from drafttwin.data.gaps import record_spans as _bounds
+from drafttwin.data.gaps import interpolate_missing, nan_runs, record_spans
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.data.units import is_rpm
 from drafttwin.errors import DataError
@@ -91,7 +90,7 @@ def find_outliers(
         up = (cur - prev > tol_p) & (cur - nxt > tol_n)
         down = (prev - cur > tol_p) & (nxt - cur > tol_n)
     mask[1:-1] = up | down
-    for a, _ in _bounds(x.shape[0], record_starts)[1:]:
+    for a, _ in record_spans(x.shape[0], record_starts)[1:]:
         mask[a - 1 : a + 1] = False  # the neighbour across a record boundary is not one
     return mask
 
@@ -113,7 +112,7 @@ def find_measured_outliers(
     mask = np.zeros(x2.shape, dtype=bool)
     sc = None if scale is None else np.broadcast_to(np.asarray(scale, dtype=np.float64),
                                                     (x2.shape[1],))  # fmt: skip
-    for a, b in _bounds(x2.shape[0], record_starts):
+    for a, b in record_spans(x2.shape[0], record_starts):
         for j in range(x2.shape[1]):
             idx = np.flatnonzero(~np.isnan(x2[a:b, j]))
             cut = (np.flatnonzero(np.diff(idx) - 1 > max_gap) + 1 if max_gap is not None
@@ -226,7 +225,7 @@ class PreprocessReport:
         """Per channel: number of runs of missing samples and the longest run (samples);
         a run never continues into the next record."""
         out = {}
-        bounds = _bounds(self.missing.shape[0], self.record_starts)
+        bounds = record_spans(self.missing.shape[0], self.record_starts)
         for j, r in enumerate(self.channels):
             lengths = np.concatenate(
                 [nan_runs(self.missing[a:b, j])[1] for a, b in bounds] or [np.zeros(0, int)]
@@ -287,7 +286,7 @@ def _fill_optional(
         if not n_missing or not (~np.isnan(x)).any():
             inputs[name] = x
             continue
-        inputs[name] = np.concatenate([_hold(x[a:b]) for a, b in _bounds(len(x), starts)])
+        inputs[name] = np.concatenate([_hold(x[a:b]) for a, b in record_spans(len(x), starts)])
         counts[name] = n_missing - int(np.isnan(inputs[name]).sum())
     if inputs:
         changes["inputs"] = inputs
@@ -422,7 +421,7 @@ def reject_spikes_causal(
     sc = np.broadcast_to(np.nan if scale is None else np.asarray(scale, float), x2.shape[1:])
     low = np.broadcast_to(0.0 if floor is None else np.asarray(floor, float), x2.shape[1:])
     is_start = np.zeros(x2.shape[0], dtype=np.bool_)
-    for a, _ in _bounds(x2.shape[0], record_starts):
+    for a, _ in record_spans(x2.shape[0], record_starts):
         is_start[a] = True
     x2 = np.ascontiguousarray(x2)
     _spike_kernel()(x2, is_start, float(threshold), np.ascontiguousarray(sc, dtype=np.float64),

@@ -160,14 +160,22 @@ def _check_compatible(
     if (part.motor_rpm is None) != (first.motor_rpm is None):
         has, lacks = (path, p0) if part.motor_rpm is not None else (p0, path)
         _refuse_mismatch(f"a motor column in {has} but not in {lacks}", path)
+    clash = _unit_clash(part, first)
+    if clash is not None:
+        name, here, there = clash
+        _refuse_mismatch(f"'{name}' is in {here} here but in {there} in {p0}", path)
+
+
+def _unit_clash(part: MeasurementSeries, first: MeasurementSeries) -> tuple[str, str, str] | None:
+    """The first channel or input of ``first`` that ``part`` holds in another unit: its name
+    and the two units (``no declared unit`` where none is), else ``None``."""
     for name in (*first.channels, *first.inputs):
+        if name not in (*part.channels, *part.inputs):
+            continue
         here, there = part.unit(name), first.unit(name)
         if normalise_unit(here) != normalise_unit(there):
-            _refuse_mismatch(
-                f"'{name}' is in {here or 'no declared unit'} here but in "
-                f"{there or 'no declared unit'} in {p0}",
-                path,
-            )
+            return name, here or "no declared unit", there or "no declared unit"
+    return None
 
 
 def join_files(
@@ -208,17 +216,15 @@ def check_test_like_training(test: MeasurementSeries, train: MeasurementSeries) 
     unit for one of its channels or inputs (a test record in mm scored against a model in m),
     or another sample rate (the windows would span another time). ``evaluate`` refuses the
     same against a model file; this is the same check at fit time."""
-    for name in (*train.channels, *train.inputs):
-        if name not in (*test.channels, *test.inputs):
-            continue  # the reader already asked for the model's columns
-        here, there = test.unit(name), train.unit(name)
-        if normalise_unit(here) != normalise_unit(there):
-            raise DataError(
-                f"'{name}' is in {here or 'no declared unit'} in the test records ({{test:name}}) but in "
-                f"{there or 'no declared unit'} in the training records",
-                param="test", terms={"test": None},
-                fix="give both the same unit (convert the test records, or declare the units)",
-            )  # fmt: skip
+    clash = _unit_clash(test, train)
+    if clash is not None:
+        name, here, there = clash
+        raise DataError(
+            f"'{name}' is in {here} in the test records ({{test:name}}) but in {there} in the "
+            "training records",
+            param="test", terms={"test": None},
+            fix="give both the same unit (convert the test records, or declare the units)",
+        )  # fmt: skip
     if not np.isclose(test.sample_rate_hz, train.sample_rate_hz, rtol=0.01):
         raise DataError(
             f"the test records ({{test:name}}) are sampled at {test.sample_rate_hz:g} Hz but the "
