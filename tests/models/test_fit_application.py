@@ -5,6 +5,7 @@ trial table in the model file, resumes from its journal and repeats from its see
 
 from __future__ import annotations
 
+import contextlib
 import json
 import signal
 import subprocess
@@ -180,6 +181,19 @@ def test_tuning_keeps_its_trials_resumes_and_repeats(folder: Path, tmp_path: Pat
     assert not (tmp_path / "a.dtm.tune.jsonl").exists()  # only the journal named
 
 
+def _await_trial_started(journal: Path, trial_id: int, timeout_s: float = 60.0) -> None:
+    """Wait until the journal holds trial ``trial_id``'s parameters: it has started fitting."""
+    end = time.monotonic() + timeout_s
+    while time.monotonic() < end:
+        for line in journal.read_text().splitlines():
+            with contextlib.suppress(ValueError):
+                op = json.loads(line)
+                if op.get("op_code") == 5 and op.get("trial_id") == trial_id:
+                    return
+        time.sleep(0.02)
+    raise AssertionError(f"trial {trial_id} did not start within {timeout_s:g} s")
+
+
 @pytest.mark.slow
 def test_a_search_stops_on_sigterm_and_resumes(folder: Path, tmp_path: Path) -> None:
     data = _small(folder)
@@ -193,7 +207,7 @@ def test_a_search_stops_on_sigterm_and_resumes(folder: Path, tmp_path: Path) -> 
     for line in proc.stderr:  # the first trial done: the second one is running
         if line.startswith("tune: trial 0"):
             break
-    time.sleep(0.3)  # into the second trial (each takes seconds)
+    _await_trial_started(Path(str(out) + ".tune.jsonl"), 1)  # inside it, whatever the speed
     start = time.monotonic()
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=30)
