@@ -83,6 +83,9 @@ def test_one_parser_names_the_physics_for_every_command(tmp_path: Path) -> None:
     assert parse_source("a.csv, b.csv").paths == (Path("a.csv"), Path("b.csv"))
     with pytest.raises(ConfigError, match="config: needs a file"):
         parse_source("config:")
+    # The option the user typed, not mechanics' own --preset.
+    with pytest.raises(ConfigError, match=r"^--model: unknown preset 'bogus'.*preset:fa320a"):
+        parse_source("preset:bogus", where="--model")
     belt = drive_train(f"config:{toml}").to_dict()
     assert physics_train(f"config:{toml}").to_dict() == belt == load_train(None, toml).to_dict()
     model = dt.make_model("mechanistic", outputs=("y",))

@@ -26,6 +26,9 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 from drafttwin._constants import ROLLERS, __version__
+from drafttwin._numba_cache import ensure_numba_cache
+
+ensure_numba_cache()
 
 _EXPORTS: dict[str, str] = {
     # measurements

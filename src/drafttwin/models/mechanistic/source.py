@@ -11,7 +11,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from drafttwin.errors import ConfigError
+from drafttwin.errors import ConfigError, unknown_choice
+from drafttwin.mechanics.config import PRESETS
 
 
 @dataclass(frozen=True)
@@ -36,7 +37,12 @@ def parse_source(text: str, where: str = "--mechanistic") -> PhysicsSource:
     text = text.strip()
     kind, sep, rest = text.partition(":")
     if text == "preset" or (sep and kind == "preset"):
-        return PhysicsSource("preset", preset=rest.strip() or "fa320a")
+        name = rest.strip() or "fa320a"
+        if name not in PRESETS:
+            # Named here, where the option the user typed is known (mechanics names --preset).
+            raise unknown_choice(f"unknown preset '{name}'", (f"preset:{p}" for p in PRESETS),
+                                 where=where, fix_also=", config:FILE.toml or a file")  # fmt: skip
+        return PhysicsSource("preset", preset=name)
     if sep and kind == "config":
         if not rest.strip():
             raise ConfigError("config: needs a file", where=where,
