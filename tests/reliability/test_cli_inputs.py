@@ -25,6 +25,7 @@ import typer
 import typer.testing
 from typer.testing import CliRunner
 
+import drafttwin as dt
 from drafttwin._json import dumps_strict
 from drafttwin._limits import MAX_RK4_STEPS, check_rk4_steps
 from drafttwin.cli import app
@@ -162,9 +163,30 @@ DATA_OPTIONS = {
 
 @pytest.mark.parametrize("command", ["inspect", "fit", "predict", "evaluate", "calibrate"])
 def test_every_command_reading_your_data_takes_the_same_data_options(command: str) -> None:
-    # (reproduce and grid-search run the paper's study on the FA320A layout: --data only)
     cmd = _commands()[command]
     assert DATA_OPTIONS.issubset(p.opts[0] for p in cmd.params)  # type: ignore[attr-defined]
+
+
+def test_the_study_maps_a_files_columns_as_its_error_says(tmp_path: Path) -> None:
+    # reproduce and grid-search run the paper's study on the FA320A layout; a file with other
+    # column names is refused with a fix naming --columns, which they take
+    import pandas as pd
+
+    from drafttwin.cli.study_cmds import StudyOptions
+
+    default = dt.load_default()
+    path = dt.write_measurements(default, tmp_path / "mill.csv")
+    frame = pd.read_csv(path)
+    theirs = {"front": "r1", "second": "r2", "third": "r3", "back": "r4"}
+    frame.rename(columns=theirs).to_csv(path, index=False)
+    for command in ("reproduce", "grid-search"):
+        out = invoke([command, "--data", str(path), "--out", str(tmp_path / "study")])
+        assert out.kind == "clean" and "--columns r1=front" in out.stderr, out.stderr
+        assert "--columns" in {p.opts[0] for p in _commands()[command].params}  # type: ignore[attr-defined]
+    mapped = ",".join(f"{v}={k}" for k, v in theirs.items())
+    _, series, _ = StudyOptions(data=str(path), columns=mapped).study(tmp_path / "study")
+    assert series.channels == default.channels
+    np.testing.assert_allclose(series.values, default.values, rtol=1e-9)
 
 
 # -- strict JSON ----------------------------------------------------------------------------

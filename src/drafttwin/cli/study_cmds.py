@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 from drafttwin.cli._groups import with_group
-from drafttwin.cli._options import QuietOpt, dir_out, files_in, number
+from drafttwin.cli._options import ColumnsOpt, QuietOpt, dir_out, files_in, number
 from drafttwin.cli.typer_app import app, console, err_console
 
 if TYPE_CHECKING:
@@ -89,18 +89,20 @@ class StudyOptions:
 
     plan: PlanOpt = "quick"
     data: StudyDataOpt = "default"
+    columns: ColumnsOpt = None
     executor: ExecOpt = "local"
     address: AddrOpt = None
     workers: WorkersOpt = None
     quiet: QuietOpt = False
 
     def study(self, out: Path) -> tuple[Study, MeasurementSeries, _Display]:
-        from drafttwin.cli._data import Channels
+        from drafttwin.cli._data import Channels, pairs
         from drafttwin.execution import check_executor
         from drafttwin.studies.paper.run import Study
 
         check_executor(self.executor, self.workers, self.address)  # before the data are read
-        series = Channels().read(self.data)
+        columns = pairs(self.columns, "--columns", "v1=front,v2=second") or None
+        series = Channels(columns=columns).read(self.data)
         display = _Display(self.quiet)
         study = Study(self.plan, out_dir=out, executor=self.executor, address=self.address,
                       workers=self.workers, stage=display.stage)  # fmt: skip
