@@ -230,15 +230,35 @@ def test_cli_diagnose_refuses_bad_input(records, tmp_path):
 
     from drafttwin.cli import app
 
-    frame = pd.read_parquet(records / "healthy.parquet").drop(columns=["motor"])
-    frame.to_parquet(tmp_path / "nomotor.parquet")
+    frame = pd.read_parquet(records / "healthy.parquet")
+    frame.drop(columns=["motor"]).to_parquet(tmp_path / "nomotor.parquet")
+    frame.iloc[::100].to_parquet(tmp_path / "one_hz.parquet")
+    frame.iloc[::2].to_parquet(tmp_path / "fifty_hz.parquet")
+    healthy, sidecar = str(records / "healthy.parquet"), records / "healthy.json"
+    before = {p: p.read_bytes() for p in records.glob("healthy*")}
     for args, text in (
-        (["--data", str(tmp_path / "nomotor.parquet")], "no motor speed"),
-        (["--data", str(records / "healthy.parquet"), "--far-per-day", "-1"], "--far-per-day"),
-        (["--data", str(records / "healthy.parquet"), "--model", "preset:nope"], "nope"),
-    ):
+        (["--data", str(tmp_path / "nomotor.parquet")], "nomotor.parquet: motor: the record has "
+         "no motor speed"),
+        (["--data", healthy, "--far-per-day", "-1"], "--far-per-day"),
+        (["--data", healthy, "--model", "preset:nope"], "nope"),
+        # the record's own files are never written over, nor is it its own reference
+        (["--data", healthy, "--report", healthy], "is both --data and --report"),
+        (["--data", healthy, "--report", str(sidecar)], "is both --data (a file of its record) "
+         "and --report"),
+        (["--data", healthy, "--healthy", healthy], "--healthy: is the record under diagnosis"),
+        # too slow for 1-s blocks (was a traceback), named with its file and option
+        (["--data", str(tmp_path / "one_hz.parquet")], "sampled at 1 Hz: a 1-s block holds 1 "
+         "samples, the diagnosis needs 10"),
+        (["--data", healthy, "--healthy", str(tmp_path / "one_hz.parquet")],
+         "one_hz.parquet: --healthy: sampled at 1 Hz, --data at 100 Hz"),
+        (["--data", str(tmp_path / "fifty_hz.parquet"), "--healthy", healthy],
+         "healthy.parquet: --healthy: sampled at 100 Hz, --data at 50 Hz"),
+    ):  # fmt: skip
         res = CliRunner().invoke(app, ["diagnose", "--model", "preset", *args])
-        assert res.exit_code == 2 and text in res.output and "Traceback" not in res.output
+        assert res.exit_code == 2 and text in res.output and "Traceback" not in res.output, (
+            res.output
+        )
+    assert {p: p.read_bytes() for p in records.glob("healthy*")} == before
 
 
 def test_one_step_is_one_alarm_episode_when_counting_every_alarm(detector):

@@ -66,9 +66,27 @@ def _same(a: Path, b: Path) -> bool:
         return False
 
 
+def _companions(path: Path) -> list[Path]:
+    """A plant record's sidecar (``<stem>.json``) and the files it names (truth, sliver): they
+    are read with the record, so they are inputs too."""
+    import json
+
+    sidecar = path.with_suffix(".json")
+    if path.suffix == ".json" or not sidecar.is_file():
+        return []
+    try:
+        files = json.loads(sidecar.read_text(encoding="utf-8")).get("files", {})
+    except (OSError, ValueError, AttributeError):
+        return [sidecar]
+    names = files.values() if isinstance(files, dict) else ()
+    return [sidecar, *(path.with_name(n) for n in names
+                       if isinstance(n, str) and n and Path(n).name == n)]  # fmt: skip
+
+
 def _no_clash(path: Path, option: str, *, output: bool) -> None:
-    """Refuse an output file that is also an input of the same command (whichever option the
-    parser reads first): writing it would destroy what the command reads."""
+    """Refuse an output file that is also an input of the same command, or a file of an
+    input's record (whichever option the parser reads first): writing it would destroy what
+    the command reads."""
     mine, others = (_OUTPUTS, _INPUTS) if output else (_INPUTS, _OUTPUTS)
     p = Path(os.path.abspath(path))
     for other, other_option in others.items():
@@ -78,6 +96,11 @@ def _no_clash(path: Path, option: str, *, output: bool) -> None:
                               "the input", source=path, where=out_option,
                               fix=f"give {out_option} another file name")  # fmt: skip
     mine[p] = option
+    if not output:
+        for companion in _companions(p):
+            companion = Path(os.path.abspath(companion))
+            if companion not in mine:
+                _no_clash(companion, f"{option} (a file of its record)", output=False)
 
 
 def option_of(path: str | Path) -> str | None:

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, NamedTuple
 
+import numpy as np
 import typer
 from rich import box
 from rich.table import Table
@@ -21,10 +24,13 @@ from drafttwin.cli._options import (
     WorkersOpt,
     dir_out,
     file_out,
+    files_in,
     number,
 )
+from drafttwin.cli._oserrors import physics_paths
 from drafttwin.cli.benchmark_cmds import benchmark_app
 from drafttwin.cli.typer_app import app, console, progress_bar
+from drafttwin.errors import ConfigError, DrafttwinError
 
 if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries
@@ -85,9 +91,9 @@ def generate_faults(
 
 PhysicsOpt = Annotated[str, typer.Option("--model", help="The twin's physics: a model file from "
                        "'drafttwin fit' (its drive train), or preset, preset:NAME, "
-                       "config:FILE.toml.")]  # fmt: skip
-RecordOpt = Annotated[str, typer.Option("--data", help="The record to diagnose (.csv/.parquet with a motor column).")]  # fmt: skip
-HealthyOpt = Annotated[str | None, typer.Option("--healthy", help=(
+                       "config:FILE.toml.", callback=physics_paths("--model"))]  # fmt: skip
+RecordOpt = Annotated[str, files_in("--data", "The record to diagnose (.csv/.parquet with a motor column).")]  # fmt: skip
+HealthyOpt = Annotated[str | None, files_in("--healthy", (
     "Healthy records of the same machine (comma-separated) to set the thresholds. Default: the "
     "record's own first half (assumed healthy: give --healthy to trust it)."))]  # fmt: skip
 ReportOpt = Annotated[Path | None, file_out("--report", "Write an HTML page (timeline, spectrum, drive train).")]  # fmt: skip
@@ -125,19 +131,26 @@ def diagnose(
 
     train = physics_train(model)
     series = Channels().read(data)
-    if healthy:
-        tuning = [Channels().read(p.strip()) for p in healthy.split(",") if p.strip()]
+    healthy_paths = [p.strip() for p in (healthy or "").split(",") if p.strip()]
+    if healthy_paths:
+        tuning = [_healthy_record(p, data, series) for p in healthy_paths]
         tuned_on = healthy
     else:
         cut = len(series) // 2
         tuning = [_head(series, cut)]
         tuned_on = f"the record's first {series.time_s[cut - 1] - series.time_s[0]:.0f} s (assumed healthy)"
-    detector = FaultDetector(far_per_day=far_per_day).fit(
-        [record_features(train, s) for s in tuning]
-    )
+    features = []
+    for path, record in zip(healthy_paths or [data], tuning, strict=True):
+        with _named(path, "--healthy" if healthy_paths else "--data"):
+            features.append(record_features(train, record))
+    with _named(None, "--healthy" if healthy_paths else "--data (its first half)"):
+        detector = FaultDetector(far_per_day=far_per_day).fit(features)
     diagnoser = Diagnoser(train, detector)
-    dx = diagnoser.diagnose(series)
+    with _named(data, "--data"):
+        dx = diagnoser.diagnose(series)
+    watched_from = float(series.time_s[0]) + detector.reference_s
     info = {"data": data, "physics": model, "thresholds_from": tuned_on,
+            "watched_from_s": watched_from,
             "detector": detector.describe(), "creep_rel_sd": diagnoser.creep_rel_sd}  # fmt: skip
     result = {**info, **dx.to_dict()}
     from drafttwin.diagnosis.sliver_evidence import sliver_evidence
@@ -160,6 +173,47 @@ def diagnose(
         _print_sliver(sliver[0])
 
 
+@contextlib.contextmanager
+def _named(path: str | None, option: str) -> Iterator[None]:
+    """A library error about "the record" or "the tuning data" names the file and option."""
+    try:
+        yield
+    except DrafttwinError as exc:
+        if exc.source is None and path is not None:
+            exc.source = path
+        if exc.where in ("data", "tuning", None):
+            exc.where = option
+        raise
+
+
+def _healthy_record(path: str, data: str, series: MeasurementSeries) -> MeasurementSeries:
+    """A --healthy record, refused where it is the record under diagnosis or sampled at
+    another rate (the thresholds are per block of rows)."""
+    from drafttwin.cli._data import Channels
+
+    if _same_file(path, data):
+        raise ConfigError("is the record under diagnosis: its own reference hides the fault it "
+                          "shows", source=path, where="--healthy",
+                          fix="give healthy records of the same machine other than --data, or "
+                          "leave --healthy out (the record's first half is the reference)")  # fmt: skip
+    record = Channels().read(path)
+    if not np.isclose(record.sample_rate_hz, series.sample_rate_hz, rtol=0.01):
+        raise ConfigError(f"sampled at {record.sample_rate_hz:g} Hz, --data at "
+                          f"{series.sample_rate_hz:g} Hz: the thresholds hold at one rate",
+                          source=path, where="--healthy",
+                          fix="give healthy records at the record's rate (resample one of them)")  # fmt: skip
+    return record
+
+
+def _same_file(a: str, b: str) -> bool:
+    import os
+
+    try:
+        return os.path.abspath(a) == os.path.abspath(b) or os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
 def _head(series: MeasurementSeries, n: int) -> MeasurementSeries:
     from dataclasses import replace
 
@@ -180,6 +234,9 @@ def _print_diagnosis(result: dict[str, Any], report: Path | None, lags_note: str
     else:
         console.print(f"[bold red]alarm[/] at {alarm['time_s']:.1f} s ({alarm['test']}), change "
                       f"estimated at {alarm['onset_s']:.1f} s")  # fmt: skip
+        if alarm["onset_s"] <= result["watched_from_s"] + 1.0:
+            console.print(f"the record is watched from {result['watched_from_s']:.1f} s (before "
+                          "that it is its own baseline): the change may have begun earlier")  # fmt: skip
         table = Table(title="ranked causes (p: relative among the candidates; fit: absolute)",
                       box=box.SIMPLE_HEAD, pad_edge=False)  # fmt: skip
         for col in ("#", "cause", "severity", "95 % interval", "p rel.", "fit chi2/dof (p)"):

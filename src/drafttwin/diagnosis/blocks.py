@@ -68,6 +68,19 @@ MOVED = 3.0  # a row's lag step this many times the 90th percentile of the histo
 MOVING_RPM = 1.0  # below this predicted speed a roller counts as stopped (no spike test)
 MRAD_PER_RPM_S = 2e3 * math.pi / 60.0  # a speed of 1 rpm for 1 s turns this many mrad
 STALE_EDGES = 8.0  # a run whose lag moved this many edges is stale (see the module docstring)
+MIN_ROWS_PER_BLOCK = 10  # a block's level, spikes and runs need rows to judge (10 Hz at 1 s)
+
+
+def check_rows_per_block(block_s: float, period_s: float) -> None:
+    """Refuse a record sampled too slowly for blocks of ``block_s`` (one row per block has no
+    spike test, no run and no step: the features would be empty)."""
+    rows = block_s / period_s if period_s > 0 else math.inf
+    if rows < MIN_ROWS_PER_BLOCK:
+        fastest = MIN_ROWS_PER_BLOCK / block_s
+        raise DataError(f"sampled at {1.0 / period_s:.3g} Hz: a {block_s:g}-s block holds "
+                        f"{rows:.2g} samples, the diagnosis needs {MIN_ROWS_PER_BLOCK}",
+                        where="data", fix=f"give a record sampled at {fastest:g} Hz or faster "
+                        "(a time column in ms? head it 'time [ms]')")  # fmt: skip
 
 
 class BlockStream:

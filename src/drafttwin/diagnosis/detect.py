@@ -256,7 +256,8 @@ class FaultDetector:
         if len(f.level) <= n_ref:
             raise DataError(f"the record ({len(f.level) * f.block_s:g} s) is not longer than the "
                             f"reference window ({self.reference_s:g} s)", where="data",
-                            fix="give a longer record or a shorter reference")  # fmt: skip
+                            fix="give a longer record (the first reference_s seconds of each "
+                            "record are its baseline, not watched)")  # fmt: skip
         return n_ref
 
     # ---- running causally over one record -----------------------------------------------

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.linalg import block_diag
 
 from drafttwin.data.series import MeasurementSeries
+from drafttwin.diagnosis.blocks import check_rows_per_block
 from drafttwin.diagnosis.cusum import STREAMS, Alarm, feature_matrix
 from drafttwin.diagnosis.detect import Detection, FaultDetector
 from drafttwin.diagnosis.growth import block_severities, severity_trend
@@ -143,6 +144,7 @@ class Diagnoser:
         if len(t) < 2:
             raise DataError("the record has fewer than two samples", where="data",
                             fix="give a longer record")  # fmt: skip
+        check_rows_per_block(self.detector.block_s_, float(np.median(np.diff(t))))
         stream = self.stream(float(np.median(np.diff(t))), trace=True)
         step = stream.push(t, measured(series), physics_prediction(self.train, series))
         step += stream.finish()

@@ -33,7 +33,13 @@ import numpy as np
 
 from drafttwin._constants import ROLLERS
 from drafttwin.data.series import MeasurementSeries
-from drafttwin.diagnosis.blocks import MOVING_RPM, BlockRow, BlockStream, LagCounter
+from drafttwin.diagnosis.blocks import (
+    MOVING_RPM,
+    BlockRow,
+    BlockStream,
+    LagCounter,
+    check_rows_per_block,
+)
 from drafttwin.errors import DataError
 from drafttwin.mechanics import DriveTrain, reduce, simulate
 
@@ -128,6 +134,7 @@ def block_features(y: np.ndarray, yhat: np.ndarray, time_s: np.ndarray, block_s:
     speed ratios the lags are counted against (default: :func:`predicted_ratio`)."""
     time_s = np.asarray(time_s, dtype=np.float64)
     dt = float(np.median(np.diff(time_s))) if len(time_s) > 1 else block_s
+    check_rows_per_block(block_s, dt)
     stream = BlockStream(block_s, dt, predicted_ratio(yhat) if ratio is None else ratio)
     rows = stream.push(time_s, y, yhat) + stream.finish()
     if not rows:
