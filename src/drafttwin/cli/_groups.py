@@ -48,3 +48,21 @@ def with_group(name: str, group: type) -> Callable[[F], F]:
         return typing.cast(F, run)
 
     return wrap
+
+
+def stops_cleanly(note: str) -> Callable[[F], F]:
+    """A command that SIGTERM / SIGINT stops with one line (``interrupted by SIGTERM; NOTE``),
+    exit 128 + signal and its temporary files removed, instead of the default death (SIGTERM:
+    no cleanup) or a traceback (Ctrl-C inside numba's compiled code). Put it next to ``def``."""
+
+    def wrap(command: F) -> F:
+        @functools.wraps(command)
+        def run(*args: Any, **kwargs: Any) -> Any:
+            from drafttwin.execution.interrupt import stop_on_signals
+
+            with stop_on_signals(note):
+                return command(*args, **kwargs)
+
+        return typing.cast(F, run)
+
+    return wrap

@@ -11,7 +11,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from drafttwin.cli._data import ChannelOptions
-from drafttwin.cli._groups import with_group
+from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import (
     FullModelOpt,
     JsonOpt,
@@ -61,6 +61,7 @@ QuietOpt = Annotated[bool, typer.Option(help="No progress messages.")]
 @app.command()
 @with_group("channels", ChannelOptions)
 @with_group("drive", TrainOptions)
+@stops_cleanly("nothing was written")
 def calibrate(
     out: TrainOutOpt, data: RecordsOpt, channels: ChannelOptions, drive: TrainOptions,
     params: ParamsOpt = None, block: BlockOpt = 0.1, full_model: FullModelOpt = False,

@@ -13,7 +13,7 @@ from rich import box
 from rich.table import Table
 
 from drafttwin._limits import check_rk4_steps, check_samples
-from drafttwin.cli._groups import with_group
+from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import (
     FarPerDayOpt,
     JsonOpt,
@@ -43,6 +43,9 @@ RecordDurationOpt = Annotated[float, number("--duration", "Machine time per reco
 
 @app.command("generate-faults")
 @with_group("drive", TrainOptions)
+@stops_cleanly(
+    "the records written so far are whole; cases.json lists a set once it is complete: run the command again"
+)
 def generate_faults(
     *,  # keyword-only: the option group below has no default
     out: CasesOutOpt,
@@ -100,6 +103,7 @@ ReportOpt = Annotated[Path | None, file_out("--report", "Write an HTML page (tim
 
 
 @app.command()
+@stops_cleanly("nothing was written")
 def diagnose(
     model: PhysicsOpt, data: RecordOpt, healthy: HealthyOpt = None,
     far_per_day: FarPerDayOpt = 1.0, as_json: JsonOpt = False, report: ReportOpt = None,

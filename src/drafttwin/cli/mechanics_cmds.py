@@ -14,7 +14,7 @@ from rich.table import Table
 from drafttwin._constants import ROLLERS
 from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.cli._common import check_output_suffix, write_frame
-from drafttwin.cli._groups import with_group
+from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import (
     DurationOpt,
     JsonOpt,
@@ -139,6 +139,7 @@ CutoffOpt = Annotated[float | None, number("--cutoff-hz", "Cut-off of --reduced,
 
 @app.command()
 @with_group("drive", TrainOptions)
+@stops_cleanly("nothing was written")
 def simulate(
     drive: TrainOptions, duration: DurationOpt = 10.0, rate: OutputRateOpt = None,
     dt: StepOpt = None, settle: SettleOpt = None, setpoints: SetpointsOpt = None,

@@ -13,7 +13,7 @@ from rich.markup import escape
 from drafttwin.cli._common import write_frame
 from drafttwin.cli._data import ChannelOptions
 from drafttwin.cli._fitprint import fit_advice, report, selection_lines, tuning_lines
-from drafttwin.cli._groups import with_group
+from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._modelopts import SetOpt, TuneOptions, parse_settings
 from drafttwin.cli._options import (
     EpochsOpt,
@@ -238,6 +238,7 @@ def _fitted(
 @app.command()
 @with_group("channels", ChannelOptions)
 @with_group("source", SourceOptions)
+@stops_cleanly("nothing was written")
 def predict(
     model: ModelFileOpt, out: PredictionsOutOpt, source: SourceOptions, channels: ChannelOptions,
     quiet: QuietOpt = False, as_json: WrittenJsonOpt = False,
@@ -267,6 +268,7 @@ def predict(
 @app.command()
 @with_group("channels", ChannelOptions)
 @with_group("source", SourceOptions)
+@stops_cleanly("nothing was written")
 def evaluate(
     model: ModelFileOpt, source: SourceOptions, channels: ChannelOptions,
     train_fraction: FractionOpt = None, score_from: ScoreFromOpt = 0,
