@@ -213,6 +213,8 @@ def test_block_means_drop_sparse_blocks():
     v[5:9] = np.nan
     out = block_means(v, 5)
     np.testing.assert_allclose(out[:, 0], [2.0, np.nan])
+    # a block longer than the record: no block (was a reshape error, a traceback in the CLI)
+    assert block_means(np.ones((10, 3)), 11).shape == (0, 3)
 
 
 def test_known_parameters_recovered_within_three_standard_errors(belt, records):

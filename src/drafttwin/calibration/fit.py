@@ -103,7 +103,7 @@ def block_means(values: np.ndarray, block: int) -> np.ndarray:
     """Means over consecutive blocks of ``block`` rows (a trailing part block dropped); a
     block with fewer than half its samples measured is NaN."""
     n = values.shape[0] // block
-    cut = values[: n * block].reshape(n, block, -1)
+    cut = values[: n * block].reshape(n, block, *values.shape[1:])  # n may be 0: no -1
     finite = np.isfinite(cut)
     count = finite.sum(axis=1)
     total = np.where(finite, cut, 0.0).sum(axis=1)
