@@ -234,6 +234,8 @@ def test_cli_diagnose_refuses_bad_input(records, tmp_path):
     frame.drop(columns=["motor"]).to_parquet(tmp_path / "nomotor.parquet")
     frame.iloc[::100].to_parquet(tmp_path / "one_hz.parquet")
     frame.iloc[::2].to_parquet(tmp_path / "fifty_hz.parquet")
+    swap = {"front": "back", "back": "front"}
+    frame.rename(columns=swap).to_parquet(tmp_path / "swapped.parquet")
     healthy, sidecar = str(records / "healthy.parquet"), records / "healthy.json"
     before = {p: p.read_bytes() for p in records.glob("healthy*")}
     for args, text in (
@@ -253,6 +255,10 @@ def test_cli_diagnose_refuses_bad_input(records, tmp_path):
          "one_hz.parquet: --healthy: sampled at 1 Hz, --data at 100 Hz"),
         (["--data", str(tmp_path / "fifty_hz.parquet"), "--healthy", healthy],
          "healthy.parquet: --healthy: sampled at 100 Hz, --data at 50 Hz"),
+        # the fix names an option diagnose has (the map applies to --healthy's files too)
+        (["--data", str(tmp_path / "swapped.parquet")], "--columns front=back,back=front"),
+        (["--data", str(tmp_path / "swapped.parquet"), "--columns", "front=back,back=front",
+          "--healthy", healthy], "healthy.parquet: columns 'front', 'back'"),
     ):  # fmt: skip
         res = CliRunner().invoke(app, ["diagnose", "--model", "preset", *args])
         assert res.exit_code == 2 and text in res.output and "Traceback" not in res.output, (

@@ -15,6 +15,7 @@ from rich.table import Table
 from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import (
+    ColumnsOpt,
     FarPerDayOpt,
     JsonOpt,
     OutDirOpt,
@@ -33,6 +34,7 @@ from drafttwin.cli.typer_app import app, console, progress_bar
 from drafttwin.errors import ConfigError, DrafttwinError
 
 if TYPE_CHECKING:
+    from drafttwin.cli._data import Channels
     from drafttwin.data.series import MeasurementSeries
 
 CasesOutOpt = Annotated[Path, dir_out("--out", "Folder for the records and cases.json.")]
@@ -107,6 +109,7 @@ ReportOpt = Annotated[Path | None, file_out("--report", "Write an HTML page (tim
 def diagnose(
     model: PhysicsOpt, data: RecordOpt, healthy: HealthyOpt = None,
     far_per_day: FarPerDayOpt = 1.0, as_json: JsonOpt = False, report: ReportOpt = None,
+    columns: ColumnsOpt = None,
 ) -> None:  # fmt: skip
     """Detect, locate and size a machine or sensor fault in a record.
 
@@ -127,17 +130,18 @@ def diagnose(
     angle offset alone has no healthy reference. Gear cracks and run-outs are not assessed.
     """
     from drafttwin._json import dumps_strict
-    from drafttwin.cli._data import Channels
+    from drafttwin.cli._data import Channels, pairs
     from drafttwin.diagnosis.detect import FaultDetector
     from drafttwin.diagnosis.diagnose import Diagnoser
     from drafttwin.diagnosis.physics import physics_train
     from drafttwin.diagnosis.residuals import record_features
 
     train = physics_train(model)
-    series = Channels().read(data)
+    mapped = Channels(columns=pairs(columns, "--columns", "v1=front,v2=second") or None)
+    series = mapped.read(data)
     healthy_paths = [p.strip() for p in (healthy or "").split(",") if p.strip()]
     if healthy_paths:
-        tuning = [_healthy_record(p, data, series) for p in healthy_paths]
+        tuning = [_healthy_record(p, data, series, mapped) for p in healthy_paths]
         tuned_on = healthy
     else:
         cut = len(series) // 2
@@ -190,17 +194,16 @@ def _named(path: str | None, option: str) -> Iterator[None]:
         raise
 
 
-def _healthy_record(path: str, data: str, series: MeasurementSeries) -> MeasurementSeries:
-    """A --healthy record, refused where it is the record under diagnosis or sampled at
-    another rate (the thresholds are per block of rows)."""
-    from drafttwin.cli._data import Channels
-
+def _healthy_record(path: str, data: str, series: MeasurementSeries,
+                    channels: Channels) -> MeasurementSeries:  # fmt: skip
+    """A --healthy record (read with --data's column map), refused where it is the record
+    under diagnosis or sampled at another rate (the thresholds are per block of rows)."""
     if _same_file(path, data):
         raise ConfigError("is the record under diagnosis: its own reference hides the fault it "
                           "shows", source=path, where="--healthy",
                           fix="give healthy records of the same machine other than --data, or "
                           "leave --healthy out (the record's first half is the reference)")  # fmt: skip
-    record = Channels().read(path)
+    record = channels.read(path)
     if not np.isclose(record.sample_rate_hz, series.sample_rate_hz, rtol=0.01):
         raise ConfigError(f"sampled at {record.sample_rate_hz:g} Hz, --data at "
                           f"{series.sample_rate_hz:g} Hz: the thresholds hold at one rate",
