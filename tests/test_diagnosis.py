@@ -234,6 +234,10 @@ def test_cli_diagnose_refuses_bad_input(records, tmp_path):
     frame.drop(columns=["motor"]).to_parquet(tmp_path / "nomotor.parquet")
     frame.iloc[::100].to_parquet(tmp_path / "one_hz.parquet")
     frame.iloc[::2].to_parquet(tmp_path / "fifty_hz.parquet")
+    rads = frame.copy()
+    rads["motor"] = rads["motor"] * (2 * np.pi / 60)  # rollers in rpm, the motor in rad/s
+    rads.to_parquet(tmp_path / "motor_rads.parquet")
+    frame.assign(motor=-frame["motor"]).to_parquet(tmp_path / "motor_negative.parquet")
     swap = {"front": "back", "back": "front"}
     frame.rename(columns=swap).to_parquet(tmp_path / "swapped.parquet")
     healthy, sidecar = str(records / "healthy.parquet"), records / "healthy.json"
@@ -255,6 +259,12 @@ def test_cli_diagnose_refuses_bad_input(records, tmp_path):
          "one_hz.parquet: --healthy: sampled at 1 Hz, --data at 100 Hz"),
         (["--data", str(tmp_path / "fifty_hz.parquet"), "--healthy", healthy],
          "healthy.parquet: --healthy: sampled at 100 Hz, --data at 50 Hz"),
+        # checked against the drive train's nominal speeds, the motor too (a false alarm)
+        (["--data", str(tmp_path / "motor_rads.parquet"), "--healthy", healthy],
+         "column 'motor': median running speed 151.9 is 0.105 x the nominal 1450 rpm, which "
+         "matches a column in rad/s"),
+        (["--data", str(tmp_path / "motor_negative.parquet"), "--healthy", healthy],
+         "column 'motor': the running speed is negative"),
         # the fix names an option diagnose has (the map applies to --healthy's files too)
         (["--data", str(tmp_path / "swapped.parquet")], "--columns front=back,back=front"),
         (["--data", str(tmp_path / "swapped.parquet"), "--columns", "front=back,back=front",

@@ -210,6 +210,19 @@ def test_cli_refuses_unknown_element_listing_valid_ones(tmp_path):
     assert "Traceback" not in result.output and not (tmp_path / "x.csv").exists()
 
 
+def test_cli_refuses_a_fault_after_the_records_end_and_notes_a_ramp_beyond_it(tmp_path):
+    # the sidecar would label a fault the record does not hold
+    result = CliRunner().invoke(app, ["generate", "--out", str(tmp_path / "x.csv"), "--quiet",
+                                      "--duration", "2", "--fault", "E-F:wear:severity=60:onset=30"])  # fmt: skip
+    assert result.exit_code == 2 and "starts at 30 s, not before the record's end" in result.output
+    assert not (tmp_path / "x.csv").exists()
+    result = CliRunner().invoke(app, ["generate", "--out", str(tmp_path / "x.csv"), "--quiet",
+                                      "--duration", "2", "--fault",
+                                      "E-F:wear:severity=60:onset=1:ramp=10"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "it reaches 10% of severity 60" in result.output
+
+
 def test_generate_faults_is_seeded_and_labelled(tmp_path):
     outs = []
     for k in range(2):

@@ -19,6 +19,7 @@ from drafttwin.errors import ConfigError
 
 if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries
+    from drafttwin.mechanics import DriveTrain
     from drafttwin.models import BaseModel
 
 
@@ -75,6 +76,7 @@ class Channels:
     columns: dict[str, str] | None = None  # file column -> channel / time / motor
     check_units: bool = True
     rate_tolerance: float = 0.01
+    nominal_rpm: dict[str, float] | None = None  # the drive train's, to catch rad/s or rev/s
 
     @classmethod
     def parse(
@@ -130,7 +132,8 @@ class Channels:
                                   "time_column": self.time_column, "inputs": inputs,
                                   "setpoints": True, "columns": self.columns,
                                   "check_units": self.check_units,
-                                  "rate_tolerance": self.rate_tolerance}  # fmt: skip
+                                  "rate_tolerance": self.rate_tolerance,
+                                  "nominal_rpm": self.nominal_rpm}  # fmt: skip
         parts = [read_measurements(p, **kwargs) for p in paths]  # plant records: with truth
         if len(parts) == 1:
             return parts[0]
@@ -143,3 +146,15 @@ def _rollers() -> tuple[str, ...]:
     from drafttwin._constants import ROLLERS
 
     return ROLLERS
+
+
+def nominal_rpm(train: DriveTrain) -> dict[str, float]:
+    """Each rpm channel's and the motor's speed at the train's rated point: a record's running
+    medians are compared with them, so a column in rad/s or rev/s is refused by name."""
+    from drafttwin.mechanics import kinematics
+
+    node_rpm = kinematics(train).node_rpm
+    speeds = {m.channel: float(node_rpm[m.node]) for m in train.output_channels()
+              if m.unit == "rpm" and m.node in node_rpm}  # fmt: skip
+    speeds.setdefault("motor", float(node_rpm.get("motor", 0.0)))
+    return {name: rpm for name, rpm in speeds.items() if rpm > 0}

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
@@ -10,7 +11,7 @@ import typer
 from rich.markup import escape
 from rich.table import Table
 
-from drafttwin.cli._data import ChannelOptions
+from drafttwin.cli._data import ChannelOptions, nominal_rpm
 from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import (
     FullModelOpt,
@@ -85,7 +86,7 @@ def calibrate(
                           source=out, where="--out", fix="name it *.toml")  # fmt: skip
     report_file = report_path(out)
     train = drive.load()
-    parsed = channels.parse()
+    parsed = replace(channels.parse(), nominal_rpm=nominal_rpm(train))
     needs = tuple(c.channel for c in train.spec.input)
     series = parsed.read(data, needs)
     model, name = _model(full_model)

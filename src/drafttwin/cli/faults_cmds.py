@@ -22,6 +22,7 @@ from drafttwin.cli._options import (
     QuietOpt,
     SampleRateOpt,
     TrainOptions,
+    UnitCheckOpt,
     WorkersOpt,
     dir_out,
     file_out,
@@ -109,7 +110,7 @@ ReportOpt = Annotated[Path | None, file_out("--report", "Write an HTML page (tim
 def diagnose(
     model: PhysicsOpt, data: RecordOpt, healthy: HealthyOpt = None,
     far_per_day: FarPerDayOpt = 1.0, as_json: JsonOpt = False, report: ReportOpt = None,
-    columns: ColumnsOpt = None,
+    columns: ColumnsOpt = None, unit_check: UnitCheckOpt = True,
 ) -> None:  # fmt: skip
     """Detect, locate and size a machine or sensor fault in a record.
 
@@ -130,14 +131,15 @@ def diagnose(
     angle offset alone has no healthy reference. Gear cracks and run-outs are not assessed.
     """
     from drafttwin._json import dumps_strict
-    from drafttwin.cli._data import Channels, pairs
+    from drafttwin.cli._data import Channels, nominal_rpm, pairs
     from drafttwin.diagnosis.detect import FaultDetector
     from drafttwin.diagnosis.diagnose import Diagnoser
     from drafttwin.diagnosis.physics import physics_train
     from drafttwin.diagnosis.residuals import record_features
 
     train = physics_train(model)
-    mapped = Channels(columns=pairs(columns, "--columns", "v1=front,v2=second") or None)
+    mapped = Channels(columns=pairs(columns, "--columns", "v1=front,v2=second") or None,
+                      nominal_rpm=nominal_rpm(train), check_units=unit_check)  # fmt: skip
     series = mapped.read(data)
     healthy_paths = [p.strip() for p in (healthy or "").split(",") if p.strip()]
     if healthy_paths:

@@ -77,10 +77,13 @@ def kinematics(
     if train.spec.output or not kin.rollers:
         _output_table(train, op)
     console.print(
-        f"* running: torque balance with motor slip {op.slip * 100:.3f} % "
+        f"* running: torque balance at the rated supply with motor slip {op.slip * 100:.3f} % "
         f"({op.motor_rpm:.2f} rpm, {op.motor_torque_nm:.2f} N m)"
         + "".join(f", belt creep {k} {v * 100:.4f} %" for k, v in op.belt_creep.items())
     )
+    if motor_rpm is not None:
+        console.print(f"--motor-rpm {motor_rpm:g} sets the nominal columns; the running "
+                      "column (*) stays the rated supply's (the JSON's operating_point too)")  # fmt: skip
     freqs = {**kin.mesh_frequencies_hz, **kin.chain_tooth_frequencies_hz}
     if freqs:
         console.print("mesh / chain-tooth frequencies (Hz): "

@@ -23,7 +23,7 @@ from drafttwin.cli._options import (
     file_out,
     number,
 )
-from drafttwin.cli.typer_app import app, console, progress_bar
+from drafttwin.cli.typer_app import app, console, err_console, progress_bar
 from drafttwin.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -36,7 +36,7 @@ MachineSeedOpt = Annotated[int | None, number(
     "--machine-seed and different --seed are two records of one machine. Default: the "
     "recording's --seed.")]  # fmt: skip
 MachineFileOpt = Annotated[Path | None, file_in("--machine", "Record the machine of an earlier run: the .json sidecar it wrote.")]  # fmt: skip
-ScenarioOpt = Annotated[str, typer.Option("--scenario", help="steady | startup | speed-change (see docs/plant.md).")]  # fmt: skip
+ScenarioOpt = Annotated[str, typer.Option("--scenario", help="steady | startup | speed-change | stop (see docs/plant.md).")]  # fmt: skip
 FaultOpt = Annotated[list[str] | None, typer.Option("--fault", help=(
     "Inject a fault: ELEMENT:KIND:severity=S:onset=T[:ramp=R] (T, R in s; repeatable), e.g. "
     "E-F:wear:severity=60:onset=30 or front:gain:severity=0.01:onset=5. Kinds and severity "
@@ -106,6 +106,7 @@ def generate(
                           where="--machine", fix="give one of them")  # fmt: skip
     plant = Plant(drive.load(), config=_plant_config(gear_runout))
     faults = check_faults([FaultSpec.parse(f) for f in fault or []], plant.train)
+    _check_fault_times(faults, duration)
     settings = _sliver_settings(sliver, feed_fault, fibre_scale, out, leveller, leveller_fault)
     if settings is not None:
         check_sliver_rate(rate)
@@ -200,6 +201,24 @@ def check_sliver_rate(rate_hz: float) -> None:
                       f"{BLOCK_S:g} s, so the rate must divide {SURFACE_RATE_HZ:g} Hz in whole "
                       "samples per block", where="--rate",
                       fix="give --rate " + ", ".join(f"{r:g}" for r in good))  # fmt: skip
+
+
+def _check_fault_times(faults: tuple[Any, ...], duration_s: float) -> None:
+    """A fault that starts after the record's end would be labelled in the sidecar but
+    absent from the record: refused. A ramp that outlasts the record is a fault still
+    growing at its end: said."""
+    for f in faults:
+        name = f"{f.element}:{f.kind}"
+        if f.onset_s >= duration_s:
+            raise ConfigError(f"{name} starts at {f.onset_s:g} s, not before the record's end "
+                              f"({duration_s:g} s): the record would hold no fault",
+                              where="--fault", fix=f"give onset= below {duration_s:g}, or a "
+                              "longer --duration")  # fmt: skip
+        if f.ramp_s and f.onset_s + f.ramp_s > duration_s:
+            reached = (duration_s - f.onset_s) / f.ramp_s
+            err_console.print(f"note: {name}'s ramp ends at {f.onset_s + f.ramp_s:g} s, after the "
+                              f"record ({duration_s:g} s): it reaches {reached:.0%} of severity "
+                              f"{f.severity:g}", highlight=False, soft_wrap=True)  # fmt: skip
 
 
 def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: float,

@@ -237,6 +237,7 @@ def _read_file(source: Path, spec: ChannelSpec, opts: _Options) -> MeasurementSe
     data = {role: _channel(frame, col, source, row_label) for role, col in plan.roles().items()}
     if opts.check_units:
         rpm = [n for n in (*plan.outputs, *plan.inputs) if is_rpm(plan.units[n])]
+        rpm += ["motor"] if plan.motor else []  # a motor column is in rpm (a sign, a unit)
         if rpm:
             check_rpm(np.column_stack([data[n] for n in rpm]), rpm, source,
                       nominal_rpm=opts.nominal_rpm, diameters_mm=opts.diameters_mm,
