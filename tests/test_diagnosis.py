@@ -283,3 +283,35 @@ def test_one_step_is_one_alarm_episode_when_counting_every_alarm(detector):
     shift = np.array([-1, -1, -1, -1, -0.8]) * 3 * SIGMA
     det = detector.run(synthetic(13, n=3000, shift=shift, at=300), stop_at_first=False)
     assert len(det.alarms) == 1 and 300 < det.alarms[0].time_s <= 330
+
+
+def test_cli_diagnose_says_when_the_record_is_not_steady(records, tmp_path):
+    # a healthy stop or start-up raised alarms (a standstill reads as a stuck encoder): the
+    # thresholds hold for steady running, and the output says where the record is not
+    import json
+
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    frame = pd.read_parquet(records / "healthy.parquet")
+    stopped = frame["time"] >= 50.0
+    frame.loc[stopped, ["front", "second", "third", "back", "motor"]] = 0.0
+    frame.to_parquet(tmp_path / "stop.parquet")
+    args = [
+        "diagnose",
+        "--model",
+        "preset",
+        "--healthy",
+        str(records / "healthy.parquet"),
+        "--json",
+    ]
+    res = CliRunner().invoke(app, [*args, "--data", str(tmp_path / "stop.parquet")])
+    assert res.exit_code == 0, res.output
+    (note,) = json.loads(res.stdout)["notes"]
+    assert note.startswith(
+        "the front roller runs below half its median speed from 50.0 s to 60.0 s"
+    )
+    res = CliRunner().invoke(app, [*args, "--data", str(records / "gain.parquet")])
+    assert res.exit_code == 0 and "notes" not in json.loads(res.stdout), res.output

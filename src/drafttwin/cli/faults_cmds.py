@@ -163,6 +163,9 @@ def diagnose(
             "watched_from_s": watched_from,
             "detector": detector.describe(), "creep_rel_sd": diagnoser.creep_rel_sd}  # fmt: skip
     result = {**info, **dx.to_dict()}
+    unsteady = _not_steady(series)
+    if unsteady is not None:
+        result["notes"] = [unsteady]
     from drafttwin.diagnosis.sliver_evidence import sliver_evidence
 
     sliver = sliver_evidence(data, train, series,
@@ -233,9 +236,27 @@ def _head(series: MeasurementSeries, n: int) -> MeasurementSeries:
                    metadata={})  # fmt: skip
 
 
+def _not_steady(series: MeasurementSeries) -> str | None:
+    """What to say of a record whose front roller runs below half its median speed somewhere
+    (a start, a stop, a standstill): the thresholds are set on steady running, and a healthy
+    start-up or stop has raised alarms (a standstill reads as a stuck encoder)."""
+    front = np.asarray(series.values[:, 0], dtype=np.float64)
+    median = float(np.nanmedian(front)) if np.isfinite(front).any() else 0.0
+    slow = np.flatnonzero(front < 0.5 * median) if median > 0 else np.arange(len(front))
+    if not len(slow):
+        return None
+    t = series.time_s
+    return (f"the front roller runs below half its median speed from {t[slow[0]]:.1f} s to "
+            f"{t[slow[-1]]:.1f} s (a start, a stop or a standstill): the thresholds hold for "
+            "steady running, so an alarm there may be false; diagnose a steady part of the "
+            "record")  # fmt: skip
+
+
 def _print_diagnosis(result: dict[str, Any], report: Path | None, lags_note: str | None) -> None:
     alarm = result["alarm"]
     console.print(f"thresholds from {result['thresholds_from']}")
+    for note in result.get("notes", []):
+        console.print(f"[yellow]note:[/] {note}")
     if lags_note is not None:
         console.print(lags_note)
     if alarm is None:
