@@ -327,3 +327,14 @@ def test_a_device_given_as_output_stays_a_device() -> None:
         path.write_text("discarded\n")
     assert stat.S_ISCHR(device.stat().st_mode)
     assert device.read_text() == ""
+
+
+def test_a_unit_declared_for_a_roller_or_the_motor_is_read_as_declared(tmp_path: Path) -> None:
+    # --units front=rpm had made the default roller an input too ("declared both as an output
+    # and as an input"); motor=rpm an input channel named motor
+    path = dt.write_measurements(dt.load_default(), tmp_path / "r.csv")
+    for units in ("front=rpm", "motor=rpm", "front=rpm,supply_hz=Hz"):
+        out = invoke(["inspect", str(path), "--units", units])
+        assert out.exit_code == 0, (units, out.stderr)
+    out = invoke(["inspect", str(path), "--units", "motor=rad/s"])
+    assert out.kind == "clean" and "the motor column is read in rpm, not rad/s" in out.stderr

@@ -109,6 +109,26 @@ class Channels:
         inputs = tuple(dict.fromkeys((*model.task.inputs, *(self.inputs or ()))))
         return replace(self, outputs=tuple(model.channels_), inputs=inputs, units=units)
 
+    def reading(self, extra_inputs: tuple[str, ...] = ()) -> dict[str, Any]:
+        """The keyword arguments of ``read_measurements`` these options ask for (``read`` and
+        ``inspect`` both read so)."""
+        # a column given a unit is read too (as an input unless it is an output: the rollers
+        # where no --outputs are given); the motor column is read in rpm, its unit need not be
+        # declared
+        units = dict(self.units or {})
+        if units.get("motor", "rpm") != "rpm":
+            raise ConfigError(f"the motor column is read in rpm, not {units['motor']}",
+                              where="--units", fix="convert it to rpm, or leave motor out "
+                              "of --units")  # fmt: skip
+        units.pop("motor", None)
+        outputs = self.outputs or _rollers()
+        with_units = [n for n in units if n not in outputs]
+        inputs = tuple(dict.fromkeys((*(self.inputs or ()), *extra_inputs, *with_units)))
+        return {"outputs": self.outputs, "units": units or None, "time_column": self.time_column,
+                "inputs": inputs, "setpoints": True, "columns": self.columns,
+                "check_units": self.check_units, "rate_tolerance": self.rate_tolerance,
+                "nominal_rpm": self.nominal_rpm}  # fmt: skip
+
     def read(self, spec: str, extra_inputs: tuple[str, ...] = ()) -> MeasurementSeries:
         """The series named by ``--data``/``--test-data``: ``default`` or file(s)."""
         if spec == "default":
@@ -125,15 +145,7 @@ class Channels:
         from drafttwin.data.io import read_measurements
 
         paths = [Path(p.strip()) for p in spec.split(",") if p.strip()]
-        # a column given a unit is read too (as an input unless it is an output)
-        with_units = [n for n in (self.units or {}) if n not in (*(self.outputs or ()), "motor")]
-        inputs = tuple(dict.fromkeys((*(self.inputs or ()), *extra_inputs, *with_units)))
-        kwargs: dict[str, Any] = {"outputs": self.outputs, "units": self.units,
-                                  "time_column": self.time_column, "inputs": inputs,
-                                  "setpoints": True, "columns": self.columns,
-                                  "check_units": self.check_units,
-                                  "rate_tolerance": self.rate_tolerance,
-                                  "nominal_rpm": self.nominal_rpm}  # fmt: skip
+        kwargs = self.reading(extra_inputs)
         parts = [read_measurements(p, **kwargs) for p in paths]  # plant records: with truth
         if len(parts) == 1:
             return parts[0]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -199,21 +200,9 @@ def inspect_cmd(
 
         series = load_default()
     else:
-        channels = channel_options.parse()
-        with_units = [n for n in (channels.units or {}) if n not in (channels.outputs or ())]
-        series = read_measurements(
-            [Path(p.strip()) for p in file.split(",") if p.strip()],
-            outputs=channels.outputs,
-            inputs=tuple(dict.fromkeys((*(channels.inputs or ()), *with_units))),
-            setpoints=True,
-            units=channels.units,
-            columns=channels.columns,
-            time_column=channels.time_column,
-            expected_rate_hz=rate,
-            rate_tolerance=channels.rate_tolerance,
-            check_units=channels.check_units,
-            nominal_rpm=parse_numbers(nominal, "--nominal"),
-        )
+        channels = replace(channel_options.parse(), nominal_rpm=parse_numbers(nominal, "--nominal"))
+        series = read_measurements([Path(p.strip()) for p in file.split(",") if p.strip()],
+                                   expected_rate_hz=rate, **channels.reading())  # fmt: skip
     summary = summarize(series, outlier_threshold=threshold)
     if as_json:
         print_json(summary)
