@@ -193,6 +193,9 @@ def test_row_numbers_skip_blank_lines(tmp_path: Path) -> None:
 def test_decimal_comma_hint(tmp_path: Path) -> None:
     lines = ["time;front;second;third;back", "0;1815;1500;450;355", "0.01;1815,5;1500;450;355"]
     refuse(csv(tmp_path, lines), "row 2 (line 3), column 'front'", "decimal comma")
+    # a European export's time column shows it first
+    lines = ["time;front;second;third;back", "0;1815;1500;450;355", "0,01;1815,5;1500;450;355"]
+    refuse(csv(tmp_path, lines), "row 2 (line 3), column 'time'", "decimal comma")
 
 
 def test_infinite_value(tmp_path: Path) -> None:

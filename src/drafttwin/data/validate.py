@@ -300,12 +300,12 @@ def check_time_cells(
         if pd.isna(value)
         else f"time value '{value}' is not a number of seconds nor an ISO 8601 timestamp"
     )
-    raise DataError(
-        what,
-        source=source,
-        where=f"{row_label(i)}, column '{header}'",
-        fix="every row needs a time: seconds (0.01) or an ISO 8601 timestamp (2024-05-01T08:00:00.010)",
+    fix = (
+        "every row needs a time: seconds (0.01) or an ISO 8601 timestamp (2024-05-01T08:00:00.010)"
     )
+    if re.fullmatch(r"\s*-?\d+,\d+\s*", str(value)):  # the first column a European export shows
+        fix = "the file uses a decimal comma; export with a decimal point ('.')"
+    raise DataError(what, source=source, where=f"{row_label(i)}, column '{header}'", fix=fix)
 
 
 def check_monotonic(t: np.ndarray, source: str | Path, row_label: RowLabel) -> None:
