@@ -151,3 +151,19 @@ def test_supply_below_zero_is_clamped():
     speeds = simulate(FA320A, time_s=time_s, inputs={"supply_hz": hz}).channels(("motor",))
     np.testing.assert_array_equal(speeds, 0.0)
     assert math.isfinite(float(speeds.sum()))
+
+
+def test_cli_refuses_a_negative_supply_and_notes_one_far_above_the_rated(tmp_path):
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    t = np.arange(0, 1.0, 0.01)
+    for hz, words in ((-48.0, "goes down to -48 Hz; a VFD's set-point is not signed"),
+                      (480.0, "reaches 480 Hz, 9.9 x the motor's rated 48.47 Hz")):  # fmt: skip
+        path = tmp_path / f"sp{hz:g}.csv"
+        pd.DataFrame({"time": t, "supply_hz": np.full(t.shape, hz)}).to_csv(path, index=False)
+        res = CliRunner().invoke(app, ["simulate", "--setpoints", str(path), "--reduced"])
+        assert words in res.output and "Traceback" not in res.output, res.output
+        assert res.exit_code == (2 if hz < 0 else 0), res.output

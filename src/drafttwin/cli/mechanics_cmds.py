@@ -25,7 +25,7 @@ from drafttwin.cli._options import (
     number,
 )
 from drafttwin.cli._stream import FrameStream, RunningStats, frame_stream
-from drafttwin.cli.typer_app import app, console, print_json, progress_bar
+from drafttwin.cli.typer_app import app, console, err_console, print_json, progress_bar
 
 if TYPE_CHECKING:
     from drafttwin.mechanics import (
@@ -242,6 +242,7 @@ def _follow(train: DriveTrain, path: Path, dt: float | None, settle: float | Non
             fix="declare [[input]] tables in the drive-train file (see docs/mechanics.md)",
         )
     series = read_measurements(path, outputs=(), inputs=names, check_units=False)
+    _check_supply(train, series, path)
     channels = [m.channel for m in train.output_channels()]
     kwargs: dict[str, Any] = {
         k: v for k, v in (("dt_s", dt), ("settle_s", settle)) if v is not None
@@ -255,6 +256,27 @@ def _follow(train: DriveTrain, path: Path, dt: float | None, settle: float | Non
             part["record"] = k + 1
         parts.append(part)
     return pd.concat(parts, ignore_index=True)
+
+
+def _check_supply(train: DriveTrain, series: Any, path: Path) -> None:
+    """A supply frequency below zero is refused (a VFD's set-point is not signed: the
+    simulation would stand still); one far above the motor's rated supply is noted."""
+    from drafttwin.errors import DataError
+
+    rated = train.spec.motor.supply_hz if train.spec.motor is not None else None
+    for c in train.input_channels():
+        if c.drives != "supply_hz" or c.channel not in series.inputs:
+            continue
+        hz = c.gain * np.asarray(series.inputs[c.channel], dtype=np.float64) + c.offset
+        if np.nanmin(hz) < 0:
+            raise DataError(f"the supply frequency goes down to {np.nanmin(hz):.4g} Hz; a VFD's "
+                            "set-point is not signed", source=path, where=f"column '{c.channel}'",
+                            fix="give the set-point in Hz, 0 or above")  # fmt: skip
+        if rated and np.nanmax(hz) > 2 * rated:
+            err_console.print(f"note: {path.name}: the supply frequency reaches "
+                              f"{np.nanmax(hz):.4g} Hz, {np.nanmax(hz) / rated:.1f} x the motor's "
+                              f"rated {rated:g} Hz (is column '{c.channel}' in Hz?)",
+                              highlight=False, soft_wrap=True)  # fmt: skip
 
 
 def _summary(stats: RunningStats, label: str) -> None:
