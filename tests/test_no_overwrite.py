@@ -45,3 +45,20 @@ def test_generate_replaces_its_own_earlier_record(tmp_path: Path) -> None:
     assert result.exit_code == 0, result.output
     assert json.loads((tmp_path / "rec.json").read_text())["files"]["measured"] == "rec.csv"
     assert (tmp_path / "rec.truth.csv").read_text() != "old\n"
+
+
+def test_generate_refuses_to_write_over_the_machine_it_reads(tmp_path: Path) -> None:
+    rec = str(tmp_path / "rec.csv")
+    assert runner.invoke(app, ["generate", "--duration", "0.2", "--out", rec]).exit_code == 0
+    machine = (tmp_path / "rec.json").read_text()
+    result = runner.invoke(app, ["generate", "--duration", "0.3", "--out", rec, "--machine",
+                                 str(tmp_path / "rec.json")])  # fmt: skip
+    assert result.exit_code == 2 and "is both --machine and the sidecar of --out" in result.output
+    assert (tmp_path / "rec.json").read_text() == machine
+
+
+def test_calibrate_refuses_params_that_name_nothing(tmp_path: Path) -> None:
+    result = runner.invoke(app, ["calibrate", "--data", "default", "--params", " , ",
+                                 "--out", str(tmp_path / "c.toml")])  # fmt: skip
+    assert result.exit_code == 2 and "--params names no parameter" in result.output
+    assert not (tmp_path / "c.toml").exists()

@@ -8,6 +8,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+from rich import box
+from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
@@ -91,6 +93,10 @@ def calibrate(
     series = parsed.read(data, needs)
     model, name = _model(full_model)
     names = None if params is None else [p.strip() for p in params.split(",") if p.strip()]
+    if names == []:
+        raise ConfigError("--params names no parameter", where="--params",
+                          fix="name parameters (e.g. --params motor.rated_slip), or leave "
+                          "--params out to screen them all")  # fmt: skip
     say = None if (quiet or as_json) else (lambda msg: err_console.print(escape(msg)))
     has_motor = series.motor_rpm is not None or "motor" in series.channels
     if wander and not has_motor:
@@ -151,19 +157,26 @@ def _model(full: bool) -> tuple[Callable[[DriveTrain], DriveTrain] | None, str]:
 
 
 def _print(result: Calibration) -> None:
-    table = Table(title="calibrated parameters")
+    table = Table(title="calibrated parameters", box=box.SIMPLE_HEAD, pad_edge=False,
+                  collapse_padding=True)  # fmt: skip
     for col in ("parameter", "nominal", "estimate", "± SE", "factor", "verdict"):
-        table.add_column(col, justify="left" if col in ("parameter", "verdict") else "right")
+        # whole names and numbers on one line (names differ at their ends); the verdict wraps
+        table.add_column(col, justify="left" if col in ("parameter", "verdict") else "right",
+                         no_wrap=True)  # fmt: skip
+    aside = ("not from this data", "not separable in this data")  # nominal: listed below
     for e in result.estimates:
-        if e.verdict == "not from this data":
+        if e.verdict in aside:
             continue
         se = "-" if e.std_error != e.std_error else f"{e.std_error:.4g}"
         table.add_row(escape(e.name), f"{e.nominal:.5g}", f"{e.estimate:.5g}", se,
                       f"{e.factor:.4f}", e.verdict)  # fmt: skip
-    console.print(table)
-    unseen = [e.name for e in result.estimates if e.verdict == "not from this data"]
-    if unseen:
-        console.print(f"not from this data (left nominal): {escape(', '.join(unseen))}")
+    # whole names and numbers on one line: a pipe or file has no width to fit (80 would cut them)
+    wide = console if console.is_terminal else Console(width=max(console.width, 120))
+    wide.print(table)
+    for verdict in aside:
+        names = [e.name for e in result.estimates if e.verdict == verdict]
+        if names:
+            console.print(f"{verdict} (left nominal): {escape(', '.join(names))}")
     for note in result.notes:
         console.print(escape(note))
     fit = Table(title=f"fit on {result.block_s:g} s block means, {result.records} record(s)")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, cast, get_args
 
@@ -100,6 +101,11 @@ def generate(
 
     check_output_suffix(out)
     _refuse_foreign_beside(out)
+    sidecar = out.with_suffix(".json")
+    if machine is not None and sidecar.exists() and os.path.samefile(machine, sidecar):
+        raise ConfigError("is both --machine and the sidecar of --out: writing the record would "
+                          "replace the machine it reads", source=machine, where="--machine",
+                          fix="copy the machine's file elsewhere first, or choose another --out")  # fmt: skip
     get_scenario(scenario)
     if machine is not None and machine_seed is not None:
         raise ConfigError("--machine and --machine-seed both name the machine",
