@@ -74,6 +74,11 @@ def test_two_machines_in_one_process_then_query(
         ("replay:{record}?speed=0", ("--source", "speed")),
         ("replay:{record}?sped=2", ("--source", "unknown option")),
         ("opcua:http://x", ("--source", "bad OPC UA address")),
+        # a typo in the port: a traceback (MQTT) or a source retrying it all run (OPC UA)
+        ("mqtt://127.0.0.1:notaport", ("--source", "bad address", "1 to 65535")),
+        ("mqtt://127.0.0.1:99999", ("--source", "bad address")),
+        ("mqtt://127.0.0.1:", ("--source", "bad address")),
+        ("opcua:opc.tcp://127.0.0.1:notaport", ("--source", "bad address")),
     ],
 )
 def test_bad_sources_are_refused(

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import SplitResult, parse_qs, urlsplit
 
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.twin.sources.base import Source
@@ -41,6 +41,7 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
         if not url.startswith("opc.tcp://"):
             raise ConfigError(f"bad OPC UA address {url!r}", where="--source",
                               fix="write opcua:opc.tcp://HOST:PORT")  # fmt: skip
+        _check_host_port(urlsplit(url), text, "opcua:opc.tcp://HOST:PORT")
         machines = mapped or (default.renamed(opts.get("machine", default.name)),)
         machines = select_shard(machines, opts.get("shard"), text)
         cert = Path(opts["cert"]) if "cert" in opts else None
@@ -53,6 +54,7 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
         from drafttwin.twin.sources.mqtt import MqttSource  # paho only when MQTT is asked for
 
         parts = urlsplit(text)
+        _check_host_port(parts, text, f"{kind}://[USER@]HOST:PORT")
         opts = _query(parts.query, text, {"machine", "cert", "share", "shard"})
         ca = None
         if kind == "mqtts":
@@ -78,6 +80,19 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
     raise ConfigError(f"unknown source {text!r}", where="--source",
                       fix="use replay:FILE?speed=10, opcua:opc.tcp://HOST:PORT or "
                       "mqtt://[USER@]HOST:PORT")  # fmt: skip
+
+
+def _check_host_port(parts: SplitResult, text: str, form: str) -> None:
+    """A host, and a port that is a number from 1 to 65535 where one is written (a typo had
+    been a traceback, or a source that retried the bad address for the whole run)."""
+    try:
+        port = parts.port
+    except ValueError:
+        port = 0
+    written = parts.netloc.rpartition("@")[2]
+    if not parts.hostname or port == 0 or (port is None and written.endswith(":")):
+        raise ConfigError(f"bad address {text!r}: no host, or a port that is not a number from "
+                          "1 to 65535", where="--source", fix=f"write {form}")  # fmt: skip
 
 
 def select_shard(machines: tuple[MachineMap, ...], shard: str | None,
