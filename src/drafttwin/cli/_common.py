@@ -40,6 +40,27 @@ def check_output_suffix(path: Path, option: str = "--out") -> None:
         )
 
 
+CSV_FLOAT_FORMAT = "%.9g"
+"""How the CSV files a command writes give their values (9 significant digits); a time
+column is written whole (:func:`csv_ready`)."""
+CSV_TIME_COLUMNS = ("time", "t", "time_s", "timestamp")
+
+
+def csv_ready(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with its time column as the shortest text that reads back exactly: at 9
+    significant digits an epoch time (1.8e9 s) loses everything below 10 s."""
+    from pandas.api.types import is_float_dtype
+
+    names = [c for c in frame.columns if str(c).lower() in CSV_TIME_COLUMNS
+             and is_float_dtype(frame[c])]  # fmt: skip
+    if not names:
+        return frame
+    out = frame.copy()
+    for c in names:
+        out[c] = [repr(float(x)) if x == x else "" for x in frame[c].to_numpy()]
+    return out
+
+
 def write_frame(frame: pd.DataFrame, path: Path) -> None:
     """Write a DataFrame to CSV or Parquet atomically (nothing half-written on failure)."""
     from drafttwin._io import atomic_path
@@ -49,4 +70,4 @@ def write_frame(frame: pd.DataFrame, path: Path) -> None:
         if path.suffix.lower() == ".parquet":
             frame.to_parquet(tmp, index=False)
         else:
-            frame.to_csv(tmp, index=False, float_format="%.9g")
+            csv_ready(frame).to_csv(tmp, index=False, float_format=CSV_FLOAT_FORMAT)

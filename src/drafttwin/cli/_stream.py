@@ -20,10 +20,7 @@ import numpy as np
 import pandas as pd
 
 from drafttwin._io import atomic_path
-from drafttwin.cli._common import check_output_suffix
-
-CSV_FLOAT_FORMAT = "%.9g"
-"""As :func:`drafttwin.cli._common.write_frame` writes floats (9 significant digits)."""
+from drafttwin.cli._common import CSV_FLOAT_FORMAT, check_output_suffix, csv_ready
 
 
 class FrameStream:
@@ -45,8 +42,9 @@ class FrameStream:
                 self._writer = pq.ParquetWriter(self._tmp, table.schema)
             self._writer.write_table(table)
         else:
-            frame.to_csv(self._tmp, mode="a" if self._started else "w", header=not self._started,
-                         index=False, float_format=CSV_FLOAT_FORMAT)  # fmt: skip
+            csv_ready(frame).to_csv(self._tmp, mode="a" if self._started else "w",
+                                    header=not self._started, index=False,
+                                    float_format=CSV_FLOAT_FORMAT)  # fmt: skip
         self._started = True
         self.rows += len(frame)
 

@@ -322,8 +322,7 @@ def twin_query(
     """Export a twin's history (all of it by default): per sample the measured values, the
     physics, the twin's prediction and the residual per channel; or its events."""
     _need_twin_extra()
-    from drafttwin._io import atomic_path
-    from drafttwin.cli._common import check_output_suffix
+    from drafttwin.cli._common import check_output_suffix, write_frame
     from drafttwin.twin.store.history import read_events, read_history, summary
 
     if out is not None:
@@ -333,11 +332,7 @@ def twin_query(
                           fix="give --from <= --to")  # fmt: skip
     frame = read_events(store, machine) if events else read_history(store, machine, t_from, t_to)
     if out is not None:
-        with atomic_path(out) as tmp:
-            if out.suffix.lower() == ".parquet":
-                frame.to_parquet(tmp, index=False)
-            else:
-                frame.to_csv(tmp, index=False, float_format="%.10g")
+        write_frame(frame, out)
     machines = summary(store)
     if as_json:
         print_json({"rows": len(frame), "out": None if out is None else str(out),
