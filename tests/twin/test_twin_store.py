@@ -13,7 +13,7 @@ import duckdb
 import numpy as np
 import pytest
 
-from drafttwin.errors import DataError
+from drafttwin.errors import ConfigError, DataError
 from drafttwin.twin.store.db import EventRow, SampleRow, StoreWriter, TwinStore, store_path
 from drafttwin.twin.store.history import read_events, read_history
 
@@ -161,3 +161,11 @@ def test_query_while_a_twin_holds_the_store_says_so(tmp_path: Path) -> None:
     assert res.returncode == 2
     assert "the store is in use by a running twin" in res.stderr
     assert "Traceback" not in res.stderr
+
+
+def test_a_hall_folder_is_not_opened_as_one_twins_store(tmp_path: Path) -> None:
+    # a store beside a hall's shards would hide them from 'twin query' and 'twin audit'
+    TwinStore(tmp_path / "shard-0-of-2").close()
+    with pytest.raises(ConfigError, match="holds the stores of a hall's shards"):
+        TwinStore(tmp_path)
+    assert not (tmp_path / "twin.duckdb").exists()

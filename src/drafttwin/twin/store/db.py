@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from drafttwin.errors import DataError
+from drafttwin.errors import ConfigError, DataError
 
 STORE_FILE = "twin.duckdb"
 FORMAT = "drafttwin-twin-store"
@@ -118,6 +118,13 @@ class TwinStore:
 
     def __init__(self, folder: str | Path) -> None:
         self.path = store_path(folder)
+        if not self.path.exists() and any(
+            store_path(p).is_file() for p in Path(folder).glob("shard-*-of-*")
+        ):  # a store beside the shards would hide them from 'twin query' and 'twin audit'
+            raise ConfigError("this folder holds the stores of a hall's shards (shard-I-of-K/)",
+                              source=folder, where="--store",
+                              fix="give 'twin run' a new folder (the hall's is read by 'twin "
+                              "query' and 'twin audit')")  # fmt: skip
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.con = _connect(self.path, read_only=False)
         tables = self.con.execute("SELECT count(*) FROM information_schema.tables").fetchall()
