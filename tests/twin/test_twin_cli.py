@@ -164,3 +164,14 @@ def test_the_live_benchmarks_speed_default_is_the_studys():
     from drafttwin.studies.faults.live import SPEED
 
     assert inspect.signature(benchmark_faults).parameters["speed"].default == SPEED
+
+
+def test_max_samples_stops_at_the_count(twin_files: tuple[Path, Path], tmp_path: Path) -> None:
+    # a replay at full speed hands hundreds of samples in one turn of the loop: 300 were
+    # processed for --max-samples 1
+    record, model = twin_files
+    for n in (1, 37):
+        res = _run("twin", "run", "--model", str(model), "--source", f"replay:{record}?speed=max",
+                   "--store", str(tmp_path / f"s{n}"), "--max-samples", str(n), "--json")  # fmt: skip
+        assert res.exit_code == 0, res.stderr
+        assert json.loads(res.stdout)["rows"] == n

@@ -60,6 +60,8 @@ class TwinService:
         self._scheduled = False
         self.stop_signalled = False
         self._closed = False
+        self.max_rows: int | None = None  # samples to take (run's max_rows), None: all
+        self.taken = 0  # samples taken so far
         self.after_stop = 0  # samples a source delivered after the stop began (not processed)
         self.faults = FaultDesk(self)
 
@@ -95,6 +97,12 @@ class TwinService:
         if self._closed:  # stopping: nothing after the signal beyond what was in flight
             self.after_stop += 1
             return
+        if self.max_rows is not None and not isinstance(s, SliverBatch):
+            if self.taken >= self.max_rows:  # --max-samples: a replay at full speed hands
+                self.after_stop += 1  # thousands in one turn of the loop; stop at the count
+                self._stop.set()
+                return
+            self.taken += 1
         if isinstance(s, SliverBatch):
             st = self.states.get(s.machine)
             if st is not None:
@@ -232,6 +240,7 @@ class TwinService:
     async def run(self, *, duration_s: float | None = None, max_rows: int | None = None) -> None:
         """Run until every source ended, ``duration_s`` passed or ``max_rows`` were processed."""
         self.loop = asyncio.get_running_loop()
+        self.max_rows = max_rows
         self.locator.warm()  # a worker process: the first alarm must not wait for its start
         self.faults.resume_pending()
         tasks = [asyncio.create_task(src.run(self.on_sample, self.report)) for src in self.sources]
