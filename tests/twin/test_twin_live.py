@@ -167,3 +167,35 @@ def test_machines_of_one_tick_share_one_network_pass_with_the_same_result(replay
         np.testing.assert_array_equal([r.physics for r in got[n]], [r.physics for r in rows])
         np.testing.assert_allclose([r.twin for r in got[n]], [r.twin for r in rows], atol=1e-3,
                                    equal_nan=True)  # fmt: skip
+
+
+def test_a_machine_the_source_never_sends_waits_and_says_so(replayed, monkeypatch) -> None:  # noqa: ANN001
+    """Connected without a sample of the machine (a wrong name in the mapping) is 'waiting',
+    not 'live' (it read live at 0 samples all run), and said once; a sample makes it live."""
+    import asyncio
+
+    from drafttwin.twin import service as service_module
+    from drafttwin.twin.service import MachineState, TwinService
+    from drafttwin.twin.sources.base import Sample
+    from drafttwin.twin.sources.mapping import MachineMap
+
+    series, model, _, _ = replayed
+    monkeypatch.setattr(service_module, "WAITING_S", 0.2)
+    st = MachineState(MachineTwin("a", model, 100.0), MachineMap("a", CHANNELS), "test")
+    service = TwinService({"a": st}, [], silent_s=0.4)
+    kinds: list[str] = []
+    service.event_hooks.append(lambda ev: kinds.append(ev.kind))
+
+    async def run() -> None:
+        service.report("a", "source-live", "mqtt://x")
+        assert st.state == "waiting"
+        watch = asyncio.create_task(service._watch())
+        await asyncio.sleep(0.8)
+        assert kinds.count("no-samples") == 1 and st.state == "waiting"
+        service.on_sample(Sample("a", 0, 0, series.values[0], 48.47))
+        await asyncio.sleep(0.05)
+        assert st.state == "live"
+        service._stop.set()
+        await watch
+
+    asyncio.run(run())

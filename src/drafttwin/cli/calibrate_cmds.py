@@ -9,7 +9,6 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 from rich import box
-from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
@@ -23,7 +22,7 @@ from drafttwin.cli._options import (
     files_in,
     number,
 )
-from drafttwin.cli.typer_app import app, console, err_console, print_json
+from drafttwin.cli.typer_app import app, console, err_console, print_json, print_table
 from drafttwin.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
@@ -171,8 +170,7 @@ def _print(result: Calibration) -> None:
         table.add_row(escape(e.name), f"{e.nominal:.5g}", f"{e.estimate:.5g}", se,
                       f"{e.factor:.4f}", e.verdict)  # fmt: skip
     # whole names and numbers on one line: a pipe or file has no width to fit (80 would cut them)
-    wide = console if console.is_terminal else Console(width=max(console.width, 120))
-    wide.print(table)
+    print_table(table)
     for verdict in aside:
         names = [e.name for e in result.estimates if e.verdict == verdict]
         if names:

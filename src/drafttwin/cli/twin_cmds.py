@@ -15,7 +15,7 @@ from rich.table import Table
 
 from drafttwin.cli._exit import work_done
 from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, file_out, number, path_in
-from drafttwin.cli.typer_app import app, console, err_console, print_json
+from drafttwin.cli.typer_app import app, console, err_console, print_json, print_table
 from drafttwin.errors import ConfigError
 
 if TYPE_CHECKING:
@@ -247,7 +247,7 @@ def _print_status(status: dict[str, Any]) -> None:
         table.add_row(name, m["state"], str(m["received"]), str(m["processed"]), str(m["dropped"]),
                       str(m["late"]), str(m["duplicate"]), str(m["skipped"]),
                       str(m["spikes_rejected"]))  # fmt: skip
-    console.print(table)
+    print_table(table)
     lat = status["latency_ms"]
     if lat["p99"] is not None:
         console.print(f"latency received -> stored/pushed: p50 {lat['p50']:.2f} ms, "

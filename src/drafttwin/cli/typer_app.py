@@ -112,6 +112,12 @@ app = typer.Typer(
 console = Console()
 
 
+def print_table(table: Any) -> None:
+    """A table on stdout whole: into a pipe or file at 120 columns or more (rich's 80 there
+    cut names and headers to 'machi…'), in a terminal at its width."""
+    (console if console.is_terminal else Console(width=max(console.width, 120))).print(table)
+
+
 @contextlib.contextmanager
 def progress_bar(description: str, total: float, *, quiet: bool = False) -> Iterator[Progress]:
     """A rich progress bar on stderr; ``advance`` it in the caller's units (e.g. seconds)."""

@@ -127,7 +127,8 @@ class AlarmBook:
 
 CONSOLE_KINDS = ("fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack",
                  "sliver-chimney", "learning", "learned", "baseline", "baseline-refused",
-                 "detector-foreign", "identity", "leveller", "leveller-advice")  # fmt: skip
+                 "detector-foreign", "identity", "leveller", "leveller-advice",
+                 "source-reconnecting", "no-samples", "silent")  # fmt: skip
 """Events a running twin prints on its console (its alarms and what its detector does)."""
 
 

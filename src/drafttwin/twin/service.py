@@ -37,6 +37,9 @@ from drafttwin.wire.identity import MachineIdentity
 
 SOURCES_STOP_S = 1.5
 """At a stop, how long the sources may take to close their connections."""
+WAITING_S = 10.0
+"""A source connected this long without a sample of a machine: the twin says so once (the
+machine is 'waiting', not 'live'; a wrong name in the mapping looked live at 0 samples)."""
 
 
 class TwinService:
@@ -131,7 +134,7 @@ class TwinService:
             st.received += 1
             st.last_wall = time.monotonic()
             if st.state != "live":
-                st.state = "live"
+                st.state, st.waiting_since = "live", None
             if st.resume_after_us is not None and s.ts_us <= st.resume_after_us:
                 st.skipped += 1  # stored before a restart: not again
                 continue
@@ -206,6 +209,8 @@ class TwinService:
             return
         if kind.startswith("source-"):
             st.state = kind.removeprefix("source-")
+            if st.state == "live" and st.last_wall == 0.0:  # connected, nothing of it yet
+                st.state, st.waiting_since = "waiting", time.monotonic()
         if kind == "dropped":
             before, st.dropped = st.dropped, st.dropped + count
             if self.metrics is not None:
@@ -230,6 +235,14 @@ class TwinService:
             await asyncio.sleep(min(0.5, self.silent_s / 2))
             now = time.monotonic()
             for st in self.states.values():
+                waited = st.waiting_since is not None and now - st.waiting_since > WAITING_S
+                if waited and st.state == "waiting":
+                    st.waiting_since = None  # said once per connection
+                    self.event(st, EventRow(st.twin.name, "no-samples", int(time.time() * 1e6),
+                                            f"connected, but no sample of machine "
+                                            f"'{st.twin.name}' in {WAITING_S:g} s: does the "
+                                            "source name it so? (a mapping: --mapping; one "
+                                            "machine: ?machine=NAME in --source)"))  # fmt: skip
                 quiet = st.last_wall and now - st.last_wall > self.silent_s
                 if quiet and st.state == "live":
                     st.state = "silent"

@@ -39,6 +39,7 @@ class MachineState:
     dropped: int = 0
     skipped: int = 0  # already in the store (a restart resumed after them)
     last_wall: float = 0.0
+    waiting_since: float | None = None  # the source connected; no sample of this machine yet
     resume_after_us: int | None = None
     recent: deque[SampleRow] = field(default_factory=lambda: deque(maxlen=HISTORY_ROWS))
     alarms: deque[EventRow] = field(default_factory=lambda: deque(maxlen=200))

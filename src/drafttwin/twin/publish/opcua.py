@@ -190,7 +190,7 @@ class OpcUaPublisher(Publisher):
                                           setpoint_unit(sp), (0.0, SUPPLY_MAX_HZ))  # fmt: skip
         health = await obj.add_object(self._nid(f"{name}.Health"), f"{self.idx}:Health")
         out.health["State"] = await self._plain(health, f"{name}.Health.State", "State", "",
-                                                "connecting, live, silent, reconnecting, offline")  # fmt: skip
+                                                "connecting, waiting, live, silent, reconnecting, offline")  # fmt: skip
         out.health["Detector"] = await self._plain(
             health, f"{name}.Health.Detector", "Detector", "",
             "the fault detector: none, learning (the machine's healthy state: no fault alarm "
