@@ -180,6 +180,10 @@ def test_history_downsamples_a_long_range_keeping_the_extremes(stored: _Served) 
     ("start=yesterday", 422, "epoch seconds or ISO 8601"),
     ("start=2020-01-01T00:00:00Z&end=2020-01-01T01:00:00Z", 416, "stored range 2025-11-27T04:00:00"),
     ("seconds=60&start=1", 422, "not both"),
+    # a cursor is a page's 'next': it bounded nothing (from the store's start, or past its end)
+    ("cursor=-1", 422, "give the 'next' of a page"),
+    ("cursor=99999999999999999999999", 422, "give the 'next' of a page"),
+    ("seconds=60&cursor=4000000000000000", 422, "past the window's end"),
 ])  # fmt: skip
 def test_history_refuses_what_it_cannot_serve_saying_the_bound(
     stored: _Served, query: str, code: int, says: str

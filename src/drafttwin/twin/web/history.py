@@ -252,9 +252,16 @@ class HistoryApi:
                                     f"most {MAX_SPAN_S:g} s per request")  # fmt: skip
         if cursor is not None:
             try:
-                start_us = max(start_us, int(cursor) + 1)
+                after = int(cursor)
             except ValueError:
-                raise HTTPException(422, f"cursor={cursor!r}: give the 'next' of a page") from None
+                after = -1
+            if not 0 <= after < 2**62:
+                raise HTTPException(422, f"cursor={cursor!r}: give the 'next' of a page")
+            if seconds is None and start is None and end is None:  # a cursor alone: one span
+                end_us = after + int(MAX_SPAN_S * 1e6)
+            start_us = max(start_us, after + 1)
+            if start_us > end_us:
+                raise HTTPException(422, f"cursor={cursor!r} is past the window's end")
         return start_us, end_us
 
     async def history(self, machine: str, seconds: float | None, start: str | None,
