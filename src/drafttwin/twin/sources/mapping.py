@@ -132,9 +132,14 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, int | float | np.floating | np.integer) and not isinstance(v, bool)
 
 
+MACHINE_NAME = r"^[A-Za-z0-9_.\-]{1,100}$"
+"""A machine's name: letters, digits, '_', '.', '-' (an MQTT topic level and an OPC UA
+browse name alike: no wildcard, no '/'), at most 100 characters."""
+
+
 class _MachineSchema(Schema):
     model_config = ConfigDict(extra="forbid")
-    name: str = Field(min_length=1, max_length=100, pattern=r"^[A-Za-z0-9_.\-]+$")
+    name: str = Field(min_length=1, max_length=100, pattern=MACHINE_NAME)
     model: str | None = None
     rate_hz: float = Field(default=100.0, gt=0, le=10_000)
     setpoint: str = "supply_hz"
