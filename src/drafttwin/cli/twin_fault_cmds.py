@@ -79,7 +79,9 @@ def twin_fit_detector(
                   f"blocks of {detector.block_s_:g} s, baseline {reference:g} s")  # fmt: skip
     if (note := detector.lags_note()) is not None:
         console.print(note)
-    console.print(f"wrote {target} ('twin run --model {model}' uses it)")
+    uses = (f"'twin run --model {model}' uses it" if out is None or target == detector_path(model)
+            else f"give it with 'twin run --model {model} --detector {target}'")  # fmt: skip
+    console.print(f"wrote {target} ({uses})")
 
 
 TwinPageOpt = Annotated[str, typer.Option("--http", help="The running twin's page, HOST:PORT (its 'twin run --http').")]  # fmt: skip

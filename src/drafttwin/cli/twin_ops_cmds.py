@@ -19,7 +19,6 @@ from drafttwin.cli._exit import work_done
 from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, number, path_in
 from drafttwin.cli.twin_cmds import (
     CommitMsOpt,
-    DetectorOpt,
     LearnOpt,
     LevelWindowOpt,
     MachineOpt,
@@ -94,6 +93,11 @@ def _clock(t: float) -> str:
 
 HallServerOpt = Annotated[str, typer.Option("--source", help="The hall's server: opcua:opc.tcp://HOST:PORT | mqtt://HOST:PORT.")]  # fmt: skip
 HallMappingOpt = Annotated[Path, path_in("--mapping", "Mapping TOML listing the hall's machines (split over the shards).")]  # fmt: skip
+HallDetectorOpt = Annotated[str, typer.Option("--detector", help=(
+    "Fault detection: auto (each machine learns its healthy state, on top of "
+    "MODEL.dtm.detector.json from 'twin fit-detector' when it exists) | none | FILE (the "
+    "detector file to learn on top of). Alarms with their probable cause go to each shard's "
+    "store and the hall page's alarm column."))]  # fmt: skip
 ShardStoreOpt = Annotated[Path, dir_out("--store", "Store folder: one DuckDB file per shard (shard-I-of-K/).")]  # fmt: skip
 ShardsOpt = Annotated[int, number("--shards", "Number of twins (Ray actors), K.")]
 RayOpt = Annotated[str | None, typer.Option("--ray", help="Ray cluster address (HOST:PORT, "
@@ -110,7 +114,7 @@ def twin_hall(
     shards: ShardsOpt = 2, ray_address: RayOpt = None, commit_ms: CommitMsOpt = 200.0,
     physics: TwinPhysicsOpt = "reduced", duration: StopAfterOpt = None,
     quiet: TwinQuietOpt = False, http: HallHttpOpt = None, token: TokenOpt = None,
-    as_json: ShardsJsonOpt = False, detector: DetectorOpt = "auto", learn: LearnOpt = None,
+    as_json: ShardsJsonOpt = False, detector: HallDetectorOpt = "auto", learn: LearnOpt = None,
     level_window: LevelWindowOpt = 300.0,
 ) -> None:  # fmt: skip
     """Run a hall as K live twins, one Ray actor each: shard I takes the mapping's machines
