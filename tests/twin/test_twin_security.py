@@ -52,3 +52,46 @@ def test_secured_server_serves_only_trusted_clients(
     assert trusted[0] > 100 and trusted[1] == "live"
     assert plain == (0, "reconnecting")
     assert foreign == (0, "reconnecting")
+
+
+def test_wrong_tokens_are_limited_per_client(monkeypatch: pytest.MonkeyPatch) -> None:
+    # 300 guesses had each been answered at once with 401: no limit on guessing (the guard
+    # answers 429 while a client is locked, before it compares the token)
+    from drafttwin.twin.web import guard as guard_module
+
+    now = [1000.0]
+    monkeypatch.setattr(guard_module.time, "monotonic", lambda: now[0])
+    failures = guard_module.FailedTokens()
+    locked = []
+    for _ in range(guard_module.FAILED_BURST + 2):
+        locked.append(failures.locked("10.0.0.1"))
+        if not locked[-1]:
+            failures.failed("10.0.0.1")
+    assert locked == [False] * guard_module.FAILED_BURST + [True, True]
+    assert not failures.locked("10.0.0.2")  # another client is not
+    now[0] += guard_module.FAILED_REFILL_S  # one more try after the refill time
+    assert not failures.locked("10.0.0.1")
+    failures.failed("10.0.0.1")
+    assert failures.locked("10.0.0.1")
+
+
+def test_an_acknowledgement_that_takes_nothing_stores_nothing() -> None:
+    # a client in a loop had stored an alarm-ack event (and printed a console line) per
+    # request, with nothing to acknowledge or the same alarm again
+    from types import SimpleNamespace
+
+    from drafttwin.diagnosis.cusum import Alarm
+    from drafttwin.twin.faults import FaultDesk
+
+    events: list = []
+    host = SimpleNamespace(states={"m": object()}, subscribers=[], metrics=None, loop=None,
+                           event=lambda st, ev: events.append(ev))  # fmt: skip
+    desk = FaultDesk(host)  # type: ignore[arg-type]
+    assert desk.acknowledge("m") == 0 and events == []
+    alarm = Alarm(time_s=10.0, block=10, test="belt", direction=1, change_s=9.0)
+    desk.book.raised("m", alarm, "fault")
+    assert desk.acknowledge("m", confirm=True) == 0 and events == []  # acknowledge first
+    assert desk.acknowledge("m") == 1 and len(events) == 1
+    assert desk.acknowledge("m") == 0 and len(events) == 1  # the same again: nothing
+    assert desk.acknowledge("m", confirm=True) == 1 and len(events) == 2
+    assert desk.acknowledge("m", confirm=True) == 0 and len(events) == 2

@@ -166,9 +166,14 @@ class FaultDesk:
         st = self.host.states.get(machine)
         if st is None:
             return 0
+        # an alarm already in the asked state is not taken again: a repeated or empty request
+        # changes nothing and stores nothing (a client in a loop had flooded store and console)
         chosen = [a for a in self.book.retained(machine)
-                  if (alarm_id is None or a.id == alarm_id) and (a.acked or not confirm)]  # fmt: skip
+                  if (alarm_id is None or a.id == alarm_id) and (a.acked or not confirm)
+                  and not (a.confirmed if confirm else a.acked)]  # fmt: skip
         taken = [a for a in chosen if self.book.acknowledge(a.id, comment, confirm) is not None]
+        if not taken:
+            return 0
         what = "confirmed" if confirm else "acknowledged"
         ev = EventRow(machine, "alarm-ack", int(time.time() * 1e6),
                       json.dumps({"what": what, "alarms": [a.id for a in taken],
