@@ -102,3 +102,27 @@ def test_the_twin_follows_a_new_setpoint_within_a_second(
     seq = np.array([r.seq for r in rows if r.seq >= 0])
     assert (np.diff(seq) == 1).all()
     assert service.status()["machines"]["fa320a"]["dropped"] == 0
+
+
+def test_a_setpoint_out_of_range_is_answered_bad_out_of_range(
+    served: tuple[str, subprocess.Popen[str]],
+) -> None:
+    # every write had answered Good; the plant set the node back unseen
+    from asyncua import Client, ua
+
+    url, _ = served
+
+    async def writes() -> list[str]:
+        async with Client(url) as client:
+            node = client.get_node("ns=2;s=fa320a.supply_setpoint_hz")
+            out = []
+            for hz in (500.0, -5.0, float("nan"), 40.0):
+                try:
+                    await node.write_value(ua.DataValue(ua.Variant(hz, ua.VariantType.Double)))
+                    out.append("Good")
+                except ua.UaStatusCodeError as exc:
+                    out.append(type(exc).__name__)
+            out.append(str(await node.read_value()))
+            return out
+
+    assert asyncio.run(writes()) == ["BadOutOfRange"] * 3 + ["Good", "40.0"]

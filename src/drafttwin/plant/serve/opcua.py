@@ -21,7 +21,8 @@ Every value of one tick carries the sample's own time as SourceTimestamp. The tw
 to ``sample`` (one notification per tick carrying the whole row and its counter); the scalars
 are for people and SCADA clients. A written set-point is checked (a number from 0 to 120 Hz)
 and applied from the next sample computed (the physics runs up to 0.2 s ahead of the wall
-clock, :mod:`~drafttwin.plant.serve.feed`); anything else is refused and the node is set back.
+clock, :mod:`~drafttwin.plant.serve.feed`); anything else is answered BadOutOfRange to the
+client that wrote it and not written (a warning on the plant's stderr).
 
 The node layout follows OPC 40001-1 (Machinery) where it applies, with browse names of its
 namespace's meaning but in this server's namespace: the Machinery and DI nodesets are not
@@ -33,6 +34,8 @@ from __future__ import annotations
 
 import contextlib
 import datetime as dt
+import logging
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -226,6 +229,7 @@ async def serve_opcua(
             served.sliver = LiveSliver(plant, sliver, seed + k, name)
             served.sliver_nodes = await add_sliver_nodes(served.obj, idx, name, served.sliver)
         machines.append(served)
+    _refuse_bad_setpoints(server, {m.setpoint_node.nodeid for m in machines})
     pacing = pacing if pacing is not None else Pacing(rate_hz)
     async with server:
         if history_s > 0:
@@ -297,6 +301,46 @@ async def _publish(server: Any, m: ServedMachine, s: LiveSample, scalar_nodes: b
         m.executing = executing
         await m.state_node.write_value(ua.DataValue(ua.Variant(ua.LocalizedText(
             "Executing" if executing else "NotExecuting")), SourceTimestamp=stamp))  # fmt: skip
+
+
+def _refuse_bad_setpoints(server: Any, nodes: set[Any]) -> None:
+    """A client's write of a set-point that is no number from 0 to MAX_SUPPLY_HZ answers
+    BadOutOfRange to that client and is not written (it had answered Good and been set back
+    unseen); the other values of the request are written as asked."""
+    import dataclasses
+
+    from asyncua import ua
+
+    service = server.iserver.attribute_service
+    write = service.write
+
+    def bad(wv: Any) -> bool:
+        if wv.NodeId not in nodes or wv.AttributeId != ua.AttributeIds.Value:
+            return False
+        value = getattr(getattr(wv.Value, "Value", None), "Value", None)
+        if not isinstance(value, int | float) or isinstance(value, bool):
+            return True
+        return not (math.isfinite(value) and 0.0 <= value <= MAX_SUPPLY_HZ)
+
+    async def passed(params: Any, user: Any) -> list[Any]:
+        return list(await (write(params) if user is None else write(params, user)))
+
+    async def guarded(params: Any, user: Any = None) -> list[Any]:
+        refused = {i for i, wv in enumerate(params.NodesToWrite) if bad(wv)}
+        if not refused:
+            return await passed(params, user)
+        for i in sorted(refused):
+            value = params.NodesToWrite[i].Value.Value
+            logging.getLogger(__name__).warning("set-point %r refused: write a number from 0 "
+                                                "to %g Hz", getattr(value, "Value", value),
+                                                MAX_SUPPLY_HZ)  # fmt: skip
+        kept = [wv for i, wv in enumerate(params.NodesToWrite) if i not in refused]
+        sub = dataclasses.replace(params, NodesToWrite=kept)
+        done = iter(await passed(sub, user) if kept else [])
+        return [ua.StatusCode(ua.UInt32(ua.StatusCodes.BadOutOfRange)) if i in refused else next(done)
+                for i in range(len(params.NodesToWrite))]  # fmt: skip
+
+    service.write = guarded
 
 
 async def _apply_setpoint(server: Any, m: ServedMachine) -> None:
