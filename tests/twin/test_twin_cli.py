@@ -117,6 +117,10 @@ def test_bad_query_and_serve_options_are_refused(tmp_path: Path) -> None:
     _one_line_error(_run("twin", "query", "--store", str(tmp_path), "--out", str(tmp_path / "a.xls")),
                     "unsupported output file type")  # fmt: skip
     _one_line_error(_run("plant", "serve"), "give one of --opcua and --mqtt")
+    _one_line_error(_run("twin", "relearn", "--http", "127.0.0.1:1", "--machine", "a/b?c"),
+                    "--machine", "is not a machine name")  # fmt: skip
+    _one_line_error(_run("twin", "run", "--model", str(tmp_path), "--source", "replay:x.csv"),
+                    "is a folder, a model file is expected")  # fmt: skip
     # a wildcard had ended in 'no MQTT broker answers there'; '/' and '' had been served
     for name in ("x#", "a+b", "a/b", ""):
         _one_line_error(_run("plant", "serve", "--mqtt", "127.0.0.1:1883", "--name", name),

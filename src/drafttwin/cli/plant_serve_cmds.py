@@ -192,8 +192,12 @@ def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: di
                 1
             ]
         except OSError as exc:
+            import errno
+
+            fix = ("give an address of this machine (127.0.0.1, or one of its interfaces)"
+                   if exc.errno == errno.EADDRNOTAVAIL else "choose a free port")  # fmt: skip
             raise ConfigError(f"cannot serve on {opcua} ({exc.strerror or exc})", where="--opcua",
-                              fix="choose a free port") from None  # fmt: skip
+                              fix=fix) from None  # fmt: skip
     else:
         from drafttwin.plant.serve.mqtt import serve_mqtt
         from drafttwin.wire.conventions import parse_hostport

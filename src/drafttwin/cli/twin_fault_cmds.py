@@ -85,7 +85,21 @@ def twin_fit_detector(
 
 
 TwinPageOpt = Annotated[str, typer.Option("--http", help="The running twin's page, HOST:PORT (its 'twin run --http').")]  # fmt: skip
-RelearnMachineOpt = Annotated[str, typer.Option("--machine", help="The machine that was serviced.")]
+
+
+def _machine_name(value: str) -> str:
+    """--machine by the mapping's rule (a '/' or '?' could not name a machine on the API)."""
+    import re
+
+    from drafttwin.twin.sources.mapping import MACHINE_NAME
+
+    if not re.fullmatch(MACHINE_NAME, value):
+        raise ConfigError(f"{value[:100]!r} is not a machine name", where="--machine",
+                          fix="give the name the twin shows (letters, digits, '_', '.', '-')")  # fmt: skip
+    return value
+
+
+RelearnMachineOpt = Annotated[str, typer.Option("--machine", help="The machine that was serviced.", callback=_machine_name)]  # fmt: skip
 RelearnTokenOpt = Annotated[str | None, typer.Option("--token", envvar="DRAFTTWIN_TOKEN",
                             help="The twin's token, if it has one.")]  # fmt: skip
 

@@ -138,7 +138,9 @@ def _first_line(exc: BaseException) -> str:
 def read_model_file(path: Path) -> dict[str, Any]:
     """The raw payload of a model file, its fields checked (types, format, version)."""
     if not path.is_file():
-        raise ModelFileError("file not found", source=path, fix="check the model path")
+        what = "is a folder, a model file is expected" if path.is_dir() else "file not found"
+        raise ModelFileError(what, source=path, fix="check the model path (a .dtm file 'drafttwin "
+                             "fit' wrote)")  # fmt: skip
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for foreign or truncated files

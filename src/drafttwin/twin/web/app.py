@@ -125,7 +125,7 @@ def create_app(service: TwinService, token: str | None = None,
     def state(machine: str) -> Any:
         st = service.states.get(machine)
         if st is None:
-            raise HTTPException(404, f"no machine {machine!r}")
+            raise HTTPException(404, f"no machine {machine[:100]!r}")
         return st
 
     @app.get("/", response_class=HTMLResponse, include_in_schema=False)

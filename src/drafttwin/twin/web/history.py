@@ -282,7 +282,7 @@ class HistoryApi:
                     points: int | None) -> Response:  # fmt: skip
         channels = stored_channels(con).get(machine)
         if channels is None:
-            raise HTTPException(404, f"no machine {machine!r} in the store")
+            raise HTTPException(404, f"no machine {machine[:100]!r} in the store")
         got = stored_range(con, machine)
         start_us, end_us = self.window(seconds, start, end, cursor, None if got is None else got[1])
         rng = None if got is None else {"first": got[0] / 1e6, "last": got[1] / 1e6,
@@ -318,7 +318,7 @@ class HistoryApi:
     def _kept(self, machine: str) -> tuple[list[SampleRow], list[str], int]:
         st = self.service.states.get(machine)
         if st is None:
-            raise HTTPException(404, f"no machine {machine!r}")
+            raise HTTPException(404, f"no machine {machine[:100]!r}")
         return list(st.recent), list(st.mapping.channels), st.recent.maxlen or 0
 
     def _from_memory(self, _con: None, machine: str, kept: tuple[list[SampleRow], list[str], int],
@@ -351,7 +351,7 @@ class HistoryApi:
 
             def kept() -> list[EventRow]:  # on the twin's loop: its lists do not move meanwhile
                 if machine is not None and machine not in self.service.states:
-                    raise HTTPException(404, f"no machine {machine!r}")
+                    raise HTTPException(404, f"no machine {machine[:100]!r}")
                 return [e for st in self.service.states.values() for e in st.alarms
                         if (e.kind in ALARM_KINDS) == alarms and start_us <= e.ts_us <= end_us
                         and machine in (None, e.machine)]  # fmt: skip
