@@ -95,6 +95,9 @@ def test_bad_run_options_are_refused(twin_files: tuple[Path, Path], tmp_path: Pa
     _one_line_error(_run(*base, "--source", f"replay:{record}"), "comes from two sources")
     _one_line_error(_run(*base, "--physics", "medium"), "--physics")
     _one_line_error(_run(*base, "--http", "127.0.0.1:web"), "--http", "bad address")
+    others = tmp_path / "others.toml"  # a replay names its machine: the mapping's were ignored
+    others.write_text('[[machine]]\nname = "df-09"\n', encoding="utf-8")
+    _one_line_error(_run(*base, "--mapping", str(others)), "names df-09, which no --source serves")
     _one_line_error(_run(*base, "--http", "0.0.0.0:8050", "--token", "short"), "--token")
     bad = tmp_path / "bad.toml"
     for text, needle in (("[[machine]\n", "not valid TOML"),

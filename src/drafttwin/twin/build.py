@@ -77,6 +77,14 @@ def build_service(
     mapped = () if mapping is None else read_mapping(mapping, channels)
     default = MachineMap("fa320a", channels)
     built: list[Source] = [parse_source(text, default, mapped) for text in sources]
+    served = {m.name for src in built for m in src.machines}
+    unused = [m.name for m in mapped if m.name not in served]
+    replays = all(isinstance(src, ReplaySource) for src in built)  # (a hall's shard: a subset)
+    if unused and replays:  # a replay names its one machine itself: the others are ignored
+        raise ConfigError(f"--mapping names {', '.join(unused)}, which no --source serves",
+                          source=mapping, where="--mapping",
+                          fix="name the replayed machine as mapped (replay:FILE?machine=NAME), "
+                          "or leave that machine out of the mapping")  # fmt: skip
     maps: dict[str, tuple[MachineMap, str]] = {}
     no_motor: set[str] = set()
     identities: dict[str, MachineIdentity] = {}
