@@ -307,13 +307,17 @@ def test_twin_run_publishes_over_opcua_and_mqtt(
         if front["residual"] is not None:
             assert front["residual"] == pytest.approx(front["measured"] - front["prediction"],
                                                       abs=1e-9)  # fmt: skip
-    # the last status, retained, says offline after the clean stop
+    # the last status, retained, says offline after the clean stop; the alarms as they stand
+    # are retained too, an empty list when there never was one
     late = Subscriber(mosquitto)
     try:
         last = late.wait("/status")
+        standing = late.wait("/alarms")
     finally:
         late.close()
     assert last["state"] == "offline" and last["processed"] > 0
+    check["alarms"].validate(standing)
+    assert standing["alarms"] == [] if isinstance(standing, dict) else standing == []
     assert took < 5.0, f"{took:.1f} s from SIGTERM to the end"
 
 

@@ -56,6 +56,7 @@ class MqttPublisher(Publisher):
         super().__init__(f"mqtt://{host}:{port}?qos={qos}", **kw)
         self.host, self.port, self.qos, self.prefix = host, port, qos, prefix
         self.clients: dict[str, Any] = {}
+        self._alarms_stand: set[str] = set()  # machines whose retained alarms were published
 
     async def open(self, service: TwinService) -> None:
         await super().open(service)
@@ -109,6 +110,11 @@ class MqttPublisher(Publisher):
 
     async def send_status(self, st: MachineState, status: dict[str, Any]) -> None:
         self._publish(st.twin.name, "status", status, retain=True)
+        if st.twin.name not in self._alarms_stand:  # a client reads them at once, even none
+            self._alarms_stand.add(st.twin.name)
+            assert self.service is not None
+            self._publish(st.twin.name, "alarms", active_alarms(self.service, st.twin.name),
+                          retain=True)  # fmt: skip
 
     async def send_sliver(self, st: MachineState, doc: dict[str, Any]) -> None:
         self._publish(st.twin.name, "sliver", doc, retain=True)
