@@ -282,8 +282,8 @@ def _print_diagnosis(result: dict[str, Any], report: Path | None, lags_note: str
             if c["group"]:
                 console.print(f"{i + 1} {c['element']}:{c['kind']}: same signature as "
                               f"{', '.join(c['group'])}")  # fmt: skip
-        if result["causes"]:
-            console.print(f"severity unit of the first: {result['causes'][0]['parameter']}")
+        for i, c in enumerate(result["causes"]):  # each cause's severity in its own unit
+            console.print(f"{i + 1} severity: {c['parameter']}")
         if result.get("verdict"):
             colour = "green" if result["explained"] else "bold red"
             console.print(f"[{colour}]{result['verdict']}[/]")

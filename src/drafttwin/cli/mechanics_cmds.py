@@ -174,12 +174,12 @@ def simulate(
         if out is not None:
             write_frame(frame, out)
         stats.add(frame)
-        _summary(stats, f"{setpoints} ({len(frame)} rows)")
+        _summary(stats, f"{setpoints} ({len(frame)} rows)", _units(train))
     else:
         with contextlib.ExitStack() as stack:
             sink = None if out is None else stack.enter_context(frame_stream(out))
             wall, label = _run(train, duration, rate, dt, settle, quiet, stats, sink)
-        _summary(stats, label)
+        _summary(stats, label, _units(train))
         console.print(wall)
     if out is not None:
         console.print(f"wrote {out}")
@@ -279,12 +279,19 @@ def _check_supply(train: DriveTrain, series: Any, path: Path) -> None:
                               highlight=False, soft_wrap=True)  # fmt: skip
 
 
-def _summary(stats: RunningStats, label: str) -> None:
+def _units(train: DriveTrain) -> dict[str, str]:
+    """Each written channel's unit: the train's output channels', rpm for the FA320A's rollers
+    and motor (node speeds)."""
+    return {"motor": "rpm", **{r: "rpm" for r in ROLLERS},
+            **{m.channel: m.unit for m in train.output_channels()}}  # fmt: skip
+
+
+def _summary(stats: RunningStats, label: str, units: dict[str, str]) -> None:
     table = Table(title=f"simulated: {label}")
-    for col in ("channel", "mean", "std %", "peak-to-peak %"):
-        table.add_column(col, justify="right" if col != "channel" else "left")
+    for col in ("channel", "unit", "mean", "std %", "peak-to-peak %"):
+        table.add_column(col, justify="right" if col not in ("channel", "unit") else "left")
     for name, mean, std, ptp in stats.rows():
         scale = abs(mean) if mean else 1.0
-        table.add_row(name, f"{mean:.4g}", f"{std / scale * 100:.4f}",
+        table.add_row(name, units.get(name, ""), f"{mean:.4g}", f"{std / scale * 100:.4f}",
                       f"{ptp / scale * 100:.4f}")  # fmt: skip
     console.print(table)
