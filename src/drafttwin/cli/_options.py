@@ -80,7 +80,8 @@ class TrainOptions:
 
     def load(self) -> DriveTrain:
         """The drive train they name (the FA320A preset when neither is given)."""
-        return load_train(self.preset, self.config)
+        # the machine's own spelling (FA320A) names the preset too
+        return load_train(None if self.preset is None else self.preset.lower(), self.config)
 
 
 DataOpt = Annotated[str, files_in(
