@@ -37,7 +37,7 @@ def parse_source(text: str, where: str = "--mechanistic") -> PhysicsSource:
     text = text.strip()
     kind, sep, rest = text.partition(":")
     if text == "preset" or (sep and kind == "preset"):
-        name = rest.strip() or "fa320a"
+        name = rest.strip().lower() or "fa320a"
         if name not in PRESETS:
             # Named here, where the option the user typed is known (mechanics names --preset).
             raise unknown_choice(f"unknown preset '{name}'", (f"preset:{p}" for p in PRESETS),
