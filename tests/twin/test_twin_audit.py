@@ -199,3 +199,36 @@ def test_kill_9_of_a_live_twin_counted_against_the_plant_log(
         f"restart gap {gap} samples, stored {m.stored} of {m.published}, before the first "
         f"{m.before_first}, after the last {m.after_last}"
     )  # noqa: T201
+
+
+def test_a_restarted_plants_other_run_is_counted_apart(tmp_path: Path) -> None:
+    # a plant restarted counts from 0 again: the store's rows of the other run had read as
+    # 2009 stored twice and 2264 differing; a log of another run entirely: refused
+    from dataclasses import replace
+
+    from drafttwin.errors import DataError
+
+    rng = np.random.default_rng(3)
+    first = [_sample(k, rng) for k in range(1, 501)]  # 1000.01-1005.00 s
+    second = [replace(_sample(k, rng), time_s=2000.0 + k / 100) for k in range(1, 401)]
+    logs = []
+    for i, run in enumerate((first, second)):
+        logs.append(tmp_path / f"plant{i}.parquet")
+        with PlantLog(logs[-1]) as log:
+            for s in run:
+                log.add("m1", s)
+    store = TwinStore(tmp_path / "store")
+    store.register_machine("m1", CHANNELS, "x", "test")
+    store.commit([SampleRow("m1", int(round(s.time_s * 1e6)), s.seq, 48.47, s.rollers_rpm.copy(),
+                            s.rollers_rpm, s.rollers_rpm, s.rollers_rpm * 0)
+                  for s in (*first, *second)], [])  # fmt: skip
+    store.close()
+    for log_path, (published, outside) in zip(logs, ((500, 400), (400, 500)), strict=True):
+        (m,) = audit(tmp_path / "store", log_path)
+        assert (m.published, m.stored, m.duplicates, m.mismatched) == (published, published, 0, 0)
+        assert m.outside == outside and m.missing_inside == 0
+    other = tmp_path / "other.parquet"
+    with PlantLog(other) as log:
+        log.add("m1", replace(_sample(1, rng), time_s=9000.0))
+    with pytest.raises(DataError, match="no sample of this log's time span"):
+        audit(tmp_path / "store", other)

@@ -31,7 +31,7 @@ from drafttwin.cli.twin_cmds import (
     parse_bind,
     twin_app,
 )
-from drafttwin.cli.typer_app import console, err_console, print_json
+from drafttwin.cli.typer_app import console, err_console, print_json, print_table
 from drafttwin.errors import ConfigError, DrafttwinError
 from drafttwin.execution.interrupt import Interrupted, stop_on_signals
 
@@ -63,18 +63,20 @@ def twin_audit(
         return
     table = Table(title=f"store {store} against {plant_log}", box=box.SIMPLE)
     cols = ("machine", "sent", "stored", "twice", "differ", "absent", "before", "after",
-            "filled")  # fmt: skip
+            "filled", "outside")  # fmt: skip
     for col in cols:
         table.add_column(col, justify="left" if col == "machine" else "right")
     for m in result:
         table.add_row(m.machine, *map(str, (m.published, m.stored, m.duplicates, m.mismatched,
                                             m.missing_inside, m.before_first, m.after_last,
-                                            m.filled)))  # fmt: skip
-    console.print(table)
+                                            m.filled, m.outside)))  # fmt: skip
+    print_table(table)
     console.print("sent: published by the plant; twice: stored more than once; differ: stored with another time or value; "
                   "absent: published between the first and last stored sample but not stored "
                   "(runs below); before / after: published before the first / after the last "
-                  "stored sample; filled: rows the twin made up for samples it never received",
+                  "stored sample; filled: rows the twin made up for samples it never received; outside: "
+                  "stored rows outside the log's time span (another run of the plant, which "
+                  "counts from 0 again: audit those with that run's log)",
                   highlight=False)  # fmt: skip
     for m in result:
         for r in m.runs[:RUNS_SHOWN]:

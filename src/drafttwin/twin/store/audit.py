@@ -1,7 +1,8 @@
 """Count a twin's store against the plant's own log, sample by sample.
 
 For each machine, every sample the plant published (``plant serve --log``) is looked up in the
-store by its counter (``seq``), and the stored row is checked against it: same time stamp,
+store by its counter (``seq``) among the stored rows of the log's time span (a restarted plant
+counts from 0 again: rows of another run are counted apart, as ``outside``), and the stored row is checked against it: same time stamp,
 same measured values. What is not stored is grouped into runs of consecutive counters, each
 with the wall-clock span in which the plant published it, so that a caller can tell a loss
 by the store (samples the twin had received but not committed when it was killed) from a
@@ -53,6 +54,7 @@ class MachineAudit:
     after_last: int
     missing_inside: int
     runs: list[MissingRun] = field(default_factory=list)
+    outside: int = 0  # stored rows outside the log's time span: another run of the plant
 
 
 def _store_rows(folder: Path, machine: str | None) -> tuple[pd.DataFrame, dict[str, list[str]]]:
@@ -88,12 +90,32 @@ def audit(
     if not names:
         raise DataError("the plant log and the store share no machine", source=Path(plant_log),
                         fix="give the log of the plant this twin read (same machine names)")  # fmt: skip
-    return [_machine(name, log[log["machine"] == name], rows[rows["machine"] == name],
-                     channels[name]) for name in names]  # fmt: skip
+    result = [_machine(name, log[log["machine"] == name], rows[rows["machine"] == name],
+                       channels[name]) for name in names]  # fmt: skip
+    if all(m.outside and not m.stored for m in result):
+        raise DataError("the store holds no sample of this log's time span: the log is of "
+                        "another run of the plant", source=Path(plant_log),
+                        fix="give the log the plant wrote while this twin ran (plant serve "
+                        "--log; a restarted plant writes a log per run)")  # fmt: skip
+    return result
+
+
+SPAN_MARGIN_US = 1_000_000
+"""A stored row up to 1 s outside the log's first and last time stamps still belongs to it
+(a time stamp written otherwise is counted as differing, not as another run's)."""
 
 
 def _machine(name: str, log: pd.DataFrame, rows: pd.DataFrame, chans: list[str]) -> MachineAudit:
     log = log.sort_values("seq").reset_index(drop=True)
+    # a plant restarted counts from 0 again: the store's rows of another run (outside this
+    # log's time span) are not this log's samples (they read as stored twice, or differing)
+    ts = log["ts_us"].to_numpy(np.int64)
+    lo_us, hi_us = (
+        (int(ts.min()) - SPAN_MARGIN_US, int(ts.max()) + SPAN_MARGIN_US) if len(ts) else (0, -1)
+    )
+    within = (rows["ts_us"] >= lo_us) & (rows["ts_us"] <= hi_us)
+    outside = int((~within).sum())
+    rows = rows[within]
     real = rows[rows["seq"] >= 0]
     seq = real["seq"].to_numpy(np.int64)
     duplicates = int(len(seq) - len(np.unique(seq)))
@@ -113,7 +135,7 @@ def _machine(name: str, log: pd.DataFrame, rows: pd.DataFrame, chans: list[str])
         before, after, inside = int(gone.sum()), 0, np.zeros(len(log), bool)
     return MachineAudit(name, len(log), int(len(stored_seq)), duplicates, mismatched, foreign,
                         int((rows["seq"] < 0).sum()), before, after, int(inside.sum()),
-                        _runs(log, inside))  # fmt: skip
+                        _runs(log, inside), outside)  # fmt: skip
 
 
 def _mismatched(log: pd.DataFrame, rows: pd.DataFrame, chans: list[str]) -> int:
