@@ -239,3 +239,8 @@ def test_generate_faults_is_seeded_and_labelled(tmp_path):
         assert (outs[0] / c["file"]).read_bytes() == (outs[1] / c["file"]).read_bytes()
         side = json.loads((outs[0] / c["file"]).with_suffix(".json").read_text())
         assert [f["kind"] for f in side["faults"]] == [f["kind"] for f in c["faults"]]
+    # each kind's severity unit is printed; a smaller set in the same folder notes the older
+    kinds = {f["kind"] for c in a["cases"] for f in c["faults"]}
+    assert all(f"{k} severity: " in result.output for k in kinds), result.output
+    result = CliRunner().invoke(app, [*args[:4], "2", *args[5:]])
+    assert result.exit_code == 0 and "1 older record(s)" in result.output, result.output

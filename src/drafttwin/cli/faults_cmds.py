@@ -31,7 +31,7 @@ from drafttwin.cli._options import (
 )
 from drafttwin.cli._oserrors import physics_paths
 from drafttwin.cli.benchmark_cmds import benchmark_app
-from drafttwin.cli.typer_app import app, console, progress_bar
+from drafttwin.cli.typer_app import app, console, err_console, progress_bar
 from drafttwin.errors import ConfigError, DrafttwinError
 
 if TYPE_CHECKING:
@@ -78,12 +78,15 @@ def generate_faults(
     table = Table(title=f"{cases} fault cases, seed {seed}, {duration:g} s each")
     for col in ("case", "fault", "level", "onset s", "profile"):
         table.add_column(col)
+    units: dict[str, str] = {}
     with progress_bar("plant (machine s)", duration * cases, quiet=quiet) as bar:
         task = bar.task_ids[0]
         for case in drawn:
             rec = run_case(plant, case, duration, rate, progress=lambda s: bar.advance(task, s))
             rec.write(out / f"{case.name}.parquet")
             f = case.faults[0] if case.faults else None
+            if f is not None:
+                units[f.kind] = f.spec_kind.parameter
             table.add_row(case.name, f"{f.element}:{f.kind} {f.severity:g}" if f else "healthy",
                           case.level or "", f"{f.onset_s:g}" if f else "",
                           ("ramp" if f.ramp_s else "step") if f else "")  # fmt: skip
@@ -92,6 +95,14 @@ def generate_faults(
     with atomic_path(out / "cases.json") as tmp:
         tmp.write_text(dumps_strict(manifest, sort_keys=True) + "\n", encoding="utf-8")
     console.print(table)
+    for kind, parameter in sorted(units.items()):  # the severity's unit, per kind
+        console.print(f"{kind} severity: {parameter}")
+    ours = {f"{c.name}.parquet" for c in drawn}
+    older = sorted(p.name for p in out.glob("case_*.parquet") if p.name not in ours
+                   and not p.name.endswith(".truth.parquet"))  # fmt: skip
+    if older:  # not deleted (not this command's to lose), but not of this set either
+        err_console.print(f"note: {len(older)} older record(s) in {out} are not of this set "
+                          f"({older[0]}...); cases.json lists this set", highlight=False)  # fmt: skip
     console.print(f"wrote {cases} records and {out / 'cases.json'}")
 
 
