@@ -104,7 +104,7 @@ def test_summary_matches_the_whole_run(monkeypatch: pytest.MonkeyPatch, fa320a) 
     frame = simulate(fa320a, 1.0, output_rate_hz=500, settle_s=0.1).to_frame()
     for name in ("front", "back", "motor"):
         x = frame[name].to_numpy()
-        row = re.search(rf"{name}\s*│\s*(\S+)\s*│\s*(\S+)\s*│\s*(\S+)", output)
+        row = re.search(rf"{name}\s*│\s*rpm\s*│\s*(\S+)\s*│\s*(\S+)\s*│\s*(\S+)", output)
         assert row is not None, output
         assert row.group(1) == f"{np.mean(x):.4g}"
         assert row.group(2) == f"{np.std(x) / abs(np.mean(x)) * 100:.4f}"
