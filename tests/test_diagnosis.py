@@ -238,6 +238,7 @@ def test_cli_diagnose_refuses_bad_input(records, tmp_path):
     rads["motor"] = rads["motor"] * (2 * np.pi / 60)  # rollers in rpm, the motor in rad/s
     rads.to_parquet(tmp_path / "motor_rads.parquet")
     frame.assign(motor=-frame["motor"]).to_parquet(tmp_path / "motor_negative.parquet")
+    frame.iloc[:4000].to_parquet(tmp_path / "forty_s.parquet")
     swap = {"front": "back", "back": "front"}
     frame.rename(columns=swap).to_parquet(tmp_path / "swapped.parquet")
     healthy, sidecar = str(records / "healthy.parquet"), records / "healthy.json"
@@ -265,6 +266,10 @@ def test_cli_diagnose_refuses_bad_input(records, tmp_path):
          "matches a column in rad/s"),
         (["--data", str(tmp_path / "motor_negative.parquet"), "--healthy", healthy],
          "column 'motor': the running speed is negative"),
+        # its own first half is too short a reference: --healthy is the way
+        (["--data", str(tmp_path / "forty_s.parquet")], "--data (its first half): healthy "
+         "tuning data too short"),
+        (["--data", str(tmp_path / "forty_s.parquet")], "fix: give --healthy records"),
         # the fix names an option diagnose has (the map applies to --healthy's files too)
         (["--data", str(tmp_path / "swapped.parquet")], "--columns front=back,back=front"),
         (["--data", str(tmp_path / "swapped.parquet"), "--columns", "front=back,back=front",

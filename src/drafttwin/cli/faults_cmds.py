@@ -205,6 +205,11 @@ def _named(path: str | None, option: str) -> Iterator[None]:
     except DrafttwinError as exc:
         if exc.source is None and path is not None:
             exc.source = path
+        if exc.where == "tuning" and option.startswith("--data"):  # no --healthy was given
+            exc.fix_template = (
+                "give --healthy records of this machine, or a longer record "
+                "(its first half is the reference when --healthy is left out)"
+            )
         if exc.where in ("data", "tuning", None):
             exc.where = option
         raise
