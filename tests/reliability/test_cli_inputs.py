@@ -354,3 +354,7 @@ def test_a_written_time_column_reads_back_exactly(tmp_path: Path) -> None:
     back = pd.read_csv(tmp_path / "x.csv")
     np.testing.assert_array_equal(back["time"].to_numpy(), frame["time"].to_numpy())
     np.testing.assert_allclose(back["front"], frame["front"], rtol=5e-9)  # 9 digits
+    # a time column named as the user's file named it (predict keeps it): the first, rising
+    renamed = frame.dropna().rename(columns={"time": "stamp"})
+    write_frame(renamed, tmp_path / "y.csv")
+    np.testing.assert_array_equal(pd.read_csv(tmp_path / "y.csv")["stamp"], renamed["stamp"])

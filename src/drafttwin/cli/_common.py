@@ -47,12 +47,15 @@ CSV_TIME_COLUMNS = ("time", "t", "time_s", "timestamp")
 
 
 def csv_ready(frame: pd.DataFrame) -> pd.DataFrame:
-    """``frame`` with its time column as the shortest text that reads back exactly: at 9
-    significant digits an epoch time (1.8e9 s) loses everything below 10 s."""
+    """``frame`` with its time column (named so, or a first column that only rises) as the
+    shortest text that reads back exactly: at 9 significant digits an epoch time (1.8e9 s)
+    loses everything below 10 s."""
     from pandas.api.types import is_float_dtype
 
-    names = [c for c in frame.columns if str(c).lower() in CSV_TIME_COLUMNS
-             and is_float_dtype(frame[c])]  # fmt: skip
+    first = frame.columns[0] if len(frame.columns) else None  # a time named as the file named it
+    names = [c for c in frame.columns if is_float_dtype(frame[c]) and (
+        str(c).lower() in CSV_TIME_COLUMNS
+        or (c == first and frame[c].dropna().is_monotonic_increasing))]  # fmt: skip
     if not names:
         return frame
     out = frame.copy()

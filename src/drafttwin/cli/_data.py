@@ -115,8 +115,10 @@ class Channels:
         # a column given a unit is read too (as an input unless it is an output: the rollers
         # where no --outputs are given); the motor column is read in rpm, its unit need not be
         # declared
+        from drafttwin.data.units import is_rpm
+
         units = dict(self.units or {})
-        if units.get("motor", "rpm") != "rpm":
+        if not is_rpm(units.get("motor", "rpm")):
             raise ConfigError(f"the motor column is read in rpm, not {units['motor']}",
                               where="--units", fix="convert it to rpm, or leave motor out "
                               "of --units")  # fmt: skip
