@@ -232,7 +232,31 @@ def _fitted(
                           f"fitted on, {escape(spec)}", highlight=False, soft_wrap=True)  # fmt: skip
     series = parsed.read(spec, () if physics is None else physics.required_inputs())
     _check_rate(estimator, series, spec)
+    if physics is not None and parsed.check_units:
+        _check_level(physics, series, spec)
     return estimator, physics, series
+
+
+def _check_level(physics: MechanisticModel, series: MeasurementSeries, spec: str) -> None:
+    """Each rpm channel's running level against its physics': a column in rad/s or rev/s is
+    refused by name (a model in rpm had predicted 354.8 for a back roller recorded at 37.1)."""
+    from drafttwin.data.units import check_units, is_rpm
+    from drafttwin.errors import DrafttwinError
+
+    rpm = [j for j, c in enumerate(series.channels) if is_rpm(series.unit(c))]
+    if not rpm:
+        return
+    try:
+        values = physics.predict_values(series)
+    except DrafttwinError:
+        return  # the prediction itself says what is wrong
+    names = [series.channels[j] for j in rpm]
+    with np.errstate(all="ignore"):
+        nominal = {
+            n: float(np.nanmedian(np.abs(values[:, j]))) for n, j in zip(names, rpm, strict=True)
+        }
+    check_units(series.values[:, rpm], names, spec,
+                nominal_rpm={n: v for n, v in nominal.items() if np.isfinite(v) and v > 0})  # fmt: skip
 
 
 @app.command()
