@@ -78,7 +78,7 @@ _RANGES: dict[str, str] = {
     "--workers": "[1, 1024]",
     "--max-samples": "[1, 1e9] samples",
     "--cases": "[1, 100000] cases",
-    "--far-per-day": "(0, 1e6] alarms per 24 h",
+    "--far-per-day": "[1e-6, 1e6] alarms per 24 h",  # 1e-6: one in 2700 years
     "--healthy-hours": "(0, 1000] h",
     "--commit-ms": "[1, 60_000] ms",
     "--retention-hours": "(0, 1e6] h",
