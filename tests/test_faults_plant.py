@@ -1,6 +1,7 @@
 """Faults injected in the plant: physics of each kind, sensor faults, labels, CLI refusals."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -221,6 +222,8 @@ def test_cli_refuses_a_fault_after_the_records_end_and_notes_a_ramp_beyond_it(tm
                                       "E-F:wear:severity=60:onset=1:ramp=10"])  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "it reaches 10% of severity 60" in result.output
+    # the summary has the motor's row too (the command writes its speed)
+    assert re.search(r"motor\s*│\s*14\d\d\.\d\d\s*│", result.output), result.output
 
 
 def test_generate_faults_is_seeded_and_labelled(tmp_path):

@@ -137,8 +137,8 @@ def generate(
         paths = rec.write(out)
     table = Table(title=f"plant, scenario '{scenario}', seed {seed}, machine "
                   f"{chosen.source}: {duration:g} s at {rate:g} Hz")  # fmt: skip
-    for col in ("roller", "mean rpm", "true std %", "missing", "spikes", "noise rms rpm"):
-        table.add_column(col, justify="right" if col != "roller" else "left")
+    for col in ("channel", "mean rpm", "true std %", "missing", "spikes", "noise rms rpm"):
+        table.add_column(col, justify="right" if col != "channel" else "left")
     for j, name in enumerate(rec.series.channels):
         x, t = rec.series.values[:, j], rec.true_rpm[:, j]
         ok = ~np.isnan(x) & ~rec.outlier[:, j]
@@ -146,6 +146,10 @@ def generate(
         table.add_row(name, f"{np.nanmean(x):.2f}", f"{t.std() / t.mean() * 100:.4f}",
                       str(int(rec.missing[:, j].sum())), str(int(rec.outlier[:, j].sum())),
                       f"{noise:.3f}")  # fmt: skip
+    motor = rec.series.motor_rpm
+    if motor is not None:  # the VFD's speed reading (no true speed kept beside it)
+        table.add_row("motor", f"{np.nanmean(motor):.2f}", "", str(int(np.isnan(motor).sum())),
+                      "", "")  # fmt: skip
     console.print(table)
     for label in rec.info["faults"]:
         console.print(f"fault {label['element']}:{label['kind']} severity {label['severity']:g} "
