@@ -62,7 +62,9 @@ def wait_live(http: int, twin: subprocess.Popen[bytes], names: set[str]) -> None
         if twin.poll() is not None:
             raise RunError(f"the twin ended at its start (exit {twin.returncode}); see twin.log")
         status = twin_status(http)
-        if status and all(status["machines"].get(n, {}).get("state") == "live" for n in names):
+        # subscribed: 'waiting' until the first sample (the replay starts after this), 'live'
+        if status and all(status["machines"].get(n, {}).get("state") in ("waiting", "live")
+                          for n in names):  # fmt: skip
             return
         time.sleep(0.5)
     raise RunError("the twin did not connect to the broker within two minutes")
