@@ -43,7 +43,6 @@ def check_output_suffix(path: Path, option: str = "--out") -> None:
 CSV_FLOAT_FORMAT = "%.9g"
 """How the CSV files a command writes give their values (9 significant digits); a time
 column is written whole (:func:`csv_ready`)."""
-CSV_TIME_COLUMNS = ("time", "t", "time_s", "timestamp")
 
 
 def csv_ready(frame: pd.DataFrame) -> pd.DataFrame:
@@ -52,9 +51,11 @@ def csv_ready(frame: pd.DataFrame) -> pd.DataFrame:
     loses everything below 10 s."""
     from pandas.api.types import is_float_dtype
 
+    from drafttwin.data.validate import TIME_NAMES
+
     first = frame.columns[0] if len(frame.columns) else None  # a time named as the file named it
     names = [c for c in frame.columns if is_float_dtype(frame[c]) and (
-        str(c).lower() in CSV_TIME_COLUMNS
+        str(c).lower() in TIME_NAMES
         or (c == first and frame[c].dropna().is_monotonic_increasing))]  # fmt: skip
     if not names:
         return frame

@@ -65,6 +65,25 @@ def dir_out(flag: str, help: str) -> Any:
     return typer.Option(flag, help=help, callback=output_dir(flag))
 
 
+def machine_name(flag: str, help: str) -> Any:
+    """A machine's name, checked by the twin's mapping rule (a topic level and a browse name:
+    no MQTT wildcard, no '/', at most 100 characters) while parsing."""
+
+    def callback(value: str) -> str:
+        import re
+
+        from drafttwin.errors import ConfigError
+        from drafttwin.twin.sources.mapping import MACHINE_NAME
+
+        if not re.fullmatch(MACHINE_NAME, value):
+            raise ConfigError(f"{value[:100]!r} is not a machine name", where=flag,
+                              fix="use letters, digits, '_', '.' and '-' (no MQTT wildcard, "
+                              "no '/'), at most 100 characters")  # fmt: skip
+        return value
+
+    return typer.Option(flag, help=help, callback=callback)
+
+
 # -- the drive train, the data and its channels --------------------------------------------
 
 PresetOpt = Annotated[str | None, typer.Option("--preset", help="Built-in drive train (default: fa320a).")]  # fmt: skip

@@ -57,7 +57,9 @@ def forget_paths() -> None:
     _OUTPUTS.clear()
 
 
-def _same(a: Path, b: Path) -> bool:
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name one file (the same absolute path, or a link to it)."""
+    a, b = Path(os.path.abspath(a)), Path(os.path.abspath(b))
     if a == b:
         return True
     try:
@@ -90,7 +92,7 @@ def _no_clash(path: Path, option: str, *, output: bool) -> None:
     mine, others = (_OUTPUTS, _INPUTS) if output else (_INPUTS, _OUTPUTS)
     p = Path(os.path.abspath(path))
     for other, other_option in others.items():
-        if _same(p, other):
+        if same_file(p, other):
             out_option, in_option = (option, other_option) if output else (other_option, option)
             raise ConfigError(f"is both {in_option} and {out_option}: writing it would replace "
                               "the input", source=path, where=out_option,

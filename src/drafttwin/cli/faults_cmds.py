@@ -29,7 +29,7 @@ from drafttwin.cli._options import (
     files_in,
     number,
 )
-from drafttwin.cli._oserrors import physics_paths
+from drafttwin.cli._oserrors import physics_paths, same_file
 from drafttwin.cli.benchmark_cmds import benchmark_app
 from drafttwin.cli.typer_app import app, console, err_console, progress_bar
 from drafttwin.errors import ConfigError, DrafttwinError
@@ -219,7 +219,7 @@ def _healthy_record(path: str, data: str, series: MeasurementSeries,
                     channels: Channels) -> MeasurementSeries:  # fmt: skip
     """A --healthy record (read with --data's column map), refused where it is the record
     under diagnosis or sampled at another rate (the thresholds are per block of rows)."""
-    if _same_file(path, data):
+    if same_file(path, data):
         raise ConfigError("is the record under diagnosis: its own reference hides the fault it "
                           "shows", source=path, where="--healthy",
                           fix="give healthy records of the same machine other than --data, or "
@@ -231,15 +231,6 @@ def _healthy_record(path: str, data: str, series: MeasurementSeries,
                           source=path, where="--healthy",
                           fix="give healthy records at the record's rate (resample one of them)")  # fmt: skip
     return record
-
-
-def _same_file(a: str, b: str) -> bool:
-    import os
-
-    try:
-        return os.path.abspath(a) == os.path.abspath(b) or os.path.samefile(a, b)
-    except OSError:
-        return False
 
 
 def _head(series: MeasurementSeries, n: int) -> MeasurementSeries:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, cast, get_args
 
@@ -24,6 +23,7 @@ from drafttwin.cli._options import (
     file_out,
     number,
 )
+from drafttwin.cli._oserrors import same_file
 from drafttwin.cli.typer_app import app, console, err_console, progress_bar
 from drafttwin.errors import ConfigError
 
@@ -102,7 +102,7 @@ def generate(
     check_output_suffix(out)
     _refuse_foreign_beside(out)
     sidecar = out.with_suffix(".json")
-    if machine is not None and sidecar.exists() and os.path.samefile(machine, sidecar):
+    if machine is not None and same_file(machine, sidecar):
         raise ConfigError("is both --machine and the sidecar of --out: writing the record would "
                           "replace the machine it reads", source=machine, where="--machine",
                           fix="copy the machine's file elsewhere first, or choose another --out")  # fmt: skip

@@ -9,8 +9,7 @@ from typing import Annotated
 
 import typer
 
-from drafttwin.cli._options import file_in, file_out, files_in, number
-from drafttwin.cli.plant_serve_cmds import machine_name
+from drafttwin.cli._options import file_in, file_out, files_in, machine_name, number
 from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app
 from drafttwin.cli.typer_app import console, err_console
 from drafttwin.errors import ConfigError
@@ -27,7 +26,9 @@ HoldOpt = Annotated[bool, typer.Option("--hold", help="Once played, keep the con
                     "embedded broker) until SIGTERM, so a slower subscriber drains the queue.")]  # fmt: skip
 ReplayMqttOpt = Annotated[str, typer.Option("--mqtt", help="The MQTT broker at HOST:PORT (one "
                           "is started there if none answers and HOST is local).")]  # fmt: skip
-ReplayNameOpt = Annotated[str, typer.Option("--name", help="Machine name (NAME-1, NAME-2... for several).", callback=machine_name)]  # fmt: skip
+ReplayNameOpt = Annotated[
+    str, machine_name("--name", "Machine name (NAME-1, NAME-2... for several).")
+]
 ReplayMachinesOpt = Annotated[int, number("--machines", "Machines served at once; the files are "
                               "dealt to them, each to the one with the least running so far.")]  # fmt: skip
 SpeedOpt = Annotated[float, number("--speed", "Times real time.")]

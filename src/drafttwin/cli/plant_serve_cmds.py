@@ -17,6 +17,7 @@ from drafttwin.cli._options import (
     SampleRateOpt,
     StopAfterOpt,
     file_out,
+    machine_name,
     number,
     path_in,
 )
@@ -29,21 +30,7 @@ OpcuaOpt = Annotated[str | None, typer.Option("--opcua", help="Serve over OPC UA
 MqttOpt = Annotated[str | None, typer.Option("--mqtt", help="Publish to the MQTT broker at "
                     "HOST:PORT (one is started there if none answers and HOST is local).")]  # fmt: skip
 
-
-def machine_name(value: str) -> str:
-    """A --name that can be a topic level and a browse name (the twin's mapping's rule)."""
-    import re
-
-    from drafttwin.twin.sources.mapping import MACHINE_NAME
-
-    if not re.fullmatch(MACHINE_NAME, value):
-        raise ConfigError(f"{value!r} is not a machine name", where="--name",
-                          fix="use letters, digits, '_', '.' and '-' (no MQTT wildcard, no '/'), "
-                          "at most 100 characters")  # fmt: skip
-    return value
-
-
-NameOpt = Annotated[str, typer.Option("--name", help="Machine name (NAME-1, NAME-2... for several).", callback=machine_name)]  # fmt: skip
+NameOpt = Annotated[str, machine_name("--name", "Machine name (NAME-1, NAME-2... for several).")]
 MachinesOpt = Annotated[int, number("--machines", "Number of machines.")]
 SeedOpt = Annotated[int, number("--seed", "Seed of the first machine (+1 per machine).")]
 PhysicsOpt = Annotated[str, typer.Option("--physics", help="full (the truth) | reduced (many machines).")]  # fmt: skip

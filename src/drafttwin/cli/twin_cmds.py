@@ -133,9 +133,30 @@ def twin_run(
     from drafttwin.execution.interrupt import stop_on_signals
 
     with stop_on_signals("while starting; nothing was stored"):  # until the twin's own handler
-        service, publishers, bind = _start_twin(model, source, mapping, store, commit_ms,
-                                                retention_hours, physics, silent, detector, learn,
-                                                level_window, http, token, publish, verbose)  # fmt: skip
+        import torch
+
+        from drafttwin.twin.build import build_service
+        from drafttwin.twin.publish import parse_publish
+
+        torch.set_num_threads(1)  # one window per sample: threads cost more than they give
+        if physics not in ("reduced", "full"):
+            raise ConfigError(f"unknown physics {physics!r}", where="--physics",
+                              fix="use reduced or full")  # fmt: skip
+        bind = None if http is None else parse_bind(http, token)
+        publishers = [parse_publish(text) for text in publish or []]
+
+        def on_commit(rows: int, last_ts_us: int) -> None:
+            if verbose:  # called by the writer thread just after the commit, with its duration
+                took = service.writer.commit_seconds[-1] * 1e3 if service.writer else math.nan
+                # last_ts_us stays the last field: scripts that cut the line after it still work
+                print(f"commit rows={rows} ms={took:.1f} at={time.time():.3f} "
+                      f"last_ts_us={last_ts_us}", flush=True)  # fmt: skip
+
+        service = build_service(model, source, mapping=mapping, store_dir=store, commit_ms=commit_ms,
+                                retention_s=None if retention_hours is None else retention_hours * 3600,
+                                physics=physics, silent_s=silent, on_commit=on_commit,
+                                detector=detector, learn_s=learn,
+                                level_window_m=level_window)  # fmt: skip
     start = time.monotonic()
     try:
         from drafttwin.twin.aio import run_until_signal
@@ -163,39 +184,6 @@ def twin_run(
         print_json(status)
         return
     _print_status(status)
-
-
-def _start_twin(model: Path, source: list[str], mapping: Path | None, store: Path | None,
-                commit_ms: float, retention_hours: float | None, physics: str, silent: float,
-                detector: str, learn: float | None, level_window: float,
-                http: str | None, token: str | None, publish: list[str] | None,
-                verbose: bool) -> tuple[TwinService, list[Publisher], tuple[str, int] | None]:  # fmt: skip
-    """The twin built from its options (a signal meanwhile stops it in one line)."""
-    import torch
-
-    from drafttwin.twin.build import build_service
-    from drafttwin.twin.publish import parse_publish
-
-    torch.set_num_threads(1)  # one window per sample: threads cost more than they give
-    if physics not in ("reduced", "full"):
-        raise ConfigError(f"unknown physics {physics!r}", where="--physics",
-                          fix="use reduced or full")  # fmt: skip
-    bind = None if http is None else parse_bind(http, token)
-    publishers = [parse_publish(text) for text in publish or []]
-
-    def on_commit(rows: int, last_ts_us: int) -> None:
-        if verbose:  # called by the writer thread just after the commit, with its duration
-            took = service.writer.commit_seconds[-1] * 1e3 if service.writer else math.nan
-            # last_ts_us stays the last field: scripts that cut the line after it still work
-            print(f"commit rows={rows} ms={took:.1f} at={time.time():.3f} "
-                  f"last_ts_us={last_ts_us}", flush=True)  # fmt: skip
-
-    service = build_service(model, source, mapping=mapping, store_dir=store, commit_ms=commit_ms,
-                            retention_s=None if retention_hours is None else retention_hours * 3600,
-                            physics=physics, silent_s=silent, on_commit=on_commit,
-                            detector=detector, learn_s=learn,
-                            level_window_m=level_window)  # fmt: skip
-    return service, publishers, bind
 
 
 async def _serve(service: TwinService, bind: tuple[str, int] | None, token: str | None,

@@ -8,7 +8,15 @@ from typing import Annotated
 
 import typer
 
-from drafttwin.cli._options import FarPerDayOpt, JsonOpt, file_out, files_in, number, path_in
+from drafttwin.cli._options import (
+    FarPerDayOpt,
+    JsonOpt,
+    file_out,
+    files_in,
+    machine_name,
+    number,
+    path_in,
+)
 from drafttwin.cli.twin_cmds import twin_app
 from drafttwin.cli.typer_app import console, print_json
 from drafttwin.errors import ConfigError
@@ -87,19 +95,7 @@ def twin_fit_detector(
 TwinPageOpt = Annotated[str, typer.Option("--http", help="The running twin's page, HOST:PORT (its 'twin run --http').")]  # fmt: skip
 
 
-def _machine_name(value: str) -> str:
-    """--machine by the mapping's rule (a '/' or '?' could not name a machine on the API)."""
-    import re
-
-    from drafttwin.twin.sources.mapping import MACHINE_NAME
-
-    if not re.fullmatch(MACHINE_NAME, value):
-        raise ConfigError(f"{value[:100]!r} is not a machine name", where="--machine",
-                          fix="give the name the twin shows (letters, digits, '_', '.', '-')")  # fmt: skip
-    return value
-
-
-RelearnMachineOpt = Annotated[str, typer.Option("--machine", help="The machine that was serviced.", callback=_machine_name)]  # fmt: skip
+RelearnMachineOpt = Annotated[str, machine_name("--machine", "The machine that was serviced.")]
 RelearnTokenOpt = Annotated[str | None, typer.Option("--token", envvar="DRAFTTWIN_TOKEN",
                             help="The twin's token, if it has one.")]  # fmt: skip
 
