@@ -344,3 +344,58 @@ def test_the_hall_page_shows_each_machine_health_and_alarm_banners() -> None:
     # the hall's status carries no late count nor data age (yet): the tile says "–" for the age
     assert all(p in tiles["m-1"] for p in ("live", "p99 1.5 ms", "data age")), tiles
     assert "silent" in tiles["m-2"] and "main_belt" in tiles["m-1"], tiles
+
+
+@pytest.mark.skipif(CHROMIUM is None, reason="Debian's chromium is not installed "
+                    "(apt-get install chromium): the browser test needs it")  # fmt: skip
+def test_the_page_says_no_sample_yet_then_draws_with_the_first(
+    twin_files: tuple[Path, Path], mosquitto: int
+) -> None:
+    """A machine subscribed to but silent: a note with its state instead of empty axes at
+    -1..0 s; its first samples build the charts on the page already open."""
+    sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (test extra)")
+    import paho.mqtt.client as mqtt
+
+    _, model = twin_files
+    port = free_port()
+    base = f"http://127.0.0.1:{port}"
+    service = build_service(model, [f"mqtt://127.0.0.1:{mosquitto}?machine=df-01"])
+    thread, found = _serve(service, port)
+    try:
+        deadline = time.monotonic() + 30
+        while not found.get("up"):
+            assert time.monotonic() < deadline and thread.is_alive(), "the page did not start"
+            time.sleep(0.05)
+        with sync_api.sync_playwright() as p:
+            browser = p.chromium.launch(executable_path=CHROMIUM, args=[
+                "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                "--disable-component-update", "--disable-sync", "--no-first-run"])  # fmt: skip
+            page = browser.new_page(viewport={"width": 1280, "height": 900})
+            page.goto(f"{base}/?token={TOKEN}")
+            page.wait_for_function("twinPage.status !== null && document.getElementById("
+                                   "'no-samples-text') && document.getElementById("
+                                   "'no-samples-text').textContent.includes('waiting')",
+                                   timeout=20_000)  # fmt: skip
+            before = page.evaluate("[twinPage.charts.length, document.querySelectorAll('.card[data-channel]')"
+                                   ".length, document.getElementById('no-samples').innerText]")  # fmt: skip
+            client = mqtt.Client(mqtt.CallbackAPIVersion.VERSION2)
+            client.connect("127.0.0.1", mosquitto, 30)
+            client.loop_start()
+            now = time.time()
+            for k in range(300):  # 3 s at 100 Hz
+                sample = {"seq": k, "time": now + k / 100, "front": 1814.0, "second": 434.2,
+                          "third": 425.7, "back": 354.8, "motor": 1449.9, "supply_hz": 48.47}  # fmt: skip
+                client.publish("drafttwin/df-01/sample", json.dumps(sample), qos=1)
+            page.wait_for_function("twinPage.charts.length > 0 && "
+                                   "twinPage.machines['df-01'].t.length > 0", timeout=30_000)  # fmt: skip
+            after = page.evaluate("[twinPage.charts.length, document.querySelectorAll('.card[data-channel]')"
+                                  ".length, document.getElementById('no-samples') === null]")  # fmt: skip
+            client.loop_stop()
+            client.disconnect()
+            browser.close()
+    finally:
+        service.stop()
+        thread.join(timeout=30)
+    assert before[0] == 0 and before[1] == 0, before
+    assert "df-01: no sample yet" in before[2] and "state waiting" in before[2], before
+    assert after[0] == 9 and after[1] == 4 and after[2] is True, after  # 4 rollers, 2 charts each, set-point

@@ -270,8 +270,14 @@ function build() {
   state.charts = [];
   const b = state.machines[state.selected];
   if (!b) return;
+  state.empty = !b.t.length;  // no sample yet: a note instead of empty axes; the charts come with the first
+  if (state.empty) {
+    const note = el("div", { class: "card", id: "no-samples" });
+    note.append(el("h2", {}, `${state.selected}: no sample yet`), el("div", { id: "no-samples-text" }));
+    main.append(note);
+  }
   const width = Math.max(520, Math.floor(main.clientWidth / 2) - 36);
-  b.channels.forEach((c, j) => {
+  if (!state.empty) b.channels.forEach((c, j) => {
     const card = el("div", { class: "card", "data-channel": c });
     const h = el("h2", {}, `${c} roller`);
     h.append(el("span", { class: "v", id: "spikes-" + c }, ""));
@@ -286,12 +292,14 @@ function build() {
     main.append(card);
     state.charts.push({ kind: "speed", channel: c, u: speed, j }, { kind: "residual", channel: c, u: res, j });
   });
-  const sp = el("div", { class: "card" });
-  sp.append(el("h2", {}, "set-point (motor supply)"));
-  const u = chart(b, width, 120, [series("set-point", C.setpoint, "Hz", { width: 2 })], { unit: "supply, Hz" });
-  sp.append(u.root);
-  main.append(sp);
-  state.charts.push({ kind: "setpoint", u });
+  if (!state.empty) {
+    const sp = el("div", { class: "card" });
+    sp.append(el("h2", {}, "set-point (motor supply)"));
+    const u = chart(b, width, 120, [series("set-point", C.setpoint, "Hz", { width: 2 })], { unit: "supply, Hz" });
+    sp.append(u.root);
+    main.append(sp);
+    state.charts.push({ kind: "setpoint", u });
+  }
   const sl = el("div", { class: "card", id: "sliver-card", hidden: "" });
   sl.append(el("h2", {}, "sliver and leveller"), el("div", { id: "sliver" }));
   const spec = chartSpectrogram(width);
@@ -325,6 +333,12 @@ function chartSpectrogram(width) {
   };
   return new uPlot(opts, [[], [], [], []], null);
 }
+// CV at 1 m, where the window was long enough to estimate it (a short one gives none)
+function cv1m(a) {
+  const [now, then] = [a.current.cv_1m_pct, a.recommended.cv_1m_pct].map(num);
+  if (now === null && then === null) return " (CV 1 m: the window is too short for it)";
+  return `, CV 1 m ${fmt(now, 3)} → ${withUnit(then, 3, "%")}`;
+}
 function drawSliver() {
   const card = document.getElementById("sliver-card"), box = document.getElementById("sliver");
   if (!card || !box) return;
@@ -350,7 +364,7 @@ function drawSliver() {
       const [lo, hi] = a.action_point_interval_mm;
       lines.push(el("div", { class: "advice" }, `recommended: action point ${withUnit(a.recommended_action_point_mm, 1, "mm")} ` +
         `(95 % ${fmt(lo, 1)}–${fmt(hi, 1)}), intensity ${fmt(a.recommended_intensity, 2)}: CV ${withUnit(a.current.cv_pct, 3, "%")} → ` +
-        `${withUnit(a.recommended.cv_pct, 3, "%")} expected, CV 1 m ${fmt(a.current.cv_1m_pct, 3)} → ${fmt(a.recommended.cv_1m_pct, 3)} %; ` +
+        `${withUnit(a.recommended.cv_pct, 3, "%")} expected${cv1m(a)}; ` +
         `from ${withUnit(a.metres_used, 0, "m")} (within ±5 mm from ${withUnit(a.metres_needed, 0, "m")}). The twin writes no setting.`));
     } else {
       lines.push(el("div", {}, l.failed ? `no recommendation: ${l.failed}` :
@@ -372,9 +386,27 @@ function shown(b) {
   if (!state.view.live && h && h.machine === state.selected && state.view.x0 < (b.t[0] ?? Infinity)) return h.buf;
   return b;
 }
+// what the page says while the selected machine has sent nothing: its state and the twin's word on it
+function drawWaiting(live) {
+  const box = document.getElementById("no-samples-text");
+  if (!box) return;
+  const m = state.status && state.status.machines[state.selected];
+  const st = (m && m.state) || live.state || "connecting";
+  const said = state.events.filter(e => e.machine === state.selected && e.kind === "no-samples").pop();
+  const text = `state ${st}: the charts appear with the machine's first sample.` +
+    (said ? ` ${clock(said.time)}: ${said.detail}` : "");
+  if (box.textContent !== text) box.textContent = text;
+}
 function drawPage() {
   const live = state.machines[state.selected];
   if (!live) return;
+  if (state.empty) {
+    if (live.t.length) { build(); return; }  // the first sample: the charts now have something to show
+    drawWaiting(live);
+    drawEvents();
+    tiles();
+    return;
+  }
   if (state.view.live) {
     const t1 = newest(live) ?? 0;
     const t0 = live.t.length ? live.t[0] : t1;  // the window grows until it is full
