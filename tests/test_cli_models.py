@@ -8,6 +8,7 @@ import pytest
 from typer.testing import CliRunner
 
 from drafttwin.cli import app
+from drafttwin.models import load_model
 from drafttwin.plant import Plant
 
 runner = CliRunner()
@@ -50,6 +51,25 @@ def test_fit_predict_evaluate_round_trip(data_file, tmp_path):
         assert 0 < m["rmse_floor"] < m["sensor_rmse"] and m["rmse"] > m["rmse_floor"]
         assert m["true_error_ratio"] == pytest.approx(m["rmse_vs_true"] / m["sensor_rmse"])
         assert m["unit"] == "rpm" and m["rel_note"] is None
+    # a model without physics goes by the range it was trained on: the record in rad/s or
+    # rev/s, read as rpm, is refused by name (it had been predicted without a word)
+    frame = pd.read_csv(data_file)
+    rollers = ["front", "second", "third", "back"]
+    for unit, factor in (("rad/s", 2 * np.pi / 60), ("rev/s", 1 / 60)):
+        other = frame.copy()
+        other[rollers] = other[rollers] * factor
+        path = tmp_path / f"{unit.replace('/', '_')}.csv"
+        other.to_csv(path, index=False)
+        for command in (["predict", "--out", str(tmp_path / "p.csv")], ["evaluate"]):
+            result = runner.invoke(app, [*command, "--model", str(model), "--data", str(path)])
+            assert result.exit_code == 2, result.output
+            text = result.output.replace("\n", " ")
+            assert (f"rpm the model was trained on, and inside it for a column in {unit}" in text
+                    if unit == "rad/s" else "outside the plausible range" in text), text  # fmt: skip
+            assert not (tmp_path / "p.csv").exists()
+    assert set(load_model(model).output_range()) == set(rollers)
+    lo, hi = load_model(model).output_range()["back"]
+    assert 340 < lo < hi < 370 and hi - lo < 10  # the back roller's rpm in the training part
 
 
 def test_hybrid_with_mechanistic_preset(data_file, tmp_path):

@@ -398,4 +398,5 @@ def test_the_page_says_no_sample_yet_then_draws_with_the_first(
         thread.join(timeout=30)
     assert before[0] == 0 and before[1] == 0, before
     assert "df-01: no sample yet" in before[2] and "state waiting" in before[2], before
-    assert after[0] == 9 and after[1] == 4 and after[2] is True, after  # 4 rollers, 2 charts each, set-point
+    # four rollers (two charts each) and the set-point
+    assert after[0] == 9 and after[1] == 4 and after[2] is True, after

@@ -234,7 +234,22 @@ def _fitted(
     _check_rate(estimator, series, spec)
     if physics is not None and parsed.check_units:
         _check_level(physics, series, spec)
+    elif parsed.check_units:
+        _check_trained(estimator, series, spec)
     return estimator, physics, series
+
+
+def _check_trained(estimator: BaseModel, series: MeasurementSeries, spec: str) -> None:
+    """A model without physics: each rpm channel's running level against the range it was
+    trained on (a GRU fitted in rpm had been given a record in rad/s without a word)."""
+    from drafttwin.data.units import check_units, is_rpm
+
+    trained = estimator.output_range()
+    rpm = [j for j, c in enumerate(series.channels) if is_rpm(series.unit(c)) and c in trained]
+    if rpm:
+        names = [series.channels[j] for j in rpm]
+        check_units(series.values[:, rpm], names, spec,
+                    trained_rpm={n: trained[n] for n in names})  # fmt: skip
 
 
 def _check_level(physics: MechanisticModel, series: MeasurementSeries, spec: str) -> None:

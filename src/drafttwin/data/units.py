@@ -118,6 +118,7 @@ def check_units(
     source: str | Path,
     *,
     nominal_rpm: dict[str, float] | None = None,
+    trained_rpm: dict[str, tuple[float, float]] | None = None,
     diameters_mm: dict[str, float] | None = None,
     plausible: tuple[float, float] = PLAUSIBLE_RPM,
     row_label: Callable[[int], str] = lambda i: f"row {i + 1}",
@@ -129,7 +130,9 @@ def check_units(
     sign); a running median outside the plausible rpm range of drafting rollers; a front
     (delivery) roller slower than the back roller (drafting makes the front fastest, so the
     columns are swapped); and, when nominal speeds are given, a median whose ratio to the
-    nominal speed matches a unit factor (rad/s, rev/s, deg/s, or m/min with known diameters).
+    nominal speed matches a unit factor (rad/s, rev/s, deg/s, or m/min with known diameters);
+    with a model's trained range (``trained_rpm``: (min, max) per channel), a median outside
+    it that lies inside it once converted from such a unit.
     Per sample (:func:`check_samples`): no speed beyond what any roller can reach, and no
     sample running backwards by more than the noise of a stop.
     """
@@ -153,6 +156,9 @@ def check_units(
     for r, nominal in (nominal_rpm or {}).items():
         if r in medians and np.isfinite(medians[r]) and nominal > 0:
             _compare_nominal(r, medians[r], nominal, (diameters_mm or {}).get(r), source)
+    for r, (lo, hi) in (trained_rpm or {}).items():
+        if r in medians and np.isfinite(medians[r]) and 0 < lo <= hi:
+            _compare_trained(r, medians[r], (lo, hi), (diameters_mm or {}).get(r), source)
     check_samples(rpm, names, medians, source, row_label, plausible)
     return medians
 
@@ -228,12 +234,38 @@ def _refuse_range(
     )
 
 
-def _compare_nominal(
-    name: str, med: float, nominal: float, diameter_mm: float | None, source: str | Path
-) -> None:
+def _unit_factors(diameter_mm: float | None) -> dict[str, float]:
+    """What a speed in rpm becomes in each other unit (x factor)."""
     candidates = {"rad/s": 2 * math.pi / 60, "rev/s": 1 / 60, "deg/s": 6.0}
     if diameter_mm:
         candidates["m/min"] = math.pi * diameter_mm / 1000.0
+    return candidates
+
+
+def _compare_trained(
+    name: str, med: float, trained: tuple[float, float], diameter_mm: float | None,
+    source: str | Path,
+) -> None:  # fmt: skip
+    """A median outside the trained range (15 % either side) that falls inside it in
+    another unit: refused by name (a model without physics has no other level to go by)."""
+    lo, hi = trained[0] / 1.15, trained[1] * 1.15
+    if lo <= med <= hi:
+        return
+    matches = [u for u, f in _unit_factors(diameter_mm).items() if lo * f <= med <= hi * f]
+    if matches:
+        raise DataError(
+            f"median running speed {med:.4g} lies outside the {trained[0]:.4g}-{trained[1]:.4g} "
+            f"rpm the model was trained on, and inside it for a column in {' or '.join(matches)}",
+            source=source,
+            where=f"column '{name}'",
+            fix="convert to rpm: " + "; ".join(f"{u}: {TO_RPM[u]}" for u in matches),
+        )
+
+
+def _compare_nominal(
+    name: str, med: float, nominal: float, diameter_mm: float | None, source: str | Path
+) -> None:
+    candidates = _unit_factors(diameter_mm)
     ratio = med / nominal
     matches = [u for u, f in candidates.items() if abs(math.log(ratio / f)) < math.log(1.15)]
     if matches and abs(math.log(ratio)) > math.log(1.15):

@@ -273,6 +273,11 @@ class BaseModel(abc.ABC):
         """Predictions ``(n, channels)`` for a checked (and, in a simulation, blanked) series."""
 
     # ----- persistence -----------------------------------------------------------------
+    def output_range(self) -> dict[str, tuple[float, float]]:
+        """Each output channel's (min, max) in the measured training data, in the data's
+        units, where the model keeps it (its scaling); empty for a model that keeps none."""
+        return {}
+
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
         """Fitted state: JSON-able primitives and named tensors."""
         return {}, {}

@@ -197,6 +197,12 @@ class _RecurrentModel(_NeuralModel):
         u = input_matrix(series, self.task.inputs)
         return self._predict_arrays(series.values, u, series.record_starts)
 
+    def output_range(self) -> dict[str, tuple[float, float]]:
+        self._check_fitted()
+        sc = self.sim_scalers_["y"] if self.task.simulation else self.scaler_
+        return {c: (float(lo), float(hi))
+                for c, lo, hi in zip(self.channels_, sc.min_, sc.max_, strict=True)}  # fmt: skip
+
     def _get_state(self) -> tuple[dict[str, Any], dict[str, torch.Tensor]]:
         state: dict[str, Any] = {"history": self.history_.to_dict()}
         if self.task.simulation:
