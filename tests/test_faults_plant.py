@@ -201,6 +201,11 @@ def test_bad_faults_are_refused(plant):
         check_faults([FaultSpec.parse("front:stuck:severity=1:onset=0:ramp=3")], plant.train)
     with pytest.raises(ConfigError, match="lacks onset"):
         FaultSpec.parse("front:stuck:severity=1")
+    # in the words typed (onset=, ramp=), not pydantic's "onset_s Input should be"
+    with pytest.raises(ConfigError, match="onset=-5 must be greater than or equal to 0"):
+        FaultSpec.parse("main_belt:belt_wear:severity=0.5:onset=-5")
+    with pytest.raises(ConfigError, match="ramp=-1 must be greater than or equal to 0"):
+        FaultSpec.parse("main_belt:belt_wear:severity=0.5:onset=5:ramp=-1")
 
 
 def test_cli_refuses_unknown_element_listing_valid_ones(tmp_path):

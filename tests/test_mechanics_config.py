@@ -69,6 +69,13 @@ def test_missing_field(tmp_path):
     assert "belt 'main_belt'" in msg and "'span_stiffness_n_per_m' is missing" in msg
 
 
+def test_a_file_without_inertias_says_so_not_field_blank(tmp_path):
+    """An empty file (or one with only [train]) had been answered "field '' is missing"."""
+    assert "declares no drive train (no inertias, couplings or rollers)" in _refused(tmp_path, "")
+    msg = _refused(tmp_path, '[train]\nname = "x"\n')
+    assert "no [[inertia]] declared" in msg and "field ''" not in msg
+
+
 def test_mistyped_field(tmp_path):
     text = PRESET_TEXT.replace("driver_teeth = 24", 'driver_teeth = "twenty-four"', 1)
     msg = _refused(tmp_path, text)

@@ -130,7 +130,18 @@ def _translate(
     where, field = _component_label(raw, (*prefix, *err["loc"]))
     kind = err["type"]
     got = err.get("input")
-    if kind == "missing":
+    if kind == "missing" and not field:  # a whole section (an empty file lacks them all)
+        where = f"[[{where[1:-1]}]]" if where[1:-1] in LIST_KINDS else where
+        problem = (
+            f"no {where} declared"
+            if any(raw.values())
+            else "the file declares no drive train (no inertias, couplings or rollers)"
+        )
+        fix = (
+            f"declare the train's {where} tables (docs/mechanics.md lists every section; "
+            "--preset fa320a is a complete train)"
+        )
+    elif kind == "missing":
         problem = f"field '{field}' is missing"
         fix = f"add '{field} = ...' to {where} (see docs/mechanics.md for fields and units)"
     elif kind == "extra_forbidden":

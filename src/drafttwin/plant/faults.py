@@ -146,8 +146,13 @@ class FaultSpec(BaseModel):
                        ramp_s=values.get("ramp", 0.0))  # fmt: skip
         except ValidationError as exc:
             err = exc.errors()[0]
-            raise ConfigError(f"fault '{text}': {'.'.join(map(str, err['loc']))} {err['msg']}",
-                              where="--fault", fix=fix) from None  # fmt: skip
+            field = str(err["loc"][0]) if err["loc"] else ""
+            # the names the user typed (onset=, ramp=), not the model's (onset_s, ramp_s)
+            typed = {"onset_s": "onset", "ramp_s": "ramp"}.get(field, field)
+            got = f"={values[typed]:g}" if typed in values else ""
+            msg = str(err["msg"]).replace("Input should be", "must be")
+            raise ConfigError(f"fault '{text}': {typed}{got} {msg}", where="--fault",
+                              fix=fix) from None  # fmt: skip
 
 
 def check_faults(faults: Iterable[FaultSpec], train: DriveTrain) -> tuple[FaultSpec, ...]:
