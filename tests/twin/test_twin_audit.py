@@ -227,6 +227,20 @@ def test_a_restarted_plants_other_run_is_counted_apart(tmp_path: Path) -> None:
         (m,) = audit(tmp_path / "store", log_path)
         assert (m.published, m.stored, m.duplicates, m.mismatched) == (published, published, 0, 0)
         assert m.outside == outside and m.missing_inside == 0
+    # both runs' logs at once: each counted within its own span, nothing outside
+    both = audit(tmp_path / "store", logs)
+    assert [(m.log, m.published, m.stored, m.outside) for m in both] == [
+        (str(logs[0]), 500, 500, 0), (str(logs[1]), 400, 400, 0)]  # fmt: skip
+    res = CliRunner().invoke(app, ["twin", "audit", "--store", str(tmp_path / "store"),
+                                   "--plant-log", f"{logs[0]},{logs[1]}"])  # fmt: skip
+    assert res.exit_code == 0, res.stderr
+    assert "plant0.parquet" in res.stdout and "plant1.parquet" in res.stdout
+    with pytest.raises(DataError, match="given twice"):
+        audit(tmp_path / "store", [logs[0], logs[0]])
+    copy = tmp_path / "copy.parquet"
+    copy.write_bytes(logs[0].read_bytes())
+    with pytest.raises(DataError, match="both log machine 'm1' over the same time"):
+        audit(tmp_path / "store", [logs[0], copy])
     other = tmp_path / "other.parquet"
     with PlantLog(other) as log:
         log.add("m1", replace(_sample(1, rng), time_s=9000.0))

@@ -16,7 +16,7 @@ from rich import box
 from rich.table import Table
 
 from drafttwin.cli._exit import work_done
-from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, number, path_in
+from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, files_in, number, path_in
 from drafttwin.cli.twin_cmds import (
     CommitMsOpt,
     LearnOpt,
@@ -39,7 +39,7 @@ RUNS_SHOWN = 10
 """Runs of absent samples listed per machine (the JSON has them all)."""
 
 
-PlantLogOpt = Annotated[Path, path_in("--plant-log", "The plant's log ('drafttwin plant serve --log FILE').")]  # fmt: skip
+PlantLogOpt = Annotated[str, files_in("--plant-log", "The plant's log ('drafttwin plant serve --log FILE'); several, comma-separated: the logs of a plant's runs, or of several plants.")]  # fmt: skip
 
 
 @twin_app.command("audit")
@@ -57,26 +57,29 @@ def twin_audit(
     from drafttwin.twin.store.audit import as_json as audit_json
     from drafttwin.twin.store.audit import audit
 
-    result = audit(store, plant_log, machine)
+    logs = [Path(p.strip()) for p in plant_log.split(",") if p.strip()]
+    result = audit(store, logs, machine)
     if as_json:
         print_json({"machines": audit_json(result)})
         return
-    table = Table(title=f"store {store} against {plant_log}", box=box.SIMPLE)
-    cols = ("machine", "sent", "stored", "twice", "differ", "absent", "before", "after",
-            "filled", "outside")  # fmt: skip
+    several = len(logs) > 1
+    table = Table(title=f"store {store} against {', '.join(map(str, logs))}", box=box.SIMPLE)
+    cols = ("machine", *(("log",) if several else ()), "sent", "stored", "twice", "differ",
+            "absent", "before", "after", "filled", "outside")  # fmt: skip
     for col in cols:
-        table.add_column(col, justify="left" if col == "machine" else "right")
+        table.add_column(col, justify="left" if col in ("machine", "log") else "right")
     for m in result:
-        table.add_row(m.machine, *map(str, (m.published, m.stored, m.duplicates, m.mismatched,
-                                            m.missing_inside, m.before_first, m.after_last,
-                                            m.filled, m.outside)))  # fmt: skip
+        table.add_row(m.machine, *((Path(m.log).name,) if several else ()),
+                      *map(str, (m.published, m.stored, m.duplicates, m.mismatched,
+                                 m.missing_inside, m.before_first, m.after_last, m.filled,
+                                 m.outside)))  # fmt: skip
     print_table(table)
     console.print("sent: published by the plant; twice: stored more than once; differ: stored with another time or value; "
                   "absent: published between the first and last stored sample but not stored "
                   "(runs below); before / after: published before the first / after the last "
                   "stored sample; filled: rows the twin made up for samples it never received; outside: "
-                  "stored rows outside the log's time span (another run of the plant, which "
-                  "counts from 0 again: audit those with that run's log)",
+                  "stored rows outside every given log's time span (another run of the plant, which "
+                  "counts from 0 again: give that run's log too)",
                   highlight=False)  # fmt: skip
     for m in result:
         for r in m.runs[:RUNS_SHOWN]:

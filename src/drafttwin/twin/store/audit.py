@@ -14,6 +14,7 @@ counted apart; they are not samples of the plant.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -54,7 +55,8 @@ class MachineAudit:
     after_last: int
     missing_inside: int
     runs: list[MissingRun] = field(default_factory=list)
-    outside: int = 0  # stored rows outside the log's time span: another run of the plant
+    outside: int = 0  # stored rows outside every given log's time span: another run's
+    log: str = ""  # the plant log counted against
 
 
 def _store_rows(folder: Path, machine: str | None) -> tuple[pd.DataFrame, dict[str, list[str]]]:
@@ -79,24 +81,40 @@ def _store_rows(folder: Path, machine: str | None) -> tuple[pd.DataFrame, dict[s
 
 
 def audit(
-    store: str | Path, plant_log: str | Path, machine: str | None = None
+    store: str | Path, plant_log: str | Path | Sequence[str | Path], machine: str | None = None
 ) -> list[MachineAudit]:
-    """One :class:`MachineAudit` per machine of the plant log that the store knows."""
-    log = read_plant_log(Path(plant_log))
+    """One :class:`MachineAudit` per machine and plant log (several: the logs of a plant's
+    runs, or of several plants) that the store knows; ``outside`` counts a machine's stored
+    rows in none of the logs' time spans."""
+    paths = [Path(plant_log)] if isinstance(plant_log, str | Path) else [Path(p) for p in plant_log]
+    if len(set(paths)) != len(paths):
+        raise DataError("a plant log is given twice", source=paths[0], where="--plant-log",
+                        fix="give each run's log once")  # fmt: skip
+    logs = {p: read_plant_log(p) for p in paths}
     rows, channels = _store_rows(Path(store), machine)
-    names = sorted(set(log["machine"]) & set(channels))
-    if machine is not None:
-        names = [machine] if machine in set(log["machine"]) else []
-    if not names:
-        raise DataError("the plant log and the store share no machine", source=Path(plant_log),
-                        fix="give the log of the plant this twin read (same machine names)")  # fmt: skip
-    result = [_machine(name, log[log["machine"] == name], rows[rows["machine"] == name],
-                       channels[name]) for name in names]  # fmt: skip
-    if all(m.outside and not m.stored for m in result):
-        raise DataError("the store holds no sample of this log's time span: the log is of "
-                        "another run of the plant", source=Path(plant_log),
-                        fix="give the log the plant wrote while this twin ran (plant serve "
-                        "--log; a restarted plant writes a log per run)")  # fmt: skip
+    spans = {p: _spans(log) for p, log in logs.items()}
+    _refuse_overlap(spans)
+    result = []
+    for path, log in logs.items():
+        names = sorted(set(log["machine"]) & set(channels))
+        if machine is not None:
+            names = [machine] if machine in set(log["machine"]) else []
+        if not names:
+            raise DataError("the plant log and the store share no machine", source=path,
+                            fix="give the log of the plant this twin read (same machine names)")  # fmt: skip
+        mine = []
+        for name in names:
+            at = rows[rows["machine"] == name]
+            others = [spans[q][name] for q in paths if name in spans[q]]
+            outside = int((~np.any([_within(at, sp) for sp in others], axis=0)).sum())
+            mine.append(_machine(name, log[log["machine"] == name], at[_within(at, spans[path][name])],
+                                 channels[name], outside, path))  # fmt: skip
+        if all(not m.stored for m in mine):
+            raise DataError("the store holds no sample of this log's time span: the log is of "
+                            "another run of the plant", source=path,
+                            fix="give the log the plant wrote while this twin ran (plant serve "
+                            "--log; a restarted plant writes a log per run)")  # fmt: skip
+        result += mine
     return result
 
 
@@ -105,17 +123,38 @@ SPAN_MARGIN_US = 1_000_000
 (a time stamp written otherwise is counted as differing, not as another run's)."""
 
 
-def _machine(name: str, log: pd.DataFrame, rows: pd.DataFrame, chans: list[str]) -> MachineAudit:
+def _spans(log: pd.DataFrame) -> dict[str, tuple[int, int]]:
+    """Each machine's time span in a log (us, with the margin)."""
+    out = {}
+    for name, part in log.groupby("machine"):
+        ts = part["ts_us"].to_numpy(np.int64)
+        out[str(name)] = (int(ts.min()) - SPAN_MARGIN_US, int(ts.max()) + SPAN_MARGIN_US)
+    return out
+
+
+def _within(rows: pd.DataFrame, span: tuple[int, int]) -> np.ndarray:
+    ts = rows["ts_us"].to_numpy(np.int64)
+    return np.asarray((ts >= span[0]) & (ts <= span[1]))
+
+
+def _refuse_overlap(spans: dict[Path, dict[str, tuple[int, int]]]) -> None:
+    """Two logs of one machine over the same time: their counters could not be told apart."""
+    paths = list(spans)
+    for i, a in enumerate(paths):
+        for b in paths[i + 1 :]:
+            for name in set(spans[a]) & set(spans[b]):
+                (a0, a1), (b0, b1) = spans[a][name], spans[b][name]
+                if a0 < b1 and b0 < a1:
+                    raise DataError(f"{a.name} and {b.name} both log machine {name!r} over the "
+                                    "same time", source=b, where="--plant-log",
+                                    fix="give the logs of separate runs (each run's own log)")  # fmt: skip
+
+
+def _machine(name: str, log: pd.DataFrame, rows: pd.DataFrame, chans: list[str], outside: int,
+             path: Path) -> MachineAudit:  # fmt: skip
+    """``rows``: the machine's stored rows within the log's time span (a plant restarted
+    counts from 0 again: another run's rows read as stored twice, or differing)."""
     log = log.sort_values("seq").reset_index(drop=True)
-    # a plant restarted counts from 0 again: the store's rows of another run (outside this
-    # log's time span) are not this log's samples (they read as stored twice, or differing)
-    ts = log["ts_us"].to_numpy(np.int64)
-    lo_us, hi_us = (
-        (int(ts.min()) - SPAN_MARGIN_US, int(ts.max()) + SPAN_MARGIN_US) if len(ts) else (0, -1)
-    )
-    within = (rows["ts_us"] >= lo_us) & (rows["ts_us"] <= hi_us)
-    outside = int((~within).sum())
-    rows = rows[within]
     real = rows[rows["seq"] >= 0]
     seq = real["seq"].to_numpy(np.int64)
     duplicates = int(len(seq) - len(np.unique(seq)))
@@ -135,7 +174,7 @@ def _machine(name: str, log: pd.DataFrame, rows: pd.DataFrame, chans: list[str])
         before, after, inside = int(gone.sum()), 0, np.zeros(len(log), bool)
     return MachineAudit(name, len(log), int(len(stored_seq)), duplicates, mismatched, foreign,
                         int((rows["seq"] < 0).sum()), before, after, int(inside.sum()),
-                        _runs(log, inside), outside)  # fmt: skip
+                        _runs(log, inside), outside, str(path))  # fmt: skip
 
 
 def _mismatched(log: pd.DataFrame, rows: pd.DataFrame, chans: list[str]) -> int:
