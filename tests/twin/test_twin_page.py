@@ -390,6 +390,15 @@ def test_the_page_says_no_sample_yet_then_draws_with_the_first(
                                    "twinPage.machines['df-01'].t.length > 0", timeout=30_000)  # fmt: skip
             after = page.evaluate("[twinPage.charts.length, document.querySelectorAll('.card[data-channel]')"
                                   ".length, document.getElementById('no-samples') === null]")  # fmt: skip
+            for k in range(300, 400):  # 7 s later: a gap the lines must not bridge
+                sample = {"seq": k, "time": now + 7 + k / 100, "front": 1814.0, "second": 434.2,
+                          "third": 425.7, "back": 354.8, "motor": 1449.9, "supply_hz": 48.47}  # fmt: skip
+                client.publish("drafttwin/df-01/sample", json.dumps(sample), qos=1)
+            page.wait_for_function("twinPage.machines['df-01'].t.some(t => t > "
+                                   f"{now + 7 + 3.5})", timeout=30_000)  # fmt: skip
+            gap = page.evaluate("""(() => { const b = twinPage.machines['df-01'];
+                const i = b.t.findIndex((t, k) => k > 0 && t - b.t[k - 1] > 2);
+                return [b.t[i] - b.t[i - 1], b.meas[0][i - 1], b.twin[0][i - 1], b.t[i - 1] - b.t[i - 2]]; })()""")  # fmt: skip
             client.loop_stop()
             client.disconnect()
             browser.close()
@@ -400,3 +409,5 @@ def test_the_page_says_no_sample_yet_then_draws_with_the_first(
     assert "df-01: no sample yet" in before[2] and "state waiting" in before[2], before
     # four rollers (two charts each) and the set-point
     assert after[0] == 9 and after[1] == 4 and after[2] is True, after
+    # the row before the gap is a break (no values) 1 ms after the last sample
+    assert gap[0] > 6 and gap[1] is None and gap[2] is None and abs(gap[3] - 1e-3) < 1e-6, gap

@@ -8,6 +8,7 @@ const TOKEN = PARAMS.get("token");
 const ALARM_KINDS = ["fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack", "sliver-chimney"];
 const SPIKE_REL = 0.10;   // the twin's spike rule: 10 % from both neighbours
 const LIVE_KEEP_S = 600;  // live rows kept in the page, s
+const GAP_S = 2;          // a longer gap between rows breaks the lines (the twin's own gap rule)
 const SPANS = [["1 min", 60], ["5 min", 300], ["10 min", 600], ["1 h", 3600], ["6 h", 21600],
                ["24 h", 86400]];
 const C = { measured: "#6b7280", physics: "#1f6fd1", twin: "#d9480f", spike: "#c2185b",
@@ -168,6 +169,8 @@ function isSpike(a, spike, i) {
 }
 function push(b, rows) {
   for (const r of rows) {
+    const last = newest(b);
+    if (last !== null && r[0] - last > GAP_S) pushBreak(b, last);
     b.t.push(r[0]); b.sp.push(num(r[2]));
     for (let j = 0; j < b.k; j++) {
       b.meas[j].push(num(r[3 + j])); b.phys[j].push(num(r[3 + b.k + j]));
@@ -186,6 +189,13 @@ function push(b, rows) {
     b.t.splice(0, i); b.sp.splice(0, i);
     for (const key of ["meas", "phys", "twin", "res", "spike"]) b[key].forEach(a => a.splice(0, i));
   }
+}
+// a row of nothing just after the last before a gap: the lines break there instead of
+// joining the samples on either side with a straight line
+function pushBreak(b, last) {
+  b.t.push(last + 1e-3); b.sp.push(null);
+  for (const key of ["meas", "phys", "twin", "res"]) b[key].forEach(a => a.push(null));
+  b.spike.forEach(a => a.push(false));
 }
 function newest(b) { return b && b.t.length ? b.t[b.t.length - 1] : null; }
 function dataNow(m) {  // the machine's data time now (s): its newest sample
