@@ -64,7 +64,7 @@ def test_fit_predict_evaluate_round_trip(data_file, tmp_path):
             result = runner.invoke(app, [*command, "--model", str(model), "--data", str(path)])
             assert result.exit_code == 2, result.output
             text = result.output.replace("\n", " ")
-            assert (f"rpm the model was trained on, and inside it for a column in {unit}" in text
+            assert (f"rpm the model was trained on, which matches a column in {unit}" in text
                     if unit == "rad/s" else "outside the plausible range" in text), text  # fmt: skip
             assert not (tmp_path / "p.csv").exists()
     assert set(load_model(model).output_range()) == set(rollers)

@@ -408,7 +408,7 @@ def test_the_page_shows_the_sliver_its_spectrogram_and_the_recommendation(twin_f
     The page serves while the replay runs: the first spectrogram comes after 100 m (23 s of
     record), so the record runs on 17 s past it, at 4x (4 s of wall clock) for the page's
     1-s poll to fetch it (a 26-s record at 8x left 0.3 s, which a slow Chromium start missed)."""
-    from .test_twin_page import CHROMIUM, TOKEN, _keep_shot, _serve
+    from .test_twin_page import CHROMIUM, TOKEN, _chromium, _keep_shot, _serving
 
     if CHROMIUM is None:
         pytest.skip("Debian's chromium is not installed")
@@ -420,15 +420,9 @@ def test_the_page_shows_the_sliver_its_spectrogram_and_the_recommendation(twin_f
     service = build_service(model, [f"replay:{record}?speed=4&machine=df-01"], detector="none",
                             level_window_m=40.0)  # fmt: skip
     port = free_port()
-    thread, found = _serve(service, port)
-    deadline = time.monotonic() + 30
-    while not found.get("up"):
-        assert time.monotonic() < deadline and thread.is_alive(), "the page did not start"
-        time.sleep(0.05)
+    thread, found = _serving(service, port)
     with sync_api.sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=CHROMIUM, args=[
-            "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-            "--disable-component-update", "--disable-sync", "--no-first-run"])  # fmt: skip
+        browser = _chromium(p)
         page = browser.new_page(viewport={"width": 1280, "height": 1600})
         page.goto(f"http://127.0.0.1:{port}/?token={TOKEN}")
         page.wait_for_selector("#sliver .advice", timeout=60_000)

@@ -17,6 +17,7 @@ import time
 import urllib.error
 import urllib.request
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -109,6 +110,23 @@ def _serve(service: TwinService, port: int) -> tuple[threading.Thread, dict[str,
     return thread, found
 
 
+def _serving(service: TwinService, port: int) -> tuple[threading.Thread, dict[str, object]]:
+    """:func:`_serve`, returned once the page listens."""
+    thread, found = _serve(service, port)
+    deadline = time.monotonic() + 30
+    while not found.get("up"):
+        assert time.monotonic() < deadline and thread.is_alive(), "the page did not start"
+        time.sleep(0.05)
+    return thread, found
+
+
+def _chromium(p: Any) -> Any:
+    """Debian's Chromium under Playwright, without its background traffic."""
+    return p.chromium.launch(executable_path=CHROMIUM, args=[
+        "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+        "--disable-component-update", "--disable-sync", "--no-first-run"])  # fmt: skip
+
+
 RAISED: dict[str, object] = {}
 """The alarms _alarm raised, by test (to return them to normal)."""
 
@@ -161,21 +179,15 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     service = build_service(model, [f"replay:{record}?speed=1&machine=df-01"])
-    thread, found = _serve(service, port)
+    thread, found = _serving(service, port)
     try:
-        deadline = time.monotonic() + 30
-        while not found.get("up"):
-            assert time.monotonic() < deadline and thread.is_alive(), "the page did not start"
-            time.sleep(0.05)
         assert _get(base + "/api/status")[0] == 401
         code, body = _get(base + "/metrics", {"Authorization": f"Bearer {TOKEN}"})
         assert code == 200 and b"drafttwin_samples_total" in body
         assert asyncio.run(_ws_refused(f"ws://127.0.0.1:{port}/ws"))
         loop = found["loop"]
         with sync_api.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=[
-                "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                "--disable-component-update", "--disable-sync", "--no-first-run"])  # fmt: skip
+            browser = _chromium(p)
             page = browser.new_page(viewport={"width": 1280, "height": 1100})
             page.goto(f"{base}/?token={TOKEN}")
             # past the record's first front-roller spike (and two samples after it)
@@ -360,16 +372,10 @@ def test_the_page_says_no_sample_yet_then_draws_with_the_first(
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     service = build_service(model, [f"mqtt://127.0.0.1:{mosquitto}?machine=df-01"])
-    thread, found = _serve(service, port)
+    thread, found = _serving(service, port)
     try:
-        deadline = time.monotonic() + 30
-        while not found.get("up"):
-            assert time.monotonic() < deadline and thread.is_alive(), "the page did not start"
-            time.sleep(0.05)
         with sync_api.sync_playwright() as p:
-            browser = p.chromium.launch(executable_path=CHROMIUM, args=[
-                "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                "--disable-component-update", "--disable-sync", "--no-first-run"])  # fmt: skip
+            browser = _chromium(p)
             page = browser.new_page(viewport={"width": 1280, "height": 900})
             page.goto(f"{base}/?token={TOKEN}")
             page.wait_for_function("twinPage.status !== null && document.getElementById("

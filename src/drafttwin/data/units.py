@@ -246,32 +246,34 @@ def _compare_trained(
     name: str, med: float, trained: tuple[float, float], diameter_mm: float | None,
     source: str | Path,
 ) -> None:  # fmt: skip
-    """A median outside the trained range (15 % either side) that falls inside it in
-    another unit: refused by name (a model without physics has no other level to go by)."""
-    lo, hi = trained[0] / 1.15, trained[1] * 1.15
-    if lo <= med <= hi:
-        return
-    matches = [u for u, f in _unit_factors(diameter_mm).items() if lo * f <= med <= hi * f]
-    if matches:
-        raise DataError(
-            f"median running speed {med:.4g} lies outside the {trained[0]:.4g}-{trained[1]:.4g} "
-            f"rpm the model was trained on, and inside it for a column in {' or '.join(matches)}",
-            source=source,
-            where=f"column '{name}'",
-            fix="convert to rpm: " + "; ".join(f"{u}: {TO_RPM[u]}" for u in matches),
-        )
+    """A median outside the trained range that falls inside it in another unit (a model
+    without physics has no other level to go by)."""
+    _refuse_other_unit(name, med, trained, diameter_mm, source,
+                       f"lies outside the {trained[0]:.4g}-{trained[1]:.4g} rpm the model was "
+                       "trained on")  # fmt: skip
 
 
 def _compare_nominal(
     name: str, med: float, nominal: float, diameter_mm: float | None, source: str | Path
 ) -> None:
-    candidates = _unit_factors(diameter_mm)
-    ratio = med / nominal
-    matches = [u for u, f in candidates.items() if abs(math.log(ratio / f)) < math.log(1.15)]
-    if matches and abs(math.log(ratio)) > math.log(1.15):
+    _refuse_other_unit(name, med, (nominal, nominal), diameter_mm, source,
+                       f"is {med / nominal:.3g} x the nominal {nominal:.4g} rpm")  # fmt: skip
+
+
+def _refuse_other_unit(
+    name: str, med: float, level: tuple[float, float], diameter_mm: float | None,
+    source: str | Path, said: str,
+) -> None:  # fmt: skip
+    """Refuse a median more than 15 % outside ``level`` (rpm, a range) that lies within 15 %
+    of it once read as rad/s, rev/s, deg/s (or m/min with a diameter)."""
+    lo, hi = level[0] / 1.15, level[1] * 1.15
+    if lo <= med <= hi:
+        return
+    matches = [u for u, f in _unit_factors(diameter_mm).items() if lo * f <= med <= hi * f]
+    if matches:
         raise DataError(
-            f"median running speed {med:.4g} is {ratio:.3g} x the nominal {nominal:.4g} rpm, "
-            f"which matches a column in {' or '.join(matches)}",
+            f"median running speed {med:.4g} {said}, which matches a column in "
+            f"{' or '.join(matches)}",
             source=source,
             where=f"column '{name}'",
             fix="convert to rpm: " + "; ".join(f"{u}: {TO_RPM[u]}" for u in matches),
