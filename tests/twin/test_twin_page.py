@@ -200,6 +200,7 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
                 return {{ y: [u.scales.y.min, u.scales.y.max], x: [u.scales.x.min, u.scales.x.max],
                           time: u.scales.x.time, t: b.t, front: b.meas[0], marked: u.spikesShown,
                           res: [r.scales.y.min, r.scales.y.max], limit: r.limit }}; }})()""")  # fmt: skip
+            limit_note = page.locator(".card[data-channel='front'] .limit").inner_text()
             legend = page.locator(".card").first.locator(".u-legend").first
             values = legend.locator(".u-value").all_text_contents()
             page.wait_for_function("twinPage.status !== null", timeout=10_000)
@@ -268,6 +269,8 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
     # the residual: a band around zero, its limits drawn, spikes not on the scale
     assert drawn["res"][0] == -drawn["res"][1] and 0 < drawn["res"][1] < 25
     assert drawn["limit"] is not None and 0 < drawn["limit"] < drawn["res"][1]
+    # named under the chart (on the line it sat under the spike markers' values)
+    assert re.search(r"(detector limit|band of the window) ±\d+\.\d\d rpm$", limit_note), limit_note
     # legend values: a wall-clock time, then numbers with units
     assert re.fullmatch(r"\d\d:\d\d:\d\d\.\d{3}", values[0]), values
     assert len(values) == 4 and all(NUMBER_RPM.match(v) for v in values[1:]), values

@@ -262,16 +262,18 @@ function drawLimits(u, lim, label) {
   if (!lim) return;
   const ctx = u.ctx;
   ctx.save();
-  ctx.strokeStyle = label.startsWith("detector") ? C.limit : C.band;
+  const colour = label.startsWith("detector") ? C.limit : C.band;
+  ctx.strokeStyle = colour;
   ctx.setLineDash([6 * devicePixelRatio, 4 * devicePixelRatio]); ctx.lineWidth = devicePixelRatio;
-  ctx.fillStyle = ctx.strokeStyle; ctx.font = `${Math.round(10 * devicePixelRatio)}px sans-serif`;
-  ctx.textAlign = "left"; ctx.textBaseline = "alphabetic";
   for (const v of [lim, -lim]) {
     const y = u.valToPos(v, "y", true);
     ctx.beginPath(); ctx.moveTo(u.bbox.left, y); ctx.lineTo(u.bbox.left + u.bbox.width, y); ctx.stroke();
   }
-  ctx.fillText(`${label} ±${fmt(lim, 2)} rpm`, u.bbox.left + 4, u.valToPos(lim, "y", true) - 3);
   ctx.restore();
+  // named under the chart, not on it: a label on the line sat under the spike markers' values
+  const note = u.root.parentElement && u.root.parentElement.querySelector(".limit");
+  const text = `- - - ${label} ±${fmt(lim, 2)} rpm`;
+  if (note && note.textContent !== text) { note.textContent = text; note.style.color = colour; }
 }
 
 function build() {
@@ -298,7 +300,7 @@ function build() {
       { unit: "speed, rpm", draw: u => markSpikes(u, b, j, b.meas[j]) });
     const res = chart(b, width, 120, [series("measured − twin", C.twin, "rpm")],
       { unit: "residual, rpm", draw: u => { drawLimits(u, u.limit, u.limitLabel); markSpikes(u, b, j, b.res[j]); } });
-    card.append(h, speed.root, res.root);
+    card.append(h, speed.root, res.root, el("div", { class: "limit" }));
     main.append(card);
     state.charts.push({ kind: "speed", channel: c, u: speed, j }, { kind: "residual", channel: c, u: res, j });
   });
