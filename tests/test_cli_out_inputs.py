@@ -81,3 +81,13 @@ def test_a_file_list_that_names_no_file_is_refused(record: Path, option: str, va
     data = ["--data", str(record)] if option == "--test-data" else []
     said = _refused([*args, *data, option, value])
     assert f"{option}: names no file" in said
+
+
+def test_sliver_simulate_writes_no_sliver_over_its_speed_file(record: Path) -> None:
+    """It had printed "wrote r.csv" over the speed record it read (its sidecar left beside
+    a file that no longer matched it)."""
+    before = record.read_bytes()
+    said = _refused(["sliver", "simulate", "--speeds", str(record), "--out", str(record),
+                     "--fibre-scale", "50", "--quiet"])  # fmt: skip
+    assert "is both --speeds and --out" in said
+    assert record.read_bytes() == before

@@ -21,6 +21,7 @@ from drafttwin.cli._options import (
     file_out,
     number,
 )
+from drafttwin.cli._oserrors import input_path
 from drafttwin.cli.typer_app import app, console, print_json, progress_bar
 from drafttwin.errors import ConfigError, DataError
 
@@ -184,7 +185,17 @@ def _speeds(speeds: str, truth: bool, duration: float, train: Any, detail: bool,
 
 SliverOutOpt = Annotated[Path, file_out("--out", "Sliver file (.csv or .parquet): "
                         "delivered_length_m, time, linear_density_ktex.")]  # fmt: skip
-SpeedsOpt = Annotated[str, typer.Option("--speeds", help=(
+
+
+def _speeds_file(value: str) -> str:
+    """``--speeds FILE`` is an input (the sliver must not be written over it, nor over its
+    record's files); ``physics`` is none."""
+    if value != "physics":
+        input_path("--speeds")(Path(value))
+    return value
+
+
+SpeedsOpt = Annotated[str, typer.Option("--speeds", callback=_speeds_file, help=(
     "physics (the drive train simulated at 2 kHz for --duration), or a speed file: measured "
     "(cleaned of gaps), a model's predictions (drafttwin predict --out), or with --truth the "
     "plant's true speeds."))]  # fmt: skip
