@@ -91,3 +91,18 @@ def test_sliver_simulate_writes_no_sliver_over_its_speed_file(record: Path) -> N
                      "--fibre-scale", "50", "--quiet"])  # fmt: skip
     assert "is both --speeds and --out" in said
     assert record.read_bytes() == before
+
+
+@pytest.mark.parametrize(("command", "name"), [("reproduce", "predictions.csv"),
+                                               ("reproduce", "metrics.csv"),
+                                               ("grid-search", "grid.json")])  # fmt: skip
+def test_a_study_writes_no_file_of_its_folder_over_its_data(
+    record: Path, tmp_path: Path, command: str, name: str
+) -> None:
+    """reproduce --data OUT/predictions.csv --out OUT had replaced the measurements with the
+    study's predictions, without a word."""
+    data = tmp_path / name
+    data.write_bytes(record.read_bytes())
+    said = _refused([command, "--data", str(data), "--out", str(tmp_path), "--quiet"])
+    assert f"is --data, and the command writes its {name} in --out" in said
+    assert data.read_bytes() == record.read_bytes()

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import errno
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from drafttwin.errors import ConfigError, DrafttwinError
@@ -103,6 +103,19 @@ def _no_clash(path: Path, option: str, *, output: bool) -> None:
             companion = Path(os.path.abspath(companion))
             if companion not in mine:
                 _no_clash(companion, f"{option} (a file of its record)", output=False)
+
+
+def no_input_among(folder: Path, names: Iterable[str], option: str) -> None:
+    """Refuse an output folder in which a file the command writes under a fixed name is one
+    of its inputs (or a file of an input's record): writing it would replace the input."""
+    for name in names:
+        path = Path(os.path.abspath(folder / name))
+        for other, other_option in _INPUTS.items():
+            if same_file(path, other):
+                raise ConfigError(f"is {other_option}, and the command writes its {name} in "
+                                  f"{option}: writing it would replace the input", source=other,
+                                  where=option, fix=f"give {option} another folder, or move "
+                                  "the input out of it")  # fmt: skip
 
 
 def option_of(path: str | Path) -> str | None:

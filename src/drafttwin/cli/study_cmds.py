@@ -12,6 +12,7 @@ import typer
 
 from drafttwin.cli._groups import with_group
 from drafttwin.cli._options import ColumnsOpt, QuietOpt, dir_out, files_in, number
+from drafttwin.cli._oserrors import no_input_among
 from drafttwin.cli.typer_app import app, console, err_console
 
 if TYPE_CHECKING:
@@ -126,7 +127,9 @@ def reproduce(
     from drafttwin.execution.interrupt import stop_on_signals
     from drafttwin.execution.lock import study_lock
     from drafttwin.report import write_study
+    from drafttwin.report.writer import STUDY_FILES
 
+    no_input_among(out, STUDY_FILES, "--out")
     t0 = time.perf_counter()
     study, series, display = options.study(out)
     # one run at a time per --out; a signal stops the run cleanly and leaves it resumable
@@ -155,6 +158,7 @@ def grid_search(
     from drafttwin.execution.interrupt import stop_on_signals
     from drafttwin.execution.lock import study_lock
 
+    no_input_among(out, ("grid.json",), "--out")
     study, series, display = options.study(out)
     with study_lock(out), stop_on_signals(_resume_note(out)), display.progress:
         study.prepare_data(series)

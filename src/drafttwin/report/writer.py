@@ -185,6 +185,11 @@ def write_report(
     return paths
 
 
+STUDY_FILES = ("report.html", "table2.csv", "metrics.csv", "table3.csv", "table3_summary.csv",
+               "grid.csv", "predictions.csv", "results.json")  # fmt: skip
+"""The files :func:`write_study` writes in its folder (a caller refuses inputs among them)."""
+
+
 def write_study(
     out_dir: Path, results: dict[str, Any], predictions: pd.DataFrame
 ) -> dict[str, Path]:
