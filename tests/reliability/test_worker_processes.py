@@ -298,13 +298,17 @@ PLAIN_COMMANDS = {
     # SIGTERM left the temporary file)
     "simulate": ["simulate", "--duration", "600", "--rate", "1000", "--quiet", "--out", "s.csv"],
     "calibrate": ["calibrate", "--data", "default", "--quiet", "--out", "c.toml"],
+    # the physics at 2 kHz in numba, then the drafting kernel (SIGINT: a 79-line traceback,
+    # SIGTERM: silent)
+    "sliver": ["sliver", "simulate", "--duration", "600", "--quiet", "--out", "sl.csv"],
 }  # fmt: skip
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("command", "signum"), [("generate", signal.SIGTERM),
                          ("fit", signal.SIGTERM), ("simulate", signal.SIGTERM),
-                         ("simulate", signal.SIGINT), ("calibrate", signal.SIGINT)])  # fmt: skip
+                         ("simulate", signal.SIGINT), ("calibrate", signal.SIGINT),
+                         ("sliver", signal.SIGINT), ("sliver", signal.SIGTERM)])  # fmt: skip
 def test_a_plain_command_stops_on_a_signal_in_one_line_leaving_no_file(
     tmp_path: Path, command: str, signum: int
 ) -> None:

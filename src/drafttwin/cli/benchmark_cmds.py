@@ -8,6 +8,7 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
+from drafttwin.cli._groups import stops_cleanly
 from drafttwin.cli._options import (
     EpochsOpt,
     JsonOpt,
@@ -47,6 +48,7 @@ PhysicsOpt = Annotated[str, typer.Option("--physics", help=(
 
 
 @benchmark_app.command("emps")
+@stops_cleanly("nothing was written")
 def emps(
     data_dir: EmpsDirOpt = None,
     seeds: EmpsSeedsOpt = 3,
@@ -118,6 +120,9 @@ RowsJsonOpt = Annotated[bool, typer.Option("--json", help='Print {"rows": [...],
 
 
 @benchmark_app.command("generalisation")
+@stops_cleanly(
+    "finished records and fits are kept in OUT/cache (unless --no-cache): a rerun resumes"
+)
 def generalisation(
     quick: QuickOpt = False,
     seeds: SeedsOpt = None,

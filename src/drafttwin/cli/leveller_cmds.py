@@ -8,6 +8,7 @@ from typing import Annotated, Any
 import typer
 from rich.table import Table
 
+from drafttwin.cli._groups import stops_cleanly
 from drafttwin.cli._options import JsonOpt, OutDirOpt, QuietOpt, WorkersOpt, number
 from drafttwin.cli.benchmark_cmds import benchmark_app
 from drafttwin.cli.typer_app import console, print_json, progress_bar
@@ -20,6 +21,7 @@ PlanSeedLevelOpt = Annotated[int, number("--seed", "Seed of the plan (machines, 
 
 
 @benchmark_app.command("leveller")
+@stops_cleanly("finished machines are kept in OUT/cases: a rerun resumes")
 def benchmark_leveller(
     out: OutDirOpt = Path("leveller_out"),
     quick: QuickLevelOpt = False,

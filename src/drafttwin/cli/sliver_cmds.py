@@ -11,7 +11,7 @@ import typer
 from rich.table import Table
 
 from drafttwin.cli._common import check_output_suffix
-from drafttwin.cli._groups import with_group
+from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import (
     JsonOpt,
     LevellerFaultOpt,
@@ -229,6 +229,7 @@ SeedOpt = Annotated[int, number("--seed", "Seed of the fibres.")]
 @sliver_app.command("simulate")
 @with_group("drive", TrainOptions)
 @with_group("fibre_options", FibreOptions)
+@stops_cleanly("nothing was written")
 def simulate_cmd(
     *,  # keyword-only: the option groups below have no default
     out: SliverOutOpt,

@@ -7,7 +7,7 @@ from typing import Annotated, Any
 
 from rich.table import Table
 
-from drafttwin.cli._groups import with_group
+from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import JsonOpt, file_in, number
 from drafttwin.cli.sliver_cmds import FibreOptions, sliver_app
 from drafttwin.cli.typer_app import console, print_json
@@ -27,6 +27,7 @@ SearchOpt = Annotated[float, number("--search", "Action points searched either s
 
 @sliver_app.command("level")
 @with_group("fibre_options", FibreOptions)
+@stops_cleanly("nothing was written")
 def level_cmd(
     *,  # keyword-only: the option group below has no default
     data: LevelRecordOpt,

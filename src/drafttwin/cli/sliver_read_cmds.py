@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from drafttwin.cli._common import check_output_suffix
-from drafttwin.cli._groups import with_group
+from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import JsonOpt, TrainOptions, file_in, file_out, number
 from drafttwin.cli.sliver_cmds import (
     FibreOptions,
@@ -59,6 +59,7 @@ def read_record(data: Path, column: str | None, length_column: str | None,
 
 @sliver_app.command("spectrogram")
 @with_group("fibre_options", FibreOptions)
+@stops_cleanly("nothing was written")
 def spectrogram_cmd(
     *,  # keyword-only: the option group below has no default
     data: SliverRecordOpt,
@@ -182,6 +183,7 @@ PageOpt = Annotated[Path | None, file_out("--report", "An HTML page for the qual
 @sliver_app.command("diagnose")
 @with_group("drive", TrainOptions)
 @with_group("fibre_options", FibreOptions)
+@stops_cleanly("nothing was written")
 def diagnose_cmd(
     *,  # keyword-only: the option groups below have no default
     data: SliverOrSpeedsOpt = None,
