@@ -211,3 +211,25 @@ def test_a_stored_path_is_read_only_when_named(series, tmp_path) -> None:
     with pytest.raises(ConfigError, match="--mechanistic"):
         model.predict_values(series)
     assert model.predict_values(series, MechanisticModel(csv)).shape == (len(series), 4)
+
+
+@pytest.mark.parametrize("device", ["cuda", "cuda:3", "mps"])
+def test_training_on_a_device_this_machine_lacks_is_refused_in_one_line(
+    series, tmp_path, device
+) -> None:
+    """PyTorch had raised "Torch not compiled with CUDA enabled" from the first training step
+    (a 77-line traceback); ``benchmark emps --device cuda`` likewise."""
+    from drafttwin.models.training.compute import device_available
+
+    if device_available(device):
+        pytest.skip(f"this machine has {device}")
+    data = write_measurements(series, tmp_path / "data.csv")
+    result = CliRunner().invoke(app, ["fit", "--model", "gru", "--data", str(data), "--set",
+                                      f"device={device}", "--quiet", "--out",
+                                      str(tmp_path / "m.dtm")])  # fmt: skip
+    assert result.exit_code == 2 and "Traceback" not in result.output, result.output
+    assert f"training device --set device={device} is not on this machine" in result.output
+    assert not (tmp_path / "m.dtm").exists()
+    result = CliRunner().invoke(app, ["benchmark", "emps", "--device", device, "--seeds", "1",
+                                      "--out", str(tmp_path / "e")])  # fmt: skip
+    assert result.exit_code == 2 and "--device: device" in result.output, result.output

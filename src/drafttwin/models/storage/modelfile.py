@@ -236,23 +236,11 @@ def json_field(path: Path, payload: Mapping[str, Any], key: str) -> dict[str, An
 
 
 # ----- device ---------------------------------------------------------------------------
-def device_available(name: str) -> bool:
-    """Whether this machine has the device a model was trained for (``auto`` always)."""
-    if name in ("auto", "cpu"):
-        return True
-    device = torch.device(name)
-    if device.type == "cuda":
-        return torch.cuda.is_available() and (device.index or 0) < torch.cuda.device_count()
-    if device.type == "mps":
-        return bool(torch.backends.mps.is_available())
-    return False
-
-
 def fall_back_to_cpu(path: Path, params: dict[str, Any]) -> None:
     """Replace, in the stored hyperparameters, a training device this machine lacks by
     ``cpu`` (with one :class:`DeviceFallbackWarning`); an unknown device name is left for
     the constructor to refuse."""
-    from drafttwin.models.training.compute import _valid_device
+    from drafttwin.models.training.compute import _valid_device, device_available
 
     for training in _training_settings(params):
         device = training.get("device")

@@ -44,10 +44,28 @@ def _valid_device(v: Any) -> bool:
     return isinstance(v, str) and re.fullmatch(r"auto|cpu|mps|cuda(:\d{1,3})?", v) is not None
 
 
+def device_available(name: str) -> bool:
+    """Whether this machine has the device ``name`` (``auto`` and ``cpu`` always)."""
+    if name in ("auto", "cpu"):
+        return True
+    device = torch.device(name)
+    if device.type == "cuda":
+        return torch.cuda.is_available() and (device.index or 0) < torch.cuda.device_count()
+    if device.type == "mps":
+        return bool(torch.backends.mps.is_available())
+    return False
+
+
 def resolve_device(name: str) -> torch.device:
-    """``"auto"`` -> CUDA when available, else CPU; otherwise ``torch.device(name)``."""
+    """``"auto"`` -> CUDA when available, else CPU; otherwise ``torch.device(name)``, refused
+    in one line where this machine lacks it (PyTorch had raised "Torch not compiled with
+    CUDA enabled" from deep inside the first training step)."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if not device_available(name):
+        raise ConfigError("training device {device} is not on this machine (its PyTorch has "
+                          "no such device)", terms={"device": name},
+                          fix="{device:name} auto (a GPU where there is one) or cpu")  # fmt: skip
     return torch.device(name)
 
 

@@ -110,6 +110,12 @@ class EmpsConfig:
                 both = " (or both)" if what == "--physics" else ""
                 raise ConfigError(f"unknown or no entries {bad}", where=what,
                                   fix=f"use a comma-separated subset of {', '.join(allowed)}{both}")  # fmt: skip
+        from drafttwin.models.training.compute import _valid_device, device_available
+
+        if not _valid_device(self.device) or not device_available(self.device):
+            raise ConfigError(f"device {self.device!r} is not one this machine trains on",
+                              where="--device", fix="use --device auto (a GPU where there is "
+                              "one) or cpu")  # fmt: skip
         if self.seeds < 1 or self.workers < 1 or (self.epochs is not None and self.epochs < 1):
             raise ConfigError("seeds, workers and epochs must be >= 1", where="options")
         if self.max_samples is not None and self.max_samples < 4 * (INIT_SAMPLES + WINDOW):
