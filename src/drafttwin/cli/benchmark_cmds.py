@@ -93,7 +93,8 @@ def emps(
     if as_json:
         print_json(result.results["rows"])
         return
-    table = Table(title=f"EMPS test record, profile {profile}, {seeds} seed(s)")
+    override = f", {epochs} epoch(s) (--epochs: not the benchmark's figures)" if epochs else ""
+    table = Table(title=f"EMPS test record, profile {profile}, {seeds} seed(s){override}")
     for col in HEADER:
         table.add_column(col, justify="left" if col in ("model", "task") else "right")
     for cells in table_rows(result.results):

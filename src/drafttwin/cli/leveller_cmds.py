@@ -13,10 +13,11 @@ from drafttwin.cli._options import JsonOpt, OutDirOpt, QuietOpt, WorkersOpt, num
 from drafttwin.cli.benchmark_cmds import benchmark_app
 from drafttwin.cli.typer_app import console, print_json, progress_bar
 
-QuickLevelOpt = Annotated[bool, typer.Option("--quick", help="Two machines, 80 m records, eight "
+QuickLevelOpt = Annotated[bool, typer.Option("--quick", help="Two machines and no fault case "
+                          "(unless --machines / --fault-cases say otherwise), 80 m records, eight "
                           "fibres lumped into one (a smoke run, minutes).")]  # fmt: skip
-MachinesLevelOpt = Annotated[int, number("--machines", "Machines with the leveller at a wrong action point.")]  # fmt: skip
-FaultCasesOpt = Annotated[int, number("--fault-cases", "Machines with a sluggish drive or a drifting infeed sensor, in turn.")]  # fmt: skip
+MachinesLevelOpt = Annotated[int | None, number("--machines", "Machines with the leveller at a wrong action point (default 10, --quick 2).")]  # fmt: skip
+FaultCasesOpt = Annotated[int | None, number("--fault-cases", "Machines with a sluggish drive or a drifting infeed sensor, in turn (default 4, --quick 0).")]  # fmt: skip
 PlanSeedLevelOpt = Annotated[int, number("--seed", "Seed of the plan (machines, feed faults, settings).")]  # fmt: skip
 
 
@@ -25,8 +26,8 @@ PlanSeedLevelOpt = Annotated[int, number("--seed", "Seed of the plan (machines, 
 def benchmark_leveller(
     out: OutDirOpt = Path("leveller_out"),
     quick: QuickLevelOpt = False,
-    machines: MachinesLevelOpt = 10,
-    fault_cases: FaultCasesOpt = 4,
+    machines: MachinesLevelOpt = None,
+    fault_cases: FaultCasesOpt = None,
     seed: PlanSeedLevelOpt = 0,
     workers: WorkersOpt = 1,
     as_json: JsonOpt = False,
@@ -45,8 +46,8 @@ def benchmark_leveller(
     from drafttwin.studies.leveller import LevellerBenchConfig, run_benchmark
 
     config = LevellerBenchConfig.quick(seed) if quick else LevellerBenchConfig(seed=seed)
-    if not quick:
-        config = replace(config, machines=machines, fault_cases=fault_cases)
+    given = {"machines": machines, "fault_cases": fault_cases}  # --quick takes them too
+    config = replace(config, **{k: v for k, v in given.items() if v is not None})
     total = config.machines + config.fault_cases
     with progress_bar("leveller benchmark (machines)", total, quiet=quiet or as_json) as bar:
         task = bar.task_ids[0]

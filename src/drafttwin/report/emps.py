@@ -153,6 +153,11 @@ def report_html(result: EmpsResult) -> str:
         "used: a smoke test, not the official protocol.</p>"
         if proto.get("max_samples")
         else ""
+    ) + (
+        f"<p class='warn'>Every network trained {res['epochs_override']} epoch(s) (--epochs), "
+        f"not the {html.escape(res['profile'])} profile's: not the benchmark's figures.</p>"
+        if res.get("epochs_override")
+        else ""
     )
     return f"""<!doctype html>
 <html lang="en"><head><meta charset="utf-8"><title>drafttwin EMPS benchmark</title>

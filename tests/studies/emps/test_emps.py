@@ -194,6 +194,7 @@ def test_benchmark_cli_end_to_end_on_a_slice(tmp_path: Path) -> None:
     assert refit["parameters"]["mass_kg"] != doc["physics"]["mass_kg"]  # published, kept
     page = (out / "emps_report.html").read_text()
     assert "data:image/png;base64," in page and "smoke test" in page
+    assert "Every network trained 1 epoch(s) (--epochs)" in page  # it had not said so
     assert "physics only (refitted)" in page and "MD-S-L (refitted physics)" in page
     assert (out / "emps_predictions.csv").is_file()
 
