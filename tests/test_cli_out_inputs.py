@@ -106,3 +106,16 @@ def test_a_study_writes_no_file_of_its_folder_over_its_data(
     said = _refused([command, "--data", str(data), "--out", str(tmp_path), "--quiet"])
     assert f"is --data, and the command writes its {name} in --out" in said
     assert data.read_bytes() == record.read_bytes()
+
+
+@pytest.mark.parametrize("command", ["reproduce", "grid-search"])
+def test_a_study_refuses_a_record_too_short_before_any_fit(tmp_path: Path, command: str) -> None:
+    """A 50-row record had passed the grid and failed in MD-S-L's data-model folds, naming
+    --train-fraction and --set window, which reproduce does not have."""
+    from drafttwin.plant import Plant
+
+    path = tmp_path / "short.csv"
+    Plant().run(0.5, 100.0, seed=1).write(path)
+    said = _refused([command, "--data", str(path), "--out", str(tmp_path / "s"), "--quiet"])
+    assert "--data: the record gives 35 training rows (70% of 50)" in said, said
+    assert "give a record of at least" in said and "--train-fraction" not in said

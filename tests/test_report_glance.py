@@ -231,3 +231,17 @@ AFTER_JUMP = """() => {
   const h2 = document.querySelector("#generalisation h2").getBoundingClientRect();
   return {y: window.scrollY, nav: [nav.top, nav.bottom], heading: h2.top};
 }"""
+
+
+def test_a_study_of_measurements_read_is_not_headed_as_the_emulators(tmp_path: Path) -> None:
+    """``reproduce --data FILE`` had headed our column "ours (plant emulator)" and promised
+    the plant's true speed (dotted, open dots) that no file has."""
+    results, predictions = full_results(n_test=600)
+    results["data"]["plant_summary"] = []
+    for per in results["comparison"]["metrics"].values():
+        for m in per.values():
+            m["sensor_rmse"] = None
+    page = write_report(tmp_path, results, predictions)["report"].read_text(encoding="utf-8")
+    assert "ours (plant emulator)" not in page and "ours (the measurements read)" in page
+    assert "true speed dotted" not in page and "true speed (open dots)" not in page
+    assert "no true speed is known for these measurements" in page

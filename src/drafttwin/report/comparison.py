@@ -203,7 +203,11 @@ def comparison_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) ->
                 "RMSE per model and roller against the measured speed (filled dots) and "
                 "the plant's true speed (open dots); dashed line: the floor of one-step "
                 "prediction of the measured speed; dotted line: the encoders' own error "
-                "(measured vs true). Log scale.",
+                "(measured vs true). Log scale."
+                if is_plant(results)
+                else "RMSE per model and roller against the measured speed (no true speed "
+                "is known for these measurements); dashed line: the floor of one-step "
+                "prediction of the measured speed. Log scale.",
                 "RMSE per model and roller",
             ),
         )
@@ -223,7 +227,8 @@ def comparison_section(results: Mapping[str, Any], figs: Mapping[str, bytes]) ->
     return section("comparison", "2. Model comparison (Table 2 analogue)", *parts)
 
 
-def figures_section(figs: Mapping[str, bytes], models: list[str], zoom: tuple[float, float]) -> Raw:
+def figures_section(figs: Mapping[str, bytes], models: list[str], zoom: tuple[float, float],
+                    truth: bool = True) -> Raw:  # fmt: skip
     """Section 3: measured vs predicted, residuals and their spectra (Fig. 8 analogue)."""
     names = ", ".join(label(m) for m in models)
     parts = [
@@ -236,7 +241,7 @@ def figures_section(figs: Mapping[str, bytes], models: list[str], zoom: tuple[fl
                     names,
                     "). Left: the whole test part; right: a zoom on ",
                     f"{zoom[0]:.1f}–{zoom[1]:.1f} s",
-                    ", with the plant's true speed dotted.",
+                    ", with the plant's true speed dotted." if truth else ".",
                 ]
             ),
             "measured and predicted roller speeds",

@@ -17,6 +17,7 @@ from drafttwin.report import agreement, figures, paper
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import count_text, is_num, span
 from drafttwin.report.html import Cell, Raw, Row, figure, join, para, table, tag
+from drafttwin.report.overview import ours_label
 from drafttwin.report.tables import compared_models, metric_unit, paper_table2
 
 NOT_RUN = "not run"
@@ -119,9 +120,9 @@ def verdicts(results: Mapping[str, Any]) -> list[Verdict]:
     return rows
 
 
-def verdict_table(rows: list[Verdict]) -> Raw:
-    """The verdict table (id ``verdicts``)."""
-    head: list[Row] = [[Cell("question", header=True, cls="name"), "ours (plant emulator)",
+def verdict_table(rows: list[Verdict], ours: str = "ours (plant emulator)") -> Raw:
+    """The verdict table (id ``verdicts``); ``ours``: our column's heading."""
+    head: list[Row] = [[Cell("question", header=True, cls="name"), ours,
                         "paper (real FA320A)", "verdict", "details"]]  # fmt: skip
     body: list[Row] = [
         [
@@ -181,7 +182,7 @@ def glance_section(results: Mapping[str, Any], png: bytes) -> Raw:
             [
                 tag("h2", "At a glance: does the study agree with the paper?"),
                 figure(png, "fig-headline", caption, "test RMSE per model and roller"),
-                verdict_table(verdicts(results)),
+                verdict_table(verdicts(results), ours_label(results)),
                 para(
                     join([RULE, " All claims: ", tag("a", "§6", href="#agreement"), "."]),
                     cls="note",

@@ -66,6 +66,11 @@ def metric_rules(unit: str) -> str:
     return METRIC_RULES.format(unit=unit or "the signal's unit", floor=DEFAULT_REL_FLOOR)
 
 
+def ours_label(results: Mapping[str, Any]) -> str:
+    """The heading of our column: the emulator's data, or the file the study read."""
+    return "ours (plant emulator)" if is_plant(results) else "ours (the measurements read)"
+
+
 def is_plant(results: Mapping[str, Any]) -> bool:
     """Whether the data come from the plant emulator: a plant summary, or a known true speed
     (a finite sensor error), which only the emulator provides."""

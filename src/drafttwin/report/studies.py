@@ -13,6 +13,7 @@ from drafttwin.report import agreement, paper
 from drafttwin.report.agreement import label
 from drafttwin.report.fmt import DASH, is_num, num, sig, sig_fixed
 from drafttwin.report.html import Cell, bullets, figure, join, kv_table, para, section, table, tag
+from drafttwin.report.overview import ours_label
 from drafttwin.report.tables import paper_table3_stats
 
 if TYPE_CHECKING:
@@ -254,7 +255,7 @@ def agreement_section(results: Mapping[str, Any]) -> Raw:
         [
             Cell("claim", header=True, cls="wrap"),
             Cell("paper (real FA320A)", header=True),
-            Cell("ours (plant emulator)", header=True),
+            Cell(ours_label(results), header=True),
             "verdict",
         ]
     ]

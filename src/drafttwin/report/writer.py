@@ -20,7 +20,7 @@ from drafttwin.report.comparison import comparison_section, figures_section
 from drafttwin.report.generalisation import physics_pays_section
 from drafttwin.report.glance import glance_section, headline_png
 from drafttwin.report.html import Raw, join, page, tag
-from drafttwin.report.overview import TITLE, data_notice, header, run_section, toc
+from drafttwin.report.overview import TITLE, data_notice, header, is_plant, run_section, toc
 from drafttwin.report.physics import calibration_section
 from drafttwin.report.studies import ablation_section, agreement_section, grid_section
 
@@ -135,7 +135,7 @@ def render_html(results: Mapping[str, Any], predictions: pd.DataFrame) -> str:
             data_notice(results),
             run_section(results),
             comparison_section(results, figs),
-            figures_section(figs, plotted, zoom),
+            figures_section(figs, plotted, zoom, truth=is_plant(results)),
             grid_section(results, figs),
             ablation_section(results, figs),
             calibration_section(results),

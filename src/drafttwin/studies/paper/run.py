@@ -10,6 +10,7 @@ rerun skips finished work.
 from __future__ import annotations
 
 import datetime as _dt
+import math
 import os
 import platform
 import time
@@ -25,6 +26,7 @@ from scipy import stats
 from drafttwin._constants import ROLLERS, __version__
 from drafttwin.data.preprocessing import DEFAULT_TRAIN_FRACTION
 from drafttwin.data.series import MeasurementSeries
+from drafttwin.errors import DataError
 from drafttwin.execution.executor import Task, run_tasks
 from drafttwin.execution.store import ResultStore
 from drafttwin.models import make_model, persistence_forecast
@@ -117,12 +119,30 @@ class Study:
         t0 = time.perf_counter()
         self.data, summary = prepare(series, train_fraction=DEFAULT_TRAIN_FRACTION, preset=self.preset, cache_dir=self.cache,
                                      duration_s=self.plan.data_duration_s)  # fmt: skip
+        self._check_length()
         self.data_path = self.cache / f"data-{self.data.digest[:16]}.npz"
         saved = PreparedData.load_checked(self.data_path)
         if saved is None or saved.digest != self.data.digest:
             self.data.save(self.data_path)
         self.timings["data"] = time.perf_counter() - t0
         return summary
+
+    def _check_length(self) -> None:
+        """Refuse a record too short for the plan's models before any fit (it had failed
+        after the grid, in MD-S-L's data-model folds, naming options reproduce lacks): each
+        cross-fitting fold's training part needs two windows' worth of rows, over the
+        validation share."""
+        profile = get_profile(self.plan.model_profile)
+        need = math.ceil(2 * profile.folds * (profile.window + 1) / (1 - profile.val_fraction))
+        if self.data.n_train < need:
+            rows = len(self.data.time_s)
+            raise DataError(
+                f"the record gives {self.data.n_train} training rows ({DEFAULT_TRAIN_FRACTION:.0%} "
+                f"of {rows}); the study's models need at least {need}",
+                source=None if self.data_name == "default" else self.data_name,
+                where="--data",
+                fix=f"give a record of at least {math.ceil(need / DEFAULT_TRAIN_FRACTION)} rows",
+            )
 
     def grid(self) -> dict[str, Any]:
         window = get_profile(self.plan.model_profile).window
