@@ -21,6 +21,8 @@ from drafttwin.report.overview import ours_label
 from drafttwin.report.tables import compared_models, metric_unit, paper_table2
 
 NOT_RUN = "not run"
+INDICATIVE = "indicative only"
+"""The verdict of a check run on the quick benchmark's tiny networks (no colour)."""
 RULE = (
     "How the verdicts are computed: each question is answered per roller, in our results and "
     "in the paper's tables. “agrees”: both point the same way on every roller; “partly”: on "
@@ -95,10 +97,12 @@ def _physics_row(results: Mapping[str, Any]) -> Verdict:
     runs = ", ".join(c["scenario"] for c in checks)
     ours = (f"physics and a hybrid beat the GRU on every roller in {len(held)} of "
             f"{len(checks)} hard free runs ({runs})")  # fmt: skip
+    said = agreement.verdict(len(held), len(checks))
     if doc.get("config", {}).get("name") == "quick":
-        ours += "; quick benchmark (tiny networks)"
-    return Verdict(question, compared, ours, theirs, agreement.verdict(len(held), len(checks)),
-                   "#generalisation", "physics pays")  # fmt: skip
+        # a smoke test (2-epoch networks of 8 units) answers no question: it only points
+        ours += "; quick benchmark (tiny networks): a smoke test, not evidence"
+        said = INDICATIVE
+    return Verdict(question, compared, ours, theirs, said, "#generalisation", "physics pays")
 
 
 def verdicts(results: Mapping[str, Any]) -> list[Verdict]:
