@@ -310,6 +310,11 @@ def simulate_cmd(
                   f"ktex (fed {feed.total_ktex:g} ktex / draft {sp.drafts()['total']:.4f}); "
                   f"significant chimneys: {len(chimneys)} (drafttwin sliver diagnose names "
                   "their elements)")  # fmt: skip
+    if fibre_scale != 1:  # the file holds the densities only: a reader would take every fibre
+        console.print(f"note: the file does not record --fibre-scale {fibre_scale:g}: read it "
+                      f"with 'sliver spectrogram --fibre-scale {fibre_scale:g}' (or 'sliver "
+                      "diagnose'), or its Martindale limit and index of irregularity are those "
+                      "of unlumped fibres", highlight=False)  # fmt: skip
     console.print(f"wrote {out}")
 
 
