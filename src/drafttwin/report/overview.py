@@ -94,7 +94,7 @@ def _run_items(results: Mapping[str, Any]) -> dict[str, Any]:
     mech = results.get("mechanistic", {})
     mech_text = str(mech.get("source", DASH))
     if is_num(mech.get("wall_s")):
-        mech_text += f" (simulated in {seconds(mech['wall_s'])})"
+        mech_text += f" (data prepared and simulated in {seconds(mech['wall_s'])})"
     return {
         "profile": prof.get("name"),
         "profile settings": value_text(prof.get("settings", {})),
