@@ -250,3 +250,26 @@ def test_limits_claim_names_the_floor_and_a_model_below_it() -> None:
     assert (
         "(BELOW the floor: GRU (data-driven); the floor is wrong)" in _claim(results, "floor").ours
     )
+
+
+@pytest.mark.parametrize(("lo", "hi", "expected"), [
+    (0.35, 0.52, ["0.4", "0.5"]),  # had been 0.35, 0.375, ... 0.525: labels run together
+    (3.1, 3.4, ["3.2", "3.4"]),
+    (0.35, 2.52, ["0.5", "0.7", "1", "1.5", "2"]),  # a span holding its own ticks: as before
+])  # fmt: skip
+def test_a_narrow_log_axis_gets_a_few_plain_ticks(
+    lo: float, hi: float, expected: list[str]
+) -> None:
+    import matplotlib.pyplot as plt
+
+    from drafttwin.report.figures import _log_axis_plain
+
+    fig, ax = plt.subplots(figsize=(3, 3))
+    ax.set_yscale("log")
+    ax.plot([0, 1], [lo, hi])
+    _log_axis_plain(ax.yaxis)
+    fig.canvas.draw()
+    y0, y1 = ax.get_ylim()
+    shown = [t.get_text() for t in ax.get_yticklabels() if y0 <= t.get_position()[1] <= y1]
+    plt.close(fig)
+    assert shown == expected

@@ -7,6 +7,7 @@ Each function takes plain arrays and dictionaries, so the figures can be redrawn
 from __future__ import annotations
 
 import io
+import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -18,7 +19,7 @@ import numpy as np  # noqa: E402
 from matplotlib.axes import Axes  # noqa: E402
 from matplotlib.axis import Axis  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
-from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
+from matplotlib.ticker import FuncFormatter, LogLocator, MaxNLocator, NullFormatter  # noqa: E402
 from scipy.signal import welch  # noqa: E402
 
 from drafttwin._constants import ROLLERS  # noqa: E402
@@ -61,11 +62,30 @@ def _png_with_legend_on_top(
     return _png(fig)
 
 
+class _PlainLogLocator(LogLocator):
+    """:class:`LogLocator` that, on a span holding fewer than two of its ticks, gives at most
+    four evenly spaced ones (matplotlib's own fallback put one every 2.5 % of a narrow span,
+    labels run together)."""
+
+    def __init__(self, subs: tuple[float, ...]) -> None:
+        super().__init__(base=10, subs=subs)
+        self.plain_subs = subs
+
+    def tick_values(self, vmin: float, vmax: float) -> Any:
+        lo, hi = min(vmin, vmax), max(vmin, vmax)
+        if lo > 0:
+            decades = range(math.floor(math.log10(lo)), math.ceil(math.log10(hi)) + 1)
+            own = [s * 10.0**k for k in decades for s in self.plain_subs]
+            if sum(lo <= t <= hi for t in own) < 2:
+                return MaxNLocator(nbins=3, steps=[1, 2, 2.5, 5, 10]).tick_values(lo, hi)
+        return super().tick_values(vmin, vmax)
+
+
 def _log_axis_plain(axis: Axis, sparse: bool = False) -> None:
     """Log axis ticks at 1, 1.5, 2, 3, 5, 7 × 10^k (``sparse``: 1, 2, 5 × 10^k) written as
-    plain numbers."""
+    plain numbers (a few evenly spaced ones on a span narrower than that)."""
     subs = (1.0, 2.0, 5.0) if sparse else (1.0, 1.5, 2.0, 3.0, 5.0, 7.0)
-    axis.set_major_locator(LogLocator(base=10, subs=subs))
+    axis.set_major_locator(_PlainLogLocator(subs))
     axis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
     axis.set_minor_formatter(NullFormatter())
 
