@@ -262,12 +262,12 @@ def test_a_narrow_log_axis_gets_a_few_plain_ticks(
 ) -> None:
     import matplotlib.pyplot as plt
 
-    from drafttwin.report.figures import _log_axis_plain
+    from drafttwin.report.figures import log_axis_plain
 
     fig, ax = plt.subplots(figsize=(3, 3))
     ax.set_yscale("log")
     ax.plot([0, 1], [lo, hi])
-    _log_axis_plain(ax.yaxis)
+    log_axis_plain(ax.yaxis)
     fig.canvas.draw()
     y0, y1 = ax.get_ylim()
     shown = [t.get_text() for t in ax.get_yticklabels() if y0 <= t.get_position()[1] <= y1]

@@ -81,7 +81,7 @@ class _PlainLogLocator(LogLocator):
         return super().tick_values(vmin, vmax)
 
 
-def _log_axis_plain(axis: Axis, sparse: bool = False) -> None:
+def log_axis_plain(axis: Axis, sparse: bool = False) -> None:
     """Log axis ticks at 1, 1.5, 2, 3, 5, 7 × 10^k (``sparse``: 1, 2, 5 × 10^k) written as
     plain numbers (a few evenly spaced ones on a span narrower than that)."""
     subs = (1.0, 2.0, 5.0) if sparse else (1.0, 1.5, 2.0, 3.0, 5.0, 7.0)
@@ -111,7 +111,7 @@ def grid_losses(grid: Mapping[str, Sequence[Mapping[str, Any]]]) -> bytes:
         ax.set_xticks(x)
         ax.set_xticklabels([f"h{h}\nL{nl}" for h, nl in combos])
         ax.set_yscale("log")
-        _log_axis_plain(ax.yaxis)
+        log_axis_plain(ax.yaxis)
         ax.grid(axis="y", which="major", color="#e5e5e5", lw=0.6)
         ax.set_ylabel("validation loss (MSE, scaled)")
         if finite:
@@ -250,7 +250,7 @@ def rmse_overview(
         if np.isfinite(sensor[j]):
             ax.axvline(sensor[j], color="black", ls=":", lw=1, label="encoder error")
         ax.set_xscale("log")
-        _log_axis_plain(ax.xaxis)
+        log_axis_plain(ax.xaxis)
         ax.grid(axis="x", which="major", color="#e5e5e5", lw=0.6)
         ax.set_yticks(y)
         ax.set_yticklabels(models)
@@ -299,7 +299,7 @@ def headline_rmse(
                         xytext=(0, 8), textcoords="offset points", ha="center", fontsize=7.5,
                         color="#6b5f45")  # fmt: skip
         ax.set_xscale("log")
-        _log_axis_plain(ax.xaxis)
+        log_axis_plain(ax.xaxis)
         ax.margins(x=0.12)
         ax.grid(axis="x", which="major", color="#e5e5e5", lw=0.6)
         ax.set_yticks(y, models)
@@ -327,7 +327,7 @@ def speed_change(
                     textcoords="offset points", fontsize=7.5, color="#777777")  # fmt: skip
         ax.set_yscale("log")
         low, high = ax.get_ylim()
-        _log_axis_plain(ax.yaxis, sparse=high > 20 * low)
+        log_axis_plain(ax.yaxis, sparse=high > 20 * low)
         ax.grid(axis="y", which="major", color="#e5e5e5", lw=0.6)
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("speed change from the training point (%)")

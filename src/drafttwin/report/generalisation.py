@@ -25,7 +25,7 @@ from drafttwin._constants import ROLLERS  # noqa: E402
 from drafttwin._io import write_text_atomic  # noqa: E402
 from drafttwin._json import dumps_strict  # noqa: E402
 from drafttwin.report import figures  # noqa: E402
-from drafttwin.report.figures import COLORS  # noqa: E402
+from drafttwin.report.figures import COLORS, log_axis_plain  # noqa: E402
 from drafttwin.report.fmt import sig_fixed  # noqa: E402
 from drafttwin.report.html import Cell, Raw, bullets, figure, join, para, section, table, tag  # noqa: E402
 from drafttwin.studies.generalisation.records import (  # noqa: E402
@@ -143,6 +143,8 @@ def learning_png(doc: Mapping[str, Any]) -> bytes:
                             label=LABELS[model])  # fmt: skip
             ax.set_xscale("log")
             ax.set_yscale("log")
+            log_axis_plain(ax.xaxis)  # 3, 6, 10 s, not 3×10⁰
+            log_axis_plain(ax.yaxis)
             ax.set_title(f"{channel} roller, {task}", fontsize=10)
             ax.grid(alpha=0.3, which="both")
             if i == 1:
@@ -172,7 +174,9 @@ def extrapolation_png(doc: Mapping[str, Any]) -> bytes:
     ax.set_yscale("log")
     ax.set_ylabel("free-run RMSE, rpm (mean over rollers)")
     ax.grid(alpha=0.3, axis="y", which="both")
-    ax.legend(fontsize=8, ncol=3)
+    # above the axes: inside, it covered the bars of a scenario
+    ax.legend(fontsize=8, ncol=len(models), loc="lower center", bbox_to_anchor=(0.5, 1.0),
+              frameon=False)  # fmt: skip
     return _png(fig)
 
 
