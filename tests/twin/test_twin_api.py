@@ -457,3 +457,26 @@ def test_a_stop_under_history_load_answers_503_and_logs_no_traceback(
         service.writer.store.close()
     assert not logged, [r.getMessage() for r in logged]
     assert 200 in codes and 503 in codes and 500 not in codes, codes
+
+
+def test_the_docs_schema_is_openapi_30_that_swagger_ui_4_reads() -> None:
+    """FastAPI writes OpenAPI 3.1; the bundled Swagger UI reads 3.0 only."""
+    from drafttwin.twin.web.assets import openapi_30
+
+    doc = {"openapi": "3.1.0", "paths": {}, "components": {"schemas": {"X": {"properties": {
+        "a": {"anyOf": [{"type": "integer"}, {"type": "null"}], "title": "A"},
+        "b": {"type": ["number", "null"], "exclusiveMinimum": 0},
+        "c": {"const": "x", "examples": ["x"]},
+        "d": {"anyOf": [{"type": "integer"}, {"type": "string"}, {"type": "null"}]}}}}}}  # fmt: skip
+    got = openapi_30(doc)
+    props = got["components"]["schemas"]["X"]["properties"]
+    assert got["openapi"] == "3.0.3"
+    assert props["a"] == {"type": "integer", "title": "A", "nullable": True}
+    assert props["b"] == {
+        "type": "number",
+        "nullable": True,
+        "minimum": 0,
+        "exclusiveMinimum": True,
+    }
+    assert props["c"] == {"enum": ["x"], "example": "x"}
+    assert props["d"] == {"anyOf": [{"type": "integer"}, {"type": "string"}], "nullable": True}

@@ -246,6 +246,11 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
             zoomed = page.evaluate("twinPage.charts.map(c => [c.u.scales.x.min, c.u.scales.x.max])")
             page.dblclick(".u-over >> nth=0")
             back_live = page.evaluate("twinPage.view.live")
+            # the API docs render the endpoints (Swagger UI 4 had refused FastAPI's OpenAPI 3.1:
+            # "Unable to render this definition")
+            page.goto(f"{base}/docs?token={TOKEN}")
+            page.wait_for_selector(".opblock-summary-path", timeout=20_000)
+            documented = page.locator(".opblock-summary-path").all_inner_texts()
             browser.close()
     finally:
         service.stop()
@@ -286,6 +291,7 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
     assert hour == [False, 3600]
     assert len({tuple(z) for z in zoomed}) == 1 and 100 < zoomed[0][1] - zoomed[0][0] < 3000
     assert back_live is True
+    assert "/api/status" in documented and "/api/history/{machine}" in documented, documented
     import matplotlib.image as mpimg
 
     img = mpimg.imread(io.BytesIO(png), format="png")[..., :3]
