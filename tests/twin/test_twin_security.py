@@ -95,3 +95,30 @@ def test_an_acknowledgement_that_takes_nothing_stores_nothing() -> None:
     assert desk.acknowledge("m") == 0 and len(events) == 1  # the same again: nothing
     assert desk.acknowledge("m", confirm=True) == 1 and len(events) == 2
     assert desk.acknowledge("m", confirm=True) == 0 and len(events) == 2
+
+
+def test_certs_keep_what_is_valid_and_keys_are_the_owners(tmp_path: Path) -> None:
+    """A second 'twin certs' had replaced the MQTT TLS certificate (its clients then failed
+    verification) and the OPC UA keys were 0644; an empty or 70-character --host ended in a
+    traceback with half the folder written."""
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    certs = tmp_path / "certs"
+    written, kept = asyncio.run(make_certificates(certs))
+    assert len(written) == 6 and kept == []
+    first = {p.name: p.read_bytes() for p in written}
+    for key in ("server_key.pem", "client_key.pem", "mqtt_key.pem"):
+        assert (certs / key).stat().st_mode & 0o077 == 0, key
+    written, kept = asyncio.run(make_certificates(certs))
+    assert written == [] and len(kept) == 6
+    assert {p.name: p.read_bytes() for p in kept} == first
+    written, _ = asyncio.run(make_certificates(certs, "localhost"))  # another host: new ones
+    assert {"mqtt_cert.pem", "server_cert.der"} <= {p.name for p in written}
+    for host in ("", "a" * 70, "bad host"):
+        res = CliRunner().invoke(
+            app, ["twin", "certs", "--out", str(tmp_path / "c"), "--host", host]
+        )
+        assert res.exit_code == 2 and "--host" in res.output and "Traceback" not in res.output
+        assert not (tmp_path / "c" / "server_key.pem").exists()

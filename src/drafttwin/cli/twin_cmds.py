@@ -361,10 +361,14 @@ HostOpt = Annotated[str, typer.Option("--host", help="Host name in the certifica
 
 @twin_app.command("certs")
 def twin_certs(out: CertsOutOpt, host: HostOpt = "127.0.0.1") -> None:
-    """Make self-signed OPC UA certificates (365 days) for 'plant serve --cert' and the twin's
-    source 'opcua:URL?cert=DIR'. Existing valid ones are kept."""
+    """Make self-signed OPC UA certificates and an MQTT TLS certificate (365 days) for 'plant
+    serve --cert' and the twin's sources 'opcua:URL?cert=DIR' and 'mqtts://HOST:PORT?cert=DIR'.
+    Those still valid for --host are kept (and listed as kept); keys are owner-only (0600)."""
     _need_twin_extra()
     from drafttwin.twin.sources.security import make_certificates
 
-    paths = asyncio.run(make_certificates(out, host))
-    console.print("wrote " + ", ".join(str(p) for p in paths) + f" and {out / 'trusted'}")
+    written, kept = asyncio.run(make_certificates(out, host))
+    if written:
+        console.print("wrote " + ", ".join(str(p) for p in written) + f" and {out / 'trusted'}")
+    if kept:
+        console.print("kept (still valid for " + host + "): " + ", ".join(p.name for p in kept))

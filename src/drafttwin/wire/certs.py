@@ -28,24 +28,75 @@ CLIENT_URI = "urn:drafttwin:twin:client"
 FILES = ("server_key.pem", "server_cert.der", "client_key.pem", "client_cert.der")
 
 
-async def make_certificates(folder: Path, host: str = "127.0.0.1") -> list[Path]:
-    """Write the server's and the twin's keys and certificates (kept when still valid)."""
+HOST_NAME = r"^(?=.{1,64}$)[A-Za-z0-9]([A-Za-z0-9.\-:]*[A-Za-z0-9])?$"
+"""A host name or IP address for a certificate: 1-64 characters (X.509's common name), letters,
+digits, '.', '-', ':' (IPv6), starting and ending with a letter or digit."""
+
+
+def check_host(host: str) -> None:
+    """Refuse a host a certificate cannot name (it had ended in a traceback from
+    ``cryptography``, with half of the folder written)."""
+    import re
+
+    if re.fullmatch(HOST_NAME, host) is None:
+        raise ConfigError(f"host {host[:80]!r} cannot be named in a certificate", where="--host",
+                          fix="give a host name or IP address of 1-64 letters, digits, '.', "
+                          "'-' or ':', e.g. 127.0.0.1")  # fmt: skip
+
+
+async def make_certificates(folder: Path, host: str = "127.0.0.1") -> tuple[list[Path], list[Path]]:
+    """Write the server's and the twin's keys and certificates, keeping those still valid for
+    ``host``: (the files written, the files kept). Private keys are readable by their owner
+    only."""
+    import os
     import shutil
 
     from asyncua.crypto.cert_gen import setup_self_signed_certificate
     from cryptography.x509.oid import ExtendedKeyUsageOID
 
+    check_host(host)
     folder.mkdir(parents=True, exist_ok=True)
-    for role, uri, use in (("server", SERVER_URI, ExtendedKeyUsageOID.SERVER_AUTH),
-                           ("client", CLIENT_URI, ExtendedKeyUsageOID.CLIENT_AUTH)):  # fmt: skip
-        await setup_self_signed_certificate(
-            folder / f"{role}_key.pem", folder / f"{role}_cert.der", uri, host, [use],
-            {"commonName": f"drafttwin {role}", "organizationName": "drafttwin"},
-        )  # fmt: skip
+    files = [folder / f for f in (*FILES, "mqtt_cert.pem", "mqtt_key.pem")]
+    before = {p: p.read_bytes() for p in files if p.is_file()}
+    old_mask = os.umask(0o077)  # asyncua writes its keys with the umask (they were 0644)
+    try:
+        for role, uri, use in (("server", SERVER_URI, ExtendedKeyUsageOID.SERVER_AUTH),
+                               ("client", CLIENT_URI, ExtendedKeyUsageOID.CLIENT_AUTH)):  # fmt: skip
+            await setup_self_signed_certificate(
+                folder / f"{role}_key.pem", folder / f"{role}_cert.der", uri, host, [use],
+                {"commonName": f"drafttwin {role}", "organizationName": "drafttwin"},
+            )  # fmt: skip
+    finally:
+        os.umask(old_mask)
+    for role in ("server", "client"):  # keys of a folder made before: owner only too
+        (folder / f"{role}_key.pem").chmod(0o600)
     (folder / "trusted").mkdir(exist_ok=True)
     shutil.copyfile(folder / "client_cert.der", folder / "trusted" / "client_cert.der")
-    _mqtt_tls_certificate(folder, host)
-    return [folder / f for f in (*FILES, "mqtt_cert.pem", "mqtt_key.pem")]
+    if not _mqtt_valid(folder, host):
+        _mqtt_tls_certificate(folder, host)
+    written = [p for p in files if before.get(p) != p.read_bytes()]
+    return written, [p for p in files if p not in written]
+
+
+def _mqtt_valid(folder: Path, host: str) -> bool:
+    """Whether the folder's MQTT TLS certificate and key exist, belong together, name
+    ``host`` and stay valid for at least 30 days (a broker and its clients then keep it: a new
+    one on every run had cut the clients off)."""
+    import datetime as dt
+
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+
+    try:
+        cert = x509.load_pem_x509_certificate((folder / "mqtt_cert.pem").read_bytes())
+        key = serialization.load_pem_private_key((folder / "mqtt_key.pem").read_bytes(), None)
+        names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    except (OSError, ValueError, TypeError, x509.ExtensionNotFound):
+        return False
+    shown = [str(n.value) for n in names]
+    same_key = cert.public_key().public_numbers() == key.public_key().public_numbers()  # type: ignore[union-attr]
+    lasting = cert.not_valid_after_utc > dt.datetime.now(dt.UTC) + dt.timedelta(days=30)
+    return same_key and lasting and host in shown
 
 
 def _mqtt_tls_certificate(folder: Path, host: str) -> None:
