@@ -92,10 +92,13 @@ def plant_replay(
     def said(slot: Slot, entry: Entry) -> None:
         err_console.print(f"{slot.name}: played {entry.path.name}")
 
+    written: list[Path] = []
+
     def done() -> None:
         if manifest is not None:  # written as soon as everything is out (--hold waits on)
             with atomic_path(manifest) as tmp:
                 tmp.write_text(dumps_strict(manifest_of(slots, speed, gap)), encoding="utf-8")
+            written.append(manifest)
         err_console.print("played every file" + (" (holding until SIGTERM)" if hold else ""))
 
     err_console.print(f"replaying {n_files} file(s) on {len(slots)} machine(s) at "
@@ -105,6 +108,9 @@ def plant_replay(
                                              on_entry=said, on_done=done))  # fmt: skip
     if signum is not None:
         err_console.print(f"stopped by {signal.Signals(signum).name}")
-    if manifest is not None and manifest.exists():
+    if written:
         console.print(f"wrote {manifest}")
+    elif manifest is not None:  # stopped before every file was out: an older one is not this run's
+        err_console.print(f"{manifest} not written: the replay stopped before every file was "
+                          "played" + (" (the file there is an earlier run's)" if manifest.exists() else ""))  # fmt: skip
     console.print("published " + ", ".join(f"{s.name}: {s.published} samples" for s in slots))
