@@ -176,7 +176,7 @@ def test_the_hall_knows_its_shards_and_sigterm_ends_it_within_5_s(
         assert running, f"the hall's page never said both shards run: {states}"
         start = time.monotonic()
         hall.send_signal(signal.SIGTERM)
-        _, err = hall.communicate(timeout=60)
+        out, err = hall.communicate(timeout=60)
         took = time.monotonic() - start
     finally:
         for p in (hall, plant):
@@ -193,6 +193,8 @@ def test_the_hall_knows_its_shards_and_sigterm_ends_it_within_5_s(
     assert "stopped by SIGTERM: shards 0, 1 committed what they received" in err, err
     assert "Traceback" not in err and "SIGTERM received" not in err, err
     assert "still starting" not in err, err
+    # its summary after the stop (a hall ends by a signal as a rule: it had printed none)
+    assert "hall: 2 twins" in out and "fa320a-1" in out and "fa320a-3" in out, out
 
 
 class _Ref:

@@ -8,6 +8,7 @@ import datetime as dt
 import signal
 import sys
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -188,15 +189,26 @@ def twin_hall(
         work_done()
         note = str(exc).partition("; ")[2]  # what the hall did, shard by shard
         err_console.print(f"stopped by {signal.Signals(exc.signum).name}: {note}", highlight=False)
+        # a hall runs until it is stopped: its summary is what it did (it had printed none)
+        _print_hall(getattr(exc, "results", []), shards, time.monotonic() - start, as_json)
         return
     work_done()  # Ray ended, the shards' stores closed
+    _print_hall(results, shards, time.monotonic() - start, as_json)
+
+
+def _print_hall(results: Sequence[dict[str, Any] | None], shards: int, wall_s: float,
+                as_json: bool) -> None:  # fmt: skip
+    """The hall's summary, a row per shard (None: a shard ended while it started)."""
     if as_json:
-        print_json({"wall_s": time.monotonic() - start, "shards": results})
+        print_json({"wall_s": wall_s, "shards": results})
         return
-    table = Table(title=f"hall: {shards} twins, {time.monotonic() - start:.1f} s", box=box.SIMPLE)
+    table = Table(title=f"hall: {shards} twins, {wall_s:.1f} s", box=box.SIMPLE)
     for col in ("shard", "machines", "processed", "dropped", "p99 ms", "committed"):
         table.add_column(col, justify="left" if col in ("shard", "machines") else "right")
     for i, r in enumerate(results):
+        if r is None:
+            table.add_row(str(i), "(ended while starting)", "-", "-", "-", "-")
+            continue
         p99 = r["latency_ms"]["p99"]
         table.add_row(str(i), ", ".join(r["machines"]),
                       str(sum(m["processed"] for m in r["machines"].values())),

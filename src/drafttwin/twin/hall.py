@@ -194,7 +194,9 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
             _wait(ray, actors, refs, on_status, status_every_s)
         except Interrupted as exc:  # Ctrl-C or SIGTERM: each actor commits what it received
             ended = _stop_shards(ray, actors, refs)
-            raise Interrupted(exc.signum, _stop_note(shards, ended)) from None
+            stopped = Interrupted(exc.signum, _stop_note(shards, ended))
+            stopped.results = _collect_stopped(ray, refs, ended)  # type: ignore[attr-defined]
+            raise stopped from None
         except BaseException:
             _stop_shards(ray, actors, refs)
             raise
@@ -282,6 +284,19 @@ def _statuses(ray: Any, actors: list[Any], refs: list[Any],
             out.append({"state": "starting"})
         else:
             out.append({**seen[i], "state": "not answering"})  # type: ignore[dict-item]
+    return out
+
+
+def _collect_stopped(ray: Any, refs: list[Any], ended: list[int]) -> list[dict[str, Any] | None]:
+    """The final status of each shard a stop let finish (None: ended while starting, or
+    failed): a hall stops by a signal as a rule, and its summary is what it did."""
+    out: list[dict[str, Any] | None] = []
+    for i, ref in enumerate(refs):
+        result = None
+        if i not in ended:
+            with contextlib.suppress(Exception):
+                result = ray.get(ref, timeout=STOP_S)
+        out.append(result)
     return out
 
 
