@@ -169,3 +169,23 @@ def test_a_hall_folder_is_not_opened_as_one_twins_store(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="holds the stores of a hall's shards"):
         TwinStore(tmp_path)
     assert not (tmp_path / "twin.duckdb").exists()
+
+
+def test_events_are_read_within_the_window(tmp_path: Path) -> None:
+    """``twin query --events --from --to`` had returned every event of the store."""
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    store = TwinStore(tmp_path / "s")
+    store.register_machine("m1", CHANNELS, "model.dtm", "test")
+    store.commit(_rows("m1", 0, 10), [EventRow("m1", "gap", t * 1_000_000, f"at {t} s")
+                                      for t in (1, 5, 9)])  # fmt: skip
+    store.close()
+    assert read_events(tmp_path / "s", None, 4.0, 9.0)["detail"].tolist() == ["at 5 s", "at 9 s"]
+    assert read_events(tmp_path / "s", "m1", None, 4.0)["detail"].tolist() == ["at 1 s"]
+    out = tmp_path / "ev.csv"
+    res = CliRunner().invoke(app, ["twin", "query", "--store", str(tmp_path / "s"), "--events",
+                                   "--from", "2", "--to", "6", "--out", str(out)])  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "1 events selected" in res.output

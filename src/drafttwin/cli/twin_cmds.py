@@ -332,7 +332,10 @@ def twin_query(
     if t_from is not None and t_to is not None and t_to < t_from:
         raise ConfigError(f"--to {t_to:g} is before --from {t_from:g}", where="--to",
                           fix="give --from <= --to")  # fmt: skip
-    frame = read_events(store, machine) if events else read_history(store, machine, t_from, t_to)
+    if events:
+        frame = read_events(store, machine, t_from, t_to)
+    else:
+        frame = read_history(store, machine, t_from, t_to)
     if out is not None:
         write_frame(frame, out)
     machines = summary(store)

@@ -105,16 +105,20 @@ def _frame(machine: str, channels: list[str], rows: dict[str, Any]) -> pd.DataFr
     return pd.DataFrame(cols)
 
 
-def read_events(folder: str | Path, machine: str | None = None) -> pd.DataFrame:
-    """Gaps, reconnects, dropped payloads and alarms, oldest first."""
+def read_events(folder: str | Path, machine: str | None = None, t_from_s: float | None = None,
+                t_to_s: float | None = None) -> pd.DataFrame:  # fmt: skip
+    """Gaps, reconnects, dropped payloads and alarms, oldest first, within ``t_from_s`` ..
+    ``t_to_s`` where given (alarms carry the data's time, the twin's own events the wall
+    clock: a replay's window in its file's seconds holds its alarms only)."""
     frames = []
+    window, window_args = _window(machine, t_from_s, t_to_s)
     for one in store_folders(folder):
         con, _ = _open(one)
         try:
-            sql = "SELECT machine, kind, ts_us, detail FROM events"
-            args = []
+            sql = "SELECT machine, kind, ts_us, detail FROM events WHERE TRUE" + window
+            args: list[object] = [*window_args]
             if machine is not None:
-                sql += " WHERE machine = ?"
+                sql += " AND machine = ?"
                 args.append(machine)
             frames.append(con.execute(sql, args).df())
         finally:
