@@ -186,3 +186,18 @@ def test_max_samples_stops_at_the_count(twin_files: tuple[Path, Path], tmp_path:
                    "--store", str(tmp_path / f"s{n}"), "--max-samples", str(n), "--json")  # fmt: skip
         assert res.exit_code == 0, res.stderr
         assert json.loads(res.stdout)["rows"] == n
+
+
+def test_fit_detector_replaces_no_file_that_is_not_a_detector(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """--out naming a model (or a record) by mistake had turned it into the detector's JSON."""
+    record, model = twin_files
+    for victim in (tmp_path / "other.dtm", tmp_path / "victim.parquet"):
+        victim.write_bytes((model if victim.suffix == ".dtm" else record).read_bytes())
+        before = victim.read_bytes()
+        res = CliRunner().invoke(app, ["twin", "fit-detector", "--model", str(model), "--healthy",
+                                       str(record), "--out", str(victim)])  # fmt: skip
+        assert res.exit_code == 2, res.output
+        assert "exists and is not a detector file" in res.output
+        assert victim.read_bytes() == before

@@ -65,6 +65,8 @@ def twin_fit_detector(
     files = [p.strip() for p in healthy.split(",") if p.strip()]
     if not files:
         raise ConfigError("no healthy record", where="--healthy", fix="give one or more files")
+    target = out if out is not None else detector_path(model)
+    _replaceable_detector_file(target)  # before the work
     fitted = load_twin_model(model)
     train = physics_train(fitted, "reduced")  # the physics the live twin steps
     series = []
@@ -73,7 +75,6 @@ def twin_fit_detector(
         series += logged if logged is not None else [Channels().read(p)]
     features = [record_features(train, s) for s in series]
     detector = FaultDetector(far_per_day=far_per_day, reference_s=reference).fit(features)
-    target = out if out is not None else detector_path(model)
     machines = sorted({i.serial for p in files if (i := recorded_identity(Path(p))) is not None})
     save_detector(target, detector, model, files, post, machines)
     result = {"detector": str(target), "model": str(model), "fitted_on": files,
@@ -90,6 +91,25 @@ def twin_fit_detector(
     uses = (f"'twin run --model {model}' uses it" if out is None or target == detector_path(model)
             else f"give it with 'twin run --model {model} --detector {target}'")  # fmt: skip
     console.print(f"wrote {target} ({uses})")
+
+
+def _replaceable_detector_file(target: Path) -> None:
+    """Refuse an ``--out`` that exists and is not a detector file (a model given by mistake
+    had become 6.9 kB of JSON: 'fit --out' refuses the same)."""
+    import json
+
+    from drafttwin.twin.faultwatch import FORMAT
+
+    if not target.is_file() or target.stat().st_size == 0:
+        return
+    try:
+        doc = json.loads(target.read_bytes()[:10_000_000])
+    except (OSError, ValueError):
+        doc = None
+    if not isinstance(doc, dict) or doc.get("format") != FORMAT:
+        raise ConfigError("exists and is not a detector file, which --out would replace",
+                          source=target, where="--out",
+                          fix="name a new file (or a detector file to replace)")  # fmt: skip
 
 
 TwinPageOpt = Annotated[str, typer.Option("--http", help="The running twin's page, HOST:PORT (its 'twin run --http').")]  # fmt: skip
