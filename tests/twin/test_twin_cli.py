@@ -201,3 +201,19 @@ def test_fit_detector_replaces_no_file_that_is_not_a_detector(
         assert res.exit_code == 2, res.output
         assert "exists and is not a detector file" in res.output
         assert victim.read_bytes() == before
+
+
+@pytest.mark.parametrize(("address", "said"), [
+    ("http://127.0.0.1:{port}/", "no twin answers at http://127.0.0.1:{port}/ ("),
+    ("127.0.0.1:99999", "bad address '127.0.0.1:99999'"),
+])  # fmt: skip
+def test_relearn_takes_the_address_the_twin_prints(address: str, said: str) -> None:
+    """'http://127.0.0.1:8050/' (what 'twin run' prints) had been looked up as a host name
+    ('Name or service not known'); a port beyond 65535 read as a refused connection."""
+    from ._twin import free_port
+
+    port = free_port()
+    res = CliRunner().invoke(app, ["twin", "relearn", "--http", address.format(port=port),
+                                   "--machine", "fa320a"])  # fmt: skip
+    assert res.exit_code == 2 and said.format(port=port) in res.output, res.output
+    assert "Name or service not known" not in res.output

@@ -131,9 +131,12 @@ def twin_relearn(http: TwinPageOpt, machine: RelearnMachineOpt,
     import urllib.parse
     import urllib.request
 
-    host, _, port = http.rpartition(":")
-    if not host or not port.isdigit():
-        raise ConfigError(f"bad address {http!r}", where="--http", fix="write HOST:PORT, e.g. 127.0.0.1:8050")  # fmt: skip
+    # the address as the twin prints its page (http://HOST:PORT/) is taken too
+    address = http.strip().removeprefix("http://").rstrip("/")
+    host, _, port = address.rpartition(":")
+    if not host or not port.isdigit() or not 1 <= int(port) <= 65535 or "/" in address:
+        raise ConfigError(f"bad address {http!r}", where="--http",
+                          fix="write HOST:PORT (the twin's 'twin run --http'), e.g. 127.0.0.1:8050")  # fmt: skip
     url = f"http://{host}:{port}/api/machines/{urllib.parse.quote(machine, safe='')}/relearn"
     req = urllib.request.Request(url, method="POST", headers=(
         {"Authorization": f"Bearer {token}"} if token else {}))  # fmt: skip
