@@ -249,3 +249,18 @@ def test_a_killed_plant_is_announced_offline_by_its_will(mosquitto: int) -> None
         if plant.poll() is None:
             plant.kill()
             plant.wait(timeout=10)
+
+
+@pytest.mark.parametrize(("args", "said"), [
+    (["--opcua", "opc.tcp://127.0.0.1:4840", "--mqtt-user", "bob"], "--mqtt-user is for MQTT"),
+    (["--opcua", "opc.tcp://127.0.0.1:4840", "--qos", "1"], "--qos is for MQTT"),
+    (["--mqtt", "127.0.0.1:1883", "--history", "60"], "--history is for OPC UA"),
+])  # fmt: skip
+def test_an_option_of_the_other_transport_is_refused(args: list[str], said: str) -> None:
+    """--mqtt-user with --opcua had run without a word (the server open to anyone)."""
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    res = CliRunner().invoke(app, ["plant", "serve", *args, "--duration", "1"])
+    assert res.exit_code == 2 and said in res.output, res.output

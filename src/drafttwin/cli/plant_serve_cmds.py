@@ -103,6 +103,10 @@ def plant_serve(
     if qos and mqtt is None:
         raise ConfigError("--qos is for MQTT (OPC UA has no QoS)", where="--qos",
                           fix="drop --qos, or serve with --mqtt")  # fmt: skip
+    if mqtt_user is not None and mqtt is None:  # it had run without a word, open to anyone
+        raise ConfigError("--mqtt-user is for MQTT (an OPC UA server takes certificates: "
+                          "--cert)", where="--mqtt-user",
+                          fix="drop --mqtt-user, or serve with --mqtt")  # fmt: skip
     if log is not None and log.suffix.lower() not in (".parquet", ".csv"):
         raise ConfigError(f"unsupported log file type '{log.suffix or '(none)'}'", source=log,
                           where="--log", fix="name the log *.parquet or *.csv")  # fmt: skip
