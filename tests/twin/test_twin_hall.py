@@ -131,6 +131,16 @@ def test_the_hall_refuses_what_would_go_wrong_in_an_actor(
     _error(run(app, [*fresh, "--source", opcua, "--shards", "4"]), "is empty")  # 3 machines
     nobody = f"127.0.0.1:{free_port()}"
     _error(run(app, [*fresh, "--source", opcua, "--ray", nobody]), "--ray", "no Ray cluster")
+    # a DuckDB file of something else is not "the store of a single 'twin run'"
+    import duckdb
+
+    other = tmp_path / "other"
+    other.mkdir()
+    con = duckdb.connect(str(other / "twin.duckdb"))
+    con.execute("CREATE TABLE foo (a INTEGER)")
+    con.close()
+    _error(run(app, [*base[:-1], str(other), "--source", opcua, "--shards", "2"]),
+           "holds twin.duckdb, which is not a drafttwin twin store")  # fmt: skip
 
 
 @pytest.mark.long  # a plant and a private Ray: about 30-60 s

@@ -26,7 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from drafttwin.errors import ConfigError
+from drafttwin.errors import ConfigError, DrafttwinError
 from drafttwin.execution.interrupt import Interrupted
 from drafttwin.sliver.levelwatch import WINDOW_M
 
@@ -49,6 +49,15 @@ def shard_dir(store: Path, i: int, k: int) -> Path:
 def check_store(store: Path, shards: int) -> None:
     """Refuse a store folder a hall of another size wrote (a machine's history in one file)."""
     if (store / "twin.duckdb").exists():
+        from drafttwin.twin.store.history import _open
+
+        try:
+            con, _ = _open(store)
+            con.close()
+        except DrafttwinError:  # a DuckDB file of anything else (it read as a twin's store)
+            raise ConfigError("this folder holds twin.duckdb, which is not a drafttwin twin "
+                              "store", source=store, where="--store",
+                              fix="give a new folder to the hall") from None  # fmt: skip
         raise ConfigError("this folder holds the store of a single 'twin run'", source=store,
                           where="--store", fix="give a new folder to the hall")  # fmt: skip
     for p in store.glob("shard-*") if store.is_dir() else []:
