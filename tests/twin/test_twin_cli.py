@@ -217,3 +217,22 @@ def test_relearn_takes_the_address_the_twin_prints(address: str, said: str) -> N
                                    "--machine", "fa320a"])  # fmt: skip
     assert res.exit_code == 2 and said.format(port=port) in res.output, res.output
     assert "Name or service not known" not in res.output
+
+
+def test_fit_detector_reads_a_record_of_other_column_names_with_columns(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """Its own error asked for --columns, which it did not have."""
+    from drafttwin.plant import Plant
+
+    _, model = twin_files
+    record = tmp_path / "healthy.csv"
+    Plant().run(40.0, 100.0, seed=4).series.to_frame().rename(
+        columns={"front": "frnt"}).to_csv(record, index=False)  # fmt: skip
+    args = ["twin", "fit-detector", "--model", str(model), "--healthy", str(record), "--out",
+            str(tmp_path / "d.json")]  # fmt: skip
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 2 and "--columns frnt=front" in res.output, res.output
+    res = CliRunner().invoke(app, [*args, "--columns", "frnt=front"])
+    assert res.exit_code == 0, res.output
+    assert (tmp_path / "d.json").is_file()

@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 
 from drafttwin.cli._options import (
+    ColumnsOpt,
     FarPerDayOpt,
     JsonOpt,
     file_out,
@@ -41,6 +42,7 @@ def twin_fit_detector(
     reference: ReferenceOpt = 15.0,
     post: PostOpt = 20.0,
     out: DetectorOutOpt = None,
+    columns: ColumnsOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Fit the live fault detector on healthy records and store it with the model.
@@ -54,7 +56,7 @@ def twin_fit_detector(
     their sidecars) and is tied to the model by its SHA-256: refitting the model needs a new
     detector.
     """
-    from drafttwin.cli._data import Channels
+    from drafttwin.cli._data import Channels, pairs
     from drafttwin.diagnosis.detect import FaultDetector
     from drafttwin.diagnosis.residuals import record_features
     from drafttwin.twin.build import load_twin_model
@@ -62,6 +64,8 @@ def twin_fit_detector(
     from drafttwin.twin.live import physics_train
     from drafttwin.wire.identity import recorded_identity
 
+    # a record of other column names (its own error asks for --columns)
+    reading = Channels(columns=pairs(columns, "--columns", "v1=front,v2=second") or None)
     files = [p.strip() for p in healthy.split(",") if p.strip()]
     if not files:
         raise ConfigError("no healthy record", where="--healthy", fix="give one or more files")
@@ -72,7 +76,7 @@ def twin_fit_detector(
     series = []
     for p in files:  # a plant log holds one record per machine; anything else is one record
         logged = plant_log_series(Path(p))
-        series += logged if logged is not None else [Channels().read(p)]
+        series += logged if logged is not None else [reading.read(p)]
     features = [record_features(train, s) for s in series]
     detector = FaultDetector(far_per_day=far_per_day, reference_s=reference).fit(features)
     machines = sorted({i.serial for p in files if (i := recorded_identity(Path(p))) is not None})
