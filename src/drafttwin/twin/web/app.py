@@ -24,6 +24,7 @@ import math
 import re
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
 # at module level: with postponed annotations FastAPI resolves the handlers' annotations in
@@ -32,6 +33,7 @@ from fastapi import FastAPI, HTTPException, WebSocket, WebSocketDisconnect
 from fastapi.responses import HTMLResponse, Response
 
 from drafttwin._json import to_strict
+from drafttwin.twin import commands
 from drafttwin.twin.service import TwinService
 from drafttwin.twin.store.db import EventRow, SampleRow
 from drafttwin.twin.web.assets import page_text, serve_docs, serve_static
@@ -105,6 +107,14 @@ class Hub:
             q.put_nowait(text)
 
 
+def _answer(command: Callable[..., Any], *args: Any) -> Any:
+    """An operator's command (:mod:`drafttwin.twin.commands`), its refusal as the HTTP error."""
+    try:
+        return command(*args)
+    except commands.Refused as exc:
+        raise HTTPException(exc.status, exc.text) from None
+
+
 def create_app(service: TwinService, token: str | None = None,
                twin_loop: asyncio.AbstractEventLoop | None = None) -> FastAPI:  # fmt: skip
     """The FastAPI app of ``service`` (a token, if given, guards every route). Its OpenAPI
@@ -152,15 +162,8 @@ def create_app(service: TwinService, token: str | None = None,
     async def relearn(machine: str) -> Any:
         """After maintenance: forget the machine's learned healthy state and learn it again
         (no fault alarm meanwhile); its detector's state afterwards."""
-        from drafttwin.twin.service import detector_state
-
-        def forget() -> Any:
-            st = state(machine)
-            if not service.relearn(machine, "operator's command (REST)"):
-                raise HTTPException(409, f"machine {machine!r} has no fault detector")
-            return to_strict({"machine": machine, "detector": detector_state(st)})
-
-        return await bridge.call(forget)
+        return await bridge.call(lambda: _answer(commands.relearn, service, machine,
+                                                 "operator's command (REST)"))  # fmt: skip
 
     @app.get("/api/alarms/active")
     async def active_alarms(machine: str | None = None) -> Any:
@@ -179,18 +182,8 @@ def create_app(service: TwinService, token: str | None = None,
                           alarm: str | None = None) -> Any:  # fmt: skip
         """``what`` = acknowledge or confirm (those acknowledged) the machine's retained alarms,
         or the one whose id is ``alarm`` (an operator's, as over OPC UA); the alarms after."""
-        if what not in ("acknowledge", "confirm"):
-            raise HTTPException(404, "acknowledge or confirm")
-
-        def take() -> Any:
-            state(machine)
-            if alarm is not None and alarm not in {a.id for a in service.book.retained(machine)}:
-                raise HTTPException(404, f"machine {machine!r} has no retained alarm {alarm!r}")
-            n = service.faults.acknowledge(machine, comment[:500], what == "confirm", alarm)
-            return to_strict({"machine": machine, "taken": n,
-                              "alarms": [a.to_dict() for a in service.book.retained(machine)]})  # fmt: skip
-
-        return await bridge.call(take)
+        return await bridge.call(lambda: _answer(commands.take_alarms, service, machine, what,
+                                                 comment, alarm))  # fmt: skip
 
     @app.get("/api/model/{machine}")
     async def model(machine: str) -> Any:
