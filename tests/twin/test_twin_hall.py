@@ -184,6 +184,11 @@ def test_the_hall_knows_its_shards_and_sigterm_ends_it_within_5_s(
                 running = shards
                 break
         assert running, f"the hall's page never said both shards run: {states}"
+        # an operator's command through the page reaches the machine's shard (it was a 404)
+        req = urllib.request.Request(f"http://127.0.0.1:{http}/api/machines/fa320a-3/relearn",
+                                     method="POST")  # fmt: skip
+        with urllib.request.urlopen(req, timeout=30) as r:  # noqa: S310  a local test server
+            relearnt = json.loads(r.read())
         start = time.monotonic()
         hall.send_signal(signal.SIGTERM)
         out, err = hall.communicate(timeout=60)
@@ -203,6 +208,7 @@ def test_the_hall_knows_its_shards_and_sigterm_ends_it_within_5_s(
     assert "stopped by SIGTERM: shards 0, 1 committed what they received" in err, err
     assert "Traceback" not in err and "SIGTERM received" not in err, err
     assert "still starting" not in err, err
+    assert relearnt["machine"] == "fa320a-3" and relearnt["detector"]["state"] == "learning"
     # its summary after the stop (a hall ends by a signal as a rule: it had printed none)
     assert "hall: 2 twins" in out and "fa320a-1" in out and "fa320a-3" in out, out
 
@@ -252,3 +258,61 @@ def test_each_shard_says_its_real_state() -> None:
     assert [o["state"] for o in out] == ["starting", "loading", "running", "not answering",
                                          "ended", "failed"]  # fmt: skip
     assert out[3]["machines"] == running["machines"] and out[5]["error"] == "shard broke"
+
+
+def test_the_hall_page_passes_an_operators_command_to_the_machines_shard() -> None:
+    """A hall's machines could not be relearnt nor their alarms acknowledged (404): the page
+    now routes each command to the shard watching the machine."""
+    import urllib.error
+    import urllib.request
+
+    from drafttwin.twin.web.hall import HallServer, HallView
+
+    view = HallView(2)
+    view.update([{"state": "running", "machines": {"m-1": {}}},
+                 {"state": "running", "machines": {"m-2": {}}}])  # fmt: skip
+    calls: list[tuple] = []
+
+    def command(shard: int, kind: str, machine: str, args: dict) -> dict:
+        calls.append((shard, kind, machine, args))
+        if kind == "confirm":
+            return {"status": 409, "body": "nothing to confirm"}
+        return {"status": 200, "body": {"machine": machine, "kind": kind}}
+
+    def post(path: str) -> tuple[int, str]:
+        req = urllib.request.Request(f"http://127.0.0.1:{port}{path}", method="POST")
+        try:
+            with urllib.request.urlopen(req, timeout=10) as r:  # noqa: S310  a local test server
+                return r.status, r.read().decode()
+        except urllib.error.HTTPError as exc:
+            return exc.code, exc.read().decode()
+
+    port = free_port()
+    with HallServer(view, ("127.0.0.1", port), None):
+        before = post("/api/machines/m-2/relearn")  # no shard bound yet
+        view.bind_commands(command)
+        relearnt = post("/api/machines/m-2/relearn")
+        acked = post("/api/machines/m-1/alarms/acknowledge?alarm=A1&comment=checked")
+        refused = post("/api/machines/m-1/alarms/confirm")
+        unknown = post("/api/machines/m-9/relearn")
+    assert before[0] == 404
+    assert relearnt == (200, '{"machine":"m-2","kind":"relearn"}')
+    assert acked[0] == 200 and refused[0] == 409 and "nothing to confirm" in refused[1]
+    assert unknown[0] == 404 and "no machine 'm-9' in the hall" in unknown[1]
+    assert calls == [(1, "relearn", "m-2", {}),
+                     (0, "acknowledge", "m-1", {"comment": "checked", "alarm": "A1"}),
+                     (0, "confirm", "m-1", {"comment": "", "alarm": None})]  # fmt: skip
+
+
+def test_a_shards_command_answers_as_the_twins_api(twin_files: tuple[Path, Path]) -> None:
+    from drafttwin.twin.build import build_service
+    from drafttwin.twin.hall import shard_command
+
+    record, model = twin_files
+    service = build_service(model, [f"replay:{record}?machine=df-01"])
+    relearnt = shard_command(service, "relearn", "df-01", {})
+    assert relearnt["status"] == 200 and relearnt["body"]["detector"]["state"] == "learning"
+    taken = shard_command(service, "acknowledge", "df-01", {})
+    assert taken == {"status": 200, "body": {"machine": "df-01", "taken": 0, "alarms": []}}
+    assert shard_command(service, "acknowledge", "df-01", {"alarm": "x"})["status"] == 404
+    assert shard_command(service, "relearn", "nobody", {})["status"] == 404

@@ -183,7 +183,8 @@ def twin_hall(
                 err_console.print(f"hall page on http://{bind[0]}:{bind[1]}/")
             results = run_hall(model, source, mapping, store, shards, address=ray_address,
                                commit_ms=commit_ms, physics=physics, duration_s=duration,
-                               on_status=status, status_every_s=1.0, detector=detector,
+                               on_status=status, on_actors=view.bind_commands,
+                               status_every_s=1.0, detector=detector,
                                learn_s=learn, level_window_m=level_window)  # fmt: skip
     except Interrupted as exc:  # a service manager's stop is a clean end: exit code 0
         work_done()

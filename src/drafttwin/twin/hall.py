@@ -18,6 +18,7 @@ with another K.
 from __future__ import annotations
 
 import asyncio
+import concurrent.futures
 import contextlib
 import re
 import threading
@@ -102,6 +103,26 @@ async def _shard_main(shard: Any, duration_s: float | None) -> None:
     await shard.service.run(duration_s=duration_s)
 
 
+COMMAND_S = 10.0
+"""How long an operator's command may wait for a shard's twin, s."""
+
+
+def shard_command(service: Any, kind: str, machine: str, args: dict[str, Any]) -> dict[str, Any]:
+    """``relearn``, ``acknowledge`` or ``confirm`` (:mod:`drafttwin.twin.commands`, as the
+    twin's REST API runs them) as ``{"status": ..., "body": ...}`` for the hall's page."""
+    from drafttwin.twin import commands
+
+    try:
+        if kind == "relearn":
+            body = commands.relearn(service, machine, "operator's command (hall)")
+        else:
+            body = commands.take_alarms(service, machine, kind, str(args.get("comment", "")),
+                                        args.get("alarm"))  # fmt: skip
+    except commands.Refused as exc:
+        return {"status": exc.status, "body": exc.text}
+    return {"status": 200, "body": body}
+
+
 def _actor_class(ray: Any) -> Any:
     # run() in one thread, status()/stop() beside it. A shard whose process dies is started
     # again and its run() retried (RESTARTS times): the new twin resumes from its own store
@@ -162,6 +183,19 @@ def _actor_class(ray: Any) -> Any:
                     time.sleep(0.01)
             return None
 
+        def command(self, kind: str, machine: str, args: dict[str, Any]) -> dict[str, Any]:
+            """An operator's command on one of this shard's machines, run on its twin's loop
+            (:func:`shard_command`): ``{"status": HTTP status, "body": answer or why}``."""
+            if self.loop is None or self.service is None:
+                return {"status": 503, "body": "the shard's twin is still starting"}
+            done: concurrent.futures.Future[dict[str, Any]] = concurrent.futures.Future()
+
+            def run() -> None:
+                done.set_result(shard_command(self.service, kind, machine, args))
+
+            self.loop.call_soon_threadsafe(run)
+            return done.result(timeout=COMMAND_S)
+
         def stop(self) -> None:
             self.stopping.set()
             if self.loop is not None and self.service is not None:
@@ -175,6 +209,7 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
              address: str | None = None, commit_ms: float = 200.0, physics: str = "reduced",
              silent_s: float = 2.0, duration_s: float | None = None,
              on_status: Callable[[list[dict[str, Any] | None]], None] | None = None,
+             on_actors: Callable[[Callable[..., dict[str, Any]]], None] | None = None,
              status_every_s: float = 10.0, detector: str = "auto",
              learn_s: float | None = None,
              level_window_m: float = WINDOW_M) -> list[dict[str, Any]]:  # fmt: skip
@@ -199,6 +234,16 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
                               "store": shard_dir(store.resolve(), i, shards)})
                   for i in range(shards)]  # fmt: skip
         refs = [a.run.remote(duration_s) for a in actors]
+        if on_actors is not None:  # the page's commands reach a machine through its shard
+
+            def command(
+                shard: int, kind: str, machine: str, args: dict[str, Any]
+            ) -> dict[str, Any]:
+                answer: dict[str, Any] = ray.get(actors[shard].command.remote(kind, machine, args),
+                                                 timeout=COMMAND_S + 5)  # fmt: skip
+                return answer
+
+            on_actors(command)
         try:
             _wait(ray, actors, refs, on_status, status_every_s)
         except Interrupted as exc:  # Ctrl-C or SIGTERM: each actor commits what it received

@@ -92,7 +92,8 @@ def _connect(path: Path, *, read_only: bool) -> Any:
         if "lock" in text.lower():
             raise DataError("the store is in use by a running twin", source=path,
                             fix="stop that twin, or read its history over its HTTP API "
-                            "(GET /api/history)") from None  # fmt: skip
+                            "(a 'twin run --http': GET /api/history; a hall's shards are read "
+                            "once it stops)") from None  # fmt: skip
         raise DataError(f"cannot open the store ({text.splitlines()[0]})", source=path) from None
     except duckdb.Error as exc:
         raise DataError(f"not a DuckDB store ({str(exc).splitlines()[0]})", source=path,

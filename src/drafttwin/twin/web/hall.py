@@ -13,9 +13,10 @@ from __future__ import annotations
 
 import threading
 import time
+from collections.abc import Callable
 from typing import Any
 
-from fastapi import FastAPI
+from fastapi import FastAPI, HTTPException
 from fastapi.responses import HTMLResponse
 
 from drafttwin._json import to_strict
@@ -32,6 +33,20 @@ class HallView:
         self.lock = threading.Lock()
         self.shards: list[dict[str, Any] | None] = [None] * shards
         self.updated = 0.0
+
+        self.command: Callable[..., dict[str, Any]] | None = None  # set once the shards run
+
+    def bind_commands(self, command: Callable[..., dict[str, Any]]) -> None:
+        """``command(shard, kind, machine, args)``: an operator's command through the shard
+        that watches the machine (:func:`drafttwin.twin.hall.run_hall`)."""
+        self.command = command
+
+    def shard_of(self, machine: str) -> int | None:
+        """The shard watching ``machine`` in the latest poll (None: none does)."""
+        with self.lock:
+            shards = list(self.shards)
+        return next((i for i, st in enumerate(shards)
+                     if st is not None and machine in st.get("machines", {})), None)  # fmt: skip
 
     def update(self, statuses: list[dict[str, Any] | None]) -> None:
         with self.lock:
@@ -78,6 +93,29 @@ def create_hall_app(view: HallView, token: str | None = None) -> FastAPI:
     def hall() -> Any:
         """Each shard's state, rows and p99 latency, and per machine its counts and last alarm."""
         return view.snapshot()
+
+    def through_shard(kind: str, machine: str, args: dict[str, Any]) -> Any:
+        shard = view.shard_of(machine)
+        if shard is None or view.command is None:
+            raise HTTPException(404, f"no machine {machine[:100]!r} in the hall")
+        answer = view.command(shard, kind, machine, args)
+        if answer["status"] != 200:
+            raise HTTPException(answer["status"], answer["body"])
+        return answer["body"]
+
+    @app.post("/api/machines/{machine}/relearn")
+    def relearn(machine: str) -> Any:
+        """After maintenance: the machine's shard forgets its learned healthy state and learns
+        it again (as the twin's own API)."""
+        return through_shard("relearn", machine, {})
+
+    @app.post("/api/machines/{machine}/alarms/{what}")
+    def acknowledge(machine: str, what: str, comment: str = "", alarm: str | None = None) -> Any:
+        """``what`` = acknowledge or confirm the machine's retained alarms (or the one whose id
+        is ``alarm``), on its shard; the alarms after."""
+        if what not in ("acknowledge", "confirm"):
+            raise HTTPException(404, "acknowledge or confirm")
+        return through_shard(what, machine, {"comment": comment[:500], "alarm": alarm})
 
     return app
 

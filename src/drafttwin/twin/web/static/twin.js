@@ -636,7 +636,7 @@ async function drawHall() {
   }
   standing.sort((a, b) => b.severity - a.severity || b.time_s - a.time_s);
   book.load(standing);
-  banners(() => drawHall(), false);  // the hall's page shows; the machine's twin page acts
+  banners(() => drawHall(), true);  // acknowledged / confirmed through the machine's shard
   status(`${machines} machine(s) · ${alarms} with alarms · updated ${clock(h.updated)}`);
 }
 function startHall() {
