@@ -312,7 +312,8 @@ def test_the_page_scales_past_spikes_and_raises_the_alarm_banner(
 def test_the_hall_page_shows_each_machine_health_and_alarm_banners() -> None:
     """The hall page, built from the same script: a tile per machine with its health, a banner
     per retained alarm of every shard's machines (one active, one returned to normal and not yet
-    acknowledged), most severe first; the operator acts on the machine's own page."""
+    acknowledged), most severe first, each with its button, which acknowledges through the
+    machine's shard."""
     sync_api = pytest.importorskip("playwright.sync_api", reason="needs playwright (test extra)")
     from drafttwin.twin.web.hall import HallServer, HallView
 
@@ -333,6 +334,14 @@ def test_the_hall_page_shows_each_machine_health_and_alarm_banners() -> None:
     view.update([{"rows": 20, "latency_ms": {"p50": 1.0, "p99": 1.5, "max": 2.0}, "machines": {
         "m-1": {**machine, "state": "live", "fault_alarms": 1, "active_alarms": [recent]},
         "m-2": {**machine, "state": "silent", "fault_alarms": 1, "active_alarms": [old]}}}, None])  # fmt: skip
+    taken: list[tuple] = []
+
+    def command(shard: int, kind: str, name: str, args: dict) -> dict:
+        taken.append((shard, kind, name, args["alarm"]))
+        return {"status": 200, "body": {"machine": name, "taken": 1,
+                                        "alarms": [{**recent, "acked": True}]}}  # fmt: skip
+
+    view.bind_commands(command)
     port = free_port()
     base = f"http://127.0.0.1:{port}"
     with HallServer(view, ("127.0.0.1", port), None):
@@ -351,8 +360,12 @@ def test_the_hall_page_shows_each_machine_health_and_alarm_banners() -> None:
                 m: page.locator(f".tile[data-machine='{m}']").inner_text() for m in ("m-1", "m-2")
             }
             texts = page.locator("#banner .banner").all_inner_texts()
-            buttons = page.locator("#banner button").count()
+            buttons = page.locator("#banner button").all_inner_texts()
             _keep_shot(page.screenshot(), "hall.png")
+            page.click("#banner .banner[data-alarm='m-1:1:belt'] .ack")
+            deadline = time.monotonic() + 10
+            while not taken and time.monotonic() < deadline:
+                page.wait_for_timeout(100)
             classes = {m: page.locator(f".tile[data-machine='{m}']").get_attribute("class")
                        for m in ("m-1", "m-2")}  # fmt: skip
             browser.close()
@@ -360,7 +373,8 @@ def test_the_hall_page_shows_each_machine_health_and_alarm_banners() -> None:
     assert "m-1" in texts[0] and "main_belt belt_wear" in texts[0] and "ALARM" in texts[0]
     assert "m-2" in texts[1] and "returned to normal" in texts[1]
     assert "back encoder_stuck" in texts[1]
-    assert buttons == 0  # the hall shows; a machine's own page acknowledges
+    assert buttons == ["Acknowledge", "Acknowledge"]  # the hall had shown them without
+    assert taken == [(0, "acknowledge", "m-1", "m-1:1:belt")]  # through m-1's shard
     assert "alarm-active-unack" in str(classes["m-1"]) and "alarm-rtn-unack" in str(classes["m-2"])
     # the hall's status carries no late count nor data age (yet): the tile says "–" for the age
     assert all(p in tiles["m-1"] for p in ("live", "p99 1.5 ms", "data age")), tiles
