@@ -122,3 +122,25 @@ def test_certs_keep_what_is_valid_and_keys_are_the_owners(tmp_path: Path) -> Non
         )
         assert res.exit_code == 2 and "--host" in res.output and "Traceback" not in res.output
         assert not (tmp_path / "c" / "server_key.pem").exists()
+
+
+def test_a_security_mismatch_says_what_to_do(tmp_path: Path) -> None:
+    """An unsecured twin at a secured server read "UaError: No matching endpoints ..."; a
+    ?cert= naming a file said "--cert" (twin run has none) and to make certificates there."""
+    from drafttwin.errors import ConfigError
+    from drafttwin.twin.sources.mapping import MachineMap
+    from drafttwin.twin.sources.opcua import _reason
+    from drafttwin.twin.sources.spec import parse_source
+
+    default = MachineMap("fa320a", ("front", "second", "third", "back"))
+
+    exc = RuntimeError("No matching endpoints: 1, http://opcfoundation.org/UA/SecurityPolicy#None")
+    assert _reason(exc, secured=False).startswith("the server accepts secured sessions only: "
+                                                  "add ?cert=DIR to --source")  # fmt: skip
+    assert _reason(exc, secured=True).startswith("RuntimeError: No matching endpoints")
+    afile = tmp_path / "rec.json"
+    afile.write_text("{}")
+    with pytest.raises(ConfigError, match=r"--source \(\?cert=\).*is not a folder of certificates"):
+        parse_source(f"opcua:opc.tcp://127.0.0.1:4840?cert={afile}", default, ())
+    with pytest.raises(ConfigError, match=r"--source \(\?cert=\).*no client_key.pem"):
+        parse_source(f"opcua:opc.tcp://127.0.0.1:4840?cert={tmp_path}", default, ())

@@ -134,10 +134,14 @@ def _mqtt_tls_certificate(folder: Path, host: str) -> None:
     (folder / "mqtt_key.pem").chmod(0o600)
 
 
-def need_files(folder: Path, *names: str) -> None:
+def need_files(folder: Path, *names: str, where: str = "--cert") -> None:
+    """Refuse a certificate folder without ``names`` (``where``: the option that named it)."""
+    if not folder.is_dir():
+        raise ConfigError(f"{folder} is not a folder of certificates", where=where,
+                          fix="give the folder 'drafttwin twin certs --out DIR' wrote")  # fmt: skip
     missing = [n for n in names if not (folder / n).is_file()]
     if missing:
-        raise ConfigError(f"no {', '.join(missing)} in {folder}", where="--cert",
+        raise ConfigError(f"no {', '.join(missing)} in {folder}", where=where,
                           fix=f"make them with: drafttwin twin certs --out {folder}")  # fmt: skip
 
 

@@ -87,7 +87,7 @@ class OpcUaSource(Source):
             except TimeoutError:
                 self._set("reconnecting", report, f"no sample for {self.silence_s:g} s")
             except Exception as exc:  # noqa: BLE001  any network / server failure: reconnect
-                self._set("reconnecting", report, f"{type(exc).__name__}: {exc}"[:200])
+                self._set("reconnecting", report, _reason(exc, self.cert_dir is not None))
             finally:
                 self.client = None
                 # bounded: a refused secured session can leave asyncua's disconnect waiting on
@@ -202,6 +202,15 @@ class OpcUaSource(Source):
             for row in fresh:  # no receive time: their latency is not the live path's
                 emit(Sample(m.name, *row, received=math.nan))
             report(m.name, "history", f"{len(fresh)} samples recovered from the server's history")
+
+
+def _reason(exc: Exception, secured: bool) -> str:
+    """Why the connection failed, with what to do where it is a security mismatch (asyncua
+    says only "No matching endpoints ... SecurityPolicy#None")."""
+    text = f"{type(exc).__name__}: {exc}"
+    if not secured and "No matching endpoints" in text:
+        text = "the server accepts secured sessions only: add ?cert=DIR to --source (" + text + ")"
+    return text[:200]
 
 
 def _received(sub: Any) -> list[Any]:

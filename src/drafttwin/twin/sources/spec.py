@@ -48,7 +48,8 @@ def parse_source(text: str, default: MachineMap, mapped: tuple[MachineMap, ...])
         if cert is not None:
             from drafttwin.twin.sources.security import _need
 
-            _need(cert, "client_key.pem", "client_cert.der", "server_cert.der")
+            _need(cert, "client_key.pem", "client_cert.der", "server_cert.der",
+                  where="--source (?cert=)")  # fmt: skip
         return OpcUaSource(url, machines, float(opts.get("publish_ms", 10)), cert)
     if kind in ("mqtt", "mqtts"):
         from drafttwin.twin.sources.mqtt import MqttSource  # paho only when MQTT is asked for
