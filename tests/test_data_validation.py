@@ -73,7 +73,12 @@ def test_unsupported_suffix(tmp_path: Path) -> None:
 
 def test_folder_instead_of_file(tmp_path: Path) -> None:
     (tmp_path / "dir.csv").mkdir()
-    refuse(tmp_path / "dir.csv", "not a file")
+    refuse(tmp_path / "dir.csv", "a folder")
+
+
+def test_a_device_is_named_so(tmp_path: Path) -> None:
+    """/dev/null had been called "not a file (a folder?)"."""
+    refuse(Path("/dev/null"), "a device or pipe, not a file")
 
 
 def test_binary_content_in_csv(tmp_path: Path) -> None:

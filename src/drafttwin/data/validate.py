@@ -52,9 +52,8 @@ def check_file(path: str | Path) -> str:
             "file not found", source=path, fix="check the path (relative to the current folder)"
         )
     if not path.is_file():
-        raise DataError(
-            "not a file (a folder?)", source=path, fix="give the path of a CSV or Parquet file"
-        )
+        what = "a folder" if path.is_dir() else "a device or pipe, not a file"
+        raise DataError(what, source=path, fix="give the path of a CSV or Parquet file")
     fmt = SUFFIXES.get(path.suffix.lower())
     if fmt is None:
         raise DataError(
