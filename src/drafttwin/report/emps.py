@@ -76,6 +76,14 @@ def table_rows(results: dict[str, Any]) -> list[tuple[str, ...]]:
     return rows
 
 
+def beyond(result: EmpsResult, span_mm: tuple[float, float]) -> list[str]:
+    """The free runs drawn in the position panel that leave its axis (``span_mm``): the
+    panel clipped a GRU's 616 mm without a word, where the error panels say so."""
+    return sorted(label(name) for (task, name), pred in result.traces.items()
+                  if task == "simulation" and name != "persistence" and np.any(np.isfinite(pred))
+                  and (np.nanmin(pred) * 1e3 < span_mm[0] or np.nanmax(pred) * 1e3 > span_mm[1]))  # fmt: skip
+
+
 def figure_png(result: EmpsResult) -> bytes:
     """Measured vs predicted test position (simulation), and the errors of both tasks."""
     t, y = result.test_time_s, result.test_qm_m
@@ -90,7 +98,11 @@ def figure_png(result: EmpsResult) -> bytes:
         ax.plot(t, (pred - y) * 1e3, lw=0.8, color=color, label=label(name))
     axes[0].set_ylim(*span)
     axes[0].set_ylabel("position, mm")
-    axes[0].set_title("EMPS test record (DATA_EMPS_PULSES): free-run simulation, seed 0")
+    out = beyond(result, span)
+    leaves = (
+        f"; axis clipped to the measured range ±30 mm: {', '.join(out)} leave it" if out else ""
+    )
+    axes[0].set_title("EMPS test record (DATA_EMPS_PULSES): free-run simulation, seed 0" + leaves)
     axes[1].set_ylim(-40, 40)
     axes[1].set_ylabel("simulation error, mm")
     axes[1].set_title("simulation errors (axis clipped at ±40 mm; black boxes leave it)")

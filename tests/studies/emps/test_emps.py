@@ -214,3 +214,19 @@ def test_figure_of_one_task_says_the_other_was_not_run() -> None:
         warnings.simplefilter("error")
         png = figure_png(result)
     assert png.startswith(b"\x89PNG")
+
+
+def test_the_position_panel_names_the_free_runs_that_leave_it() -> None:
+    """A GRU free run of 616 mm had been clipped without a word."""
+    import numpy as np
+
+    from drafttwin.report.emps import beyond
+    from drafttwin.studies.emps.run import EmpsResult
+
+    t = np.linspace(0, 1, 50)
+    y = 0.1 * np.sin(t)
+    traces = {("simulation", "gru"): y + 0.6, ("simulation", "mechanistic"): y,
+              ("prediction", "gru"): y + 5.0, ("simulation", "persistence"): y + 9.0}  # fmt: skip
+    result = EmpsResult({}, traces, t, y)
+    span = (float(y.min()) * 1e3 - 30, float(y.max()) * 1e3 + 30)
+    assert beyond(result, span) == ["GRU (black box)"]
