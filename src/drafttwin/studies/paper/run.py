@@ -83,8 +83,11 @@ class Study:
         self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
         for c, r in zip(configs, results, strict=True):
             label = c.get("model") or c.get("net") or "gru (data model)"
+            # a grid point by its settings (every one read "grid: lstm seed 0")
+            point = "".join(f" {k} {c[k]:g}" if k == "lr" else f" {k} {c[k]}"
+                            for k in ("lr", "hidden", "layers") if k in c)  # fmt: skip
             self.fits.append(
-                {"task": f"{name}: {label} seed {c.get('seed')}", "wall_s": r.get("wall_s")}
+                {"task": f"{name}: {label}{point} seed {c.get('seed')}", "wall_s": r.get("wall_s")}
             )
         return results
 
