@@ -219,6 +219,7 @@ td.wrap, th.wrap { white-space: normal; text-align: left; min-width: 180px; }
 figure { margin: 14px 0 22px; }
 figure img { max-width: 100%; height: auto; border: 1px solid var(--line); }
 figcaption { color: var(--muted); font-size: 13px; max-width: 100ch; }
+caption { caption-side: bottom; text-align: left; color: var(--muted); font-size: 13px; padding-top: 4px; }
 .note { color: var(--muted); font-size: 13px; }
 .paperbox { background: var(--paper); padding: 8px 12px; border-left: 4px solid #b8a67a; }
 footer { margin-top: 40px; color: var(--muted); font-size: 12px; }
