@@ -37,3 +37,21 @@ def test_a_stopped_replay_writes_no_manifest_and_says_so(tmp_path: Path, earlier
         assert "earlier run's" in err
     else:
         assert not manifest.exists()
+
+
+def test_a_record_of_other_column_names_is_replayed_with_columns(tmp_path: Path) -> None:
+    """The reader's error asked for --columns, which replay did not have."""
+    import pandas as pd
+
+    from ._twin import run_cli
+
+    record = plant_record(tmp_path, duration_s=4.0)
+    renamed = tmp_path / "renamed.csv"
+    pd.read_parquet(record).rename(columns={"front": "frnt"}).to_csv(renamed, index=False)
+    args = ["plant", "replay", "--mqtt", f"127.0.0.1:{free_port()}", "--records", str(renamed),
+            "--speed", "100"]  # fmt: skip
+    refused = run_cli(*args)
+    assert refused.returncode == 2 and "--columns frnt=front" in refused.stderr, refused.stderr
+    played = run_cli(*args, "--columns", "frnt=front")
+    assert played.returncode == 0, played.stderr
+    assert "published replay: 400 samples" in played.stdout, played.stdout

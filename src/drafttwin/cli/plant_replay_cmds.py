@@ -9,7 +9,7 @@ from typing import Annotated
 
 import typer
 
-from drafttwin.cli._options import file_in, file_out, files_in, machine_name, number
+from drafttwin.cli._options import ColumnsOpt, file_in, file_out, files_in, machine_name, number
 from drafttwin.cli.twin_cmds import _need_twin_extra, plant_app
 from drafttwin.cli.typer_app import console, err_console
 from drafttwin.errors import ConfigError
@@ -45,6 +45,7 @@ def plant_replay(
     name: ReplayNameOpt = "replay", machines: ReplayMachinesOpt = 1, speed: SpeedOpt = 1.0,
     batch: BatchOpt = 20, gap: GapOpt = 10.0, manifest: ManifestOpt = None,
     broker: ReplayBrokerOpt = "auto", lead: LeadOpt = 0.0, hold: HoldOpt = False,
+    columns: ColumnsOpt = None,
 ) -> None:  # fmt: skip
     """Serve recorded files as live machines over MQTT: each machine plays its files one after
     another on its own clock (a gap between two is a stop), tells who each file's machine is
@@ -54,6 +55,7 @@ def plant_replay(
     _need_twin_extra()
     from drafttwin._io import atomic_path
     from drafttwin._json import dumps_strict
+    from drafttwin.cli._data import pairs
     from drafttwin.plant.serve.replay import (
         Entry,
         Slot,
@@ -65,6 +67,8 @@ def plant_replay(
     from drafttwin.plant.serve.replay import playlist as read_playlist
     from drafttwin.twin.aio import run_until_signal
 
+    # files of other column names (the reader's own error asks for --columns)
+    mapped = pairs(columns, "--columns", "v1=front,v2=second") or None
     if broker not in ("auto", "external", "embedded"):
         raise ConfigError(f"unknown broker mode {broker!r}", where="--broker",
                           fix="use auto, external or embedded")  # fmt: skip
@@ -75,7 +79,7 @@ def plant_replay(
         slots = read_playlist(playlist)
         for s in slots:  # every file checked before anything is served
             for e in s.entries:
-                read_rows(e.path)
+                read_rows(e.path, mapped)
         n_files = sum(len(s.entries) for s in slots)
     else:
         assert records is not None
@@ -84,7 +88,7 @@ def plant_replay(
             raise ConfigError("no record", where="--records", fix="give one or more files")
         durations = []
         for p in files:  # every file checked before anything is served
-            t, _, _ = read_rows(p)
+            t, _, _ = read_rows(p, mapped)
             durations.append(float(t[-1] - t[0]) if len(t) > 1 else 0.0)
         slots = deal(files, name, machines, durations)
         n_files = len(files)
@@ -105,7 +109,7 @@ def plant_replay(
                       f"{speed:g}x to MQTT {mqtt}")  # fmt: skip
     _, signum = run_until_signal(replay_mqtt(mqtt, slots, speed=speed, batch=batch, gap_s=gap,
                                              broker_mode=broker, lead_s=lead, hold=hold,
-                                             on_entry=said, on_done=done))  # fmt: skip
+                                             on_entry=said, on_done=done, columns=mapped))  # fmt: skip
     if signum is not None:
         err_console.print(f"stopped by {signal.Signals(signum).name}")
     if written:

@@ -106,12 +106,14 @@ def deal(files: Sequence[Path], name: str, machines: int,
     return [s for s in slots if s.entries]
 
 
-def read_rows(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def read_rows(path: Path, columns: dict[str, str] | None = None
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """A record's times (s), speeds ``(n, 5)`` (the rollers, then the motor; NaN where lost)
-    and set-points (Hz, a lost one carried from the last)."""
+    and set-points (Hz, a lost one carried from the last); ``columns``: file column -> channel
+    (``--columns``)."""
     from drafttwin.data.io import read_measurements
 
-    series = read_measurements(path, check_units=False)
+    series = read_measurements(path, check_units=False, columns=columns)
     if tuple(series.channels) != ROLLERS or series.motor_rpm is None:
         raise DataError("a replayed record needs the four rollers and the motor", source=path,
                         fix="replay files 'drafttwin generate' (or the fault benchmark) wrote")  # fmt: skip
@@ -148,7 +150,8 @@ async def replay_mqtt(address: str, slots: list[Slot], *, speed: float = 1.0,
                       batch: int = 20, gap_s: float = 10.0, broker_mode: str = "auto",
                       lead_s: float = 0.0, hold: bool = False,
                       on_entry: Callable[[Slot, Entry], None] | None = None,
-                      on_done: Callable[[], None] | None = None) -> list[Slot]:  # fmt: skip
+                      on_done: Callable[[], None] | None = None,
+                      columns: dict[str, str] | None = None) -> list[Slot]:  # fmt: skip
     """Play every slot's files to the broker at ``address`` (see the module docstring);
     returns the slots with each entry's times filled in. ``speed``: ``inf`` publishes as fast
     as the connection takes. ``lead_s``: wait this long after connecting (a twin subscribes
@@ -167,7 +170,9 @@ async def replay_mqtt(address: str, slots: list[Slot], *, speed: float = 1.0,
             s.client = await _connect(s.name, host, port)
         await asyncio.sleep(lead_s)
         wall0 = time.monotonic()
-        await asyncio.gather(*(_play(s, speed, batch, gap_s, wall0, on_entry) for s in slots))
+        await asyncio.gather(
+            *(_play(s, speed, batch, gap_s, wall0, on_entry, columns) for s in slots)
+        )
         if on_done is not None:
             on_done()
         # QoS 0 has no acknowledgement: give the subscribers a moment (or all the time
@@ -182,10 +187,11 @@ async def replay_mqtt(address: str, slots: list[Slot], *, speed: float = 1.0,
 
 
 async def _play(slot: Slot, speed: float, batch: int, gap_s: float, wall0: float,
-                on_entry: Callable[[Slot, Entry], None] | None) -> None:  # fmt: skip
+                on_entry: Callable[[Slot, Entry], None] | None,
+                columns: dict[str, str] | None = None) -> None:  # fmt: skip
     clock = EPOCH_S
     for e in slot.entries:
-        t, speeds, supply = await asyncio.to_thread(read_rows, e.path)
+        t, speeds, supply = await asyncio.to_thread(read_rows, e.path, columns)
         who = recorded_identity(e.path)
         e.serial = None if who is None else who.serial
         if who is not None:
