@@ -33,7 +33,6 @@ class HallView:
         self.lock = threading.Lock()
         self.shards: list[dict[str, Any] | None] = [None] * shards
         self.updated = 0.0
-
         self.command: Callable[..., dict[str, Any]] | None = None  # set once the shards run
 
     def bind_commands(self, command: Callable[..., dict[str, Any]]) -> None:
