@@ -425,6 +425,15 @@ def test_the_page_says_no_sample_yet_then_draws_with_the_first(
                 client.publish("drafttwin/df-01/sample", json.dumps(sample), qos=1)
             page.wait_for_function("twinPage.machines['df-01'].t.some(t => t > "
                                    f"{now + 7 + 3.5})", timeout=30_000)  # fmt: skip
+            # a narrow window: one column, the charts as wide as its cards (they were 520 px
+            # in a 700-px card; three columns on a wide one overflowed theirs)
+            fits = {}
+            for width in (760, 1900):
+                page.set_viewport_size({"width": width, "height": 900})
+                page.reload()
+                page.wait_for_function("twinPage.charts.length > 0", timeout=30_000)
+                fits[width] = page.evaluate("""[...document.querySelectorAll('.card[data-channel]')]
+                    .map(c => [c.querySelector('.uplot').offsetWidth, c.clientWidth])""")
             gap = page.evaluate("""(() => { const b = twinPage.machines['df-01'];
                 const i = b.t.findIndex((t, k) => k > 0 && t - b.t[k - 1] > 2);
                 return [b.t[i] - b.t[i - 1], b.meas[0][i - 1], b.twin[0][i - 1], b.t[i - 1] - b.t[i - 2]]; })()""")  # fmt: skip
@@ -438,5 +447,7 @@ def test_the_page_says_no_sample_yet_then_draws_with_the_first(
     assert "df-01: no sample yet" in before[2] and "state waiting" in before[2], before
     # four rollers (two charts each) and the set-point
     assert after[0] == 9 and after[1] == 4 and after[2] is True, after
+    for width, cards in fits.items():
+        assert all(0.85 * card <= chart <= card for chart, card in cards), (width, cards)
     # the row before the gap is a break (no values) 1 ms after the last sample
     assert gap[0] > 6 and gap[1] is None and gap[2] is None and abs(gap[3] - 1e-3) < 1e-6, gap

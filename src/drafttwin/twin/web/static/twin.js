@@ -288,7 +288,11 @@ function build() {
     note.append(el("h2", {}, `${state.selected}: no sample yet`), el("div", { id: "no-samples-text" }));
     main.append(note);
   }
-  const width = Math.max(520, Math.floor(main.clientWidth / 2) - 36);
+  // as wide as a card of the grid (index.html: columns of at least 560 px, 10 px apart, 16 px
+  // padding; a card's own 8 px): a narrow window had 520-px charts in a 700-px card
+  const content = main.clientWidth - 32;
+  const columns = Math.max(1, Math.floor((content + 10) / 570));
+  const width = Math.max(300, Math.floor((content - 10 * (columns - 1)) / columns) - 18);
   if (!state.empty) b.channels.forEach((c, j) => {
     const card = el("div", { class: "card", "data-channel": c });
     const h = el("h2", {}, `${c} roller`);
