@@ -172,3 +172,29 @@ def test_drafting_zone_must_join_two_declared_rollers(tmp_path):
     raw["output"] = [o for o in raw.get("output", []) if o.get("node") != "back"]
     with pytest.raises(ConfigError, match="roller 'back', which is not declared"):
         DriveTrain.from_dict(raw)
+
+
+def test_kinematics_of_a_train_without_a_motor_is_text_unless_json(tmp_path):
+    """It printed JSON without --json; and a train run below its rated supply was said to
+    run 'at the rated supply'."""
+    import json
+    import re
+
+    belt = (
+        Path(__file__).resolve().parents[1] / "docs" / "examples" / "belt_drive.toml"
+    ).read_text()
+    no_motor = re.sub(r"\n\[motor\]\n(?:[^\[\n][^\n]*\n|\n)*", "\n", belt)
+    no_motor = re.sub(r"\n\[\[input\]\]\n(?:[^\[\n][^\n]*\n|\n)*", "\n", no_motor)
+    path = tmp_path / "no_motor.toml"
+    path.write_text(no_motor)
+    runner = CliRunner()
+    text = runner.invoke(app, ["kinematics", "--config", str(path), "--motor-rpm", "1400"])
+    assert text.exit_code == 0, text.output
+    assert not text.output.lstrip().startswith("{") and "no [motor]" in text.output
+    data = runner.invoke(app, ["kinematics", "--config", str(path), "--motor-rpm", "1400",
+                               "--json"])  # fmt: skip
+    assert json.loads(data.output)["motor_rpm"] == 1400
+    slow = tmp_path / "slow.toml"
+    slow.write_text(belt.replace("\nsupply_hz = 50.0 ", "\nsupply_hz = 25.0 ", 1))
+    said = runner.invoke(app, ["kinematics", "--config", str(slow)]).output
+    assert "at a 25-Hz supply" in " ".join(said.split()) and "rated supply" not in said

@@ -57,7 +57,14 @@ def kinematics(
     train = drive.load()
     kin = compute(train, motor_rpm)
     if train.spec.motor is None:  # driven by external torques only: no running state
-        print_json(kin.to_dict())
+        if as_json:
+            print_json(kin.to_dict())
+            return
+        if kin.rollers:  # it had printed JSON without --json
+            _roller_table(train, kin, None)
+        console.print("no [motor]: the train runs on its input torques, so there is no running "
+                      "state (operating point) to show", markup=False)  # fmt: skip
+        _frequencies(kin)
         return
     op = operating_point(train)
     if as_json:
@@ -76,14 +83,22 @@ def kinematics(
         _roller_table(train, kin, op)
     if train.spec.output or not kin.rollers:
         _output_table(train, op)
+    motor = train.spec.motor
+    # the motor's supply_hz is the set-point it runs at, which need not be the rated one
+    rated = motor is not None and motor.supply_hz == motor.rated_supply_hz
+    supply = "the rated supply" if rated or motor is None else f"a {motor.supply_hz:g}-Hz supply"
     console.print(
-        f"* running: torque balance at the rated supply with motor slip {op.slip * 100:.3f} % "
+        f"* running: torque balance at {supply} with motor slip {op.slip * 100:.3f} % "
         f"({op.motor_rpm:.2f} rpm, {op.motor_torque_nm:.2f} N m)"
         + "".join(f", belt creep {k} {v * 100:.4f} %" for k, v in op.belt_creep.items())
     )
     if motor_rpm is not None:
         console.print(f"--motor-rpm {motor_rpm:g} sets the nominal columns; the running "
                       "column (*) stays the rated supply's (the JSON's operating_point too)")  # fmt: skip
+    _frequencies(kin)
+
+
+def _frequencies(kin: Kinematics) -> None:
     freqs = {**kin.mesh_frequencies_hz, **kin.chain_tooth_frequencies_hz}
     if freqs:
         console.print("mesh / chain-tooth frequencies (Hz): "
@@ -92,13 +107,15 @@ def kinematics(
                   + ", ".join(f"{f:.1f}" for f in kin.eigenfrequencies_hz))  # fmt: skip
 
 
-def _roller_table(train: DriveTrain, kin: Kinematics, op: OperatingPoint) -> None:
+def _roller_table(train: DriveTrain, kin: Kinematics, op: OperatingPoint | None) -> None:
     table = Table(title=f"{train.spec.train.name}: nominal kinematics at {kin.motor_rpm:g} rpm")
-    for col in ("roller", "diameter mm", "rpm", "surface m/min", "running rpm*"):
+    cols = ("roller", "diameter mm", "rpm", "surface m/min", *(("running rpm*",) if op else ()))
+    for col in cols:
         table.add_column(col, justify="right" if col != "roller" else "left")
     for name, r in kin.rollers.items():
+        running = () if op is None else (f"{op.roller_rpm[name]:.2f}",)
         table.add_row(name, f"{r.diameter_mm:g}", f"{r.rpm:.2f}", f"{r.surface_speed_m_min:.3f}",
-                      f"{op.roller_rpm[name]:.2f}")  # fmt: skip
+                      *running)  # fmt: skip
     console.print(table)
     console.print(f"delivery speed  {kin.delivery_speed_m_min:.2f} m/min")
     console.print("drafts          " + ", ".join(f"{k} {v:.4f}" for k, v in kin.drafts.items()))
