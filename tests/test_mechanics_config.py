@@ -198,3 +198,11 @@ def test_kinematics_of_a_train_without_a_motor_is_text_unless_json(tmp_path):
     slow.write_text(belt.replace("\nsupply_hz = 50.0 ", "\nsupply_hz = 25.0 ", 1))
     said = runner.invoke(app, ["kinematics", "--config", str(slow)]).output
     assert "at a 25-Hz supply" in " ".join(said.split()) and "rated supply" not in said
+
+
+def test_a_misspelt_required_field_is_named(tmp_path):
+    """It read "field 'span_stiffness_n_per_m' is missing (and 1 more problem)"."""
+    text = PRESET_TEXT.replace("span_stiffness_n_per_m = 3.0e5", "span_stifness_n_per_m = 3.0e5", 1)
+    msg = _refused(tmp_path, text)
+    assert "'span_stifness_n_per_m' is not a field" in msg and "more problem" not in msg
+    assert "correct the spelling of 'span_stifness_n_per_m' to 'span_stiffness_n_per_m'" in msg

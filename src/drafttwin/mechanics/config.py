@@ -130,6 +130,7 @@ def _translate(
     where, field = _component_label(raw, (*prefix, *err["loc"]))
     kind = err["type"]
     got = err.get("input")
+    told = 1  # problems this message names
     if kind == "missing" and not field:  # a whole section (an empty file lacks them all)
         where = f"[[{where[1:-1]}]]" if where[1:-1] in LIST_KINDS else where
         problem = (
@@ -144,6 +145,14 @@ def _translate(
     elif kind == "missing":
         problem = f"field '{field}' is missing"
         fix = f"add '{field} = ...' to {where} (see docs/mechanics.md for fields and units)"
+        # a misspelt required field reads as missing: name the unknown one beside it
+        here = tuple(err["loc"][:-1])
+        typos = [str(e["loc"][-1]) for e in exc.errors()
+                 if e["type"] == "extra_forbidden" and tuple(e["loc"][:-1]) == here]  # fmt: skip
+        if typos:
+            told += len(typos)
+            problem += f", and {', '.join(repr(t) for t in typos)} is not a field"
+            fix = f"correct the spelling of {typos[0]!r} to {field!r}" if len(typos) == 1 else fix
     elif kind == "extra_forbidden":
         problem = f"unknown field '{field}'"
         fix = "remove it or correct its spelling (see docs/mechanics.md for the field list)"
@@ -154,7 +163,7 @@ def _translate(
         shown = f" (got {got!r})" if not isinstance(got, dict | list) else ""
         problem = f"field '{field}': {err['msg']}{shown}" if field else f"{err['msg']}{shown}"
         fix = "correct the value; units are in the field name"
-    more = len(exc.errors()) - 1
+    more = len(exc.errors()) - told
     if more:
         problem += f" (and {more} more problem{'s' if more > 1 else ''})"
     return ConfigError(problem, source=source, where=where, fix=fix)
