@@ -50,11 +50,10 @@ def shard_dir(store: Path, i: int, k: int) -> Path:
 def check_store(store: Path, shards: int) -> None:
     """Refuse a store folder a hall of another size wrote (a machine's history in one file)."""
     if (store / "twin.duckdb").exists():
-        from drafttwin.twin.store.history import _open
+        from drafttwin.twin.store.history import machines_of
 
         try:
-            con, _ = _open(store)
-            con.close()
+            machines_of(store)  # reads its format record
         except DrafttwinError:  # a DuckDB file of anything else (it read as a twin's store)
             raise ConfigError("this folder holds twin.duckdb, which is not a drafttwin twin "
                               "store", source=store, where="--store",
@@ -190,8 +189,11 @@ def _actor_class(ray: Any) -> Any:
                 return {"status": 503, "body": "the shard's twin is still starting"}
             done: concurrent.futures.Future[dict[str, Any]] = concurrent.futures.Future()
 
-            def run() -> None:
-                done.set_result(shard_command(self.service, kind, machine, args))
+            def run() -> None:  # an unexpected failure is answered, not left to the timeout
+                try:
+                    done.set_result(shard_command(self.service, kind, machine, args))
+                except Exception as exc:  # noqa: BLE001
+                    done.set_exception(exc)
 
             self.loop.call_soon_threadsafe(run)
             return done.result(timeout=COMMAND_S)

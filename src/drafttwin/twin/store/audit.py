@@ -94,6 +94,11 @@ def audit(
     rows, channels = _store_rows(Path(store), machine)
     spans = {p: _spans(log) for p, log in logs.items()}
     _refuse_overlap(spans)
+    by_machine = {name: rows[rows["machine"] == name] for name in channels}
+    # each machine's stored rows in none of the logs' spans (once, whichever log names it)
+    outside = {name: int((~np.any([_within(at, sp[name]) for sp in spans.values() if name in sp],
+                                  axis=0)).sum())
+               for name, at in by_machine.items() if any(name in sp for sp in spans.values())}  # fmt: skip
     result = []
     for path, log in logs.items():
         names = sorted(set(log["machine"]) & set(channels))
@@ -104,11 +109,9 @@ def audit(
                             fix="give the log of the plant this twin read (same machine names)")  # fmt: skip
         mine = []
         for name in names:
-            at = rows[rows["machine"] == name]
-            others = [spans[q][name] for q in paths if name in spans[q]]
-            outside = int((~np.any([_within(at, sp) for sp in others], axis=0)).sum())
+            at = by_machine[name]
             mine.append(_machine(name, log[log["machine"] == name], at[_within(at, spans[path][name])],
-                                 channels[name], outside, path))  # fmt: skip
+                                 channels[name], outside[name], path))  # fmt: skip
         if all(not m.stored for m in mine):
             raise DataError("the store holds no sample of this log's time span: the log is of "
                             "another run of the plant", source=path,
