@@ -419,3 +419,37 @@ def test_a_clock_that_steps_by_whole_seconds_gets_a_milliseconds_note(tmp_path: 
                                  "--out", str(tmp_path / "m.dtm")])  # fmt: skip
     said = " ".join(result.output.split())
     assert result.exit_code == 0 and "note: the records step by 20 s (0.05 Hz)" in said
+
+
+def test_a_stop_signal_inside_the_journal_lock_waits_for_its_release(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """CI caught SIGTERM landing inside Optuna's lock release (before its rename): the release
+    then failed with FileNotFoundError for its own rename file, exit 2 instead of 143. The
+    signal now waits until the journal call has returned."""
+    import uuid
+
+    import optuna
+
+    from drafttwin.application.tuning import _storage
+    from drafttwin.execution.interrupt import Interrupted, stop_on_signals
+
+    journal = tmp_path / "j.jsonl"
+    storage = _storage(optuna, journal)
+    study = optuna.create_study(study_name="s", storage=storage)
+    real = uuid.uuid4
+    sent: list[int] = []
+
+    def signal_then_uuid() -> uuid.UUID:  # the lock's release draws its rename file's name
+        if not sent:
+            sent.append(1)
+            signal.raise_signal(signal.SIGTERM)
+        return real()
+
+    monkeypatch.setattr(uuid, "uuid4", signal_then_uuid)
+    with pytest.raises(Interrupted), stop_on_signals():
+        study.enqueue_trial({"x": 1.0})
+    assert sent and not list(tmp_path.glob("j.jsonl.lock*"))  # released, nothing left
+    monkeypatch.setattr(uuid, "uuid4", real)
+    assert journal.read_bytes().endswith(b"\n")
+    assert len(optuna.load_study(study_name="s", storage=_storage(optuna, journal)).trials) == 1

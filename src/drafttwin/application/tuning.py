@@ -28,7 +28,7 @@ import hashlib
 import json
 import math
 import resource
-from collections.abc import Callable
+from collections.abc import Callable, Generator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -37,7 +37,7 @@ import numpy as np
 from drafttwin.application.request import FitRequest, build_model
 from drafttwin.errors import ConfigError, DrafttwinError
 from drafttwin.evaluation import protocol
-from drafttwin.execution.interrupt import Interrupted
+from drafttwin.execution.interrupt import Interrupted, signals_deferred
 from drafttwin.models import BaseModel, MechanisticModel
 
 if TYPE_CHECKING:
@@ -398,9 +398,23 @@ def _storage(optuna: Any, path: Path | None) -> Any:
         return optuna.storages.InMemoryStorage()
     from optuna.storages.journal import JournalFileBackend
 
+    class SignalSafeJournal(JournalFileBackend):
+        """The journal with a stop signal held off while it reads or appends: raised inside
+        Optuna's lock it would leave the lock file behind (or fail its release with a
+        FileNotFoundError) and could cut a line; it is raised when the call has returned."""
+
+        def append_logs(self, logs: list[dict[str, Any]]) -> None:
+            with signals_deferred():
+                super().append_logs(logs)
+
+        def read_logs(self, log_number_from: int) -> Generator[dict[str, Any], None, None]:
+            with signals_deferred():
+                logs = list(super().read_logs(log_number_from))
+            yield from logs
+
     _check_journal(path)
     try:
-        backend = JournalFileBackend(str(path))
+        backend = SignalSafeJournal(str(path))
     except OSError as exc:
         raise ConfigError(f"cannot open the tuning journal ({exc.strerror})", source=path,
                           param="tune_storage", terms={"tune_storage": path},
