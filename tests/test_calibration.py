@@ -71,11 +71,38 @@ def test_factors_move_the_declared_values_and_only_those(belt):
     )
     slip = lambda m: 1 - m["rated_rpm"] / (120 * m["rated_supply_hz"] / m["poles"])  # noqa: E731
     assert slip(moved["motor"]) == pytest.approx(1.1 * slip(raw["motor"]))
-    flywheel = [b for b in moved["bearing"] if b["node"] == "flywheel"]
-    assert flywheel[0]["coulomb_torque_nm"] == pytest.approx(
-        2 * raw["bearing"][1]["coulomb_torque_nm"]
-    )
+    # every bearing on the node: the example's 2-N m process load is its second one, which
+    # a calibration could not reach when the first bearing alone carried the name
+    flywheel = [(b, r) for b, r in zip(moved["bearing"], raw["bearing"], strict=True)
+                if b["node"] == "flywheel"]  # fmt: skip
+    assert len(flywheel) == 2
+    for b, r in flywheel:
+        assert b["coulomb_torque_nm"] == pytest.approx(2 * r["coulomb_torque_nm"])
+        assert b.get("viscous_nms", 0.0) == pytest.approx(2 * r.get("viscous_nms", 0.0))
+    assert moved["bearing"][0] == raw["bearing"][0]  # the motor's bearing stays
     assert moved["inertia"] == raw["inertia"]
+
+
+def test_the_fit_stays_inside_the_values_each_declaration_accepts(belt):
+    """Every factor was bounded to (0.2, 5) whatever its field's range: a fit could reach a
+    breakdown torque ratio of 0.75 and stop with the declaration's validation error."""
+    from drafttwin.calibration.fit import BOUNDS, Objective
+
+    chosen = select(belt, ["motor.breakdown_torque_ratio", "motor.rated_slip",
+                           "bearing.flywheel", "belt.v_belt.axial_rigidity_n"])  # fmt: skip
+    # rigidity acts against the load: it moves as 1 / x in their common entry
+    objective = Objective(belt, None, chosen, [[0], [1], [2, 3]], powers={3: -1.0})  # type: ignore[arg-type]
+    low, high = objective.bounds()
+    ratio = 2.6  # the example's breakdown torque ratio: valid in (1, 6]
+    assert low[0] == pytest.approx(1.0 / ratio, rel=1e-5) and high[0] == pytest.approx(6 / ratio)
+    slip = 1 - 1400 / 1500  # valid in (0, 1): 1 / slip = 15 > 5
+    assert (low[1], high[1]) == pytest.approx((BOUNDS[0], min(BOUNDS[1], 1 / slip)))
+    assert (low[2], high[2]) == pytest.approx(BOUNDS)  # 1 / x of (0.2, 5) is (0.2, 5)
+    for x in (low, high):  # each corner of the box is a train the declaration accepts
+        moved = with_factors(belt, chosen, objective.factors(x))
+        assert moved.to_dict()["motor"]["breakdown_torque_ratio"] > 1.0
+    with pytest.raises(ConfigError, match="breakdown_torque_ratio"):
+        with_factors(belt, chosen, objective.factors(low * [0.999, 1, 1]))
 
 
 def test_standard_errors_equal_the_textbook_formula():
@@ -355,3 +382,20 @@ def test_known_line_recovered_from_angles_and_causal():
     np.testing.assert_array_equal(
         later[:701], node_angles(DriveTrain.preset("fa320a"), series, sim)[:701]
     )
+
+
+def test_a_train_file_gives_its_own_output_channels_and_units(records, tmp_path):
+    """``--config`` with an ``[[output]]`` table: calibrate asked to map y onto the FA320A's
+    front roller, then for y's unit; a --units the file contradicts ran in the wrong unit."""
+    base = ["calibrate", "--config", str(BELT), "--data", str(records), "--params",
+            "motor.rated_slip"]  # fmt: skip
+    out = tmp_path / "own.toml"
+    result = CliRunner().invoke(app, [*base, "--out", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.output)
+    assert list(report["channels"]) == ["y"] and report["channels"]["y"]["unit"] == "rad/s"
+    assert report["rmse_after"] < report["rmse_before"]
+    wrong = tmp_path / "wrong.toml"
+    result = CliRunner().invoke(app, [*base, "--units", "y=rpm", "--out", str(wrong)])
+    assert result.exit_code == 2 and "y=rpm against the file's rad/s" in result.output
+    assert "--units" in result.output and not wrong.exists()

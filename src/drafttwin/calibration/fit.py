@@ -21,7 +21,7 @@ from typing import TypeAlias
 import numpy as np
 from scipy.optimize import least_squares
 
-from drafttwin.calibration.registry import Parameter, with_factors
+from drafttwin.calibration.registry import Parameter, nominal_values, with_factors
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
 from drafttwin.mechanics import STOPPED_SUPPLY_HZ, DriveTrain, convert_rpm, simulate
@@ -35,7 +35,8 @@ ROBUST_SCALE = 3.0
 OUTLIER_SCALES = 10.0
 """A block this many robust standard deviations off its channel's median is set aside."""
 BOUNDS = (0.2, 5.0)
-"""Factor bounds: a parameter may move from a fifth to five times its nominal value."""
+"""Factor bounds: a parameter may move from a fifth to five times its nominal value, and
+stays inside the values its declaration accepts (:meth:`Objective.bounds`)."""
 BREAKAWAY_S = 0.5
 """Blocks at standstill and this long after a start from rest are not scored. At standstill
 model and machine agree (speed 0) and tell nothing, but the supply's wander, absent while the
@@ -216,6 +217,23 @@ class Objective:
     evaluations: int = 0
     _cache: dict[tuple[float, ...], np.ndarray] = field(default_factory=dict)
 
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Lower and upper bounds of the free vector: :data:`BOUNDS` cut, for each member of
+        an entry, to the factors its declaration accepts (a member moving as ``1 / x`` cuts
+        the reciprocal range): the fit cannot reach a train the declaration refuses."""
+        nominal = nominal_values(self.train, self.params)
+        lows, highs = [], []
+        for members in self.groups:
+            low, high = BOUNDS
+            for m in members:
+                f_low, f_high = self.params[m].factor_range(nominal[m], BOUNDS)
+                power = self.powers.get(m, 1.0)  # x ** power in [f_low, f_high]
+                ends = sorted((f_low ** (1.0 / power), f_high ** (1.0 / power)))
+                low, high = max(low, ends[0]), min(high, ends[1])
+            lows.append(low)
+            highs.append(high)
+        return np.array(lows), np.array(highs)
+
     def factors(self, x: Vector) -> np.ndarray:
         """Per-parameter factors from the free vector (parameters not free stay at 1)."""
         f = np.ones(len(self.params))
@@ -247,7 +265,9 @@ def fit(objective: Objective, x0: Vector, max_nfev: int = 60, loss: str = "linea
     ``loss="soft_l1"`` for a first pass that a few wild blocks cannot steer."""
     if not objective.groups:
         return np.zeros(0)
-    res = least_squares(objective.residuals, np.asarray(x0, float), bounds=BOUNDS,
+    low, high = objective.bounds()
+    start = np.clip(np.asarray(x0, float), low, high)
+    res = least_squares(objective.residuals, start, bounds=(low, high),
                         diff_step=DIFF_STEP, x_scale=1.0, method="trf", max_nfev=max_nfev,
                         loss=loss, f_scale=ROBUST_SCALE)  # fmt: skip
     return np.asarray(res.x)
@@ -278,6 +298,8 @@ def jacobian(objective: Objective, x: Vector) -> np.ndarray:
     iteration of ``least_squares`` that may not move: it returns the Jacobian it used)."""
     if not objective.groups:
         return np.zeros((int(np.isfinite(objective.data.measured).sum()), 0))
-    res = least_squares(objective.residuals, np.asarray(x, float), bounds=BOUNDS,
-                        diff_step=DIFF_STEP, x_scale=1.0, method="trf", max_nfev=1)  # fmt: skip
+    low, high = objective.bounds()
+    res = least_squares(objective.residuals, np.clip(np.asarray(x, float), low, high),
+                        bounds=(low, high), diff_step=DIFF_STEP, x_scale=1.0, method="trf",
+                        max_nfev=1)  # fmt: skip
     return np.asarray(res.jac)

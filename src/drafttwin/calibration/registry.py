@@ -20,16 +20,20 @@ parameter on one scale.
 from __future__ import annotations
 
 import copy
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from pydantic import BaseModel
 
 from drafttwin.errors import ConfigError
 from drafttwin.mechanics import DriveTrain
 
 Raw = dict[str, Any]
+_MARGIN = 1e-6
+"""How far inside an open bound (``gt``, ``lt``) the fit stays, relative."""
 
 
 @dataclass(frozen=True)
@@ -41,6 +45,8 @@ class Parameter:
         unit: unit of :meth:`value` (``""`` for factors).
         default: part of the default set (what a user cannot read off a drawing).
         get / put: read the value from, and write it into, a raw declaration (dict).
+        valid: the values the declaration accepts (its fields' bounds), a closed interval:
+            the fit keeps the parameter inside it.
     """
 
     name: str
@@ -48,9 +54,18 @@ class Parameter:
     default: bool
     get: Callable[[Raw], float]
     put: Callable[[Raw, float], None]
+    valid: tuple[float, float] = (-math.inf, math.inf)
 
     def value(self, raw: Raw) -> float:
         return float(self.get(raw))
+
+    def factor_range(self, nominal: float, widest: tuple[float, float]) -> tuple[float, float]:
+        """The factors on ``nominal`` the fit may take: ``widest`` cut to :attr:`valid` (a
+        factor on a zero or negative nominal moves nothing, or flips sign: ``widest``)."""
+        low, high = widest
+        if nominal > 0:
+            low, high = max(low, self.valid[0] / nominal), min(high, self.valid[1] / nominal)
+        return min(low, 1.0), max(high, 1.0)  # the nominal itself is always allowed
 
 
 def _field(kind: str, index: int, key: str) -> tuple[Callable[[Raw], float], Callable[[Raw, float], None]]:  # fmt: skip
@@ -63,19 +78,22 @@ def _field(kind: str, index: int, key: str) -> tuple[Callable[[Raw], float], Cal
     return get, put
 
 
-def _bearing(index: int) -> tuple[Callable[[Raw], float], Callable[[Raw, float], None]]:
-    """A bearing's friction as one factor on its declared Coulomb and viscous values; the
-    nominal values travel in the raw dict under a private key."""
+def _bearing(indices: Sequence[int]) -> tuple[Callable[[Raw], float], Callable[[Raw, float], None]]:  # fmt: skip
+    """The friction of a node's bearings (every ``[[bearing]]`` table on it: a process load
+    declared as a second bearing is its largest share) as one factor on their declared
+    Coulomb and viscous values; the nominal values travel in the raw dict under a private
+    key."""
 
     def get(raw: Raw) -> float:
-        return float(raw["bearing"][index].get("_scale", 1.0))
+        return float(raw["bearing"][indices[0]].get("_scale", 1.0))
 
     def put(raw: Raw, value: float) -> None:
-        item = raw["bearing"][index]
-        base = item.setdefault("_nominal", (item.get("coulomb_torque_nm", 0.0),
-                                            item.get("viscous_nms", 0.0)))  # fmt: skip
-        item["_scale"] = value
-        item["coulomb_torque_nm"], item["viscous_nms"] = base[0] * value, base[1] * value
+        for index in indices:
+            item = raw["bearing"][index]
+            base = item.setdefault("_nominal", (item.get("coulomb_torque_nm", 0.0),
+                                                item.get("viscous_nms", 0.0)))  # fmt: skip
+            item["_scale"] = value
+            item["coulomb_torque_nm"], item["viscous_nms"] = base[0] * value, base[1] * value
 
     return get, put
 
@@ -111,18 +129,43 @@ def parameters(train: DriveTrain) -> dict[str, Parameter]:
     for kind, key, field, unit, default in _TABLES:
         for i, item in enumerate(raw.get(kind, [])):
             name = f"{kind}.{item[key]}.{field}"
-            out[name] = Parameter(name, unit, default, *_field(kind, i, field))
+            valid = _valid(type(getattr(train.spec, kind)[i]), field)
+            out[name] = Parameter(name, unit, default, *_field(kind, i, field), valid=valid)
+    on_node: dict[str, list[int]] = {}
     for i, item in enumerate(raw.get("bearing", [])):
-        name = f"bearing.{item['node']}"
-        if name not in out:  # a node with several bearings: the first one carries the name
-            out[name] = Parameter(name, "", True, *_bearing(i))
-    if raw.get("motor"):
-        out["motor.breakdown_torque_ratio"] = Parameter(
-            "motor.breakdown_torque_ratio", "", True, *_field_motor("breakdown_torque_ratio")
-        )
+        on_node.setdefault(item["node"], []).append(i)
+    for node, indices in on_node.items():
+        out[f"bearing.{node}"] = Parameter(f"bearing.{node}", "", True, *_bearing(indices),
+                                           valid=(0.0, math.inf))  # fmt: skip
+    if train.spec.motor is not None:
+        ratio = "breakdown_torque_ratio"
+        out[f"motor.{ratio}"] = Parameter(f"motor.{ratio}", "", True, *_field_motor(ratio),
+                                          valid=_valid(type(train.spec.motor), ratio))  # fmt: skip
+        # rated_rpm in (0, synchronous): the slip in (0, 1)
         out["motor.rated_slip"] = Parameter("motor.rated_slip", "", True, _rated_slip,
-                                            _set_rated_slip)  # fmt: skip
+                                            _set_rated_slip, valid=_inside(0.0, 1.0))  # fmt: skip
     return out
+
+
+def _inside(low: float, high: float) -> tuple[float, float]:
+    """A closed interval just inside the open one ``(low, high)``."""
+    return low + _MARGIN * max(abs(low), 1.0), high - _MARGIN * max(abs(high), 1.0)
+
+
+def _valid(component: type[BaseModel], field: str) -> tuple[float, float]:
+    """The values the declaration's validation accepts for ``component.field``, as a closed
+    interval (an open end moved just inside), from the field's own bounds."""
+    low, high = -math.inf, math.inf
+    for bound in component.model_fields[field].metadata:  # pydantic's Ge, Gt, Le, Lt
+        if (ge := getattr(bound, "ge", None)) is not None:
+            low = max(low, float(ge))
+        if (gt := getattr(bound, "gt", None)) is not None:
+            low = max(low, _inside(float(gt), math.inf)[0])
+        if (le := getattr(bound, "le", None)) is not None:
+            high = min(high, float(le))
+        if (lt := getattr(bound, "lt", None)) is not None:
+            high = min(high, _inside(-math.inf, float(lt))[1])
+    return low, high
 
 
 def _field_motor(key: str) -> tuple[Callable[[Raw], float], Callable[[Raw, float], None]]:

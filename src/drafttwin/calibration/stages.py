@@ -53,8 +53,9 @@ Progress = Callable[[str], None]
 class Estimate:
     """One parameter's outcome. ``factor`` is estimate / nominal; ``verdict`` one of
     ``identified``, ``only in combination``, ``not separable in this data``, ``not from this
-    data``, ``at its bound`` (the fit pushed it to a fifth or five times nominal: the data ask
-    for something the model does not have; not identified)."""
+    data``, ``at its bound`` (the fit pushed it to a fifth or five times nominal, or to the edge of
+    the values its declaration accepts: the data ask for something the model does not have;
+    not identified)."""
 
     name: str
     unit: str
@@ -365,7 +366,13 @@ def _estimates(
     factor = np.ones(len(chosen))
     factor_se = np.full(len(chosen), np.nan)
     partners: dict[int, tuple[str, ...]] = {}
+    low, high = objective.bounds()
     for k, members in enumerate(groups):
+        if min(abs(x[k] - low[k]), abs(x[k] - high[k])) < 1e-6:
+            # the data push it out of the plausible or valid range: a model error
+            for i in members:
+                if verdicts.get(i) != "not from this data":
+                    verdicts[i] = "at its bound"
         for i in members:  # x ** p and its standard error by the delta method
             power = objective.powers.get(i, 1.0)
             factor[i] = x[k] ** power
@@ -376,8 +383,6 @@ def _estimates(
     out = []
     for i, p in enumerate(chosen):
         verdict = verdicts[i]
-        if verdict != "not from this data" and min(abs(factor[i] - b) for b in F.BOUNDS) < 1e-6:
-            verdict = "at its bound"  # the data push it out of the plausible range: a model error
         out.append(Estimate(
             name=p.name, unit=p.unit, nominal=nominal[i], estimate=nominal[i] * factor[i],
             std_error=abs(nominal[i]) * factor_se[i], factor=float(factor[i]),

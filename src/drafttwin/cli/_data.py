@@ -109,6 +109,28 @@ class Channels:
         inputs = tuple(dict.fromkeys((*model.task.inputs, *(self.inputs or ()))))
         return replace(self, outputs=tuple(model.channels_), inputs=inputs, units=units)
 
+    def for_train(self, train: DriveTrain) -> Channels:
+        """These options with a drive-train file's own ``[[output]]`` channels and units
+        where none are given (a train that declares none: the FA320A rollers in rpm). A
+        ``--units`` entry that contradicts the file's unit for a channel is refused: the
+        simulation compares in the file's unit."""
+        from drafttwin.data.units import normalise_unit
+
+        declared = {o.channel: o.unit for o in train.spec.output}
+        if not declared:
+            return self
+        wrong = [f"{name}={unit} against the file's {declared[name]}"
+                 for name, unit in (self.units or {}).items()
+                 if name in declared and normalise_unit(unit) != normalise_unit(declared[name])]  # fmt: skip
+        if wrong:
+            raise ConfigError(f"{'; '.join(wrong)}: the drive train's [[output]] table "
+                              "names another unit", source=train.source, where="--units",
+                              fix="leave those channels out of --units (the file gives their "
+                              "units), or change the unit in the file's [[output]] table")  # fmt: skip
+        outputs = self.outputs or tuple(declared)
+        units = {n: declared[n] for n in outputs if n in declared} | dict(self.units or {})
+        return replace(self, outputs=outputs, units=units)
+
     def reading(self, extra_inputs: tuple[str, ...] = ()) -> dict[str, Any]:
         """The keyword arguments of ``read_measurements`` these options ask for (``read`` and
         ``inspect`` both read so)."""

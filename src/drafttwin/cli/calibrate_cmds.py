@@ -87,7 +87,7 @@ def calibrate(
                           source=out, where="--out", fix="name it *.toml")  # fmt: skip
     report_file = report_path(out)
     train = drive.load()
-    parsed = replace(channels.parse(), nominal_rpm=nominal_rpm(train))
+    parsed = replace(channels.parse().for_train(train), nominal_rpm=nominal_rpm(train))
     needs = tuple(c.channel for c in train.spec.input)
     series = parsed.read(data, needs)
     model, name = _model(full_model)

@@ -61,9 +61,11 @@ def true_train(
             g[f"{side}_eccentricity_phase_deg"] = float(rng.uniform(0.0, 360.0))
     for s in raw["shaft"]:
         scale(s, "stiffness_nm_per_rad", mm.roller_torsion, f"shaft.{s['name']}")
-    for b in raw["bearing"]:
-        u = float(rng.uniform(-mm.bearing_friction, mm.bearing_friction))
-        draws[f"bearing.{b['node']}"] = u
+    for b in raw["bearing"]:  # one draw per node: its bearings are one calibration factor
+        name = f"bearing.{b['node']}"
+        if name not in draws:
+            draws[name] = float(rng.uniform(-mm.bearing_friction, mm.bearing_friction))
+        u = draws[name]
         b["coulomb_torque_nm"] *= 1.0 + u
         b["viscous_nms"] *= 1.0 + u
     scale(raw["motor"], "breakdown_torque_ratio", mm.breakdown_torque_ratio, "motor")
