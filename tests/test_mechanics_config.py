@@ -125,6 +125,30 @@ def test_kinematics_json_fields():
     assert data["delivery_speed_m_min"] == pytest.approx(256.61, rel=5e-3)
 
 
+def test_kinematics_json_carries_the_output_channels_the_text_shows():
+    """README promises a train's output channels at the running point; --json left them out."""
+    import json
+
+    from drafttwin.mechanics import operating_point
+    from drafttwin.mechanics.steady_state import RPM
+
+    belt = Path(__file__).resolve().parents[1] / "docs" / "examples" / "belt_drive.toml"
+    result = CliRunner().invoke(app, ["kinematics", "--config", str(belt), "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.output)
+    (channel,) = data["operating_point"]["output_channels"].items()
+    train = DriveTrain.from_toml(belt)
+    flywheel_rad_s = operating_point(train).node_speed_rad_s[train.node_index("flywheel")]
+    assert channel[0] == "y" and channel[1]["unit"] == "rad/s" and channel[1]["node"] == "flywheel"
+    assert channel[1]["running"] == pytest.approx(flywheel_rad_s, rel=1e-9)
+    op = data["operating_point"]  # 90/180-mm pulleys: half the motor's speed, less the creep
+    expected_rpm = op["motor_rpm"] * 90 / 180 * (1 - op["belt_creep"]["v_belt"])
+    assert flywheel_rad_s * RPM == pytest.approx(expected_rpm, rel=1e-6)
+    assert data["input_channels"] == {"u": {"drives": "supply_hz", "node": None}}
+    text = CliRunner().invoke(app, ["kinematics", "--config", str(belt)]).output
+    assert f"{flywheel_rad_s:.4g}" in text
+
+
 def test_simulate_writes_csv_and_parquet(tmp_path):
     import pandas as pd
 

@@ -77,6 +77,10 @@ def kinematics(
             "roller_rpm": op.roller_rpm,
             "belt_creep": op.belt_creep,
         }
+        if train.spec.output or not kin.rollers:  # what the text's channel table shows
+            out["operating_point"]["output_channels"] = _output_rows(train, op)
+            out["input_channels"] = {c.channel: {"drives": c.drives, "node": c.node}
+                                     for c in train.input_channels()}  # fmt: skip
         print_json(out)
         return
     if kin.rollers:
@@ -121,16 +125,24 @@ def _roller_table(train: DriveTrain, kin: Kinematics, op: OperatingPoint | None)
     console.print("drafts          " + ", ".join(f"{k} {v:.4f}" for k, v in kin.drafts.items()))
 
 
-def _output_table(train: DriveTrain, op: OperatingPoint) -> None:
-    """The measured output channels at the running operating point, in their units."""
+def _output_rows(train: DriveTrain, op: OperatingPoint) -> dict[str, dict[str, Any]]:
+    """Each measured output channel's node, unit and value at the running operating point."""
     from drafttwin.mechanics.steady_state import RPM
 
+    rows = {}
+    for m in train.output_channels():
+        rpm = np.array([op.node_speed_rad_s[train.node_index(m.node)] * RPM])
+        rows[m.channel] = {"node": m.node, "unit": m.unit, "running": float(m.from_rpm(rpm)[0])}
+    return rows
+
+
+def _output_table(train: DriveTrain, op: OperatingPoint) -> None:
+    """The measured output channels at the running operating point, in their units."""
     table = Table(title=f"{train.spec.train.name}: output channels at the operating point*")
     for col in ("channel", "node", "unit", "running*"):
         table.add_column(col, justify="right" if col == "running*" else "left")
-    for m in train.output_channels():
-        rpm = np.array([op.node_speed_rad_s[train.node_index(m.node)] * RPM])
-        table.add_row(m.channel, m.node, m.unit, f"{float(m.from_rpm(rpm)[0]):.4g}")
+    for channel, row in _output_rows(train, op).items():
+        table.add_row(channel, row["node"], row["unit"], f"{row['running']:.4g}")
     console.print(table)
     inputs = ", ".join(f"{c.channel} -> {c.drives}" + (f" on {c.node}" if c.node else "")
                        for c in train.input_channels())  # fmt: skip
