@@ -167,3 +167,31 @@ def test_cli_refuses_a_negative_supply_and_notes_one_far_above_the_rated(tmp_pat
         res = CliRunner().invoke(app, ["simulate", "--setpoints", str(path), "--reduced"])
         assert words in res.output and "Traceback" not in res.output, res.output
         assert res.exit_code == (2 if hz < 0 else 0), res.output
+
+
+def test_a_setpoint_file_with_its_own_column_names_is_mapped_by_columns(tmp_path):
+    """The refusal of a file without the input column said 'map yours: --columns volts=u',
+    an option simulate did not have."""
+    import pandas as pd
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    t = np.arange(0.01, 1.0, 0.01)
+    named = tmp_path / "named.csv"
+    pd.DataFrame({"time": t, "supply_hz": np.full(t.shape, 40.0)}).to_csv(named, index=False)
+    other = tmp_path / "other.csv"
+    pd.DataFrame({"zeit": t, "hz": np.full(t.shape, 40.0)}).to_csv(other, index=False)
+    runner = CliRunner()
+    res = runner.invoke(app, ["simulate", "--setpoints", str(other), "--reduced"])
+    assert res.exit_code == 2 and "--columns" in res.output, res.output
+    outs = []
+    for path, extra in ((named, []), (other, ["--columns", "zeit=time,hz=supply_hz"])):
+        out = tmp_path / f"{path.stem}.out.csv"
+        res = runner.invoke(app, ["simulate", "--setpoints", str(path), "--reduced", *extra,
+                                  "--out", str(out)])  # fmt: skip
+        assert res.exit_code == 0, res.output
+        outs.append(pd.read_csv(out))
+    pd.testing.assert_frame_equal(outs[0], outs[1])  # the same run under other names
+    res = runner.invoke(app, ["simulate", "--columns", "hz=supply_hz", "--duration", "0.1"])
+    assert res.exit_code == 2 and "--setpoints" in res.output and "Traceback" not in res.output

@@ -160,6 +160,9 @@ SetpointsOpt = Annotated[Path | None, file_in(
     "tables map, e.g. supply_hz or u) on its time grid, record by record, and write the output "
     "channels: a simulator output file for --mechanistic. --duration and --rate then come from "
     "the file.")]  # fmt: skip
+SetpointColumnsOpt = Annotated[str | None, typer.Option("--columns", help=(
+    "With --setpoints: map the file's columns to the train's input channels (and time), "
+    "FILE_COLUMN=CHANNEL[,...], e.g. volts=u or zeit=time."))]  # fmt: skip
 ChannelsOutOpt = Annotated[Path | None, file_out("--out", "Write time + the output channels to .csv or .parquet.")]  # fmt: skip
 ReducedOpt = Annotated[bool, typer.Option("--reduced", help=(
     "Simulate the reduced drive train: couplings whose modes lie above --cutoff-hz made rigid "
@@ -175,14 +178,21 @@ CutoffOpt = Annotated[float | None, number("--cutoff-hz", "Cut-off of --reduced,
 def simulate(
     drive: TrainOptions, duration: DurationOpt = 10.0, rate: OutputRateOpt = None,
     dt: StepOpt = None, settle: SettleOpt = None, setpoints: SetpointsOpt = None,
-    out: ChannelsOutOpt = None, reduced: ReducedOpt = False, cutoff_hz: CutoffOpt = None,
-    quiet: QuietOpt = False,
+    columns: SetpointColumnsOpt = None, out: ChannelsOutOpt = None, reduced: ReducedOpt = False,
+    cutoff_hz: CutoffOpt = None, quiet: QuietOpt = False,
 ) -> None:  # fmt: skip
     """Simulate the drive train (numba RK4) and summarise its output channels (the rollers
     and the motor for the FA320A).
 
     Values are means over each output interval, as an encoder reports them.
     """
+    from drafttwin.cli._data import pairs
+    from drafttwin.errors import ConfigError
+
+    if columns is not None and setpoints is None:
+        raise ConfigError("maps the columns of a --setpoints file, and none is given", where="--columns",
+                          fix="add --setpoints FILE, or leave --columns out")  # fmt: skip
+    mapping = pairs(columns, "--columns", "volts=u") or None
     train = drive.load()
     if setpoints is None:  # refuse a run that would never end before anything starts
         out_rate = train.spec.solver.output_rate_hz if rate is None else rate
@@ -199,7 +209,7 @@ def simulate(
         check_output_suffix(out)
     stats = RunningStats()
     if setpoints is not None:
-        frame = _follow(train, setpoints, dt, settle)
+        frame = _follow(train, setpoints, dt, settle, mapping)
         if out is not None:
             write_frame(frame, out)
         stats.add(frame)
@@ -257,8 +267,10 @@ def _piece_frame(
     return pd.DataFrame(cols)
 
 
-def _follow(train: DriveTrain, path: Path, dt: float | None, settle: float | None) -> pd.DataFrame:
-    """The train simulated on a recorded file's grid, following its input columns."""
+def _follow(train: DriveTrain, path: Path, dt: float | None, settle: float | None,
+            columns: dict[str, str] | None = None) -> pd.DataFrame:  # fmt: skip
+    """The train simulated on a recorded file's grid, following its input columns (file
+    columns renamed by ``columns``)."""
     from drafttwin.data.io import read_measurements
     from drafttwin.errors import ConfigError
     from drafttwin.mechanics import simulate as simulate_train
@@ -270,7 +282,7 @@ def _follow(train: DriveTrain, path: Path, dt: float | None, settle: float | Non
             where="--setpoints",
             fix="declare [[input]] tables in the drive-train file (see docs/mechanics.md)",
         )
-    series = read_measurements(path, outputs=(), inputs=names, check_units=False)
+    series = read_measurements(path, outputs=(), inputs=names, check_units=False, columns=columns)
     _check_supply(train, series, path)
     channels = [m.channel for m in train.output_channels()]
     kwargs: dict[str, Any] = {
