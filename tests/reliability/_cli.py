@@ -230,7 +230,7 @@ def numeric_cases() -> list[tuple[str, str, str]]:
 #: numbers inside each option's own range that together ask for work that would never end
 #: (or a file of tens of gigabytes): refused at once by :mod:`drafttwin._limits`
 ENDLESS: dict[str, list[str]] = {
-    "simulate --dt 1e-12": ["simulate", "--dt", "1e-12", "--duration", "10", "--quiet"],
+    "simulate --dt 1e-7": ["simulate", "--dt", "1e-7", "--duration", "1e5", "--quiet"],
     "simulate --duration 1e6": ["simulate", "--duration", "1e6", "--quiet"],
     "simulate --rate 1e6 --duration 1e5": [
         "simulate",

@@ -112,6 +112,16 @@ def test_a_hostile_number_is_refused_in_one_line_naming_the_option(
     assert not list(tmp_path.iterdir())  # refused before any work
 
 
+def test_the_step_option_takes_what_a_drive_train_file_takes() -> None:
+    """--dt took up to 1 s where a file's [solver] dt_s stops at 1e-3 s."""
+    from drafttwin.mechanics.components import Solver
+
+    limits = {k: getattr(m, k) for m in Solver.model_fields["dt_s"].metadata
+              for k in ("ge", "le") if hasattr(m, k)}  # fmt: skip
+    bound = BOUNDS["--dt"]
+    assert (bound.low, bound.low_inclusive, bound.high) == (limits["ge"], True, limits["le"])
+
+
 @pytest.mark.parametrize("option", sorted(BOUNDS))
 def test_each_range_accepts_its_edges_and_refuses_beyond(option: str) -> None:
     bound = BOUNDS[option]
@@ -124,7 +134,7 @@ def test_each_range_accepts_its_edges_and_refuses_beyond(option: str) -> None:
 
 
 def test_a_step_that_would_never_end_is_refused_at_once() -> None:
-    out = invoke(["simulate", "--dt", "1e-12", "--duration", "10", "--quiet"])
+    out = invoke(["simulate", "--dt", "1e-7", "--duration", "1e5", "--quiet"])
     assert out.kind == "clean" and "--dt" in out.stderr and "RK4 steps" in out.stderr
     with pytest.raises(ConfigError, match="RK4 steps"):
         check_rk4_steps(1.0, 1.0 / MAX_RK4_STEPS / 10)

@@ -58,7 +58,7 @@ _RANGES: dict[str, str] = {
     "--motor-rpm": "(0, 1e5] rpm",
     "--duration": "(0, 1e6] s",
     "--rate": "(0, 1e6] Hz",
-    "--dt": "(0, 1.0] s",
+    "--dt": "[1e-07, 0.001] s",  # a drive-train file's [solver] dt_s
     "--settle": "[0, 3600] s",
     "--cutoff-hz": "(0, 1e6] Hz",
     "--rate-tolerance": "[0, 0.49] (fraction of a step)",

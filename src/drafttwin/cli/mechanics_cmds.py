@@ -152,7 +152,9 @@ def _output_table(train: DriveTrain, op: OperatingPoint) -> None:
 
 OutputRateOpt = Annotated[float | None, number("--rate", "Output rate, Hz (interval means; "
                          "default: the drive train's [solver] output_rate_hz).")]  # fmt: skip
-StepOpt = Annotated[float | None, number("--dt", "RK4 step, s (default from config).")]
+StepOpt = Annotated[float | None, number("--dt", "Longest RK4 step, s, as the drive-train file's "
+                   "[solver] dt_s (default: the file's): shortened so that whole steps fill each "
+                   "output interval; the summary names the step used.")]  # fmt: skip
 SettleOpt = Annotated[float | None, number("--settle", "Settling time before recording, s "
                       "(default from config).")]  # fmt: skip
 SetpointsOpt = Annotated[Path | None, file_in(
