@@ -14,6 +14,7 @@ import re
 import shutil
 from pathlib import Path
 
+import matplotlib.colors
 import numpy as np
 import pytest
 
@@ -124,6 +125,58 @@ def test_a_testers_spectrogram_has_no_evenness(diagnosis: SliverDiagnosis, train
     assert 'id="evenness-table"' not in html
     assert "a tester's spectrogram" in html.replace("&#x27;", "'")
     assert html.count("<img") == 1
+
+
+def test_the_machines_own_line_is_drawn_and_named_apart_from_the_chimneys(
+    diagnosis: SliverDiagnosis,
+) -> None:
+    """With --reference, a line the healthy reference has too was drawn as a red chimney and
+    named nowhere on the page (only in the console and the JSON)."""
+    from drafttwin.report.sliver_spectrogram import OWN, RED, spectrogram_png
+
+    own = dataclasses.replace(diagnosis, causes=[], known=list(diagnosis.causes))
+    html = sliver_page(own, title="own", source="x.csv")
+    text = _text(html)
+    assert "The machine's own lines, in its healthy reference too and so not new" in text
+    assert "14.1 cm at 0." in text and "tan bars the machine's own lines" in text
+    tan, red = _rgb(OWN), _rgb(RED)
+    as_own, as_new = _colours(spectrogram_png(own)), _colours(spectrogram_png(diagnosis))
+    # red stays in the legend's "chimney" patch only: the bar is drawn tan
+    assert as_own.get(tan, 0) > 1000 and as_own.get(red, 0) < as_new[red] / 2
+    assert tan not in as_new
+
+
+def test_the_caption_says_only_what_is_drawn(diagnosis: SliverDiagnosis, train: DriveTrain,
+                                             tmp_path: Path) -> None:  # fmt: skip
+    """A tester's export has no ideal curve without its fibres and no record to count
+    periods in: its caption described both."""
+    from drafttwin.report.sliver_spectrogram import spectrogram_caption
+
+    frame = diagnosis.spectrogram.to_frame()[["wavelength_m", "amplitude_pct"]]
+    frame.to_csv(tmp_path / "tester.csv", index=False)
+    tester = diagnose_sliver(read_tester_spectrogram(tmp_path / "tester.csv"), train, COTTON)
+    caption = spectrogram_caption(tester)
+    if tester.spectrogram.ideal_pct is None:
+        assert "ideal random sliver" not in caption and "The dashed line is the base" in caption
+    if not tester.spectrogram.shown_not_significant.any():
+        assert "hatched" not in caption
+    record = spectrogram_caption(diagnosis)
+    assert "The black line is the ideal random sliver" in record and "tan bars" not in record
+
+
+def _rgb(colour: str) -> tuple[int, ...]:
+    return tuple(round(c * 255) for c in matplotlib.colors.to_rgb(colour))
+
+
+def _colours(png: bytes) -> dict[tuple[int, ...], int]:
+    """Pixels of each colour in a PNG."""
+    import io
+
+    from matplotlib import image
+
+    rgb = np.round(image.imread(io.BytesIO(png))[..., :3] * 255).astype(int)
+    colours, counts = np.unique(rgb.reshape(-1, 3), axis=0, return_counts=True)
+    return {tuple(int(v) for v in c): int(n) for c, n in zip(colours, counts, strict=True)}
 
 
 @pytest.mark.skipif(CHROMIUM is None, reason="no chromium binary found (apt-get install "

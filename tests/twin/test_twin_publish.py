@@ -179,6 +179,40 @@ def test_a_slow_client_loses_the_oldest_rows_not_the_twins(twin_files: tuple[Pat
     assert slow.seqs == sorted(slow.seqs)  # what went out, in order, the newest kept
 
 
+class _Recorder(Publisher):
+    """Every status and prediction in the order a client receives them."""
+
+    def __init__(self) -> None:
+        super().__init__("recorder", max_hz=1000.0)
+        self.sent_in_order: list[tuple[str, Any]] = []
+
+    async def send_prediction(self, st: Any, row: SampleRow) -> None:
+        self.sent_in_order.append(("prediction", row.seq))
+
+    async def send_status(self, st: Any, status: dict[str, Any]) -> None:
+        self.sent_in_order.append(("status", status["state"]))
+
+
+def test_a_changed_state_goes_out_before_the_rows_it_came_with(
+    twin_files: tuple[Path, Path],
+) -> None:
+    """The status went out once a second only: a client that read a prediction, then the
+    machine's state, saw 'waiting' beside live predictions (CI, on a busy machine)."""
+    record, model = twin_files
+    service = build_service(model, [f"replay:{record}?speed=50&machine=fa320a"], detector="none")
+    client = _Recorder()
+
+    async def go() -> None:
+        async with publishing(service, [client]):
+            await service.run()
+
+    asyncio.run(go())
+    sent = client.sent_in_order
+    first = next(i for i, (what, _) in enumerate(sent) if what == "prediction")
+    states = [value for what, value in sent[:first] if what == "status"]
+    assert states and states[-1] == "live", sent[: first + 1]
+
+
 def test_speed_ranges_follow_the_kinematics(twin_files: tuple[Path, Path]) -> None:
     record, model = twin_files
     service = build_service(model, [f"replay:{record}?machine=fa320a"], detector="none")

@@ -4,7 +4,8 @@ The processing path only appends to a deque (no I/O, no await): a prediction per
 most ``max_hz`` times a second (wall clock), every alarm. A task of the publisher drains the
 deque and talks to its clients; when they are slower than the twin, the oldest entries are
 dropped and counted (``dropped``), so the twin keeps its pace and memory stays bounded. The
-status of every machine goes out once a second from the same task.
+status of every machine goes out once a second from the same task, and at once when a
+machine's state changes (ahead of the rows that came with the change).
 """
 
 from __future__ import annotations
@@ -48,6 +49,7 @@ class Publisher:
         self.health: Health | None = None
         self.service: TwinService | None = None
         self._sliver_sent: dict[str, Any] = {}  # the sliver state last sent, per machine
+        self._state_sent: dict[str, str] = {}  # the state last sent, per machine
 
     # ---- the twin's processing path: append only ------------------------------------------
     def on_rows(self, machine: str, rows: list[SampleRow], _events: list[EventRow]) -> None:
@@ -80,10 +82,17 @@ class Publisher:
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._wake.wait(), max(0.0, next_status - time.monotonic()))
             self._wake.clear()
+            if self._state_changed(service):  # before the rows it changed with: a client
+                await self.statuses(service)  # reading both never sees rows of a "waiting" one
+                next_status = time.monotonic() + STATUS_S
             await self.drain(service)
             if time.monotonic() >= next_status:
                 await self.statuses(service)
                 next_status = time.monotonic() + STATUS_S
+
+    def _state_changed(self, service: TwinService) -> bool:
+        """A machine's state (live, waiting, silent, ...) differs from the one last sent."""
+        return any(self._state_sent.get(st.twin.name) != st.state for st in service.states.values())
 
     async def drain(self, service: TwinService) -> None:
         while self.outbox:
@@ -104,6 +113,7 @@ class Publisher:
     async def statuses(self, service: TwinService, state: str | None = None) -> None:
         assert self.health is not None
         for st in service.states.values():
+            self._state_sent[st.twin.name] = state or st.state
             await self._guard(self.send_status(st, self.health.status(st, state)))
             doc = sliver(st)  # the sliver and the leveller's recommendation, when they change
             if doc is None:
