@@ -193,3 +193,23 @@ def test_options_that_would_be_ignored_are_refused(tmp_path: Path) -> None:
                     str(tmp_path / "any.csv"))  # fmt: skip
     assert "--speeds" in said and "spectrogram table" in said
     assert not list(p for p in tmp_path.iterdir() if p.name != "spec.csv")
+
+
+def test_the_diagnose_page_shows_what_the_sliver_says(records, tmp_path):
+    """diagnose printed the sliver's chimneys and its element (--json had them) while its
+    page, the maintenance engineer's, left all of the sliver out."""
+    import re
+
+    page = tmp_path / "diag.html"
+    out = json.loads(_run("diagnose", "--model", "preset", "--data", str(records["gear"]),
+                          "--healthy", str(records["healthy"]), "--report", str(page),
+                          "--json"))  # fmt: skip
+    sliver = out["sliver"]
+    html = page.read_text()
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html)).replace("&#x27;", "'")
+    assert 'id="sliver"' in html and "What the sliver says" in text
+    assert f"count {sliver['count_ktex']:.4f} ktex, CV {sliver['cv_pct']:.3f} %" in text
+    for c in sliver["chimneys"]:
+        assert f"{c['wavelength_m'] * 100:.3g} cm" in text and c["verdict"] in text
+    assert sliver["chimneys"] and "gear B (A-B)" in text  # the run-out's gear, as printed
+    assert 'id="fig-sliver-spectrogram"' in html

@@ -188,7 +188,8 @@ def diagnose(
         from drafttwin.report.diagnosis import render_diagnosis
 
         with atomic_path(report) as tmp:
-            tmp.write_text(render_diagnosis(dx, train, series, info), encoding="utf-8")
+            tmp.write_text(render_diagnosis(dx, train, series, info, sliver=sliver),
+                           encoding="utf-8")  # fmt: skip
     if as_json:
         typer.echo(dumps_strict(result))
         return

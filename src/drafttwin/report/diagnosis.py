@@ -30,6 +30,8 @@ from drafttwin.diagnosis.spectrum import kinematic_lines, residual_samples, spec
 from drafttwin.mechanics import DriveTrain  # noqa: E402
 from drafttwin.report.figures import _png  # noqa: E402
 from drafttwin.report.html import Cell, figure, join, page, para, section, table, tag  # noqa: E402
+from drafttwin.report.sliver import diagnosis_section  # noqa: E402
+from drafttwin.sliver.diagnose import SliverDiagnosis  # noqa: E402
 
 if TYPE_CHECKING:
     from drafttwin.report.html import Raw, Row
@@ -322,8 +324,11 @@ def detector_table(info: Mapping[str, Any]) -> Raw:
 
 
 def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries,
-                     info: Mapping[str, Any], title: str = "Fault diagnosis") -> str:  # fmt: skip
-    """The whole self-contained page."""
+                     info: Mapping[str, Any], title: str = "Fault diagnosis",
+                     sliver: tuple[Mapping[str, Any], SliverDiagnosis] | None = None) -> str:  # fmt: skip
+    """The whole self-contained page; ``sliver``: the record's sliver channel's evidence and
+    diagnosis (:func:`~drafttwin.diagnosis.sliver_evidence.sliver_evidence`), shown after
+    the verdict."""
     verdict = summary(dx)
     wrap = "wrap"  # the cause (its unit below it), fit and look-alike columns wrap: no
     # sideways scroll at 1280 px
@@ -345,6 +350,8 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
     suspect, group = _suspects(dx, train)
     body = join([
         tag("h1", title), para(str(info.get("data", "")), cls="sub"), verdict,
+        section("sliver", "What the sliver says", diagnosis_section(*sliver))
+        if sliver is not None else "",
         section("ranked", "Ranked causes", causes, para(
             "Causes in one group move the measured channels the same way: with roller and motor "
             "speeds alone they cannot be told apart (only their severities differ). Gear wear and "

@@ -18,6 +18,7 @@ the summary, the figure and the tables.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from typing import TYPE_CHECKING, Any
 
 from drafttwin.report.fmt import DASH, is_num
@@ -49,6 +50,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "causes_table",
+    "diagnosis_section",
     "chimneys",
     "evenness_table",
     "sliver_page",
@@ -340,3 +342,37 @@ def sliver_page(diagnosis: SliverDiagnosis, *, title: str, source: str) -> str:
         ),
     ]
     return page(title, join(parts))
+
+
+def diagnosis_section(evidence: Mapping[str, Any], diagnosis: SliverDiagnosis) -> Raw:
+    """The sliver channel's part of the diagnosis page (``drafttwin diagnose`` on a record
+    with a sliver): its count and CV, the chimneys the running watch alarmed on and where,
+    the whole record's chimneys with their causes, the machine's own lines, the spectrogram.
+    ``evidence`` is :func:`~drafttwin.diagnosis.sliver_evidence.sliver_evidence`'s summary."""
+    ref = evidence.get("reference")
+    parts: list[Content] = [para(
+        f"Sliver channel {evidence['file']}: count {evidence['count_ktex']:.4f} ktex, CV "
+        f"{evidence['cv_pct']:.3f} %" + (f"; its own lines from {ref}" if ref else "") + ".")]  # fmt: skip
+    alarms = evidence.get("alarms", [])
+    if alarms:
+        rows: list[Row] = [[f"{a['time_s']:.1f}", f"{a['delivered_m']:.0f}",
+                            _cm(a["wavelength_m"]), _pct(a["amplitude_pct"]), _pct(a["base_pct"]),
+                            a["element"], Cell(", ".join(a["lookalikes"]) or DASH, cls="wrap")]
+                           for a in alarms]  # fmt: skip
+        head: list[Row] = [["alarm at, s", "delivered, m", "chimney, cm", "amplitude",
+                            "base", "element", Cell("look-alikes", cls="wrap", header=True)]]  # fmt: skip
+        parts += [tag("h3", "Alarms of the running watch"), table(head, rows, id="sliver-alarms")]
+    found = chimneys(diagnosis)
+    if found:
+        parts.append(tag("h3", "The whole record's chimneys"))
+        parts.append(bullets([f"{label} · {_length(c.wavelength_m)} · {_pct(c.amplitude_pct)} "
+                              f"over a base of {_pct(c.base_pct)}: {c.verdict}"
+                              for label, c in found]))  # fmt: skip
+    elif not alarms:
+        parts.append(para("No significant chimney."))
+    known = own_lines(diagnosis)
+    if known is not None:
+        parts.append(known)
+    parts.append(figure(spectrogram_png(diagnosis), "fig-sliver-spectrogram",
+                        spectrogram_caption(diagnosis), "sliver spectrogram"))  # fmt: skip
+    return join(parts)
