@@ -136,7 +136,11 @@ def reproduce(
     with study_lock(out), stop_on_signals(_resume_note(out)), display.progress:
         results, predictions = study.run(series)
         if generalisation:
+            start = time.perf_counter()
             results["generalisation"] = _physics_pays(out, display)
+            took = time.perf_counter() - start  # a stage of the run: the report's total has it
+            results["timings"]["stages"]["where the physics pays"] = took
+            results["timings"]["total_s"] += took
         files = write_study(out, results, predictions)
     console.print(
         f"study '{options.plan}' done in {time.perf_counter() - t0:.0f} s; report: "
