@@ -283,3 +283,22 @@ def test_the_reports_total_holds_the_physics_pays_stage(tmp_path: Path, monkeypa
     assert took >= 0.4 and written["total_s"] == pytest.approx(before + took)
     html = (out / "report.html").read_text()
     assert "where the physics pays" in html and "up to writing this page" in html
+
+
+def test_the_speed_figure_names_lines_hidden_under_another() -> None:
+    """Physics, parallel hybrid and MD-S-L had the same values in every row (the hybrids
+    kept no correction): the legend listed three lines, the reader saw one."""
+    from drafttwin.report.generalisation import speed_figure
+
+    doc = generalisation_summary()
+    assert "lie under one another" not in speed_figure(doc).html  # distinct: nothing said
+    physics = {(r["scenario"], r["task"], r["channel"]): r["rmse"] for r in doc["extrapolation"]
+               if r["model"] == "mechanistic"}  # fmt: skip
+    for r in doc["extrapolation"]:
+        if r["model"] in ("parallel", "md-s-l"):
+            r["rmse"] = dict(physics[(r["scenario"], r["task"], r["channel"])])
+    html = speed_figure(doc).html
+    for task in ("free-run simulation", "one-step prediction"):
+        assert f"physics under MD-S-L ({task})" in html
+        assert f"parallel hybrid under MD-S-L ({task})" in html
+    assert "GRU under" not in html and "persistence under" not in html

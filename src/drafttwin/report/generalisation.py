@@ -20,6 +20,7 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator  # noqa: E402
 
 from drafttwin._constants import ROLLERS  # noqa: E402
 from drafttwin._io import write_text_atomic  # noqa: E402
@@ -143,8 +144,12 @@ def learning_png(doc: Mapping[str, Any]) -> bytes:
                             label=LABELS[model])  # fmt: skip
             ax.set_xscale("log")
             ax.set_yscale("log")
-            log_axis_plain(ax.xaxis)  # 3, 6, 10 s, not 3×10⁰
             log_axis_plain(ax.yaxis)
+            lengths = sorted({r["train_s"] for r in mine})
+            if lengths:  # ticks at the lengths trained on (a log locator put 3 and 5 by 3 and 6)
+                ax.xaxis.set_major_locator(FixedLocator(lengths))
+                ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+                ax.xaxis.set_minor_locator(NullLocator())
             ax.set_title(f"{channel} roller, {task}", fontsize=10)
             ax.grid(alpha=0.3, which="both")
             if i == 1:
@@ -371,8 +376,34 @@ def speed_figure(doc: Mapping[str, Any]) -> Raw:
         "0 %: the training set-point (another recording). The learned models were trained at "
         "0 % only."
     )
+    hidden = _coinciding(curves)
+    if hidden:
+        caption += " " + hidden
     png = figures.speed_change(curves, colors, unit="rpm")
     return figure(png, "fig-speed-change", caption, "RMSE against speed change")
+
+
+def _coinciding(curves: Mapping[str, Mapping[str, list[tuple[float, float]]]]) -> str:
+    """A sentence naming the curves drawn under another with the same values (a hybrid that
+    kept no correction is its physics: its line cannot be seen), or ``""``."""
+    said = []
+    for title, by_model in curves.items():
+        names = list(by_model)
+        for k, name in enumerate(names):
+            # the one drawn last is seen; an earlier one with the same points lies under it
+            over = next((o for o in reversed(names[k + 1 :])
+                         if _same(by_model[o], by_model[name])), None)  # fmt: skip
+            if over is not None:
+                said.append(f"{name} under {over} ({title})")
+    if not said:
+        return ""
+    return ("Lines with the same values lie under one another: " + "; ".join(said) +
+            " (a hybrid that kept no correction predicts its physics).")  # fmt: skip
+
+
+def _same(a: list[tuple[float, float]], b: list[tuple[float, float]]) -> bool:
+    return len(a) == len(b) and all(xa == xb and math.isclose(ya, yb, rel_tol=1e-9)
+                                    for (xa, ya), (xb, yb) in zip(a, b, strict=True))  # fmt: skip
 
 
 def _study_table(head: list[str], rows: list[list[str]], wrap: int | None = None) -> Raw:
