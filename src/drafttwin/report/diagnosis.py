@@ -168,8 +168,10 @@ def train_png(train: DriveTrain, suspect: set[str], group: set[str]) -> bytes:
         c = color(e.coupling.name)
         ax.plot([depth[e.parent], depth[e.child]], [row[e.parent], row[e.child]], color=c,
                 lw=4 if c != GREY else 1.5, zorder=1)  # fmt: skip
-        ax.text((depth[e.parent] + depth[e.child]) / 2, (row[e.parent] + row[e.child]) / 2 + 0.15,
-                e.coupling.name, fontsize=7, ha="center", color=c if c != GREY else "k")  # fmt: skip
+        ax.text((depth[e.parent] + depth[e.child]) / 2, (row[e.parent] + row[e.child]) / 2 + 0.1,
+                _wrapped(e.coupling.name), fontsize=7, ha="center", va="bottom",
+                color=c if c != GREY else "k", zorder=3,
+                bbox={"boxstyle": "square,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.8})  # fmt: skip
     for i, n in enumerate(names):
         label = n + (f"\n({rollers[n]} roller)" if n in rollers else "")
         c = color(n, rollers.get(n, "\0"))
@@ -181,6 +183,13 @@ def train_png(train: DriveTrain, suspect: set[str], group: set[str]) -> bytes:
     ax.axis("off")
     fig.tight_layout()
     return _png(fig)
+
+
+def _wrapped(name: str, width: int = 12) -> str:
+    """A coupling's name on two lines at its last underscore when longer than ``width``: a
+    short coupling's one-line label ran into the boxes at its ends."""
+    head, sep, tail = name.rpartition("_")
+    return f"{head}\n{tail}" if len(name) > width and sep and head else name
 
 
 def _suspects(dx: Diagnosis, train: DriveTrain) -> tuple[set[str], set[str]]:
