@@ -174,9 +174,9 @@ def diagnose(
             "watched_from_s": watched_from,
             "detector": detector.describe(), "creep_rel_sd": diagnoser.creep_rel_sd}  # fmt: skip
     result = {**info, **dx.to_dict()}
-    unsteady = _not_steady(series)
-    if unsteady is not None:
-        result["notes"] = [unsteady]
+    notes = [n for n in (_not_steady(series), detector.levels_note()) if n is not None]
+    if notes:
+        result["notes"] = notes
     from drafttwin.diagnosis.sliver_evidence import sliver_evidence
 
     sliver = sliver_evidence(data, train, series,

@@ -90,8 +90,9 @@ def twin_fit_detector(
     console.print(f"fitted on {len(series)} record(s){made_on}: CUSUM threshold h = {detector.h_:.2f} "
                   f"(k = {detector.k:g}, {far_per_day:g} false alarm(s) per 24 h), "
                   f"blocks of {detector.block_s_:g} s, baseline {reference:g} s")  # fmt: skip
-    if (note := detector.lags_note()) is not None:
-        console.print(note)
+    for note in (detector.levels_note(), detector.lags_note()):
+        if note is not None:
+            console.print(note)
     uses = (f"'twin run --model {model}' uses it" if out is None or target == detector_path(model)
             else f"give it with 'twin run --model {model} --detector {target}'")  # fmt: skip
     console.print(f"wrote {target} ({uses})")

@@ -55,6 +55,13 @@ each tried on another 10-min record of the same machine (8 plant machines, both 
 raised 19, 8, 6 and 4 lag alarms at a budget of 100 per day (9 expected), and 22, 7, 6 and 4
 at 1000 per day (about 110 expected, the levels' about 65); on 2 x 100-s synthetic records 6
 of 20 healthy records alarmed (2026-11-28)."""
+LEVEL_TUNING_BLOCKS = 285
+"""Decided blocks (after the reference windows, all tuning records together) below which the
+level streams' thresholds are said to be unsure: the drafting force wanders over tens of
+seconds and the supply over minutes, and less healthy running does not show how far. On 8
+plant machines a healthy 60-s record (seed 3) alarmed on the belt stream with thresholds from
+another healthy record of the machine of 60 s (7 of 7), 120 s (4 of 4) and 180 s (4 of 4),
+and on none with 300 s (0 of 4; 2026-11-30), the reference windows of 15 s included."""
 STILL_FACTOR = 4.0  # any run is stuck past this many times the run limit: a counting
 # encoder repeats a count for L samples when its count per sample lies within about 1/L of a
 # whole number, so healthy runs are long-tailed and differ from machine to machine and speed
@@ -144,6 +151,7 @@ class FaultDetector:
         if len(d_all) < 10:
             raise DataError("healthy tuning data too short (fewer than 10 blocks after the "
                             "reference window)", where="tuning", fix="give longer records")  # fmt: skip
+        self.tuning_blocks_ = len(d_all)
         self.feature_cov_ = np.cov(d_all.T)
         self.level_cov_ = self.feature_cov_[: len(CHANNELS), : len(CHANNELS)]
         # each record's belt level against the physics (not its deviation): how far the
@@ -212,6 +220,22 @@ class FaultDetector:
             f"angle lags not watched (gear wear, chain elongation): the healthy records "
             f"are too short to measure their slow wander; give one of at least {need:.0f} s "
             f"(or several of {LAG_TUNING_BLOCKS * self.block_s_:.0f} s of running in all)"
+        )
+
+    def levels_note(self) -> str | None:
+        """A line for the user when the healthy running the thresholds come from is short
+        (:data:`LEVEL_TUNING_BLOCKS`), else ``None``."""
+        blocks = getattr(self, "tuning_blocks_", None)
+        if blocks is None or blocks >= LEVEL_TUNING_BLOCKS:
+            return None
+        need = self.reference_s + LEVEL_TUNING_BLOCKS * self.block_s_
+        return (
+            f"the thresholds come from {blocks * self.block_s_:.0f} s of healthy running past "
+            f"the reference window: too short to show how far the drafting force and the "
+            f"supply wander, so a healthy record may raise an alarm (measured: every plant "
+            f"machine tried did on 60-180 s, none on {need:.0f} s); give a healthy record of "
+            f"at least {need:.0f} s (or several with {LEVEL_TUNING_BLOCKS * self.block_s_:.0f} "
+            f"s past their reference windows in all)"
         )
 
     def _reference_deviation(self, f: BlockFeatures) -> np.ndarray:
@@ -338,7 +362,8 @@ class FaultDetector:
                 "long_run_blocks": self.long_run_blocks, "long_run": self.long_run_.tolist(),
                 "watched": self.watched_.tolist(), "jump_limit": self.jump_limit_.tolist(),
                 "run_limit": self.run_limit_.tolist(), "lost_limit": self.lost_limit_.tolist(),
-                "stale_limit": self.stale_limit_.tolist(), "lag_walk": self.lag_walk_.tolist()}  # fmt: skip
+                "stale_limit": self.stale_limit_.tolist(), "lag_walk": self.lag_walk_.tolist(),
+                "tuning_blocks": self.tuning_blocks_}  # fmt: skip
 
     @classmethod
     def from_state(cls, state: dict[str, Any], source: str = "detector") -> FaultDetector:
@@ -366,6 +391,8 @@ class FaultDetector:
             det.stale_limit_ = _array(state.get("stale_limit", state["run_limit"]), (nc,),
                                       "stale_limit", source)  # fmt: skip
             det.lost_limit_ = _array(state["lost_limit"], (nc,), "lost_limit", source)
+            if "tuning_blocks" in state:  # written since 2026-11-30
+                det.tuning_blocks_ = int(state["tuning_blocks"])
             nl = len(LAGGED)  # a state written before the walk was measured: none
             det.lag_walk_ = _array(
                 state.get("lag_walk", np.zeros((nl, nl))), (nl, nl), "lag_walk", source

@@ -192,9 +192,11 @@ def _timing_tables(timings: Mapping[str, Any]) -> Raw:
         [Cell("stage", header=True, cls="name"), "wall time", "share", Cell("", header=True)]
     ]
     parts: list[Raw | str] = [
-        para(f"Total wall time {seconds(total)}, up to writing this page (the report's own "
-             "writing is in results.json; the command's time, reading the data included, is "
-             "what reproduce prints)."),  # fmt: skip
+        para(
+            f"Total wall time {seconds(total)}, up to writing this page (the report's own "
+            "writing is in results.json; the command's time, reading the data included, is "
+            "what reproduce prints)."
+        ),  # fmt: skip
         table(head, body, id="timings"),
     ]
     fits = [f for f in timings.get("fits", []) if is_num(f.get("wall_s"))]
