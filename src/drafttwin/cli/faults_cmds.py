@@ -336,6 +336,7 @@ SliverVariantOpt = Annotated[bool, typer.Option("--sliver", help=(
 
 
 @benchmark_app.command("faults")
+@stops_cleanly("nothing was written; records already made are kept and reused by a rerun")
 def benchmark_faults(
     out: OutDirOpt = Path("faults_out"),
     quick: QuickOpt = False,
@@ -365,6 +366,8 @@ def benchmark_faults(
     from drafttwin._io import atomic_path
     from drafttwin._json import dumps_strict
 
+    _refuse_unused(sliver, live, healthy_hours, records, machines != 10 or speed != 4.0
+                   or plant_machines != 4)  # fmt: skip
     if sliver:
         return _sliver_variant(out, quick, seed, workers, as_json, quiet)
     if live:
@@ -407,6 +410,24 @@ def benchmark_faults(
         table.add_row(name, *(row[i] for row in rows))
     console.print(table)
     console.print(f"wrote {out / 'faults_results.json'} and {out / 'faults_report.html'}")
+
+
+def _refuse_unused(sliver: bool, live: bool, healthy_hours: float | None,
+                   records: Path | None, live_options: bool) -> None:  # fmt: skip
+    """Options the chosen variant would ignore, refused by name (they ran without a word)."""
+    given = []
+    if sliver:
+        given = [name for name, on in (("--live", live), ("--healthy-hours", healthy_hours is not None),
+                                       ("--records", records is not None),
+                                       ("--machines/--speed/--plant-machines", live_options)) if on]  # fmt: skip
+        variant = "--sliver"
+    elif not live and live_options:
+        given, variant = ["--machines/--speed/--plant-machines"], "the offline benchmark"
+    if given:
+        more = f" (nor {', '.join(given[1:])})" if len(given) > 1 else ""
+        raise ConfigError(f"not used by {variant}{more}", where=given[0],
+                          fix="leave it out" if sliver else "add --live for the live twin's "
+                          "variant, or leave them out")  # fmt: skip
 
 
 class LivePlanArgs(NamedTuple):

@@ -1,6 +1,7 @@
 """The fault benchmark on a tiny plan: plan, scores, page, CLI refusals."""
 
 import json
+from pathlib import Path
 
 import pytest
 from typer.testing import CliRunner
@@ -108,3 +109,55 @@ def test_the_sliver_variant_names_what_each_healthy_chimney_is_put_down_to() -> 
     assert (s["healthy_chimneys"], s["healthy_records_with_chimney"]) == (2, 2)
     assert s["healthy_chimneys_per_100m"] == pytest.approx(2 / 384 * 100)
     assert s["healthy_new_chimneys"] == 1
+
+
+def test_options_a_variant_would_ignore_are_refused(tmp_path):
+    """--live with --sliver, --records with --sliver, --speed without --live: each ran the
+    other variant without a word."""
+    for extra, named in ((["--live", "--sliver"], "--live: not used by --sliver"),
+                         (["--sliver", "--records", str(tmp_path / "r")], "--records"),
+                         (["--speed", "8"], "not used by the offline benchmark")):  # fmt: skip
+        res = CliRunner().invoke(app, ["benchmark", "faults", "--quick", *extra, "--out",
+                                       str(tmp_path / "out")])  # fmt: skip
+        assert res.exit_code == 2 and named in res.output, res.output
+    assert not (tmp_path / "out").exists() and not (tmp_path / "r").exists()
+
+
+@pytest.mark.slow
+def test_sigterm_stops_the_offline_benchmark_in_one_line(tmp_path):
+    """It died at once with exit 143 and no word, its two workers still running 2 s later."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    proc = subprocess.Popen([sys.executable, "-m", "drafttwin", "benchmark", "faults", "--quick",
+                             "--quiet", "--out", str(tmp_path / "fb")], stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+    time.sleep(8.0)  # into the records, the workers busy
+    children = _children(proc.pid)
+    assert children  # the workers
+    start = time.monotonic()
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    assert time.monotonic() - start < 5
+    assert proc.returncode == 143 and "Traceback" not in err, err
+    assert "interrupted by SIGTERM" in err.splitlines()[0], err
+    assert not (tmp_path / "fb" / "faults_results.json").exists()
+    time.sleep(3.0)
+    alive = [pid for pid in children if Path(f"/proc/{pid}").exists()
+             and Path(f"/proc/{pid}/stat").read_text().split(") ")[-1][0] != "Z"]  # fmt: skip
+    assert not alive, alive
+
+
+def _children(pid: int) -> list[int]:
+    """The process ids whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(") ", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
