@@ -91,7 +91,18 @@ def parse_time(text: str, name: str) -> int:
         value = when.timestamp()
     if not math.isfinite(value):
         raise HTTPException(422, f"{name}={text!r}: not a finite time")
+    if not EARLIEST_S <= value <= LATEST_S:  # DuckDB and the page's dates stop there
+        raise HTTPException(422, f"{name}={text[:40]!r}: must be from {EARLIEST_S:g} to "
+                            f"{LATEST_S:g} s (1970-01-01 to 9999-12-31 UTC)")  # fmt: skip
     return int(round(value * 1e6))
+
+
+EARLIEST_S = 0.0
+"""The earliest time a request may name, epoch seconds (a replayed file's own clock starts
+at 0)."""
+LATEST_S = 253402300799.0
+"""The latest, 9999-12-31T23:59:59Z (a later one failed in DuckDB and the dates: 500)."""
+EARLIEST_US, LATEST_US = int(EARLIEST_S * 1e6), int(LATEST_S * 1e6)
 
 
 def _iso(us: int) -> str:
@@ -243,8 +254,8 @@ class HistoryApi:
             end_us = newest_us if newest_us is not None else 0
             start_us = end_us - int(round(seconds * 1e6))
         else:
-            start_us = parse_time(start, "start") if start is not None else -(2**62)
-            end_us = parse_time(end, "end") if end is not None else 2**62
+            start_us = parse_time(start, "start") if start is not None else EARLIEST_US
+            end_us = parse_time(end, "end") if end is not None else LATEST_US
             if start_us > end_us:
                 raise HTTPException(422, "start is after end")
             if start is not None and end is not None and end_us - start_us > MAX_SPAN_S * 1e6:
@@ -345,8 +356,8 @@ class HistoryApi:
     async def events(self, alarms: bool, machine: str | None, start: str | None,
                      end: str | None, limit: int | None) -> Response:  # fmt: skip
         limit = _bounded(limit, "limit", 1, MAX_EVENTS, 200)
-        start_us = parse_time(start, "start") if start is not None else -(2**62)
-        end_us = parse_time(end, "end") if end is not None else 2**62
+        start_us = parse_time(start, "start") if start is not None else EARLIEST_US
+        end_us = parse_time(end, "end") if end is not None else LATEST_US
         if self.store is None:
 
             def kept() -> list[EventRow]:  # on the twin's loop: its lists do not move meanwhile
