@@ -122,3 +122,21 @@ def test_sigint_ends_a_replay_twin_with_the_page_on(
         if twin.poll() is None:
             twin.kill()
             twin.communicate(timeout=30)
+
+
+@pytest.mark.slow  # a plant start-up with three machines: about 10 s
+def test_three_machines_on_the_embedded_broker_stop_within_5_s(tmp_path: Path) -> None:
+    """Each machine's 'offline' waited 2 s for an acknowledgement the embedded broker, on the
+    same event loop, could not send while the wait blocked it: three machines took 6.1 s."""
+    port = free_port()
+    plant = _start("plant", "serve", "--mqtt", f"127.0.0.1:{port}", "--physics", "reduced",
+                   "--machines", "3")  # fmt: skip
+    try:
+        _wait_for(plant, "serving")
+        time.sleep(1.0)
+        took, out, err = _stop(plant, signal.SIGTERM)
+        _check(took, plant, out, err, "fa320a-3: ")
+    finally:
+        if plant.poll() is None:
+            plant.kill()
+            plant.communicate(timeout=30)

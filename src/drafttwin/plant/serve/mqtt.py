@@ -40,6 +40,7 @@ from drafttwin.errors import ConfigError
 from drafttwin.plant.faults import FaultSpec
 from drafttwin.plant.live import LivePlant
 from drafttwin.plant.serve.channels import as_published, plant_channels, values_of
+from drafttwin.plant.serve.closing import say_offline_and_close
 from drafttwin.plant.serve.feed import AHEAD_S, Feed
 from drafttwin.plant.serve.pacing import Pacing, catch_up
 from drafttwin.wire.conventions import (
@@ -176,18 +177,6 @@ async def _connect(p: _Publisher, host: str, port: int, qos: int, username: str 
                       "local port to start the embedded one")  # fmt: skip
 
 
-def _close(p: _Publisher) -> None:
-    """A clean stop: ``offline`` (retained), then disconnect (no will is sent then)."""
-    if p.client is None:
-        return
-    with contextlib.suppress(Exception):
-        if p.client.is_connected():
-            p.client.publish(status_topic(p.name), OFFLINE, qos=1, retain=True).wait_for_publish(2)
-    with contextlib.suppress(Exception):
-        p.client.disconnect()
-        p.client.loop_stop()
-
-
 async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: float = 100.0,
                      physics: str = "full", ramp_hz_per_s: float = 10.0,
                      duration_s: float | None = None, ready: Any = None,
@@ -231,8 +220,7 @@ async def serve_mqtt(address: str, names: list[str], *, seed: int = 0, rate_hz: 
             return await _publish(publishers, pacing, feed, qos, duration_s, on_sample,
                                   on_sliver)  # fmt: skip
     finally:
-        for p in publishers:
-            _close(p)
+        await say_offline_and_close([(p.name, p.client) for p in publishers])
         if broker is not None:
             await broker.shutdown()
 

@@ -30,6 +30,7 @@ import numpy as np
 
 from drafttwin._constants import ROLLERS, __version__
 from drafttwin.errors import ConfigError, DataError
+from drafttwin.plant.serve.closing import say_offline_and_close
 from drafttwin.wire.conventions import OFFLINE, ONLINE, parse_hostport, status_topic, topic
 from drafttwin.wire.identity import identification_payload, recorded_identity
 
@@ -179,8 +180,9 @@ async def replay_mqtt(address: str, slots: list[Slot], *, speed: float = 1.0,
         # they need, until cancelled) before the connections and an embedded broker go
         await (asyncio.Event().wait() if hold else asyncio.sleep(LINGER_S))
     finally:
+        await say_offline_and_close([(s.name, s.client) for s in slots])
         for s in slots:
-            _close(s)
+            s.client = None
         if broker is not None:
             await broker.shutdown()
     return slots
@@ -235,20 +237,6 @@ async def _connect(name: str, host: str, port: int) -> Any:
         await asyncio.sleep(0.05)
     raise ConfigError(f"{host}:{port} accepts connections but no MQTT broker answers there",
                       where="--mqtt", fix="give the address of an MQTT broker")  # fmt: skip
-
-
-def _close(slot: Slot) -> None:
-    import contextlib
-
-    if slot.client is None:
-        return
-    with contextlib.suppress(Exception):
-        if slot.client.is_connected():
-            info = slot.client.publish(status_topic(slot.name), OFFLINE, qos=1, retain=True)
-            info.wait_for_publish(2)
-        slot.client.disconnect()
-        slot.client.loop_stop()
-    slot.client = None
 
 
 def manifest_of(slots: Sequence[Slot], speed: float, gap_s: float) -> dict[str, Any]:
