@@ -492,3 +492,26 @@ def test_the_docs_schema_is_openapi_30_that_swagger_ui_4_reads() -> None:
     }
     assert props["c"] == {"enum": ["x"], "example": "x"}
     assert props["d"] == {"anyOf": [{"type": "integer"}, {"type": "string"}], "nullable": True}
+
+
+def test_without_a_store_a_flood_of_events_keeps_the_alarms(twin_files: tuple[Path, Path]) -> None:
+    """One deque of 200 held every event: on a lossy link 1200 'missing' events pushed the
+    first belt alarm out of /api/alarms while /metrics still counted it."""
+    from drafttwin.twin.build import build_service
+
+    record, model = twin_files
+    service = build_service(model, [f"replay:{record}?machine=m1"], detector="none")
+    st = service.states["m1"]
+    service.event(st, EventRow("m1", "fault", T0_US, json.dumps({"test": "belt"})))
+    for k in range(1200):
+        service.event(st, EventRow("m1", "missing", T0_US + (k + 1) * 10_000, "a lost row"))
+    app = create_app(service)
+    served = _Served(app)
+    try:
+        code, alarms = _get(served.base + "/api/alarms")
+        assert code == 200 and [a["kind"] for a in alarms] == ["fault"], alarms
+        code, events = _get(served.base + "/api/events?limit=1000")
+        assert code == 200 and len(events) == 200 and {e["kind"] for e in events} == {"missing"}
+    finally:
+        served.stop()
+        app.state.history.close()

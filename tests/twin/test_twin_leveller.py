@@ -80,7 +80,7 @@ def test_a_replayed_record_gets_sliver_levels_recommendation(twin_files, levelle
     assert first["state"] == "recommending" and first["setting"]["fibres"] == "record"
     assert first["window"][0] == pytest.approx(rec.sliver.delivery.delivered_length_m[0])
     _same(first["advice"], _level(record, "--max-length", "35"))
-    assert [e.kind for e in st.alarms].count("leveller-advice") == 1
+    assert [e.kind for e in st.events].count("leveller-advice") == 1
     assert status["sliver"]["count_ktex"] == pytest.approx(rec.sliver.summary["true_count_ktex"],
                                                            rel=0.01)  # fmt: skip
 

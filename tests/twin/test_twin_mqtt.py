@@ -132,7 +132,7 @@ def test_a_flood_is_counted_and_dropped_with_flat_memory() -> None:
         loop.close()
     assert len(emitted) == MAX_BACKLOG
     assert service.states["df-01"].dropped == 30_000
-    assert len(service.states["df-01"].alarms) <= 32  # one event per 1000 drops, not 30 000
+    assert len(service.states["df-01"].events) <= 32  # one event per 1000 drops, not 30 000
 
 
 async def _run_together(services: Iterable[Any], duration_s: float) -> None:

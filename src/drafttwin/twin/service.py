@@ -27,6 +27,7 @@ from drafttwin.twin.live import Begun
 from drafttwin.twin.sliverdesk import SliverDesk
 from drafttwin.twin.sources.base import Sample, SliverBatch, Source
 from drafttwin.twin.state import (
+    ALARM_KINDS,
     LATENCY_WINDOW,
     MachineState,
     detector_state,
@@ -220,7 +221,7 @@ class TwinService:
         self.event(st, EventRow(machine, kind, int(time.time() * 1e6), detail[:500]))
 
     def event(self, st: MachineState, ev: EventRow) -> None:
-        st.alarms.append(ev)
+        (st.alarms if ev.kind in ALARM_KINDS else st.events).append(ev)
         if ev.kind in ("fault", "fault-cause", "sensor-fault"):
             st.last_fault = ev
         for hook in self.event_hooks:

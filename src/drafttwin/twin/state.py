@@ -21,6 +21,12 @@ from drafttwin.twin.store.baselines import Baseline
 from drafttwin.twin.store.db import EventRow, SampleRow
 from drafttwin.wire.identity import MachineIdentity
 
+ALARM_KINDS = ("fault", "fault-cause", "sensor-fault", "sliver-chimney")
+"""Events that are alarms (``/api/alarms``); the others are ``/api/events``."""
+ALARMS_KEPT = 1000
+"""A machine's newest alarms kept in memory (a twin without --store answers from them)."""
+EVENTS_KEPT = 200
+"""... and its newest other events (gaps, reconnects: a lossy link makes thousands)."""
 LATENCY_WINDOW = 20_000
 """Latencies kept for the percentiles (sample received -> stored and pushed)."""
 HISTORY_ROWS = 3000
@@ -42,7 +48,10 @@ class MachineState:
     waiting_since: float | None = None  # the source connected; no sample of this machine yet
     resume_after_us: int | None = None
     recent: deque[SampleRow] = field(default_factory=lambda: deque(maxlen=HISTORY_ROWS))
-    alarms: deque[EventRow] = field(default_factory=lambda: deque(maxlen=200))
+    # without a store, what /api/alarms and /api/events answer; apart, so that a flood of
+    # gap events cannot push the alarms out (one deque of 200 had lost the first alarm)
+    alarms: deque[EventRow] = field(default_factory=lambda: deque(maxlen=ALARMS_KEPT))
+    events: deque[EventRow] = field(default_factory=lambda: deque(maxlen=EVENTS_KEPT))
     watch: LiveFaultWatch | None = None  # the fault detector, when the model has one
     model_key: str = ""  # the model file (the locator's key for its diagnoser)
     model_sha256: str = ""

@@ -36,6 +36,7 @@ from fastapi.responses import Response
 
 from drafttwin._json import to_strict
 from drafttwin.twin.service import TwinService
+from drafttwin.twin.state import ALARM_KINDS
 from drafttwin.twin.store.db import KINDS, EventRow, SampleRow, _connect
 from drafttwin.twin.store.history import (
     events_window,
@@ -65,8 +66,6 @@ NICE = 10
 """The history threads' niceness (Linux sets it per thread): the processing thread goes first."""
 QUERY_TIMEOUT_S = 10.0
 """A query still running after this is interrupted: 503."""
-ALARM_KINDS = ("fault", "fault-cause", "sensor-fault", "sliver-chimney")
-"""Events that are alarms (``/api/alarms``); the others are ``/api/events``."""
 FAULT_KINDS = ("fault", "fault-cause", "sensor-fault")
 """Events whose detail is JSON (the alarm and its probable cause): parsed into ``fault``."""
 COLUMNS = ["time", "seq", "supply_hz", "measured...", "physics...", "twin...", "residual..."]
@@ -363,9 +362,9 @@ class HistoryApi:
             def kept() -> list[EventRow]:  # on the twin's loop: its lists do not move meanwhile
                 if machine is not None and machine not in self.service.states:
                     raise HTTPException(404, f"no machine {machine[:100]!r}")
-                return [e for st in self.service.states.values() for e in st.alarms
-                        if (e.kind in ALARM_KINDS) == alarms and start_us <= e.ts_us <= end_us
-                        and machine in (None, e.machine)]  # fmt: skip
+                return [e for st in self.service.states.values()
+                        for e in (st.alarms if alarms else st.events)
+                        if start_us <= e.ts_us <= end_us and machine in (None, e.machine)]  # fmt: skip
 
             found = sorted(await self.bridge.call(kept), key=lambda e: e.ts_us)[-limit:]
         else:
