@@ -220,8 +220,11 @@ def events_window(con: Any, machine: str | None, kinds: tuple[str, ...], exclude
     if machine is not None:
         where += " AND machine = ?"
         args.append(machine)
+    # an alarm and its cause share a time stamp: the cause after its alarm (the insertion
+    # order is not kept: INSERT OR IGNORE may reorder), then by kind, so every read agrees
     rows = con.execute(f"SELECT machine, kind, ts_us, detail FROM events WHERE {where} "
-                       "ORDER BY ts_us DESC LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
+                       "ORDER BY ts_us DESC, kind = 'fault-cause' DESC, kind DESC, machine DESC "
+                       "LIMIT ?", [*args, limit]).fetchall()  # fmt: skip
     return [(m, kd, int(t), d) for m, kd, t, d in reversed(rows)]
 
 
