@@ -217,6 +217,16 @@ def test_alarms_and_events_refuse_times_out_of_range(stored: _Served, query: str
         assert code == 422 and ("must be from 0" in body or "ISO 8601" in body), body
 
 
+def test_a_machine_neither_watched_nor_stored_is_404_everywhere(stored: _Served) -> None:
+    """/api/alarms?machine=nosuch answered 200 [] from a store, 404 without one and from
+    /api/alarms/active."""
+    for path in ("/api/alarms?machine=nosuch", "/api/events?machine=nosuch",
+                 "/api/alarms/active?machine=nosuch"):  # fmt: skip
+        code, body = _get(stored.base + path)
+        assert code == 404 and "nosuch" in body, (path, body)
+    assert _get(stored.base + "/api/alarms?machine=m1")[0] == 200  # stored, not watched
+
+
 def test_alarms_apart_from_events(stored: _Served) -> None:
     code, alarms = _get(stored.base + "/api/alarms")
     assert code == 200

@@ -368,11 +368,21 @@ class HistoryApi:
 
             found = sorted(await self.bridge.call(kept), key=lambda e: e.ts_us)[-limit:]
         else:
-            rows = await self.run(events_window, machine, ALARM_KINDS, not alarms, start_us,
-                                  end_us, limit)  # fmt: skip
+            rows = await self.run(_events_of_known, machine, ALARM_KINDS, not alarms, start_us,
+                                  end_us, limit, tuple(self.service.states))  # fmt: skip
             found = [EventRow(*r) for r in rows]
         body = json.dumps(to_strict([event_dict(e) for e in found]), allow_nan=False)
         return Response(body, media_type="application/json")
+
+
+def _events_of_known(con: Any, machine: str | None, kinds: tuple[str, ...], exclude: bool,
+                     start_us: int, end_us: int, limit: int,
+                     watched: tuple[str, ...]) -> list[tuple[str, str, int, str]]:  # fmt: skip
+    """:func:`events_window`, with a machine neither watched nor stored refused (404, as
+    /api/alarms/active and /api/model answer it; the store's answer was an empty list)."""
+    if machine is not None and machine not in watched and machine not in stored_channels(con):
+        raise HTTPException(404, f"no machine {machine[:100]!r}")
+    return events_window(con, machine, kinds, exclude, start_us, end_us, limit)
 
 
 __all__ = ["ALARM_KINDS", "HistoryApi", "event_dict", "parse_time"]
