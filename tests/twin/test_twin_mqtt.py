@@ -141,10 +141,13 @@ async def _run_together(services: Iterable[Any], duration_s: float) -> None:
 
 
 @pytest.mark.slow  # a broker with argon2 logins and three twins side by side: about 7 s
-def test_mqtt_with_a_user_admits_only_that_user(twin_files: tuple[Path, Path]) -> None:
+def test_mqtt_with_a_user_admits_only_that_user(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
     _, model = twin_files
     port = free_port()
-    secret = {**env(), "DRAFTTWIN_MQTT_PASSWORD": "s3cret-pass-for-the-test"}
+    secret = {**env(), "DRAFTTWIN_MQTT_PASSWORD": "s3cret-pass-for-the-test",
+              "TMPDIR": str(tmp_path)}  # fmt: skip
     proc = subprocess.Popen(cli("plant", "serve", "--mqtt", f"127.0.0.1:{port}", "--mqtt-user",
                                 "twin", "--duration", "60", "--physics", "reduced"), env=secret,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
@@ -152,6 +155,8 @@ def test_mqtt_with_a_user_admits_only_that_user(twin_files: tuple[Path, Path]) -
         assert proc.stderr is not None
         line = proc.stderr.readline()
         assert "serving fa320a on MQTT" in line, line + proc.stderr.read()
+        # the broker has read the password hashes: their file is gone (every run left one)
+        assert not list(tmp_path.glob("drafttwin-mqtt-*")), list(tmp_path.iterdir())
         services = {}
         for name, url, password in (("user", f"mqtt://twin@127.0.0.1:{port}", secret["DRAFTTWIN_MQTT_PASSWORD"]),
                                     ("wrong", f"mqtt://twin@127.0.0.1:{port}", "wrong-password"),

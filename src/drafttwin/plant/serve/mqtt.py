@@ -29,6 +29,7 @@ import asyncio
 import contextlib
 import json
 import math
+import shutil
 import socket
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -70,7 +71,8 @@ async def start_broker(host: str, port: int, users: dict[str, str] | None = None
                        cert_dir: Path | None = None) -> Any:  # fmt: skip
     """An embedded amqtt broker on ``host:port`` (no $SYS topics); ``shutdown()`` it when
     done. With ``users`` (name -> password) only they may connect (argon2-hashed password file
-    in a private temporary folder), else anyone on the address."""
+    in a private temporary folder, removed once the broker has read it), else anyone on the
+    address."""
     import tempfile
 
     from amqtt.broker import Broker
@@ -94,8 +96,12 @@ async def start_broker(host: str, port: int, users: dict[str, str] | None = None
         listener.update(ssl=True, certfile=str(cert_dir / "mqtt_cert.pem"),
                         keyfile=str(cert_dir / "mqtt_key.pem"))  # fmt: skip
     config = {"listeners": {"default": listener}, "plugins": auth}
-    broker = Broker(config)
-    await broker.start()
+    try:
+        broker = Broker(config)
+        await broker.start()
+    finally:  # the plugin has read the hashes: no password file left behind in /tmp
+        if users:
+            shutil.rmtree(folder, ignore_errors=True)
     return broker
 
 
