@@ -219,6 +219,32 @@ def test_relearn_takes_the_address_the_twin_prints(address: str, said: str) -> N
     assert "Name or service not known" not in res.output
 
 
+def test_relearn_of_an_unknown_machine_names_where_a_hall_lists_its_machines() -> None:
+    """The fix pointed at GET /api/machines, which a hall does not serve (its list is
+    /api/hall)."""
+    import threading
+    from http.server import BaseHTTPRequestHandler, HTTPServer
+
+    class NoMachine(BaseHTTPRequestHandler):
+        def do_POST(self) -> None:  # noqa: N802  (the http.server name)
+            self.send_response(404)
+            self.end_headers()
+            self.wfile.write(b'{"detail": "no machine nosuch"}')
+
+        def log_message(self, *args: object) -> None:
+            pass
+
+    server = HTTPServer(("127.0.0.1", 0), NoMachine)
+    threading.Thread(target=server.serve_forever, daemon=True).start()
+    try:
+        res = CliRunner().invoke(app, ["twin", "relearn", "--http",
+                                       f"127.0.0.1:{server.server_port}", "--machine", "nosuch"])  # fmt: skip
+    finally:
+        server.shutdown()
+    assert res.exit_code == 2 and "HTTP 404" in res.output
+    assert "GET /api/machines" in res.output and "GET /api/hall" in res.output
+
+
 def test_fit_detector_reads_a_record_of_other_column_names_with_columns(
     twin_files: tuple[Path, Path], tmp_path: Path
 ) -> None:

@@ -128,7 +128,13 @@ def test_the_hall_refuses_what_would_go_wrong_in_an_actor(
     _error(run(app, [*base, "--source", opcua, "--shards", "4"]), "hall of 2 shards")
     _error(run(app, [*base, "--source", opcua, "--shards", "0"]), "--shards")
     fresh = [*base[:-1], str(tmp_path / "fresh")]
-    _error(run(app, [*fresh, "--source", opcua, "--shards", "4"]), "is empty")  # 3 machines
+    # 3 machines: the option to change is --shards (it named --source)
+    _error(run(app, [*fresh, "--source", opcua, "--shards", "4"]), "--shards:",
+           "4 shards for 3 machine(s)", "at most 3 shards")  # fmt: skip
+    # the source quoted as written, not with the shard the hall adds; shard not offered
+    res = run(app, [*fresh, "--source", f"{opcua}?bogus=1", "--shards", "2"])
+    _error(res, f"in '{opcua}?bogus=1'")
+    assert "&shard=" not in res.stderr and "shard," not in res.stderr, res.stderr
     nobody = f"127.0.0.1:{free_port()}"
     _error(run(app, [*fresh, "--source", opcua, "--ray", nobody]), "--ray", "no Ray cluster")
     # a DuckDB file of something else is not "the store of a single 'twin run'"

@@ -151,7 +151,8 @@ def twin_relearn(http: TwinPageOpt, machine: RelearnMachineOpt,
     except urllib.error.HTTPError as exc:
         detail = exc.read().decode(errors="replace")[:200]
         fix = {401: "give the twin's --token (or DRAFTTWIN_TOKEN)",
-               404: "give a machine the twin watches (GET /api/machines lists them)",
+               404: "give a machine the twin watches (GET /api/machines lists them; a "
+                    "hall's: GET /api/hall)",
                409: "the twin runs without a fault detector (--detector none)"}.get(exc.code, "see the twin's log")  # fmt: skip
         raise ConfigError(f"the twin refused: HTTP {exc.code} {detail}", where="--machine",
                           fix=fix) from None  # fmt: skip

@@ -87,7 +87,17 @@ def check_hall(model: Path, source: str, mapping: Path, shards: int) -> int:
                           fix="drop shard=... from --source")  # fmt: skip
     channels = tuple(load_twin_model(model).channels_)
     mapped = read_mapping(mapping, channels)
-    for i in range(shards):  # an empty shard, a bad option: refused here, not in an actor
+    if shards > len(mapped):  # an empty shard: refused here, not in an actor
+        raise ConfigError(f"{shards} shards for {len(mapped)} machine(s): a shard would watch "
+                          "none", where="--shards",
+                          fix=f"use at most {len(mapped)} shards (--mapping's machines)")  # fmt: skip
+    try:  # the source as the user wrote it (the shard each actor gets is the hall's)
+        parse_source(source, MachineMap("fa320a", channels), mapped)
+    except ConfigError as exc:
+        if exc.fix_template is not None:
+            exc.fix_template = exc.fix_template.replace("shard, ", "")  # not the user's to set
+        raise
+    for i in range(shards):
         parse_source(shard_source(source, i, shards), MachineMap("fa320a", channels), mapped)
     return len(mapped)
 
