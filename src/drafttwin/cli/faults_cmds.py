@@ -328,7 +328,7 @@ _SPEED_HELP = ("--live: times real time per machine (10 machines at 4x: 4000 sam
                "one twin process keeps up with on 2 cores).")  # fmt: skip
 LiveSpeedOpt = Annotated[float, number("--speed", _SPEED_HELP)]
 PlantMachinesOpt = Annotated[int, number("--plant-machines", "--live: machines of the shorter "
-                             "run against 'plant serve' (10 min at the wall clock; 0: none).")]  # fmt: skip
+                             "run against 'plant serve' (10 min at the wall clock, 6 with --quick; 0: none).")]  # fmt: skip
 SliverVariantOpt = Annotated[bool, typer.Option("--sliver", help=(
     "The delivery sensor's variant instead: gear run-out, cracks and roller eccentricity (which "
     "the encoders leave not assessed) recorded with the sliver and placed by its chimneys; "

@@ -108,8 +108,9 @@ def render_live(results: Mapping[str, Any]) -> str:
         f"{results['machine_hours_served']:.1f} machine-hours served over MQTT on "
         f"{lv['machines']} machines at once, {lv['speed']:g}x real time each, in "
         f"{int(wall // 60)} min {wall % 60:.0f} s wall; {lv['received']} of {lv['published']} "
-        f"samples received, {lv['dropped']} dropped; each machine learned {lv['prelude_s']:g} s "
-        f"of its own healthy running first, on top of the detector fitted on "
+        f"samples received, {lv['dropped']} dropped; each machine learned "
+        f"{lv.get('learn_s', lv['prelude_s']):g} s of its own healthy running first (of a "
+        f"{lv['prelude_s']:g}-s healthy prelude), on top of the detector fitted on "
         f"{results['prior']['fitted_on']} tuning records"
     )
     events = ", ".join(f"{k}: {v}" for k, v in sorted(results["events"].items()))

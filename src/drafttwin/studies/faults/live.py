@@ -137,7 +137,8 @@ def run_live(plan: BenchmarkPlan, seed: int, records: Path, out: Path, *, worker
                                duration_s=live.plant_s, seed=seed, on_stage=stage)  # fmt: skip
     return {"benchmark": "faults-live", "plan": plan.name, "seed": seed, "plant": plant,
             "live": {"machines": live.machines, "speed": live.speed, "batch": live.batch,
-                     "prelude_s": live.prelude_s, "transport": "mqtt", **served},
+                     "prelude_s": live.prelude_s,
+                     "learn_s": live.prelude_s - LEARN_MARGIN_S, "transport": "mqtt", **served},
             "prior": {"file": prior.name, "fitted_on": len(tuning)},
             "machine_hours_served": machine_s / 3600.0,
             "offline": {"scores": score(offline_rows), "records": offline_rows,
