@@ -11,9 +11,11 @@ acknowledged and confirmed.
 
 from __future__ import annotations
 
+import contextlib
 import datetime as _dt
 import json
 import time
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -119,10 +121,65 @@ class AlarmBook:
                if a.retained and (machine is None or a.machine == machine)]  # fmt: skip
         return sorted(out, key=lambda a: (-a.severity, -a.time_s))
 
+    def restore(self, events: Iterable[Any]) -> list[Any]:
+        """The book as a stored run left it, from its events (``machine``, ``kind``,
+        ``ts_us``, ``detail`` each, any order): alarms raised, their causes, returns to
+        normal, acknowledgements and confirmations, applied in that order (an alarm carries
+        the data's time, an acknowledgement the wall clock). Returns the alarm and cause
+        events of the alarms still retained, oldest first: a restarted twin shows them as the
+        run before it did (they had vanished from /api/alarms/active)."""
+        by_kind: dict[str, list[Any]] = {}
+        for ev in sorted(events, key=lambda e: e.ts_us):
+            by_kind.setdefault(ev.kind, []).append(ev)
+        for ev in by_kind.get("fault", []) + by_kind.get("sensor-fault", []):
+            if (alarm := _stored_alarm(ev.detail)) is not None:
+                self.raised(ev.machine, alarm, ev.kind)
+        for ev in by_kind.get("sensor-fault", []) + by_kind.get("fault-cause", []):
+            if (alarm := _stored_alarm(ev.detail)) is not None:
+                self.caused(ev.machine, alarm, _loads(ev.detail).get("causes"))
+        for ev in by_kind.get("fault-cleared", []):
+            doc = _loads(ev.detail)
+            with contextlib.suppress(KeyError, TypeError, ValueError):
+                alarm = Alarm(float(doc["alarm_s"]), 0, str(doc["test"]), 0, float("nan"))
+                self.cleared(ev.machine, alarm, float(doc.get("cleared_s", ev.ts_us / 1e6)),
+                             str(doc.get("why", "")))  # fmt: skip
+        for ev in by_kind.get("alarm-ack", []):
+            doc = _loads(ev.detail)
+            for alarm_id in doc.get("alarms", []) if isinstance(doc.get("alarms"), list) else []:
+                self.acknowledge(str(alarm_id), str(doc.get("comment", "")),
+                                 confirm=doc.get("what") == "confirmed")  # fmt: skip
+        kept = {a.id for a in self.alarms.values() if a.retained}
+        shown = [ev for kind in ("fault", "sensor-fault", "fault-cause")
+                 for ev in by_kind.get(kind, [])
+                 if (alarm := _stored_alarm(ev.detail)) is not None
+                 and self.key(ev.machine, alarm.time_s, alarm.test) in kept]  # fmt: skip
+        return sorted(shown, key=lambda e: (e.ts_us, e.kind == "fault-cause"))
+
     def _trim(self, machine: str) -> None:
         done = [a for a in self.alarms.values() if a.machine == machine and not a.retained]
         for a in sorted(done, key=lambda a: a.time_s)[:-KEPT] if len(done) > KEPT else []:
             del self.alarms[a.id]
+
+
+def _loads(detail: str) -> dict[str, Any]:
+    try:
+        doc = json.loads(detail)
+    except (TypeError, ValueError):
+        return {}
+    return doc if isinstance(doc, dict) else {}
+
+
+def _stored_alarm(detail: str) -> Alarm | None:
+    """The alarm an event's detail (:func:`~drafttwin.twin.faultwatch.alarm_detail`)
+    describes, or ``None`` for a detail that does not."""
+    doc = _loads(detail)
+    try:
+        onset = doc.get("onset_s")
+        return Alarm(float(doc["alarm_s"]), 0, str(doc["test"]), int(doc.get("direction", 0)),
+                     float("nan") if onset is None else float(onset),
+                     str(doc.get("rule", "cusum")))  # fmt: skip
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 CONSOLE_KINDS = ("fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack",

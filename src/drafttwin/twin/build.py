@@ -28,6 +28,7 @@ from drafttwin.twin.sources.replay import ReplaySource
 from drafttwin.twin.sources.spec import parse_source
 from drafttwin.twin.store.baselines import Baseline, BaselineStore
 from drafttwin.twin.store.db import StoreWriter, TwinStore
+from drafttwin.twin.store.history import stored_alarm_events
 from drafttwin.wire.identity import MachineIdentity
 
 
@@ -145,6 +146,8 @@ def build_service(
         writer = StoreWriter(store, commit_ms, retention_s=retention_s, on_commit=on_commit)
     service = TwinService(states, built, writer, silent_s=silent_s, level_window_m=level_window_m)
     service.baselines = baselines
+    if store is not None:  # the alarms the run before left unacknowledged or active
+        service.faults.restore(stored_alarm_events(store.con, list(states)))
     for key, train in service_models.items():
         service.locator.register(key, train)
     for st in states.values():  # a baseline the store kept is events' first line

@@ -332,6 +332,14 @@ class FaultDesk:
                     self.baselines.save_learning(st.twin.name, w.learner, st.identity,
                                                  st.model_sha256, w.learn_from_s)  # fmt: skip
 
+    def restore(self, events: list[EventRow]) -> None:
+        """The alarm book as the stored run left it (:meth:`AlarmBook.restore`); each
+        machine's newest retained alarm is its last fault again (status, hall page)."""
+        for ev in self.book.restore(events):
+            st = self.host.states.get(ev.machine)
+            if st is not None:
+                st.last_fault = ev
+
     def resume_pending(self) -> None:
         """Rank the windows a stopped twin left (their alarms are stored already)."""
         if self.baselines is None:

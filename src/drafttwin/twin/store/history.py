@@ -228,6 +228,23 @@ def events_window(con: Any, machine: str | None, kinds: tuple[str, ...], exclude
     return [(m, kd, int(t), d) for m, kd, t, d in reversed(rows)]
 
 
-__all__ = ["events_window", "machines_of", "minmax_rows", "page_json", "read_events",
+ALARM_BOOK_KINDS = ("fault", "sensor-fault", "fault-cause", "fault-cleared", "alarm-ack")
+"""The events the alarm book is made of (raised, caused, cleared, acknowledged)."""
+ALARM_BOOK_EVENTS = 5000
+"""Of those, the newest read back per machine at a restart."""
+
+
+def stored_alarm_events(con: Any, machines: list[str]) -> list[Any]:
+    """Each machine's newest :data:`ALARM_BOOK_EVENTS` alarm-book events, as ``EventRow``."""
+    from drafttwin.twin.store.db import EventRow
+
+    out = []
+    for machine in machines:
+        rows = events_window(con, machine, ALARM_BOOK_KINDS, False, 0, 2**62, ALARM_BOOK_EVENTS)
+        out += [EventRow(*r) for r in rows]
+    return out
+
+
+__all__ = ["ALARM_BOOK_KINDS", "events_window", "stored_alarm_events", "machines_of", "minmax_rows", "page_json", "read_events",
            "read_history", "store_folders", "stored_channels", "stored_range", "summary",
            "value_columns"]  # fmt: skip
