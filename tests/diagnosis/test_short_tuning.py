@@ -36,3 +36,12 @@ def test_the_note_survives_the_detector_file() -> None:
     older = short.to_state()
     older.pop("tuning_blocks")  # a detector file written before the count was kept
     assert FaultDetector.from_state(older).levels_note() is None
+
+
+def test_a_detector_from_an_older_file_is_written_again_without_a_count() -> None:
+    """A twin that read a detector file written before the count was kept stopped with an
+    AttributeError in to_state (its first alarm's ranking pickles the state)."""
+    older = FaultDetector().fit([_features(60.0, 1)]).to_state()
+    older.pop("tuning_blocks")
+    again = FaultDetector.from_state(older).to_state()
+    assert "tuning_blocks" not in again and FaultDetector.from_state(again).levels_note() is None

@@ -363,7 +363,9 @@ class FaultDetector:
                 "watched": self.watched_.tolist(), "jump_limit": self.jump_limit_.tolist(),
                 "run_limit": self.run_limit_.tolist(), "lost_limit": self.lost_limit_.tolist(),
                 "stale_limit": self.stale_limit_.tolist(), "lag_walk": self.lag_walk_.tolist(),
-                "tuning_blocks": self.tuning_blocks_}  # fmt: skip
+                # a detector read from an older file, or combined from others, has no count
+                **({} if (blocks := getattr(self, "tuning_blocks_", None)) is None
+                   else {"tuning_blocks": blocks})}  # fmt: skip
 
     @classmethod
     def from_state(cls, state: dict[str, Any], source: str = "detector") -> FaultDetector:
