@@ -353,6 +353,7 @@ def test_a_stop_signal_abandons_the_window_in_progress_a_natural_end_waits_for_i
 
     class Host:
         loop = None
+        stop_signalled = False
         subscribers: list[Any] = []
         events: list[Any] = []
 
@@ -385,19 +386,40 @@ def test_a_stop_signal_abandons_the_window_in_progress_a_natural_end_waits_for_i
         def text(self) -> str:
             return "leveller: none"
 
-    async def settle(signalled: bool) -> float:
+    async def settle(signalled: bool, later_s: float | None = None) -> float:
         host = Host()
+        host.stop_signalled = signalled
         desk = SliverDesk(host)  # type: ignore[arg-type]
         host.loop = asyncio.get_running_loop()  # type: ignore[assignment]
         st = SimpleNamespace(level=SlowLevel(), level_busy=False, twin=SimpleNamespace(name="m"))
         desk._level(st)  # type: ignore[arg-type]
         assert st.level_busy
+        if later_s is not None:  # a signal while a natural end waits (a replay that ended)
+            host.loop.call_later(later_s, setattr, host, "stop_signalled", True)
         t0 = time.monotonic()
-        await desk.settle(signalled)
+        await desk.settle()
         return time.monotonic() - t0
 
     assert asyncio.run(settle(True)) < 0.5
     assert asyncio.run(settle(False)) > 2.5
+    # it had waited for the window: 8.4-9.1 s after SIGTERM at a replay's end
+    assert asyncio.run(settle(False, later_s=0.5)) < 1.0
+
+
+def test_the_leveller_worker_does_not_hold_the_process_at_exit() -> None:
+    """A ThreadPoolExecutor's thread is joined at exit: a window still computing held the
+    twin after its summary. The daemon worker's thread is not waited for."""
+    import subprocess
+    import sys
+
+    code = ("import time\nfrom drafttwin.twin.sliverdesk import DaemonWorker\n"
+            "w = DaemonWorker('leveller')\nf = w.submit(time.sleep, 30)\n"
+            "g = w.submit(time.sleep, 30)\ntime.sleep(0.3)\nw.shutdown([g])\n"
+            "assert g.cancelled() and f.running()\n")  # fmt: skip
+    t0 = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", code], timeout=60, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert time.monotonic() - t0 < 10
 
 
 @pytest.mark.long  # a 40-s plant record with its sliver (171 m) and Chromium: about 60 s

@@ -305,7 +305,7 @@ class TwinService:
         for st in self.states.values():
             self._out(st, st.twin.flush(), None)
         await self.faults.settle()
-        await self.slivers.settle(self.stop_signalled)
+        await self.slivers.settle()
 
     def stop(self) -> None:
         """Stop as a signal does (the rankings still running get a short while)."""

@@ -16,6 +16,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import queue
+import threading
 import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -29,14 +31,51 @@ from drafttwin.twin.state import MachineState
 from drafttwin.twin.store.db import EventRow
 from drafttwin.wire.sliver import SliverBatch, parse_description
 
+SIGNAL_POLL_S = 0.2
+"""How often a natural end that waits for the leveller's window looks for a stop signal."""
 SLIVER_SENSOR_M = 0.005
 """Averaging length of a delivery sensor (the plant's, docs/sliver.md), m: its ideal curve."""
+
+
+class DaemonWorker:
+    """One daemon thread that runs submitted calls in turn (a one-worker executor whose
+    thread the interpreter does not wait for at exit). A leveller's window computes for
+    seconds; a ThreadPoolExecutor's thread is joined at exit, so a signal that came while one
+    ran (at a replay's end) held the twin for up to 9 s after its summary."""
+
+    def __init__(self, name: str) -> None:
+        self._jobs: queue.SimpleQueue[tuple[Future[Any], Callable[..., Any], tuple[Any, ...]] | None] = queue.SimpleQueue()  # fmt: skip
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, fn: Callable[..., Any], *args: Any) -> Future[Any]:
+        fut: Future[Any] = Future()
+        self._jobs.put((fut, fn, args))
+        return fut
+
+    def _run(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            fut, fn, args = job
+            if not fut.set_running_or_notify_cancel():
+                continue
+            try:
+                fut.set_result(fn(*args))
+            except BaseException as exc:  # noqa: BLE001 - handed to the future's owner
+                fut.set_exception(exc)
+
+    def shutdown(self, cancel: list[Future[Any]]) -> None:
+        """No more calls; ``cancel`` those not started (the running one is left to end or
+        to die with the process)."""
+        for fut in cancel:
+            fut.cancel()
+        self._jobs.put(None)
 
 
 class Host(Protocol):
     """What the desk needs of the service."""
 
     loop: asyncio.AbstractEventLoop | None
+    stop_signalled: bool
     subscribers: list[Callable[[str, list[Any], list[EventRow]], None]]
 
     def event(self, st: MachineState, ev: EventRow) -> None: ...
@@ -51,7 +90,7 @@ class SliverDesk:
         self.service = service
         self.window_m = window_m
         self._watch_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sliver")
-        self._level_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="leveller")
+        self._level_pool = DaemonWorker("leveller")
         self._pending: set[Future[Any]] = set()
         self._described: dict[str, str] = {}  # each machine's description, as last taken
 
@@ -151,15 +190,17 @@ class SliverDesk:
             push(st.twin.name, [], [ev])
 
     # ---- the end ---------------------------------------------------------------------------
-    async def settle(self, signalled: bool) -> None:
-        """Let the windows in progress finish (not after a stop signal: abandoned), then
-        close the workers."""
-        while self._pending and not signalled:
-            await asyncio.wait([asyncio.wrap_future(f) for f in list(self._pending)])
+    async def settle(self) -> None:
+        """Let the windows in progress finish, unless a stop signal came before or comes
+        meanwhile (then abandoned: their worker does not hold the process), then close the
+        workers."""
+        while self._pending and not self.service.stop_signalled:
+            await asyncio.wait([asyncio.wrap_future(f) for f in list(self._pending)],
+                               timeout=SIGNAL_POLL_S)  # fmt: skip
             await asyncio.sleep(0)  # their results, handed to the loop
         self._watch_pool.shutdown(wait=True, cancel_futures=True)
         await asyncio.sleep(0)
-        self._level_pool.shutdown(wait=False, cancel_futures=True)
+        self._level_pool.shutdown(list(self._pending))
 
     # ---- figures ---------------------------------------------------------------------------
     @staticmethod
