@@ -332,6 +332,21 @@ def test_plant_serve_sliver_stops_on_sigterm_and_its_log_is_a_leveller_record(tm
     doc = _level(log)
     assert doc["current_action_point_mm"] == sidecar["sliver"]["leveller"]["action_point_mm"]
     assert doc["fibres"]["source"] == "record" and doc["metres_used"] > 15
+    assert f"{tmp_path / 'plant.json'}" in out  # the sidecar named among what it wrote
+    # sliver diagnose reads the log's speeds for the encoders (it refused the log's
+    # 'machine' column, naming --speeds, which nobody gave)
+    res = runner.invoke(app, ["sliver", "diagnose", "--data", str(log), "--json"])
+    assert res.exit_code == 0, res.output
+    assert "evenness" in json.loads(res.stdout)
+    # a file beside the log that an earlier log did not write is refused, not replaced
+    for name, content in (("other.sliver.parquet", b"mine"), ("other.json", b'{"a": 1}')):
+        (tmp_path / name).write_bytes(content)
+        res = runner.invoke(app, ["plant", "serve", "--mqtt", "127.0.0.1:1", "--sliver",
+                                  "--log", str(tmp_path / "other.parquet")])  # fmt: skip
+        assert res.exit_code == 2 and f"{name} exists and is not" in res.output, res.output
+        assert (tmp_path / name).read_bytes() == content
+        assert not (tmp_path / "other.parquet").exists()
+        (tmp_path / name).unlink()
 
 
 def test_a_sliver_option_without_sliver_is_refused_in_one_line() -> None:

@@ -159,7 +159,9 @@ def plant_serve(
         console.print("sliver " + live.summary())
     if log is not None:
         console.print(f"wrote {log}" + (f", {plant_log.sliver_path}" if slivers and plant_log
-                                        and plant_log.sliver_path else ""))  # fmt: skip
+                                        and plant_log.sliver_path else "")
+                      + (f", {plant_log.sidecar_path}" if plant_log
+                         and plant_log.sidecar_written else ""))  # fmt: skip
 
 
 def _serve_plant(opcua: str | None, mqtt: str | None, names: list[str], opts: dict[str, Any],

@@ -138,12 +138,42 @@ def read_speed_file(path: Path) -> Any:
     try:
         return read_measurements(path)
     except DataError as exc:
+        logged = _plant_log_speeds(path)  # 'plant serve --log' (its sidecar names it)
+        if logged is not None:
+            return logged
         fix = exc.fix
         if fix is None or "--columns" in fix:
             fix = ("a speed file is a plant record: a time column and the rollers front, "
                    "second, third, back in rpm (generate writes one)")  # fmt: skip
         raise DataError(exc.problem, source=exc.source or path, where="--speeds",
                         fix=fix) from None  # fmt: skip
+
+
+def _plant_log_speeds(path: Path) -> Any:
+    """The roller speeds of a ``plant serve --log`` file of one machine, on the plant's own
+    clock (the one its sliver log's readings carry); ``None`` for a file that is no plant
+    log. A log of several machines is refused: which one the sliver is of is not said."""
+    import numpy as np
+
+    from drafttwin._constants import ROLLERS
+    from drafttwin.data.series import MeasurementSeries
+    from drafttwin.wire.plantlog import read_plant_log
+
+    try:
+        frame = read_plant_log(path)
+    except DataError:
+        return None
+    machines = sorted(set(frame["machine"]))
+    if len(machines) != 1:
+        raise DataError(f"a plant log of {len(machines)} machines ({', '.join(machines[:5])})",
+                        source=path, where="--speeds",
+                        fix="give one machine's speeds (plant serve --log with one machine)")  # fmt: skip
+    rows = frame.sort_values("seq")
+    return MeasurementSeries(time_s=rows["time"].to_numpy(dtype=np.float64),
+                             values=rows[list(ROLLERS)].to_numpy(dtype=np.float64),
+                             inputs={"supply_hz": rows["supply_hz"].to_numpy(dtype=np.float64)},
+                             motor_rpm=rows["motor"].to_numpy(dtype=np.float64),
+                             metadata={"source": f"{path} (machine {machines[0]})"})  # fmt: skip
 
 
 def _speeds(speeds: str, truth: bool, duration: float, train: Any, detail: bool,

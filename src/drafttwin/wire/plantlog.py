@@ -57,16 +57,36 @@ class PlantLog:
             raise ConfigError(f"unsupported log file type '{path.suffix or '(none)'}'",
                               source=path, where="--log", fix="name the log *.parquet or *.csv")  # fmt: skip
         self.path, self.rows = path, 0
-        self._ctx = atomic_path(path)
-        self._tmp = self._ctx.__enter__()
         self._buf: dict[str, list[Any]] = {c: [] for c in WRITTEN}
         self._writer: Any = None
         self._parquet = suffix == ".parquet"
         self.sliver_path = path.with_name(f"{path.stem}.sliver{path.suffix}") if sliver else None
+        self.sidecar_path = path.with_name(path.stem + ".json")
+        self.sidecar_written = False
         self._described: dict[str, dict[str, Any]] = {}
         self._sliver: _Columns | None = None
         if self.sliver_path is not None:
+            self._refuse_foreign()
+        self._ctx = atomic_path(path)
+        self._tmp = self._ctx.__enter__()
+        if self.sliver_path is not None:
             self._sliver = _Columns(self.sliver_path, SLIVER_COLUMNS, self._parquet)
+
+    def _refuse_foreign(self) -> None:
+        """The sliver file and the sidecar beside the log are written over only where an
+        earlier ``plant serve --log`` wrote them (a user's ``LOG.sliver.parquet`` was replaced,
+        a foreign ``LOG.json`` silently left without a word)."""
+        own = _own_sidecar(self.sidecar_path)
+        if self.sidecar_path.exists() and own is None:
+            raise ConfigError(f"{self.sidecar_path.name} exists and is not the sidecar of an "
+                              "earlier plant log", source=self.sidecar_path, where="--log",
+                              fix="choose another --log name, or move that file")  # fmt: skip
+        assert self.sliver_path is not None
+        named = own is not None and own.get("files", {}).get("sliver") == self.sliver_path.name
+        if self.sliver_path.exists() and not named:
+            raise ConfigError(f"{self.sliver_path.name} exists and is not the sliver of an "
+                              "earlier plant log", source=self.sliver_path, where="--log",
+                              fix="choose another --log name, or move that file")  # fmt: skip
 
     def add_sliver(self, batch: Any) -> None:
         """Record one batch of sliver readings (a :class:`drafttwin.wire.sliver.SliverBatch`)."""
@@ -143,20 +163,16 @@ class PlantLog:
 
         if len(self._described) != 1 or self.sliver_path is None:
             return
-        sidecar = self.path.with_name(self.path.stem + ".json")
-        if sidecar.exists():
-            try:
-                ours = json.loads(sidecar.read_text(encoding="utf-8")).get("generator") == GENERATOR
-            except (OSError, ValueError, AttributeError):
-                ours = False
-            if not ours:
-                return
+        sidecar = self.sidecar_path
+        if sidecar.exists() and _own_sidecar(sidecar) is None:  # came meanwhile: not ours
+            return
         ((machine, section),) = self._described.items()
         doc = {"generator": GENERATOR, "machine": machine,
                "files": {"log": self.path.name, "sliver": self.sliver_path.name},
                "sliver": {k: v for k, v in section.items() if k != "v"}}  # fmt: skip
         with atomic_path(sidecar) as tmp:
             tmp.write_text(json.dumps(doc, indent=2), encoding="utf-8")
+        self.sidecar_written = True
 
     def abandon(self, exc: BaseException) -> None:
         """Remove the temporary file (the run failed before anything was published)."""
@@ -173,6 +189,17 @@ class PlantLog:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _own_sidecar(path: Path) -> dict[str, Any] | None:
+    """The sidecar at ``path`` if an earlier ``plant serve --log`` wrote it, else ``None``."""
+    import json
+
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) and doc.get("generator") == GENERATOR else None
 
 
 class _Columns:
