@@ -181,6 +181,31 @@ def test_sliver_level_says_when_the_record_cannot_place_the_action_point(
     assert code == 0, out
     flat = json.loads(out)
     assert not flat["identifiable"] and any("does not vary" in n for n in flat["notes"])
+    # nothing recommended where nothing places it: it printed a 'recommended' row and
+    # "within +-5 mm from 52 m" beside an interval of 0.00-0.00
+    assert flat["metres_needed"] is None
+    code, text = _invoke("sliver", "level", "--data", str(stuck), "--action-point",
+                         str(sidecar["action_point_mm"]), "--intensity", "1")  # fmt: skip
+    words = " ".join(text.split())
+    assert code == 0 and "recommended" not in words.split("nothing is recommended")[0], text
+    assert "within +-5 mm" not in words and "nothing is recommended" in words
+    assert "nan" not in text
+
+
+def test_sliver_level_fixes_say_what_it_takes(tmp_path: Path, record: Path) -> None:
+    """A record without a length column was told --length-column, which sliver level lacks;
+    a record naming no setting was told '--intensity 0', which alone was refused again."""
+    plain = tmp_path / "nolength.csv"
+    lines = record.with_name("rec.sliver.csv").read_text().splitlines()
+    plain.write_text("\n".join([lines[0].replace("delivered_length_m", "metres"), *lines[1:]]))
+    code, out = _invoke("sliver", "level", "--data", str(plain))
+    assert code == 2 and "delivered_length_m" in out and "--length-column" not in out, out
+    plain.write_text("\n".join(lines) + "\n")
+    code, out = _invoke("sliver", "level", "--data", str(plain), "--intensity", "0")
+    assert code == 2 and "--action-point MM" in out and "nominal" in out, out
+    code, out = _invoke("sliver", "level", "--data", str(plain), "--intensity", "0",
+                        "--action-point", "700")  # fmt: skip
+    assert code == 0, out
 
 
 def test_sliver_level_names_the_option_a_slip_came_from(record: Path) -> None:

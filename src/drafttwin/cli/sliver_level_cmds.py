@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -55,8 +56,9 @@ def level_cmd(
         if action_point is None:
             raise ConfigError("the record names no action point setting", source=data,
                               where="--action-point",
-                              fix="give the current setting (--action-point MM, --intensity "
-                              "I; --intensity 0 for a record without a leveller)")  # fmt: skip
+                              fix="give the current setting with --action-point MM (without a "
+                              "leveller: the machine's nominal one, the centre of the search) "
+                              "and --intensity I (0 without a leveller)")  # fmt: skip
         setting = LevellerSetting(action_point, 1.0 if got.had_leveller else 0.0)
     setting = replace(setting,
                       action_point_mm=setting.action_point_mm if action_point is None
@@ -85,6 +87,11 @@ def level_cmd(
         console.print(fibres.note())
 
 
+def _cv(value: float) -> str:
+    """A CV in the table; a length the record is too short for: -."""
+    return f"{value:.3f}" if math.isfinite(value) else "-"
+
+
 def _check_reference(reference_ktex: float, infeed_ktex: Any) -> None:
     """Refuse a reference count far from what the infeed sensor reads (the fed count of all
     slivers together: one sliver's count is a common slip)."""
@@ -106,25 +113,34 @@ def _print(advice: Any, data: Path) -> None:
     table.add_column("", no_wrap=True)
     for col in ("action point mm", "intensity", "CV %", "CV 1 m %", "CV 3 m %", "CV 5 m %"):
         table.add_column(col, justify="right")
-    for name, point, inten, ev in (
-        ("current", a.current_action_point_mm, a.current_intensity, a.current),
-        ("recommended", a.recommended_action_point_mm, a.recommended_intensity, a.recommended),
-    ):  # fmt: skip
-        table.add_row(name, "none" if point is None else f"{point:.1f}", f"{inten:.2f}",
-                      f"{ev.cv_pct:.3f}", f"{ev.cv_1m_pct:.3f}", f"{ev.cv_3m_pct:.3f}",
-                      f"{ev.cv_5m_pct:.3f}")  # fmt: skip
+    rows = [("current", a.current_action_point_mm, a.current_intensity, a.current)]
+    if a.identifiable:  # a setting the record does not place is not recommended
+        rows.append(("recommended", a.recommended_action_point_mm, a.recommended_intensity,
+                     a.recommended))  # fmt: skip
+    for name, point, inten, ev in rows:
+        table.add_row(
+            name,
+            "none" if point is None else f"{point:.1f}",
+            f"{inten:.2f}",
+            *(_cv(v) for v in (ev.cv_pct, ev.cv_1m_pct, ev.cv_3m_pct, ev.cv_5m_pct)),
+        )
     console.print(table)
-    needed = "more than the record" if a.metres_needed is None else f"{a.metres_needed:.0f} m"
-    console.print(f"action point {a.recommended_action_point_mm:.1f} mm (95 % {lo:.1f}-{hi:.1f}), "
-                  f"intensity {a.recommended_intensity:.2f} (95 % {a.intensity_interval[0]:.2f}-"
-                  f"{a.intensity_interval[1]:.2f}); within +-5 mm from {needed} of sliver; the "
-                  f"material reaches the delivery at {a.estimated_action_point_mm:.1f} mm, the "
-                  f"drive follows with {1000 * a.drive_time_constant_s:.0f} ms (CVs as the "
-                  "delivery sensor reads them; the twin writes no setting)")  # fmt: skip
+    if a.identifiable:
+        needed = "more than the record" if a.metres_needed is None else f"{a.metres_needed:.0f} m"
+        console.print(f"action point {a.recommended_action_point_mm:.1f} mm (95 % {lo:.1f}-"
+                      f"{hi:.1f}), intensity {a.recommended_intensity:.2f} (95 % "
+                      f"{a.intensity_interval[0]:.2f}-{a.intensity_interval[1]:.2f}); within +-5 "
+                      f"mm from {needed} of sliver; the material reaches the delivery at "
+                      f"{a.estimated_action_point_mm:.1f} mm, the drive follows with "
+                      f"{1000 * a.drive_time_constant_s:.1f} ms (CVs as the delivery sensor "
+                      "reads them; the twin writes no setting)")  # fmt: skip
+    if any(not math.isfinite(v) for v in (a.current.cv_5m_pct, a.current.cv_3m_pct)):
+        console.print("CV 3 m / 5 m: - where the record is too short for that length")
     if not a.identifiable:
         edge = any("searched range" in note for note in a.notes)
         why = ("its feed varies too little (the interval is wider than 50 mm)" if hi - lo > 50
                else "--search widens the searched range" if edge else "why, below")  # fmt: skip
-        console.print(f"the record does not say where the action point is: {why}")
+        console.print(f"the record does not say where the action point is, so nothing is "
+                      f"recommended: {why}")  # fmt: skip
     for note in a.notes:
         console.print(note)

@@ -96,7 +96,8 @@ class LevellingAdvice:
         drive_time_constant_s: the regulating drive's time constant that explains the record.
         metres_used: delivered sliver analysed, m.
         metres_needed: the shortest part of it (from its start, in 5-m steps) from which on
-            the interval is within +-5 mm; None if the record is too short for that.
+            the interval is within +-5 mm; None if the record is too short for that, or does
+            not place the action point (``identifiable`` false).
         identifiable: whether the record says where the action point is (interval within
             +-25 mm).
         notes: what the reader should know (drifts, a drive slower than its nominal, ...).
@@ -263,7 +264,11 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
         estimated_action_point_mm=material,
         drive_time_constant_s=tau,
         metres_used=record.length_m,
-        metres_needed=_metres_needed(exact, grid, rng, record.step_m, rows, model.start),
+        # never "found within +-5 mm" where the record does not place it (a stuck infeed
+        # sensor had 52 m beside an interval of the whole search)
+        metres_needed=_metres_needed(exact, grid, rng, record.step_m, rows, model.start)
+        if bool(hi - lo <= 50.0) and not limits
+        else None,
         identifiable=bool(hi - lo <= 50.0) and not limits,
         notes=limits + _notes(setting, tau, record, model),
     )

@@ -129,7 +129,7 @@ def read_leveller_record(path: str | Path, option: str = "--data") -> LevellerFi
     source = beside.sliver if beside else path
     frame = read_table(source, option=option)
     frame.columns = [str(c) for c in frame.columns]
-    length_col, scale = find_length_column(frame, None, None, source, option)
+    length_col, scale = find_length_column(frame, None, None, source, option, naming=False)
     missing = [c for c in COLUMNS if c not in frame.columns]
     if missing:
         raise DataError(f"no column {', '.join(missing)} (columns: {', '.join(frame.columns)})",

@@ -164,6 +164,10 @@ class LevelWatch:
         lo, hi = a.action_point_interval_mm
         current = ("none" if a.current_action_point_mm is None
                    else f"{a.current_action_point_mm:.1f} mm")  # fmt: skip
+        if not a.identifiable:
+            return (f"leveller: no recommendation: these {a.metres_used:.0f} m do not say where "
+                    f"the action point is (current {current}, {a.current_intensity:.2f}, CV "
+                    f"{a.current.cv_pct:.3f} %)")  # fmt: skip
         return (f"leveller: action point {a.recommended_action_point_mm:.1f} mm (95 % "
                 f"{lo:.1f}-{hi:.1f}), intensity {a.recommended_intensity:.2f} recommended "
                 f"(current {current}, {a.current_intensity:.2f}): CV {a.current.cv_pct:.3f} % "

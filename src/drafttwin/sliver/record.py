@@ -193,8 +193,9 @@ def _bad_value(length: object, density: object, row: int) -> tuple[str, str]:
 
 
 def find_length_column(frame: pd.DataFrame, named: str | None, unit: str | None, path: Path,
-                   option: str) -> tuple[str, float]:  # fmt: skip
-    """The length column of a sliver table (named, else recognised) and its scale to m."""
+                       option: str, naming: bool = True) -> tuple[str, float]:  # fmt: skip
+    """The length column of a sliver table (named, else recognised) and its scale to m;
+    ``naming``: the command has --length-column (its fix says so)."""
     columns = ", ".join(map(str, frame.columns))
     if unit is not None and unit not in LENGTH_UNITS:
         raise DataError(f"length unit '{unit}'", where="--length-unit", fix="m, cm or mm")
@@ -209,7 +210,8 @@ def find_length_column(frame: pd.DataFrame, named: str | None, unit: str | None,
         if not candidates:
             raise DataError(f"no length column (columns: {columns})", source=path, where=option,
                             fix="name it with --length-column (e.g. --length-column length_m), "
-                            "or call it delivered_length_m")  # fmt: skip
+                            "or call it delivered_length_m" if naming else "call the delivered "
+                            "length column delivered_length_m (m)")  # fmt: skip
         found = candidates[0]
     carried = _unit_of(found)
     if unit is not None and carried and carried[0] != unit:
