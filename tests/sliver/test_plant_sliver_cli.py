@@ -213,3 +213,22 @@ def test_the_diagnose_page_shows_what_the_sliver_says(records, tmp_path):
         assert f"{c['wavelength_m'] * 100:.3g} cm" in text and c["verdict"] in text
     assert sliver["chimneys"] and "gear B (A-B)" in text  # the run-out's gear, as printed
     assert 'id="fig-sliver-spectrogram"' in html
+
+
+def test_a_records_fibre_scale_comes_from_its_sidecar(tmp_path):
+    """generate --sliver --fibre-scale 4 wrote the lumping into the sidecar, and the sliver
+    commands read 1: Martindale's limit halved, the index of irregularity doubled."""
+    path = tmp_path / "fs4.csv"
+    _run("generate", "--duration", "12", "--seed", "9", "--sliver", "--fibre-scale", "4",
+         "--quiet", "--out", str(path))  # fmt: skip
+    assert json.loads(path.with_suffix(".json").read_text())["sliver"]["fibre_scale"] == 4.0
+    said = json.loads(_run("sliver", "spectrogram", "--data", str(path), "--json"))["evenness"]
+    given = json.loads(_run("sliver", "spectrogram", "--data", str(path), "--json",
+                            "--fibre-scale", "4"))["evenness"]  # fmt: skip
+    plain = json.loads(_run("sliver", "spectrogram", "--data", str(path), "--json",
+                            "--fibre-scale", "1"))["evenness"]  # fmt: skip
+    assert said == given
+    key = next(k for k in said if "martindale" in k.lower())
+    assert said[key] == pytest.approx(2 * plain[key], rel=1e-9)  # sqrt(4): CV of 1/4 the fibres
+    dx = json.loads(_run("sliver", "diagnose", "--data", str(path), "--json"))
+    assert dx["evenness"][key] == pytest.approx(said[key], rel=1e-9)

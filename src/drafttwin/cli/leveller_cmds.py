@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Annotated, Any
 
 import typer
+from rich import box
 from rich.table import Table
 
 from drafttwin.cli._groups import stops_cleanly
@@ -68,10 +69,15 @@ def _short(fault: str | None) -> str:
 
 def _print(results: dict[str, Any]) -> None:
     table = Table(title="recommended action point (rec) against the simulated CV minimum (min "
-                  "at), mm; set: the record's setting off the true point; CV %")  # fmt: skip
+                  "at), mm; set: the record's setting off the true point; CV %",
+                  box=box.SIMPLE_HEAD, pad_edge=False, padding=0)  # fmt: skip
     for col in ("", "feed", "fault", "set mm", "rec mm", "min at", "err mm", "CV min",
                 "CV rec", "ratio", "m"):  # fmt: skip
-        table.add_column(col, justify="left" if col in ("feed", "fault") else "right")
+        # never cut: at 80 columns the CVs read "1.6…" and the feed "long…" (the words fold)
+        text = col in ("feed", "fault")
+        widths = {"": 2, "feed": 9, "fault": 5, "ratio": 5, "m": 4}
+        table.add_column(col, justify="left" if text else "right", overflow="fold",
+                         no_wrap=not text, min_width=widths.get(col, 6))  # fmt: skip
     for c in results["cases"]:
         a = c["advice"]
         table.add_row(str(c["case"]), c["feed"]["kind"], _short(c["leveller_fault"]),

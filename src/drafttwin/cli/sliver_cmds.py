@@ -41,9 +41,10 @@ FinenessOpt = Annotated[float | None, number("--fineness-dtex", "Fibre fineness,
 FinenessCvOpt = Annotated[float | None, number("--fineness-cv", "Fineness CV as a fraction (default: the preset's).")]  # fmt: skip
 GaugesOpt = Annotated[str, typer.Option("--gauges", help="Zone gauges main,middle,break in mm "
                       "(FA320A: assumed 44,40,46).")]  # fmt: skip
-FibreScaleReadOpt = Annotated[float, number(
+FibreScaleReadOpt = Annotated[float | None, number(
     "--fibre-scale", "The record was simulated with this many fibres lumped into one (sliver "
-    "simulate --fibre-scale): Martindale's limit and the ideal curve follow it.")]  # fmt: skip
+    "simulate --fibre-scale): Martindale's limit and the ideal curve follow it (default: the "
+    "record's sidecar, as generate --sliver and plant serve --log write it; else 1).")]  # fmt: skip
 
 
 @dataclass(frozen=True)

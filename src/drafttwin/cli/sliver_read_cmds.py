@@ -68,7 +68,7 @@ def spectrogram_cmd(
     length_unit: LengthUnitOpt = None,
     fibre_options: FibreOptions,
     sensor_mm: SensorOpt = 0.0,
-    fibre_scale: FibreScaleReadOpt = 1.0,
+    fibre_scale: FibreScaleReadOpt = None,
     out: ChannelTableOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -85,7 +85,8 @@ def spectrogram_cmd(
 
     if out is not None:
         check_output_suffix(out)
-    sl, fibres, _ = read_record(data, column, length_column, length_unit, fibre_options)
+    sl, fibres, beside = read_record(data, column, length_column, length_unit, fibre_options)
+    fibre_scale = _fibre_scale(fibre_scale, beside)
     staple = fibres.staple
     ev = evenness(sl.linear_density_ktex, sl.step_m, staple, fibre_scale)
     spec = spectrogram(sl.linear_density_ktex, sl.step_m, staple, fibre_scale=fibre_scale,
@@ -198,7 +199,7 @@ def diagnose_cmd(
     gauges: GaugesOpt = "44,40,46",
     sensor_mm: SensorOrSidecarOpt = None,
     harmonics: MatchedOpt = 8,
-    fibre_scale: FibreScaleReadOpt = 1.0,
+    fibre_scale: FibreScaleReadOpt = None,
     report: PageOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -232,7 +233,7 @@ def diagnose_cmd(
         if beside is not None:
             speeds = speeds if speeds is not None else beside.speeds
             sensor_mm = beside.sensor_mm if sensor_mm is None else sensor_mm
-        record = replace(record, fibre_scale=fibre_scale)
+        record = replace(record, fibre_scale=_fibre_scale(fibre_scale, beside))
     else:
         assert spectrogram_file is not None
         fib = resolve_fibres(fibre_options.given())
@@ -240,9 +241,9 @@ def diagnose_cmd(
     fibres = fib.staple
     ref = None
     if reference is not None:
-        ref, _, _ = read_record(reference, column, length_column, length_unit, fibre_options,
-                                option="--reference")  # fmt: skip
-        ref = replace(ref, staple=fibres)
+        ref, _, ref_beside = read_record(reference, column, length_column, length_unit,
+                                         fibre_options, option="--reference")  # fmt: skip
+        ref = replace(ref, staple=fibres, fibre_scale=_fibre_scale(fibre_scale, ref_beside))
     dx = diagnose_sliver(record, train, fibres, zones, harmonics=harmonics,
                          sensor_length_m=(sensor_mm or 0.0) * 1e-3, reference=ref)  # fmt: skip
     if speeds is not None and data is not None:
@@ -279,3 +280,12 @@ def _with_speeds(dx: Any, record: Any, speeds: Path, fibres: Any, zones: Any) ->
     series = read_speed_file(speeds)
     rpm = {r: series.values[:, series.channels.index(r)] for r in series.channels}
     return with_encoders(dx, record, series.time_s, rpm, fibres, zones)
+
+
+def _fibre_scale(given: float | None, beside: Any) -> float:
+    """``--fibre-scale``, else the record's sidecar's, else 1 (every fibre drawn): the
+    lumping of a generated record had been lost, Martindale's limit halved for a scale of 4."""
+    if given is not None:
+        return given
+    said = None if beside is None else beside.fibre_scale
+    return 1.0 if said is None else said

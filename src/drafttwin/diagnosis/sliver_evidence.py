@@ -12,6 +12,7 @@ once-per-revolution defects, which leave chimneys in the sliver.
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -37,15 +38,20 @@ def sliver_evidence(path: str | Path, train: DriveTrain, series: MeasurementSeri
     if beside is None:
         return None
     staple = staple or StapleDiagram.preset("cotton")
-    sliver = read_sliver(beside.sliver, staple=staple, option="--data (its sliver channel)")
+    # an emulated record's lumping, as its sidecar says (the twin reads it from the description)
+    scale = beside.fibre_scale or 1.0
+    sliver = replace(read_sliver(beside.sliver, staple=staple,
+                                 option="--data (its sliver channel)"), fibre_scale=scale)  # fmt: skip
     reference = None
     for h in healthy:
         ref = sliver_beside(h)
         if ref is not None:
-            reference = read_sliver(ref.sliver, staple=staple, option="--healthy (its sliver)")
+            reference = replace(read_sliver(ref.sliver, staple=staple,
+                                            option="--healthy (its sliver)"),
+                                fibre_scale=ref.fibre_scale or 1.0)  # fmt: skip
             break
     watch = SliverWatch(train, staple, sensor_length_m=beside.sensor_mm * 1e-3,
-                        reference=reference)  # fmt: skip
+                        reference=reference, fibre_scale=scale)  # fmt: skip
     s, x = sliver.delivered_length_m, sliver.linear_density_ktex
     t = sliver.time_s if sliver.time_s is not None else s
     for i in range(0, x.size, CHUNK):

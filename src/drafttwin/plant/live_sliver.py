@@ -91,7 +91,7 @@ class LiveSliver:
         return {"v": PAYLOAD_VERSION, "staple": s.feed.staple.describe(),
                 "doublings": s.feed.doublings, "feed_ktex": s.feed.count_ktex,
                 "delivery_sensor": asdict(s.delivery), "infeed_sensor": infeed,
-                "step_mm": s.step_mm,
+                "step_mm": s.step_mm, "fibre_scale": s.fibre_scale,
                 "leveller": None if lev is None else {
                     "intensity": lev.intensity, "action_point_mm": lev.action_point_mm,
                     "reference": "the feed's nominal count",

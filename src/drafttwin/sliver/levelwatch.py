@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from drafttwin.errors import DrafttwinError
+from drafttwin.errors import DataError, DrafttwinError
 from drafttwin.sliver.action_point import SEARCH_MM, LevellingAdvice, find_action_point
 from drafttwin.sliver.leveller_record import LevellerRecord, LevellerSetting, context_of
 from drafttwin.sliver.sensor import SliverSensor
@@ -40,13 +40,18 @@ class LevelContext:
     staple: StapleDiagram
     fibres: str
     delivery: SliverSensor | None
+    fibre_scale: float = 1.0  # an emulated machine's lumping (its ideal curve follows it)
 
     @classmethod
     def of(cls, section: dict[str, Any]) -> LevelContext:
         """From a sidecar's ``sliver`` section or a served machine's description."""
         setting, had, described, delivery = context_of(section)
         fibres = resolve_fibres(None, described)
-        return cls(setting, had, fibres.staple, fibres.source, delivery)
+        scale = section.get("fibre_scale", 1.0)
+        if isinstance(scale, bool) or not isinstance(scale, int | float) or not 1 <= scale <= 1e6:
+            raise DataError(f"fibre_scale {scale!r} is not a number from 1 to 1e6",
+                            where="description", fix="describe the sliver again")  # fmt: skip
+        return cls(setting, had, fibres.staple, fibres.source, delivery, float(scale))
 
     def to_dict(self) -> dict[str, Any]:
         s = self.setting

@@ -9,6 +9,7 @@ columns ``delivered_length_m`` (the grid's bin centres, m) and ``linear_density_
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -283,6 +284,15 @@ class SliverBeside:
         """The fibres the record was made of, as the sidecar describes them."""
         described = self.sidecar.get("staple")
         return described if isinstance(described, dict) else None
+
+    @property
+    def fibre_scale(self) -> float | None:
+        """Fibres the simulator lumped into one, as the sidecar says (None: not said)."""
+        value = self.sidecar.get("fibre_scale")
+        if not isinstance(value, int | float) or isinstance(value, bool):
+            return None
+        scale = float(value)
+        return scale if math.isfinite(scale) and 1.0 <= scale <= 1e6 else None
 
 
 def sliver_beside(path: str | Path) -> SliverBeside | None:

@@ -53,6 +53,8 @@ class SliverWatch:
     window_m: float = 100.0
     every_m: float = 50.0
     sensor_length_m: float = 0.0
+    fibre_scale: float = 1.0
+    """Fibres an emulator lumped into one (Martindale's limit and the ideal curve follow it)."""
     reference: Sliver | None = None
     """A healthy sliver of this machine: its own lines do not alarm (only new chimneys)."""
     _s: list[np.ndarray] = field(default_factory=list, repr=False)
@@ -150,6 +152,7 @@ class SliverWatch:
             return []
         step = float(np.median(np.diff(s[inside])))
         record = Sliver(x[inside], step, start_m=float(s[inside][0]) - step / 2,
+                        fibre_scale=self.fibre_scale,
                         time_s=t[inside], staple=self.staple)  # fmt: skip
         dx = diagnose_sliver(record, self.train, self.staple, self.zones,
                              sensor_length_m=self.sensor_length_m, table=self._table,

@@ -105,7 +105,9 @@ class SliverDesk:
         if st.sliver is None:
             st.sliver = SliverWatch(st.twin.train, StapleDiagram.preset("cotton")
                                     if st.level is None else st.level.context.staple,
-                                    sensor_length_m=SLIVER_SENSOR_M, checks_now=False)  # fmt: skip
+                                    sensor_length_m=SLIVER_SENSOR_M, checks_now=False,
+                                    fibre_scale=1.0 if st.level is None
+                                    else st.level.context.fibre_scale)  # fmt: skip
         st.sliver.push(b.delivered_m, b.ktex, b.time_s)
         if st.sliver.due() and not st.sliver_busy:
             st.sliver_busy = True

@@ -34,3 +34,25 @@ def test_the_plan_takes_the_options_given(
                              str(tmp_path / "out")])  # fmt: skip
     (config,) = seen
     assert (config.machines, config.fault_cases, config.length_m) == expected
+
+
+def test_the_table_cuts_no_figure_at_80_columns(monkeypatch) -> None:
+    """At 80 columns the CV cells read "1.6…", the ratios "1.0…" and the feeds "long…"."""
+    import io
+
+    from rich.console import Console
+
+    from drafttwin.cli import leveller_cmds
+
+    buf = io.StringIO()
+    monkeypatch.setattr(leveller_cmds, "console", Console(file=buf, width=80))
+    case = {"case": 10, "feed": {"kind": "missing-sliver"}, "leveller_fault": "infeed-drift",
+            "offset_mm": -25.0, "advice": {"recommended_action_point_mm": 698.61,
+                                           "metres_used": 256.0},
+            "brute_min_action_point_mm": 699.5, "error_mm": -0.9, "brute_min_cv_pct": 1.6543,
+            "reached_cv_pct": 1.7012, "cv_ratio": 1.0284}  # fmt: skip
+    leveller_cmds._print({"cases": [case], "summary": {}})
+    out = buf.getvalue()
+    assert "…" not in out
+    for cell in ("missing-sliver", "1.654", "1.701", "1.028", "698.6", "699.5", "256", "set:"):
+        assert cell in out, (cell, out)
