@@ -483,3 +483,34 @@ def test_the_page_shows_the_sliver_its_spectrogram_and_the_recommendation(twin_f
     assert "The twin writes no setting" in text and "the machine's setting action point" in text
     assert "count 5.0" in text and "ktex · CV" in text
     assert points > 20
+
+
+def test_a_machine_without_a_leveller_is_promised_no_recommendation() -> None:
+    """'no leveller; ... a recommendation every 50 m of sliver', then none ever came (a window
+    without a setting is never due)."""
+    from types import SimpleNamespace
+
+    from drafttwin.plant.sliver_channel import SliverSettings
+    from drafttwin.twin.sliverdesk import SliverDesk
+    from drafttwin.wire.sliver import PAYLOAD_VERSION
+
+    events: list[Any] = []
+
+    class Host:
+        loop = None
+        stop_signalled = False
+        subscribers: list[Any] = []
+
+        def event(self, st: Any, ev: Any) -> None:
+            events.append(ev)
+
+        def report(self, *a: Any) -> None:
+            events.append(a)
+
+    desk = SliverDesk(Host())  # type: ignore[arg-type]
+    st = SimpleNamespace(level=None, twin=SimpleNamespace(name="m"))
+    for leveller, says in ((None, "no setting to recommend from"),
+                           ({"intensity": 1.0, "action_point_mm": 720.0}, "a recommendation every")):  # fmt: skip
+        section = {**SliverSettings().record(), "v": PAYLOAD_VERSION, "leveller": leveller}
+        desk.describe(st, json.dumps(section))  # type: ignore[arg-type]
+        assert says in events[-1].detail, events[-1]

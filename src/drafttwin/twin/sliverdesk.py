@@ -137,9 +137,11 @@ class SliverDesk:
         s = context.setting
         what = ("no leveller" if s is None else
                 f"intensity {s.intensity:g}, action point {s.action_point_mm:.1f} mm")  # fmt: skip
+        every = (f"a recommendation every {self.window_m:g} m of sliver" if s is not None
+                 else "no setting to recommend from (sliver level --action-point MM "
+                 "--intensity 0 on its record places a first one)")  # fmt: skip
         self._event(st, "leveller", f"the machine's leveller: {what}; fibres "
-                    f"{context.staple.name} ({context.fibres}); a recommendation every "
-                    f"{self.window_m:g} m of sliver")  # fmt: skip
+                    f"{context.staple.name} ({context.fibres}); {every}")  # fmt: skip
 
     # ---- the workers ----------------------------------------------------------------------
     def _soon(self, fn: Any, *args: Any) -> None:
