@@ -136,3 +136,29 @@ def test_a_slower_drive_moves_the_best_setting_by_its_lag():
         k = int(np.argmin(cv2))
         a, b, _ = np.polyfit(offsets[k - 1 : k + 2], cv2[k - 1 : k + 2], 2)
         assert -b / (2 * a) == pytest.approx(-tau * fed_mm_s, abs=0.8)
+
+
+def test_a_drifting_count_is_not_called_a_sluggish_drive_outright() -> None:
+    """A drifting infeed sensor (3 %/min) was reported as 'a sluggish drive' at the grid's
+    300-ms end, with a nominal 5-ms drive; now the note names both readings and the bound."""
+    from types import SimpleNamespace
+
+    from drafttwin.sliver.action_point import DRIVE_GRID_S, LevellerSetting, _notes
+    from drafttwin.sliver.leveller_record import LevellerRecord
+
+    s = np.arange(0.0, 200.0, 0.01)
+    drift = 5.0 * (1 - 0.02 * s / 100)  # 2 % per 100 m
+    flat = np.full_like(s, 5.0)
+    setting = LevellerSetting(700.0, 1.0)
+    model = SimpleNamespace(start=0)
+
+    def notes(y: np.ndarray, tau: float) -> str:
+        rec = LevellerRecord(s, y, np.full_like(s, 33.0), s / 6.5, s / 4.0, "test")
+        return " ".join(_notes(setting, tau, rec, model))  # type: ignore[arg-type]
+
+    slow = notes(flat, 0.02)
+    assert "follows with 20 ms" in slow and slow.endswith("a sluggish drive")
+    both = notes(drift, max(DRIVE_GRID_S))
+    assert f"at least {1000 * max(DRIVE_GRID_S):.0f} ms" in both
+    assert "or the count's drift below read as one" in both and "drifts by -2.0" in both
+    assert "sluggish" not in notes(drift, setting.drive_time_constant_s)
