@@ -199,7 +199,7 @@ def test_a_description_said_again_keeps_the_window_a_new_one_starts_it_again(ser
     live, batches = served
     reported: list[tuple[str, ...]] = []
     host = SimpleNamespace(loop=None, subscribers=[], event=lambda st, ev: None,
-                           report=lambda *a: reported.append(a))  # fmt: skip
+                           report=lambda *a: reported.append(a), stop_signalled=True)  # fmt: skip
     desk = SliverDesk(host, window_m=20.0)  # type: ignore[arg-type]
     from drafttwin.mechanics import DriveTrain
 
@@ -220,4 +220,4 @@ def test_a_description_said_again_keeps_the_window_a_new_one_starts_it_again(ser
     assert st.level is not first and st.level.context.setting.action_point_mm == 650.0
     desk.describe(st, "{not json")  # type: ignore[arg-type]
     assert reported and reported[-1][1] == "dropped"
-    asyncio.run(desk.settle(True))
+    asyncio.run(desk.settle())
