@@ -162,3 +162,16 @@ def test_a_drifting_count_is_not_called_a_sluggish_drive_outright() -> None:
     assert f"at least {1000 * max(DRIVE_GRID_S):.0f} ms" in both
     assert "or the count's drift below read as one" in both and "drifts by -2.0" in both
     assert "sluggish" not in notes(drift, setting.drive_time_constant_s)
+
+
+def test_a_recommendation_that_raises_the_long_lengths_cv_says_so() -> None:
+    """With a sluggish drive the recommendation took CV(5 m) from 0.038 to 0.069 % while it
+    lowered the point CV, and nothing said so."""
+    from drafttwin.sliver.action_point import ExpectedEvenness, _longer
+
+    now = ExpectedEvenness(5.0, 1.2, 0.115, 0.062, 0.038)
+    worse = ExpectedEvenness(5.0, 0.9, 0.130, 0.074, 0.069)
+    (note,) = _longer(now, worse)
+    assert "CV(3 m) 0.062 -> 0.074 %" in note and "CV(5 m) 0.038 -> 0.069 %" in note
+    assert _longer(now, ExpectedEvenness(5.0, 0.9, 0.1, 0.063, 0.039)) == ()  # within 5 %
+    assert _longer(now, ExpectedEvenness(5.0, 0.9, 0.1, float("nan"), float("nan"))) == ()
