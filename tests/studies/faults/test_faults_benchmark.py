@@ -134,9 +134,11 @@ def test_sigterm_stops_the_offline_benchmark_in_one_line(tmp_path):
     proc = subprocess.Popen([sys.executable, "-m", "drafttwin", "benchmark", "faults", "--quick",
                              "--quiet", "--out", str(tmp_path / "fb")], stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)  # fmt: skip
-    time.sleep(8.0)  # into the records, the workers busy
-    children = _children(proc.pid)
+    deadline = time.monotonic() + 60.0  # into the records, the workers busy
+    while not (children := _children(proc.pid)) and time.monotonic() < deadline:
+        time.sleep(0.5)
     assert children  # the workers
+    time.sleep(2.0)
     start = time.monotonic()
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=30)
