@@ -419,7 +419,7 @@ def test_a_stop_signal_abandons_the_window_in_progress_a_natural_end_waits_for_i
     assert asyncio.run(settle(True)) < 0.5
     assert asyncio.run(settle(False)) > 2.5
     # it had waited for the window: 8.4-9.1 s after SIGTERM at a replay's end
-    assert asyncio.run(settle(False, later_s=0.5)) < 1.0
+    assert asyncio.run(settle(False, later_s=0.5)) < 2.0  # the window: 3 s
 
 
 def test_the_leveller_worker_does_not_hold_the_process_at_exit() -> None:
