@@ -71,11 +71,11 @@ def _print(results: dict[str, Any]) -> None:
     table = Table(title="recommended action point (rec) against the simulated CV minimum (min "
                   "at), mm; set: the record's setting off the true point; CV %",
                   box=box.SIMPLE_HEAD, pad_edge=False, padding=0)  # fmt: skip
+    # never cut: at 80 columns the CVs read "1.6…" and the feed "long…" (the words fold)
+    widths = {"": 2, "feed": 9, "fault": 5, "ratio": 5, "m": 4}
     for col in ("", "feed", "fault", "set mm", "rec mm", "min at", "err mm", "CV min",
                 "CV rec", "ratio", "m"):  # fmt: skip
-        # never cut: at 80 columns the CVs read "1.6…" and the feed "long…" (the words fold)
         text = col in ("feed", "fault")
-        widths = {"": 2, "feed": 9, "fault": 5, "ratio": 5, "m": 4}
         table.add_column(col, justify="left" if text else "right", overflow="fold",
                          no_wrap=not text, min_width=widths.get(col, 6))  # fmt: skip
     for c in results["cases"]:

@@ -154,27 +154,15 @@ def _plant_log_speeds(path: Path) -> Any:
     """The roller speeds of a ``plant serve --log`` file of one machine, on the plant's own
     clock (the one its sliver log's readings carry); ``None`` for a file that is no plant
     log. A log of several machines is refused: which one the sliver is of is not said."""
-    import numpy as np
+    from drafttwin.wire.plantlog import plant_log_series
 
-    from drafttwin._constants import ROLLERS
-    from drafttwin.data.series import MeasurementSeries
-    from drafttwin.wire.plantlog import read_plant_log
-
-    try:
-        frame = read_plant_log(path)
-    except DataError:
+    records = plant_log_series(path, own_clock=True)
+    if records is None:
         return None
-    machines = sorted(set(frame["machine"]))
-    if len(machines) != 1:
-        raise DataError(f"a plant log of {len(machines)} machines ({', '.join(machines[:5])})",
-                        source=path, where="--speeds",
+    if len(records) != 1:
+        raise DataError(f"a plant log of {len(records)} machines", source=path, where="--speeds",
                         fix="give one machine's speeds (plant serve --log with one machine)")  # fmt: skip
-    rows = frame.sort_values("seq")
-    return MeasurementSeries(time_s=rows["time"].to_numpy(dtype=np.float64),
-                             values=rows[list(ROLLERS)].to_numpy(dtype=np.float64),
-                             inputs={"supply_hz": rows["supply_hz"].to_numpy(dtype=np.float64)},
-                             motor_rpm=rows["motor"].to_numpy(dtype=np.float64),
-                             metadata={"source": f"{path} (machine {machines[0]})"})  # fmt: skip
+    return records[0]
 
 
 def _speeds(speeds: str, truth: bool, duration: float, train: Any, detail: bool,

@@ -31,7 +31,6 @@ import numpy as np
 
 from drafttwin._constants import ROLLERS
 from drafttwin._io import sha256_file
-from drafttwin.data.series import MeasurementSeries
 from drafttwin.diagnosis.cusum import Alarm
 from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.diagnose import Diagnoser, sensor_cause
@@ -42,6 +41,7 @@ from drafttwin.diagnosis.stream import BLOCK_S, POST_S, DiagnosisStream, RankReq
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain
 from drafttwin.twin.store.db import SampleRow
+from drafttwin.wire.plantlog import plant_log_series  # noqa: F401 - fitted on by fit-detector
 
 FORMAT = "drafttwin-live-detector"
 VERSION = 1
@@ -104,30 +104,6 @@ def load_detector(path: Path, model: Path) -> tuple[FaultDetector, float, dict[s
     origin = {"file": path.name, "sha256": sha256_file(path), "machines": machines,
               "fitted_on": [str(f) for f in doc.get("fitted_on", [])][:100]}  # fmt: skip
     return FaultDetector.from_state(state, source=str(path)), float(post), origin
-
-
-def plant_log_series(path: Path) -> list[MeasurementSeries] | None:
-    """Each machine's record in a ``plant serve --log`` file (``None``: not a plant log), to
-    fit a detector on the live plant's own healthy running."""
-    from drafttwin.wire.plantlog import read_plant_log
-
-    try:
-        frame = read_plant_log(path)
-    except DataError:
-        return None
-    out = []
-    for name, rows in frame.sort_values(["machine", "seq"]).groupby("machine", sort=True):
-        seq = rows["seq"].to_numpy(dtype=np.int64)
-        # the plant's sample times are t0 + seq / rate: rebuilt from the counter, exactly uniform
-        period_s = (
-            float(np.median(np.diff(rows["ts_us"].to_numpy()))) / 1e6 if len(seq) > 1 else 0.01
-        )
-        out.append(MeasurementSeries(
-            time_s=(seq - seq[0]) * period_s, values=rows[list(ROLLERS)].to_numpy(dtype=np.float64),
-            inputs={"supply_hz": rows["supply_hz"].to_numpy(dtype=np.float64)},
-            motor_rpm=rows["motor"].to_numpy(dtype=np.float64),
-            metadata={"source": f"{path} (machine {name})"}))  # fmt: skip
-    return out
 
 
 class LiveFaultWatch:

@@ -324,3 +324,32 @@ def read_plant_log(path: Path) -> Any:
 
 __all__ = ["COLUMNS", "SLIVER_COLUMNS", "WRITTEN", "PlantLog", "open_plant_log",
            "read_plant_log"]  # fmt: skip
+
+
+def plant_log_series(path: Path, *, own_clock: bool = False) -> list[Any] | None:
+    """Each machine's record in a ``plant serve --log`` file as a ``MeasurementSeries``
+    (``None``: not a plant log): to fit a detector on the live plant's own healthy running
+    (times rebuilt from the counter, from 0), or with ``own_clock`` on the plant's clock, the
+    one its sliver log's readings carry."""
+    from drafttwin._constants import ROLLERS
+    from drafttwin.data.series import MeasurementSeries
+    from drafttwin.errors import DataError
+
+    try:
+        frame = read_plant_log(path)
+    except DataError:
+        return None
+    out = []
+    for name, rows in frame.sort_values(["machine", "seq"]).groupby("machine", sort=True):
+        seq = rows["seq"].to_numpy(dtype=np.int64)
+        # the plant's sample times are t0 + seq / rate: rebuilt from the counter, exactly uniform
+        period_s = (
+            float(np.median(np.diff(rows["ts_us"].to_numpy()))) / 1e6 if len(seq) > 1 else 0.01
+        )
+        time_s = rows["time"].to_numpy(dtype=np.float64) if own_clock else (seq - seq[0]) * period_s
+        out.append(MeasurementSeries(
+            time_s=time_s, values=rows[list(ROLLERS)].to_numpy(dtype=np.float64),
+            inputs={"supply_hz": rows["supply_hz"].to_numpy(dtype=np.float64)},
+            motor_rpm=rows["motor"].to_numpy(dtype=np.float64),
+            metadata={"source": f"{path} (machine {name})"}))  # fmt: skip
+    return out
