@@ -41,7 +41,7 @@ from drafttwin.diagnosis.stream import BLOCK_S, POST_S, DiagnosisStream, RankReq
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain
 from drafttwin.twin.store.db import SampleRow
-from drafttwin.wire.plantlog import plant_log_series  # noqa: F401 - fitted on by fit-detector
+from drafttwin.wire.plantlog import plant_log_series as plant_log_series  # fit-detector's
 
 FORMAT = "drafttwin-live-detector"
 VERSION = 1

@@ -24,11 +24,14 @@ import contextlib
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from drafttwin.errors import ConfigError
+
+if TYPE_CHECKING:
+    from drafttwin.data.series import MeasurementSeries
 
 COLUMNS = ("machine", "seq", "ts_us", "time", "front", "second", "third", "back", "motor",
            "supply_hz", "published")  # fmt: skip
@@ -326,7 +329,7 @@ __all__ = ["COLUMNS", "SLIVER_COLUMNS", "WRITTEN", "PlantLog", "open_plant_log",
            "read_plant_log"]  # fmt: skip
 
 
-def plant_log_series(path: Path, *, own_clock: bool = False) -> list[Any] | None:
+def plant_log_series(path: Path, *, own_clock: bool = False) -> list[MeasurementSeries] | None:
     """Each machine's record in a ``plant serve --log`` file as a ``MeasurementSeries``
     (``None``: not a plant log): to fit a detector on the live plant's own healthy running
     (times rebuilt from the counter, from 0), or with ``own_clock`` on the plant's clock, the
