@@ -19,3 +19,28 @@ def test_a_quick_exit_asked_by_an_earlier_command_does_not_end_the_next(
     with pytest.raises(SystemExit) as info:
         main()
     assert info.value.code == 2 and not quick_exit_due()
+
+
+@pytest.mark.parametrize("signum", ["SIGTERM", "SIGINT"])
+def test_a_signal_while_the_command_starts_says_so(signum: str, tmp_path) -> None:
+    """SIGTERM in the first second (Python still importing; seconds on a busy machine) died
+    silently with 143, Ctrl-C there printed a KeyboardInterrupt traceback: one line now, exit
+    128 + signal, nothing written."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "plant.csv"
+    proc = subprocess.Popen([sys.executable, "-m", "drafttwin", "generate", "--duration", "600",
+                             "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "NO_COLOR": "1"})  # fmt: skip
+    time.sleep(0.3)
+    sig = getattr(signal, signum)
+    proc.send_signal(sig)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + sig, err
+    assert f"stopped by {signum}" in err and "Traceback" not in err, err
+    assert list(tmp_path.iterdir()) == []

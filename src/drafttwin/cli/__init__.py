@@ -7,7 +7,37 @@ handled by the command group in :mod:`drafttwin.cli.typer_app`.
 
 from __future__ import annotations
 
-from drafttwin.cli.typer_app import app, reflow_help
+import os
+import signal
+import sys
+from types import FrameType
+
+
+def _stopped_while_starting(signum: int, frame: FrameType | None) -> None:
+    """SIGTERM or Ctrl-C before a command has its own handler (Python still importing: a
+    few seconds on a busy machine): one line and exit 128 + signal, not a silent death or a
+    KeyboardInterrupt traceback. Nothing has been written yet; a command that writes
+    installs its own handler (``stops_cleanly``), which removes its temporaries."""
+    sys.stderr.write(f"stopped by {signal.Signals(signum).name}\n")
+    sys.stderr.flush()
+    os._exit(128 + signum)
+
+
+def _run_as_the_command() -> bool:
+    """Whether this process is the ``drafttwin`` script or ``python -m drafttwin`` (not a
+    program that imports the CLI: its signals are its own)."""
+    argv0 = sys.argv[0] if sys.argv else ""
+    return os.path.basename(argv0) == "drafttwin" or argv0.endswith(
+        os.path.join("drafttwin", "__main__.py")
+    )
+
+
+if _run_as_the_command() and signal.getsignal(signal.SIGTERM) == signal.SIG_DFL:
+    signal.signal(signal.SIGTERM, _stopped_while_starting)
+    if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+        signal.signal(signal.SIGINT, _stopped_while_starting)
+
+from drafttwin.cli.typer_app import app, reflow_help  # noqa: E402
 
 # Importing the command modules registers their commands on ``app``.
 from drafttwin.cli import mechanics_cmds  # noqa: E402,F401  isort: skip

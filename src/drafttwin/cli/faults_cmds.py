@@ -169,12 +169,13 @@ def diagnose(
     diagnoser = Diagnoser(train, detector)
     with _named(data, "--data"):
         dx = diagnoser.diagnose(series)
-    watched_from = float(series.time_s[0]) + detector.reference_s
+    watched_from = dx.watched_from_s(detector.reference_s)
     info = {"data": data, "physics": model, "thresholds_from": tuned_on,
             "watched_from_s": watched_from,
             "detector": detector.describe(), "creep_rel_sd": diagnoser.creep_rel_sd}  # fmt: skip
     result = {**info, **dx.to_dict()}
-    notes = [n for n in (_not_steady(series), detector.levels_note()) if n is not None]
+    notes = [n for n in (dx.steady_note(detector.reference_s), detector.levels_note())
+             if n is not None]  # fmt: skip
     if notes:
         result["notes"] = notes
     from drafttwin.diagnosis.sliver_evidence import sliver_evidence
@@ -244,22 +245,6 @@ def _head(series: MeasurementSeries, n: int) -> MeasurementSeries:
                    metadata={})  # fmt: skip
 
 
-def _not_steady(series: MeasurementSeries) -> str | None:
-    """What to say of a record whose front roller runs below half its median speed somewhere
-    (a start, a stop, a standstill): the thresholds are set on steady running, and a healthy
-    start-up or stop has raised alarms (a standstill reads as a stuck encoder)."""
-    front = np.asarray(series.values[:, 0], dtype=np.float64)
-    median = float(np.nanmedian(front)) if np.isfinite(front).any() else 0.0
-    slow = np.flatnonzero(front < 0.5 * median) if median > 0 else np.arange(len(front))
-    if not len(slow):
-        return None
-    t = series.time_s
-    return (f"the front roller runs below half its median speed from {t[slow[0]]:.1f} s to "
-            f"{t[slow[-1]]:.1f} s (a start, a stop or a standstill): the thresholds hold for "
-            "steady running, so an alarm there may be false; diagnose a steady part of the "
-            "record")  # fmt: skip
-
-
 def _print_diagnosis(result: dict[str, Any], report: Path | None, lags_note: str | None) -> None:
     alarm = result["alarm"]
     console.print(f"thresholds from {result['thresholds_from']}")
@@ -272,7 +257,8 @@ def _print_diagnosis(result: dict[str, Any], report: Path | None, lags_note: str
     else:
         console.print(f"[bold red]alarm[/] at {alarm['time_s']:.1f} s ({alarm['test']}), change "
                       f"estimated at {alarm['onset_s']:.1f} s")  # fmt: skip
-        if alarm["onset_s"] <= result["watched_from_s"] + 1.0:
+        watched = result["watched_from_s"]
+        if watched is not None and alarm["onset_s"] <= watched + 1.0:
             console.print(f"the record is watched from {result['watched_from_s']:.1f} s (before "
                           "that it is its own baseline): the change may have begun earlier")  # fmt: skip
         table = Table(title="ranked causes (p: relative among the candidates; fit: absolute)",

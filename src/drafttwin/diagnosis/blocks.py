@@ -69,6 +69,15 @@ MOVING_RPM = 1.0  # below this predicted speed a roller counts as stopped (no sp
 MRAD_PER_RPM_S = 2e3 * math.pi / 60.0  # a speed of 1 rpm for 1 s turns this many mrad
 STALE_EDGES = 8.0  # a run whose lag moved this many edges is stale (see the module docstring)
 MIN_ROWS_PER_BLOCK = 10  # a block's level, spikes and runs need rows to judge (10 Hz at 1 s)
+STEADY_SPAN = 0.01
+"""A block is steady running when the predicted front roller speed (what the set-point
+commands) moves by at most this share of its mean within it and is above
+:data:`MOVING_RPM`. Elsewhere (a start, a stop, a speed change, a standstill) the residual
+carries the drive's acceleration, which thresholds set on steady running do not allow for:
+on the FA320A plant a start-up at 12 % of full speed per second left a relative residual of
+-4.1e-3 at 6 % speed and -1.3e-3 at 43 %, against -0.35e-3 at steady full speed, and a
+healthy start-up, stop or standstill raised alarms (see
+:class:`~drafttwin.diagnosis.cusum.CusumState`, which does not judge such blocks)."""
 
 
 def check_rows_per_block(block_s: float, period_s: float) -> None:
@@ -107,7 +116,7 @@ class BlockStream:
         self._t = np.zeros(self.per)
         self._k = 0  # rows in the open block
         self._waiting: deque[tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                                   np.ndarray]] = deque()  # fmt: skip
+                                   np.ndarray, bool]] = deque()  # fmt: skip
         self._lag_rows = np.zeros((0, N_LAGGED))  # final lags not yet averaged into a block
         self._edge_rpm = np.full(4, np.inf)  # each roller's smallest reading step so far
         self._prev: tuple[np.ndarray, np.ndarray] | None = None  # the last block's y and lags
@@ -152,18 +161,20 @@ class BlockStream:
         step[~(step > 0)] = np.inf  # NaN too
         self._edge_rpm = np.minimum(self._edge_rpm, step.min(axis=0))
         edge = (self._edge_rpm[1:] + self.lags.ratio * self._edge_rpm[0]) * self.lags.mrad_per_row
-        self._waiting.append((float(self._t[-1]), level, lost, run, self._y.copy(), edge))
+        self._waiting.append((float(self._t[-1]), level, lost, run, self._y.copy(), edge,
+                              commanded_steady(self._yhat[:, 0])))  # fmt: skip
         return self._emit(final)
 
     def _emit(self, lag: np.ndarray) -> list[BlockRow]:
         self._lag_rows = np.vstack([self._lag_rows, lag])
         out = []
         while self._waiting and len(self._lag_rows) >= self.per:
-            t, level, lost, run, y, edge = self._waiting.popleft()
+            t, level, lost, run, y, edge, steady = self._waiting.popleft()
             lag = self._lag_rows[: self.per]
             self._lag_rows = self._lag_rows[self.per :]
             stale = self._stale(y, lag, edge)
-            out.append(BlockRow(self.blocks, t, level, lost, run, lag.mean(axis=0), stale))
+            out.append(BlockRow(self.blocks, t, level, lost, run, lag.mean(axis=0), stale,
+                                steady))  # fmt: skip
             self._prev = (y, lag)
             self.blocks += 1
         return out
@@ -179,14 +190,16 @@ class BlockStream:
 class BlockRow:
     """One block's features (see :class:`~drafttwin.diagnosis.residuals.BlockFeatures`)."""
 
-    __slots__ = ("index", "time_s", "level", "lost", "run", "lag", "stale")
+    __slots__ = ("index", "time_s", "level", "lost", "run", "lag", "stale", "steady")
 
     def __init__(self, index: int, time_s: float, level: np.ndarray, lost: np.ndarray,
-                 run: np.ndarray, lag: np.ndarray, stale: np.ndarray | None = None) -> None:  # fmt: skip
+                 run: np.ndarray, lag: np.ndarray, stale: np.ndarray | None = None,
+                 steady: bool = True) -> None:  # fmt: skip
         self.index, self.time_s = index, time_s
         self.level, self.lost, self.run, self.lag = level, lost, run, lag
         # without it (features kept before 2026-11-29) every run counts as stale: the old rule
         self.stale = run if stale is None else stale
+        self.steady = bool(steady)  # steady running (:func:`commanded_steady`)
 
     @property
     def features(self) -> np.ndarray:
@@ -218,6 +231,17 @@ def block_levels(y: np.ndarray, yhat: np.ndarray) -> tuple[np.ndarray, ...]:
     stopped = yhat < MOVING_RPM
     good = ((off < ANGLE_SPIKE) & finite) | (stopped & finite)
     return level, lost, longest_runs(y), good
+
+
+def commanded_steady(front_hat: np.ndarray) -> bool:
+    """Whether one block's predicted front roller speeds (rpm) are steady running: above
+    :data:`MOVING_RPM` and moving by at most :data:`STEADY_SPAN` of their mean. A block
+    without a finite prediction counts as steady (its levels are NaN: nothing is judged)."""
+    front_hat = np.asarray(front_hat, dtype=np.float64)
+    if not np.isfinite(front_hat).all():
+        return True
+    mean = float(front_hat.mean())
+    return mean >= MOVING_RPM and float(front_hat.max() - front_hat.min()) <= STEADY_SPAN * mean
 
 
 def longest_runs(y: np.ndarray) -> np.ndarray:

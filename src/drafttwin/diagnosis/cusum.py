@@ -112,6 +112,7 @@ class CusumState:
         self.statistic: np.ndarray | None = None
         self.jump_ratio = np.zeros(ns)  # the block's |innovation| over its jump limit
         self.baseline_at_alarm: np.ndarray | None = None
+        self.paused = False  # the last block was not steady running (see :meth:`update`)
 
     @property
     def ready(self) -> bool:
@@ -119,13 +120,26 @@ class CusumState:
         return self.base is not None and not self.rebasing
 
     def update(self, time_s: float, level: np.ndarray, lost: np.ndarray, run: np.ndarray,
-               stale: np.ndarray) -> list[Alarm]:  # fmt: skip
+               stale: np.ndarray, steady: bool = True) -> list[Alarm]:  # fmt: skip
         """One block's features (``level``: a :data:`FEATURES` row, the five levels then the
-        angle lags; ``lost``, ``run``, ``stale``: the sensor rules'); the alarms it raises (a sensor rule and a CUSUM may both
-        fire on one block)."""
+        angle lags; ``lost``, ``run``, ``stale``: the sensor rules'); the alarms it raises (a
+        sensor rule and a CUSUM may both fire on one block). A block that is not ``steady``
+        running (:func:`~drafttwin.diagnosis.blocks.commanded_steady`: a start, a stop, a
+        speed change) is not judged, and the first steady block after it starts a new
+        reference window, as at a record's start: the thresholds hold for steady running,
+        and a stop can leave the drive's angles and temperatures where they were not."""
         j = self.block
         self.block += 1
         self.deviation = self.statistic = None
+        if not steady:
+            self.paused = True
+            return []
+        if self.paused:
+            self.paused = False
+            if self.base is None:
+                self.reference = []
+            else:
+                self._restart()
         if self.base is None:  # the reference window: no decisions
             self.reference.append(level)
             if len(self.reference) == self.n_ref:

@@ -138,6 +138,7 @@ class FaultDetector:
         """Scale, AR(1) coefficient and threshold of each stream, sensor-rule limits."""
         if not healthy:
             raise DataError("no healthy tuning records", where="tuning", fix="give at least one")
+        healthy = self._steady_runs(healthy)
         self.block_s_ = healthy[0].block_s
         a = stream_matrix()
         devs, pairs = [], []
@@ -179,6 +180,24 @@ class FaultDetector:
         self.stale_limit_ = np.maximum(stale, self.run_limit_ / 2)
         self.lost_limit_ = np.max(np.vstack([f.lost for f in healthy]), axis=0) + 0.02
         return self
+
+    def _steady_runs(self, healthy: Sequence[BlockFeatures]) -> list[BlockFeatures]:
+        """The tuning records' stretches of steady running, each a record of its own with its
+        reference window, as the decisions judge them (a stretch not longer than the
+        reference window left out); a record that is steady throughout stays whole."""
+        out: list[BlockFeatures] = []
+        for f in healthy:
+            runs = f.steady_runs()
+            if len(runs) == 1 and runs[0] is f:
+                out.append(f)
+                continue
+            out += [r for r in runs if len(r.level) > self.reference_blocks(r.block_s)]
+        if not out:
+            raise DataError("the healthy tuning records hold no steady running longer than the "
+                            f"reference window ({self.reference_s:g} s): they start, stop or "
+                            "change speed throughout", where="tuning",
+                            fix="give records of steady running")  # fmt: skip
+        return out
 
     def _jump_limit(self, x0: np.ndarray, x1: np.ndarray) -> np.ndarray:
         """Per stream, the one-block jump rule's limit on the AR(1) innovation (in units of
@@ -295,12 +314,13 @@ class FaultDetector:
         dev = np.full((nb, len(FEATURES)), np.nan)
         stat = np.zeros((nb, ns))
         jump = np.zeros((nb, ns))
-        stale = f.stale_runs
+        stale, steady = f.stale_runs, f.steady_blocks
         det = Detection(f.time_s, dev, stat, jump=jump,
                         sensor=self.sensor_ratio(f.lost, f.run, stale))  # fmt: skip
         state = CusumState(self, n_ref, f.block_s)
         for j in range(nb):
-            alarms = state.update(float(f.time_s[j]), x[j], f.lost[j], f.run[j], stale[j])
+            alarms = state.update(float(f.time_s[j]), x[j], f.lost[j], f.run[j], stale[j],
+                                  bool(steady[j]))  # fmt: skip
             sensor_first = stop_at_first and alarms and alarms[0].direction == 0
             if state.deviation is not None and not sensor_first:  # (it stopped before them)
                 dev[j], stat[j] = state.deviation, state.statistic

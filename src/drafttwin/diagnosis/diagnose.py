@@ -84,6 +84,38 @@ class Diagnosis:
         grows = first.growth is not None and first.growth.growing
         return f"explained by {first.name}" + (", still growing" if grows else "")
 
+    def not_steady_s(self) -> list[tuple[float, float]]:
+        """The stretches (start, end, s) of blocks that were not steady running (a start, a
+        stop, a speed change: :func:`~drafttwin.diagnosis.blocks.commanded_steady`), which
+        the detector did not judge."""
+        f = self.features
+        paused = ~f.steady_blocks
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], paused.astype(int), [0]])))
+        return [(float(f.time_s[a] - f.block_s), float(f.time_s[b - 1]))
+                for a, b in zip(edges[::2], edges[1::2], strict=True)]  # fmt: skip
+
+    def watched_from_s(self, reference_s: float) -> float | None:
+        """When the detector began to decide: the first steady block's start plus the
+        reference window (``None``: never steady)."""
+        f = self.features
+        steady = np.flatnonzero(f.steady_blocks)
+        if not steady.size:
+            return None
+        return float(f.time_s[steady[0]] - f.block_s + reference_s)
+
+    def steady_note(self, reference_s: float) -> str | None:
+        """A line for the user when parts of the record were not judged, else ``None``."""
+        spans = self.not_steady_s()
+        if not spans:
+            return None
+        where = ", ".join(f"{a:.1f}-{b:.1f} s" for a, b in spans[:3])
+        if len(spans) > 3:
+            where += f" and {len(spans) - 3} more"
+        return (f"not judged where the set-point did not hold the machine at a steady speed "
+                f"(a start, a stop or a speed change: {where}); the thresholds hold for "
+                f"steady running, and each steady stretch after one is watched after its own "
+                f"{reference_s:g}-s reference window")  # fmt: skip
+
     def to_dict(self, top: int = 5) -> dict[str, Any]:
         a = self.alarm
         return {
@@ -109,6 +141,7 @@ class Diagnosis:
             "causes": [c.to_dict() for c in self.causes[:top]],
             "not_assessed": list(NOT_ASSESSED),
             "lines": [ln.to_dict() for ln in self.lines],
+            "not_steady_s": [list(span) for span in self.not_steady_s()],
         }
 
 

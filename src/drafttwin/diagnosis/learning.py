@@ -86,6 +86,9 @@ class Learner:
     def add(self, row: BlockRow, block_s: float) -> FaultDetector | None:
         """One block; the fitted detector once the learning time is reached (else None)."""
         self.block_s = block_s
+        if not row.steady:  # a start, a stop, a speed change: the next steady block begins a run
+            self.new_record()
+            return None
         if not np.isfinite(row.features).all():  # a stop or a dropout: not running
             return None
         self.records[-1].append(row)

@@ -61,6 +61,9 @@ class BlockFeatures:
             zeros when not measured (older feature files).
         stale: longest run of identical values that moved the angle lag, samples; ``run``
             when not measured (older feature files: every run judged by its length alone).
+        steady: whether each block is steady running
+            (:func:`~drafttwin.diagnosis.blocks.commanded_steady`); ``None``: all are (older
+            feature files).
     """
 
     time_s: np.ndarray
@@ -70,11 +73,37 @@ class BlockFeatures:
     block_s: float
     lag: np.ndarray | None = None
     stale: np.ndarray | None = None
+    steady: np.ndarray | None = None
 
     @property
     def stale_runs(self) -> np.ndarray:
         """``stale``, or ``run`` without it."""
         return self.run if self.stale is None else self.stale
+
+    @property
+    def steady_blocks(self) -> np.ndarray:
+        """``steady``, or all ``True`` without it."""
+        if self.steady is None:
+            return np.ones(len(self.level), dtype=bool)
+        return np.asarray(self.steady, dtype=bool)
+
+    def steady_runs(self) -> list[BlockFeatures]:
+        """The record's stretches of steady running, each as a record of its own (blocks
+        that are not steady left out): what the detector judges, each stretch with its own
+        reference window (:class:`~drafttwin.diagnosis.cusum.CusumState`)."""
+        steady = self.steady_blocks
+        if steady.all():
+            return [self]
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], steady.astype(int), [0]])))
+        return [self._rows(slice(a, b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+
+    def _rows(self, rows: slice) -> BlockFeatures:
+        def cut(a: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None else a[rows]
+
+        return BlockFeatures(self.time_s[rows], self.level[rows], self.lost[rows],
+                             self.run[rows], self.block_s, cut(self.lag), cut(self.stale),
+                             cut(self.steady))  # fmt: skip
 
     @property
     def lags(self) -> np.ndarray:
@@ -88,7 +117,8 @@ class BlockFeatures:
         return cls(np.array([r.time_s for r in rows]), np.vstack([r.level for r in rows]),
                    np.vstack([r.lost for r in rows]), np.vstack([r.run for r in rows]),
                    block_s, np.vstack([r.lag for r in rows]),
-                   np.vstack([r.stale for r in rows]))  # fmt: skip
+                   np.vstack([r.stale for r in rows]),
+                   np.array([r.steady for r in rows], dtype=bool))  # fmt: skip
 
 
 def physics_prediction(train: DriveTrain, series: MeasurementSeries) -> np.ndarray:

@@ -214,9 +214,11 @@ class Decisions:
         # machine that learned first has a block stream that started before it)
         here = Window(row.time_s, self.state.block, x, row.lost, row.run, row.stale)
         self.recent.append(here)
-        raised = self.state.update(row.time_s, x, row.lost, row.run, row.stale)
+        raised = self.state.update(row.time_s, x, row.lost, row.run, row.stale, row.steady)
         self._record(here, raised)
         step = Step()
+        if not row.steady:  # a start, a stop, a speed change: nothing judged (CusumState)
+            return step
         sensor = {a.test for a in raised if a.direction == 0}
         fresh = [a for a in raised if a.direction != 0 or a.test not in self.sensor_active]
         self.sensor_active = sensor
@@ -325,10 +327,10 @@ def decide(
     fault is not sized): every alarm and every window, as the stream makes them."""
     decisions = Decisions(detector, f.block_s, post_s=post_s, trace=trace)
     step = Step()
-    lags, stale = f.lags, f.stale_runs
+    lags, stale, steady = f.lags, f.stale_runs, f.steady_blocks
     for j in range(len(f.time_s)):
         step += decisions.add(BlockRow(j, float(f.time_s[j]), f.level[j], f.lost[j], f.run[j],
-                                       lags[j], stale[j]))  # fmt: skip
+                                       lags[j], stale[j], bool(steady[j])))  # fmt: skip
     step += decisions.finish()
     return decisions, step
 

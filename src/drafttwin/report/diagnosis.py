@@ -102,16 +102,34 @@ def timeline_png(dx: Diagnosis) -> bytes:
         for a in (ax, lx, bx):
             a.axvline(dx.alarm.time_s, color=RED, lw=1.5)
             a.axvspan(dx.alarm.change_s, dx.alarm.time_s, color=RED, alpha=0.1)
+    for start, end in dx.not_steady_s():  # a start, a stop, a speed change: not judged
+        for a in (ax, lx, bx):
+            a.axvspan(start, end, color=GREY, alpha=0.25, lw=0)
+    if len(f.time_s):
+        bx.set_xlim(float(f.time_s[0] - f.block_s), float(f.time_s[-1]))
     bx.legend(fontsize=8, loc="upper left")
     fig.tight_layout()
     return _png(fig)
 
 
+def _spectrum_rows(dx: Diagnosis, time_s: np.ndarray) -> np.ndarray:
+    """The rows the spectrum is taken over: after the alarm (the whole record without one),
+    the longest stretch of them that is steady running (a stop's or a start's residual
+    would drown the lines)."""
+    ok = time_s > (dx.alarm.time_s if dx.alarm is not None else -np.inf)
+    for start, end in dx.not_steady_s():
+        ok &= ~((time_s > start) & (time_s <= end))
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
+    if not edges.size:
+        return np.zeros(0, dtype=int)
+    a, b = max(zip(edges[::2], edges[1::2], strict=True), key=lambda ab: ab[1] - ab[0])
+    return np.arange(a, b)
+
+
 def spectrum_png(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries) -> bytes:
     rate = series.sample_rate_hz
     r = residual_samples(series)
-    start = dx.alarm.time_s if dx.alarm is not None else 0.0
-    after = r[series.time_s > start]
+    after = r[_spectrum_rows(dx, np.asarray(series.time_s, dtype=np.float64))]
     fig, ax = plt.subplots(figsize=(10, 4))
     for j, ch in enumerate(CHANNELS):
         if len(after) >= 16:
@@ -243,11 +261,13 @@ def why_text(a: Alarm, dx: Diagnosis) -> str:
             f"{a.test}{by}; change estimated at {a.change_s:.1f} s.")  # fmt: skip
 
 
-def summary(dx: Diagnosis) -> Raw:
+def summary(dx: Diagnosis, reference_s: float | None = None) -> Raw:
     """The banner: the rule that fired, the top cause, its look-alike group and its fit."""
     a = dx.alarm
+    steady = dx.steady_note(reference_s) if reference_s is not None else None
     if a is None:
-        return para("No alarm: the residuals stayed within the thresholds set from healthy data.")
+        return join([para("No alarm: the residuals stayed within the thresholds set from "
+                          "healthy data."), para(f"Note: {steady}.") if steady else ""])  # fmt: skip
     top = dx.causes[0] if dx.causes else None
     lines = [tag("strong", why_text(a, dx))]
     if top is None:
@@ -267,6 +287,8 @@ def summary(dx: Diagnosis) -> Raw:
     verdict = getattr(dx, "verdict", None)
     if isinstance(verdict, str) and verdict:
         lines.append(para(f"Verdict: {verdict}."))
+    if steady:
+        lines.append(para(f"Note: {steady}."))
     return tag("div", join(lines), cls="banner")
 
 
@@ -338,7 +360,9 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
     """The whole self-contained page; ``sliver``: the record's sliver channel's evidence and
     diagnosis (:func:`~drafttwin.diagnosis.sliver_evidence.sliver_evidence`), shown after
     the verdict."""
-    verdict = summary(dx)
+    detector = info.get("detector")
+    reference_s = detector.get("reference_s") if isinstance(detector, Mapping) else None
+    verdict = summary(dx, float(reference_s) if reference_s is not None else None)
     wrap = "wrap"  # the cause (its unit below it), fit and look-alike columns wrap: no
     # sideways scroll at 1280 px
     rows: list[Row] = [[f"{i + 1}", Cell(join([c.name, tag("div", c.parameter, cls="note")]),
@@ -349,7 +373,9 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
     head: list[Row] = [["rank", Cell("cause (severity unit)", cls=wrap, header=True), "family",
                         "severity", "95 % interval", "p (relative)", "fit",
                         Cell("cannot be told apart from", cls=wrap, header=True)]]  # fmt: skip
-    causes = table(head, rows, id="causes")
+    causes = (table(head, rows, id="causes") if rows else
+              para("Nothing ranked: no alarm." if dx.alarm is None else
+                   "Nothing ranked: too little of the record after the alarm."))  # fmt: skip
     grown: list[Row] = [[ln.name, f"{ln.freq_hz:.2f}", ln.channel, f"{100 * ln.before:.4f}",
                          f"{100 * ln.after:.4f}", Cell(", ".join(ln.elements), cls=wrap)]
                         for ln in dx.lines]  # fmt: skip
@@ -371,9 +397,13 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
                 "Stream levels and angle lags against the record's baseline; below, the statistic "
                 "of the rule that raised the alarm over its own limit (for a lag jump or a sensor "
                 "rule the CUSUMs, which did not fire, in grey); the alarm in red, the estimated "
-                "change shaded.", "residual timeline")),
-        section("spectrum", "Spectrum after the change", figure(spectrum_png(dx, train, series),
-                "fig-spectrum", "Relative residual spectra of each channel after the alarm.",
+                "change shaded" + ("; shaded grey: not judged (a start, a stop or a speed "
+                "change)" if dx.not_steady_s() else "") + ".", "residual timeline")),
+        section("spectrum", "Spectrum after the change" if dx.alarm is not None else
+                "Residual spectrum", figure(spectrum_png(dx, train, series), "fig-spectrum",
+                "Relative residual spectra of each channel " + (
+                    "after the alarm" if dx.alarm is not None else "over the record")
+                + (", its longest steady stretch" if dx.not_steady_s() else "") + ".",
                 "spectrum"), lines),
         section("train", "Drive train", figure(train_png(train, suspect, group), "fig-train",
                 "The suspected element in red, the elements it cannot be told apart from in orange.",
