@@ -310,6 +310,28 @@ def test_read_tester_round_trip(healthy: np.ndarray, tmp_path: Path) -> None:
     assert [round(row["wavelength_m"], 4) for row in full.chimneys()].count(0.1393) == 1
 
 
+def test_a_tester_export_counts_periods_from_the_tested_length(
+    healthy: np.ndarray, tmp_path: Path
+) -> None:
+    # an export without significance marks made every channel significant, its longest
+    # waves (6-25 periods read) too; with the length the tester read they count as for a
+    # record
+    faulty = spectrogram(healthy * sine(50.0, 0.14, 0.015), STEP, COTTON)
+    frame = faulty.to_frame()
+    path = tmp_path / "tester.csv"
+    pd.DataFrame({"wavelength_cm": frame["wavelength_m"] * 100.0,
+                  "amplitude_pct": frame["amplitude_pct"]}).to_csv(path, index=False)  # fmt: skip
+    assert (~faulty.significant).any() and read_tester_spectrogram(path).significant.all()
+    read = read_tester_spectrogram(path, tested_length_m=faulty.length_m)
+    np.testing.assert_allclose(read.periods, faulty.periods, rtol=1e-12)
+    np.testing.assert_array_equal(read.significant, faulty.significant)
+    np.testing.assert_array_equal(read.shown_not_significant, faulty.shown_not_significant)
+    assert not (read.chimney & ~read.significant).any() and read.length_m == faulty.length_m
+    with pytest.raises(DataError) as info:
+        read_tester_spectrogram(path, tested_length_m=-1.0)
+    assert info.value.where == "--tested-m"
+
+
 @pytest.mark.parametrize(
     ("text", "column"),
     [("wavelength_m,amp\n0.1,1.0\n", "amplitude_pct"),

@@ -193,6 +193,15 @@ def test_options_that_would_be_ignored_are_refused(tmp_path: Path) -> None:
                     str(tmp_path / "any.csv"))  # fmt: skip
     assert "--speeds" in said and "spectrogram table" in said
     assert not list(p for p in tmp_path.iterdir() if p.name != "spec.csv")
+    # a table without significance marks: every channel counts, and the output says to give
+    # the tested length; with it, no note (what it counts: test_evenness_spectrogram.py)
+    out = json.loads(_run("sliver", "diagnose", "--spectrogram", str(table), "--json"))
+    assert "give --tested-m" in out["notes"][0]
+    out = json.loads(_run("sliver", "diagnose", "--spectrogram", str(table), "--json",
+                          "--tested-m", "1000"))  # fmt: skip
+    assert "notes" not in out
+    said = _refused("sliver", "diagnose", "--data", str(table), "--tested-m", "100")
+    assert "--tested-m" in said and "--spectrogram" in said
 
 
 def test_the_diagnose_page_shows_what_the_sliver_says(records, tmp_path):

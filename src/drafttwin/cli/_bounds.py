@@ -106,6 +106,7 @@ _RANGES: dict[str, str] = {
     "--fibre-scale": "[1, 1e6] fibres per drawn fibre",
     "--harmonics": "[1, 20] harmonics",
     "--sensor-mm": "[0, 1000] mm",
+    "--tested-m": "(0, 1e7] m",
     "--post": "(0, 3600] s",
     "--qos": "[0, 1] (MQTT QoS)",
     "--max-lag": "(0, 3600] s",

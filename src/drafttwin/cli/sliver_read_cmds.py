@@ -178,6 +178,10 @@ SensorOrSidecarOpt = Annotated[float | None, number("--sensor-mm", "Averaging le
                               "sensor that read --data, mm (default: the plant's sidecar, else "
                               "0).")]  # fmt: skip
 MatchedOpt = Annotated[int, number("--harmonics", "Harmonics matched per element.")]
+TestedOpt = Annotated[float | None, number("--tested-m", "With --spectrogram: the sliver "
+                      "length the tester read, m (its report states it): a channel with fewer "
+                      "than 25 periods in it is then not significant. Without it (and without "
+                      "a 'significant' column) every channel counts.")]  # fmt: skip
 PageOpt = Annotated[Path | None, file_out("--report", "An HTML page for the quality engineer.")]
 
 
@@ -200,6 +204,7 @@ def diagnose_cmd(
     sensor_mm: SensorOrSidecarOpt = None,
     harmonics: MatchedOpt = 8,
     fibre_scale: FibreScaleReadOpt = None,
+    tested_m: TestedOpt = None,
     report: PageOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
@@ -224,9 +229,14 @@ def diagnose_cmd(
                           "which a tester's spectrogram table is not", where="--speeds",
                           fix="give the sliver record (--data) with --speeds, or leave --speeds "
                           "out")  # fmt: skip
+    if tested_m is not None and spectrogram_file is None:
+        raise ConfigError("--tested-m is the length an evenness tester read; a sliver record "
+                          "(--data) has its own", where="--tested-m",
+                          fix="give it with --spectrogram, or leave it out")  # fmt: skip
     zones = zones_from(gauges)
     train = drive.load()
     record: Any
+    notes: list[str] = []
     if data is not None:
         record, fib, beside = read_record(data, column, length_column, length_unit,
                                           fibre_options)  # fmt: skip
@@ -237,7 +247,13 @@ def diagnose_cmd(
     else:
         assert spectrogram_file is not None
         fib = resolve_fibres(fibre_options.given())
-        record = read_tester_spectrogram(spectrogram_file, staple=fib.staple)
+        record = read_tester_spectrogram(spectrogram_file, staple=fib.staple,
+                                         tested_length_m=tested_m)  # fmt: skip
+        if tested_m is None and bool(record.significant.all()):
+            notes.append("the tested length is unknown and the table marks no channel as not "
+                         "significant: every channel counts, the longest waves too (fewer "
+                         "than 25 periods read are not significant); give --tested-m, the "
+                         "metres the tester read")  # fmt: skip
     fibres = fib.staple
     ref = None
     if reference is not None:
@@ -257,8 +273,11 @@ def diagnose_cmd(
                                        source=str(data or spectrogram_file)), encoding="utf-8")  # fmt: skip
     if as_json:
         count = dx.evenness.count_ktex if dx.evenness is not None else None
-        print_json({**dx.to_dict(), "fibres": fib.to_dict(count)})
+        print_json({**dx.to_dict(), "fibres": fib.to_dict(count),
+                    **({"notes": notes} if notes else {})})  # fmt: skip
         return
+    for note in notes:
+        console.print(f"[yellow]note:[/] {note}")
     if dx.evenness is not None:
         console.print(evenness_table(dx.evenness, f"{Path(str(data)).name}"))
     console.print(fib.note())

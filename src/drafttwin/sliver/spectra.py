@@ -429,7 +429,8 @@ def _wavelength_column(frame: pd.DataFrame, path: Path) -> np.ndarray:
 
 def read_tester_spectrogram(path: str | Path, staple: StapleDiagram | None = None,
                             count_ktex: float | None = None, fibre_scale: float = 1.0,
-                            sensor_length_m: float = 0.0) -> Spectrogram:  # fmt: skip
+                            sensor_length_m: float = 0.0,
+                            tested_length_m: float | None = None) -> Spectrogram:  # fmt: skip
     """An evenness tester's spectrogram export as a :class:`Spectrogram`.
 
     The CSV has a wavelength column (``wavelength_m``, ``wavelength_cm`` or ``wavelength_mm``),
@@ -438,9 +439,12 @@ def read_tester_spectrogram(path: str | Path, staple: StapleDiagram | None = Non
     computed at the tester's centres when both ``staple`` and ``count_ktex`` are given (no grid
     factor; ``sensor_length_m`` as in :func:`spectrogram`), else it is None. The base and the
     B/2 rule are as for a record; the chi-square test is skipped (the export has no
-    periodogram bins: ``p_value`` is NaN), and the tester's own significance marks are used
-    when present, else every channel counts as significant. The record length is unknown:
-    ``periods``, ``length_m``, ``step_m`` and ``total_variance`` are NaN.
+    periodogram bins: ``p_value`` is NaN). With ``tested_length_m`` (the sliver length the
+    tester read) a channel is significant with at least :data:`SIGNIFICANT_PERIODS` periods in
+    it and shown as not significant with :data:`SHOWN_PERIODS` to 25, as for a record; the
+    tester's own significance marks, when present, must agree too. Without either every
+    channel counts as significant. Without the length ``periods`` and ``length_m`` are NaN;
+    ``step_m`` and ``total_variance`` always are.
 
     Raises:
         DataError: naming the file, the column and ``--spectrogram`` (missing file or column,
@@ -464,24 +468,32 @@ def read_tester_spectrogram(path: str | Path, staple: StapleDiagram | None = Non
         significant = np.ones(lam.size, dtype=bool)
     order = np.argsort(lam)
     lam, amplitude, significant = lam[order], amplitude[order], significant[order]
+    nan = np.full(lam.size, np.nan)
+    periods, shown = nan.copy(), np.zeros(lam.size, dtype=bool)
+    if tested_length_m is not None:
+        if not (math.isfinite(tested_length_m) and tested_length_m > 0):
+            raise DataError(f"tested length {tested_length_m} m is not > 0", source=path,
+                            where="--tested-m", fix="give the metres the tester read, e.g. 1000")  # fmt: skip
+        periods = tested_length_m / lam
+        shown = significant & (periods >= SHOWN_PERIODS) & (periods < SIGNIFICANT_PERIODS)
+        significant = significant & (periods >= SIGNIFICANT_PERIODS)
     ideal = None
     if staple is not None and count_ktex is not None:
         ideal = ideal_band_amplitude_pct(staple, count_ktex, lam, fibre_scale, 0.0, sensor_length_m)
     base = _base_pct(amplitude, ideal)
-    nan = np.full(lam.size, np.nan)
     return Spectrogram(
         wavelength_m=lam,
         edges_m=channel_edges_m(lam),
         amplitude_pct=amplitude,
         ideal_pct=ideal,
         base_pct=base,
-        periods=nan,
+        periods=periods,
         significant=significant,
-        shown_not_significant=np.zeros(lam.size, dtype=bool),
+        shown_not_significant=shown,
         chimney=significant & _above_half_base(amplitude, base),
         p_value=nan.copy(),
         bins=np.zeros(lam.size, dtype=np.int64),
-        length_m=math.nan,
+        length_m=math.nan if tested_length_m is None else float(tested_length_m),
         step_m=math.nan,
         total_variance=math.nan,
         all_wavelength_m=np.zeros(0),
