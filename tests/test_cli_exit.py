@@ -44,3 +44,21 @@ def test_a_signal_while_the_command_starts_says_so(signum: str, tmp_path) -> Non
     assert proc.returncode == 128 + sig, err
     assert f"stopped by {signum}" in err and "Traceback" not in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_only_the_command_itself_says_it_was_stopped(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A spawned worker (the twin's cause ranking) imports the CLI with the command's own
+    ``sys.argv``: it took the start-up handler and printed "stopped by SIGTERM" when its
+    parent ended it at a normal end."""
+    from drafttwin.cli import _run_as_the_command
+
+    monkeypatch.setattr("sys.argv", ["/venv/bin/drafttwin", "twin", "run"])
+    monkeypatch.setattr("sys.orig_argv", ["python", "/venv/bin/drafttwin", "twin", "run"])
+    assert _run_as_the_command()
+    monkeypatch.setattr("sys.orig_argv", ["python", "-c", "from multiprocessing.spawn import "
+                                          "spawn_main; spawn_main(tracker_fd=5, pipe_handle=7)",
+                                          "--multiprocessing-fork"])  # fmt: skip
+    assert not _run_as_the_command()
+    monkeypatch.setattr("sys.argv", ["-c", "twin", "run"])  # a program importing the CLI
+    monkeypatch.setattr("sys.orig_argv", ["python", "-c", "...", "twin", "run"])
+    assert not _run_as_the_command()

@@ -64,3 +64,36 @@ def test_details_that_are_not_alarms_are_passed_over() -> None:
                           EventRow("m", "alarm-ack", 2, '{"alarms": "x"}'),
                           EventRow("m", "fault-cleared", 3, "{}")])  # fmt: skip
     assert shown == [] and book.alarms == {}
+
+
+def test_a_restarted_twin_watches_its_active_alarms_return_to_normal(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """An alarm read back from the store stayed active for good (only relearn cleared it):
+    its baseline is stored with it now, and the restarted twin judges its return to normal
+    against it; an angle lag's is not carried (its lag counts from the run's start)."""
+    import numpy as np
+
+    record, model = twin_files
+    base = np.linspace(-1e-4, 1e-4, 8)
+    belt = Alarm(100.0, 99, "belt", -1, 80.0)
+    lag = Alarm(150.0, 149, "lag_second", 1, 140.0)
+    old = Alarm(160.0, 159, "level_front", 1, 150.0)  # stored before baselines were
+    stuck = Alarm(300.0, 299, "stuck_motor", 0, 299.0, "sensor")
+    store = TwinStore(tmp_path / "store")
+    store.commit([], [EventRow("m1", "fault", 100_000_000, alarm_detail(belt, baseline=base)),
+                      EventRow("m1", "fault", 150_000_000, alarm_detail(lag, baseline=base)),
+                      EventRow("m1", "fault", 160_000_000, alarm_detail(old)),
+                      EventRow("m1", "sensor-fault", 300_000_000, alarm_detail(stuck))])  # fmt: skip
+    store.close()
+    service = build_service(model, [f"replay:{record}?machine=m1"], store_dir=tmp_path / "store",
+                            detector="auto")  # fmt: skip
+    try:
+        watch = service.states["m1"].watch
+        assert watch is not None
+        carried = {a.test: b for a, b in watch.stream.carried()}
+        assert set(carried) == {"belt", "stuck_motor"} and carried["stuck_motor"] is None
+        np.testing.assert_array_equal(carried["belt"], base)
+    finally:
+        if service.writer is not None:
+            service.writer.close()

@@ -447,3 +447,22 @@ def test_the_locator_worker_ends_with_a_twin_killed_outright(tmp_path: Path) -> 
             return
         time.sleep(0.1)
     raise AssertionError(f"the worker {worker} outlived its killed twin")
+
+
+def test_an_active_alarm_returns_to_normal_in_the_run_after_a_gap(detector):
+    """A belt replaced during a stop: the rows after the gap are a new run (a new reference
+    window), whose return-to-normal watch had started empty: the alarm stayed active until
+    the machine was learnt again."""
+    step = np.array([1, 1, 1, 1, 0]) * -8e-4
+    t, y, yhat = samples(21, 90, shift=step, at_s=40.0)
+    watch = watch_of(detector)
+    before = Step()
+    for r in rows(t, y, yhat):
+        before += watch.add(r)
+    belt = [a for a in before.alarms if a.test == "belt"]
+    assert belt and not before.cleared
+    t2, y2, yhat2 = samples(23, 80)  # healthy again, after five minutes of standstill
+    after = Step()
+    for r in rows(t2 + 400.0, y2, yhat2):
+        after += watch.add(r)
+    assert watch.restarts == 1 and after.cleared == belt[:1] and not after.alarms

@@ -17,7 +17,14 @@ def _stopped_while_starting(signum: int, frame: FrameType | None) -> None:
     """SIGTERM or Ctrl-C before a command has its own handler (Python still importing: a
     few seconds on a busy machine): one line and exit 128 + signal, not a silent death or a
     KeyboardInterrupt traceback. Nothing has been written yet; a command that writes
-    installs its own handler (``stops_cleanly``), which removes its temporaries."""
+    installs its own handler (``stops_cleanly``), which removes its temporaries. A worker
+    process (spawned ones import this module with the command's arguments) dies as it did:
+    its parent ends it with SIGTERM at a normal end, which is no news to the user."""
+    mp = sys.modules.get("multiprocessing")
+    if mp is not None and mp.parent_process() is not None:
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+        return
     sys.stderr.write(f"stopped by {signal.Signals(signum).name}\n")
     sys.stderr.flush()
     os._exit(128 + signum)
@@ -26,6 +33,8 @@ def _stopped_while_starting(signum: int, frame: FrameType | None) -> None:
 def _run_as_the_command() -> bool:
     """Whether this process is the ``drafttwin`` script or ``python -m drafttwin`` (not a
     program that imports the CLI: its signals are its own)."""
+    if "--multiprocessing-fork" in getattr(sys, "orig_argv", []):
+        return False  # a spawned worker: it runs with the command's sys.argv
     argv0 = sys.argv[0] if sys.argv else ""
     return os.path.basename(argv0) == "drafttwin" or argv0.endswith(
         os.path.join("drafttwin", "__main__.py")

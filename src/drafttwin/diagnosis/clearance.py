@@ -48,6 +48,14 @@ class Clearance:
         """An alarm to watch (``base``: the baseline it left; ``None`` for a sensor rule)."""
         self.active.append(_Watched(alarm, None if base is None else base.copy()))
 
+    def carried(self) -> list[tuple[Alarm, np.ndarray | None]]:
+        """The alarms still watched that a new run can go on watching (each with the
+        baseline it left): a level stream's or a sensor rule's. An angle lag is counted
+        from its run's start, so another run's lag cannot be held against this baseline (and
+        a worn mesh does not un-wear: it stays active until serviced)."""
+        return [(w.alarm, w.base) for w in self.active
+                if w.base is None or not w.alarm.test.startswith("lag_")]  # fmt: skip
+
     def block(self, features: np.ndarray, sensor_tests: set[str]) -> list[Alarm]:
         """One block's features and the sensor rules it fired; the alarms it returned to
         normal."""

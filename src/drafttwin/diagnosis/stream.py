@@ -154,6 +154,9 @@ class Step:
     learned: FaultDetector | None = None
     blocks: dict[int, Window] = field(default_factory=dict)  # each alarm's block, by index
     cleared: list[Alarm] = field(default_factory=list)  # returned to normal (clearance.py)
+    # each machine alarm's baseline before it (features), by (time_s, test): what its
+    # return to normal is judged against, kept with the alarm for a restarted twin
+    baselines: dict[tuple[float, str], np.ndarray] = field(default_factory=dict)
 
     def __iadd__(self, other: Step) -> Step:
         self.alarms += other.alarms
@@ -161,6 +164,7 @@ class Step:
         self.cleared += other.cleared
         self.learned = other.learned or self.learned
         self.blocks.update(other.blocks)
+        self.baselines.update(other.baselines)
         return self
 
 
@@ -229,7 +233,10 @@ class Decisions:
         self.alarms += fresh
         for a in fresh:
             self._open_window(a)
-            self.clearance.raised(a, None if a.direction == 0 else self.state.baseline_at_alarm)
+            base = None if a.direction == 0 else self.state.baseline_at_alarm
+            self.clearance.raised(a, base)
+            if base is not None:
+                step.baselines[(a.time_s, a.test)] = base.copy()
         if self.open is not None:
             if self.open.sensor is None and sensor:  # a sensor rule takes the window over
                 a = next(a for a in raised if a.direction == 0)
@@ -369,6 +376,7 @@ class DiagnosisStream:
         if detector is not None:
             self.decisions = Decisions(detector, self.blocks.block_s, post_s=post_s, trace=trace)
         self.rows: list[BlockRow] = []  # every block (offline: the record's features)
+        self._carried: list[tuple[Alarm, np.ndarray | None]] = []  # watched once deciding
         # the recent samples a sensor fault is sized on: the window and what precedes it
         n_ref = (detector or FaultDetector()).reference_blocks(self.blocks.block_s)
         self._raw_span = (int(round(post_s / block_s)) + n_ref + 3) * self.blocks.per
@@ -379,6 +387,22 @@ class DiagnosisStream:
     @property
     def learning(self) -> bool:
         return self.decisions is None
+
+    def keep_watching(self, alarm: Alarm, base: np.ndarray | None) -> None:
+        """An alarm of an earlier run (a gap, a restarted twin) that is still active: its
+        return to normal is judged in this run too, against ``base`` (the baseline it left;
+        ``None`` for a sensor rule)."""
+        if self.decisions is not None:
+            self.decisions.clearance.raised(alarm, base)
+        else:
+            self._carried.append((alarm, base))
+
+    def carried(self) -> list[tuple[Alarm, np.ndarray | None]]:
+        """The active alarms a next run can go on watching
+        (:meth:`~drafttwin.diagnosis.clearance.Clearance.carried`)."""
+        if self.decisions is None:
+            return list(self._carried)
+        return self.decisions.clearance.carried()
 
     def push(self, time_s: np.ndarray, y: np.ndarray, yhat: np.ndarray) -> Step:
         """Rows ``(n,)`` times, ``(n, 5)`` measured and predicted."""
@@ -407,6 +431,9 @@ class DiagnosisStream:
             if learned is not None:
                 self.decisions = Decisions(learned, self.blocks.block_s, post_s=self.post_s,
                                            trace=self.trace)  # fmt: skip
+                for alarm, base in self._carried:
+                    self.decisions.clearance.raised(alarm, base)
+                self._carried = []
             return Step(learned=learned)
         return self._with_samples(self.decisions.add(row))
 

@@ -132,10 +132,10 @@ class AlarmBook:
         for ev in sorted(events, key=lambda e: e.ts_us):
             by_kind.setdefault(ev.kind, []).append(ev)
         for ev in by_kind.get("fault", []) + by_kind.get("sensor-fault", []):
-            if (alarm := _stored_alarm(ev.detail)) is not None:
+            if (alarm := stored_alarm(ev.detail)) is not None:
                 self.raised(ev.machine, alarm, ev.kind)
         for ev in by_kind.get("sensor-fault", []) + by_kind.get("fault-cause", []):
-            if (alarm := _stored_alarm(ev.detail)) is not None:
+            if (alarm := stored_alarm(ev.detail)) is not None:
                 self.caused(ev.machine, alarm, _loads(ev.detail).get("causes"))
         for ev in by_kind.get("fault-cleared", []):
             doc = _loads(ev.detail)
@@ -151,7 +151,7 @@ class AlarmBook:
         kept = {a.id for a in self.alarms.values() if a.retained}
         shown = [ev for kind in ("fault", "sensor-fault", "fault-cause")
                  for ev in by_kind.get(kind, [])
-                 if (alarm := _stored_alarm(ev.detail)) is not None
+                 if (alarm := stored_alarm(ev.detail)) is not None
                  and self.key(ev.machine, alarm.time_s, alarm.test) in kept]  # fmt: skip
         return sorted(shown, key=lambda e: (e.ts_us, e.kind == "fault-cause"))
 
@@ -169,7 +169,7 @@ def _loads(detail: str) -> dict[str, Any]:
     return doc if isinstance(doc, dict) else {}
 
 
-def _stored_alarm(detail: str) -> Alarm | None:
+def stored_alarm(detail: str) -> Alarm | None:
     """The alarm an event's detail (:func:`~drafttwin.twin.faultwatch.alarm_detail`)
     describes, or ``None`` for a detail that does not."""
     doc = _loads(detail)

@@ -19,8 +19,8 @@ from typing import Any, Protocol
 from drafttwin.diagnosis.cusum import Alarm
 from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.stream import POST_S, RankRequest, Step
-from drafttwin.twin.alarms import AlarmBook
-from drafttwin.twin.faultwatch import Locator, alarm_detail
+from drafttwin.twin.alarms import AlarmBook, stored_alarm
+from drafttwin.twin.faultwatch import Locator, alarm_detail, stored_baseline
 from drafttwin.twin.state import MachineState
 from drafttwin.twin.store.baselines import Baseline, BaselineStore
 from drafttwin.twin.store.db import EventRow, SampleRow
@@ -108,7 +108,8 @@ class FaultDesk:
                               alarm_detail(a, [st.watch.sensor_cause(a, step)], note))  # fmt: skip
             else:
                 ev = EventRow(st.twin.name, "fault", int(round(a.time_s * 1e6)),
-                              alarm_detail(a, note=note))  # fmt: skip
+                              alarm_detail(a, note=note,
+                                           baseline=step.baselines.get((a.time_s, a.test))))  # fmt: skip
             self.host.event(st, ev)
             out.append(ev)
         return out
@@ -339,6 +340,15 @@ class FaultDesk:
             st = self.host.states.get(ev.machine)
             if st is not None:
                 st.last_fault = ev
+        for ev in events:  # the active ones are watched for their return to normal again
+            st = self.host.states.get(ev.machine)
+            if ev.kind not in ("fault", "sensor-fault") or st is None or st.watch is None:
+                continue
+            alarm = stored_alarm(ev.detail)
+            booked = None if alarm is None else self.book.alarms.get(
+                self.book.key(ev.machine, alarm.time_s, alarm.test))  # fmt: skip
+            if alarm is not None and booked is not None and booked.active:
+                st.watch.keep_watching(alarm, stored_baseline(ev.detail))
 
     def resume_pending(self) -> None:
         """Rank the windows a stopped twin left (their alarms are stored already)."""

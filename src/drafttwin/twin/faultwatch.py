@@ -31,7 +31,7 @@ import numpy as np
 
 from drafttwin._constants import ROLLERS
 from drafttwin._io import sha256_file
-from drafttwin.diagnosis.cusum import Alarm
+from drafttwin.diagnosis.cusum import FEATURES, Alarm
 from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.diagnose import Diagnoser, sensor_cause
 from drafttwin.diagnosis.learning import Learner, learn_time
@@ -193,11 +193,27 @@ class LiveFaultWatch:
         return self._took(self.stream.push(self._t[:k], self._y[:k], self._hat[:k]))
 
     def _end_run(self) -> Step:
-        """The run's end: its last blocks and its open window (ranked with what it has)."""
+        """The run's end: its last blocks and its open window (ranked with what it has). The
+        next run goes on watching its active alarms for their return to normal (a belt
+        replaced during a stop clears its alarm once the machine runs again)."""
         step = self._push()
         step += self._took(self.stream.finish())
+        carried = self.stream.carried()
         self.stream = self._stream()
+        for alarm, base in carried:
+            self.stream.keep_watching(alarm, base)
         return step
+
+    def keep_watching(self, alarm: Alarm, base: np.ndarray | None) -> None:
+        """An alarm a restarted twin read back from its store, still active: watched for
+        its return to normal (a level stream's with the baseline stored with it, a sensor
+        rule's; an angle lag's is not carried over, see
+        :meth:`~drafttwin.diagnosis.clearance.Clearance.carried`)."""
+        if base is None and alarm.direction != 0:
+            return  # stored before 2026-11-30: no baseline to judge against
+        if base is not None and alarm.test.startswith("lag_"):
+            return
+        self.stream.keep_watching(alarm, base)
 
     def restart(self) -> Step:
         """A gap: the physics restarts, the rows go on in a new run (a new reference window;
@@ -362,8 +378,10 @@ class Locator:
 
 
 def alarm_detail(alarm: Alarm, causes: list[dict[str, Any]] | None = None,
-                 note: str | None = None) -> str:  # fmt: skip
-    """The JSON stored as an alarm event's detail (and parsed back for REST and the page)."""
+                 note: str | None = None, baseline: np.ndarray | None = None) -> str:  # fmt: skip
+    """The JSON stored as an alarm event's detail (and parsed back for REST and the page);
+    ``baseline``: the features' baseline the alarm left (:data:`FEATURES` order), which a
+    restarted twin judges its return to normal against."""
     from drafttwin._json import to_strict
 
     doc: dict[str, Any] = {"test": alarm.test, "rule": alarm.rule, "direction": alarm.direction,
@@ -372,7 +390,22 @@ def alarm_detail(alarm: Alarm, causes: list[dict[str, Any]] | None = None,
         doc["causes"] = [_short(c) for c in causes]
     if note is not None:
         doc["note"] = note
+    if baseline is not None:
+        doc["baseline"] = [float(v) for v in baseline]
     return json.dumps(to_strict(doc), allow_nan=False, separators=(",", ":"))
+
+
+def stored_baseline(detail: str) -> np.ndarray | None:
+    """The baseline an alarm event's detail keeps (:func:`alarm_detail`), checked: one
+    finite value per feature, else ``None``."""
+    try:
+        doc = json.loads(detail)
+        base = np.asarray(doc["baseline"], dtype=np.float64)
+    except (TypeError, ValueError, KeyError):
+        return None
+    if base.shape != (len(FEATURES),) or not np.isfinite(base).all():
+        return None
+    return base
 
 
 def _short(c: dict[str, Any]) -> dict[str, Any]:

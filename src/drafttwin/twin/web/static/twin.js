@@ -629,7 +629,7 @@ async function drawHall() {
       const t = el("div", { class: `tile ${m.state} alarm-${mine.length ? mine[0] : "normal"}`, "data-machine": name });
       const age = typeof m.data_age_s === "number" ? m.data_age_s : null;
       t.append(el("b", {}, name), health(name, m, m.latency_ms ? m.latency_ms.p99 : p99, age),
-               el("span", { class: "count" }, `${m.processed ?? 0} samples · ${m.fault_alarms ?? 0} alarm(s)`));
+               el("span", { class: "count" }, `${m.processed ?? 0} samples · ${mine.length} alarm(s) standing`));
       const top = (m.active_alarms || [])[0];  // the most severe standing alarm, else the last
       const c = top ? (top.cause ? causeText({ cause: top.cause }) : `${top.test}: probable cause pending`)
         : m.last_fault ? causeText(m.last_fault) : "";
