@@ -134,6 +134,19 @@ def test_sliver_commands_refuse_bad_input(records, tmp_path):
     text = _refused("generate", "--duration", "2", "--sliver", "--out", str(tmp_path / "x.csv"))
     assert "x.sliver.csv" in text
     assert mine.read_text() == "a user's file\n"
+    # a feed event beyond the sliver the record feeds would not happen (the sidecar listed
+    # it); a misspelt one names every form
+    for event in ("piecing=50", "missing=60-120"):
+        text = _refused("generate", "--duration", "2", "--sliver", "--feed-fault", event,
+                        "--out", str(tmp_path / "far.csv"))  # fmt: skip
+        assert event in text and "--duration" in text and "fed" in text
+    assert not list(tmp_path.glob("far*"))
+    text = _refused("generate", "--duration", "2", "--sliver", "--leveller", "1,-1000",
+                    "--out", str(tmp_path / "far.csv"))  # fmt: skip
+    assert "-298 mm" in text and "-702" in text  # a setting every reader takes: 0-10000 mm
+    text = _refused("generate", "--duration", "2", "--sliver", "--feed-fault", "mising=1-2",
+                    "--out", str(tmp_path / "far.csv"))  # fmt: skip
+    assert "missing=FROM_M-TO_M" in " ".join(text.split())
     bad = tmp_path / "bad.csv"
     bad.write_text("delivered_length_m,linear_density_ktex\n0.001,5\n0.002,x\n")
     _refused("sliver", "spectrogram", "--data", str(bad))

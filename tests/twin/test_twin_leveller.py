@@ -85,6 +85,29 @@ def test_a_replayed_record_gets_sliver_levels_recommendation(twin_files, levelle
                                                            rel=0.01)  # fmt: skip
 
 
+@pytest.mark.slow
+def test_a_window_that_does_not_place_the_action_point_recommends_nothing(
+    twin_files, tmp_path: Path
+) -> None:
+    """A leveller set 150 mm off (the least CV on the edge of the +-120-mm search): `sliver
+    level` recommends nothing, while the twin's page, OPC UA nodes, MQTT state and summary
+    showed its edge value as "recommending" with a zero-width interval."""
+    _, model = twin_files
+    rec = Plant().run(14.0, 100.0, seed=3,
+                      sliver=replace(SETTINGS, leveller=Autoleveller(1.0, 150.0)))  # fmt: skip
+    record = tmp_path / "edge.parquet"
+    rec.write(record)
+    assert _level(record, "--max-length", "35")["identifiable"] is False
+    service = build_service(model, [f"replay:{record}?speed=inf"], detector="none",
+                            level_window_m=35.0)  # fmt: skip
+    asyncio.run(service.run())
+    (st,) = service.states.values()
+    lev = service.status()["machines"][st.twin.name]["leveller"]
+    assert lev["state"] == "not placed" and lev["advice"]["identifiable"] is False
+    assert lev["says"].startswith("leveller: no recommendation: these 35 m do not say where")
+    assert "search a wider range" in lev["says"]  # its note, shown with it
+
+
 class _Plant:
     """The plant with its sliver and leveller, served in a thread until stopped; its batches
     kept as it published them."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated, Any, cast, get_args
 
@@ -134,6 +135,9 @@ def generate(
             rec = plant.run(duration, rate, seed=seed, scenario=scenario, machine=chosen,
                             progress=lambda s: bar.advance(task, s), faults=faults,
                             sliver=settings)  # fmt: skip
+        if rec.sliver is not None and settings is not None:
+            _feed_events_within(settings.feed.events(), float(rec.sliver.fed_length_m[-1]),
+                                duration)  # fmt: skip
         paths = rec.write(out)
     table = Table(title=f"plant, scenario '{scenario}', seed {seed}, machine "
                   f"{chosen.source}: {duration:g} s at {rate:g} Hz")  # fmt: skip
@@ -250,6 +254,24 @@ def _sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: fl
                               "record of this name", source=p, where="--out",
                               fix="choose another --out or move the file")  # fmt: skip
     return settings
+
+
+def _feed_events_within(events: list[dict[str, Any]], fed_m: float, duration_s: float) -> None:
+    """Refuse a feed event (a sliver running out, a piecing) that begins beyond the sliver
+    the record feeds: it would not happen, while the sidecar listed it (a 60-s record feeds
+    about 39 m; ``missing=60-120`` made a healthy record labelled faulty)."""
+    for ev in events:
+        start = float(ev["from_m"] if ev["kind"] == "missing" else ev["at_m"])
+        if start >= fed_m:
+            text = (f"missing={ev['from_m']:g}-{ev['to_m']:g}" if ev["kind"] == "missing"
+                    else f"piecing={ev['at_m']:g}")  # fmt: skip
+            per_s = fed_m / duration_s if duration_s > 0 else math.nan
+            raise ConfigError(f"{text} begins at {start:g} m of fed sliver, and this record "
+                              f"feeds {fed_m:.1f} m ({per_s:.2f} m a second): it would not "
+                              "happen", where="--feed-fault",
+                              fix=f"give --duration {math.ceil(1.2 * start / per_s):d} or more, "
+                              f"or place it within the first {fed_m:.0f} m (fed length, not "
+                              "delivered)")  # fmt: skip
 
 
 def sliver_settings(sliver: bool, feed_fault: list[str] | None, fibre_scale: float,

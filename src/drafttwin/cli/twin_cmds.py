@@ -289,7 +289,10 @@ def _print_sliver(name: str, m: dict[str, Any]) -> None:
                       f"CV {s['cv_pct']:.3f} %, {s['alarms']} chimney alarm(s); chimneys in "
                       f"the last spectrogram: {chimneys}", highlight=False)  # fmt: skip
     a = None if lev is None else lev["advice"]
-    if lev is not None and a is None:
+    if lev is not None and a is not None and lev["state"] != "recommending":
+        console.print(f"{name}: {lev['says']} (last of {lev['checks']} windows of "
+                      f"{lev['window_m']:g} m)", highlight=False)  # fmt: skip
+    elif lev is not None and a is None:
         console.print(f"{name}: leveller {lev['state']}, {lev['collected_m']:.0f} of "
                       f"{lev['window_m']:g} m" + (f" ({lev['failed']})" if lev["failed"] else ""),
                       highlight=False)  # fmt: skip

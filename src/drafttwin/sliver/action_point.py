@@ -249,7 +249,7 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
     boot_gain = [_argmin(np.einsum("b,gbk->gk", c, linear))[1] for c in counts]
     g_lo, g_hi = np.clip(np.percentile(boot_gain, [2.5, 97.5]), 0.0, 2.0)
     new = _Setting(model, action, intensity, tau)
-    limits = _limits(record, model, grid, best, material)
+    limits = _limits(record, model, grid, best, material, float(g_lo))
     current_ev = ExpectedEvenness.of(record.delivery_ktex[model.start :], record.step_m)
     expected = ExpectedEvenness.of(_counterfactual(model, z, current, new, record.step_m),
                                    record.step_m)  # fmt: skip
@@ -439,14 +439,21 @@ def _metres_needed(sums: np.ndarray, grid: np.ndarray, rng: np.random.Generator,
 
 
 def _limits(record: LevellerRecord, model: _Model, grid: np.ndarray, best: float,
-            material: float) -> tuple[str, ...]:  # fmt: skip
+            material: float, intensity_low: float) -> tuple[str, ...]:  # fmt: skip
     """Why the record cannot place the action point, if it cannot: a reading that does not
-    vary, or an optimum (or the material's delay) on the edge of the searched range, where
-    the true one may lie beyond it."""
+    vary, or one that does not explain the delivered count (the intensity's 95 % interval
+    reaches 0: no correction is shown to help anywhere; a dead infeed sensor reading noise
+    got intensity 2 and a 54-mm move for a CV of 1.273 -> 1.267 %), or an optimum (or the
+    material's delay) on the edge of the searched range, where the true one may lie beyond
+    it."""
     infeed = record.infeed_ktex[model.start :]
     if float(np.std(infeed)) <= 1e-6 * abs(float(np.mean(infeed))):
         return ("the infeed reading does not vary (a stuck infeed sensor?): nothing in the "
                 "record places the action point",)  # fmt: skip
+    if intensity_low <= 0.0:
+        return ("the infeed reading does not explain the delivered count (the intensity's "
+                "95 % interval reaches 0: a dead or disconnected infeed sensor?): nothing in "
+                "the record places the action point",)  # fmt: skip
     span = f"{grid[0]:.0f}-{grid[-1]:.0f} mm"
     if best < 0.5 or best > grid.size - 1.5:
         return (f"the least CV lies on the edge of the searched range ({span}): the action "
@@ -456,6 +463,10 @@ def _limits(record: LevellerRecord, model: _Model, grid: np.ndarray, best: float
                 "search a wider range",)  # fmt: skip
     return ()
 
+
+NOTES_MIN_M = 40.0
+"""Analysed sliver (after the store's reach) below which the drive and the count's drift are
+not judged: on 3-8 m windows the count's slope over them read as -13 to +98 % per 100 m."""
 
 LONGER_WORSE = 1.05
 """A recommendation whose CV(3 m) or CV(5 m) exceeds the current one's by this factor is
@@ -482,6 +493,11 @@ def _notes(
     out = []
     s = record.delivered_length_m[model.start :]
     y = record.delivery_ktex[model.start :]
+    if s[-1] - s[0] < NOTES_MIN_M:  # a slope over 3 m read as +98 % per 100 m
+        return ("the record is too short to judge the drive or a drift of the count "
+                f"({s[-1] - s[0]:.0f} m analysed, {NOTES_MIN_M:g} m needed)",) + (
+            ("the record has no leveller: the recommendation is a first setting",)
+            if setting.intensity == 0 else ())  # fmt: skip
     slope = float(np.polyfit(s - s.mean(), y / y.mean(), 1)[0]) * 100 * 100
     drifting = abs(slope) > 0.3
     if setting.intensity > 0 and tau > 2 * setting.drive_time_constant_s + 0.002:

@@ -62,8 +62,9 @@ class FeedFault:
             m = re.fullmatch(r"\s*(wavelength|amplitude|slivers|phase)\s*=\s*(\S+)\s*", part)
             if m is None:
                 raise ConfigError(f"cannot read '{part}' in '{text}'", where="--feed-fault",
-                                  fix="wavelength=M:amplitude=A[:slivers=one|all]"
-                                  "[:phase=random|same]")  # fmt: skip
+                                  fix="a periodic fault wavelength=M:amplitude=A[:slivers="
+                                  "one|all][:phase=random|same], a sliver running out "
+                                  "missing=FROM_M-TO_M, or a piecing piecing=AT_M")  # fmt: skip
             fields[m.group(1)] = m.group(2)
         try:
             return cls(float(fields["wavelength"]), float(fields["amplitude"]),

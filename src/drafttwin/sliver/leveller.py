@@ -223,12 +223,20 @@ class Autoleveller:
         return self.sensor.averaging_mm
 
     def setting_mm(self, true_mm: float) -> float:
-        """The action point setting (fed mm from the scanning rollers)."""
-        return (
+        """The action point setting (fed mm from the scanning rollers), within 0-10000 mm as
+        every reader of a setting takes it (``--leveller 1,-1000`` had made a machine at
+        -298 mm that `sliver level` and the twin then read as one without a setting)."""
+        setting = (
             true_mm + self.action_offset_mm
             if self.action_point_mm is None
             else self.action_point_mm
         )
+        if not 0.0 <= setting <= 10_000.0:
+            raise ConfigError(f"the action point setting would be {setting:.0f} mm (the true "
+                              f"{true_mm:.0f} mm {self.action_offset_mm:+g} mm): a setting lies "
+                              "within 0-10000 mm", where="--leveller",
+                              fix=f"an offset from {-true_mm:.0f} to {10_000 - true_mm:.0f} mm")  # fmt: skip
+        return setting
 
     def record(self, true_mm: float) -> dict[str, Any]:
         """The settings and the true action point, for a sidecar (the machine's frame)."""

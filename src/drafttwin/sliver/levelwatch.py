@@ -81,12 +81,22 @@ class LevelWatch:
     _step_m: float = math.nan
 
     @property
+    def recommends(self) -> bool:
+        """The standing advice places the action point (what ``sliver level`` recommends);
+        a window that does not (``identifiable`` false: the least CV on the search's edge, an
+        infeed reading without information) recommends nothing."""
+        return self.advice is not None and self.advice.identifiable
+
+    @property
     def state(self) -> str:
-        """``no leveller`` (the description names no setting), ``collecting`` or
-        ``recommending`` (an advice stands)."""
+        """``no leveller`` (the description names no setting), ``collecting``,
+        ``recommending`` (an advice stands that places the action point) or ``not placed``
+        (the last window's advice does not place it: nothing is recommended)."""
         if self.context.setting is None:
             return "no leveller"
-        return "recommending" if self.advice is not None else "collecting"
+        if self.advice is None:
+            return "collecting"
+        return "recommending" if self.recommends else "not placed"
 
     @property
     def collected_m(self) -> float:
@@ -159,6 +169,7 @@ class LevelWatch:
                 "checks": self.checks, "gaps": self.gaps, "failed": self.failed,
                 "took_s": None if self.took_s is None else round(self.took_s, 3),
                 "window": None if self.window is None else list(self.window),
+                "says": self.text(),
                 "advice": None if self.advice is None else self.advice.to_dict()}  # fmt: skip
 
     def text(self) -> str:
@@ -169,15 +180,16 @@ class LevelWatch:
         lo, hi = a.action_point_interval_mm
         current = ("none" if a.current_action_point_mm is None
                    else f"{a.current_action_point_mm:.1f} mm")  # fmt: skip
+        notes = "".join(f"; {n}" for n in a.notes)
         if not a.identifiable:
             return (f"leveller: no recommendation: these {a.metres_used:.0f} m do not say where "
                     f"the action point is (current {current}, {a.current_intensity:.2f}, CV "
-                    f"{a.current.cv_pct:.3f} %)")  # fmt: skip
+                    f"{a.current.cv_pct:.3f} %){notes}")  # fmt: skip
         return (f"leveller: action point {a.recommended_action_point_mm:.1f} mm (95 % "
                 f"{lo:.1f}-{hi:.1f}), intensity {a.recommended_intensity:.2f} recommended "
                 f"(current {current}, {a.current_intensity:.2f}): CV {a.current.cv_pct:.3f} % "
                 f"-> {a.recommended.cv_pct:.3f} % expected, from {a.metres_used:.0f} m; "
-                "the twin writes no setting")  # fmt: skip
+                f"the twin writes no setting{notes}")  # fmt: skip
 
 
 __all__ = ["WINDOW_M", "LevelContext", "LevelWatch"]

@@ -15,7 +15,7 @@ Address space, namespace ``urn:drafttwin:twin`` (index 2), per machine ``NAME``:
                  as its source said: OPC 40001-1; empty until known), ComponentName (NAME)
         Sliver/  Count (ktex), CV (%), DeliveredLength (m) AnalogItemType; Chimneys (String,
                  JSON: the last spectrogram's chimneys and their elements)
-        Leveller/  State (no leveller, collecting, recommending), ActionPoint (mm), Intensity:
+        Leveller/  State (no leveller, collecting, recommending, not placed), ActionPoint (mm), Intensity:
                  the machine's setting; RecommendedActionPoint, RecommendedActionPointLow,
                  RecommendedActionPointHigh (mm, 95 %), RecommendedIntensity, CurrentCV and
                  ExpectedCV (%), MetresUsed, MetresNeeded (m); Advice (String, 'sliver level' JSON).
@@ -248,7 +248,9 @@ class OpcUaPublisher(Publisher):
                                                    "with their elements (JSON)")  # fmt: skip
         lev = await obj.add_object(self._nid(f"{name}.Leveller"), f"{self.idx}:Leveller")
         out.sliver["State"] = await self._plain(lev, f"{name}.Leveller.State", "State", "",
-                                                "no leveller, collecting or recommending")  # fmt: skip
+                                                "no leveller, collecting, recommending or not placed "
+                                                "(the last window does not place the action "
+                                                "point: nothing recommended)")  # fmt: skip
         for key, unit, hi, what in LEVELLER_NODES:
             out.sliver[key] = await self._analog(server, lev, f"{name}.Leveller.{key}", key,
                                                  f"{name}: {what}", unit, (0.0, hi))  # fmt: skip
@@ -269,12 +271,14 @@ class OpcUaPublisher(Publisher):
         await self._set(nodes["Chimneys"], json.dumps(w.get("chimneys", [])), ua.VariantType.String)
         await self._set(nodes["State"], lev.get("state", ""), ua.VariantType.String)
         setting, advice = lev.get("setting") or {}, lev.get("advice") or {}
-        lo, hi = advice.get("action_point_interval_mm") or (None, None)
+        # a window that does not place the action point recommends nothing (NaN)
+        placed = advice if lev.get("state") == "recommending" else {}
+        lo, hi = placed.get("action_point_interval_mm") or (None, None)
         values = {"ActionPoint": setting.get("action_point_mm"),
                   "Intensity": setting.get("intensity"),
-                  "RecommendedActionPoint": advice.get("recommended_action_point_mm"),
+                  "RecommendedActionPoint": placed.get("recommended_action_point_mm"),
                   "RecommendedActionPointLow": lo, "RecommendedActionPointHigh": hi,
-                  "RecommendedIntensity": advice.get("recommended_intensity"),
+                  "RecommendedIntensity": placed.get("recommended_intensity"),
                   "CurrentCV": (advice.get("current") or {}).get("cv_pct"),
                   "ExpectedCV": (advice.get("recommended") or {}).get("cv_pct"),
                   "MetresUsed": advice.get("metres_used"),

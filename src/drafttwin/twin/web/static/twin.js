@@ -376,7 +376,10 @@ function drawSliver() {
     const setting = set.leveller ? `action point ${withUnit(set.action_point_mm, 1, "mm")}, intensity ${fmt(set.intensity, 2)}` : "no leveller";
     lines.push(el("div", {}, `leveller (${l.state}): the machine's setting ${setting}`));
     const a = l.advice;
-    if (a) {
+    if (a && !a.identifiable) {  // the window does not place the action point: nothing recommended
+      lines.push(el("div", { class: "advice" }, `no recommendation: these ${withUnit(a.metres_used, 0, "m")} ` +
+        `do not say where the action point is (CV now ${withUnit(a.current.cv_pct, 3, "%")}).`));
+    } else if (a) {
       const [lo, hi] = a.action_point_interval_mm;
       lines.push(el("div", { class: "advice" }, `recommended: action point ${withUnit(a.recommended_action_point_mm, 1, "mm")} ` +
         `(95 % ${fmt(lo, 1)}–${fmt(hi, 1)}), intensity ${fmt(a.recommended_intensity, 2)}: CV ${withUnit(a.current.cv_pct, 3, "%")} → ` +
@@ -386,6 +389,8 @@ function drawSliver() {
       lines.push(el("div", {}, l.failed ? `no recommendation: ${l.failed}` :
         `collecting ${withUnit(l.collected_m, 0, "m")} of ${withUnit(l.window_m, 0, "m")}`));
     }
+    if (a && l.failed) lines.push(el("div", { class: "note" }, `the last window: ${l.failed}`));
+    for (const n of (a && a.notes) || []) lines.push(el("div", { class: "note" }, `note: ${n}`));
   }
   const html = lines.map(x => x.outerHTML).join("");
   if (box.dataset.shown !== html) { box.replaceChildren(...lines); box.dataset.shown = html; }
