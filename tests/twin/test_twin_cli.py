@@ -132,6 +132,12 @@ def test_bad_query_and_serve_options_are_refused(tmp_path: Path) -> None:
         _run("plant", "serve", "--opcua", "http://x:1"), "--opcua", "bad OPC UA address"
     )
     _one_line_error(_run("plant", "serve", "--mqtt", "127.0.0.1"), "--mqtt", "bad MQTT address")
+    # another scheme was taken as a host ("no MQTT broker answers at opc.tcp://..."), and a
+    # bare address was told to use port 4840
+    _one_line_error(_run("plant", "serve", "--mqtt", "opc.tcp://127.0.0.1:48940"), "--mqtt",
+                    "is not an MQTT address", "127.0.0.1:48940")  # fmt: skip
+    _one_line_error(_run("plant", "serve", "--opcua", "127.0.0.1:48940"), "--opcua",
+                    "opc.tcp://127.0.0.1:48940")  # fmt: skip
     _one_line_error(_run("plant", "serve", "--opcua", "opc.tcp://127.0.0.1:4840", "--physics", "x"),
                     "--physics")  # fmt: skip
 

@@ -73,3 +73,8 @@ def test_silent_machine_is_marked_reconnected_and_the_gap_stored(
     kinds = read_events(tmp_path / "store")["kind"].tolist()
     assert "silent" in kinds and "source-reconnecting" in kinds and "gap" in kinds
     assert kinds.count("source-live") >= 2
+    # the console says the source came back (it said only that it was lost)
+    from drafttwin.twin.alarms import event_line
+
+    assert event_line("fa320a", "source-live", 0, "opcua") == "fa320a source-live: opcua"
+    assert event_line("fa320a", "gap", 0, "9 samples missing") is not None

@@ -145,20 +145,32 @@ def twin_relearn(http: TwinPageOpt, machine: RelearnMachineOpt,
     url = f"http://{host}:{port}/api/machines/{urllib.parse.quote(machine, safe='')}/relearn"
     req = urllib.request.Request(url, method="POST", headers=(
         {"Authorization": f"Bearer {token}"} if token else {}))  # fmt: skip
+    not_a_twin = ConfigError(f"the server at {host}:{port} is not a twin (its answer is not "
+                             "the twin's JSON)", where="--http",
+                             fix="give the address of a running 'twin run --http' or 'twin "
+                             "hall --http'")  # fmt: skip
     try:
         with urllib.request.urlopen(req, timeout=10) as r:  # noqa: S310  the address the user gave
             doc = json.loads(r.read())
     except urllib.error.HTTPError as exc:
-        detail = exc.read().decode(errors="replace")[:200]
-        fix = {401: "give the twin's --token (or DRAFTTWIN_TOKEN)",
-               404: "give a machine the twin watches (GET /api/machines lists them; a "
-                    "hall's: GET /api/hall)",
-               409: "the twin runs without a fault detector (--detector none)"}.get(exc.code, "see the twin's log")  # fmt: skip
-        raise ConfigError(f"the twin refused: HTTP {exc.code} {detail}", where="--machine",
+        try:  # the twin answers {"detail": ...}; anything else (a web page) is another server
+            detail = str(json.loads(exc.read())["detail"])[:200]
+        except (ValueError, KeyError, TypeError):
+            raise not_a_twin from None
+        where, fix = {401: ("--token", "give the twin's --token (or DRAFTTWIN_TOKEN)"),
+                      404: ("--machine", "give a machine the twin watches (GET /api/machines "
+                                         "lists them; a hall's: GET /api/hall)"),
+                      409: ("--machine", "the twin runs without a fault detector (--detector "
+                                         "none)")}.get(exc.code, ("--http", "see the twin's log"))  # fmt: skip
+        raise ConfigError(f"the twin refused: HTTP {exc.code} {detail}", where=where,
                           fix=fix) from None  # fmt: skip
+    except ValueError:  # a 200 that is not JSON
+        raise not_a_twin from None
     except (urllib.error.URLError, OSError) as exc:
         raise ConfigError(f"no twin answers at {http} ({getattr(exc, 'reason', exc)})",
                           where="--http", fix="give the address of a running 'twin run --http'") from None  # fmt: skip
+    if not isinstance(doc, dict) or not isinstance(doc.get("detector"), dict):
+        raise not_a_twin
     if as_json:
         print_json(doc)
         return

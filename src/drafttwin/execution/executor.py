@@ -201,11 +201,13 @@ def _run_ray(fn: Task, todo: Pending, finish: Finish, workers: int, address: str
 
 
 @contextlib.contextmanager
-def ray_session(cpus: int, address: str | None) -> Iterator[Any]:
+def ray_session(cpus: int, address: str | None, *, foreground: bool = False) -> Iterator[Any]:
     """Ray for the block: the cluster at ``address``, else a private instance with ``cpus``
     CPUs, started here when none runs yet and shut down after the block (with a guard
     process that kills it if this process dies). The caller's SIGTERM handler stays (ray.init
-    installs its own)."""
+    installs its own). ``foreground``: a private instance's workers run at the caller's
+    priority, not at Ray's default niceness of 15 (the hall's twins are the work a user waits
+    on: at nice 15 beside other work they fell seconds behind a `twin run` at 0)."""
     ray = _import_ray()
     started = not ray.is_initialized()
     guard = _start_guard() if started and not address else None
@@ -213,6 +215,8 @@ def ray_session(cpus: int, address: str | None) -> Iterator[Any]:
     try:
         if started:
             try:
+                if foreground and not address:
+                    os.environ.setdefault("RAY_worker_niceness", "0")
                 _init_ray(ray, cpus, address)
             except SystemExit as exc:  # Ray's own SIGTERM handler, while it starts
                 if exc.code != signal.SIGTERM:

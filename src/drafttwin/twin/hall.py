@@ -235,7 +235,7 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
     check_store(store, shards)
     # the caller's SIGTERM handler stays (not Ray's stack dump): it stops the shards, which
     # commit what they received
-    with ray_session(shards, address) as ray:
+    with ray_session(shards, address, foreground=True) as ray:
         cls = _actor_class(ray)
         opts = {"model": model.resolve(), "mapping": mapping.resolve(), "commit_ms": commit_ms,
                 "physics": physics, "silent_s": silent_s, "learn_s": learn_s,

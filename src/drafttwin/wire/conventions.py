@@ -169,7 +169,11 @@ __all__ = [
 
 def parse_hostport(text: str, where: str) -> tuple[str, int]:
     host, _, port = text.removeprefix("mqtt://").rstrip("/").rpartition(":")
-    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+    if "://" in host:  # another scheme (opc.tcp://...) read as a host
+        raise ConfigError(f"{text!r} is not an MQTT address", where=where,
+                          fix=f"write HOST:PORT or mqtt://HOST:PORT, e.g. "
+                          f"{host.partition('://')[2] or '127.0.0.1'}:{port or 1883}")  # fmt: skip
+    if not host or not port.isdigit() or not 0 < int(port) < 65536 or "/" in host:
         raise ConfigError(f"bad MQTT address {text!r}", where=where,
                           fix="write HOST:PORT, e.g. 127.0.0.1:1883")  # fmt: skip
     return host, int(port)

@@ -91,8 +91,10 @@ class ServedMachine:
 
 def parse_opcua_url(text: str) -> tuple[str, int]:
     if not text.startswith("opc.tcp://"):
+        bare = text.partition("://")[2] or text  # the user's own host and port, if any
         raise ConfigError(f"bad OPC UA address {text!r}", where="--opcua",
-                          fix="write opc.tcp://127.0.0.1:4840")  # fmt: skip
+                          fix=f"write opc.tcp://{bare}" if ":" in bare and "/" not in bare
+                          else "write opc.tcp://HOST:PORT, e.g. opc.tcp://127.0.0.1:4840")  # fmt: skip
     host, _, port = text.removeprefix("opc.tcp://").rstrip("/").rpartition(":")
     if not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ConfigError(f"bad OPC UA address {text!r}", where="--opcua",
