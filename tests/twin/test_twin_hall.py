@@ -264,6 +264,11 @@ def test_each_shard_says_its_real_state() -> None:
     assert [o["state"] for o in out] == ["starting", "loading", "running", "not answering",
                                          "ended", "failed"]  # fmt: skip
     assert out[3]["machines"] == running["machines"] and out[5]["error"] == "shard broke"
+    # a shard started again after its process died answers "loading" at once: its machines
+    # and alarms had vanished from the page, and a command to one of them answered 404
+    again = _statuses(_FakeRay(), [_Actor(_Ref({"state": "loading"}))], [_Ref(None, False)],
+                      [running])  # fmt: skip
+    assert again[0]["state"] == "restarting" and again[0]["machines"] == running["machines"]
 
 
 def test_the_hall_page_passes_an_operators_command_to_the_machines_shard() -> None:

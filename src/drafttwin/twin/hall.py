@@ -328,7 +328,8 @@ def _statuses(ray: Any, actors: list[Any], refs: list[Any],
     """Each shard's status, asked of all at once, with its ``state``: ``starting`` (its
     process is not up yet), ``loading`` (its model), ``running``, ``not answering`` (it did,
     but not within STATUS_S now: busy, or started again after its process died; its last
-    status kept), ``ended`` or ``failed``."""
+    status kept), ``restarting`` (its process was started again and loads: its last status
+    kept), ``ended`` or ``failed``."""
     asked = {i: a.status.remote() for i, (a, ref) in enumerate(zip(actors, refs, strict=True))
              if not ray.wait([ref], timeout=0)[0]}  # fmt: skip
     done, _ = ray.wait(list(asked.values()), num_returns=len(asked), timeout=STATUS_S)
@@ -344,7 +345,13 @@ def _statuses(ray: Any, actors: list[Any], refs: list[Any],
         if asked[i] in done:
             with contextlib.suppress(ray.exceptions.RayError, TimeoutError):
                 got = ray.get(asked[i], timeout=0)
-        if got is not None:
+        before = seen[i]
+        if got is not None and "machines" not in got and before is not None and "machines" in before:
+            # started again after its process died (Ray restarts it): its machines and their
+            # standing alarms stay listed as last seen until it runs again (they had vanished
+            # from the page, and a command to one of them answered 404 "no machine")
+            out.append({**before, "state": "restarting"})
+        elif got is not None:
             out.append(got)
         elif seen[i] is None or seen[i].get("state") == "starting":  # type: ignore[union-attr]
             out.append({"state": "starting"})

@@ -26,8 +26,8 @@ from drafttwin.twin.web.guard import guard
 
 class HallView:
     """The latest status of each shard, thread-safe: its ``state`` (starting, loading,
-    running, not answering, ended, failed; ``None`` before the first poll: starting) and,
-    once running, its twin's status."""
+    running, not answering, restarting, ended, failed; ``None`` before the first poll:
+    starting) and, once running, its twin's status."""
 
     def __init__(self, shards: int) -> None:
         self.lock = threading.Lock()
