@@ -346,7 +346,8 @@ def _statuses(ray: Any, actors: list[Any], refs: list[Any],
             with contextlib.suppress(ray.exceptions.RayError, TimeoutError):
                 got = ray.get(asked[i], timeout=0)
         before = seen[i]
-        if got is not None and "machines" not in got and before is not None and "machines" in before:
+        restarted = got is not None and "machines" not in got
+        if restarted and before is not None and "machines" in before:
             # started again after its process died (Ray restarts it): its machines and their
             # standing alarms stay listed as last seen until it runs again (they had vanished
             # from the page, and a command to one of them answered 404 "no machine")
