@@ -194,6 +194,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
         "--sensor-mm",
         "--harmonics",
         "--fibre-scale",
+        "--tested-m",
     ],
     "sliver level": [
         "--action-point",

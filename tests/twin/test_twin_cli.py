@@ -92,7 +92,12 @@ def test_bad_sources_are_refused(
 def test_bad_run_options_are_refused(twin_files: tuple[Path, Path], tmp_path: Path) -> None:
     record, model = twin_files
     base = ["twin", "run", "--model", str(model), "--source", f"replay:{record}"]
-    _one_line_error(_run(*base, "--source", f"replay:{record}"), "comes from two sources")
+    _one_line_error(_run(*base, "--source", f"replay:{record}"), "comes from two sources",
+                    "replay:FILE?machine=NAME")  # fmt: skip
+    # two live servers: the fix named replays (neither was one)
+    _one_line_error(_run("twin", "run", "--model", str(model), "--source",
+                         "opcua:opc.tcp://127.0.0.1:1", "--source", "mqtt://127.0.0.1:1"),
+                    "comes from two sources", "run one twin per server")  # fmt: skip
     _one_line_error(_run(*base, "--physics", "medium"), "--physics")
     _one_line_error(_run(*base, "--http", "127.0.0.1:web"), "--http", "bad address")
     others = tmp_path / "others.toml"  # a replay names its machine: the mapping's were ignored

@@ -92,8 +92,16 @@ def build_service(
     for src in built:
         for m in src.machines:
             if m.name in maps:
-                raise ConfigError(f"machine {m.name!r} comes from two sources", where="--source",
-                                  fix="name each replayed machine: replay:FILE?machine=NAME")  # fmt: skip
+                both = (maps[m.name][1], src.spec)
+                live = not (isinstance(src, ReplaySource)
+                            and all(s.startswith("replay:") for s in both))  # fmt: skip
+                raise ConfigError(
+                    f"machine {m.name!r} comes from two sources ({both[0]} and {both[1]})",
+                    where="--source",
+                    fix="a live source serves every machine of --mapping (fa320a without one): "
+                    "give each server's machines their own names in --mapping and split them "
+                    "with ?shard=I/K, or run one twin per server" if live else
+                    "name each replayed machine: replay:FILE?machine=NAME")  # fmt: skip
             maps[m.name] = (m, src.spec)
             if isinstance(src, ReplaySource) and not np.isfinite(src.motor).any():
                 no_motor.add(m.name)  # a file without a motor column
