@@ -213,3 +213,31 @@ def test_sliver_level_names_the_option_a_slip_came_from(record: Path) -> None:
     assert code == 2 and "--reference-ktex" in out and "all slivers together" in out
     code, out = _invoke("sliver", "level", "--data", str(record), "--max-length", "1")
     assert code == 2 and "--max-length" in out and "Traceback" not in out
+
+
+def test_sliver_level_reads_one_machine_of_a_log_of_several(tmp_path: Path, record: Path) -> None:
+    """A `plant serve --machines 2 --sliver --log` file holds both machines' rows: it read as
+    "delivered_length_m is not increasing in even steps", with no way to pick one; its speed
+    file said "no length column"."""
+    import pandas as pd
+
+    one = pd.read_csv(record.with_name("rec.sliver.csv"))
+    two = pd.concat([one.assign(machine="m-a"), one.assign(machine="m-b")]).sort_index(
+        kind="stable")  # interleaved, as a live log is  # fmt: skip
+    log = tmp_path / "log.sliver.csv"
+    two.to_csv(log, index=False)
+    pd.DataFrame({"machine": ["m-a"], "seq": [0], "ts_us": [0]}).to_csv(tmp_path / "log.csv")
+    setting = ["--action-point", "727", "--intensity", "1", "--json"]
+    code, out = _invoke("sliver", "level", "--data", str(log), *setting)
+    assert code == 2 and "--machine" in out and "2 machines (m-a, m-b)" in out, out
+    code, out = _invoke("sliver", "level", "--data", str(tmp_path / "log.csv"), *setting)
+    assert code == 2 and "log.sliver.csv" in out, out
+    plain = tmp_path / "plain.csv"
+    one.to_csv(plain, index=False)
+    code, alone = _invoke("sliver", "level", "--data", str(plain), *setting)
+    code_b, picked = _invoke("sliver", "level", "--data", str(log), "--machine", "m-b", *setting)
+    assert code == code_b == 0, picked
+    a, b = json.loads(alone), json.loads(picked)
+    assert b["recommended_action_point_mm"] == a["recommended_action_point_mm"]
+    code, out = _invoke("sliver", "level", "--data", str(log), "--machine", "m-c", *setting)
+    assert code == 2 and "no machine 'm-c'" in out

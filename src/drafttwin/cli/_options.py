@@ -69,12 +69,14 @@ def machine_name(flag: str, help: str) -> Any:
     """A machine's name, checked by the twin's mapping rule (a topic level and a browse name:
     no MQTT wildcard, no '/', at most 100 characters) while parsing."""
 
-    def callback(value: str) -> str:
+    def callback(value: str | None) -> str | None:
         import re
 
         from drafttwin.errors import ConfigError
         from drafttwin.twin.sources.mapping import MACHINE_NAME
 
+        if value is None:  # an optional one not given
+            return None
         if not re.fullmatch(MACHINE_NAME, value):
             raise ConfigError(f"{value[:100]!r} is not a machine name", where=flag,
                               fix="use letters, digits, '_', '.' and '-' (no MQTT wildcard, "

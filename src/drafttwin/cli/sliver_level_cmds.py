@@ -9,7 +9,7 @@ from typing import Annotated, Any
 from rich.table import Table
 
 from drafttwin.cli._groups import stops_cleanly, with_group
-from drafttwin.cli._options import JsonOpt, file_in, number
+from drafttwin.cli._options import JsonOpt, file_in, machine_name, number
 from drafttwin.cli.sliver_cmds import FibreOptions, sliver_app
 from drafttwin.cli.typer_app import console, print_json
 from drafttwin.errors import ConfigError, DataError
@@ -24,6 +24,7 @@ IntensityOpt = Annotated[float | None, number("--intensity", "The leveller's cur
 ReferenceOpt = Annotated[float | None, number("--reference-ktex", "The fed count the leveller levels to, all slivers together, ktex (default: the sidecar's feed, else the infeed readings' median; refused beyond 0.5-2 x that median).")]  # fmt: skip
 MaxLengthOpt = Annotated[float | None, number("--max-length", "Analyse at most this many metres of delivered sliver from the record's start.")]  # fmt: skip
 SearchOpt = Annotated[float, number("--search", "Action points searched either side of the current setting, mm.")]  # fmt: skip
+LevelMachineOpt = Annotated[str | None, machine_name("--machine", "In a log of several machines (plant serve --machines N --sliver --log): the machine whose rows are read.")]  # fmt: skip
 
 
 @sliver_app.command("level")
@@ -37,6 +38,7 @@ def level_cmd(
     reference_ktex: ReferenceOpt = None,
     max_length: MaxLengthOpt = None,
     search: SearchOpt = 120.0,
+    machine: LevelMachineOpt = None,
     fibre_options: FibreOptions,
     as_json: JsonOpt = False,
 ) -> None:
@@ -50,7 +52,7 @@ def level_cmd(
     from drafttwin.sliver.leveller_record import LevellerSetting, read_leveller_record
     from drafttwin.sliver.staple import resolve_fibres
 
-    got = read_leveller_record(data)
+    got = read_leveller_record(data, machine=machine)
     setting = got.setting
     if setting is None:
         if action_point is None:

@@ -118,9 +118,11 @@ class LevellerFile:
     true_action_point_mm: float | None
 
 
-def read_leveller_record(path: str | Path, option: str = "--data") -> LevellerFile:
+def read_leveller_record(path: str | Path, option: str = "--data",
+                         machine: str | None = None) -> LevellerFile:  # fmt: skip
     """A leveller record: the sliver file beside a plant record (or that file itself, or any
-    file with the columns), read through the data layer's file checks."""
+    file with the columns), read through the data layer's file checks; ``machine``: the rows
+    of that machine in a log of several (``plant serve --machines N --sliver --log``)."""
     from drafttwin.data.io import read_table
     from drafttwin.sliver.record import find_length_column, sliver_beside
 
@@ -129,6 +131,11 @@ def read_leveller_record(path: str | Path, option: str = "--data") -> LevellerFi
     source = beside.sliver if beside else path
     frame = read_table(source, option=option)
     frame.columns = [str(c) for c in frame.columns]
+    frame = _one_machine(frame, machine, source)
+    sliver_log = source.with_name(source.stem + ".sliver" + source.suffix)
+    if "ts_us" in frame.columns and sliver_log.is_file():  # a plant log's speed file
+        raise DataError("a plant log's speed records, not its sliver readings", source=source,
+                        where=option, fix=f"give {sliver_log.name}, the log's sliver readings")  # fmt: skip
     length_col, scale = find_length_column(frame, None, None, source, option, naming=False)
     missing = [c for c in COLUMNS if c not in frame.columns]
     if missing:
@@ -154,6 +161,24 @@ def read_leveller_record(path: str | Path, option: str = "--data") -> LevellerFi
                             values["fed_length_m"], values["time"], str(source))  # fmt: skip
     section = beside.sidecar if beside else {}
     return LevellerFile(record, *context_of(section), _true_point(section))
+
+
+def _one_machine(frame: pd.DataFrame, machine: str | None, source: Path) -> pd.DataFrame:
+    """The rows of ``machine`` in a log of several machines (its ``machine`` column); a log
+    of several without a choice is refused by name (it read as a length that went back)."""
+    names = sorted(str(n) for n in frame["machine"].unique()) if "machine" in frame else []
+    if machine is None:
+        if len(names) > 1:
+            raise DataError(f"the log holds {len(names)} machines ({', '.join(names[:6])})",
+                            source=source, where="--machine",
+                            fix=f"pick one with --machine, e.g. --machine {names[0]}")  # fmt: skip
+        return frame
+    if machine not in names:
+        raise DataError(f"no machine {machine!r} in the log" + (
+            f" (it holds {', '.join(names[:6])})" if names else " (it has no machine column)"),
+            source=source, where="--machine",
+            fix="give a machine the log holds" if names else "leave --machine out")  # fmt: skip
+    return frame[frame["machine"].astype(str) == machine].reset_index(drop=True)
 
 
 def context_of(section: dict[str, Any]) -> tuple[LevellerSetting | None, bool,
