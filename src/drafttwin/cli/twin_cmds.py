@@ -268,7 +268,9 @@ def _print_status(status: dict[str, Any]) -> None:
             from drafttwin.twin.alarms import cause_text
 
             state = "active" if a["active"] else "returned to normal"
-            console.print(f"{name}: alarm {a['test']} ({state}, {'acknowledged' if a['acked'] else 'not acknowledged'}): "
+            ack = ("acknowledged" if a["acked"] else "not acknowledged") + (
+                ", confirmed" if a.get("confirmed") else "")  # fmt: skip
+            console.print(f"{name}: alarm {a['test']} ({state}, {ack}): "
                           f"{cause_text(a.get('cause'))}", highlight=False, markup=False, soft_wrap=True)  # fmt: skip
     for name, m in status["machines"].items():
         _print_sliver(name, m)
