@@ -156,6 +156,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
         "--learn",
         "--silent",
         "--level-window",
+        "--level-search",
         "--duration",
         "--max-samples",
     ],
@@ -172,7 +173,14 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
         "--max-lag",
         "--fibre-scale",
     ],
-    "twin hall": ["--shards", "--commit-ms", "--duration", "--learn", "--level-window"],
+    "twin hall": [
+        "--shards",
+        "--commit-ms",
+        "--duration",
+        "--learn",
+        "--level-window",
+        "--level-search",
+    ],
     "plant replay": ["--machines", "--speed", "--batch", "--gap", "--lead"],
     "sliver simulate": [
         "--duration",

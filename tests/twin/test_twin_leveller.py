@@ -106,6 +106,14 @@ def test_a_window_that_does_not_place_the_action_point_recommends_nothing(
     assert lev["state"] == "not placed" and lev["advice"]["identifiable"] is False
     assert lev["says"].startswith("leveller: no recommendation: these 35 m do not say where")
     assert "search a wider range" in lev["says"]  # its note, shown with it
+    # the twin could not search wider (twin run --level-search): now it does, as sliver level
+    service = build_service(model, [f"replay:{record}?speed=inf"], detector="none",
+                            level_window_m=35.0, level_search_mm=250.0)  # fmt: skip
+    asyncio.run(service.run())
+    (st,) = service.states.values()
+    lev = service.status()["machines"][st.twin.name]["leveller"]
+    assert lev["state"] == "recommending", lev["says"]
+    _same(lev["advice"], _level(record, "--max-length", "35", "--search", "250"))
 
 
 class _Plant:

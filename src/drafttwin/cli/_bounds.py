@@ -116,6 +116,7 @@ _RANGES: dict[str, str] = {
     "--max-length": "(0, 1e6] m",
     "--search": "[5, 2000] mm",
     "--level-window": "[20, 10_000] m",
+    "--level-search": "[5, 2000] mm",
     "--fault-cases": "[0, 1000] machines",
 }
 

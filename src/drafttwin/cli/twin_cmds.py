@@ -108,6 +108,7 @@ LevelWindowOpt = Annotated[float, number("--level-window", (
     "Metres of delivered sliver per recommendation of the leveller's action point (a source "
     "with the sliver sensors and the leveller's setting: plant serve --sliver, a replayed "
     "record made with --sliver): 'sliver level' on each window, never a setting written."))]  # fmt: skip
+LevelSearchOpt = Annotated[float, number("--level-search", "Action points searched either side of each machine's leveller setting for its recommendation, mm (as 'sliver level --search'; a window whose least CV lies on the edge recommends nothing and asks for more).")]  # fmt: skip
 MaxSamplesOpt = Annotated[int | None, number("--max-samples", "Stop after this many processed samples.")]  # fmt: skip
 # derived from the parameter's name, as --verbose/--no-verbose
 VerboseOpt = Annotated[bool, typer.Option(help="A line per store commit.")]
@@ -121,6 +122,7 @@ def twin_run(
     http: HttpOpt = None, token: TokenOpt = None, physics: TwinPhysicsOpt = "reduced",
     publish: PublishOpt = None, detector: DetectorOpt = "auto", learn: LearnOpt = None,
     silent: SilentOpt = 2.0, level_window: LevelWindowOpt = 300.0,
+    level_search: LevelSearchOpt = 120.0,
     duration: StopAfterOpt = None, max_samples: MaxSamplesOpt = None,
     verbose: VerboseOpt = False, quiet: TwinQuietOpt = False, as_json: StatusJsonOpt = False,
 ) -> None:  # fmt: skip
@@ -156,7 +158,7 @@ def twin_run(
                                 retention_s=None if retention_hours is None else retention_hours * 3600,
                                 physics=physics, silent_s=silent, on_commit=on_commit,
                                 detector=detector, learn_s=learn,
-                                level_window_m=level_window)  # fmt: skip
+                                level_window_m=level_window, level_search_mm=level_search)  # fmt: skip
     start = time.monotonic()
     try:
         from drafttwin.twin.aio import run_until_signal

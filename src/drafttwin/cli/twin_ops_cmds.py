@@ -21,6 +21,7 @@ from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, files_in, num
 from drafttwin.cli.twin_cmds import (
     CommitMsOpt,
     LearnOpt,
+    LevelSearchOpt,
     LevelWindowOpt,
     MachineOpt,
     StoreReadOpt,
@@ -122,6 +123,7 @@ def twin_hall(
     quiet: TwinQuietOpt = False, http: HallHttpOpt = None, token: TokenOpt = None,
     as_json: ShardsJsonOpt = False, detector: HallDetectorOpt = "auto", learn: LearnOpt = None,
     level_window: LevelWindowOpt = 300.0,
+    level_search: LevelSearchOpt = 120.0,
 ) -> None:  # fmt: skip
     """Run a hall as K live twins, one Ray actor each: shard I takes the mapping's machines
     I, I+K, I+2K... (each machine whole in one twin) and writes its own store in
@@ -185,7 +187,8 @@ def twin_hall(
                                commit_ms=commit_ms, physics=physics, duration_s=duration,
                                on_status=status, on_actors=view.bind_commands,
                                status_every_s=1.0, detector=detector,
-                               learn_s=learn, level_window_m=level_window)  # fmt: skip
+                               learn_s=learn, level_window_m=level_window,
+                               level_search_mm=level_search)  # fmt: skip
     except Interrupted as exc:  # a service manager's stop is a clean end: exit code 0
         work_done()
         note = str(exc).partition("; ")[2]  # what the hall did, shard by shard

@@ -192,4 +192,4 @@ class LevelWatch:
                 f"the twin writes no setting{notes}")  # fmt: skip
 
 
-__all__ = ["WINDOW_M", "LevelContext", "LevelWatch"]
+__all__ = ["SEARCH_MM", "WINDOW_M", "LevelContext", "LevelWatch"]

@@ -17,7 +17,7 @@ from drafttwin.diagnosis.stream import BLOCK_S, POST_S
 from drafttwin.errors import ConfigError, DataError
 from drafttwin.mechanics import DriveTrain
 from drafttwin.models.base import BaseModel
-from drafttwin.sliver.levelwatch import WINDOW_M
+from drafttwin.sliver.levelwatch import SEARCH_MM, WINDOW_M
 from drafttwin.twin.faultwatch import LiveFaultWatch, block_phase, detector_path, load_detector
 from drafttwin.twin.live import MachineTwin, physics_train
 from drafttwin.twin.service import MachineState, TwinService
@@ -57,6 +57,7 @@ def build_service(
     detector: str = "auto",
     learn_s: float | None = None,
     level_window_m: float = WINDOW_M,
+    level_search_mm: float = SEARCH_MM,
 ) -> TwinService:
     """The service for ``sources`` (``--source`` values), each machine with its model.
 
@@ -65,7 +66,8 @@ def build_service(
     read back from the store), ``none``, or a detector file as the prior of the machines of
     ``model_path`` (the others: auto). ``learn_s``: how long a machine learns (default: what
     the detector needs, :func:`~drafttwin.diagnosis.learning.learn_time`). ``level_window_m``:
-    delivered sliver per recommendation of a machine's leveller."""
+    delivered sliver per recommendation of a machine's leveller; ``level_search_mm``: action
+    points searched either side of its setting (``sliver level --search``)."""
     if detector != "auto" and detector != "none" and not Path(detector).is_file():
         raise ConfigError(f"no detector file {detector}", where="--detector",
                           fix="give the file 'drafttwin twin fit-detector' wrote, auto or none")  # fmt: skip
@@ -152,7 +154,8 @@ def build_service(
     writer = None
     if store is not None:
         writer = StoreWriter(store, commit_ms, retention_s=retention_s, on_commit=on_commit)
-    service = TwinService(states, built, writer, silent_s=silent_s, level_window_m=level_window_m)
+    service = TwinService(states, built, writer, silent_s=silent_s, level_window_m=level_window_m,
+                          level_search_mm=level_search_mm)  # fmt: skip
     service.baselines = baselines
     if store is not None:  # the alarms the run before left unacknowledged or active
         service.faults.restore(stored_alarm_events(store.con, list(states)))

@@ -29,7 +29,7 @@ from typing import Any
 
 from drafttwin.errors import ConfigError, DrafttwinError
 from drafttwin.execution.interrupt import Interrupted
-from drafttwin.sliver.levelwatch import WINDOW_M
+from drafttwin.sliver.levelwatch import SEARCH_MM, WINDOW_M
 
 SHARD_DIR = re.compile(r"^shard-(\d+)-of-(\d+)$")
 RESTARTS = 3
@@ -158,7 +158,8 @@ def _actor_class(ray: Any) -> Any:
                                          store_dir=o["store"], commit_ms=o["commit_ms"],
                                          physics=o["physics"], silent_s=o["silent_s"],
                                          detector=o["detector"], learn_s=o["learn_s"],
-                                         level_window_m=o["level_window_m"])  # fmt: skip
+                                         level_window_m=o["level_window_m"],
+                                         level_search_mm=o["level_search_mm"])  # fmt: skip
             failed: list[BaseException] = []
 
             def loop() -> None:  # a thread of its own: Ray's method thread runs its own loop
@@ -224,7 +225,8 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
              on_actors: Callable[[Callable[..., dict[str, Any]]], None] | None = None,
              status_every_s: float = 10.0, detector: str = "auto",
              learn_s: float | None = None,
-             level_window_m: float = WINDOW_M) -> list[dict[str, Any]]:  # fmt: skip
+             level_window_m: float = WINDOW_M,
+             level_search_mm: float = SEARCH_MM) -> list[dict[str, Any]]:  # fmt: skip
     """Run ``shards`` twin actors on Ray (the cluster at ``address``, else a private instance
     with ``shards`` CPUs) until ``duration_s`` or Ctrl-C; each shard's final status. Each
     shard's machines learn their own healthy state (``detector``, ``learn_s``: as ``twin
@@ -239,7 +241,7 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
         cls = _actor_class(ray)
         opts = {"model": model.resolve(), "mapping": mapping.resolve(), "commit_ms": commit_ms,
                 "physics": physics, "silent_s": silent_s, "learn_s": learn_s,
-                "level_window_m": level_window_m,
+                "level_window_m": level_window_m, "level_search_mm": level_search_mm,
                 "detector": detector if detector in ("auto", "none") else
                 str(Path(detector).resolve())}  # fmt: skip
         actors = [cls.remote({**opts, "source": shard_source(source, i, shards),

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from drafttwin.models.online import forecast_many
-from drafttwin.sliver.levelwatch import WINDOW_M
+from drafttwin.sliver.levelwatch import SEARCH_MM, WINDOW_M
 from drafttwin.twin.faults import FaultDesk
 from drafttwin.twin.live import Begun
 from drafttwin.twin.sliverdesk import SliverDesk
@@ -48,7 +48,8 @@ class TwinService:
 
     def __init__(self, states: dict[str, MachineState], sources: Sequence[Source],
                  writer: StoreWriter | None = None, *, silent_s: float = 2.0,
-                 level_window_m: float = WINDOW_M) -> None:  # fmt: skip
+                 level_window_m: float = WINDOW_M,
+                 level_search_mm: float = SEARCH_MM) -> None:  # fmt: skip
         self.states, self.sources, self.writer = states, list(sources), writer
         self.silent_s = silent_s
         self.latency_s: deque[float] = deque(maxlen=LATENCY_WINDOW)
@@ -57,7 +58,7 @@ class TwinService:
         self.metrics: Any = None  # drafttwin.twin.web.metrics.Metrics when the page runs
         self.event_hooks: list[Callable[[EventRow], None]] = []
         self.started = time.monotonic()
-        self.slivers = SliverDesk(self, level_window_m)
+        self.slivers = SliverDesk(self, level_window_m, level_search_mm)
         self.loop: asyncio.AbstractEventLoop | None = None
         self._stop = asyncio.Event()
         self._batch: list[Sample] = []

@@ -25,7 +25,7 @@ from typing import Any, Protocol
 
 from drafttwin.errors import DrafttwinError
 from drafttwin.sliver import StapleDiagram
-from drafttwin.sliver.levelwatch import WINDOW_M, LevelContext, LevelWatch
+from drafttwin.sliver.levelwatch import SEARCH_MM, WINDOW_M, LevelContext, LevelWatch
 from drafttwin.sliver.watch import SliverAlarm, SliverWatch
 from drafttwin.twin.state import MachineState
 from drafttwin.twin.store.db import EventRow
@@ -86,9 +86,10 @@ class Host(Protocol):
 class SliverDesk:
     """The sliver watch and the leveller's recommendation of every machine of ``service``."""
 
-    def __init__(self, service: Host, window_m: float = WINDOW_M) -> None:
+    def __init__(self, service: Host, window_m: float = WINDOW_M,
+                 search_mm: float = SEARCH_MM) -> None:  # fmt: skip
         self.service = service
-        self.window_m = window_m
+        self.window_m, self.search_mm = window_m, search_mm
         self._watch_pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sliver")
         self._level_pool = DaemonWorker("leveller")
         self._pending: set[Future[Any]] = set()
@@ -133,7 +134,7 @@ class SliverDesk:
             self.service.report(st.twin.name, "dropped", f"description refused: {exc}"[:200])
             return
         self._described[st.twin.name] = key
-        st.level = LevelWatch(context, self.window_m)
+        st.level = LevelWatch(context, self.window_m, self.search_mm)
         s = context.setting
         what = ("no leveller" if s is None else
                 f"intensity {s.intensity:g}, action point {s.action_point_mm:.1f} mm")  # fmt: skip
