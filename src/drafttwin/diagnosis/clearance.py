@@ -49,12 +49,9 @@ class Clearance:
         self.active.append(_Watched(alarm, None if base is None else base.copy()))
 
     def carried(self) -> list[tuple[Alarm, np.ndarray | None]]:
-        """The alarms still watched that a new run can go on watching (each with the
-        baseline it left): a level stream's or a sensor rule's. An angle lag is counted
-        from its run's start, so another run's lag cannot be held against this baseline (and
-        a worn mesh does not un-wear: it stays active until serviced)."""
-        return [(w.alarm, w.base) for w in self.active
-                if w.base is None or not w.alarm.test.startswith("lag_")]  # fmt: skip
+        """The alarms still watched that a new run can go on watching, each with the
+        baseline it left (:func:`carries_over`)."""
+        return [(w.alarm, w.base) for w in self.active if carries_over(w.alarm, w.base)]
 
     def block(self, features: np.ndarray, sensor_tests: set[str]) -> list[Alarm]:
         """One block's features and the sensor rules it fired; the alarms it returned to
@@ -78,4 +75,15 @@ class Clearance:
         return cleared
 
 
-__all__ = ["CLEAR_S", "CLEAR_Z", "Clearance"]
+def carries_over(alarm: Alarm, base: np.ndarray | None) -> bool:
+    """Whether another run (after a gap, or in a restarted twin) can judge ``alarm``'s return
+    to normal: a sensor rule's, or a level stream's with the baseline it left (``base``;
+    none kept with an alarm stored before 2026-11-30). Not an angle lag's: a lag is counted
+    from its run's start, so another run's lag cannot be held against this baseline (and a
+    worn mesh does not un-wear: it stays active until serviced)."""
+    if alarm.direction == 0:
+        return True
+    return base is not None and not alarm.test.startswith("lag_")
+
+
+__all__ = ["CLEAR_S", "CLEAR_Z", "Clearance", "carries_over"]

@@ -187,11 +187,11 @@ class FaultDetector:
         reference window left out); a record that is steady throughout stays whole."""
         out: list[BlockFeatures] = []
         for f in healthy:
-            runs = f.steady_runs()
-            if len(runs) == 1 and runs[0] is f:
+            if f.steady_blocks.all():  # whole (a short one is refused as before, by _n_ref)
                 out.append(f)
                 continue
-            out += [r for r in runs if len(r.level) > self.reference_blocks(r.block_s)]
+            out += [r for r in f.steady_runs()
+                    if len(r.level) > self.reference_blocks(r.block_s)]  # fmt: skip
         if not out:
             raise DataError("the healthy tuning records hold no steady running longer than the "
                             f"reference window ({self.reference_s:g} s): they start, stop or "

@@ -39,6 +39,7 @@ from drafttwin.diagnosis.residuals import (
     measured,
     physics_prediction,
     roller_ratio,
+    runs_of,
 )
 from drafttwin.diagnosis.sensors import size_sensor_fault
 from drafttwin.diagnosis.spectrum import LineEvidence, line_evidence
@@ -89,10 +90,8 @@ class Diagnosis:
         stop, a speed change: :func:`~drafttwin.diagnosis.blocks.commanded_steady`), which
         the detector did not judge."""
         f = self.features
-        paused = ~f.steady_blocks
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], paused.astype(int), [0]])))
         return [(float(f.time_s[a] - f.block_s), float(f.time_s[b - 1]))
-                for a, b in zip(edges[::2], edges[1::2], strict=True)]  # fmt: skip
+                for a, b in runs_of(~f.steady_blocks)]  # fmt: skip
 
     def watched_from_s(self, reference_s: float) -> float | None:
         """When the detector began to decide: the first steady block's start plus the

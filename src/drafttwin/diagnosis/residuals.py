@@ -94,8 +94,7 @@ class BlockFeatures:
         steady = self.steady_blocks
         if steady.all():
             return [self]
-        edges = np.flatnonzero(np.diff(np.concatenate([[0], steady.astype(int), [0]])))
-        return [self._rows(slice(a, b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
+        return [self._rows(slice(a, b)) for a, b in runs_of(steady)]
 
     def _rows(self, rows: slice) -> BlockFeatures:
         def cut(a: np.ndarray | None) -> np.ndarray | None:
@@ -119,6 +118,12 @@ class BlockFeatures:
                    block_s, np.vstack([r.lag for r in rows]),
                    np.vstack([r.stale for r in rows]),
                    np.array([r.steady for r in rows], dtype=bool))  # fmt: skip
+
+
+def runs_of(mask: np.ndarray) -> list[tuple[int, int]]:
+    """The runs of ``True`` in a boolean ``mask``, as ``(first, past the last)`` indices."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], np.asarray(mask, dtype=int), [0]])))
+    return [(int(a), int(b)) for a, b in zip(edges[::2], edges[1::2], strict=True)]
 
 
 def physics_prediction(train: DriveTrain, series: MeasurementSeries) -> np.ndarray:

@@ -25,7 +25,7 @@ from drafttwin.diagnosis.cusum import STREAMS, Alarm, stream_matrix  # noqa: E40
 from drafttwin.diagnosis.detect import STILL_CHANNELS, STILL_FACTOR  # noqa: E402
 from drafttwin.diagnosis.diagnose import Diagnosis  # noqa: E402
 from drafttwin.diagnosis.locate import Cause  # noqa: E402
-from drafttwin.diagnosis.residuals import CHANNELS  # noqa: E402
+from drafttwin.diagnosis.residuals import CHANNELS, runs_of  # noqa: E402
 from drafttwin.diagnosis.spectrum import kinematic_lines, residual_samples, spectrum  # noqa: E402
 from drafttwin.mechanics import DriveTrain  # noqa: E402
 from drafttwin.report.figures import _png  # noqa: E402
@@ -119,10 +119,10 @@ def _spectrum_rows(dx: Diagnosis, time_s: np.ndarray) -> np.ndarray:
     ok = time_s > (dx.alarm.time_s if dx.alarm is not None else -np.inf)
     for start, end in dx.not_steady_s():
         ok &= ~((time_s > start) & (time_s <= end))
-    edges = np.flatnonzero(np.diff(np.concatenate([[0], ok.astype(int), [0]])))
-    if not edges.size:
+    runs = runs_of(ok)
+    if not runs:
         return np.zeros(0, dtype=int)
-    a, b = max(zip(edges[::2], edges[1::2], strict=True), key=lambda ab: ab[1] - ab[0])
+    a, b = max(runs, key=lambda ab: ab[1] - ab[0])
     return np.arange(a, b)
 
 
@@ -383,6 +383,7 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
                    id="lines")
              if dx.lines else para("No kinematic line grew after the change."))  # fmt: skip
     suspect, group = _suspects(dx, train)
+    paused = bool(dx.not_steady_s())  # blocks not judged: named in the captions
     body = join([
         tag("h1", title), para(str(info.get("data", "")), cls="sub"), verdict,
         section("sliver", "What the sliver says", diagnosis_section(*sliver))
@@ -398,12 +399,12 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
                 "of the rule that raised the alarm over its own limit (for a lag jump or a sensor "
                 "rule the CUSUMs, which did not fire, in grey); the alarm in red, the estimated "
                 "change shaded" + ("; shaded grey: not judged (a start, a stop or a speed "
-                "change)" if dx.not_steady_s() else "") + ".", "residual timeline")),
+                "change)" if paused else "") + ".", "residual timeline")),
         section("spectrum", "Spectrum after the change" if dx.alarm is not None else
                 "Residual spectrum", figure(spectrum_png(dx, train, series), "fig-spectrum",
                 "Relative residual spectra of each channel " + (
                     "after the alarm" if dx.alarm is not None else "over the record")
-                + (", its longest steady stretch" if dx.not_steady_s() else "") + ".",
+                + (", its longest steady stretch" if paused else "") + ".",
                 "spectrum"), lines),
         section("train", "Drive train", figure(train_png(train, suspect, group), "fig-train",
                 "The suspected element in red, the elements it cannot be told apart from in orange.",

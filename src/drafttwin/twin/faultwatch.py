@@ -31,6 +31,7 @@ import numpy as np
 
 from drafttwin._constants import ROLLERS
 from drafttwin._io import sha256_file
+from drafttwin.diagnosis.clearance import carries_over
 from drafttwin.diagnosis.cusum import FEATURES, Alarm
 from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.diagnose import Diagnoser, sensor_cause
@@ -206,14 +207,10 @@ class LiveFaultWatch:
 
     def keep_watching(self, alarm: Alarm, base: np.ndarray | None) -> None:
         """An alarm a restarted twin read back from its store, still active: watched for
-        its return to normal (a level stream's with the baseline stored with it, a sensor
-        rule's; an angle lag's is not carried over, see
-        :meth:`~drafttwin.diagnosis.clearance.Clearance.carried`)."""
-        if base is None and alarm.direction != 0:
-            return  # stored before 2026-11-30: no baseline to judge against
-        if base is not None and alarm.test.startswith("lag_"):
-            return
-        self.stream.keep_watching(alarm, base)
+        its return to normal where another run can judge it
+        (:func:`~drafttwin.diagnosis.clearance.carries_over`)."""
+        if carries_over(alarm, base):
+            self.stream.keep_watching(alarm, base)
 
     def restart(self) -> Step:
         """A gap: the physics restarts, the rows go on in a new run (a new reference window;
