@@ -205,7 +205,8 @@ def test_a_description_said_again_keeps_the_window_a_new_one_starts_it_again(ser
 
     twin = SimpleNamespace(name="m1", train=DriveTrain.preset("fa320a"))
     st = SimpleNamespace(twin=twin, level=None, sliver=None, sliver_seq=-1,
-                         sliver_repeated=0, sliver_busy=False, level_busy=False)  # fmt: skip
+                         sliver_repeated=0, sliver_busy=False, level_busy=False,
+                         baseline=None, watch=None)  # fmt: skip
     text = json.dumps(live.describe())
     desk.describe(st, text)  # type: ignore[arg-type]
     first = st.level

@@ -19,9 +19,10 @@ from typing import Any
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.mechanics import DriveTrain
 from drafttwin.sliver import StapleDiagram, read_sliver
-from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver
+from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver, reference_spectrogram
 from drafttwin.sliver.encoders import with_encoders
-from drafttwin.sliver.record import sliver_beside
+from drafttwin.sliver.record import Sliver, sliver_beside
+from drafttwin.sliver.reference import SliverReference
 from drafttwin.sliver.watch import SliverWatch
 
 CHUNK = 2000
@@ -50,12 +51,13 @@ def sliver_evidence(path: str | Path, train: DriveTrain, series: MeasurementSeri
                                             option="--healthy (its sliver)"),
                                 fibre_scale=ref.fibre_scale or 1.0)  # fmt: skip
             break
-    watch = SliverWatch(train, staple, sensor_length_m=beside.sensor_mm * 1e-3,
-                        reference=reference, fibre_scale=scale)  # fmt: skip
-    s, x = sliver.delivered_length_m, sliver.linear_density_ktex
-    t = sliver.time_s if sliver.time_s is not None else s
-    for i in range(0, x.size, CHUNK):
-        watch.push(s[i : i + CHUNK], x[i : i + CHUNK], t[i : i + CHUNK])
+    sensor_m = beside.sensor_mm * 1e-3
+    # the healthy sliver's own lines, learned window by window as the live twin learns them
+    lines = None if reference is None else _learned_lines(
+        SliverWatch(train, staple, sensor_length_m=sensor_m, learning=True,
+                    fibre_scale=reference.fibre_scale), reference)  # fmt: skip
+    watch = _push(SliverWatch(train, staple, sensor_length_m=sensor_m, reference=lines,
+                              fibre_scale=scale), sliver)  # fmt: skip
     dx = diagnose_sliver(sliver, train, staple, sensor_length_m=beside.sensor_mm * 1e-3,
                          reference=reference)  # fmt: skip
     rpm = {r: series.values[:, j] for j, r in enumerate(series.channels)}
@@ -76,3 +78,21 @@ def sliver_evidence(path: str | Path, train: DriveTrain, series: MeasurementSeri
                          "verdict": c.verdict} for c in dx.known],
     }  # fmt: skip
     return summary, dx
+
+
+def _push(watch: SliverWatch, sliver: Sliver) -> SliverWatch:
+    """Every reading of ``sliver`` into ``watch``, :data:`CHUNK` at a time."""
+    s, x = sliver.delivered_length_m, sliver.linear_density_ktex
+    t = sliver.time_s if sliver.time_s is not None else s
+    for i in range(0, x.size, CHUNK):
+        watch.push(s[i : i + CHUNK], x[i : i + CHUNK], t[i : i + CHUNK])
+    return watch
+
+
+def _learned_lines(watch: SliverWatch, healthy: Sliver) -> SliverReference | None:
+    """The lines a learning watch takes from the healthy sliver (None if it is shorter than
+    one window: then its whole spectrogram)."""
+    _push(watch, healthy).end_learning()
+    learned = watch.learned
+    return learned if learned is not None else reference_spectrogram(
+        healthy, watch.staple, watch.sensor_length_m)  # fmt: skip

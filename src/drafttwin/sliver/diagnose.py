@@ -26,6 +26,7 @@ from drafttwin.sliver.attribution import (
 from drafttwin.sliver.drafting import DraftingZones
 from drafttwin.sliver.irregularity import Evenness, evenness
 from drafttwin.sliver.record import Sliver
+from drafttwin.sliver.reference import SliverReference
 from drafttwin.sliver.spectra import Spectrogram, spectrogram
 from drafttwin.sliver.staple import StapleDiagram
 from drafttwin.sliver.wavelengths import WavelengthTable, wavelength_table
@@ -76,7 +77,8 @@ def running_drafts(table: WavelengthTable, train: DriveTrain) -> dict[str, float
 def diagnose_sliver(record: Sliver | Spectrogram, train: DriveTrain, staple: StapleDiagram,
                     zones: DraftingZones | None = None, *, sensor_length_m: float = 0.0,
                     harmonics: int = HARMONICS, table: WavelengthTable | None = None,
-                    reference: Sliver | Spectrogram | None = None) -> SliverDiagnosis:  # fmt: skip
+                    reference: Sliver | Spectrogram | SliverReference | None = None
+                    ) -> SliverDiagnosis:  # fmt: skip
     """Evenness, spectrogram and the chimneys' causes of a sliver record or a tester's
     spectrogram, for the drive train ``train`` at its running point. ``reference``: a
     healthy sliver of the same machine; a chimney no higher there than the chimney rule
@@ -103,34 +105,27 @@ def diagnose_sliver(record: Sliver | Spectrogram, train: DriveTrain, staple: Sta
     return SliverDiagnosis(ev, spec, causes, table, drafts, known)
 
 
-def reference_spectrogram(reference: Sliver | Spectrogram, staple: StapleDiagram,
-                          sensor_length_m: float = 0.0) -> Spectrogram:  # fmt: skip
-    """The spectrogram of a healthy reference sliver (a spectrogram passes as it is: a watch
-    computes it once, not at every check)."""
-    if isinstance(reference, Spectrogram):
-        return reference
-    return spectrogram(
-        reference.linear_density_ktex,
-        reference.step_m,
-        staple,
-        fibre_scale=reference.fibre_scale,
-        sensor_length_m=sensor_length_m,
+def reference_spectrogram(reference: Sliver | Spectrogram | SliverReference, staple: StapleDiagram,
+                          sensor_length_m: float = 0.0) -> SliverReference:  # fmt: skip
+    """The reference lines of a healthy sliver (a spectrogram or a reference passes as it
+    is: a watch computes it once, not at every check)."""
+    if isinstance(reference, Spectrogram | SliverReference):
+        return SliverReference.of(reference)
+    return SliverReference.of(
+        spectrogram(
+            reference.linear_density_ktex,
+            reference.step_m,
+            staple,
+            fibre_scale=reference.fibre_scale,
+            sensor_length_m=sensor_length_m,
+        )
     )
 
 
-def _above_reference(cause: ChimneyCause, ref: Spectrogram) -> bool:
-    """The chimney rule against the reference: above 1.5 x the reference's channel (for a
-    line over two channels, their quadrature sum)."""
+def _above_reference(cause: ChimneyCause, ref: SliverReference) -> bool:
+    """The chimney rule against the reference (:meth:`SliverReference.holds`)."""
     channels = cause.extra.get("channels_m") or [cause.extra.get("channel_m", cause.wavelength_m)]
-    ref_amp = 0.0
-    for lam in map(float, channels):
-        if not ref.wavelength_m.size:
-            return True
-        j = int(np.argmin(np.abs(np.log(ref.wavelength_m / lam))))
-        if abs(math.log(ref.wavelength_m[j] / lam)) > 0.04:
-            return True  # the reference does not reach this wavelength
-        ref_amp = math.hypot(ref_amp, float(ref.amplitude_pct[j]))
-    return cause.amplitude_pct > 1.5 * ref_amp
+    return not ref.holds(cause.amplitude_pct, [float(c) for c in channels])
 
 
 def _refined_frequency(x: np.ndarray, step_m: float, f0: float, df: float) -> float:

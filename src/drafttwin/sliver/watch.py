@@ -12,6 +12,7 @@ twin use the same watch.
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -22,6 +23,7 @@ from drafttwin.mechanics import DriveTrain
 from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver, reference_spectrogram
 from drafttwin.sliver.drafting import DraftingZones
 from drafttwin.sliver.record import Sliver
+from drafttwin.sliver.reference import SliverReference
 from drafttwin.sliver.staple import StapleDiagram
 from drafttwin.sliver.wavelengths import wavelength_table
 
@@ -55,8 +57,15 @@ class SliverWatch:
     sensor_length_m: float = 0.0
     fibre_scale: float = 1.0
     """Fibres an emulator lumped into one (Martindale's limit and the ideal curve follow it)."""
-    reference: Sliver | None = None
-    """A healthy sliver of this machine: its own lines do not alarm (only new chimneys)."""
+    reference: Sliver | SliverReference | None = None
+    """A healthy sliver of this machine (or the lines it gave): its own lines do not alarm
+    (only new chimneys)."""
+    learning: bool = False
+    """While True (the machine learns its healthy state) each window's spectrogram goes into
+    :attr:`learned` and no chimney alarms; after :meth:`end_learning` the windows are
+    judged by it."""
+    learned: SliverReference | None = None
+    """The machine's own lines from the windows seen while learning (None: none yet)."""
     _s: list[np.ndarray] = field(default_factory=list, repr=False)
     _x: list[np.ndarray] = field(default_factory=list, repr=False)
     _t: list[np.ndarray] = field(default_factory=list, repr=False)
@@ -69,10 +78,37 @@ class SliverWatch:
     last: SliverDiagnosis | None = None
 
     def __post_init__(self) -> None:
+        self._lock = threading.Lock()
         self._table = wavelength_table(self.train)
         self._reference = (None if self.reference is None else
                            reference_spectrogram(self.reference, self.staple,
                                                  self.sensor_length_m))  # fmt: skip
+
+    @property
+    def own_lines(self) -> SliverReference | None:
+        """The reference the watch judges by (None: every chimney is new): the lines it
+        learned once its learning ended, else the one it was given."""
+        ended = not self.learning and math.isfinite(self._learn_until_m)
+        return self.learned if ended and self.learned is not None else self._reference
+
+    def end_learning(self) -> None:
+        """The machine finished learning: the windows delivered by now are its own lines
+        (a window still being checked counts too), the later ones are judged by them."""
+        self.learning = False
+        self._learn_until_m = self._last_m if math.isfinite(self._last_m) else -math.inf
+
+    @property
+    def learned_final(self) -> bool:
+        """Learning ended and every window delivered before its end is in :attr:`learned`."""
+        until = self._learn_until_m
+        return (not self.learning and math.isfinite(until)
+                and not (self._next_m <= until))  # fmt: skip
+
+    def relearn(self) -> None:
+        """An operator's relearn (after maintenance): the machine's lines are learned anew."""
+        self.learned, self._reference, self.learning = None, None, True
+        self._learn_until_m = math.nan
+        self._alarmed.clear()
 
     @property
     def count_ktex(self) -> float:
@@ -95,9 +131,10 @@ class SliverWatch:
         s, x, t = s[ok], x[ok], t[ok]
         if s.size == 0:
             return []
-        self._s.append(s)
-        self._x.append(x)
-        self._t.append(t)
+        with self._lock:  # a live twin's check reads and trims them in its worker thread
+            self._s.append(s)
+            self._x.append(x)
+            self._t.append(t)
         self._sum += float(x.sum())
         self._sum2 += float(np.dot(x, x))
         self._n += x.size
@@ -110,6 +147,7 @@ class SliverWatch:
     """``push`` runs the due checks itself; a live twin sets it False and runs :meth:`check`
     in a worker thread when :meth:`due` says so (a check takes a fraction of a second)."""
     _last_m: float = math.nan
+    _learn_until_m: float = math.nan  # delivered metres when learning ended
 
     def due(self) -> bool:
         """A window is complete and not yet checked."""
@@ -144,9 +182,13 @@ class SliverWatch:
         )
 
     def _check(self, end_m: float) -> list[SliverAlarm]:
-        s, x, t = (np.concatenate(a) for a in (self._s, self._x, self._t))
-        keep = s > end_m - self.window_m - 1.0  # drop what no window needs again
-        self._s, self._x, self._t = [s[keep]], [x[keep]], [t[keep]]
+        # once: the twin's loop may end the learning meanwhile (by delivered metres, so a
+        # window delivered while the machine learned is learned whenever it is checked)
+        learning = self.learning or end_m <= self._learn_until_m
+        with self._lock:  # readings pushed meanwhile are neither torn nor lost
+            s, x, t = (np.concatenate(a) for a in (self._s, self._x, self._t))
+            keep = s > end_m - self.window_m - 1.0  # drop what no window needs again
+            self._s, self._x, self._t = [s[keep]], [x[keep]], [t[keep]]
         inside = (s > end_m - self.window_m) & (s <= end_m)
         if inside.sum() < 100:
             return []
@@ -156,8 +198,12 @@ class SliverWatch:
                         time_s=t[inside], staple=self.staple)  # fmt: skip
         dx = diagnose_sliver(record, self.train, self.staple, self.zones,
                              sensor_length_m=self.sensor_length_m, table=self._table,
-                             reference=self._reference)  # fmt: skip
+                             reference=None if learning else self.own_lines)  # fmt: skip
         self.last = dx
+        if learning:  # the machine's own lines, not alarms
+            self.learned = (SliverReference.of(dx.spectrogram) if self.learned is None
+                            else self.learned.add(dx.spectrogram, self.every_m))  # fmt: skip
+            return []
         raised = []
         for c in dx.causes:
             channel = int(round(10 * math.log2(c.wavelength_m / 0.01)))

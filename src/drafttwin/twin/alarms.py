@@ -183,7 +183,7 @@ def stored_alarm(detail: str) -> Alarm | None:
 
 
 CONSOLE_KINDS = ("fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack",
-                 "sliver-chimney", "learning", "learned", "baseline", "baseline-refused",
+                 "sliver-chimney", "sliver-error", "learning", "learned", "baseline", "baseline-refused",
                  "detector-foreign", "identity", "leveller", "leveller-advice",
                  "source-reconnecting", "source-live", "gap", "no-samples", "silent")  # fmt: skip
 """Events a running twin prints on its console (its alarms and what its detector does)."""

@@ -19,6 +19,7 @@ from typing import Any, Protocol
 from drafttwin.diagnosis.cusum import Alarm
 from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.stream import POST_S, RankRequest, Step
+from drafttwin.sliver.reference import KNOWN_FACTOR
 from drafttwin.twin.alarms import AlarmBook, stored_alarm
 from drafttwin.twin.faultwatch import Locator, alarm_detail, stored_baseline
 from drafttwin.twin.state import MachineState
@@ -133,7 +134,29 @@ class FaultDesk:
                       + ("" if st.prior is None else f" on top of {st.prior['file']}") + where
                       + ("" if detector.lags_watched else "; angle lags not watched"))  # fmt: skip
         self.host.event(st, ev)
+        if st.sliver is not None:  # its sliver's lines: kept once their windows are checked
+            st.sliver.end_learning()
+            self.sliver_lines(st)
         return ev
+
+    def sliver_lines(self, st: MachineState) -> None:
+        """The lines the machine's sliver showed while it learned, complete: kept in its
+        baseline (a restarted twin judges by them at once) and said."""
+        lines = None if st.sliver is None or not st.sliver.learned_final else st.sliver.learned
+        if lines is None or st.baseline is None or st.baseline.sliver_reference is not None:
+            return
+        st.baseline.sliver_reference = lines
+        where = ""
+        if self.baselines is not None:
+            try:
+                where = f"; stored in {self.baselines.save(st.baseline)}"
+            except OSError as exc:
+                where = f"; not stored ({type(exc).__name__}: {exc})"
+        self.host.event(st, EventRow(
+            st.twin.name, "learned", int(time.time() * 1e6),
+            f"learned its sliver's own lines over {lines.metres:.0f} m ({lines.windows} "
+            f"window(s)): a chimney up to {KNOWN_FACTOR:g} x them is the machine's, not "
+            f"alarmed{where}"))  # fmt: skip
 
     def announce(self, st: MachineState) -> None:
         """At the start: what the machine's detector does (learns, or watches with the
@@ -218,6 +241,8 @@ class FaultDesk:
                                      json.dumps({"test": booked.test, "alarm_s": booked.time_s,
                                                  "why": booked.cleared_why})))  # fmt: skip
         st.baseline = None
+        if st.sliver is not None:
+            st.sliver.relearn()
         if self.baselines is not None:
             self.baselines.forget(machine)
         ev = EventRow(machine, "learning", int(time.time() * 1e6),

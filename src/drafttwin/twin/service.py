@@ -69,6 +69,7 @@ class TwinService:
         self.taken = 0  # samples taken so far
         self.after_stop = 0  # samples a source delivered after the stop began (not processed)
         self.faults = FaultDesk(self)
+        self.slivers.lines_learned = self.faults.sliver_lines
 
     @property
     def locator(self) -> Any:

@@ -94,6 +94,9 @@ class SliverDesk:
         self._level_pool = DaemonWorker("leveller")
         self._pending: set[Future[Any]] = set()
         self._described: dict[str, str] = {}  # each machine's description, as last taken
+        self.lines_learned: Callable[[MachineState], None] = lambda st: None
+        """Called when a check completed a learning machine's own lines (the service hands
+        them to its baseline: :meth:`~drafttwin.twin.faults.FaultDesk.sliver_lines`)."""
 
     # ---- readings in ----------------------------------------------------------------------
     def batch(self, st: MachineState, b: SliverBatch) -> None:
@@ -108,7 +111,11 @@ class SliverDesk:
                                     if st.level is None else st.level.context.staple,
                                     sensor_length_m=SLIVER_SENSOR_M, checks_now=False,
                                     fibre_scale=1.0 if st.level is None
-                                    else st.level.context.fibre_scale)  # fmt: skip
+                                    else st.level.context.fibre_scale,
+                                    reference=None if st.baseline is None
+                                    else st.baseline.sliver_reference)  # fmt: skip
+        # while the machine learns its healthy state, its sliver's lines are learned too
+        st.sliver.learning = st.watch is not None and st.watch.learning
         st.sliver.push(b.delivered_m, b.ktex, b.time_s)
         if st.sliver.due() and not st.sliver_busy:
             st.sliver_busy = True
@@ -155,7 +162,12 @@ class SliverDesk:
 
     def _alarms(self, st: MachineState, fut: Future[list[SliverAlarm]]) -> None:
         st.sliver_busy = False
+        if not fut.cancelled() and (exc := fut.exception()) is not None:
+            self._event(st, "sliver-error", f"a sliver window was not judged "
+                        f"({type(exc).__name__}: {exc})"[:300])  # fmt: skip
         alarms = [] if fut.cancelled() or fut.exception() is not None else fut.result()
+        if st.baseline is not None and st.baseline.sliver_reference is None:
+            self.lines_learned(st)
         for a in alarms:
             assert st.sliver is not None
             self._event(st, "sliver-chimney", st.sliver.text(a), a.time_s)

@@ -25,6 +25,7 @@ from drafttwin.diagnosis.detect import FaultDetector
 from drafttwin.diagnosis.learning import Learner
 from drafttwin.diagnosis.stream import RankRequest
 from drafttwin.errors import DataError
+from drafttwin.sliver.reference import SliverReference
 from drafttwin.wire.identity import MachineIdentity
 
 FORMAT = "drafttwin-machine-baseline"
@@ -45,13 +46,16 @@ class Baseline:
     to_s: float
     prior: dict[str, Any] | None = None  # the prior's file name, SHA-256 and machines
     extra: dict[str, Any] = field(default_factory=dict)
+    sliver_reference: SliverReference | None = None  # its sliver's own lines, when it had one
 
     def to_doc(self) -> dict[str, Any]:
         return {"format": FORMAT, "version": VERSION, "machine": self.machine,
                 "identity": None if self.identity is None else self.identity.to_dict(),
                 "model_sha256": self.model_sha256, "learned_s": self.learned_s,
                 "from_s": self.from_s, "to_s": self.to_s, "prior": self.prior,
-                "detector": self.detector.to_state(), "describe": self.detector.describe()}  # fmt: skip
+                "detector": self.detector.to_state(), "describe": self.detector.describe(),
+                "sliver_reference": None if self.sliver_reference is None
+                else self.sliver_reference.to_doc()}  # fmt: skip
 
     def summary(self) -> dict[str, Any]:
         """What the page and /api/status show of it."""
@@ -132,7 +136,10 @@ class BaselineStore:
         if not isinstance(doc.get("detector"), dict):
             raise DataError("the baseline holds no detector", source=path, fix=fix)
         detector = FaultDetector.from_state(doc["detector"], source=str(path))
-        return Baseline(machine, detector, sha, identity, nums[0], nums[1], nums[2], prior)
+        lines = doc.get("sliver_reference")  # absent in baselines stored before it was kept
+        sliver = None if lines is None else SliverReference.from_doc(lines, str(path), fix)
+        return Baseline(machine, detector, sha, identity, nums[0], nums[1], nums[2], prior,
+                        sliver_reference=sliver)  # fmt: skip
 
     # ---- what a stopped twin leaves to the next one ---------------------------------------
     def save_learning(self, machine: str, learner: Learner, identity: MachineIdentity | None,
