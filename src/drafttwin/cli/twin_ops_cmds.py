@@ -131,7 +131,7 @@ def twin_hall(
     or on Ctrl-C / SIGTERM (every shard commits what it received)."""
     _need_twin_extra()
     from drafttwin.execution.executor import _check_address, _import_ray
-    from drafttwin.twin.hall import check_hall, check_store, run_hall
+    from drafttwin.twin.hall import ConsoleFollower, check_hall, check_store, run_hall
 
     if physics not in ("reduced", "full"):
         raise ConfigError(f"unknown physics {physics!r}", where="--physics",
@@ -152,9 +152,12 @@ def twin_hall(
 
     view = HallView(shards)
     printed = [0.0]
+    follower = ConsoleFollower()
 
     def status(shard_status: list[dict[str, Any] | None]) -> None:  # the page's, a line per 10 s
         view.update(shard_status)
+        for line in follower.new_lines(shard_status):  # the shards' events, as twin run's
+            err_console.print(line, highlight=False, markup=False, soft_wrap=True)
         if quiet or time.monotonic() - printed[0] < 10.0:
             return
         printed[0] = time.monotonic()

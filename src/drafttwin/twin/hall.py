@@ -18,8 +18,10 @@ with another K.
 from __future__ import annotations
 
 import asyncio
+import collections
 import concurrent.futures
 import contextlib
+import os
 import re
 import threading
 import time
@@ -116,6 +118,53 @@ COMMAND_S = 10.0
 """How long an operator's command may wait for a shard's twin, s."""
 
 
+class ConsoleLines:
+    """What ``twin run`` prints of a shard's events (:func:`~drafttwin.twin.alarms.event_line`:
+    alarms, causes, learning, the sliver), numbered, the last :data:`KEEP` kept: the shard's
+    status carries them and the hall's console prints those it has not printed."""
+
+    KEEP = 100
+
+    def __init__(self) -> None:
+        self.run_id = f"{os.getpid()}-{time.time_ns()}"  # a restarted shard numbers anew
+        self.lines: collections.deque[tuple[int, str]] = collections.deque(maxlen=self.KEEP)
+        self.seq = 0
+
+    def hook(self, ev: Any) -> None:
+        """An event hook of the shard's twin (``TwinService.event_hooks``)."""
+        from drafttwin.twin.alarms import event_line
+
+        line = event_line(ev.machine, ev.kind, ev.ts_us, ev.detail)
+        if line is not None:
+            self.seq += 1
+            self.lines.append((self.seq, line))
+
+    def status(self) -> dict[str, Any]:
+        return {"run": self.run_id, "lines": [list(x) for x in list(self.lines)]}
+
+
+class ConsoleFollower:
+    """The hall's side: each shard's console lines not printed yet, once each (a shard
+    started again by Ray numbers from 1: its run id says so)."""
+
+    def __init__(self) -> None:
+        self.printed: dict[int, tuple[str, int]] = {}
+
+    def new_lines(self, statuses: list[dict[str, Any] | None]) -> list[str]:
+        out = []
+        for i, st in enumerate(statuses):
+            console = (st or {}).get("console")
+            if not isinstance(console, dict) or not console.get("lines"):
+                continue
+            run, done = self.printed.get(i, ("", 0))
+            if run != console.get("run"):
+                run, done = str(console.get("run")), 0
+            lines = [(int(seq), str(line)) for seq, line in console["lines"]]
+            out += [line for seq, line in lines if seq > done]
+            self.printed[i] = (run, max(done, lines[-1][0]))
+        return out
+
+
 def shard_command(service: Any, kind: str, machine: str, args: dict[str, Any]) -> dict[str, Any]:
     """``relearn``, ``acknowledge`` or ``confirm`` (:mod:`drafttwin.twin.commands`, as the
     twin's REST API runs them) as ``{"status": ..., "body": ...}`` for the hall's page."""
@@ -145,6 +194,7 @@ def _actor_class(ray: Any) -> Any:
             self.service: Any = None
             self.loop: asyncio.AbstractEventLoop | None = None
             self.stopping = threading.Event()
+            self.console = ConsoleLines()
 
         def run(self, duration_s: float | None) -> dict[str, Any]:
             import torch
@@ -160,6 +210,7 @@ def _actor_class(ray: Any) -> Any:
                                          detector=o["detector"], learn_s=o["learn_s"],
                                          level_window_m=o["level_window_m"],
                                          level_search_mm=o["level_search_mm"])  # fmt: skip
+            self.service.event_hooks.append(self.console.hook)
             failed: list[BaseException] = []
 
             def loop() -> None:  # a thread of its own: Ray's method thread runs its own loop
@@ -188,7 +239,8 @@ def _actor_class(ray: Any) -> Any:
                 if self.service is None:
                     return {"state": "loading"}
                 try:
-                    return {**self.service.status(), "state": "running"}
+                    return {**self.service.status(), "state": "running",
+                            "console": self.console.status()}
                 except RuntimeError:  # "deque mutated during iteration"
                     time.sleep(0.01)
             return None
