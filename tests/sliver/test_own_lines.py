@@ -130,3 +130,29 @@ def test_a_check_in_a_worker_thread_neither_tears_nor_loses_readings() -> None:
     assert kept.size == np.concatenate(live._x).size == np.concatenate(live._t).size
     assert kept[-1] == s[-1] and np.all(np.diff(kept) > 0)  # the late batch kept, in order
     assert [a.delivered_m for a in live.alarms] == [a.delivered_m for a in alone.alarms]
+
+
+def test_a_chimney_names_the_other_line_its_channel_holds() -> None:
+    """The second and third rollers' lines lie 2 % apart in one 7-%-wide channel: offline the
+    whole record peaked on the second, the live window on the third, and neither named the
+    other. Now each chimney says what else its channel holds."""
+    from drafttwin.sliver.diagnose import diagnose_sliver
+    from drafttwin.sliver.record import Sliver
+    from drafttwin.sliver.wavelengths import wavelength_table
+
+    train = DriveTrain.preset("fa320a")
+    table = wavelength_table(train)
+    second = next(e for e in table.elements if e.name == "roller second").wavelength_m
+    third = next(e for e in table.elements if e.name == "roller third").wavelength_m
+    s = (np.arange(50_000) + 0.5) * STEP_M
+    r = 0.01 * np.random.default_rng(5).standard_normal(s.size)
+    x = 5.0 * (1.0 + r + 0.003 * np.sin(2 * np.pi * s / second))
+    dx = diagnose_sliver(Sliver(x, STEP_M), train, StapleDiagram.preset("cotton"))
+    (cause,) = [c for c in dx.causes if abs(math.log(c.wavelength_m / second)) < 0.01]
+    assert cause.candidates[0].element == "roller second"
+    assert "roller third" in cause.extra["same_channel"]
+    assert f"also holds the line at {third * 100:.3g} cm (roller third" in cause.verdict
+    centre = cause.extra["channel_m"]
+    for name in cause.extra["same_channel"]:
+        w = next(e for e in table.elements if e.name == name).wavelength_m
+        assert abs(math.log2(w / centre)) <= 1 / 20 + 1e-12, name

@@ -89,12 +89,46 @@ def attribute(chimneys: list[dict[str, Any]], table: WavelengthTable,
         cands = [_candidate(e, h, at, excess, table, gauges_mm, drafts, staple, waves,
                             harmonics, tol) for e, h in table.near(at, tol, harmonics)]  # fmt: skip
         cands = _with_lookalikes(sorted(cands, key=_rank))
-        out.append(ChimneyCause(at, amp, base, excess, tuple(cands),
-                                _verdict(cands, at, drafts), at / drafts["total"],
+        also = _same_channel(lam, {c.element for c in cands}, table, gauges_mm, drafts, staple)
+        verdict = _verdict(cands, at, drafts) + _also_text(also)
+        out.append(ChimneyCause(at, amp, base, excess, tuple(cands), verdict,
+                                at / drafts["total"],
                                 {"channel_m": lam, "tolerance": tol,
+                                 "same_channel": [n for n, _ in also],
                                  **({"channels_m": list(c["channels_m"])}
                                     if "channels_m" in c else {})}))  # fmt: skip
     return out
+
+
+SAME_CHANNEL_MAX = 3
+"""Other elements named as lying in a chimney's channel (the nearest kinds first)."""
+
+
+def _same_channel(channel_m: float, named: set[str], table: WavelengthTable,
+                  gauges_mm: tuple[float, float, float], drafts: dict[str, float],
+                  staple: StapleDiagram) -> list[tuple[str, float]]:  # fmt: skip
+    """Elements whose fundamental lies in the channel (10 per octave) but too far from the
+    chimney's peak to explain it, and that could make a line there: two lines in one channel
+    (the second and third rollers lie 2 % apart, the channel is 7 % wide) are both in its
+    amplitude, and a window of another length may peak on the other."""
+    found = []
+    for e, h in table.near(channel_m, 2 ** (1 / 20) - 1, 1):
+        if e.name in named or h != 1:
+            continue
+        moved = {e.rollers[0]: 1.0} if e.kind == "roller" else {r: 1.0 for r in e.rollers}
+        if abs(mass_gain(moved, e.wavelength_m, gauges_mm, drafts, staple)[0]) >= MIN_GAIN:
+            prior = KIND_PRIOR.index(e.kind) if e.kind in KIND_PRIOR else len(KIND_PRIOR)
+            found.append((prior, e.name, e.wavelength_m))
+    return [(n, w) for _, n, w in sorted(found)[:SAME_CHANNEL_MAX]]
+
+
+def _also_text(also: list[tuple[str, float]]) -> str:
+    """"; the channel also holds the line at 60.2 cm (roller third, gear J (I-J))"."""
+    lines: dict[str, list[str]] = {}
+    for name, w in also:
+        lines.setdefault(_fmt_m(w), []).append(name)
+    return "".join(f"; the channel also holds the line at {w} ({', '.join(names)})"
+                   for w, names in lines.items())  # fmt: skip
 
 
 def _candidate(e: Element, h: int, lam: float, excess: float, table: WavelengthTable,
