@@ -42,7 +42,7 @@ CommitMsOpt = Annotated[float, number("--commit-ms", "Commit interval, ms: a cra
 TwinPhysicsOpt = Annotated[str, typer.Option("--physics", help="reduced (fast) | full drive train.")]  # fmt: skip
 TokenOpt = Annotated[str | None, typer.Option("--token", envvar="DRAFTTWIN_TOKEN",
                      help="Token every request must carry (required off 127.0.0.1).")]  # fmt: skip
-TwinQuietOpt = Annotated[bool, typer.Option(help="No status line every 10 s on stderr.")]
+TwinQuietOpt = Annotated[bool, typer.Option(help="No status line every 10 s on stderr (the events, alarms among them, are still printed as they happen).")]
 
 
 def _need_twin_extra() -> None:
@@ -194,8 +194,9 @@ async def _serve(service: TwinService, bind: tuple[str, int] | None, token: str 
     from drafttwin.twin.publish import publishing
 
     ticker = None if quiet else asyncio.create_task(_status_lines(service))
-    if not quiet:  # alarms, causes and the detector's learning as they happen
-        service.event_hooks.append(_print_event)
+    # alarms, causes and the detector's learning as they happen, --quiet or not (a twin under
+    # a service manager logs them; --quiet left only its last lines there)
+    service.event_hooks.append(_print_event)
     try:
         async with publishing(service, publishers):
             for pub in publishers:

@@ -152,11 +152,13 @@ class FaultDesk:
                 where = f"; stored in {self.baselines.save(st.baseline)}"
             except OSError as exc:
                 where = f"; not stored ({type(exc).__name__}: {exc})"
-        self.host.event(st, EventRow(
-            st.twin.name, "learned", int(time.time() * 1e6),
-            f"learned its sliver's own lines over {lines.metres:.0f} m ({lines.windows} "
-            f"window(s)): a chimney up to {KNOWN_FACTOR:g} x them is the machine's, not "
-            f"alarmed{where}"))  # fmt: skip
+        ev = EventRow(st.twin.name, "learned", int(time.time() * 1e6),
+                      f"learned its sliver's own lines over {lines.metres:.0f} m "
+                      f"({lines.windows} window(s)): a chimney up to {KNOWN_FACTOR:g} x them "
+                      f"is the machine's, not alarmed{where}")  # fmt: skip
+        self.host.event(st, ev)
+        for push in self.host.subscribers:
+            push(st.twin.name, [], [ev])
 
     def announce(self, st: MachineState) -> None:
         """At the start: what the machine's detector does (learns, or watches with the
