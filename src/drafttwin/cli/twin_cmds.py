@@ -42,7 +42,7 @@ CommitMsOpt = Annotated[float, number("--commit-ms", "Commit interval, ms: a cra
 TwinPhysicsOpt = Annotated[str, typer.Option("--physics", help="reduced (fast) | full drive train.")]  # fmt: skip
 TokenOpt = Annotated[str | None, typer.Option("--token", envvar="DRAFTTWIN_TOKEN",
                      help="Token every request must carry (required off 127.0.0.1).")]  # fmt: skip
-TwinQuietOpt = Annotated[bool, typer.Option(help="No status line every 10 s on stderr (the events, alarms among them, are still printed as they happen).")]
+TwinQuietOpt = Annotated[bool, typer.Option(help="No status line every 10 s on stderr (the events, alarms among them, are still printed as they happen).")]  # fmt: skip
 
 
 def _need_twin_extra() -> None:

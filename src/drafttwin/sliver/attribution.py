@@ -123,7 +123,8 @@ def _same_channel(channel_m: float, named: set[str], table: WavelengthTable,
 
 
 def _also_text(also: list[tuple[str, float]]) -> str:
-    """"; the channel also holds the line at 60.2 cm (roller third, gear J (I-J))"."""
+    """The verdict's tail: "; the channel also holds the line at 60.2 cm (roller third,
+    gear J (I-J))"."""
     lines: dict[str, list[str]] = {}
     for name, w in also:
         lines.setdefault(_fmt_m(w), []).append(name)

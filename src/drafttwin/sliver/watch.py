@@ -170,7 +170,13 @@ class SliverWatch:
                 "chimneys": [] if last is None else [
                     {"wavelength_m": c.wavelength_m, "amplitude_pct": c.amplitude_pct,
                      "element": c.candidates[0].element if c.candidates else "feed"}
-                    for c in last.causes]}  # fmt: skip
+                    for c in last.causes],
+                "learning": self.learning,
+                "own_lines": [{"wavelength_m": c.wavelength_m, "amplitude_pct": c.amplitude_pct,
+                               "element": c.candidates[0].element if c.candidates else "feed"}
+                              for c in (last.known if last is not None else [])],
+                "learned": None if (ref := self.own_lines) is None else
+                {"metres": ref.metres, "windows": ref.windows}}  # fmt: skip
 
     def text(self, alarm: SliverAlarm) -> str:
         """One line for an event list."""

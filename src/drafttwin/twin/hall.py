@@ -240,7 +240,7 @@ def _actor_class(ray: Any) -> Any:
                     return {"state": "loading"}
                 try:
                     return {**self.service.status(), "state": "running",
-                            "console": self.console.status()}
+                            "console": self.console.status()}  # fmt: skip
                 except RuntimeError:  # "deque mutated during iteration"
                     time.sleep(0.01)
             return None

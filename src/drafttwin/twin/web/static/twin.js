@@ -370,6 +370,11 @@ function drawSliver() {
     lines.push(el("div", { class: "chimneys" }, ch.length ? "chimneys: " + ch.map(c =>
       `${fmt(100 * c.wavelength_m, 2)} cm ${fmt(c.amplitude_pct, 3)} % (${c.element})`).join(", ") :
       s.spectrogram ? "no chimney in the last spectrogram" : "the first spectrogram after 100 m"));
+    const own = s.own_lines || [];
+    const learnt = s.learning ? "learning the machine's own lines (no chimney alarm meanwhile)" :
+      s.learned ? `the machine's own lines, learned over ${withUnit(s.learned.metres, 0, "m")}, do not alarm` : "";
+    if (learnt || own.length) lines.push(el("div", { class: "own-lines" }, learnt + (own.length ? ": " + own.map(c =>
+      `${fmt(100 * c.wavelength_m, 2)} cm ${fmt(c.amplitude_pct, 3)} % (${c.element})`).join(", ") : "")));
   }
   if (l) {
     const set = l.setting || {};
