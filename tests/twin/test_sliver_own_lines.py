@@ -79,3 +79,15 @@ def test_a_healthy_levelled_machine_learns_its_lines_and_raises_no_chimney(
     assert kept is not None and kept.sliver_reference is not None
     assert kept.sliver_reference.windows >= 2
     assert replay(detector="auto", store_dir=store) == []  # restored: watched at once
+
+
+def test_the_page_draws_the_machines_own_lines_apart_from_new_chimneys() -> None:
+    """The card said "no chimney" beside a red chimney dot at the machine's own 60-cm line."""
+    from types import SimpleNamespace
+
+    from drafttwin.twin.sliverdesk import _own_channels
+
+    centres = 0.01 * 2.0 ** (np.arange(55, 64) / 10)
+    known = [SimpleNamespace(wavelength_m=0.6027, extra={"channel_m": float(centres[4])})]
+    assert _own_channels(centres, known) == [k == 4 for k in range(9)]
+    assert _own_channels(centres, []) == [False] * 9

@@ -16,6 +16,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
+import math
 import queue
 import threading
 import time
@@ -231,8 +232,15 @@ class SliverDesk:
             sliver["spectrogram"] = None if g is None else {
                 "wavelength_m": g.wavelength_m.tolist(), "amplitude_pct": g.amplitude_pct.tolist(),
                 "ideal_pct": None if g.ideal_pct is None else g.ideal_pct.tolist(),
-                "chimney": g.chimney.tolist(), "length_m": g.length_m}  # fmt: skip
+                "chimney": g.chimney.tolist(), "length_m": g.length_m,
+                "own": _own_channels(g.wavelength_m, last.known if last else [])}  # fmt: skip
         return {"sliver": sliver, "leveller": None if st.level is None else st.level.summary()}
+
+
+def _own_channels(wavelength_m: Any, known: list[Any]) -> list[bool]:
+    """Channels holding one of the machine's own lines (drawn apart from new chimneys)."""
+    centres = [float(c.extra.get("channel_m", c.wavelength_m)) for c in known]
+    return [any(abs(math.log(float(w) / c)) < 0.04 for c in centres) for w in wavelength_m]
 
 
 __all__ = ["SLIVER_SENSOR_M", "SliverDesk"]

@@ -343,11 +343,12 @@ function chartSpectrogram(width) {
     series: [{ label: "wavelength", value: (u, v) => (v === null || v === undefined ? "–" : v < 1 ? `${fmt(100 * v, 2)} cm` : `${fmt(v, 2)} m`) },
              { label: "amplitude", stroke: C.twin, width: 2, points: { show: true, size: 4 }, value: (u, v) => withUnit(v, 3, "%") },
              { label: "random sliver", stroke: C.physics, width: 1, dash: [6, 4], value: (u, v) => withUnit(v, 3, "%") },
-             { label: "chimney", stroke: C.limit, width: 0, points: { show: true, size: 9, fill: C.limit }, paths: () => null, value: (u, v) => withUnit(v, 3, "%") }],
+             { label: "chimney", stroke: C.limit, width: 0, points: { show: true, size: 9, fill: C.limit }, paths: () => null, value: (u, v) => withUnit(v, 3, "%") },
+             { label: "machine's own line", stroke: C.measured, width: 0, points: { show: true, size: 9, fill: C.measured }, paths: () => null, value: (u, v) => withUnit(v, 3, "%") }],
     axes: [{ values: (u, s) => s.map(wavelengthTick) },
            { size: 64, label: "amplitude, %", labelSize: 14 }],
   };
-  return new uPlot(opts, [[], [], [], []], null);
+  return new uPlot(opts, [[], [], [], [], []], null);
 }
 // CV at 1 m, where the window was long enough to estimate it (a short one gives none)
 function cv1m(a) {
@@ -401,8 +402,10 @@ function drawSliver() {
   if (box.dataset.shown !== html) { box.replaceChildren(...lines); box.dataset.shown = html; }
   const g = s && s.spectrogram, u = state.spectrogram;
   if (u && g) {
-    const chim = g.amplitude_pct.map((v, i) => (g.chimney[i] ? v : null));
-    u.setData([g.wavelength_m, g.amplitude_pct, g.ideal_pct || g.wavelength_m.map(() => null), chim]);
+    const own = g.own || g.wavelength_m.map(() => false);  // the machine's own lines apart
+    const chim = g.amplitude_pct.map((v, i) => (g.chimney[i] && !own[i] ? v : null));
+    const mine = g.amplitude_pct.map((v, i) => (own[i] ? v : null));
+    u.setData([g.wavelength_m, g.amplitude_pct, g.ideal_pct || g.wavelength_m.map(() => null), chim, mine]);
   }
 }
 
