@@ -55,3 +55,18 @@ def test_only_the_last_lines_are_kept() -> None:
         ConsoleLines.KEEP + 30,
         f"m1 gap: gap {ConsoleLines.KEEP + 29}",
     ]
+
+
+def test_twin_run_prints_what_its_detector_said_at_the_start_quiet_or_not(
+    twin_files, tmp_path
+) -> None:
+    """The start's events (learning, or the stored baseline it watches with) came before the
+    console's printer was attached, and --quiet printed no event at all."""
+    from ._twin import run_cli
+
+    record, model = twin_files
+    for extra in ((), ("--quiet",)):
+        got = run_cli("twin", "run", "--model", str(model), "--source", f"replay:{record}?speed=inf",
+                      "--learn", "60", "--store", str(tmp_path / f"s{len(extra)}"), *extra)  # fmt: skip
+        assert got.returncode == 0, got.stderr
+        assert "learning: learning its healthy state: 60 s of running" in got.stderr, got.stderr

@@ -196,6 +196,10 @@ async def _serve(service: TwinService, bind: tuple[str, int] | None, token: str 
     ticker = None if quiet else asyncio.create_task(_status_lines(service))
     # alarms, causes and the detector's learning as they happen, --quiet or not (a twin under
     # a service manager logs them; --quiet left only its last lines there)
+    for st in service.states.values():  # what the detector said while the twin was built
+        for ev in st.events:
+            if ev.kind in ("baseline", "baseline-refused", "learning", "detector-foreign"):
+                _print_event(ev)
     service.event_hooks.append(_print_event)
     try:
         async with publishing(service, publishers):
