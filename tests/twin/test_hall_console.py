@@ -70,3 +70,18 @@ def test_twin_run_prints_what_its_detector_said_at_the_start_quiet_or_not(
                       "--learn", "60", "--store", str(tmp_path / f"s{len(extra)}"), *extra)  # fmt: skip
         assert got.returncode == 0, got.stderr
         assert "learning: learning its healthy state: 60 s of running" in got.stderr, got.stderr
+
+
+def test_a_stop_says_which_shards_ran_and_which_were_still_starting() -> None:
+    """A shard that ran (its status listed machines) but did not end within the stop's wait
+    was reported as "still starting"."""
+    from drafttwin.twin.hall import _stop_note
+
+    seen = [{"state": "running", "machines": {"m1": {}}}, {"state": "loading"}, None,
+            {"state": "not answering", "machines": {"m4": {}}}]  # fmt: skip
+    note = _stop_note(4, [1, 2, 3], seen)
+    assert note.startswith("shard 0 committed what it received; shards 1, 2 still starting")
+    assert "shard 3 ran but did not end within 2 s of the stop" in note
+    assert (
+        "lost" in note and _stop_note(2, [], seen[:2]) == "shards 0, 1 committed what they received"
+    )

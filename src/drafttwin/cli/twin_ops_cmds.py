@@ -214,7 +214,7 @@ def _print_hall(results: Sequence[dict[str, Any] | None], shards: int, wall_s: f
         table.add_column(col, justify="left" if col in ("shard", "machines") else "right")
     for i, r in enumerate(results):
         if r is None:
-            table.add_row(str(i), "(ended while starting)", "-", "-", "-", "-")
+            table.add_row(str(i), "(ended by the stop: see above)", "-", "-", "-", "-")
             continue
         p99 = r["latency_ms"]["p99"]
         table.add_row(str(i), ", ".join(r["machines"]),

@@ -310,11 +310,12 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
                 return answer
 
             on_actors(command)
+        seen: list[dict[str, Any] | None] = [None] * shards
         try:
-            _wait(ray, actors, refs, on_status, status_every_s)
+            _wait(ray, actors, refs, on_status, status_every_s, seen)
         except Interrupted as exc:  # Ctrl-C or SIGTERM: each actor commits what it received
             ended = _stop_shards(ray, actors, refs)
-            stopped = Interrupted(exc.signum, _stop_note(shards, ended))
+            stopped = Interrupted(exc.signum, _stop_note(shards, ended, seen))
             stopped.results = _collect_stopped(ray, refs, ended)  # type: ignore[attr-defined]
             raise stopped from None
         except BaseException:
@@ -323,16 +324,25 @@ def run_hall(model: Path, source: str, mapping: Path, store: Path, shards: int, 
         return _collect(ray, refs)
 
 
-def _stop_note(shards: int, ended: list[int]) -> str:
-    """What a stop did, shard by shard."""
+def _stop_note(shards: int, ended: list[int],
+               seen: list[dict[str, Any] | None] | None = None) -> str:  # fmt: skip
+    """What a stop did, shard by shard: a shard ended after its twin had run is said so, not
+    "still starting" (its last status says which; its rows not yet committed are lost)."""
     ran = [i for i in range(shards) if i not in ended]
+    seen = seen or [None] * shards
+    late = [i for i in ended if (seen[i] or {}).get("machines") is not None]
+    starting = [i for i in ended if i not in late]
     parts = []
     if ran:
         parts.append(f"{_shards(ran)} committed what {'it' if len(ran) == 1 else 'they'} received")
-    if ended:
+    if starting:
         parts.append(
-            f"{_shards(ended)} still starting ({'was' if len(ended) == 1 else 'were'} ended)"
+            f"{_shards(starting)} still starting ({'was' if len(starting) == 1 else 'were'} ended)"
         )
+    if late:
+        parts.append(f"{_shards(late)} ran but did not end within {STOP_S:g} s of the stop "
+                     f"({'was' if len(late) == 1 else 'were'} ended: rows not yet committed "
+                     "are lost)")  # fmt: skip
     return "; ".join(parts)
 
 
@@ -359,12 +369,13 @@ def _stop_shards(ray: Any, actors: list[Any], refs: list[Any]) -> list[int]:
     return ended
 
 
-def _wait(ray: Any, actors: list[Any], refs: list[Any], on_status: Any, every_s: float) -> None:
+def _wait(ray: Any, actors: list[Any], refs: list[Any], on_status: Any, every_s: float,
+          seen: list[dict[str, Any] | None]) -> None:  # fmt: skip
+    """Until every shard's run returns; ``seen`` (one per shard) keeps their last status."""
     last = time.monotonic()
     pending = list(refs)
     from drafttwin.execution.interrupt import signals_deferred
 
-    seen: list[dict[str, Any] | None] = [None] * len(actors)
     while pending:
         # a signal must not raise inside Ray's Cython calls (it left ray.get hanging): under
         # stop_on_signals it is raised when the call has returned, within POLL_S
@@ -373,8 +384,8 @@ def _wait(ray: Any, actors: list[Any], refs: list[Any], on_status: Any, every_s:
         if on_status is not None and time.monotonic() - last >= every_s:
             last = time.monotonic()
             with signals_deferred():
-                seen = _statuses(ray, actors, refs, seen)
-            on_status(seen)
+                seen[:] = _statuses(ray, actors, refs, seen)
+            on_status(list(seen))
 
 
 def _statuses(ray: Any, actors: list[Any], refs: list[Any],
