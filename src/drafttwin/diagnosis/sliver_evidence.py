@@ -58,8 +58,7 @@ def sliver_evidence(path: str | Path, train: DriveTrain, series: MeasurementSeri
                     fibre_scale=reference.fibre_scale), reference)  # fmt: skip
     watch = _push(SliverWatch(train, staple, sensor_length_m=sensor_m, reference=lines,
                               fibre_scale=scale), sliver)  # fmt: skip
-    dx = diagnose_sliver(sliver, train, staple, sensor_length_m=beside.sensor_mm * 1e-3,
-                         reference=reference)  # fmt: skip
+    dx = diagnose_sliver(sliver, train, staple, sensor_length_m=sensor_m, reference=reference)  # fmt: skip
     rpm = {r: series.values[:, j] for j, r in enumerate(series.channels)}
     if {"front", "second", "third", "back"} <= rpm.keys():
         dx = with_encoders(dx, sliver, series.time_s, rpm, staple)

@@ -115,11 +115,21 @@ def _same_channel(channel_m: float, named: set[str], table: WavelengthTable,
     for e, h in table.near(channel_m, 2 ** (1 / 20) - 1, 1):
         if e.name in named or h != 1:
             continue
-        moved = {e.rollers[0]: 1.0} if e.kind == "roller" else {r: 1.0 for r in e.rollers}
-        if abs(mass_gain(moved, e.wavelength_m, gauges_mm, drafts, staple)[0]) >= MIN_GAIN:
-            prior = KIND_PRIOR.index(e.kind) if e.kind in KIND_PRIOR else len(KIND_PRIOR)
-            found.append((prior, e.name, e.wavelength_m))
+        if _gain(e, e.wavelength_m, gauges_mm, drafts, staple) >= MIN_GAIN:
+            found.append((_prior(e.kind), e.name, e.wavelength_m))
     return [(n, w) for _, n, w in sorted(found)[:SAME_CHANNEL_MAX]]
+
+
+def _gain(e: Element, lam: float, gauges_mm: tuple[float, float, float],
+          drafts: dict[str, float], staple: StapleDiagram) -> float:  # fmt: skip
+    """|speed-to-mass gain| at ``lam`` of the rollers ``e`` moves (a roller only itself)."""
+    moved = {e.rollers[0]: 1.0} if e.kind == "roller" else {r: 1.0 for r in e.rollers}
+    return float(abs(mass_gain(moved, lam, gauges_mm, drafts, staple)[0]))
+
+
+def _prior(kind: str) -> int:
+    """Place of an element's kind in :data:`KIND_PRIOR` (unknown kinds last)."""
+    return KIND_PRIOR.index(kind) if kind in KIND_PRIOR else len(KIND_PRIOR)
 
 
 def _also_text(also: list[tuple[str, float]]) -> str:
@@ -136,8 +146,7 @@ def _candidate(e: Element, h: int, lam: float, excess: float, table: WavelengthT
                gauges_mm: tuple[float, float, float], drafts: dict[str, float],
                staple: StapleDiagram, waves: list[float], harmonics: int,
                tol: float) -> Candidate:  # fmt: skip
-    moved = {e.rollers[0]: 1.0} if e.kind == "roller" else {r: 1.0 for r in e.rollers}
-    gain = float(abs(mass_gain(moved, lam, gauges_mm, drafts, staple)[0]))
+    gain = _gain(e, lam, gauges_mm, drafts, staple)
     plausible = gain >= MIN_GAIN
     required = excess / gain if plausible else math.inf
     seen = sum(1 for k in e.orders(harmonics) if k != h and any(
@@ -159,9 +168,8 @@ def _rank(c: Candidate) -> tuple[bool, int, int, int, int, float]:
     # plausible first; a comb of harmonics; the fundamental; the line nearest the chimney (in
     # halves of the tolerance: equal lines tie); the prior of the kind; the smallest
     # speed modulation needed
-    prior = KIND_PRIOR.index(c.kind) if c.kind in KIND_PRIOR else len(KIND_PRIOR)
     near = math.floor(2 * c.offset)
-    return (not c.plausible, -c.harmonics_seen, c.harmonic, near, prior,
+    return (not c.plausible, -c.harmonics_seen, c.harmonic, near, _prior(c.kind),
             c.required_modulation_pct)  # fmt: skip
 
 

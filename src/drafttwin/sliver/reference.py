@@ -125,4 +125,4 @@ class SliverReference:
         return cls(w, a, n, float(m))
 
 
-__all__ = ["KNOWN_FACTOR", "SliverReference"]
+__all__ = ["KNOWN_FACTOR", "SAME_CHANNEL", "SliverReference"]

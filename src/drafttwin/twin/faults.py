@@ -121,13 +121,7 @@ class FaultDesk:
         start = st.watch.learn_from_s if st.watch.learn_from_s is not None else ts_us / 1e6
         st.baseline = Baseline(st.twin.name, detector, st.model_sha256, st.identity,
                                st.watch.learn_s, start, ts_us / 1e6, st.prior)  # fmt: skip
-        where = ""
-        if self.baselines is not None:
-            try:
-                where = f"; stored in {self.baselines.save(st.baseline)}"
-                self.baselines.forget_learning(st.twin.name)
-            except OSError as exc:
-                where = f"; not stored ({type(exc).__name__}: {exc})"
+        where = self._store(st.baseline, forget_learning=True)
         who = f" ({st.identity})" if st.identity is not None else ""
         ev = EventRow(st.twin.name, "learned", ts_us,
                       f"learned its healthy state{who} over {st.watch.learn_s:g} s of running"
@@ -139,6 +133,19 @@ class FaultDesk:
             self.sliver_lines(st)
         return ev
 
+    def _store(self, baseline: Baseline, forget_learning: bool = False) -> str:
+        """Write ``baseline`` to the store (the learning state it came from forgotten):
+        "; stored in PATH", or why not, for the event that says so."""
+        if self.baselines is None:
+            return ""
+        try:
+            where = f"; stored in {self.baselines.save(baseline)}"
+            if forget_learning:
+                self.baselines.forget_learning(baseline.machine)
+        except OSError as exc:
+            return f"; not stored ({type(exc).__name__}: {exc})"
+        return where
+
     def sliver_lines(self, st: MachineState) -> None:
         """The lines the machine's sliver showed while it learned, complete: kept in its
         baseline (a restarted twin judges by them at once) and said."""
@@ -146,12 +153,7 @@ class FaultDesk:
         if lines is None or st.baseline is None or st.baseline.sliver_reference is not None:
             return
         st.baseline.sliver_reference = lines
-        where = ""
-        if self.baselines is not None:
-            try:
-                where = f"; stored in {self.baselines.save(st.baseline)}"
-            except OSError as exc:
-                where = f"; not stored ({type(exc).__name__}: {exc})"
+        where = self._store(st.baseline)
         ev = EventRow(st.twin.name, "learned", int(time.time() * 1e6),
                       f"learned its sliver's own lines over {lines.metres:.0f} m "
                       f"({lines.windows} window(s)): a chimney up to {KNOWN_FACTOR:g} x them "

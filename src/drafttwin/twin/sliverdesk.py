@@ -27,6 +27,7 @@ from typing import Any, Protocol
 from drafttwin.errors import DrafttwinError
 from drafttwin.sliver import StapleDiagram
 from drafttwin.sliver.levelwatch import SEARCH_MM, WINDOW_M, LevelContext, LevelWatch
+from drafttwin.sliver.reference import SAME_CHANNEL
 from drafttwin.sliver.watch import SliverAlarm, SliverWatch
 from drafttwin.twin.state import MachineState
 from drafttwin.twin.store.db import EventRow
@@ -240,7 +241,8 @@ class SliverDesk:
 def _own_channels(wavelength_m: Any, known: list[Any]) -> list[bool]:
     """Channels holding one of the machine's own lines (drawn apart from new chimneys)."""
     centres = [float(c.extra.get("channel_m", c.wavelength_m)) for c in known]
-    return [any(abs(math.log(float(w) / c)) < 0.04 for c in centres) for w in wavelength_m]
+    return [any(abs(math.log(float(w) / c)) < SAME_CHANNEL for c in centres)
+            for w in wavelength_m]  # fmt: skip
 
 
 __all__ = ["SLIVER_SENSOR_M", "SliverDesk"]
