@@ -144,6 +144,7 @@ def test_a_drifting_count_is_not_called_a_sluggish_drive_outright() -> None:
     from types import SimpleNamespace
 
     from drafttwin.sliver.action_point import DRIVE_GRID_S, LevellerSetting, _notes
+    from drafttwin.sliver.level_model import DriveFit
     from drafttwin.sliver.leveller_record import LevellerRecord
 
     s = np.arange(0.0, 200.0, 0.01)
@@ -152,12 +153,15 @@ def test_a_drifting_count_is_not_called_a_sluggish_drive_outright() -> None:
     setting = LevellerSetting(700.0, 1.0)
     model = SimpleNamespace(start=0)
 
-    def notes(y: np.ndarray, tau: float) -> str:
+    def notes(y: np.ndarray, tau: float, low: float | None = None) -> str:
         rec = LevellerRecord(s, y, np.full_like(s, 33.0), s / 6.5, s / 4.0, "test")
-        return " ".join(_notes(setting, tau, rec, model))  # type: ignore[arg-type]
+        fit = DriveFit(tau, (tau if low is None else low, tau), 700.0, 713.0)
+        return " ".join(_notes(setting, fit, rec, model))  # type: ignore[arg-type]
 
     slow = notes(flat, 0.02)
-    assert "follows with 20 ms" in slow and slow.endswith("a sluggish drive")
+    assert "follows with 20 ms (95 % 20-20 ms)" in slow and slow.endswith("a sluggish drive")
+    # an interval that reaches the nominal's bound (2 x 5 ms + 2 ms) does not call it sluggish
+    assert "sluggish" not in notes(flat, 0.02, low=0.012)
     both = notes(drift, max(DRIVE_GRID_S))
     assert f"at least {1000 * max(DRIVE_GRID_S):.0f} ms" in both
     assert "or the count's drift below read as one" in both and "drifts by -2.0" in both

@@ -18,6 +18,7 @@ from typer.testing import CliRunner
 from drafttwin.cli import app
 from drafttwin.plant import Machine, Plant
 from drafttwin.plant.sliver_channel import SliverSettings, default_feed, make_sliver
+from drafttwin.sliver import FeedFault
 from drafttwin.sliver.irregularity import evenness
 from drafttwin.sliver.leveller import NOMINAL_DRIVE_S, Autoleveller, RegulatingDrive
 
@@ -94,6 +95,38 @@ def test_cv_against_the_action_point_is_v_shaped_with_its_minimum_at_the_true_po
     assert -lag - 1.0 <= vertex[NOMINAL_DRIVE_S] <= vertex[0.0] - 1.0
     plain = _draft(surface, None)
     assert evenness(plain.true.linear_density_ktex, plain.true.step_m).cv_pct > 1.4 * cv.min()
+
+
+def test_the_drive_is_told_from_the_material_at_the_right_setting(surface) -> None:
+    """With the leveller at its true action point the correction lies on the material's own
+    delay, and a lag fitted on every wavelength read the delivered sliver's sharpness (it is
+    sharper than the infeed reading) as the drive's: a 5-ms drive read 16 ms and was called
+    sluggish on every healthy machine, the material placed 18 mm beyond the true action
+    point. Now the nominal stands where the record's interval holds it, the material and the
+    recommendation lie where the physics puts them (the true point, less the drive's lag),
+    and a drive 8 x slower is still found at that setting."""
+    from drafttwin.sliver.action_point import find_action_point
+    from drafttwin.sliver.leveller_record import LevellerSetting
+    from drafttwin.studies.leveller.run import _channel_record
+
+    feed = default_feed((FeedFault(2.0, 0.03, "all"),))
+    for tau in (NOMINAL_DRIVE_S, 8 * NOMINAL_DRIVE_S):
+        ch = _draft(surface, Autoleveller(1.0, 0.0, drive=RegulatingDrive(tau)), feed)
+        setting = LevellerSetting(float(ch.summary["leveller"]["action_point_mm"]), 1.0,
+                                  feed.total_ktex, NOMINAL_DRIVE_S)  # fmt: skip
+        advice = find_action_point(_channel_record(ch), setting, feed.staple)
+        lo, hi = advice.drive_time_constant_interval_s
+        sluggish = any("sluggish" in note for note in advice.notes)
+        true_mm = float(ch.summary["leveller"]["true_action_point_mm"])
+        assert advice.estimated_action_point_mm == pytest.approx(true_mm, abs=3.0)
+        if tau == NOMINAL_DRIVE_S:
+            assert advice.drive_time_constant_s == NOMINAL_DRIVE_S and lo <= tau <= hi
+            assert not sluggish, advice.notes
+            lag_mm = tau * 39.05 / 60 * 1000
+            assert advice.recommended_action_point_mm == pytest.approx(true_mm - lag_mm, abs=2.0)
+        else:
+            assert advice.drive_time_constant_s == pytest.approx(tau, rel=0.3)
+            assert lo > 2 * NOMINAL_DRIVE_S + 0.002 and sluggish, advice.notes
 
 
 def _invoke(*args: str) -> tuple[int, str]:

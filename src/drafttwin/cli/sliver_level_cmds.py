@@ -134,8 +134,8 @@ def _print(advice: Any, data: Path) -> None:
                       f"{a.intensity_interval[0]:.2f}-{a.intensity_interval[1]:.2f}); within +-5 "
                       f"mm from {needed} of sliver; the material reaches the delivery at "
                       f"{a.estimated_action_point_mm:.1f} mm, the drive follows with "
-                      f"{1000 * a.drive_time_constant_s:.1f} ms (CVs as the delivery sensor "
-                      "reads them; the twin writes no setting)")  # fmt: skip
+                      f"{_drive(a.drive_time_constant_s, a.drive_time_constant_interval_s)}; "
+                      "CVs as the delivery sensor reads them; the twin writes no setting")  # fmt: skip
     if any(not math.isfinite(v) for v in (a.current.cv_5m_pct, a.current.cv_3m_pct)):
         console.print("CV 3 m / 5 m: - where the record is too short for that length")
     if not a.identifiable:
@@ -146,3 +146,9 @@ def _print(advice: Any, data: Path) -> None:
                       f"recommended: {why}")  # fmt: skip
     for note in a.notes:
         console.print(note)
+
+
+def _drive(tau_s: float, interval_s: tuple[float, float]) -> str:
+    """The drive's time constant as the advice took it, with the record's 95 % interval."""
+    lo, hi = (1000 * t for t in interval_s)
+    return f"{1000 * tau_s:.1f} ms (95 % {lo:.0f}-{hi:.0f} ms)"

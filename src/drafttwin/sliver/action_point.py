@@ -14,7 +14,10 @@ leveller and ``K`` the fibres' and the delivery sensor's smoothing. :func:`find_
 1. takes the current correction out, ``Z = Y - K * log f(A_cur, I_cur, tau)``, with the
    drive's time constant ``tau`` chosen where ``Z`` is best explained by one delayed copy of
    the infeed reading (a wrong ``tau`` leaves a filtered copy of the reading at the current
-   setting in ``Z``); that delay is the material's own (``estimated_action_point_mm``);
+   setting in ``Z``), both smoothed crosswise so that the material's path and the reading
+   share their kernels, and the nominal kept where the record's interval holds it
+   (:mod:`drafttwin.sliver.level_model`); that delay is the material's own
+   (``estimated_action_point_mm``);
 2. puts any other setting in, ``Y' = Z + K * log f(A, I, tau)``, and finds the ``(A, I)`` of
    the least variance: the brute-force tuning run of research/sliver.md 6, on one record;
 3. gives the CV, CV(1 m), CV(3 m), CV(5 m) of ``Y'`` beside the recorded ones, a 95 %
@@ -36,26 +39,24 @@ from typing import Any
 import numpy as np
 from scipy.signal import lfilter
 
-from drafttwin.errors import DataError
 from drafttwin.sliver.irregularity import evenness
-from drafttwin.sliver.leveller import MAX_FACTOR, MIN_FACTOR, mass_kernel
+from drafttwin.sliver.level_model import (
+    DRIVE_GRID_S,
+    MIN_BLOCKS,
+    DriveFit,
+    LevelModel,
+    block_rows,
+    drive_and_delay,
+    prepare,
+)
 from drafttwin.sliver.leveller_record import LevellerRecord, LevellerSetting
 from drafttwin.sliver.sensor import SliverSensor
 from drafttwin.sliver.staple import StapleDiagram
 
 SEARCH_MM = 120.0
 """Action points searched either side of the current setting, mm."""
-BLOCK_M = 5.0
-"""Block length of the bootstrap (delivered sliver), m; shorter where the record has fewer
-than :data:`MIN_BLOCKS` of them."""
-MIN_BLOCKS = 8
-"""Blocks the bootstrap wants at least."""
 PRECISION_MM = 5.0
 """Half-width of the interval that counts as found (``metres_needed``), mm."""
-DRIVE_GRID_S = (0.0, 0.001, 0.0015, 0.002, 0.003, 0.004, 0.005, 0.0065, 0.008, 0.01, 0.013,
-                0.016, 0.02, 0.025, 0.032, 0.04, 0.05, 0.063, 0.08, 0.1, 0.13, 0.16, 0.2, 0.25,
-                0.3)  # fmt: skip
-"""Time constants of the regulating drive tried, s."""
 RESAMPLES = 400
 
 
@@ -94,6 +95,7 @@ class LevellingAdvice:
         estimated_action_point_mm: where the fed material's mass reaches the delivery, mm
             from the scanning rollers (the setting of a drive without lag).
         drive_time_constant_s: the regulating drive's time constant that explains the record.
+        drive_time_constant_interval_s: its 95 % interval (block bootstrap), s.
         metres_used: delivered sliver analysed, m.
         metres_needed: the shortest part of it (from its start, in 5-m steps) from which on
             the interval is within +-5 mm; None if the record is too short for that, or does
@@ -113,6 +115,7 @@ class LevellingAdvice:
     recommended: ExpectedEvenness
     estimated_action_point_mm: float
     drive_time_constant_s: float
+    drive_time_constant_interval_s: tuple[float, float]
     metres_used: float
     metres_needed: float | None
     identifiable: bool
@@ -122,96 +125,9 @@ class LevellingAdvice:
         out = asdict(self)
         out["action_point_interval_mm"] = list(self.action_point_interval_mm)
         out["intensity_interval"] = list(self.intensity_interval)
+        out["drive_time_constant_interval_s"] = list(self.drive_time_constant_interval_s)
         out["notes"] = list(self.notes)
         return out
-
-
-@dataclass(frozen=True)
-class _Model:
-    """The record prepared once: rows of the analysis window and the smoothing kernel."""
-
-    clock_mm: np.ndarray  # the store's clock of every row, mm
-    reading: np.ndarray  # infeed reading relative to the reference, every row
-    log_y: np.ndarray  # delivered log-mass (mean removed), every row
-    kernel: np.ndarray  # fibres and delivery sensor, on the row grid
-    dt_s: float
-    start: int  # first row of the analysis window
-    log_mean: float  # the mean log-mass removed from log_y
-
-    def log_factor(self, action_mm: float, intensity: float, tau_s: float) -> np.ndarray:
-        """``log f`` of a setting at every row (the drive's lag included)."""
-        at = np.searchsorted(self.clock_mm, self.clock_mm - action_mm, side="right") - 1
-        x = self.reading[np.clip(at, 0, None)]
-        cmd = np.clip(1.0 / np.maximum(1.0 + intensity * (x - 1.0), 1e-9), MIN_FACTOR, MAX_FACTOR)
-        if tau_s > 0:
-            a = -math.expm1(-self.dt_s / tau_s)
-            cmd = lfilter([a], [1.0, a - 1.0], cmd, zi=[(1.0 - a) * cmd[0]])[0]
-        return np.asarray(np.log(cmd))
-
-    def effect(self, action_mm: float, intensity: float, tau_s: float) -> np.ndarray:
-        """The setting's effect on the delivered log-mass, analysis window."""
-        u = lfilter(self.kernel, [1.0], self.log_factor(action_mm, intensity, tau_s))
-        return np.asarray(u[self.start :])
-
-    def linear(self, action_mm: float, tau_s: float) -> np.ndarray:
-        """The effect of unit intensity to first order, analysis window: ``K * h_tau *
-        (x(c - A) - 1)`` (``log f`` is about ``-I (x - 1)``)."""
-        at = np.searchsorted(self.clock_mm, self.clock_mm - action_mm, side="right") - 1
-        x = self.reading[np.clip(at, 0, None)] - 1.0
-        if tau_s > 0:
-            a = -math.expm1(-self.dt_s / tau_s)
-            x = lfilter([a], [1.0, a - 1.0], x, zi=[(1.0 - a) * x[0]])[0]
-        return np.asarray(lfilter(self.kernel, [1.0], x)[self.start :])
-
-    def delayed_reading(self, delay_mm: float) -> np.ndarray:
-        """``log x(c - delay)``: the material path's regressor, analysis window."""
-        at = np.searchsorted(self.clock_mm, self.clock_mm - delay_mm, side="right") - 1
-        return np.asarray(np.log(self.reading[np.clip(at, 0, None)])[self.start :])
-
-
-def _kernel(staple: StapleDiagram, sensor: SliverSensor, step_mm: float) -> np.ndarray:
-    """The fibres' smoothing of a change of end density, then the delivery sensor's boxcar
-    and lag, on the row grid (sum 1)."""
-    k = mass_kernel(staple, step_mm)
-    width = max(1, int(round(sensor.averaging_mm / step_mm)))
-    k = np.convolve(k, np.ones(width) / width)
-    if sensor.lag_mm > 0:
-        a = math.exp(-step_mm / sensor.lag_mm)
-        lag = (1 - a) * a ** np.arange(int(8 * sensor.lag_mm / step_mm) + 1)
-        k = np.convolve(k, lag / lag.sum())
-    return np.asarray(k / k.sum())
-
-
-def _prepare(record: LevellerRecord, setting: LevellerSetting, staple: StapleDiagram,
-             sensor: SliverSensor, reach_mm: float) -> _Model:  # fmt: skip
-    clock = record.fed_length_m * 1e3
-    if np.any(np.diff(clock) < 0) or not np.all(np.isfinite(clock)):
-        raise DataError("fed_length_m is not a non-decreasing length clock",
-                        source=record.source or None, where="--data, column fed_length_m",
-                        fix="give the feeding rollers' travel at each reading")  # fmt: skip
-    ref = setting.reference_ktex or float(np.median(record.infeed_ktex))
-    reading = record.infeed_ktex / ref
-    if not (np.all(np.isfinite(reading)) and np.all(reading > 0)
-            and np.all(np.isfinite(record.delivery_ktex)) and np.all(record.delivery_ktex > 0)):  # fmt: skip
-        raise DataError("infeed or delivery readings not finite numbers > 0",
-                        source=record.source or None,
-                        where="--data, columns infeed_ktex / linear_density_ktex",
-                        fix="a leveller record has no gaps; cut it at the gap")  # fmt: skip
-    y = np.log(record.delivery_ktex)
-    step_mm = record.step_m * 1e3
-    kernel = _kernel(staple, sensor, step_mm)
-    dt = float(np.median(np.diff(record.time_s)))
-    # rows whose readings at every searched setting exist, and the filters settled
-    first = int(np.searchsorted(clock, clock[0] + reach_mm))
-    settle = kernel.size + int(5 * max(DRIVE_GRID_S) / max(dt, 1e-9))
-    start = first + settle
-    if record.delivered_length_m.size - start < 1000:
-        raise DataError(f"only {record.length_m:.3g} m of sliver: the store's reach "
-                        f"({reach_mm:.0f} mm of fed sliver) leaves too little",
-                        source=record.source or None, where="--data",
-                        fix="give a record of a few hundred metres")  # fmt: skip
-    mean = float(y[start:].mean())
-    return _Model(clock, reading, y - mean, kernel, dt, start, mean)
 
 
 def find_action_point(record: LevellerRecord, setting: LevellerSetting,
@@ -227,14 +143,15 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
     centre = setting.action_point_mm
     grid = np.arange(centre - search_mm, centre + search_mm + 0.5, 1.0)
     grid = grid[grid > 0]
-    model = _prepare(record, setting, staple, sensor, float(grid[-1]))
+    model = prepare(record, setting, staple, sensor, float(grid[-1]))
     y = model.log_y[model.start :]
-    tau, material = _drive_and_delay(model, setting, grid)
+    drive = drive_and_delay(model, setting, grid, staple, seed)
+    tau, material = drive.time_constant_s, drive.material_action_point_mm
     current = _Setting(model, centre, setting.intensity, tau)
     z = y - current.effect
     linear = _block_sums(model, z, grid, tau, record.step_m)
     gains = np.clip(_gains(linear.sum(axis=1)), 0.0, 2.0)
-    rows = _block_rows(z.size, record.step_m)
+    rows = block_rows(z.size, record.step_m)
     exact = np.stack([_weighted_sums(model, z, current, _Setting(model, float(a), float(g), tau),
                                      rows) for a, g in zip(grid, gains, strict=True)])  # fmt: skip
     best = _least(exact.sum(axis=1))
@@ -249,7 +166,7 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
     boot_gain = [_argmin(np.einsum("b,gbk->gk", c, linear))[1] for c in counts]
     g_lo, g_hi = np.clip(np.percentile(boot_gain, [2.5, 97.5]), 0.0, 2.0)
     new = _Setting(model, action, intensity, tau)
-    limits = _limits(record, model, grid, best, material, float(g_lo))
+    limits = _limits(record, model, grid, best, drive.transit_mm, float(g_lo))
     current_ev = ExpectedEvenness.of(record.delivery_ktex[model.start :], record.step_m)
     expected = ExpectedEvenness.of(_counterfactual(model, z, current, new, record.step_m),
                                    record.step_m)  # fmt: skip
@@ -264,6 +181,7 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
         recommended=expected,
         estimated_action_point_mm=material,
         drive_time_constant_s=tau,
+        drive_time_constant_interval_s=drive.interval_s,
         metres_used=record.length_m,
         # never "found within +-5 mm" where the record does not place it (a stuck infeed
         # sensor had 52 m beside an interval of the whole search)
@@ -271,7 +189,7 @@ def find_action_point(record: LevellerRecord, setting: LevellerSetting,
         if bool(hi - lo <= 50.0) and not limits
         else None,
         identifiable=bool(hi - lo <= 50.0) and not limits,
-        notes=limits + _notes(setting, tau, record, model) + _longer(current_ev, expected),
+        notes=limits + _notes(setting, drive, record, model) + _longer(current_ev, expected),
     )
 
 
@@ -282,7 +200,7 @@ class _Setting:
     factor: np.ndarray  # the drive's speed factor at each row
     effect: np.ndarray  # K * log f
 
-    def __init__(self, model: _Model, action_mm: float, intensity: float, tau_s: float) -> None:
+    def __init__(self, model: LevelModel, action_mm: float, intensity: float, tau_s: float) -> None:
         if intensity <= 0:
             n = model.log_y.size - model.start
             object.__setattr__(self, "factor", np.ones(n))
@@ -302,7 +220,7 @@ def _delivered(z: np.ndarray, current: _Setting, new: _Setting) -> tuple[np.ndar
     return np.exp(z + new.effect), current.factor / new.factor
 
 
-def _weighted_sums(model: _Model, z: np.ndarray, current: _Setting, new: _Setting,
+def _weighted_sums(model: LevelModel, z: np.ndarray, current: _Setting, new: _Setting,
                    rows: int) -> np.ndarray:  # fmt: skip
     """Per block of ``rows``: delivered length, mass x length and mass^2 x length of a
     setting."""
@@ -334,7 +252,7 @@ def _parabola_min(values: np.ndarray) -> float:
     return float(k)
 
 
-def _best_intensity(model: _Model, z: np.ndarray, current: _Setting, action: float, tau: float,
+def _best_intensity(model: LevelModel, z: np.ndarray, current: _Setting, action: float, tau: float,
                     start: float) -> float:  # fmt: skip
     """The intensity of the least CV at ``action`` (Brent within 0-2, from ``start``)."""
     from scipy.optimize import minimize_scalar
@@ -348,7 +266,7 @@ def _best_intensity(model: _Model, z: np.ndarray, current: _Setting, action: flo
     return float(res.x)
 
 
-def _counterfactual(model: _Model, z: np.ndarray, current: _Setting, new: _Setting,
+def _counterfactual(model: LevelModel, z: np.ndarray, current: _Setting, new: _Setting,
                     step_m: float) -> np.ndarray:  # fmt: skip
     """The delivered sliver of another setting on the record's even grid, ktex."""
     y, w = _delivered(z, current, new)
@@ -364,40 +282,11 @@ def _gains(sums: np.ndarray) -> np.ndarray:
     return np.asarray(cov / np.maximum(svv / n - (sv / n) ** 2, 1e-300))
 
 
-def _drive_and_delay(model: _Model, setting: LevellerSetting,
-                     grid: np.ndarray) -> tuple[float, float]:  # fmt: skip
-    """The drive's time constant and the material's delay that explain the record best: the
-    least residual of ``Z(tau)`` on one delayed copy of the infeed reading."""
-    y = model.log_y[model.start :]
-    taus = DRIVE_GRID_S if setting.intensity > 0 else (setting.drive_time_constant_s,)
-    zs = np.stack([y - model.effect(setting.action_point_mm, setting.intensity, t)
-                   if setting.intensity > 0 else y for t in taus])  # fmt: skip
-    zs = zs - zs.mean(axis=1, keepdims=True)
-    zz = np.einsum("ij,ij->i", zs, zs)
-    best = (math.inf, 0, float(grid[0]))
-    for delay in grid[::2]:
-        m = model.delayed_reading(float(delay))
-        m = m - m.mean()
-        mm = float(m @ m)
-        if mm <= 0:
-            continue
-        resid = zz - (zs @ m) ** 2 / mm
-        k = int(np.argmin(resid))
-        if resid[k] < best[0]:
-            best = (float(resid[k]), k, float(delay))
-    return float(taus[best[1]]), best[2]
-
-
-def _block_rows(n: int, step_m: float) -> int:
-    """Rows per bootstrap block: 5 m, or an eighth of the analysed record where shorter."""
-    return max(int(min(BLOCK_M, n * step_m / MIN_BLOCKS) / step_m), 1)
-
-
-def _block_sums(model: _Model, z: np.ndarray, grid: np.ndarray, tau: float,
+def _block_sums(model: LevelModel, z: np.ndarray, grid: np.ndarray, tau: float,
                 step_m: float) -> np.ndarray:  # fmt: skip
     """Per action point and block: n, sum z, sum v, sum z^2, sum z v, sum v^2, with ``v``
     the first-order effect of unit intensity (``Y' = z - I v``)."""
-    rows = _block_rows(z.size, step_m)
+    rows = block_rows(z.size, step_m)
     n_blocks = max(z.size // rows, 1)
     cut = n_blocks * rows
     zb = z[:cut].reshape(n_blocks, rows)
@@ -438,8 +327,8 @@ def _metres_needed(sums: np.ndarray, grid: np.ndarray, rng: np.random.Generator,
     return None
 
 
-def _limits(record: LevellerRecord, model: _Model, grid: np.ndarray, best: float,
-            material: float, intensity_low: float) -> tuple[str, ...]:  # fmt: skip
+def _limits(record: LevellerRecord, model: LevelModel, grid: np.ndarray, best: float,
+            transit_mm: float, intensity_low: float) -> tuple[str, ...]:  # fmt: skip
     """Why the record cannot place the action point, if it cannot: a reading that does not
     vary, or one that does not explain the delivered count (the intensity's 95 % interval
     reaches 0: no correction is shown to help anywhere; a dead infeed sensor reading noise
@@ -458,7 +347,7 @@ def _limits(record: LevellerRecord, model: _Model, grid: np.ndarray, best: float
     if best < 0.5 or best > grid.size - 1.5:
         return (f"the least CV lies on the edge of the searched range ({span}): the action "
                 "point may lie beyond it; search a wider range",)  # fmt: skip
-    if material <= grid[0] + 1.0 or material >= grid[-2] - 1.0:
+    if transit_mm <= grid[0] + 1.0 or transit_mm >= grid[-2] - 1.0:
         return (f"the material's delay lies on the edge of the searched range ({span}): "
                 "search a wider range",)  # fmt: skip
     return ()
@@ -488,9 +377,10 @@ def _longer(current: ExpectedEvenness, expected: ExpectedEvenness) -> tuple[str,
 
 
 def _notes(
-    setting: LevellerSetting, tau: float, record: LevellerRecord, model: _Model
+    setting: LevellerSetting, drive: DriveFit, record: LevellerRecord, model: LevelModel
 ) -> tuple[str, ...]:
     out = []
+    tau, (tau_lo, tau_hi) = drive.time_constant_s, drive.interval_s
     s = record.delivered_length_m[model.start :]
     y = record.delivery_ktex[model.start :]
     if s[-1] - s[0] < NOTES_MIN_M:  # a slope over 3 m read as +98 % per 100 m
@@ -500,10 +390,12 @@ def _notes(
             if setting.intensity == 0 else ())  # fmt: skip
     slope = float(np.polyfit(s - s.mean(), y / y.mean(), 1)[0]) * 100 * 100
     drifting = abs(slope) > 0.3
-    if setting.intensity > 0 and tau > 2 * setting.drive_time_constant_s + 0.002:
+    # sluggish only where the whole interval says so (a 5-ms drive read 0-10 ms)
+    if setting.intensity > 0 and tau_lo > 2 * setting.drive_time_constant_s + 0.002:
         edge = " at least" if tau >= max(DRIVE_GRID_S) else ""
         out.append(
-            f"the regulating drive follows with{edge} {1000 * tau:.0f} ms, its nominal is "
+            f"the regulating drive follows with{edge} {1000 * tau:.0f} ms (95 % "
+            f"{1000 * tau_lo:.0f}-{1000 * tau_hi:.0f} ms), its nominal is "
             f"{1000 * setting.drive_time_constant_s:.0f} ms: "
             + ("a sluggish drive, or the count's drift below read as one (a drifting infeed "
                "sensor of 2-3 % a minute was: check the drive before replacing it; the "
