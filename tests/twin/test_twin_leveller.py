@@ -539,7 +539,7 @@ def test_a_machine_without_a_leveller_is_promised_no_recommendation() -> None:
             events.append(a)
 
     desk = SliverDesk(Host())  # type: ignore[arg-type]
-    st = SimpleNamespace(level=None, twin=SimpleNamespace(name="m"))
+    st = SimpleNamespace(level=None, sliver=None, twin=SimpleNamespace(name="m"))
     for leveller, says in ((None, "no setting to recommend from"),
                            ({"intensity": 1.0, "action_point_mm": 720.0}, "a recommendation every")):  # fmt: skip
         section = {**SliverSettings().record(), "v": PAYLOAD_VERSION, "leveller": leveller}

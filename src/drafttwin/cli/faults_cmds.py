@@ -535,10 +535,18 @@ def _print_sliver(ev: dict[str, Any]) -> None:
                       f"chimney at {a['wavelength_m'] * 100:.2f} cm, {a['amplitude_pct']:.3f} % "
                       f"(base {a['base_pct']:.3f} %): {a['element']}"
                       + (f" (look-alikes {', '.join(a['lookalikes'])})" if a["lookalikes"] else ""))  # fmt: skip
+    for e in ev.get("count_excursions", []):
+        console.print(f"  sliver count at {e['time_s']:.1f} s ({e['delivered_m']:.0f} m): "
+                      + (f"{e['count_ktex']:.3f} ktex over the last 5 m, "
+                         f"{e['deviation_pct']:+.1f} % off the nominal {e['nominal_ktex']:.3f} "
+                         f"ktex (limit +-{e['limit_pct']:g} %)" if e["out"]
+                         else f"back within the limit ({e['deviation_pct']:+.1f} %)"))  # fmt: skip
     for c in ev["chimneys"]:
         console.print(f"  whole record: {c['wavelength_m'] * 100:.2f} cm: {c['verdict']}")
     for c in ev["known_lines"]:
         console.print(f"  the machine's own line (in its healthy reference): "
                       f"{c['wavelength_m'] * 100:.2f} cm, {c['amplitude_pct']:.3f} %")  # fmt: skip
+    if ev.get("count_limit") is None:
+        console.print("  the count's limit not watched: the record names no nominal count")
     if not ev["chimneys"] and not ev["alarms"]:
         console.print("  no significant chimney")

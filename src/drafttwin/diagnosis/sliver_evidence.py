@@ -19,6 +19,7 @@ from typing import Any
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.mechanics import DriveTrain
 from drafttwin.sliver import StapleDiagram, read_sliver
+from drafttwin.sliver.count import nominal_count_ktex
 from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver, reference_spectrogram
 from drafttwin.sliver.encoders import with_encoders
 from drafttwin.sliver.record import Sliver, sliver_beside
@@ -57,7 +58,8 @@ def sliver_evidence(path: str | Path, train: DriveTrain, series: MeasurementSeri
         SliverWatch(train, staple, sensor_length_m=sensor_m, learning=True,
                     fibre_scale=reference.fibre_scale), reference)  # fmt: skip
     watch = _push(SliverWatch(train, staple, sensor_length_m=sensor_m, reference=lines,
-                              fibre_scale=scale), sliver)  # fmt: skip
+                              fibre_scale=scale,
+                              nominal_ktex=nominal_count_ktex(beside.sidecar)), sliver)  # fmt: skip
     dx = diagnose_sliver(sliver, train, staple, sensor_length_m=sensor_m, reference=reference)  # fmt: skip
     rpm = {r: series.values[:, j] for j, r in enumerate(series.channels)}
     if {"front", "second", "third", "back"} <= rpm.keys():
@@ -67,6 +69,9 @@ def sliver_evidence(path: str | Path, train: DriveTrain, series: MeasurementSeri
         "count_ktex": watch.count_ktex,
         "cv_pct": watch.cv_pct,
         "alarms": [a.to_dict() for a in watch.alarms],
+        "count_limit": None if watch.count is None else watch.count.status(),
+        "count_excursions": [] if watch.count is None else
+        [e.to_dict() for e in watch.count.excursions],
         "chimneys": [{"wavelength_m": c.wavelength_m, "amplitude_pct": c.amplitude_pct,
                       "base_pct": c.base_pct, "verdict": c.verdict,
                       "elements": [k.element for k in c.candidates if k.plausible][:4],

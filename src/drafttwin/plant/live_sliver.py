@@ -52,8 +52,9 @@ class LiveSliver:
         self._every = max(1, round(PIECE_S * plant.rate_hz))
         leveller = settings.leveller
         self.true_action_point_mm: float | None = None
+        self.drafts = self._drafts()  # at the running point: the nominal count's draft
         if leveller is not None:  # the setting in the machine's frame, from its running point
-            true = true_action_point_mm(settings.zones.array(), self._drafts(),
+            true = true_action_point_mm(settings.zones.array(), self.drafts,
                                         settings.feed.staple, settings.infeed.scan_ahead_mm)  # fmt: skip
             self.true_action_point_mm = true
             leveller = replace(leveller, action_point_mm=leveller.setting_mm(true),
@@ -72,7 +73,8 @@ class LiveSliver:
         self.readings = 0
 
     def _drafts(self) -> dict[str, float]:
-        """Break and middle drafts at the running point (one look-ahead step, undone)."""
+        """The zones' and the total draft at the running point (one look-ahead step,
+        undone)."""
         p = self.plant
         snap = p.stepper.snapshot()
         try:
@@ -80,7 +82,12 @@ class LiveSliver:
         finally:
             p.stepper.restore(snap)
         v = np.abs(rpm[p._rollers]) * self._radius_m  # surface speed up to a constant
-        return {"break": float(v[2] / v[3]), "middle": float(v[1] / v[2])}
+        return {
+            "break": float(v[2] / v[3]),
+            "middle": float(v[1] / v[2]),
+            "main": float(v[0] / v[1]),
+            "total": float(v[0] / v[3]),
+        }
 
     def describe(self) -> dict[str, Any]:
         """What the machine says of its sliver (the wire's description, a sidecar's section
@@ -90,6 +97,7 @@ class LiveSliver:
                                      s.infeed.scan_ahead_mm))  # fmt: skip
         return {"v": PAYLOAD_VERSION, "staple": s.feed.staple.describe(),
                 "doublings": s.feed.doublings, "feed_ktex": s.feed.count_ktex,
+                "drafts": self.drafts,
                 "delivery_sensor": asdict(s.delivery), "infeed_sensor": infeed,
                 "step_mm": s.step_mm, "fibre_scale": s.fibre_scale,
                 "leveller": None if lev is None else {

@@ -21,6 +21,7 @@ import numpy as np
 
 from drafttwin.errors import DataError, DrafttwinError
 from drafttwin.sliver.action_point import SEARCH_MM, LevellingAdvice, find_action_point
+from drafttwin.sliver.count import nominal_count_ktex
 from drafttwin.sliver.leveller_record import LevellerRecord, LevellerSetting, context_of
 from drafttwin.sliver.sensor import SliverSensor
 from drafttwin.sliver.staple import StapleDiagram, resolve_fibres
@@ -41,6 +42,7 @@ class LevelContext:
     fibres: str
     delivery: SliverSensor | None
     fibre_scale: float = 1.0  # an emulated machine's lumping (its ideal curve follows it)
+    nominal_ktex: float | None = None  # the nominal delivered count (None: not described)
 
     @classmethod
     def of(cls, section: dict[str, Any]) -> LevelContext:
@@ -51,7 +53,15 @@ class LevelContext:
         if isinstance(scale, bool) or not isinstance(scale, int | float) or not 1 <= scale <= 1e6:
             raise DataError(f"fibre_scale {scale!r} is not a number from 1 to 1e6",
                             where="description", fix="describe the sliver again")  # fmt: skip
-        return cls(setting, had, fibres.staple, fibres.source, delivery, float(scale))
+        return cls(
+            setting,
+            had,
+            fibres.staple,
+            fibres.source,
+            delivery,
+            float(scale),
+            nominal_count_ktex(section),
+        )
 
     def to_dict(self) -> dict[str, Any]:
         s = self.setting

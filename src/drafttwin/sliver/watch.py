@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from drafttwin.mechanics import DriveTrain
+from drafttwin.sliver.count import CountExcursion, CountWatch
 from drafttwin.sliver.diagnose import SliverDiagnosis, diagnose_sliver, reference_spectrogram
 from drafttwin.sliver.drafting import DraftingZones
 from drafttwin.sliver.record import Sliver
@@ -66,6 +67,9 @@ class SliverWatch:
     judged by it."""
     learned: SliverReference | None = None
     """The machine's own lines from the windows seen while learning (None: none yet)."""
+    nominal_ktex: float | None = None
+    """The machine's nominal delivered count: the count's limit is watched against it
+    (:class:`~drafttwin.sliver.count.CountWatch`; None: not watched)."""
     _s: list[np.ndarray] = field(default_factory=list, repr=False)
     _x: list[np.ndarray] = field(default_factory=list, repr=False)
     _t: list[np.ndarray] = field(default_factory=list, repr=False)
@@ -79,6 +83,9 @@ class SliverWatch:
 
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
+        self.count: CountWatch | None = None
+        self._count_news: list[CountExcursion] = []
+        self.watch_count(self.nominal_ktex)
         self._table = wavelength_table(self.train)
         self._reference = (None if self.reference is None else
                            reference_spectrogram(self.reference, self.staple,
@@ -109,6 +116,20 @@ class SliverWatch:
         self.learned, self._reference, self.learning = None, None, True
         self._learn_until_m = math.nan
         self._alarmed.clear()
+
+    def watch_count(self, nominal_ktex: float | None) -> None:
+        """Watch the count against ``nominal_ktex`` from the next reading on (a machine that
+        describes itself after its first readings); None or the same nominal changes
+        nothing."""
+        if nominal_ktex is not None and (self.count is None
+                                         or self.count.nominal_ktex != nominal_ktex):  # fmt: skip
+            self.nominal_ktex = nominal_ktex
+            self.count = CountWatch(nominal_ktex)
+
+    def take_count_excursions(self) -> list[CountExcursion]:
+        """The count's excursions since the last call (the twin's events)."""
+        news, self._count_news = self._count_news, []
+        return news
 
     @property
     def count_ktex(self) -> float:
@@ -141,6 +162,8 @@ class SliverWatch:
         if math.isnan(self._next_m):
             self._next_m = float(s[0]) + self.window_m
         self._last_m = float(s[-1])
+        if self.count is not None:
+            self._count_news += self.count.push(s, x, t)
         return self.check() if self.checks_now else []
 
     checks_now: bool = True
@@ -176,7 +199,8 @@ class SliverWatch:
                                "element": c.candidates[0].element if c.candidates else "feed"}
                               for c in (last.known if last is not None else [])],
                 "learned": None if (ref := self.own_lines) is None else
-                {"metres": ref.metres, "windows": ref.windows}}  # fmt: skip
+                {"metres": ref.metres, "windows": ref.windows},
+                "count_limit": None if self.count is None else self.count.status()}  # fmt: skip
 
     def text(self, alarm: SliverAlarm) -> str:
         """One line for an event list."""

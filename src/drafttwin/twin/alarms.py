@@ -21,7 +21,7 @@ from typing import Any
 
 from drafttwin.diagnosis.cusum import Alarm
 
-SEVERITY = {"fault": 700, "sensor-fault": 500, "sliver-chimney": 400}
+SEVERITY = {"fault": 700, "sliver-count": 600, "sensor-fault": 500, "sliver-chimney": 400}
 """OPC UA severity (1-1000) of each alarm kind: a machine fault first."""
 KEPT = 200
 """Alarms kept per machine once they are no longer retained (for the page's list)."""
@@ -183,7 +183,7 @@ def stored_alarm(detail: str) -> Alarm | None:
 
 
 CONSOLE_KINDS = ("fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack",
-                 "sliver-chimney", "sliver-error", "learning", "learned", "baseline", "baseline-refused",
+                 "sliver-chimney", "sliver-count", "sliver-count-back", "sliver-error", "learning", "learned", "baseline", "baseline-refused",
                  "detector-foreign", "identity", "leveller", "leveller-advice",
                  "source-reconnecting", "source-live", "gap", "no-samples", "silent")  # fmt: skip
 """Events a running twin prints on its console (its alarms and what its detector does)."""

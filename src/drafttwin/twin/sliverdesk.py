@@ -115,10 +115,14 @@ class SliverDesk:
                                     fibre_scale=1.0 if st.level is None
                                     else st.level.context.fibre_scale,
                                     reference=None if st.baseline is None
-                                    else st.baseline.sliver_reference)  # fmt: skip
+                                    else st.baseline.sliver_reference,
+                                    nominal_ktex=None if st.level is None
+                                    else st.level.context.nominal_ktex)  # fmt: skip
         # while the machine learns its healthy state, its sliver's lines are learned too
         st.sliver.learning = st.watch is not None and st.watch.learning
         st.sliver.push(b.delivered_m, b.ktex, b.time_s)
+        for e in st.sliver.take_count_excursions():
+            self._event(st, "sliver-count" if e.out else "sliver-count-back", e.text(), e.time_s)
         if st.sliver.due() and not st.sliver_busy:
             st.sliver_busy = True
             fut = self._watch_pool.submit(st.sliver.check)
@@ -144,6 +148,8 @@ class SliverDesk:
             return
         self._described[st.twin.name] = key
         st.level = LevelWatch(context, self.window_m, self.search_mm)
+        if st.sliver is not None:  # described after its first readings
+            st.sliver.watch_count(context.nominal_ktex)
         s = context.setting
         what = ("no leveller" if s is None else
                 f"intensity {s.intensity:g}, action point {s.action_point_mm:.1f} mm")  # fmt: skip

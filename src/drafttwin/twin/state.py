@@ -21,7 +21,7 @@ from drafttwin.twin.store.baselines import Baseline
 from drafttwin.twin.store.db import EventRow, SampleRow
 from drafttwin.wire.identity import MachineIdentity
 
-ALARM_KINDS = ("fault", "fault-cause", "sensor-fault", "sliver-chimney")
+ALARM_KINDS = ("fault", "fault-cause", "sensor-fault", "sliver-chimney", "sliver-count")
 """Events that are alarms (``/api/alarms``); the others are ``/api/events``."""
 ALARMS_KEPT = 1000
 """A machine's newest alarms kept in memory (a twin without --store answers from them)."""

@@ -403,7 +403,7 @@ class OpcUaPublisher(Publisher):
         retained = self.conditions.retained(name)
         await self._set(nodes.alarm["Active"], any(a.active for a in retained),
                         ua.VariantType.Boolean)  # fmt: skip
-        if ev.kind in ("fault", "sensor-fault", "fault-cause", "sliver-chimney"):
+        if ev.kind in ("fault", "sensor-fault", "fault-cause", "sliver-chimney", "sliver-count"):
             await self._set(nodes.alarm["Kind"], ev.kind, ua.VariantType.String)
             await self._set(nodes.alarm["Cause"], doc["cause"] or "", ua.VariantType.String)
             await self._set(nodes.alarm["Detail"], json.dumps(doc["detail"]), ua.VariantType.String)

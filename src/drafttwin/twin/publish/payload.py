@@ -34,7 +34,7 @@ SCHEMA_FILES = {
 }
 """The JSON Schema of each payload, in the package's ``twin/publish/schemas`` folder."""
 ALARM_KINDS = ("fault", "sensor-fault", "fault-cause", "fault-cleared", "alarm-ack",
-               "sliver-chimney")  # fmt: skip
+               "sliver-chimney", "sliver-count")  # fmt: skip
 """Events published as alarms, or changes of them (the others change a machine's health)."""
 MILLISECOND = Unit("C26", "ms", "millisecond")
 UNITS = {"rpm": RPM, "r/min": RPM, "Hz": HERTZ, "s": SECOND, "ms": MILLISECOND, "ktex": KTEX,

@@ -5,7 +5,7 @@
 "use strict";
 const PARAMS = new URLSearchParams(location.search);
 const TOKEN = PARAMS.get("token");
-const ALARM_KINDS = ["fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack", "sliver-chimney"];
+const ALARM_KINDS = ["fault", "fault-cause", "sensor-fault", "fault-cleared", "alarm-ack", "sliver-chimney", "sliver-count"];
 const SPIKE_REL = 0.10;   // the twin's spike rule: 10 % from both neighbours
 const LIVE_KEEP_S = 600;  // live rows kept in the page, s
 const GAP_S = 2;          // a longer gap between rows breaks the lines (the twin's own gap rule)
@@ -367,6 +367,11 @@ function drawSliver() {
   if (s) {
     lines.push(el("div", { class: "sliver-count" }, `count ${withUnit(s.count_ktex, 4, "ktex")} · CV ${withUnit(s.cv_pct, 3, "%")} · ` +
       `${withUnit(s.delivered_m, 1, "m")} delivered · ${s.alarms} chimney alarm(s)`));
+    const lim = s.count_limit;
+    lines.push(el("div", { class: lim && lim.outside ? "count-limit alarm" : "count-limit" }, lim ?
+      `count limit ±${fmt(lim.limit_pct, 0)} % of the nominal ${withUnit(lim.nominal_ktex, 3, "ktex")} over ${withUnit(lim.length_m, 0, "m")}: ` +
+      (lim.outside ? "OFF the limit now" : "within") + ` · ${lim.excursions} excursion(s)` :
+      "count limit not watched: the machine names no nominal count"));
     const ch = s.chimneys || [];
     lines.push(el("div", { class: "chimneys" }, ch.length ? "chimneys: " + ch.map(c =>
       `${fmt(100 * c.wavelength_m, 2)} cm ${fmt(c.amplitude_pct, 3)} % (${c.element})`).join(", ") :
