@@ -203,6 +203,7 @@ NUMERIC_OPTIONS: dict[str, list[str]] = {
         "--harmonics",
         "--fibre-scale",
         "--tested-m",
+        "--nominal-count",
     ],
     "sliver level": [
         "--action-point",

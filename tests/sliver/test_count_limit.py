@@ -104,3 +104,29 @@ def test_the_record_diagnosis_says_when_a_missing_sliver_takes_the_count_off(
     assert [e["out"] for e in ev["count_excursions"]] == [True, False], ev["count_excursions"]
     low = ev["count_excursions"][0]
     assert low["deviation_pct"] < -LIMIT_PCT and low["delivered_m"] > 2 * section["drafts"]["total"]
+    # `sliver diagnose` holds the record's count to the same limit with the same watch
+    result = CliRunner().invoke(app, ["sliver", "diagnose", "--data", str(out), "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.output)
+    assert [(e["out"], e["delivered_m"]) for e in doc["count_excursions"]] == [
+        (e["out"], e["delivered_m"]) for e in ev["count_excursions"]]
+    text = CliRunner().invoke(app, ["sliver", "diagnose", "--data", str(out)]).output
+    assert "off the nominal" in text and "back within" in text
+    # a tester's export names no nominal: said, and --nominal-count gives one
+    sliver = out.with_name("rec.sliver.csv")
+    export = tmp_path / "tester.csv"
+    rows = sliver.read_text().splitlines()
+    head = rows[0].split(",")
+    cols = [head.index("delivered_length_m"), head.index("linear_density_ktex")]
+    export.write_text("length_m,linear_density_ktex\n" + "\n".join(
+        ",".join(r.split(",")[c] for c in cols) for r in rows[1:]) + "\n")  # fmt: skip
+    text = CliRunner().invoke(app, ["sliver", "diagnose", "--data", str(export)]).output
+    assert "count limit not checked" in text and "--nominal-count" in text
+    result = CliRunner().invoke(app, ["sliver", "diagnose", "--data", str(export),
+                                      "--nominal-count", f"{nominal:.4f}", "--json"])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert [e["out"] for e in json.loads(result.output)["count_excursions"]] == [True, False]
+    refused = CliRunner().invoke(app, ["sliver", "diagnose", "--spectrogram", str(export),
+                                       "--nominal-count", "5"])  # fmt: skip
+    assert refused.exit_code == 2 and "--nominal-count" in refused.output
+

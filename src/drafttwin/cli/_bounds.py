@@ -107,6 +107,7 @@ _RANGES: dict[str, str] = {
     "--harmonics": "[1, 20] harmonics",
     "--sensor-mm": "[0, 1000] mm",
     "--tested-m": "(0, 1e7] m",
+    "--nominal-count": "(0, 1000] ktex",
     "--post": "(0, 3600] s",
     "--qos": "[0, 1] (MQTT QoS)",
     "--max-lag": "(0, 3600] s",

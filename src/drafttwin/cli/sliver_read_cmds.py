@@ -183,6 +183,10 @@ TestedOpt = Annotated[float | None, number("--tested-m", "With --spectrogram: th
                       "than 25 periods in it is then not significant. Without it (and without "
                       "a 'significant' column) every channel counts.")]  # fmt: skip
 PageOpt = Annotated[Path | None, file_out("--report", "An HTML page for the quality engineer.")]
+NominalOpt = Annotated[float | None, number("--nominal-count", "The machine's nominal delivered "
+                       "count, ktex: the mean over each 5 m is held to +-5 % of it (default: the "
+                       "record's sidecar, feed count x doublings / total draft; else not "
+                       "checked).")]  # fmt: skip
 
 
 @sliver_app.command("diagnose")
@@ -205,15 +209,19 @@ def diagnose_cmd(
     harmonics: MatchedOpt = 8,
     fibre_scale: FibreScaleReadOpt = None,
     tested_m: TestedOpt = None,
+    nominal_count: NominalOpt = None,
     report: PageOpt = None,
     as_json: JsonOpt = False,
 ) -> None:
     """Name the drive element behind each chimney of a sliver record or a tester's
     spectrogram: wavelength match with the machine's kinematics, harmonics, the drafting
     transfer (what speed modulation each element would need), look-alikes that share a
-    wavelength, feed faults; with --speeds, the roller encoders' share of each chimney."""
+    wavelength, feed faults; with --speeds, the roller encoders' share of each chimney. A
+    sliver record's count is held to +-5 % of the nominal over each 5 m (the sidecar's, or
+    --nominal-count), as a quality monitor holds it."""
     from dataclasses import replace
 
+    from drafttwin.sliver.count import nominal_count_ktex, watch_count
     from drafttwin.sliver.diagnose import diagnose_sliver
     from drafttwin.sliver.spectra import read_tester_spectrogram
     from drafttwin.sliver.staple import resolve_fibres
@@ -229,6 +237,10 @@ def diagnose_cmd(
                           "which a tester's spectrogram table is not", where="--speeds",
                           fix="give the sliver record (--data) with --speeds, or leave --speeds "
                           "out")  # fmt: skip
+    if nominal_count is not None and data is None:
+        raise ConfigError("--nominal-count holds a sliver record's count to its limit; a "
+                          "tester's spectrogram table has no count", where="--nominal-count",
+                          fix="give it with --data, or leave it out")  # fmt: skip
     if tested_m is not None and spectrogram_file is None:
         raise ConfigError("--tested-m is the length an evenness tester read; a sliver record "
                           "(--data) has its own", where="--tested-m",
@@ -244,6 +256,8 @@ def diagnose_cmd(
             speeds = speeds if speeds is not None else beside.speeds
             sensor_mm = beside.sensor_mm if sensor_mm is None else sensor_mm
         record = replace(record, fibre_scale=_fibre_scale(fibre_scale, beside))
+        if nominal_count is None and beside is not None:
+            nominal_count = nominal_count_ktex(beside.sidecar)
     else:
         assert spectrogram_file is not None
         fib = resolve_fibres(fibre_options.given())
@@ -264,6 +278,8 @@ def diagnose_cmd(
                          sensor_length_m=(sensor_mm or 0.0) * 1e-3, reference=ref)  # fmt: skip
     if speeds is not None and data is not None:
         dx = _with_speeds(dx, record, speeds, fibres, zones)
+    count = None if nominal_count is None else watch_count(
+        record.delivered_length_m, record.linear_density_ktex, record.time_s, nominal_count)  # fmt: skip
     if report is not None:
         from drafttwin._io import atomic_path
         from drafttwin.report.sliver import sliver_page
@@ -272,8 +288,11 @@ def diagnose_cmd(
             tmp.write_text(sliver_page(dx, title="What the sliver says",
                                        source=str(data or spectrogram_file)), encoding="utf-8")  # fmt: skip
     if as_json:
-        count = dx.evenness.count_ktex if dx.evenness is not None else None
-        print_json({**dx.to_dict(), "fibres": fib.to_dict(count),
+        mean = dx.evenness.count_ktex if dx.evenness is not None else None
+        limit = {} if data is None else {
+            "count_limit": None if count is None else count.status(),
+            "count_excursions": [] if count is None else [e.to_dict() for e in count.excursions]}  # fmt: skip
+        print_json({**dx.to_dict(), "fibres": fib.to_dict(mean), **limit,
                     **({"notes": notes} if notes else {})})  # fmt: skip
         return
     for note in notes:
@@ -281,6 +300,8 @@ def diagnose_cmd(
     if dx.evenness is not None:
         console.print(evenness_table(dx.evenness, f"{Path(str(data)).name}"))
     console.print(fib.note())
+    if data is not None:
+        _print_count(count)
     if not dx.causes:
         console.print("no significant chimney" + (" beyond the reference" if ref else ""))
     else:
@@ -290,6 +311,20 @@ def diagnose_cmd(
                       f"{c.amplitude_pct:.3f} %: {c.verdict}")  # fmt: skip
     if report is not None:
         console.print(f"wrote {report}")
+
+
+def _print_count(count: Any) -> None:
+    """The count's limit: each excursion, or that it held, or why it was not checked."""
+    if count is None:
+        console.print("count limit not checked: the record names no nominal count "
+                      "(--nominal-count KTEX)")  # fmt: skip
+        return
+    for e in count.excursions:
+        console.print(("[red]" if e.out else "") + e.text() + ("[/]" if e.out else ""),
+                      highlight=False)  # fmt: skip
+    if not count.excursions:
+        console.print(f"count within +-{count.limit_pct:g} % of the nominal "
+                      f"{count.nominal_ktex:.3f} ktex over every {count.length_m:g} m")  # fmt: skip
 
 
 def _with_speeds(dx: Any, record: Any, speeds: Path, fibres: Any, zones: Any) -> Any:

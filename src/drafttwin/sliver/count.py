@@ -124,4 +124,16 @@ class CountWatch:
                 "excursions": len(self.excursions)}  # fmt: skip
 
 
-__all__ = ["LENGTH_M", "LIMIT_PCT", "CountExcursion", "CountWatch", "nominal_count_ktex"]
+def watch_count(delivered_m: np.ndarray, ktex: np.ndarray, time_s: np.ndarray | None,
+                nominal_ktex: float, chunk: int = 2000) -> CountWatch:  # fmt: skip
+    """A whole record through a :class:`CountWatch`, ``chunk`` readings at a time as a live
+    twin receives them (a record without times: its delivered metres stand for them)."""
+    watch = CountWatch(nominal_ktex)
+    t = delivered_m if time_s is None else time_s
+    for i in range(0, delivered_m.size, chunk):
+        watch.push(delivered_m[i : i + chunk], ktex[i : i + chunk], t[i : i + chunk])
+    return watch
+
+
+__all__ = ["LENGTH_M", "LIMIT_PCT", "CountExcursion", "CountWatch", "nominal_count_ktex",
+           "watch_count"]  # fmt: skip
