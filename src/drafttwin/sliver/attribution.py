@@ -28,7 +28,7 @@ from drafttwin.sliver.staple import StapleDiagram
 from drafttwin.sliver.transfer import mass_gain
 from drafttwin.sliver.wavelengths import Element, WavelengthTable
 
-__all__ = ["Candidate", "ChimneyCause", "Element", "attribute", "ranked_elements"]
+__all__ = ["Candidate", "ChimneyCause", "Element", "attribute", "ranked_elements", "runout_um"]
 
 HARMONICS = 8
 """Harmonics of each element matched: a damaged flute's comb reaches the 7th and 8th (2 cm
@@ -194,12 +194,43 @@ def _verdict(cands: list[Candidate], lam: float, drafts: dict[str, float]) -> st
         )
     top = plausible[0]
     same = [top.element, *top.lookalikes]
+    runout = _runout_text(top, drafts)
     if len(same) > 1:
         return (
             f"{top.element} (harmonic {top.harmonic}) or its look-alikes "
             f"{', '.join(top.lookalikes)}: one wavelength, the sliver cannot tell them apart"
+            + runout
         )
-    return f"{top.element} (harmonic {top.harmonic}), about {top.required_modulation_pct:.2g} % speed modulation"
+    return (f"{top.element} (harmonic {top.harmonic}), about "
+            f"{top.required_modulation_pct:.2g} % speed modulation{runout}")  # fmt: skip
+
+
+DRAFT_TO_FRONT = {"front": (), "second": ("main",), "third": ("main", "middle"),
+                  "back": ("total",)}  # fmt: skip
+"""The zones' drafts between each bottom roller and the front roller."""
+
+
+def runout_um(c: Candidate, drafts: dict[str, float]) -> float | None:
+    """The eccentricity (um) of a roller that explains ``c``'s speed modulation, where ``c``
+    is a roller's own once-per-revolution line (else None): ``e = m r``, the radius from the
+    line's wavelength (``pi d`` times the draft to the front, T8)."""
+    name = c.element.removeprefix("roller ")
+    if c.kind != "roller" or c.harmonic != 1 or name not in DRAFT_TO_FRONT:
+        return None
+    if not math.isfinite(c.required_modulation_pct):
+        return None
+    draft = math.prod(drafts[z] for z in DRAFT_TO_FRONT[name])
+    radius_mm = 1e3 * c.wavelength_m / (math.pi * draft) / 2
+    return c.required_modulation_pct / 100 * radius_mm * 1e3
+
+
+def _runout_text(c: Candidate, drafts: dict[str, float]) -> str:
+    """What a fitter measures: "; as a run-out of roller second: eccentricity 17 um (TIR 34
+    um)"."""
+    e = runout_um(c, drafts)
+    if e is None:
+        return ""
+    return f"; as a run-out of {c.element} alone: eccentricity {e:.0f} um (TIR {2 * e:.0f} um)"
 
 
 def _fmt_m(x: float) -> str:
