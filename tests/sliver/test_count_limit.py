@@ -109,7 +109,8 @@ def test_the_record_diagnosis_says_when_a_missing_sliver_takes_the_count_off(
     assert result.exit_code == 0, result.output
     doc = json.loads(result.output)
     assert [(e["out"], e["delivered_m"]) for e in doc["count_excursions"]] == [
-        (e["out"], e["delivered_m"]) for e in ev["count_excursions"]]
+        (e["out"], e["delivered_m"]) for e in ev["count_excursions"]
+    ]
     text = CliRunner().invoke(app, ["sliver", "diagnose", "--data", str(out)]).output
     assert "off the nominal" in text and "back within" in text
     # a tester's export names no nominal: said, and --nominal-count gives one
@@ -129,4 +130,3 @@ def test_the_record_diagnosis_says_when_a_missing_sliver_takes_the_count_off(
     refused = CliRunner().invoke(app, ["sliver", "diagnose", "--spectrogram", str(export),
                                        "--nominal-count", "5"])  # fmt: skip
     assert refused.exit_code == 2 and "--nominal-count" in refused.output
-
