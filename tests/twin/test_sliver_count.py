@@ -42,3 +42,13 @@ def test_a_missing_sliver_alarms_live_as_offline(twin_files: tuple[Path, Path],
     assert "off the nominal" in live[0][1] and "card sliver run out" in live[0][1]
     status = service.states["m11"].sliver
     assert status is not None and status.summary()["count_limit"]["excursions"] == 2
+    # the retained sliver state a late MQTT client reads carries the limit, as its schema says
+    import jsonschema
+
+    from drafttwin.twin.publish.payload import schema, sliver
+
+    doc = sliver(st)
+    assert doc is not None
+    jsonschema.Draft202012Validator(schema("sliver")).validate(doc)
+    assert doc["sliver"]["count_limit"]["outside"] is False
+    assert doc["sliver"]["count_limit"]["excursions"] == 2

@@ -183,7 +183,8 @@ def sliver(st: MachineState) -> dict[str, Any] | None:
     watch = None if w is None else {
         "count_ktex": number(w.count_ktex), "cv_pct": number(w.cv_pct),
         "delivered_m": number(w.summary()["delivered_m"]), "alarms": len(w.alarms),
-        "chimneys": w.summary()["chimneys"]}  # fmt: skip
+        "chimneys": w.summary()["chimneys"],
+        "count_limit": None if w.count is None else w.count.status()}  # fmt: skip
     from drafttwin._json import to_strict
 
     level = None if st.level is None else to_strict(st.level.summary())  # NaN: null
