@@ -294,9 +294,13 @@ def _print_sliver(name: str, m: dict[str, Any]) -> None:
     if s is not None:
         chimneys = ", ".join(f"{100 * c['wavelength_m']:.2f} cm ({c['element']})"
                              for c in s["chimneys"]) or "none"  # fmt: skip
-        console.print(f"{name}: sliver {s['delivered_m']:.1f} m, count {s['count_ktex']:.4f} ktex, "
-                      f"CV {s['cv_pct']:.3f} %, {s['alarms']} chimney alarm(s); chimneys in "
-                      f"the last spectrogram: {chimneys}", highlight=False)  # fmt: skip
+        lim = s.get("count_limit")
+        held = "" if lim is None else (
+            f", count OFF its +-{lim['limit_pct']:g} % limit now" if lim["outside"]
+            else f", count within +-{lim['limit_pct']:g} % ({lim['excursions']} excursion(s))")  # fmt: skip
+        console.print(f"{name}: sliver {s['delivered_m']:.1f} m, count {s['count_ktex']:.4f} ktex"
+                      f"{held}, CV {s['cv_pct']:.3f} %, {s['alarms']} chimney alarm(s); chimneys "
+                      f"in the last spectrogram: {chimneys}", highlight=False)  # fmt: skip
     a = None if lev is None else lev["advice"]
     if lev is not None and a is not None and lev["state"] != "recommending":
         console.print(f"{name}: {lev['says']} (last of {lev['checks']} windows of "
