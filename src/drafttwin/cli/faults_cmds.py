@@ -536,11 +536,7 @@ def _print_sliver(ev: dict[str, Any]) -> None:
                       f"(base {a['base_pct']:.3f} %): {a['element']}"
                       + (f" (look-alikes {', '.join(a['lookalikes'])})" if a["lookalikes"] else ""))  # fmt: skip
     for e in ev.get("count_excursions", []):
-        console.print(f"  sliver count at {e['time_s']:.1f} s ({e['delivered_m']:.0f} m): "
-                      + (f"{e['count_ktex']:.3f} ktex over the last 5 m, "
-                         f"{e['deviation_pct']:+.1f} % off the nominal {e['nominal_ktex']:.3f} "
-                         f"ktex (limit +-{e['limit_pct']:g} %)" if e["out"]
-                         else f"back within the limit ({e['deviation_pct']:+.1f} %)"))  # fmt: skip
+        console.print(f"  at {e['time_s']:.1f} s: {e['text']}", highlight=False)
     for c in ev["chimneys"]:
         console.print(f"  whole record: {c['wavelength_m'] * 100:.2f} cm: {c['verdict']}")
     for c in ev["known_lines"]:

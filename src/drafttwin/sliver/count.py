@@ -70,7 +70,7 @@ class CountExcursion:
                 f"{self.delivered_m:.0f} m")  # fmt: skip
 
     def to_dict(self) -> dict[str, Any]:
-        return {**vars(self), "deviation_pct": self.deviation_pct}
+        return {**vars(self), "deviation_pct": self.deviation_pct, "text": self.text()}
 
 
 @dataclass
@@ -126,13 +126,12 @@ class CountWatch:
 
 
 def watch_count(delivered_m: np.ndarray, ktex: np.ndarray, time_s: np.ndarray | None,
-                nominal_ktex: float, chunk: int = 2000) -> CountWatch:  # fmt: skip
-    """A whole record through a :class:`CountWatch`, ``chunk`` readings at a time as a live
-    twin receives them (a record without times: its delivered metres stand for them)."""
+                nominal_ktex: float) -> CountWatch:  # fmt: skip
+    """A whole record through a :class:`CountWatch` (its excursions do not depend on how
+    the readings are batched; a record without times: its delivered metres stand for
+    them)."""
     watch = CountWatch(nominal_ktex)
-    t = delivered_m if time_s is None else time_s
-    for i in range(0, delivered_m.size, chunk):
-        watch.push(delivered_m[i : i + chunk], ktex[i : i + chunk], t[i : i + chunk])
+    watch.push(delivered_m, ktex, delivered_m if time_s is None else time_s)
     return watch
 
 

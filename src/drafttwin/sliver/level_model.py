@@ -60,37 +60,41 @@ class LevelModel:
     log_mean: float  # the mean log-mass removed from log_y
     step_m: float  # delivered sliver per row, m
 
+    def held(self, delay_mm: float) -> np.ndarray:
+        """The infeed reading the store holds ``delay_mm`` of fed sliver later, every row."""
+        at = np.searchsorted(self.clock_mm, self.clock_mm - delay_mm, side="right") - 1
+        return np.asarray(self.reading[np.clip(at, 0, None)])
+
+    def lagged(self, values: np.ndarray, tau_s: float) -> np.ndarray:
+        """``values`` (every row) through the regulating drive's first-order lag."""
+        if tau_s <= 0:
+            return values
+        a = -math.expm1(-self.dt_s / tau_s)
+        return np.asarray(lfilter([a], [1.0, a - 1.0], values, zi=[(1.0 - a) * values[0]])[0])
+
+    def delivered(self, values: np.ndarray) -> np.ndarray:
+        """``values`` (every row) through the delivered sliver's smoothing ``K``, every row."""
+        return np.asarray(lfilter(self.kernel, [1.0], values))
+
     def log_factor(self, action_mm: float, intensity: float, tau_s: float) -> np.ndarray:
         """``log f`` of a setting at every row (the drive's lag included)."""
-        at = np.searchsorted(self.clock_mm, self.clock_mm - action_mm, side="right") - 1
-        x = self.reading[np.clip(at, 0, None)]
+        x = self.held(action_mm)
         cmd = np.clip(1.0 / np.maximum(1.0 + intensity * (x - 1.0), 1e-9), MIN_FACTOR, MAX_FACTOR)
-        if tau_s > 0:
-            a = -math.expm1(-self.dt_s / tau_s)
-            cmd = lfilter([a], [1.0, a - 1.0], cmd, zi=[(1.0 - a) * cmd[0]])[0]
-        return np.asarray(np.log(cmd))
+        return np.asarray(np.log(self.lagged(cmd, tau_s)))
 
     def effect(self, action_mm: float, intensity: float, tau_s: float) -> np.ndarray:
         """The setting's effect on the delivered log-mass, analysis window."""
-        u = lfilter(self.kernel, [1.0], self.log_factor(action_mm, intensity, tau_s))
-        return np.asarray(u[self.start :])
+        return self.delivered(self.log_factor(action_mm, intensity, tau_s))[self.start :]
 
     def linear(self, action_mm: float, tau_s: float) -> np.ndarray:
         """The effect of unit intensity to first order, analysis window: ``K * h_tau *
         (x(c - A) - 1)`` (``log f`` is about ``-I (x - 1)``)."""
-        at = np.searchsorted(self.clock_mm, self.clock_mm - action_mm, side="right") - 1
-        x = self.reading[np.clip(at, 0, None)] - 1.0
-        if tau_s > 0:
-            a = -math.expm1(-self.dt_s / tau_s)
-            x = lfilter([a], [1.0, a - 1.0], x, zi=[(1.0 - a) * x[0]])[0]
-        return np.asarray(lfilter(self.kernel, [1.0], x)[self.start :])
+        return self.delivered(self.lagged(self.held(action_mm) - 1.0, tau_s))[self.start :]
 
     def material_regressor(self, delay_mm: float) -> np.ndarray:
         """``K * log x(c - delay)``: the infeed reading at a delay through the delivered
         sliver's smoothing (the fibres' lengths and the delivery sensor), analysis window."""
-        at = np.searchsorted(self.clock_mm, self.clock_mm - delay_mm, side="right") - 1
-        x = np.log(self.reading[np.clip(at, 0, None)])
-        return np.asarray(lfilter(self.kernel, [1.0], x)[self.start :])
+        return self.delivered(np.log(self.held(delay_mm)))[self.start :]
 
     def as_read(self, values: np.ndarray, staple: StapleDiagram) -> np.ndarray:
         """``values`` (every row) through the infeed reading's own smoothing along the fed
@@ -199,7 +203,7 @@ def drive_and_delay(model: LevelModel, setting: LevellerSetting, grid: np.ndarra
         if not levelled:
             return model.as_read(model.log_y, staple)
         log_f = model.log_factor(setting.action_point_mm, setting.intensity, tau_s)
-        return model.as_read(model.log_y - lfilter(model.kernel, [1.0], log_f), staple)
+        return model.as_read(model.log_y - model.delivered(log_f), staple)
 
     zs = np.stack([material(t) for t in taus])
     zs -= zs.mean(axis=1, keepdims=True)

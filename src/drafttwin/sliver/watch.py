@@ -85,7 +85,7 @@ class SliverWatch:
         self._lock = threading.Lock()
         self.count: CountWatch | None = None
         self._count_news: list[CountExcursion] = []
-        self.watch_count(self.nominal_ktex)
+        self.hold_count(self.nominal_ktex)
         self._table = wavelength_table(self.train)
         self._reference = (None if self.reference is None else
                            reference_spectrogram(self.reference, self.staple,
@@ -117,7 +117,7 @@ class SliverWatch:
         self._learn_until_m = math.nan
         self._alarmed.clear()
 
-    def watch_count(self, nominal_ktex: float | None) -> None:
+    def hold_count(self, nominal_ktex: float | None) -> None:
         """Watch the count against ``nominal_ktex`` from the next reading on (a machine that
         describes itself after its first readings); None or the same nominal changes
         nothing."""

@@ -149,7 +149,7 @@ class SliverDesk:
         self._described[st.twin.name] = key
         st.level = LevelWatch(context, self.window_m, self.search_mm)
         if st.sliver is not None:  # described after its first readings
-            st.sliver.watch_count(context.nominal_ktex)
+            st.sliver.hold_count(context.nominal_ktex)
         s = context.setting
         what = ("no leveller" if s is None else
                 f"intensity {s.intensity:g}, action point {s.action_point_mm:.1f} mm")  # fmt: skip
