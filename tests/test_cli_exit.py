@@ -42,13 +42,15 @@ def test_a_signal_while_the_command_starts_says_so(signum: str, tmp_path) -> Non
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + sig, err
-    assert f"stopped by {signum}" in err and "Traceback" not in err, err
+    # the wording of a command's own stop: which handler meets the signal depends on load
+    assert f"interrupted by {signum} while starting; nothing was written" in err, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     assert list(tmp_path.iterdir()) == []
 
 
 def test_only_the_command_itself_says_it_was_stopped(monkeypatch: pytest.MonkeyPatch) -> None:
     """A spawned worker (the twin's cause ranking) imports the CLI with the command's own
-    ``sys.argv``: it took the start-up handler and printed "stopped by SIGTERM" when its
+    ``sys.argv``: it took the start-up handler and printed "interrupted by SIGTERM" when its
     parent ended it at a normal end."""
     from drafttwin.cli import _run_as_the_command
 

@@ -25,7 +25,10 @@ def _stopped_while_starting(signum: int, frame: FrameType | None) -> None:
         signal.signal(signum, signal.SIG_DFL)
         os.kill(os.getpid(), signum)
         return
-    sys.stderr.write(f"stopped by {signal.Signals(signum).name}\n")
+    # the wording of a command's own stop (``execution.interrupt.Interrupted``): which of
+    # the two handlers a signal meets depends on how busy the machine is, not on the user
+    name = signal.Signals(signum).name
+    sys.stderr.write(f"interrupted by {name} while starting; nothing was written\n")
     sys.stderr.flush()
     os._exit(128 + signum)
 
