@@ -278,7 +278,9 @@ def test_several_training_records_are_judged_one_record_a_fold(tmp_path: Path) -
     """Each training record has a load offset of its own, tied to its input range: blocks of
     the concatenated rows share their record's offset with the judge's training rows and keep
     a correction that loses on a test record with a new offset; whole records as folds show
-    that it does not carry, and the hybrid equals its physics."""
+    that the net's correction does not carry. What carries is the record's own offset,
+    measured in its initialisation rows and held: kept instead of the net, it takes the test
+    record's error from the physics' (its offset, 0.3) to the noise's level."""
     parts = {"a": _offset_record(300, 0.5, 0.3, 1), "b": _offset_record(300, 1.5, -0.3, 2),
              "test": _offset_record(300, 0.5, -0.3, 3)}  # fmt: skip
     for name, (frame, sim) in parts.items():
@@ -305,11 +307,40 @@ def test_several_training_records_are_judged_one_record_a_fold(tmp_path: Path) -
     choice = records["selection"]["correction"]
     assert choice["fold_by"] == "record" and choice["folds"] == 2, choice
     assert choice["fold_blocks"][1][0] == 300  # the second record's first row
-    assert choice["kept"] == "none" and records["channels"]["y"]["rmse"] == physics
+    assert choice["kept"] == "offset" and choice["wins"] == 2, choice
+    none, level, offset = (np.array(choice["fold_nrmse"][k]) for k in ("none", "level", "offset"))
+    assert (level > none).any() and (offset < 0.1 * none).all(), choice  # the net loses a fold
+    assert physics == pytest.approx(0.3, rel=0.1)  # the test record's offset
+    assert records["channels"]["y"]["rmse"] < 0.1 * physics
+    _offset_model_reads_back(tmp_path / "parallel.dtm", tmp_path, records)
     blocks = fit(str(tmp_path / "ab.csv"), str(tmp_path / "sim_ab.csv"))
     choice = blocks["selection"]["correction"]
-    assert choice["fold_by"] == "block" and choice["kept"] != "none", choice
+    assert choice["fold_by"] == "block" and choice["kept"] == "level", choice
+    assert "offset" not in choice["fold_nrmse"]  # one record: a block is too short a run
     assert blocks["channels"]["y"]["rmse"] > physics
+
+
+def _offset_model_reads_back(path: Path, folder: Path, fitted: dict) -> None:
+    """The kept offset lives in the model file: ``evaluate`` gives the fit's figure; a file
+    whose ``offset`` field is damaged is refused naming it."""
+    import torch
+
+    from drafttwin.errors import ModelFileError
+    from drafttwin.models.storage.modelfile import checksum
+
+    scored = json.loads(_cli(["evaluate", "--model", path, "--test-data", folder / "test.csv",
+                              *DATA, "--task", "simulation", "--mechanistic",
+                              folder / "sim_test.csv", "--json"]))  # fmt: skip
+    assert scored["channels"]["y"]["rmse"] == fitted["channels"]["y"]["rmse"]
+    payload = torch.load(path, weights_only=True)
+    state = json.loads(payload["state_json"])
+    assert state["offset"] == [True]
+    for damage in ([True, True], ["yes"]):
+        payload["state_json"] = json.dumps({**state, "offset": damage})
+        payload["checksum"] = checksum(payload)
+        torch.save(payload, folder / "damaged.dtm")
+        with pytest.raises(ModelFileError, match="offset"):
+            dt.load_model(folder / "damaged.dtm")
 
 
 def test_a_search_judged_on_two_folds_says_so() -> None:

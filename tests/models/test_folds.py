@@ -153,3 +153,68 @@ def test_the_fit_printout_gives_each_channels_verdict_with_its_scores() -> None:
     second = next(line for line in lines if line.strip().startswith("second"))
     assert front.split() == ["front", "1", "->", "0.6", "3", "of", "3", "corrected"]
     assert second.split() == ["second", "1", "->", "1.33", "1", "of", "3", "physics", "alone"]
+
+
+def test_the_measured_offset_is_the_mean_of_the_rows_before_each_run_in_its_record() -> None:
+    """Closed form: each run of consecutive target rows holds the mean of the finite measured
+    residual over up to ``n_init`` rows just before it, never from another record; 0 (the
+    physics alone) where its record has no measured row before it."""
+    measured = np.arange(20.0)[:, None] * np.array([[1.0, -1.0]])
+    measured[2] = np.nan  # a gap is skipped, not a zero
+    rows = np.array([4, 5, 6, 10, 11, 15])  # runs: 4-6 (record 0), 10-11, 15 (record 1 from 10)
+    out = acc.offset_runs(rows, measured, (0, 10), n_init=3)
+    assert out[:3, 0] == pytest.approx([(1 + 3) / 2] * 3)  # rows 1, 3 (row 2 a gap)
+    assert out[:3, 1] == pytest.approx([-2.0] * 3)
+    assert out[3:5].tolist() == [[0.0, 0.0]] * 2  # record 1's first row: nothing before it
+    assert out[5].tolist() == pytest.approx([13.0, -13.0])  # rows 12-14 of record 1
+
+
+def test_the_measured_offset_replaces_the_net_only_where_it_wins_and_scores_lower() -> None:
+    """Three channels: the net wins and scores lower (kept), the offset scores lower than a
+    winning net (offset), the net refused and the offset wins (offset); an offset that does
+    not win every fold is never kept."""
+    channel = {"none": [[1.0, 1.0, 1.0, 1.0]] * 2,
+               "level": [[0.5, 0.8, 1.2, 0.9], [0.6, 0.7, 1.1, 0.9]],
+               "offset": [[0.7, 0.4, 0.6, 0.8], [0.7, 0.5, 0.5, 1.1]]}  # fmt: skip
+    means = {k: [sum(f) / 4 for f in v] for k, v in channel.items()}
+    folds = FoldScores(means, BLOCKS[:2], [10, 10], by_record=True, channel_scores=channel)
+    choice = acc.with_offset("level", acc.choose_on_folds("level", folds), folds)
+    assert choice.channels == (True, True, True, True) and choice.kept == "level"
+    assert choice.offset_channels == (False, True, True, False)
+    assert choice.corrected(4).tolist() == [True, True, True, True]
+    # the last channel: the net wins (0.9 < 1 on both folds), the offset loses a fold
+    assert list(choice.chosen_fold_nrmse) == pytest.approx([(0.5 + 0.4 + 0.6 + 0.9) / 4,
+                                                           (0.6 + 0.5 + 0.5 + 0.9) / 4])  # fmt: skip
+    assert choice.to_dict(("a", "b", "c", "d"))["offset"] == {"a": False, "b": True,
+                                                              "c": True, "d": False}  # fmt: skip
+    only = FoldScores({"none": [1.0, 1.0], "level": [1.2, 0.9], "offset": [0.5, 0.6]},
+                      BLOCKS[:2], [10, 10], by_record=True)  # fmt: skip
+    kept = acc.with_offset("level", acc.choose_on_folds("level", only), only)
+    assert kept.kept == acc.CORRECTION_OFFSET and kept.wins == 2
+    assert kept.scores[acc.CORRECTION_OFFSET] == pytest.approx(0.55)
+    # kept by the user (fallback=False): the net, untested, as asked
+    user = acc.choose_on_folds("level", only, test=False)
+    assert acc.with_offset("level", user, only) is user
+
+
+def test_the_fit_printout_names_the_measured_offset_where_it_is_kept() -> None:
+    from drafttwin.cli._fitprint import _fold_lines
+
+    channel = {"none": [[1.0, 1.0]] * 2, "level": [[0.5, 1.2], [0.6, 1.1]],
+               "offset": [[0.7, 0.5], [0.7, 0.6]]}  # fmt: skip
+    means = {k: [sum(f) / 2 for f in v] for k, v in channel.items()}
+    folds = FoldScores(means, BLOCKS[:2], [10, 10], by_record=True, channel_scores=channel)
+    choice = acc.with_offset("level", acc.choose_on_folds("level", folds), folds)
+    names = ("front", "second")
+    correction = {**choice.to_dict(names), **folds.to_dict()}
+    lines = _fold_lines(correction, None)
+    second = next(line for line in lines if line.strip().startswith("second"))
+    assert second.split() == ["second", "1", "->", "1.15", "0", "of", "2", "offset", "held"]
+    assert any(line.startswith("offset held: the measured offset") for line in lines), lines
+    one = FoldScores({"none": [1.0, 1.0], "level": [1.2, 0.9], "offset": [0.5, 0.6]},
+                     BLOCKS[:2], [10, 10], by_record=True)  # fmt: skip
+    kept = acc.with_offset("level", acc.choose_on_folds("level", one), one)
+    text = _fold_lines({**kept.to_dict(("y",)), **one.to_dict()}, None)
+    assert any(line.startswith("correction kept: measured offset held (beats the physics alone "
+                               "on 2 of 2 folds") for line in text), text  # fmt: skip
+    assert any(line.strip().startswith("measured offset held") for line in text), text

@@ -19,9 +19,13 @@ if TYPE_CHECKING:
     from drafttwin.evaluation.protocol import Evaluation
 
 CANDIDATE = {"none": "physics alone", "held": "measured residual held",
-             "level": "residual level", "accumulate": "accumulated changes",
-             "residual": "residual model"}  # fmt: skip
+             "offset": "measured offset held", "level": "residual level",
+             "accumulate": "accumulated changes", "residual": "residual model"}  # fmt: skip
 """How the validation candidates of a hybrid read in the report."""
+
+OFFSET_TEXT = ("the record's mean residual over its initialisation rows, held over its free run; "
+               "no network")  # fmt: skip
+"""What the ``offset`` correction is, as the report says it."""
 
 SMALL_DATA_ROWS = 5000
 """Below this many training rows ``fit`` advises ``--tune``."""
@@ -99,6 +103,10 @@ def _fold_lines(correction: dict[str, Any], choice: dict[str, Any] | None) -> li
                      "kept untested)")  # fmt: skip
     elif isinstance(correction.get("corrected"), dict):
         lines += _channel_lines(correction, rival)
+    elif kept == "offset":
+        lines.append(f"correction kept: measured offset held (beats the physics alone on {wins} "
+                     f"of {folds} folds and by more than 1 % on the mean, and the residual model "
+                     f"on the mean): {OFFSET_TEXT}")  # fmt: skip
     elif kept == "none":
         lines.append(f"no correction: the physics alone predicts (the residual model beat "
                      f"{rival} on {wins} of {folds} folds; it is kept only when it wins every "
@@ -116,7 +124,9 @@ def _channel_lines(correction: dict[str, Any], rival: str) -> list[str]:
     corrected: dict[str, bool] = correction["corrected"]
     wins: dict[str, int] = correction.get("channel_wins") or {}
     per_fold = correction.get("channel_fold_nrmse") or {}
-    judged = [k for k in correction.get("validation_nrmse", {}) if k not in ("none", "held")]
+    judged = [k for k in correction.get("validation_nrmse", {})
+              if k not in ("none", "held", "offset")]  # fmt: skip
+    offset: dict[str, bool] = correction.get("offset") or {}
     cand = judged[0] if judged else kept  # the candidate judged (kept, or refused everywhere)
     name = CANDIDATE.get(cand, cand)
     lines = [f"per output channel (mean fold NRMSE, physics alone -> {name}; folds on which it "
@@ -124,9 +134,14 @@ def _channel_lines(correction: dict[str, Any], rival: str) -> list[str]:
              "the channel's mean:"]  # fmt: skip
     for j, channel in enumerate(corrected):
         means = [_channel_mean(per_fold.get(k), j) for k in ("none", cand)]
-        verdict = "corrected" if corrected[channel] else "physics alone"
+        verdict = ("offset held" if offset.get(channel) else "corrected" if corrected[channel]
+                   else "physics alone")  # fmt: skip
         lines.append(f"  {channel:<22} {_num(means[0]):>7} -> {_num(means[1]):<7} "
                      f"{wins.get(channel, '-')} of {folds}  {verdict}")  # fmt: skip
+    if offset:
+        lines.append(f"offset held: the measured offset ({OFFSET_TEXT}) where it wins every "
+                     "fold against the physics alone and by more than 1 % on the channel's mean, "
+                     "and scores below the residual model there")  # fmt: skip
     if kept == "none":
         lines.append("no correction: the physics alone predicts every channel")
     return lines

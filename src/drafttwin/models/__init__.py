@@ -22,9 +22,9 @@ from drafttwin.models.estimators.baselines import (
 )
 from drafttwin.models.estimators.cloning import clone
 from drafttwin.models.estimators.datadriven import GRUModel, LSTMModel
-from drafttwin.models.estimators.hybrid import ParallelHybrid
 from drafttwin.models.estimators.mdsl import MDSL
 from drafttwin.models.estimators.networks import RecurrentRegressor, ResidualNet, SKConv1d
+from drafttwin.models.estimators.parallel import ParallelHybrid
 from drafttwin.models.estimators.task import TASKS, Task
 from drafttwin.models.mechanistic import MechanisticModel
 from drafttwin.models.online import OnlinePredictor

@@ -11,8 +11,8 @@ from drafttwin.mechanics import DriveTrain
 from drafttwin.models.estimators.base import MODEL_CLASSES, BaseModel, read_model_file
 from drafttwin.models.estimators.baselines import MechanisticBaseline, PersistenceModel
 from drafttwin.models.estimators.datadriven import GRUModel, LSTMModel
-from drafttwin.models.estimators.hybrid import ParallelHybrid
 from drafttwin.models.estimators.mdsl import MDSL
+from drafttwin.models.estimators.parallel import ParallelHybrid
 from drafttwin.models.estimators.task import Task
 from drafttwin.models.mechanistic.source import PhysicsSource, parse_source
 from drafttwin.models.profiles import DEFAULT_PROFILE, PROFILES, Profile

@@ -79,6 +79,7 @@ class JudgedHybrid(Protocol):
     def scalers_(self) -> Any: ...
     def _build(self, n_out: int) -> nn.Module: ...
     def _device(self) -> str: ...
+    def _init_rows(self) -> int: ...
 
 
 DEFAULT_FOLDS = 3
@@ -102,7 +103,8 @@ MEASURE = (
 
 @dataclass(frozen=True)
 class FoldScores:
-    """Per candidate (``none``, ``held``, ``level``, ``accumulate``, ``residual``), its NRMSE
+    """Per candidate (``none``, ``held``, ``offset``, ``level``, ``accumulate``,
+    ``residual``), its NRMSE
     on each block (the mean over the output channels), the blocks' rows, and per candidate,
     block and channel the channel's NRMSE (``channel_scores``; ``None``: one channel, the
     mean's)."""
@@ -162,12 +164,27 @@ class FoldScores:
             none = np.fmin(none, table(acc.CORRECTION_HELD))
         return table(candidate), none
 
-    def chosen(self, candidate: str, corrected: Sequence[bool]) -> list[float]:
-        """Per fold, the mean NRMSE over the channels of the prediction as chosen:
-        ``candidate`` on the ``corrected`` channels, the physics alone on the others."""
+    def chosen(
+        self, candidate: str, corrected: Sequence[bool], offset: Sequence[bool] = ()
+    ) -> list[float]:
+        """Per fold, the mean NRMSE over the channels of the prediction as chosen: the
+        measured offset held on the ``offset`` channels, ``candidate`` on the other
+        ``corrected`` channels, the physics alone on the rest."""
         mask = np.asarray(corrected, dtype=bool)
         c, none = self._per_channel(candidate), self._per_channel(acc.CORRECTION_NONE)
-        return [float(v) for v in np.where(mask[None, :], c, none).mean(axis=1)]
+        table = np.where(mask[None, :], c, none)
+        if any(offset):
+            held = np.asarray(offset, dtype=bool)
+            table = np.where(held[None, :], self._per_channel(acc.CORRECTION_OFFSET), table)
+        return [float(v) for v in table.mean(axis=1)]
+
+    def channel_means(self, candidate: str) -> np.ndarray:
+        """Per output channel, ``candidate``'s mean NRMSE over its finite folds."""
+        table = self._per_channel(candidate)
+        finite = np.isfinite(table)
+        count = finite.sum(axis=0)
+        total = np.where(finite, table, 0.0).sum(axis=0)
+        return np.where(count > 0, total / np.maximum(count, 1), np.inf)
 
     def to_dict(self) -> dict[str, object]:
         clean = {k: [v if np.isfinite(v) else None for v in vals]
@@ -223,6 +240,7 @@ def judge(
     lag = 0 if simulation else model.task.horizon
     blocks, by_record = _folds(rows, starts, k_folds)
     anchors = causal_ffill(em, starts)
+    offered = offset_offered(model, by_record)
     channel: dict[str, list[list[float]]] = {acc.CORRECTION_NONE: []}
     n_rows = []
     for k, block in enumerate(blocks):
@@ -236,6 +254,11 @@ def judge(
         )
         n_rows.append(int(held.sum()))
         lev = level[target_rows] if isinstance(level, np.ndarray) else level
+        if offered:
+            offset = acc.offset_runs(target_rows, em, starts, model._init_rows())
+            channel.setdefault(acc.CORRECTION_OFFSET, []).append(
+                acc.channel_nrmse(offset * lev, measured, scale).tolist()
+            )
         for accumulate, (_, history, ok) in fits.items():
             name = _name(model, accumulate)
             net = _train_judge(model, k, block, accumulate, history, x, extra, scaled, rows, ok,
@@ -262,6 +285,13 @@ def judge(
             )
     scores = {k: [float(np.mean(v)) for v in per_fold] for k, per_fold in channel.items()}
     return FoldScores(scores, blocks, n_rows, by_record, channel)
+
+
+def offset_offered(model: JudgedHybrid, by_record: bool) -> bool:
+    """Whether the measured offset held (:data:`~drafttwin.models.estimators.accumulation.
+    CORRECTION_OFFSET`) is judged: in a simulation on folds of whole records, unless the user
+    kept the net's correction untested (``fallback=False``)."""
+    return bool(model.task.simulation and by_record and getattr(model, "fallback", True))
 
 
 def folds_are_records(model: JudgedHybrid, rows: np.ndarray, starts: Sequence[int]) -> bool | None:

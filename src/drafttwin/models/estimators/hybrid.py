@@ -50,10 +50,15 @@ from drafttwin.models.estimators import accumulation as acc
 from drafttwin.models.estimators.base import pack_module, unpack_module
 from drafttwin.models.estimators.datadriven import _NeuralModel
 from drafttwin.models.estimators.features import fit_scaler
-from drafttwin.models.estimators.folds import DEFAULT_FOLDS, MEASURE, folds_are_records, judge
-from drafttwin.models.estimators.hybrid_state import corrected_channels, relative_state
+from drafttwin.models.estimators.folds import MEASURE, folds_are_records, judge
+from drafttwin.models.estimators.hybrid_state import (
+    corrected_channels,
+    offset_channels,
+    offset_prediction,
+    relative_state,
+)
 from drafttwin.models.estimators.networks import ResidualNet
-from drafttwin.models.estimators.task import Task, check_windows, input_matrix
+from drafttwin.models.estimators.task import check_windows, input_matrix
 from drafttwin.models.estimators.windows import (
     causal_ffill,
     finite_rows,
@@ -64,7 +69,6 @@ from drafttwin.models.estimators.windows import (
 from drafttwin.models.training import (
     FitProgress,
     History,
-    Training,
     debias_head,
     predict_network,
     train_network,
@@ -300,7 +304,7 @@ class _ResidualHybrid(_NeuralModel):
         if folds is not None:
             name = _candidate(kept) if self.task.simulation else "residual"
             correction = acc.choose_on_folds(name, folds, test=self.fallback)
-            self._keep(correction, series.channels)
+            self._keep(acc.with_offset(name, correction, folds), series.channels)
             self.selection_["correction"] = {**self.selection_["correction"], **folds.to_dict(),
                                              "measure": MEASURE}  # fmt: skip
             return
@@ -327,6 +331,7 @@ class _ResidualHybrid(_NeuralModel):
     def _keep(self, choice: acc.CorrectionChoice, channels: tuple[str, ...]) -> None:
         """Take the correction choice: per output channel, residual model or physics alone."""
         self.corrected_ = choice.corrected(len(channels))
+        self.offset_ = choice.offset(len(channels))
         self.correct_ = bool(self.corrected_.any())
         self.selection_["correction"] = choice.to_dict(channels)
 
@@ -410,7 +415,11 @@ class _ResidualHybrid(_NeuralModel):
                     seg = np.arange(a + init, b)
                     pred[seg] = acc.accumulate_runs(pred[seg], seg, anchors, starts)
                 pred[a : min(b, a + init)] = np.nan
-        corrected = mech + pred * self._level(mech) * keep[:, None]
+        correction = pred * keep[:, None]
+        if self.task.simulation and self.offset_.any():  # the record's own offset: no net, no fade
+            held = offset_prediction(groups["em"], series.record_bounds(), self._init_rows())
+            correction[:, self.offset_] = held[:, self.offset_]
+        corrected = mech + correction * self._level(mech)
         if self.corrected_.all():
             return corrected
         out = np.where(self.corrected_[None, :], corrected, mech)
@@ -429,6 +438,8 @@ class _ResidualHybrid(_NeuralModel):
             state["correct"] = False  # file from before the choice reads back as it was stored
         if self.correct_ and not self.corrected_.all():
             state["corrected"] = self.corrected_.tolist()
+        if self.offset_.any():  # written only when chosen: earlier files read back as stored
+            state["offset"] = self.offset_.tolist()
         if self.task.simulation:
             state["accumulate"] = bool(self.accumulate_)
         if self.structure == "relative":
@@ -441,6 +452,7 @@ class _ResidualHybrid(_NeuralModel):
         self.history_ = History.from_dict(state["history"])
         self.correct_ = bool(state.get("correct", True))  # files before the choice: kept
         self.corrected_ = corrected_channels(state, self.correct_, len(self.channels_))
+        self.offset_ = offset_channels(state, self.corrected_)
         if self.task.simulation:
             self.accumulate_ = bool(state["accumulate"])
         if self.structure == "relative":
@@ -457,42 +469,3 @@ def _candidate(accumulate: bool) -> str:
 
 def _finite(x: np.ndarray, target: np.ndarray, extra: np.ndarray | None) -> np.ndarray:
     return finite_rows(x, target) if extra is None else finite_rows(x, target, extra)
-
-
-class ParallelHybrid(_ResidualHybrid):
-    """Parallel hybrid: an LSTM learns the mechanistic residual; output ``yhat_m + ehat_m``.
-
-    Args:
-        window: residual window, samples. hidden / layers: LSTM size. dropout: between layers.
-        skip: prediction: the head predicts a change on top of the last residual (``None``:
-            True); must stay ``None`` in a simulation.
-        accumulate: simulation: predict the residual's per-sample change and sum it (True) or
-            its level (False); ``None`` (default): both are trained and the one with the
-            smaller free-run error on the validation part of the training data is kept
-            (``selection_`` says which, with the scores). Must stay ``None`` in prediction.
-        structure: ``"absolute"`` (speeds as they are) or ``"relative"`` (residual and speeds
-            as fractions of the physics' speed, inputs over their training mean); see the
-            module docstring.
-        fade: scale the correction down outside the training range (back to the physics);
-            ``"strict"``: also off wherever a channel held constant in training (a set-point)
-            leaves its training value.
-        fallback: keep the residual model only when it beats the physics alone on validation
-            data (``False``: keep it untested; the scores are still recorded).
-        val_folds: blocked folds of the training rows that judge the residual model against
-            the physics alone and choose accumulation (:mod:`drafttwin.models.estimators.folds`); 1: the
-            validation tail of the training alone (as model files before it).
-        task / training / seed / quiet: as :class:`~drafttwin.models.GRUModel`.
-    """
-
-    def __init__(
-        self,
-        window: int = 20, hidden: int = 48, layers: int = 2, dropout: float = 0.1,
-        skip: bool | None = None, accumulate: bool | None = None, structure: str = "absolute",
-        fade: bool | str = False, fallback: bool = True, val_folds: int = DEFAULT_FOLDS,
-        task: Task = Task(), training: Training = Training(), seed: int = 0, quiet: bool = False,
-    ) -> None:  # fmt: skip
-        self._store_params(locals())
-
-    @property
-    def name(self) -> str:
-        return "parallel"
