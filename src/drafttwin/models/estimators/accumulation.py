@@ -196,7 +196,7 @@ class CorrectionChoice:
     physics alone on the validation part of the training data (free-run / one-step NRMSE of
     the output, in the output's units over the measured residual's spread)."""
 
-    kept: str  # the kept candidate ("level", "accumulate", "residual") or CORRECTION_NONE
+    kept: str  # "level", "accumulate", "residual", "offset" or CORRECTION_NONE
     chosen_by: str  # "validation" (tail), "validation folds", "user" or "no validation part"
     scores: dict[str, float]
     validation_rows: int
@@ -218,7 +218,8 @@ class CorrectionChoice:
         return np.zeros(n_channels, dtype=bool)
 
     def corrected(self, n_channels: int) -> np.ndarray:
-        """Per output channel, whether the residual model corrects it."""
+        """Per output channel, whether its physics is corrected (by the residual model, or by
+        the measured offset where :meth:`offset` says so)."""
         if self.channels:
             return np.array(self.channels, dtype=bool)
         return np.full(n_channels, self.correct)

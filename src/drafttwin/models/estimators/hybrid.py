@@ -33,7 +33,10 @@ Never worse than the physics on validation (``fallback``): every hybrid scores "
 correction" (the physics alone) beside its residual model on the validation part of the
 training data, and keeps the residual model on each output channel only where it beats the
 physics there; the other channels (all of them: ``selection_["correction"]["kept"] ==
-"none"``) predict the physics' values exactly (``corrected_``, per channel).
+"none"``) predict the physics' values exactly (``corrected_``, per channel). In a simulation
+judged on whole records the measured offset held (the record's mean residual over its
+initialisation rows, no network) is a candidate too, and corrects the channels where it wins
+(``offset_``, per channel; :func:`~drafttwin.models.estimators.accumulation.with_offset`).
 """
 
 from __future__ import annotations
