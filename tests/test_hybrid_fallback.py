@@ -71,6 +71,24 @@ def test_white_noise_residual_leaves_the_physics_alone(name: str, task: str, tmp
     np.testing.assert_array_equal(again.predict_values(test, physics()), expected)
 
 
+@pytest.mark.parametrize("name", ["parallel", "md-s-l"])
+def test_white_noise_over_several_records_keeps_neither_the_net_nor_the_offset(name) -> None:
+    """Whole records as folds offer the measured offset held too: on white noise the mean of
+    the initialisation rows is noise as well (its error adds about 1/INIT of the variance),
+    so it loses to the physics alone and the hybrid predicts its physics exactly."""
+    train = MeasurementSeries.concat([_record(0.0, seed) for seed in (3, 4, 5)])
+    test = _record(0.0, seed=6)
+    model = _fit(name, train)
+    choice = model.selection_["correction"]
+    assert choice["fold_by"] == "record" and "offset" in choice["fold_nrmse"], choice
+    assert choice["kept"] == "none" and "offset" not in choice, choice
+    assert min(choice["fold_nrmse"]["offset"]) > 1.0  # physics alone: 1 on every fold
+    alone = make_model("mechanistic", task="simulation", outputs=("y",), init_samples=INIT)
+    alone.fit(train, physics())
+    np.testing.assert_array_equal(model.predict_values(test, physics()),
+                                  alone.predict_values(test, physics()))  # fmt: skip
+
+
 def test_a_learnable_residual_is_kept_and_beats_the_physics() -> None:
     data = _record(bias=0.4)
     train, test = data.slice(0, 280), data.slice(280)
