@@ -43,8 +43,7 @@ def test_a_signal_while_the_command_starts_says_so(signum: str, tmp_path) -> Non
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == 128 + sig, err
     # the wording of a command's own stop: which handler meets the signal depends on load
-    assert f"interrupted by {signum} while starting; nothing was written" in err, err
-    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    assert err.strip() == f"error: interrupted by {signum}; nothing was written", err
     assert list(tmp_path.iterdir()) == []
 
 

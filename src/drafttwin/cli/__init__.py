@@ -28,7 +28,7 @@ def _stopped_while_starting(signum: int, frame: FrameType | None) -> None:
     # the wording of a command's own stop (``execution.interrupt.Interrupted``): which of
     # the two handlers a signal meets depends on how busy the machine is, not on the user
     name = signal.Signals(signum).name
-    sys.stderr.write(f"interrupted by {name} while starting; nothing was written\n")
+    sys.stderr.write(f"error: interrupted by {name}; nothing was written\n")
     sys.stderr.flush()
     os._exit(128 + signum)
 

@@ -13,7 +13,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from drafttwin.cli._data import ChannelOptions
-from drafttwin.cli._groups import with_group
+from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import JsonOpt, number
 from drafttwin.cli._oserrors import input_paths
 from drafttwin.cli.typer_app import app, console, print_json
@@ -178,6 +178,7 @@ ThresholdOpt = Annotated[float, number("--threshold", "Outlier threshold (0.10 =
 
 
 @app.command("inspect")
+@stops_cleanly("nothing was written")
 @with_group("channel_options", ChannelOptions)
 def inspect_cmd(
     file: FileArg,

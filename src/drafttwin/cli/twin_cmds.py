@@ -14,6 +14,7 @@ import typer
 from rich.table import Table
 
 from drafttwin.cli._exit import work_done
+from drafttwin.cli._groups import stops_cleanly
 from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, file_out, number, path_in
 from drafttwin.cli.typer_app import app, console, err_console, print_json, print_table
 from drafttwin.errors import ConfigError
@@ -328,6 +329,7 @@ EventsOpt = Annotated[bool, typer.Option(help="Export the events instead of samp
 
 
 @twin_app.command("query")
+@stops_cleanly("nothing was written")
 def twin_query(
     store: StoreReadOpt,
     machine: MachineOpt = None,

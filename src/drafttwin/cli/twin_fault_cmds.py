@@ -8,6 +8,7 @@ from typing import Annotated
 
 import typer
 
+from drafttwin.cli._groups import stops_cleanly
 from drafttwin.cli._options import (
     ColumnsOpt,
     FarPerDayOpt,
@@ -35,6 +36,7 @@ DetectorOutOpt = Annotated[Path | None, file_out("--out", "Where to write it (de
 
 
 @twin_app.command("fit-detector")
+@stops_cleanly("nothing was written")
 def twin_fit_detector(
     model: ModelOpt,
     healthy: HealthyOpt,

@@ -17,6 +17,7 @@ from rich import box
 from rich.table import Table
 
 from drafttwin.cli._exit import work_done
+from drafttwin.cli._groups import stops_cleanly
 from drafttwin.cli._options import JsonOpt, StopAfterOpt, dir_out, files_in, number, path_in
 from drafttwin.cli.twin_cmds import (
     CommitMsOpt,
@@ -45,6 +46,7 @@ PlantLogOpt = Annotated[str, files_in("--plant-log", "The plant's log ('drafttwi
 
 
 @twin_app.command("audit")
+@stops_cleanly("nothing was written")
 def twin_audit(
     store: StoreReadOpt,
     plant_log: PlantLogOpt,
