@@ -1,4 +1,6 @@
-"""Hybrid models: the parallel hybrid and the residual machinery MD-S-L builds on.
+"""Hybrid models' residual machinery, which the parallel hybrid
+(:mod:`~drafttwin.models.estimators.parallel`) and MD-S-L (:mod:`~drafttwin.models.estimators.mdsl`)
+build on.
 
 Both correct the mechanistic prediction with a learned residual (paper eq. 15):
 ``yhat(T) = yhat_m(T) + ehat_m(T)``.
