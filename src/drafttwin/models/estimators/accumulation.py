@@ -11,7 +11,7 @@ training data (:func:`choose`), unless the user fixed it.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -85,6 +85,22 @@ def drift_validator(
     return score
 
 
+def record_runs(
+    rows: np.ndarray, n_rows: int, starts: Sequence[int]
+) -> Iterator[tuple[np.ndarray, int, int]]:
+    """The runs of consecutive target ``rows`` within one record of an ``n_rows``-row
+    series: per run, its positions in ``rows``, its first row and its record's first row."""
+    if rows.size == 0:
+        return
+    n = int(max(rows.max() + 1, n_rows))
+    rec = record_ids(n, starts)
+    firsts = [0, *sorted(int(s) for s in starts if 0 < s < n)]  # record k's first row
+    breaks = np.flatnonzero((np.diff(rows) != 1) | (rec[rows[1:]] != rec[rows[:-1]])) + 1
+    for seg in np.split(np.arange(rows.size), breaks):
+        first = int(rows[seg[0]])
+        yield seg, first, firsts[rec[first]]
+
+
 def accumulate_runs(
     steps: np.ndarray, rows: np.ndarray, anchors: np.ndarray, starts: Sequence[int]
 ) -> np.ndarray:
@@ -92,12 +108,7 @@ def accumulate_runs(
     consecutive rows of one record starts from ``anchors[row - 1]`` (the level just before
     it) and adds the changes up. Same shape as ``steps``."""
     out = np.empty_like(steps)
-    if rows.size == 0:
-        return out
-    rec = record_ids(int(max(rows.max() + 1, anchors.shape[0])), starts)
-    breaks = np.flatnonzero((np.diff(rows) != 1) | (rec[rows[1:]] != rec[rows[:-1]])) + 1
-    for seg in np.split(np.arange(rows.size), breaks):
-        first = rows[seg[0]]
+    for seg, first, _ in record_runs(rows, anchors.shape[0], starts):
         out[seg] = anchors[first - 1] + np.cumsum(steps[seg], axis=0)
     return out
 
@@ -110,26 +121,13 @@ def offset_runs(
     just before it in its record (finite values only; 0, the physics alone, where none is),
     held over the run. Shape ``(len(rows), channels)``."""
     out = np.zeros((rows.size, measured.shape[1]))
-    if rows.size == 0:
-        return out
-    n = int(max(rows.max() + 1, measured.shape[0]))
-    rec = record_ids(n, starts)
-    firsts = [0, *sorted(int(s) for s in starts if 0 < s < n)]  # record k's first row
-    breaks = np.flatnonzero((np.diff(rows) != 1) | (rec[rows[1:]] != rec[rows[:-1]])) + 1
-    for seg in np.split(np.arange(rows.size), breaks):
-        first = int(rows[seg[0]])
-        begin = max(firsts[rec[first]], first - max(1, n_init))
-        out[seg] = initial_offset(measured[begin:first])
+    for seg, first, record_first in record_runs(rows, measured.shape[0], starts):
+        before = measured[max(record_first, first - max(1, n_init)) : first]
+        finite = np.isfinite(before)
+        count = finite.sum(axis=0)
+        total = np.where(finite, before, 0.0).sum(axis=0)
+        out[seg] = np.where(count > 0, total / np.maximum(count, 1), 0.0)
     return out
-
-
-def initial_offset(measured: np.ndarray) -> np.ndarray:
-    """Per channel, the mean of the finite values of ``measured`` (rows, channels); 0 (no
-    correction) where none is finite."""
-    finite = np.isfinite(measured)
-    count = finite.sum(axis=0)
-    total = np.where(finite, measured, 0.0).sum(axis=0)
-    return np.where(count > 0, total / np.maximum(count, 1), 0.0)
 
 
 @dataclass(frozen=True)

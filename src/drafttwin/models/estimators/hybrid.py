@@ -59,7 +59,6 @@ from drafttwin.models.estimators.folds import MEASURE, folds_are_records, judge
 from drafttwin.models.estimators.hybrid_state import (
     corrected_channels,
     offset_channels,
-    offset_prediction,
     relative_state,
 )
 from drafttwin.models.estimators.networks import ResidualNet
@@ -422,8 +421,10 @@ class _ResidualHybrid(_NeuralModel):
                 pred[a : min(b, a + init)] = np.nan
         correction = pred * keep[:, None]
         if self.task.simulation and self.offset_.any():  # the record's own offset: no net, no fade
-            held = offset_prediction(groups["em"], series.record_bounds(), self._init_rows())
-            correction[:, self.offset_] = held[:, self.offset_]
+            init = self._init_rows()
+            run = np.concatenate([np.arange(a + init, b) for a, b in series.record_bounds()])
+            held = acc.offset_runs(run, groups["em"], starts, init)  # the init rows' mean
+            correction[np.ix_(run, self.offset_)] = held[:, self.offset_]
         corrected = mech + correction * self._level(mech)
         if self.corrected_.all():
             return corrected

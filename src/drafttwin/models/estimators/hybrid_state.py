@@ -4,12 +4,9 @@ it is trusted (a ``ValueError`` names the field; the model file reader turns it 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-
-from drafttwin.models.estimators.accumulation import initial_offset
 
 
 def relative_state(state: dict[str, Any], n_out: int, n_in: int) -> tuple[np.ndarray, np.ndarray]:
@@ -50,17 +47,4 @@ def offset_channels(state: dict[str, Any], corrected: np.ndarray) -> np.ndarray:
     out = np.array(flags, dtype=bool)
     if (out & ~corrected).any():
         raise ValueError("offset names a channel the model does not correct (corrected)")
-    return out
-
-
-def offset_prediction(
-    measured: np.ndarray, bounds: Sequence[tuple[int, int]], n_init: int
-) -> np.ndarray:
-    """The measured offset held over each record's free run: the mean of the finite
-    ``measured`` residual (rows, channels; measured only in the initialisation rows) over the
-    record's first ``n_init`` rows, NaN in those rows."""
-    out = np.full(measured.shape, np.nan)
-    for a, b in bounds:
-        if b - a > n_init:
-            out[a + n_init : b] = initial_offset(measured[a : a + n_init])
     return out

@@ -179,12 +179,10 @@ def sliver(st: MachineState) -> dict[str, Any] | None:
     A recommendation only: the twin never writes a setting."""
     if st.sliver is None and st.level is None:
         return None
-    w = st.sliver
-    watch = None if w is None else {
-        "count_ktex": number(w.count_ktex), "cv_pct": number(w.cv_pct),
-        "delivered_m": number(w.summary()["delivered_m"]), "alarms": len(w.alarms),
-        "chimneys": w.summary()["chimneys"],
-        "count_limit": None if w.count is None else w.count.status()}  # fmt: skip
+    s = None if st.sliver is None else st.sliver.summary()
+    watch = None if s is None else {
+        **{k: number(s[k]) for k in ("count_ktex", "cv_pct", "delivered_m")},
+        **{k: s[k] for k in ("alarms", "chimneys", "count_limit")}}  # fmt: skip
     from drafttwin._json import to_strict
 
     level = None if st.level is None else to_strict(st.level.summary())  # NaN: null
