@@ -100,17 +100,21 @@ class LearnedResiduals:
         raise ValueError(f"unknown learned method {method!r}")
 
     def features(self, method: str, raw: dict[str, np.ndarray],
-                 physics_lag: np.ndarray | None = None) -> BlockFeatures:  # fmt: skip
+                 physics: BlockFeatures | None = None) -> BlockFeatures:  # fmt: skip
         """Block features of the record's residual against the method's prediction; the
-        angle lags against the physics (they measure the gears' positive drive, so their
-        kinematic ratio comes from the physics: a network's prediction has a ratio off by
-        about 1e-4, and the lag then drifts by mrad per second). ``physics_lag``: those lags
-        when the record's physics features already hold them (computed here otherwise)."""
+        angle lags, the stale runs judged by them, and which blocks are steady running from
+        the physics. The lags measure the gears' positive drive through the kinematic ratio
+        (a network's prediction has a ratio off by about 1e-4, and the lag then drifts by
+        mrad per second: a healthy run of repeated readings then seems to move it, a stuck
+        sensor); steady running is what the set-point commands (a one-step network's
+        prediction follows the measured spikes past the steady band and cut a steady record
+        into runs shorter than the reference window). ``physics``: the record's physics
+        features when already computed (computed here otherwise)."""
         y, t = np.asarray(raw["y"]), np.asarray(raw["time_s"])
         f = block_features(y, self.prediction(method, raw), t, self.block_s)
-        if physics_lag is None:
-            physics_lag = block_features(y, np.asarray(raw["physics"]), t, self.block_s).lag
-        return replace(f, lag=physics_lag)
+        if physics is None:
+            physics = block_features(y, np.asarray(raw["physics"]), t, self.block_s)
+        return replace(f, lag=physics.lag, stale=physics.stale, steady=physics.steady)
 
     def describe(self) -> dict[str, Any]:
         """Sizes, training settings and fit results, JSON-able."""
@@ -122,4 +126,6 @@ class LearnedResiduals:
                          "fit_s": self.fit_s_[name], "epochs": len(h.train_loss),
                          "best_epoch": h.best_epoch,
                          "val_loss": None if not h.val_loss else float(min(h.val_loss))}  # fmt: skip
+        # what the hybrid's folds kept: its net, the measured offset held, or nothing
+        out["hybrid"]["correction"] = self.hybrid_.selection_.get("correction")
         return out

@@ -110,7 +110,7 @@ def score_records(tasks: Sequence[dict[str, Any]], results: Sequence[dict[str, A
     learned.fit(
         [_head(r["raw"], NETWORK_FIT_S) for r, tu in zip(results, tuning, strict=True) if tu]
     )
-    feats = {"physics": physics, **{m: [learned.features(m, r["raw"], p.lag)
+    feats = {"physics": physics, **{m: [learned.features(m, r["raw"], p)
                                         for r, p in zip(results, physics, strict=True)]
                                     for m in LEARNED}}  # fmt: skip
     dets = {m: FaultDetector(far_per_day=far_per_day).fit([f for f, tu in zip(fs, tuning, strict=True) if tu])
