@@ -59,8 +59,26 @@ def _learned_note(learned: Mapping[str, Any]) -> str:
         f"window {learned['window']} samples, hidden {learned['hidden']}, "
         f"{learned['layers']} layer; " + "; ".join(parts) + ". The data-driven residual is "
         "a one-step innovation (a persistent change enters its input window), so it is "
-        "not localised; the hybrid's prediction comes from the set-points only."
+        "not localised; the hybrid's prediction comes from the set-points only"
+        + _hybrid_kept(learned.get("hybrid", {}).get("correction")) + "."
     )
+
+
+_KEPT = {
+    "none": "no correction: it predicts the physics itself, so its column is the physics'",
+    "offset": "the measured offset held (no network): a constant each record's baseline removes",
+}
+
+
+def _hybrid_kept(correction: Mapping[str, Any] | None) -> str:
+    """What the hybrid's validation folds kept, in words (older results: nothing said)."""
+    if not correction or "kept" not in correction:
+        return ""
+    kept = str(correction["kept"])
+    said = _KEPT.get(kept, f"its network's correction ({kept})")
+    folds = correction.get("chosen_fold_nrmse") or []
+    scores = ", ".join(_f(v, 3) for v in folds)
+    return f"; its validation folds kept {said}" + (f" (fold NRMSE {scores})" if scores else "")
 
 
 def _subtitle(results: Mapping[str, Any]) -> str:

@@ -74,6 +74,24 @@ def test_tiny_benchmark_scores_and_page():
     html = render_benchmark(res)
     assert 'id="scores"' in html and 'id="confusion"' in html and "raw-threshold" in html
     assert 'id="confusion-hybrid"' in html and "data-driven" in html
+    # the page says what the hybrid's folds kept (its column is the physics' when nothing)
+    assert res["learned"]["hybrid"]["correction"]["kept"] in {"level", "offset", "none"}
+    assert "its validation folds kept" in html
+
+
+def test_the_page_says_a_hybrid_that_kept_nothing_is_the_physics():
+    from drafttwin.report.faults_bench import _learned_note
+
+    fit = {"model": "ParallelHybrid", "task": "simulation", "fit_s": 2.6, "epochs": 10,
+           "val_loss": 0.0025}  # fmt: skip
+    learned = {"window": 10, "hidden": 16, "layers": 1,
+               "hybrid": {**fit, "correction": {"kept": "none",
+                                                 "chosen_fold_nrmse": [1.0006, 1.0054]}}}  # fmt: skip
+    note = _learned_note(learned)
+    assert "kept no correction: it predicts the physics itself" in note
+    assert "fold NRMSE 1.001, 1.005" in note
+    older = _learned_note({**learned, "hybrid": fit})  # results written before it was kept
+    assert "validation folds" not in older and older.endswith("set-points only.")
 
 
 def test_by_kind_counts_every_record_and_places_only_detected_ones():
