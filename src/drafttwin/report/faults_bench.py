@@ -60,7 +60,8 @@ def _learned_note(learned: Mapping[str, Any]) -> str:
         f"{learned['layers']} layer; " + "; ".join(parts) + ". The data-driven residual is "
         "a one-step innovation (a persistent change enters its input window), so it is "
         "not localised; the hybrid's prediction comes from the set-points only"
-        + _hybrid_kept(learned.get("hybrid", {}).get("correction")) + "."
+        + _hybrid_kept(learned.get("hybrid", {}).get("correction"))
+        + "."
     )
 
 
