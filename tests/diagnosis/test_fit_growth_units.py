@@ -131,3 +131,38 @@ def test_a_stuck_encoder_is_sized_in_seconds(plant_case):
     top = d.causes[0]
     assert top.name == "third:stuck" and top.parameter.endswith("(s)")
     assert top.interval[0] <= 4.0 <= top.interval[1] and top.interval[1] - top.interval[0] < 0.2
+
+
+@pytest.mark.slow
+def test_a_stuck_encoder_long_before_the_record_end_is_sized_on_its_own_samples(plant_case):
+    """The sizing takes the samples up to the request's last block: a record pushed at once
+    gave it the record's last ~40 s instead, so a stuck run 4 s long that ended more than
+    that before the end read '1 s at least' (2026-11-30, a 150-s record stuck at 90 s)."""
+    from drafttwin.plant import Plant
+    from drafttwin.plant.config import Eccentricity, PlantConfig
+
+    dx = plant_case[0]
+    plant = Plant(config=PlantConfig(eccentricity=Eccentricity(gear_runout_law="allowable")))
+    series = plant.run(90.0, seed=7).series  # the fixture's machine, healthy, 90 s
+    d = dx.diagnose(_with_sensor_faults(series, "third:stuck:severity=4:onset=18.5"))
+    top = d.causes[0]
+    assert top.name == "third:stuck" and top.bound is None
+    assert top.interval[0] <= 4.0 <= top.interval[1] and top.interval[1] - top.interval[0] < 0.2
+
+
+def test_a_stuck_run_with_lost_rows_is_sized_by_its_time_span():
+    """Lost rows inside a run of one value are bridged: the run lasts from its first to its
+    last reading (counting only the finite readings gave 4.61 s for a 5-s run with 40 lost)."""
+    from drafttwin.diagnosis.sensors import size_sensor_fault
+
+    t = np.arange(6000) * 0.01
+    rng = np.random.default_rng(0)
+    y = 434.7 + rng.normal(0.0, 0.05, (6000, 5))
+    y[3000:3501, 2] = y[3000, 2]  # the third roller's reading held 30.00-35.00 s
+    y[rng.choice(np.arange(3001, 3500), 40, replace=False), 2] = np.nan  # 40 rows lost in it
+    from drafttwin.diagnosis.locate import Cause
+
+    named = Cause("third", "stuck", "sensor", 1.0, (1.0, 1.0), "", 0.0, 1.0)
+    cause = size_sensor_fault(t, y, named, 31.0, 30.0, 1.0, 1.0)
+    assert abs(cause.severity - 5.01) < 1e-6 and cause.interval[0] <= 5.0 <= cause.interval[1]
+    assert cause.bound is None

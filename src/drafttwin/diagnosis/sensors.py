@@ -63,9 +63,9 @@ def _stuck(cause: Cause, t: np.ndarray, x: np.ndarray, t0: float, t1: float,
     ids = np.unique(run_id[in_block])
     r = int(ids[np.argmax(ends[ids] - starts[ids])])  # the longest run through the block
     dt = float(np.median(np.diff(t)))
-    samples = int(ends[r] - starts[r] + 1)
-    seconds = samples * dt
-    lo = max(0.0, (samples - 1 - max(healthy_run, 0.0)) * dt)
+    span_s = float(tt[ends[r]] - tt[starts[r]])  # lost rows inside the run count as its time
+    seconds = span_s + dt
+    lo = max(0.0, span_s - max(healthy_run, 0.0) * dt)
     open_end = ends[r] == len(v) - 1 or starts[r] == 0  # the record cut the run short
     return replace(cause, severity=seconds, interval=(lo, seconds if open_end else seconds + dt),
                    parameter=KINDS["stuck"].parameter,

@@ -438,7 +438,8 @@ class DiagnosisStream:
         return self._with_samples(self.decisions.add(row))
 
     def _with_samples(self, step: Step) -> Step:
-        step.requests = [_with_raw(r, self._raw(), self.machine) for r in step.requests]
+        step.requests = [_with_raw(r, self._raw(_last_time(r)), self.machine)
+                         for r in step.requests]  # fmt: skip
         return step
 
     def _remember(self, t: np.ndarray, y: np.ndarray) -> None:
@@ -449,10 +450,16 @@ class DiagnosisStream:
             self._raw_n -= len(self._raw_t.popleft())
             self._raw_y.popleft()
 
-    def _raw(self) -> tuple[np.ndarray, np.ndarray]:
+    def _raw(self, until_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """The recent samples up to ``until_s`` (the request's last block): a record pushed
+        at once holds samples far past the alarm's window, a live stream a few rows past its
+        block; cut there, both size a sensor fault on the same samples."""
         if not self._raw_t:
             return np.zeros(0), np.zeros((0, len(CHANNELS)))
         t, y = np.concatenate(self._raw_t), np.vstack(self._raw_y)
+        if until_s is not None:
+            k = int(np.searchsorted(t, until_s, side="right"))
+            t, y = t[:k], y[:k]
         return t[-self._raw_span :], y[-self._raw_span :]
 
 
@@ -461,6 +468,11 @@ def _learning_block_s(learner: Learner | None) -> float:
     if learner is not None and learner.prior is not None:
         return float(learner.prior.block_s_)
     return BLOCK_S
+
+
+def _last_time(r: RankRequest) -> float | None:
+    """The end of the request's last block (``None``: a request without blocks)."""
+    return float(np.max(r.time_s)) if len(r.time_s) else None
 
 
 def _with_raw(r: RankRequest, raw: tuple[np.ndarray, np.ndarray], machine: str) -> RankRequest:
