@@ -411,6 +411,22 @@ def test_evaluate_never_scores_rows_the_model_trained_on(tmp_path: Path) -> None
     _cli(["evaluate", "--model", tmp_path / "m.dtm", "--train-fraction", "0.8"])
 
 
+def test_evaluate_refuses_to_split_records_a_model_was_fitted_on_whole(tmp_path: Path) -> None:
+    """A model fitted with --test-data trained on all of its --data: a chronological test
+    part of that data is training rows (it scored them as '450 test rows' before)."""
+    data = _small_gru(tmp_path, 6)
+    test = tmp_path / "test.csv"
+    _record(200, np.ones(200), 7)[0].to_csv(test, index=False)
+    _cli(["fit", "--model", "gru", "--data", data, "--test-data", test, "--outputs", "y",
+          "--inputs", "u", "--time-column", "t", "--epochs", "1", "--quiet", "--out",
+          tmp_path / "w.dtm"])  # fmt: skip
+    for own in ([], ["--data", data]):
+        said = " ".join(_cli(["evaluate", "--model", tmp_path / "w.dtm", *own], code=2).split())
+        assert "fitted on all of" in said and "--test-data" in said
+    _cli(["evaluate", "--model", tmp_path / "w.dtm", "--test-data", test])  # its own test
+    _cli(["evaluate", "--model", tmp_path / "m.dtm"])  # a split model: its tail is unseen
+
+
 def test_nothing_left_to_score_or_predict_is_refused_not_printed_as_nan(tmp_path: Path) -> None:
     frame, sim = _record(300, np.ones(300), 5)
     data, physics = tmp_path / "d.csv", tmp_path / "sim.csv"

@@ -92,3 +92,25 @@ def test_the_library_refuses_alike_naming_the_parameter(folder: Path) -> None:
     )
     scored = dt.evaluate(model, part, mechanistic=both)
     assert np.allclose(scored.predictions["y"].to_numpy(), direct[:, 0])
+
+
+def test_a_chronological_split_of_two_records_is_scored_on_the_last_records_tables(
+    folder: Path,
+) -> None:
+    """Two records with their simulator files, split chronologically: the test part is the
+    tail of the second record, which runs free on the second file (evaluate refused every
+    way of giving the files before: 2 tables for its 1 record). The physics alone scores
+    what the second file's tail gives, computed here by hand."""
+    from drafttwin.evaluation.protocol import evaluate
+
+    ch = {"outputs": ["y"], "inputs": ["u"], "units": {"y": "m", "u": "V"}, "time_column": "t"}
+    both = dt.read_measurements([folder / "train.csv", folder / "test.csv"], **ch)
+    files = f"{folder / 'sim_train.csv'},{folder / 'sim_test.csv'}"
+    model = dt.make_model("mechanistic", task="simulation", init_samples=5)
+    part = dt.fit_split(model, both, mechanistic=dt.MechanisticModel.from_option(files))
+    assert part.mode == "chronological" and part.test_part().n_records == 1
+    result = evaluate(model, part, mechanistic=dt.MechanisticModel.from_option(files))
+    test = pd.read_csv(folder / "test.csv").tail(len(part.test_part()))
+    sim = pd.read_csv(folder / "sim_test.csv").set_index("time").loc[test["t"], "y"].to_numpy()
+    err = (test["y"].to_numpy() - sim)[5:]  # after the test part's initialisation rows
+    assert result.metrics["y"].rmse == pytest.approx(np.sqrt(np.mean(err**2)), rel=1e-9)

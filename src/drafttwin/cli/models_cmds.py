@@ -361,6 +361,13 @@ def _no_training_rows_scored(
     fitted = model.provenance_.get("train_fraction")
     fitted_on = model.provenance_.get("data")
     own = source.data is None or source.data == fitted_on
+    if own and source.test_data is None and model.provenance_.get("split") == "records":
+        # fitted on the whole of its records (its test was --test-data): a chronological
+        # tail of them is training rows, scored as if unseen
+        raise ConfigError(f"the model was fitted on all of {fitted_on}: a test part of it "
+                          "would hold only rows the model trained on", where="--test-data",
+                          fix="give --test-data with records it has not seen (or --data "
+                          "another record)")  # fmt: skip
     if train_fraction is None or not fitted or not own or train_fraction >= fitted - 1e-12:
         return
     raise ConfigError(f"--train-fraction {train_fraction:g} is below the {fitted:g} the model was "

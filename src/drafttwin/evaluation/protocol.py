@@ -302,6 +302,7 @@ def evaluate(
     part = prepare(model, data, test, train_fraction)
     mechanistic = _test_physics(mechanistic, part, data)
     series, first = model_input(model, part, free_run_from)
+    mechanistic = _tables_of(mechanistic, part, series)
     pred = model.predict_values(series, mechanistic)[first:]
     return score(part, pred, model, skip_rows=skip_rows, free_run_from=free_run_from)
 
@@ -385,6 +386,18 @@ def _test_physics(
         mechanistic.match_records(test)
     elif isinstance(data, MeasurementSeries):
         mechanistic.match_records(data)
+    return mechanistic
+
+
+def _tables_of(mechanistic: object | None, part: Split, series: MeasurementSeries) -> object | None:
+    """The simulator tables of the records ``series`` holds: after a chronological split a
+    simulation runs free over the test part alone, the last of the whole data's records (the
+    first of them its tail), whose tables are the last ones given."""
+    if not isinstance(mechanistic, MechanisticModel) or part.joined is None:
+        return mechanistic
+    n_whole, n_here = part.joined.n_records, series.n_records
+    if mechanistic.n_tables == n_whole and n_here < n_whole:
+        return mechanistic.split_records(n_whole - n_here, n_here)[1]
     return mechanistic
 
 
