@@ -263,6 +263,11 @@ def test_a_damaged_tuning_journal_is_refused_before_it_is_touched(
     err = _cli([*base, "--tune-budget", "0.001", "--out", gone], code=2)
     assert "ended before one trial ran" in err
     assert not Path(f"{gone}.tune.jsonl").exists()  # no journal of nothing left behind
+    # the journal named as the model file: refused before any work (the model replaced the
+    # journal, and the next run refused it, its fix "delete the file" the model)
+    same = tmp_path / "same.dtm"
+    err = _cli([*base, "--tune-trials", "1", "--out", same, "--tune-storage", same], code=2)
+    assert "--tune-storage" in err and "names the --out file" in err and not same.exists()
 
 
 def _offset_record(n: int, low: float, offset: float, seed: int) -> tuple[pd.DataFrame, ...]:

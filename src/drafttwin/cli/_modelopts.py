@@ -22,9 +22,10 @@ SetOpt = Annotated[
         "--set",
         help="Hyperparameters NAME=VALUE[,...] over the profile's (e.g. window=30,patience=20; "
         "numbers, true/false, none or a word): any the profile sets (window, hidden, layers, "
-        "dropout, lr, batch_size, epochs, patience, val_fraction, clip_norm, folds, skip, "
-        "sk_channels, data_window, data_hidden, data_layers) and the model's own (accumulate, "
-        "structure, fade, fallback, val_folds, ...). A wrong name is refused with the valid ones.",
+        "dropout, lr, batch_size, patience, val_fraction, clip_norm, folds, skip, "
+        "sk_channels, data_window, data_hidden, data_layers; the epochs are --epochs) and the "
+        "model's own (accumulate, structure, fade, fallback, val_folds, ...). A wrong name is "
+        "refused with the valid ones.",
     ),
 ]
 
@@ -93,6 +94,12 @@ class TuneOptions:
         if given and not self.tune:
             raise ConfigError(f"{', '.join(given)} without --tune", where=given[0],
                               fix="add --tune, or leave the tuning options out")  # fmt: skip
+        if self.tune_storage is not None and self.tune_storage.resolve() == out.resolve():
+            # the model file would replace the journal, and the next run refuse it
+            raise ConfigError("names the --out file: the model would replace the search's "
+                              "journal", where="--tune-storage", source=self.tune_storage,
+                              fix="name another file (or leave --tune-storage out: "
+                              "OUT.tune.jsonl)")  # fmt: skip
 
     @contextlib.contextmanager
     def stoppable(self) -> Iterator[None]:

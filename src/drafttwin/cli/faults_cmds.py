@@ -132,8 +132,9 @@ def diagnose(
     interval, and the group of candidates these sensors cannot tell apart. p is relative
     among the candidates; each cause's fit (chi-square on its degrees of freedom, p-value)
     is absolute, and when none fits the verdict says that no candidate explains the record.
-    An interval cut by a kind's range reads "at least" / "at most"; a fault still growing at
-    the record's end is given with its rate and its severity there. Sensor faults are sized
+    An interval cut by a kind's range reads "at least" / "at most"; a fault still growing
+    through the window after the alarm (--post) is given with its rate and its severity at
+    the window's end. Sensor faults are sized
     in their own unit (a stuck encoder in seconds).
 
     Gear wear and chain elongation are seen in the rollers' angles (cumulative counts): the
@@ -154,7 +155,7 @@ def diagnose(
     series = mapped.read(data)
     healthy_paths = [p.strip() for p in (healthy or "").split(",") if p.strip()]
     if healthy_paths:
-        tuning = [_healthy_record(p, data, series, mapped) for p in healthy_paths]
+        tuning = _healthy_records(healthy_paths, data, series, mapped)
         tuned_on = healthy
     else:
         cut = len(series) // 2
@@ -174,8 +175,9 @@ def diagnose(
             "watched_from_s": watched_from,
             "detector": detector.describe(), "creep_rel_sd": diagnoser.creep_rel_sd}  # fmt: skip
     result = {**info, **dx.to_dict()}
-    notes = [n for n in (dx.steady_note(detector.reference_s), detector.levels_note())
-             if n is not None]  # fmt: skip
+    result["judged"] = dx.judged(detector.reference_s)
+    notes = [n for n in (dx.short_note(detector.reference_s), dx.steady_note(detector.reference_s),
+                         detector.levels_note(), detector.lags_note()) if n is not None]  # fmt: skip
     if notes:
         result["notes"] = notes
     from drafttwin.diagnosis.sliver_evidence import sliver_evidence
@@ -194,7 +196,7 @@ def diagnose(
     if as_json:
         typer.echo(dumps_strict(result))
         return
-    _print_diagnosis(result, report, detector.lags_note())
+    _print_diagnosis(result, report)
     if sliver is not None:
         _print_sliver(sliver[0])
 
@@ -217,6 +219,29 @@ def _named(path: str | None, option: str) -> Iterator[None]:
         raise
 
 
+def _healthy_records(paths: list[str], data: str, series: MeasurementSeries,
+                     channels: Channels) -> list[MeasurementSeries]:  # fmt: skip
+    """The --healthy records, each once: a record given twice (two names, or a copy) would
+    count its running twice towards the thresholds' length."""
+    records: list[MeasurementSeries] = []
+    for path in paths:
+        record = _healthy_record(path, data, series, channels)
+        twin = next((q for q, r in zip(paths, records, strict=False) if _same_samples(r, record)),
+                    None)  # fmt: skip
+        if twin is not None:
+            raise ConfigError(f"holds the same samples as {twin}, given before it: a record "
+                              "counted twice", source=path, where="--healthy",
+                              fix="give each healthy record once")  # fmt: skip
+        records.append(record)
+    return records
+
+
+def _same_samples(a: MeasurementSeries, b: MeasurementSeries) -> bool:
+    """Whether two records hold the same time stamps and readings (a copy, an export)."""
+    return (a.values.shape == b.values.shape and np.array_equal(a.time_s, b.time_s)
+            and np.array_equal(a.values, b.values, equal_nan=True))  # fmt: skip
+
+
 def _healthy_record(path: str, data: str, series: MeasurementSeries,
                     channels: Channels) -> MeasurementSeries:  # fmt: skip
     """A --healthy record (read with --data's column map), refused where it is the record
@@ -227,6 +252,11 @@ def _healthy_record(path: str, data: str, series: MeasurementSeries,
                           fix="give healthy records of the same machine other than --data, or "
                           "leave --healthy out (the record's first half is the reference)")  # fmt: skip
     record = channels.read(path)
+    if _same_samples(record, series):
+        raise ConfigError(f"holds the same samples as --data {data}: its own reference hides "
+                          "the fault it shows", source=path, where="--healthy",
+                          fix="give healthy records of the same machine other than --data, or "
+                          "leave --healthy out (the record's first half is the reference)")  # fmt: skip
     if not np.isclose(record.sample_rate_hz, series.sample_rate_hz, rtol=0.01):
         raise ConfigError(f"sampled at {record.sample_rate_hz:g} Hz, --data at "
                           f"{series.sample_rate_hz:g} Hz: the thresholds hold at one rate",
@@ -245,14 +275,14 @@ def _head(series: MeasurementSeries, n: int) -> MeasurementSeries:
                    metadata={})  # fmt: skip
 
 
-def _print_diagnosis(result: dict[str, Any], report: Path | None, lags_note: str | None) -> None:
+def _print_diagnosis(result: dict[str, Any], report: Path | None) -> None:
     alarm = result["alarm"]
     console.print(f"thresholds from {result['thresholds_from']}")
     for note in result.get("notes", []):
         console.print(f"[yellow]note:[/] {note}")
-    if lags_note is not None:
-        console.print(lags_note)
-    if alarm is None:
+    if alarm is None and not result.get("judged", True):
+        console.print("no alarm, and no verdict: nothing was judged")
+    elif alarm is None:
         console.print("no alarm: the residuals stayed within the thresholds")
     else:
         console.print(f"[bold red]alarm[/] at {alarm['time_s']:.1f} s ({alarm['test']}), change "

@@ -238,7 +238,8 @@ class FaultDetector:
         return (
             f"angle lags not watched (gear wear, chain elongation): the healthy records "
             f"are too short to measure their slow wander; give one of at least {need:.0f} s "
-            f"(or several of {LAG_TUNING_BLOCKS * self.block_s_:.0f} s of running in all)"
+            f"(or several with {LAG_TUNING_BLOCKS * self.block_s_:.0f} s of running in all past "
+            f"their {self.reference_s:g}-s reference windows)"
         )
 
     def levels_note(self) -> str | None:

@@ -102,6 +102,23 @@ class Diagnosis:
             return None
         return float(f.time_s[steady[0]] - f.block_s + reference_s)
 
+    def judged(self, reference_s: float) -> bool:
+        """Whether any block was judged: steady running past the reference window."""
+        start = self.watched_from_s(reference_s)
+        return start is not None and bool(self.features.time_s[-1] > start)
+
+    def short_note(self, reference_s: float) -> str | None:
+        """A line for the user when nothing was judged (no steady running past the reference
+        window), else ``None``: "no alarm" would read as a healthy verdict."""
+        if self.judged(reference_s):
+            return None
+        f = self.features
+        return (
+            f"nothing was judged: the record ({f.time_s[-1] - f.time_s[0] + f.block_s:.0f} "
+            f"s) holds no steady running past the {reference_s:g}-s reference window; give "
+            "a longer record"
+        )
+
     def steady_note(self, reference_s: float) -> str | None:
         """A line for the user when parts of the record were not judged, else ``None``."""
         spans = self.not_steady_s()
