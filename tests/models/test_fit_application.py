@@ -429,6 +429,10 @@ def test_evaluate_refuses_to_split_records_a_model_was_fitted_on_whole(tmp_path:
         said = " ".join(_cli(["evaluate", "--model", tmp_path / "w.dtm", *own], code=2).split())
         assert "fitted on all of" in said and "--test-data" in said
     _cli(["evaluate", "--model", tmp_path / "w.dtm", "--test-data", test])  # its own test
+    # a separate record's first window has no one-step prediction: not counted as scored
+    out = json.loads(_cli(["evaluate", "--model", tmp_path / "w.dtm", "--test-data", test,
+                           "--json"]))  # fmt: skip
+    assert out["scored_rows"] == out["channels"]["y"]["n_scored"] < 200
     _cli(["evaluate", "--model", tmp_path / "m.dtm"])  # a split model: its tail is unseen
 
 

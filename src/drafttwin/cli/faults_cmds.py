@@ -5,15 +5,15 @@ from __future__ import annotations
 import contextlib
 from collections.abc import Iterator
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, NamedTuple
+from typing import Annotated, Any, NamedTuple
 
-import numpy as np
 import typer
 from rich import box
 from rich.table import Table
 
 from drafttwin._limits import check_rk4_steps, check_samples
 from drafttwin.cli._groups import stops_cleanly, with_group
+from drafttwin.cli._healthy import head_rows, healthy_records
 from drafttwin.cli._options import (
     ColumnsOpt,
     FarPerDayOpt,
@@ -29,14 +29,10 @@ from drafttwin.cli._options import (
     files_in,
     number,
 )
-from drafttwin.cli._oserrors import physics_paths, same_file
+from drafttwin.cli._oserrors import physics_paths
 from drafttwin.cli.benchmark_cmds import benchmark_app
 from drafttwin.cli.typer_app import app, console, err_console, progress_bar
 from drafttwin.errors import ConfigError, DrafttwinError
-
-if TYPE_CHECKING:
-    from drafttwin.cli._data import Channels
-    from drafttwin.data.series import MeasurementSeries
 
 CasesOutOpt = Annotated[Path, dir_out("--out", "Folder for the records and cases.json.")]
 CasesOpt = Annotated[int, number("--cases", "Number of records (one in 4 healthy).")]
@@ -155,11 +151,11 @@ def diagnose(
     series = mapped.read(data)
     healthy_paths = [p.strip() for p in (healthy or "").split(",") if p.strip()]
     if healthy_paths:
-        tuning = _healthy_records(healthy_paths, data, series, mapped)
+        tuning = healthy_records(healthy_paths, data, series, mapped)
         tuned_on = healthy
     else:
         cut = len(series) // 2
-        tuning = [_head(series, cut)]
+        tuning = [head_rows(series, cut)]
         tuned_on = f"the record's first {series.time_s[cut - 1] - series.time_s[0]:.0f} s (assumed healthy)"
     features = []
     for path, record in zip(healthy_paths or [data], tuning, strict=True):
@@ -217,62 +213,6 @@ def _named(path: str | None, option: str) -> Iterator[None]:
         if exc.where in ("data", "tuning", None):
             exc.where = option
         raise
-
-
-def _healthy_records(paths: list[str], data: str, series: MeasurementSeries,
-                     channels: Channels) -> list[MeasurementSeries]:  # fmt: skip
-    """The --healthy records, each once: a record given twice (two names, or a copy) would
-    count its running twice towards the thresholds' length."""
-    records: list[MeasurementSeries] = []
-    for path in paths:
-        record = _healthy_record(path, data, series, channels)
-        twin = next((q for q, r in zip(paths, records, strict=False) if _same_samples(r, record)),
-                    None)  # fmt: skip
-        if twin is not None:
-            raise ConfigError(f"holds the same samples as {twin}, given before it: a record "
-                              "counted twice", source=path, where="--healthy",
-                              fix="give each healthy record once")  # fmt: skip
-        records.append(record)
-    return records
-
-
-def _same_samples(a: MeasurementSeries, b: MeasurementSeries) -> bool:
-    """Whether two records hold the same time stamps and readings (a copy, an export)."""
-    return (a.values.shape == b.values.shape and np.array_equal(a.time_s, b.time_s)
-            and np.array_equal(a.values, b.values, equal_nan=True))  # fmt: skip
-
-
-def _healthy_record(path: str, data: str, series: MeasurementSeries,
-                    channels: Channels) -> MeasurementSeries:  # fmt: skip
-    """A --healthy record (read with --data's column map), refused where it is the record
-    under diagnosis or sampled at another rate (the thresholds are per block of rows)."""
-    if same_file(path, data):
-        raise ConfigError("is the record under diagnosis: its own reference hides the fault it "
-                          "shows", source=path, where="--healthy",
-                          fix="give healthy records of the same machine other than --data, or "
-                          "leave --healthy out (the record's first half is the reference)")  # fmt: skip
-    record = channels.read(path)
-    if _same_samples(record, series):
-        raise ConfigError(f"holds the same samples as --data {data}: its own reference hides "
-                          "the fault it shows", source=path, where="--healthy",
-                          fix="give healthy records of the same machine other than --data, or "
-                          "leave --healthy out (the record's first half is the reference)")  # fmt: skip
-    if not np.isclose(record.sample_rate_hz, series.sample_rate_hz, rtol=0.01):
-        raise ConfigError(f"sampled at {record.sample_rate_hz:g} Hz, --data at "
-                          f"{series.sample_rate_hz:g} Hz: the thresholds hold at one rate",
-                          source=path, where="--healthy",
-                          fix="give healthy records at the record's rate (resample one of them)")  # fmt: skip
-    return record
-
-
-def _head(series: MeasurementSeries, n: int) -> MeasurementSeries:
-    from dataclasses import replace
-
-    return replace(series, time_s=series.time_s[:n], values=series.values[:n],
-                   inputs={k: v[:n] for k, v in series.inputs.items()},
-                   truth=None if series.truth is None else series.truth[:n],
-                   motor_rpm=None if series.motor_rpm is None else series.motor_rpm[:n],
-                   metadata={})  # fmt: skip
 
 
 def _print_diagnosis(result: dict[str, Any], report: Path | None) -> None:

@@ -361,7 +361,9 @@ def score(
         task=model.task.kind,
         metrics=metrics,
         predictions=frame,
-        scored_rows=int(np.isfinite(target).any(axis=1).sum()),
+        # a row counts where a channel has both a measurement and a prediction (a separate
+        # test record's first window has no prediction)
+        scored_rows=int((np.isfinite(target) & np.isfinite(pred)).any(axis=1).sum()),
         selection=dict(getattr(model, "selection_", {})),
         tuning=(getattr(model, "provenance_", {}) or {}).get("tuning"),
         split={**part.summary, "score_from": skip_rows,
