@@ -254,10 +254,10 @@ def judge(
         )
         n_rows.append(int(held.sum()))
         lev = level[target_rows] if isinstance(level, np.ndarray) else level
-        if offered:
-            offset = acc.offset_runs(target_rows, em, starts, model._init_rows())
+        if offered:  # held in the output's units (relative structure too: see hybrid.py)
+            offset = acc.offset_runs(target_rows, residual, starts, model._init_rows())
             channel.setdefault(acc.CORRECTION_OFFSET, []).append(
-                acc.channel_nrmse(offset * lev, measured, scale).tolist()
+                acc.channel_nrmse(offset, measured, scale).tolist()
             )
         for accumulate, (_, history, ok) in fits.items():
             name = _name(model, accumulate)

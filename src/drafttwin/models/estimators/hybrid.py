@@ -420,12 +420,17 @@ class _ResidualHybrid(_NeuralModel):
                     pred[seg] = acc.accumulate_runs(pred[seg], seg, anchors, starts)
                 pred[a : min(b, a + init)] = np.nan
         correction = pred * keep[:, None]
+        level = self._level(mech)
         if self.task.simulation and self.offset_.any():  # the record's own offset: no net, no fade
             init = self._init_rows()
             run = np.concatenate([np.arange(a + init, b) for a, b in series.record_bounds()])
-            held = acc.offset_runs(run, groups["em"], starts, init)  # the init rows' mean
-            correction[np.ix_(run, self.offset_)] = held[:, self.offset_]
-        corrected = mech + correction * self._level(mech)
+            # the init rows' mean residual in the output's units: a record starting from
+            # rest would give a relative one over the floored level, scaled up by the
+            # running speed's level
+            held = acc.offset_runs(run, groups["em"] * level, starts, init)
+            lev = level[run] if isinstance(level, np.ndarray) else level
+            correction[np.ix_(run, self.offset_)] = (held / lev)[:, self.offset_]
+        corrected = mech + correction * level
         if self.corrected_.all():
             return corrected
         out = np.where(self.corrected_[None, :], corrected, mech)
