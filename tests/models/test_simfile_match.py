@@ -114,3 +114,19 @@ def test_a_chronological_split_of_two_records_is_scored_on_the_last_records_tabl
     sim = pd.read_csv(folder / "sim_test.csv").set_index("time").loc[test["t"], "y"].to_numpy()
     err = (test["y"].to_numpy() - sim)[5:]  # after the test part's initialisation rows
     assert result.metrics["y"].rmse == pytest.approx(np.sqrt(np.mean(err**2)), rel=1e-9)
+
+
+def test_the_physics_alone_reads_its_simulator_file_at_fit(folder: Path, tmp_path: Path) -> None:
+    """``fit --model mechanistic`` trains nothing, and read no simulator file without
+    --test-data: a file without the output's column was accepted and a model file written,
+    refused only by a later evaluate."""
+    pd.read_csv(folder / "sim_train.csv").rename(columns={"y": "z"}).to_csv(
+        tmp_path / "sim_z.csv", index=False
+    )
+    out = tmp_path / "m.dtm"
+    result = runner.invoke(app, ["fit", "--model", "mechanistic", "--data",
+                                 str(folder / "train.csv"), *DATA, "--mechanistic",
+                                 str(tmp_path / "sim_z.csv"), "--out", str(out), "--quiet"])  # fmt: skip
+    line = " ".join(result.output.split())
+    assert result.exit_code == 2 and "sim_z.csv" in line and "no column(s) ['y']" in line
+    assert not out.exists()

@@ -195,7 +195,12 @@ class BaseModel(abc.ABC):
             )
         source = as_mechanistic(model)
         if fitting and not self.learns_from_mechanistic:
-            return None, source  # e.g. the physics alone: nothing to fit, nothing to simulate
+            # e.g. the physics alone: nothing to fit, nothing to simulate; simulator files are
+            # read through here (cheap), so one without the channel or with gaps is refused
+            # now, not by a later evaluate
+            if source.n_tables:
+                source.predict_values(series, channels=series.channels)
+            return None, source
         return source.predict_values(series, channels=series.channels), source
 
     def _window_lengths(self) -> list[int]:
