@@ -114,6 +114,9 @@ def test_a_chronological_split_of_two_records_is_scored_on_the_last_records_tabl
     sim = pd.read_csv(folder / "sim_test.csv").set_index("time").loc[test["t"], "y"].to_numpy()
     err = (test["y"].to_numpy() - sim)[5:]  # after the test part's initialisation rows
     assert result.metrics["y"].rmse == pytest.approx(np.sqrt(np.mean(err**2)), rel=1e-9)
+    # the files as text, as dt.fit takes them (a path "a,b" not found before), on the series
+    text = dt.evaluate(model, both, mechanistic=files)
+    assert text.metrics["y"].rmse == result.metrics["y"].rmse
 
 
 def test_the_physics_alone_reads_its_simulator_file_at_fit(folder: Path, tmp_path: Path) -> None:

@@ -36,7 +36,7 @@ from drafttwin.evaluation.limits import floor_oracle
 from drafttwin.evaluation.metrics import ChannelMetrics, channel_metrics
 from drafttwin.models.estimators.base import BaseModel
 from drafttwin.models.estimators.baselines import PersistenceModel
-from drafttwin.models.mechanistic import MechanisticModel, record_names
+from drafttwin.models.mechanistic import MechanisticModel, as_mechanistic, record_names
 
 OUTLIER_THRESHOLD = 0.10
 """The paper's outlier rule: a one-sample jump of more than 10 %."""
@@ -300,6 +300,8 @@ def evaluate(
     of each test record left unscored (so that models with different warm-ups are scored on
     the same rows; the CLI's ``--score-from``). ``free_run_from``: see :func:`model_input`."""
     part = prepare(model, data, test, train_fraction)
+    if mechanistic is not None:  # text, a drive train or a callable: matched to records below
+        mechanistic = as_mechanistic(mechanistic)
     mechanistic = _test_physics(mechanistic, part, data)
     series, first = model_input(model, part, free_run_from)
     mechanistic = _tables_of(mechanistic, part, series)

@@ -416,9 +416,13 @@ def record_names(series: MeasurementSeries) -> list[str]:
 
 
 def as_mechanistic(source: object) -> MechanisticModel:
-    """``source`` as a :class:`MechanisticModel` (a drive train is simulated)."""
+    """``source`` as a :class:`MechanisticModel` (a drive train is simulated; text is read
+    as ``--mechanistic`` reads it: ``preset``, ``config:FILE``, ``FILE[,FILE...]``, as
+    ``dt.fit`` takes it)."""
     if isinstance(source, MechanisticModel):
         return source
+    if isinstance(source, str):
+        return MechanisticModel.from_option(source)
     from drafttwin.mechanics import DriveTrain
 
     if isinstance(source, DriveTrain):
