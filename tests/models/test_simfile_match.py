@@ -133,3 +133,21 @@ def test_the_physics_alone_reads_its_simulator_file_at_fit(folder: Path, tmp_pat
     line = " ".join(result.output.split())
     assert result.exit_code == 2 and "sim_z.csv" in line and "no column(s) ['y']" in line
     assert not out.exists()
+
+
+def test_a_simulator_file_passes_the_data_layers_file_checks(folder: Path, tmp_path: Path) -> None:
+    """A binary file, an empty file or a folder given as --mechanistic: one line naming it and
+    the option, with a fix (before: "cannot read the file ('utf-8' codec can't decode ...)"
+    without a fix, and a folder "file not found")."""
+    (tmp_path / "junk.csv").write_bytes(bytes(range(256)) * 8)
+    (tmp_path / "empty.csv").write_bytes(b"")
+    (tmp_path / "folder").mkdir()
+    for name, said in (("junk.csv", "binary content"), ("empty.csv", "file is empty"),
+                       ("folder", "a folder")):  # fmt: skip
+        result = runner.invoke(app, ["fit", "--model", "mechanistic", "--data",
+                                     str(folder / "train.csv"), *DATA, "--mechanistic",
+                                     str(tmp_path / name), "--out", str(tmp_path / "m.dtm"),
+                                     "--quiet"])  # fmt: skip
+        line = " ".join(result.output.split())
+        assert result.exit_code == 2 and said in line and "--mechanistic" in line, line
+        assert "fix:" in line and "Traceback" not in result.output

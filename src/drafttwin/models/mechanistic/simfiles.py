@@ -21,24 +21,22 @@ Table = tuple[np.ndarray, dict[str, np.ndarray]]
 
 
 def read_table(path: Path) -> pd.DataFrame:
-    if not path.is_file():
-        raise DataError("file not found", source=path, fix="check the path of the simulator output")
+    """A simulator output file read through the checks every measurement file passes (a
+    folder, an empty, binary or damaged file refused in one line naming it and
+    ``--mechanistic``)."""
+    from drafttwin.data.io import read_table as read_checked
+
     suffix = path.suffix.lower()
-    try:
-        if suffix in (".parquet", ".pq"):
-            return pd.read_parquet(path)
-        if suffix in (".csv", ".txt"):
-            return pd.read_csv(path)
-    except (ValueError, OSError) as exc:
-        raise DataError(f"cannot read the file ({exc})", source=path) from exc
-    if suffix == ".toml":  # a drive-train file given as a simulator output
+    if suffix == ".toml" and path.is_file():  # a drive-train file given as a simulator output
         raise DataError("a drive-train file, not a simulator output", source=path,
                         fix=f"to simulate it, give config:{path}")  # fmt: skip
-    raise DataError(
-        f"unsupported file type {suffix or '(none)'}",
-        source=path,
-        fix="write the simulator output as .csv or .parquet",
-    )
+    if suffix == ".txt":  # text tables are CSV, as before
+        try:
+            return pd.read_csv(path)
+        except (ValueError, OSError) as exc:
+            raise DataError(f"cannot read the file ({exc})", source=path,
+                            fix="write the simulator output as .csv or .parquet") from exc  # fmt: skip
+    return read_checked(path, option="--mechanistic")
 
 
 def tables(frame: pd.DataFrame, source: str) -> list[Table]:
