@@ -587,3 +587,24 @@ def test_console_script_exits_2_without_traceback(
 def test_a_time_column_that_is_not_in_the_file_names_time_column(tmp_path: Path) -> None:
     refuse(csv(tmp_path, [HEADER, *rows()]), "--time-column", "'zz' is not in the file",
            time_column="zz")  # fmt: skip
+
+
+def test_a_column_mapped_to_the_wrong_roller_is_refused_at_any_set_point():
+    """The rollers turn in fixed ratios: a front column running as the second roller would
+    is refused (diagnose had accepted a front/second swap and blamed the machine), while
+    every column at one speed factor passes, be it 24 % of nominal or 125 %."""
+    from drafttwin.data.units import check_units
+    from drafttwin.errors import DataError
+
+    nominal = {"front": 1815.7, "second": 434.7, "third": 426.1, "back": 355.1, "motor": 1450.0}
+    names = list(nominal)
+    rng = np.random.default_rng(0)
+    for factor in (0.24, 1.0, 1.25):
+        rpm = np.array([nominal[n] * factor for n in names]) * (
+            1 + 1e-4 * rng.standard_normal((500, 5))
+        )
+        check_units(rpm, names, "r.csv", nominal_rpm=nominal)  # consistent: accepted
+        swapped = rpm[:, [1, 0, 2, 3, 4]]  # the front and second columns exchanged
+        with pytest.raises(DataError, match="runs as 'second' would") as err:
+            check_units(swapped, names, "r.csv", nominal_rpm=nominal)
+        assert "--columns front=second,second=front" in str(err.value)

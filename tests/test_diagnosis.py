@@ -282,6 +282,11 @@ def test_cli_diagnose_refuses_bad_input(records, tmp_path):
         (["--data", str(tmp_path / "swapped.parquet")], "--columns front=back,back=front"),
         (["--data", str(tmp_path / "swapped.parquet"), "--columns", "front=back,back=front",
           "--healthy", healthy], "healthy.parquet: columns 'front', 'back'"),
+        # the front and second columns swapped: the front runs at the second's nominal speed
+        (["--data", healthy, "--columns", "second=front,front=second"],
+         "column 'front': median running speed"),
+        (["--data", healthy, "--columns", "second=front,front=second"],
+         "runs as 'second' would"),
     ):  # fmt: skip
         res = CliRunner().invoke(app, ["diagnose", "--model", "preset", *args])
         assert res.exit_code == 2 and text in res.output and "Traceback" not in res.output, (

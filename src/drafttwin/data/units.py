@@ -10,7 +10,7 @@ range, sign, front faster than back, ratio to nominal speeds) run on channels in
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -153,6 +153,7 @@ def check_units(
             fix="the roller columns look swapped or reversed: map them, e.g. "
             "--columns front=back,back=front (file column = roller)",
         )
+    _refuse_swapped(medians, nominal_rpm or {}, source)  # before a unit is guessed per column
     for r, nominal in (nominal_rpm or {}).items():
         if r in medians and np.isfinite(medians[r]) and nominal > 0:
             _compare_nominal(r, medians[r], nominal, (diameters_mm or {}).get(r), source)
@@ -258,6 +259,37 @@ def _compare_nominal(
 ) -> None:
     _refuse_other_unit(name, med, (nominal, nominal), diameter_mm, source,
                        f"is {med / nominal:.3g} x the nominal {nominal:.4g} rpm")  # fmt: skip
+
+
+def _refuse_swapped(medians: Mapping[str, float], nominal_rpm: Mapping[str, float],
+                    source: str | Path) -> None:  # fmt: skip
+    """Refuse a column mapped to the wrong roller: the rollers turn in fixed ratios at any
+    set-point, so each median over its nominal is the same speed factor (within 15 %); a
+    column more than 15 % off the others' factor that runs as another roller would at it
+    is that roller's (a front column 4x slow: the second's)."""
+    factor = {r: medians[r] / n for r, n in nominal_rpm.items()
+              if n > 0 and r in medians and np.isfinite(medians[r]) and medians[r] > 0}  # fmt: skip
+    if len(factor) < 3:
+        return
+    k0 = float(np.median(list(factor.values())))
+    for name, k in factor.items():
+        if k0 / 1.15 <= k <= k0 * 1.15:
+            continue
+        med = medians[name]
+        other = next((o for o, n in nominal_rpm.items()
+                      if o != name and o in factor and n * k0 / 1.15 <= med <= n * k0 * 1.15),
+                     None)  # fmt: skip
+        if other is None:
+            continue
+        raise DataError(
+            f"median running speed {med:.4g} rpm is {k / k0:.3g} x what the other columns' "
+            f"speeds give it ({nominal_rpm[name] * k0:.4g} rpm) and runs as '{other}' would",
+            source=source,
+            where=f"column '{name}'",
+            fix=f"the columns look swapped: map them, e.g. --columns {name}={other},"
+            f"{other}={name} (file column = roller); if they are right, skip this check "
+            "(--no-unit-check)",
+        )
 
 
 def _refuse_other_unit(
