@@ -166,3 +166,19 @@ def test_a_stuck_run_with_lost_rows_is_sized_by_its_time_span():
     cause = size_sensor_fault(t, y, named, 31.0, 30.0, 1.0, 1.0)
     assert abs(cause.severity - 5.01) < 1e-6 and cause.interval[0] <= 5.0 <= cause.interval[1]
     assert cause.bound is None
+
+
+def test_a_cause_sized_at_zero_explains_nothing():
+    """A fitting cause whose 95 % interval holds zero names no fault: diagnose without
+    --healthy had said "explained by second:gain" at 1.9e-07 [-1.6e-05, 1.7e-05]."""
+    from drafttwin.diagnosis.diagnose import Diagnosis
+    from drafttwin.diagnosis.locate import Cause
+
+    def cause(severity: float, interval: tuple[float, float]) -> Cause:
+        return Cause("second", "gain", "sensor", severity, interval, "gain", 1.0, 1.0, dof=4,
+                     fit_p=0.5)  # fmt: skip
+
+    zero = Diagnosis(None, None, causes=[cause(1.9e-7, (-1.6e-5, 1.7e-5))])  # type: ignore[arg-type]
+    assert zero.verdict.startswith("no cause sized above zero: the best fit, second:gain")
+    sized = Diagnosis(None, None, causes=[cause(0.004, (0.0038, 0.0042))])  # type: ignore[arg-type]
+    assert sized.verdict == "explained by second:gain"

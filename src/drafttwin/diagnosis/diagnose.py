@@ -82,6 +82,10 @@ class Diagnosis:
             return (f"no candidate explains this (the best, {best.name}, misfits with chi2 "
                     f"{best.chi2:.4g} on {best.dof} degrees of freedom)")  # fmt: skip
         first = next(c for c in self.causes if c.fits)
+        lo, hi = first.interval
+        if first.bound is None and lo <= 0.0 <= hi:  # a fit of no size: no fault named
+            return (f"no cause sized above zero: the best fit, {first.name}, is "
+                    f"{first.severity:.4g} [{lo:.4g}, {hi:.4g}], which holds no fault")  # fmt: skip
         grows = first.growth is not None and first.growth.growing
         return f"explained by {first.name}" + (", still growing" if grows else "")
 
