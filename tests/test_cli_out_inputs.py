@@ -119,3 +119,18 @@ def test_a_study_refuses_a_record_too_short_before_any_fit(tmp_path: Path, comma
     said = _refused([command, "--data", str(path), "--out", str(tmp_path / "s"), "--quiet"])
     assert "--data: the record gives 35 training rows (70% of 50)" in said, said
     assert "give a record of at least" in said and "--train-fraction" not in said
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [("--units", "y=m,y=rad/s"), ("--set", "window=10,window=12"),
+     ("--columns", "t=time,t=time_s")],
+)  # fmt: skip
+def test_a_name_given_twice_in_a_list_of_pairs_is_refused(
+    record: Path, option: str, value: str
+) -> None:
+    """The last value had won without a word (``--units y=m,y=rad/s`` reported rad/s)."""
+    out = record.with_suffix(".dtm")
+    said = _refused(["fit", "--model", "gru", "--data", str(record), "--outputs", "y",
+                     "--inputs", "u", "--epochs", "1", "--out", str(out), option, value])  # fmt: skip
+    assert f"{option}: " in said and "is given twice" in said and not out.exists()

@@ -12,7 +12,7 @@ from rich import box
 from rich.markup import escape
 from rich.table import Table
 
-from drafttwin.cli._data import ChannelOptions
+from drafttwin.cli._data import ChannelOptions, pairs
 from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import JsonOpt, number
 from drafttwin.cli._oserrors import input_paths
@@ -24,29 +24,12 @@ from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
 
 
-def parse_pairs(text: str | None, option: str) -> dict[str, str]:
-    """``'v1=front,v2=second'`` -> ``{'v1': 'front', 'v2': 'second'}``."""
-    if not text:
-        return {}
-    pairs: dict[str, str] = {}
-    for item in text.split(","):
-        key, sep, value = item.partition("=")
-        if not sep or not key.strip() or not value.strip():
-            raise DataError(
-                f"'{item}' is not NAME=VALUE",
-                where=option,
-                fix=f"write {option} v1=front,v2=second,v3=third,v4=back",
-            )
-        pairs[key.strip()] = value.strip()
-    return pairs
-
-
 def parse_numbers(text: str | None, option: str) -> dict[str, float] | None:
     """``'front=1815,back=355'`` -> ``{'front': 1815.0, 'back': 355.0}``."""
     if not text:
         return None
     out: dict[str, float] = {}
-    for key, value in parse_pairs(text, option).items():
+    for key, value in pairs(text, option, "front=1815,back=355").items():
         try:
             out[key] = float(value)
         except ValueError:
