@@ -43,11 +43,11 @@ def pairs(text: str | None, option: str, example: str = "y=m,u=V") -> dict[str, 
         if not sep or not key.strip() or not value.strip():
             raise ConfigError(f"'{item}' is not NAME=VALUE", where=option,
                               fix=f"write {option} {example}")  # fmt: skip
-        if key.strip() in out:  # the last would silently win
-            raise ConfigError(f"{key.strip()} is given twice ({key.strip()}={out[key.strip()]} and "
-                              f"{item.strip()})", where=option,
-                              fix=f"give each name once: {option} {example}")  # fmt: skip
-        out[key.strip()] = value.strip()
+        name = key.strip()
+        if name in out:  # the last would silently win
+            raise ConfigError(f"{name} is given twice ({name}={out[name]} and {item.strip()})",
+                              where=option, fix=f"give each name once: {option} {example}")  # fmt: skip
+        out[name] = value.strip()
     return out
 
 

@@ -15,6 +15,12 @@ if TYPE_CHECKING:
     from drafttwin.data.series import MeasurementSeries
 
 
+OWN_REFERENCE_FIX = (
+    "give healthy records of the same machine other than --data, or leave "
+    "--healthy out (the record's first half is the reference)"
+)
+
+
 def healthy_records(paths: list[str], data: str, series: MeasurementSeries,
                      channels: Channels) -> list[MeasurementSeries]:  # fmt: skip
     """The --healthy records, each once: a record given twice (two names, or a copy) would
@@ -43,16 +49,20 @@ def _healthy_record(path: str, data: str, series: MeasurementSeries,
     """A --healthy record (read with --data's column map), refused where it is the record
     under diagnosis or sampled at another rate (the thresholds are per block of rows)."""
     if same_file(path, data):
-        raise ConfigError("is the record under diagnosis: its own reference hides the fault it "
-                          "shows", source=path, where="--healthy",
-                          fix="give healthy records of the same machine other than --data, or "
-                          "leave --healthy out (the record's first half is the reference)")  # fmt: skip
+        raise ConfigError(
+            "is the record under diagnosis: its own reference hides the fault it shows",
+            source=path,
+            where="--healthy",
+            fix=OWN_REFERENCE_FIX,
+        )
     record = channels.read(path)
     if _same_samples(record, series):
-        raise ConfigError(f"holds the same samples as --data {data}: its own reference hides "
-                          "the fault it shows", source=path, where="--healthy",
-                          fix="give healthy records of the same machine other than --data, or "
-                          "leave --healthy out (the record's first half is the reference)")  # fmt: skip
+        raise ConfigError(
+            f"holds the same samples as --data {data}: its own reference hides the fault it shows",
+            source=path,
+            where="--healthy",
+            fix=OWN_REFERENCE_FIX,
+        )
     if not np.isclose(record.sample_rate_hz, series.sample_rate_hz, rtol=0.01):
         raise ConfigError(f"sampled at {record.sample_rate_hz:g} Hz, --data at "
                           f"{series.sample_rate_hz:g} Hz: the thresholds hold at one rate",
