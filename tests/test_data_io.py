@@ -120,6 +120,23 @@ def test_time_in_milliseconds_by_header_unit(tmp_path: Path) -> None:
     assert read_measurements(path).sample_rate_hz == pytest.approx(100.0)
 
 
+@pytest.mark.parametrize(("header", "rate_hz"), [("time_ms", 100.0), ("t_min", 1 / 600),
+                                                 ("Time_s", 0.1), ("time_sec", 0.1)])  # fmt: skip
+def test_time_unit_by_header_suffix(tmp_path: Path, header: str, rate_hz: float) -> None:
+    """A millisecond clock named ``time_ms`` was read as seconds (every step 1000x long)."""
+    rows = [f"{10 * i},1815,1500,450,355" for i in range(5)]
+    path = write_csv(tmp_path / "ms.csv", f"{header},front,second,third,back", rows)
+    assert read_measurements(path).sample_rate_hz == pytest.approx(rate_hz)
+
+
+def test_time_unit_suffix_of_a_named_time_column(tmp_path: Path) -> None:
+    rows = [f"{10 * i},1815,1500,450,355" for i in range(5)]
+    path = write_csv(tmp_path / "ms.csv", "zeit_ms,front,second,third,back", rows)
+    series = read_measurements(path, time_column="zeit_ms")
+    assert series.sample_rate_hz == pytest.approx(100.0)
+    assert series.time_column == "time"  # its values are seconds now, not the file's
+
+
 @pytest.mark.parametrize("name", ["time", "t", "time_s", "timestamp", "Time"])
 def test_common_time_column_names(tmp_path: Path, name: str) -> None:
     path = write_csv(tmp_path / "t.csv", f"{name},front,second,third,back", speed_rows())

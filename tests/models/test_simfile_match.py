@@ -151,3 +151,47 @@ def test_a_simulator_file_passes_the_data_layers_file_checks(folder: Path, tmp_p
         line = " ".join(result.output.split())
         assert result.exit_code == 2 and said in line and "--mechanistic" in line, line
         assert "fix:" in line and "Traceback" not in result.output
+
+
+def _renamed(folder: Path, name: str, time_header: str, scale: float = 1.0) -> Path:
+    frame = pd.read_csv(folder / f"{name}.csv")
+    frame = frame.rename(columns={"t": time_header, "time": time_header})
+    frame[time_header] = frame[time_header] * scale
+    path = folder / f"{time_header}_{name}.csv"
+    frame.to_csv(path, index=False)
+    return path
+
+
+def test_the_simulator_file_takes_the_records_time_column_name(folder: Path) -> None:
+    """``--time-column zeit`` named the record's time column, and the simulator file with the
+    same column was refused ("no time column (looked for time, time_s, t)")."""
+    data = [_renamed(folder, n, "zeit") for n in ("train", "test", "sim_train", "sim_test")]
+    args = ["fit", "--model", "mechanistic", "--data", str(data[0]), "--test-data", str(data[1]),
+            "--outputs", "y", "--inputs", "u", "--units", "y=m,u=V", "--time-column", "zeit",
+            "--mechanistic", f"{data[2]},{data[3]}", "--out", str(folder / "zeit.dtm")]  # fmt: skip
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert (folder / "zeit.dtm").exists()
+    # without --time-column the record is refused first; a simulator file without any time
+    # column names the option that would name it
+    read = {"outputs": ["y"], "inputs": ["u"], "time_column": "zeit", "units": {"y": "m", "u": "V"}}
+    record = dt.read_measurements(data[0], **read)
+    physics = dt.MechanisticModel([str(data[2])], time_column="zeit")
+    np.testing.assert_allclose(physics.predict_values(record, ("y",))[:, 0],
+                               pd.read_csv(data[2])["y"].to_numpy())  # fmt: skip
+    other = _renamed(folder, "sim_test", "uhrzeit")
+    with pytest.raises(DataError, match="or zeit as time_column names it"):
+        dt.MechanisticModel([str(other)], time_column="zeit")
+    refused = runner.invoke(app, [*args[:-4], "--mechanistic", str(other), "--out",
+                                  str(folder / "other.dtm")])  # fmt: skip
+    assert refused.exit_code == 2 and "or zeit as --time-column names it" in " ".join(
+        refused.output.split()
+    ), refused.output
+
+
+def test_a_simulator_file_in_milliseconds_is_read_in_seconds(folder: Path) -> None:
+    sim_ms = _renamed(folder, "sim_train", "time_ms", scale=1000.0)
+    read = {"outputs": ["y"], "inputs": ["u"], "time_column": "t", "units": {"y": "m", "u": "V"}}
+    record = dt.read_measurements(folder / "train.csv", **read)
+    got = dt.MechanisticModel([str(sim_ms)]).predict_values(record, ("y",))[:, 0]
+    np.testing.assert_allclose(got, pd.read_csv(folder / "sim_train.csv")["y"].to_numpy())

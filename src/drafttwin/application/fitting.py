@@ -39,15 +39,18 @@ class FitResult:
 
 
 def plan_physics(
-    request: FitRequest, channels: Sequence[str] | None = None
+    request: FitRequest, channels: Sequence[str] | None = None, time_column: str | None = None
 ) -> tuple[BaseModel, MechanisticModel | None, list[Note]]:
     """The estimator and the physics a request names, before any data are read (so a
-    command can read the input channels the physics needs); ``channels``: the output
-    channels the data will have (default: the request's data's)."""
+    command can read the input channels the physics needs); ``channels`` and ``time_column``:
+    the output channels and the time column's name the data will have (default: the
+    request's data's)."""
     model, notes = build_model(request)
     if request.data is not None:
         channels = request.data.channels
-    physics = resolve_physics(request.mechanistic, model, channels, full_model=request.full_model)
+        time_column = time_column or _file_time_column(request.data)
+    physics = resolve_physics(request.mechanistic, model, channels, full_model=request.full_model,
+                              time_column=time_column)  # fmt: skip
     if request.full_model and (
         physics is None or physics.spec()["kind"] not in ("preset", "train")
     ):
@@ -55,6 +58,14 @@ def plan_physics(
         notes.append(Note(f"{{full_model:name}} changes nothing: the {model.name} model {what}",
                           {"full_model": True}))  # fmt: skip
     return model, physics, notes
+
+
+def _file_time_column(series: MeasurementSeries) -> str | None:
+    """The time column's name in the file the series was read from (``time_ms`` where its
+    values were converted to seconds), else the series' own."""
+    columns = series.metadata.get("columns")
+    named = [str(k) for k, v in columns.items() if v == "time"] if isinstance(columns, dict) else []
+    return named[0] if named else series.metadata.get("time_column")
 
 
 def run_fit(

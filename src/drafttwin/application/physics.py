@@ -27,10 +27,12 @@ def resolve_physics(
     channels: Sequence[str] | None,
     *,
     full_model: bool = False,
+    time_column: str | None = None,
 ) -> MechanisticModel | None:
     """The physics ``model`` uses on data with output ``channels`` (``None``: the model needs
     none; refused: one given to a model that uses none, none for a new hybrid on channels that
-    are not the FA320A rollers, a fitted model whose file does not hold its source)."""
+    are not the FA320A rollers, a fitted model whose file does not hold its source).
+    ``time_column``: the records' time column's name, accepted in simulator files too."""
     if not model.needs_mechanistic:
         if source is not None:
             raise ConfigError(f"the {model.name} model uses no mechanistic source",
@@ -41,7 +43,7 @@ def resolve_physics(
     is_fitted = hasattr(model, "channels_")
     cutoff_hz = spec_cutoff_hz(fitted) if is_fitted else (None if full_model else DEFAULT_CUTOFF_HZ)
     if isinstance(source, str):
-        return MechanisticModel.from_option(source, cutoff_hz=cutoff_hz)
+        return MechanisticModel.from_option(source, cutoff_hz=cutoff_hz, time_column=time_column)
     if isinstance(source, DriveTrain):
         from drafttwin.mechanics import reduce
 

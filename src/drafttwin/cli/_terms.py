@@ -39,6 +39,7 @@ PARAM_FLAGS: dict[str, str] = {
     "tune_trials": "--tune-trials",
     "out": "--out",
     "rate_hz": "--rate",
+    "time_column": "--time-column",
 }
 """Parameter -> option. Every other hyperparameter is set with ``--set NAME=VALUE``."""
 

@@ -166,7 +166,8 @@ def fit(
     with typed(given):
         _replaceable_model_file(out)
         tune.check(out)
-        _, physics, _ = plan_physics(request, channels=parsed.outputs)
+        _, physics, _ = plan_physics(request, channels=parsed.outputs,
+                                     time_column=parsed.time_column)  # fmt: skip
         needs = () if physics is None else physics.required_inputs()
         series = parsed.read(source.fit_data, needs)
         test = None if source.test_data is None else parsed.read(source.test_data, needs)
@@ -224,7 +225,8 @@ def _fitted(
                                    warning.lineno)  # fmt: skip
     _check_task(estimator, source.task, source.init_samples)
     parsed = channels.parse().for_model(estimator)
-    physics = resolve_physics(source.mechanistic, estimator, parsed.outputs)
+    physics = resolve_physics(source.mechanistic, estimator, parsed.outputs,
+                              time_column=parsed.time_column)  # fmt: skip
     fitted_on = estimator.provenance_.get("data")
     spec = source.spec(fitted_on if isinstance(fitted_on, str) else None)
     if source.data is None and source.test_data is None and spec != "default" and not quiet:

@@ -173,6 +173,18 @@ def split_unit(name: str) -> tuple[str, str | None]:
     return low, None
 
 
+_TIME_SUFFIX_RE = re.compile(r"^(.+?)_(s|sec|ms|us|min)$")
+
+
+def time_header(name: str) -> tuple[str, str | None]:
+    """A time column's name and unit: ``'time [ms]'`` -> ``('time', 'ms')``, and a unit
+    suffix too, ``'time_ms'`` -> ``('time', 'ms')``, ``'zeit_min'`` -> ``('zeit', 'min')``
+    (read as seconds before: a millisecond clock made every step 1000x too long)."""
+    base, unit = split_unit(name)
+    m = _TIME_SUFFIX_RE.match(base) if unit is None else None
+    return (m.group(1), m.group(2)) if m else (base, unit)
+
+
 def _is_setpoint(base: str) -> bool:
     return base.startswith("setpoint_") or base == "supply_hz"
 
@@ -238,6 +250,11 @@ def _default_target(base: str, spec: ChannelSpec) -> str | None:
     return None
 
 
+def _time_target(header: str) -> str | None:
+    """``"time"`` for a time name with a unit suffix (``time_ms``, ``t_min``)."""
+    return "time" if time_header(header)[0] in v.TIME_NAMES else None
+
+
 def _assign(
     headers: list[str], mapping: dict[str, str], spec: ChannelSpec, source: str | Path
 ) -> tuple[dict[str, str], list[str]]:
@@ -245,7 +262,8 @@ def _assign(
     assigned: dict[str, str] = {}
     unknown: list[str] = []
     explicit = [(h, t) for h, t in mapping.items() if t != v.IGNORE]
-    defaults = [(h, _default_target(split_unit(h)[0], spec)) for h in headers if h not in mapping]
+    defaults = [(h, _default_target(split_unit(h)[0], spec) or _time_target(h))
+                for h in headers if h not in mapping]  # fmt: skip
     for h, target in explicit + defaults:
         if target is None or (
             target in assigned and assigned[target] in mapping and h not in mapping
@@ -294,7 +312,7 @@ def plan_columns(
         header = assigned[name]
         header_unit = split_unit(header)[1] or (stored_units or {}).get(header)
         units[name] = resolve_unit(name, header, header_unit, spec.units.get(name), source)
-    time_unit = split_unit(assigned["time"])[1]
+    time_unit = time_header(assigned["time"])[1]
     return ColumnPlan(
         time=assigned["time"],
         time_scale=v.time_scale(assigned["time"], time_unit and time_unit.lower(), source),

@@ -60,6 +60,8 @@ class MechanisticModel:
         name: a label for reports (defaults to a description of the source).
         channels: the channels an array or a callable returns, in column order (default: the
             channels asked for at prediction time).
+        time_column: the records' time column's name, accepted as a file's or table's time
+            column besides ``time``, ``time_s`` and ``t``.
     """
 
     def __init__(
@@ -69,6 +71,7 @@ class MechanisticModel:
         columns: Mapping[str, str] | None = None,
         name: str | None = None,
         channels: Sequence[str] | None = None,
+        time_column: str | None = None,
     ) -> None:
         self.channels: tuple[str, ...] | None = None if channels is None else tuple(channels)
         self._columns = {k: str(v).lower() for k, v in (columns or {}).items()}
@@ -81,7 +84,7 @@ class MechanisticModel:
         self._spec: dict[str, Any]
         if isinstance(source, str | Path) or is_path_list(source):
             paths = [Path(p) for p in ([source] if isinstance(source, str | Path) else source)]
-            per_file = [tables(read_table(p), str(p)) for p in paths]
+            per_file = [tables(read_table(p), str(p), time_column) for p in paths]
             self._tables = [t for ts in per_file for t in ts]
             self._table_names = [
                 str(p) if len(ts) == 1 else f"{p} (record {k + 1})"
@@ -91,7 +94,7 @@ class MechanisticModel:
             self._spec = {"kind": "file", "paths": [str(p) for p in paths]}
             label = ", ".join(str(p) for p in paths)
         elif isinstance(source, pd.DataFrame):
-            self._tables = tables(source, "mechanistic table")
+            self._tables = tables(source, "mechanistic table", time_column)
             self._table_names = [f"mechanistic table (record {k + 1})" if len(self._tables) > 1
                                  else "mechanistic table" for k in range(len(self._tables))]  # fmt: skip
             self._spec, label = {"kind": "table"}, "table"
@@ -191,16 +194,19 @@ class MechanisticModel:
         return model
 
     @classmethod
-    def from_option(cls, text: str, *, cutoff_hz: float | None = None) -> MechanisticModel:
+    def from_option(
+        cls, text: str, *, cutoff_hz: float | None = None, time_column: str | None = None
+    ) -> MechanisticModel:
         """The source named by a command-line value: ``preset``, ``preset:NAME``,
         ``config:FILE.toml`` or a simulator output file (``FILE[,FILE...]``, one per record).
-        ``cutoff_hz`` reduces a drive train (files are taken as they are)."""
+        ``cutoff_hz`` reduces a drive train (files are taken as they are); ``time_column``:
+        the records' time column's name, accepted in the files too."""
         source = parse_source(text, "--mechanistic")
         if source.kind == "preset":
             return cls.from_preset(source.preset, cutoff_hz=cutoff_hz)
         if source.kind == "config":
             return cls.from_config(source.paths[0], cutoff_hz=cutoff_hz)
-        return cls([str(p) for p in source.paths])
+        return cls([str(p) for p in source.paths], time_column=time_column)
 
     @classmethod
     def from_spec(cls, spec: Mapping[str, Any] | None) -> MechanisticModel | None:

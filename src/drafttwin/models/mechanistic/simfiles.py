@@ -14,7 +14,9 @@ import pandas as pd
 from drafttwin.errors import DataError
 
 TIME_COLUMNS = ("time", "time_s", "t")
-"""Accepted names (case-insensitive) of the time column of a simulator output file."""
+"""Accepted names (case-insensitive) of the time column of a simulator output file, with a
+unit in brackets or as a suffix (``time [ms]``, ``time_ms``) or not (seconds); the record's
+own time column's name (``--time-column``) is accepted too."""
 
 Table = tuple[np.ndarray, dict[str, np.ndarray]]
 """A simulator table: time (s) and columns by lower-cased name."""
@@ -39,31 +41,47 @@ def read_table(path: Path) -> pd.DataFrame:
     return read_checked(path, option="--mechanistic")
 
 
-def tables(frame: pd.DataFrame, source: str) -> list[Table]:
+def tables(frame: pd.DataFrame, source: str, time_column: str | None = None) -> list[Table]:
     """One table per record: a ``record`` column (as ``drafttwin predict`` writes for several
-    records) splits the frame where it changes."""
+    records) splits the frame where it changes. ``time_column``: the record's time column's
+    name, accepted as the table's time column too."""
     lower = {str(c).strip().lower(): c for c in frame.columns}
     if "record" not in lower:
-        return [_table(frame, source)]
+        return [_table(frame, source, time_column)]
     ids = pd.to_numeric(frame[lower["record"]], errors="coerce").to_numpy(dtype=np.float64)
     _refuse_non_finite(ids, frame[lower["record"]], "record", source)
     cuts = np.flatnonzero(np.diff(ids) != 0) + 1
     parts = np.split(np.arange(len(frame)), cuts)
-    return [_table(frame.iloc[rows].drop(columns=[lower["record"]]), f"{source} (record {k + 1})")
-            for k, rows in enumerate(parts)]  # fmt: skip
+    return [_table(frame.iloc[rows].drop(columns=[lower["record"]]), f"{source} (record {k + 1})",
+                   time_column) for k, rows in enumerate(parts)]  # fmt: skip
 
 
-def _table(frame: pd.DataFrame, source: str) -> Table:
-    """Time and numeric columns of a simulator table, checked."""
+def _time_column(frame: pd.DataFrame, source: str, time_column: str | None) -> tuple[Any, float]:
+    """The table's time column and its seconds per unit (``time [ms]``: 1e-3)."""
+    from drafttwin.data.columns import time_header
+    from drafttwin.data.validate import time_scale
+
+    given = None if time_column is None else time_column.strip().lower()
+    named = [c for c in frame.columns if str(c).strip().lower() == given]
+    named += [c for c in frame.columns if time_header(str(c))[0] in TIME_COLUMNS]
+    if not named:
+        also = "" if given is None else ", or {time_column:value} as {time_column:name} names it"
+        raise DataError(f"no time column (looked for {', '.join(TIME_COLUMNS)}{also})",
+                        source=source, where=f"columns {list(map(str, frame.columns))}",
+                        terms={"time_column": time_column},
+                        fix="name the time column 'time' (seconds) or as the record's time "
+                        "column")  # fmt: skip
+    unit = time_header(str(named[0]))[1]
+    return named[0], time_scale(str(named[0]), unit and unit.lower(), source)
+
+
+def _table(frame: pd.DataFrame, source: str, time_column: str | None = None) -> Table:
+    """Time (s) and numeric columns of a simulator table, checked."""
     if len(frame) < 2:
         raise DataError(f"{len(frame)} row(s); need at least 2", source=source)
     lower = {str(c).strip().lower(): c for c in frame.columns}
-    time_col = next((lower[n] for n in TIME_COLUMNS if n in lower), None)
-    if time_col is None:
-        raise DataError(f"no time column (looked for {', '.join(TIME_COLUMNS)})", source=source,
-                        where=f"columns {list(map(str, frame.columns))}",
-                        fix="name the time column 'time' (seconds)")  # fmt: skip
-    time_s = _numeric(frame, time_col, source)
+    time_col, seconds_per_unit = _time_column(frame, source, time_column)
+    time_s = _numeric(frame, time_col, source) * seconds_per_unit
     steps = np.diff(time_s)
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
