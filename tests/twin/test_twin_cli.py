@@ -273,3 +273,21 @@ def test_fit_detector_reads_a_record_of_other_column_names_with_columns(
     res = CliRunner().invoke(app, [*args, "--columns", "frnt=front"])
     assert res.exit_code == 0, res.output
     assert (tmp_path / "d.json").is_file()
+
+
+def test_fit_detector_refuses_a_healthy_record_given_twice(
+    twin_files: tuple[Path, Path], tmp_path: Path
+) -> None:
+    """A record given twice (its name twice, or a copy) counted its running twice towards
+    the thresholds' length, as diagnose's --healthy had (that refuses it since)."""
+    record, model = twin_files
+    copy = tmp_path / f"copy{record.suffix}"
+    copy.write_bytes(record.read_bytes())
+    for second in (record, copy):
+        res = CliRunner().invoke(app, ["twin", "fit-detector", "--model", str(model), "--healthy",
+                                       f"{record},{second}", "--out", str(tmp_path / "d.json")])  # fmt: skip
+        assert res.exit_code == 2, res.output
+        line = " ".join(res.output.split())
+        assert f"{second}: --healthy: holds the same samples as {record}" in line
+        assert "give each healthy record once" in line
+        assert not (tmp_path / "d.json").exists()

@@ -1,5 +1,6 @@
 """The ``--healthy`` records of ``diagnose``: read with ``--data``'s column map, each once,
-none of them the record under diagnosis (by name or by content), all at its rate."""
+none of them the record under diagnosis (by name or by content), all at its rate; and of
+``twin fit-detector``, each once."""
 
 from __future__ import annotations
 
@@ -25,17 +26,20 @@ def healthy_records(paths: list[str], data: str, series: MeasurementSeries,
                      channels: Channels) -> list[MeasurementSeries]:  # fmt: skip
     """The --healthy records, each once: a record given twice (two names, or a copy) would
     count its running twice towards the thresholds' length."""
-    records: list[MeasurementSeries] = []
-    for path in paths:
-        record = _healthy_record(path, data, series, channels)
-        twin = next((q for q, r in zip(paths, records, strict=False) if _same_samples(r, record)),
-                    None)  # fmt: skip
+    records = [_healthy_record(path, data, series, channels) for path in paths]
+    refuse_repeated(list(zip(paths, records, strict=True)))
+    return records
+
+
+def refuse_repeated(labelled: list[tuple[str, MeasurementSeries]]) -> None:
+    """Refuse a --healthy record given twice (two names, or a copy): it would count its
+    running twice towards the thresholds' length."""
+    for k, (label, record) in enumerate(labelled):
+        twin = next((q for q, r in labelled[:k] if _same_samples(r, record)), None)
         if twin is not None:
             raise ConfigError(f"holds the same samples as {twin}, given before it: a record "
-                              "counted twice", source=path, where="--healthy",
+                              "counted twice", source=label, where="--healthy",
                               fix="give each healthy record once")  # fmt: skip
-        records.append(record)
-    return records
 
 
 def _same_samples(a: MeasurementSeries, b: MeasurementSeries) -> bool:

@@ -4,7 +4,7 @@ and stored next to the model (docs/twin.md, 'Faults live')."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -59,6 +59,7 @@ def twin_fit_detector(
     detector.
     """
     from drafttwin.cli._data import Channels, pairs
+    from drafttwin.cli._healthy import refuse_repeated
     from drafttwin.diagnosis.detect import FaultDetector
     from drafttwin.diagnosis.residuals import record_features
     from drafttwin.twin.build import load_twin_model
@@ -75,10 +76,14 @@ def twin_fit_detector(
     _replaceable_detector_file(target)  # before the work
     fitted = load_twin_model(model)
     train = physics_train(fitted, "reduced")  # the physics the live twin steps
-    series = []
+    labelled: list[tuple[str, Any]] = []
     for p in files:  # a plant log holds one record per machine; anything else is one record
         logged = plant_log_series(Path(p))
-        series += logged if logged is not None else [reading.read(p)]
+        labelled += ([(p, reading.read(p))] if logged is None else
+                     [(p if len(logged) == 1 else f"{p} (record {k + 1})", s)
+                      for k, s in enumerate(logged)])  # fmt: skip
+    refuse_repeated(labelled)
+    series = [s for _, s in labelled]
     features = [record_features(train, s) for s in series]
     detector = FaultDetector(far_per_day=far_per_day, reference_s=reference).fit(features)
     machines = sorted({i.serial for p in files if (i := recorded_identity(Path(p))) is not None})
