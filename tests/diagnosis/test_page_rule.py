@@ -84,3 +84,37 @@ def test_a_sensor_alarm_names_the_sensor_rule(detector):
     value, label, _ = rule_statistic(dx)
     assert value[40] == pytest.approx(3) and "back" in label
     assert "raised by the sensor rule on stuck_back" in summary(dx).html
+
+
+def test_a_look_alike_that_does_not_fit_is_not_called_indistinguishable(detector):
+    """A belt ramp's page said "cannot be told apart from motor:gain" beside "motor:gain
+    does not fit, p 2.3e-14": the fit tells them apart."""
+    from drafttwin.cli.faults_cmds import _marked
+    from drafttwin.report.diagnosis import look_alikes
+
+    y, _, f = features(3.0, 24)
+    top = Cause(element="E-F", kind="wear", family="gear", severity=150.0,
+                interval=(140.0, 160.0), parameter="wear depth (um)", chi2=3.0,
+                probability=0.8, group=("C-D:wear", "motor:gain"), dof=8, fit_p=0.5)  # fmt: skip
+    alike = replace(top, element="C-D", group=("E-F:wear", "motor:gain"), probability=0.15)
+    misfit = Cause(element="motor", kind="gain", family="sensor", severity=0.01,
+                   interval=(0.009, 0.011), parameter="gain", chi2=90.0, probability=0.05,
+                   group=("E-F:wear", "C-D:wear"), dof=8, fit_p=2.3e-14)  # fmt: skip
+    causes = [top, alike, misfit]
+    assert look_alikes(top, causes) == (["C-D:wear"], ["motor:gain"])
+    # a cause that does not fit itself is told apart by nothing: its group stands
+    assert look_alikes(misfit, causes) == (["E-F:wear", "C-D:wear"], [])
+    info = {"data": "x.parquet", "physics": "preset", "thresholds_from": "two records",
+            "detector": detector.describe(), "creep_rel_sd": 0.07}  # fmt: skip
+    html = page_of(Diagnosis(f, detector.run(f), causes), y, info)
+    assert "Cannot be told apart from C-D:wear with these sensors" in html
+    assert "C-D:wear (same direction, no fit: motor:gain)" in html
+    alone = replace(top, group=("motor:gain",))
+    html = page_of(Diagnosis(f, detector.run(f), [alone, misfit]), y, info)
+    assert "Cannot be told apart" not in html
+    assert (
+        "No other fitting candidate moves the measured channels the same way (motor:gain: "
+        "the same direction, but no fit here)" in html
+    )
+    as_json = [{**c.to_dict()} for c in causes]
+    assert _marked(list(top.group), as_json) == ["C-D:wear", "motor:gain (no fit)"]

@@ -245,7 +245,7 @@ def _print_diagnosis(result: dict[str, Any], report: Path | None) -> None:
         for i, c in enumerate(result["causes"]):  # below the table: long lists wrap as text
             if c["group"]:
                 console.print(f"{i + 1} {c['element']}:{c['kind']}: same signature as "
-                              f"{', '.join(c['group'])}")  # fmt: skip
+                              f"{', '.join(_marked(c['group'], result['causes']))}")  # fmt: skip
         for i, c in enumerate(result["causes"]):  # each cause's severity in its own unit
             console.print(f"{i + 1} severity: {c['parameter']}")
         if result.get("verdict"):
@@ -516,3 +516,9 @@ def _print_sliver(ev: dict[str, Any]) -> None:
         console.print("  the count's limit not watched: the record names no nominal count")
     if not ev["chimneys"] and not ev["alarms"]:
         console.print("  no significant chimney")
+
+
+def _marked(group: list[str], causes: list[dict[str, Any]]) -> list[str]:
+    """Group members, those that do not fit marked so (a look-alike told apart by its fit)."""
+    misfits = {f"{c['element']}:{c['kind']}" for c in causes if not c["fits"]}
+    return [f"{n} (no fit)" if n in misfits else n for n in group]

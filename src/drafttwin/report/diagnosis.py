@@ -11,7 +11,7 @@ table of its three rules.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 import matplotlib
@@ -222,8 +222,24 @@ def _suspects(dx: Diagnosis, train: DriveTrain) -> tuple[set[str], set[str]]:
         return element
 
     suspect = {where(top.element, top.family)}
-    group = {where(n.split(":")[0], top.family) for n in top.group}
+    group = {where(n.split(":")[0], top.family) for n in look_alikes(top, dx.causes)[0]}
     return suspect, group - suspect
+
+
+def look_alikes(c: Cause, causes: Sequence[Cause]) -> tuple[list[str], list[str]]:
+    """The candidates of ``c``'s group that cannot be told apart from it (they fit where it
+    fits), and those its fit tells apart (same direction, but they do not fit here: a belt
+    ramp's page had said "cannot be told apart from motor:gain" beside "motor:gain does not
+    fit, p 2.3e-14")."""
+    fits = {x.name: getattr(x, "fits", True) for x in causes}
+    told_apart = [n for n in c.group if getattr(c, "fits", True) and not fits.get(n, True)]
+    return [n for n in c.group if n not in told_apart], told_apart
+
+
+def _group_text(c: Cause, causes: Sequence[Cause]) -> str:
+    same, apart = look_alikes(c, causes)
+    text = ", ".join(same) or "-"
+    return text + (f" (same direction, no fit: {', '.join(apart)})" if apart else "")
 
 
 def _fit_text(c: Cause) -> str:
@@ -280,10 +296,13 @@ def summary(dx: Diagnosis, reference_s: float | None = None) -> Raw:
         grows = _growth_text(top)
         if grows:
             lines.append(para(grows))
+        same, apart = look_alikes(top, dx.causes)
         lines.append(para(
-            f"Cannot be told apart from {', '.join(top.group)} with these sensors: read the "
-            "group, not the first name." if top.group else
-            "No other candidate moves the measured channels the same way."))  # fmt: skip
+            f"Cannot be told apart from {', '.join(same)} with these sensors: read the "
+            "group, not the first name." if same else
+            "No other candidate moves the measured channels the same way."
+            if not apart else "No other fitting candidate moves the measured channels the "
+            f"same way ({', '.join(apart)}: the same direction, but no fit here)."))  # fmt: skip
     verdict = getattr(dx, "verdict", None)
     if isinstance(verdict, str) and verdict:
         lines.append(para(f"Verdict: {verdict}."))
@@ -368,7 +387,7 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
     rows: list[Row] = [[f"{i + 1}", Cell(join([c.name, tag("div", c.parameter, cls="note")]),
                                          cls=wrap),
                         c.family, f"{c.severity:.4g}", _interval_text(c), f"{c.probability:.2f}",
-                        Cell(_fit_text(c), cls=wrap), Cell(", ".join(c.group) or "-", cls=wrap)]
+                        Cell(_fit_text(c), cls=wrap), Cell(_group_text(c, dx.causes), cls=wrap)]
                        for i, c in enumerate(dx.causes[:8])]  # fmt: skip
     head: list[Row] = [["rank", Cell("cause (severity unit)", cls=wrap, header=True), "family",
                         "severity", "95 % interval", "p (relative)", "fit",
