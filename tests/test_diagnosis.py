@@ -421,3 +421,37 @@ def test_cli_diagnose_says_a_record_too_short_to_judge_holds_no_verdict(records,
     out = json.loads(CliRunner().invoke(app, [*args, "--json"]).stdout)
     assert out["judged"] is False and out["notes"][0].startswith("nothing was judged: the "
                                                                  "record (3 s)")  # fmt: skip
+
+
+def test_cli_diagnose_ranks_past_the_half_that_set_its_thresholds(records, tmp_path, monkeypatch):
+    """Without --healthy the record's first half sets the thresholds (assumed healthy); an
+    alarm inside that half had been the one ranked, and a belt wear at 100 s of a 200-s record
+    was never reported. Alarms inside it are said in a note; the first from its end on is
+    ranked. (Thresholds tightened here so that the half's own wander raises one.)"""
+    import json
+
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+    from drafttwin.diagnosis import detect
+
+    fit = detect.FaultDetector.fit
+
+    def tight(self, *args, **kwargs):
+        fitted = fit(self, *args, **kwargs)
+        fitted.h_ = fitted.h_ * 0.2
+        return fitted
+
+    monkeypatch.setattr(detect.FaultDetector, "fit", tight)
+    page = tmp_path / "dx.html"
+    args = ["diagnose", "--model", "preset", "--data", str(records / "gain.parquet"),
+            "--report", str(page)]  # fmt: skip
+    out = json.loads(CliRunner().invoke(app, [*args, "--json"]).stdout)
+    inside = out["reference_alarms_s"]
+    assert inside and all(t < 30.0 for t in inside)
+    assert out["alarm"] is not None and out["alarm"]["time_s"] >= 30.0
+    assert out["notes"][0].startswith(f"{len(inside)} alarm(s) inside the first half that set "
+                                      "the thresholds (at ")  # fmt: skip
+    said = " ".join(CliRunner().invoke(app, args).output.split())
+    assert "the first alarm from 30.0 s on is ranked" in said
+    assert "inside the first half that set the thresholds" in page.read_text(encoding="utf-8")

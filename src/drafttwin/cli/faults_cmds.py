@@ -8,10 +8,10 @@ from pathlib import Path
 from typing import Annotated, Any, NamedTuple
 
 import typer
-from rich import box
 from rich.table import Table
 
 from drafttwin._limits import check_rk4_steps, check_samples
+from drafttwin.cli._dxprint import assumed_half_note, inside_alarms, print_diagnosis, print_sliver
 from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._healthy import head_rows, healthy_records
 from drafttwin.cli._options import (
@@ -153,10 +153,12 @@ def diagnose(
     if healthy_paths:
         tuning = healthy_records(healthy_paths, data, series, mapped)
         tuned_on = healthy
+        assumed_until = None
     else:
         cut = len(series) // 2
         tuning = [head_rows(series, cut)]
         tuned_on = f"the record's first {series.time_s[cut - 1] - series.time_s[0]:.0f} s (assumed healthy)"
+        assumed_until = float(series.time_s[cut])
     features = []
     for path, record in zip(healthy_paths or [data], tuning, strict=True):
         with _named(path, "--healthy" if healthy_paths else "--data"):
@@ -165,17 +167,20 @@ def diagnose(
         detector = FaultDetector(far_per_day=far_per_day).fit(features)
     diagnoser = Diagnoser(train, detector)
     with _named(data, "--data"):
-        dx = diagnoser.diagnose(series)
+        dx = diagnoser.diagnose(series, first_after=assumed_until)
     watched_from = dx.watched_from_s(detector.reference_s)
-    info = {"data": data, "physics": model, "thresholds_from": tuned_on,
+    info: dict[str, Any] = {"data": data, "physics": model, "thresholds_from": tuned_on,
             "watched_from_s": watched_from,
             "detector": detector.describe(), "creep_rel_sd": diagnoser.creep_rel_sd}  # fmt: skip
     result = {**info, **dx.to_dict()}
     result["judged"] = dx.judged(detector.reference_s)
-    notes = [n for n in (dx.short_note(detector.reference_s), dx.steady_note(detector.reference_s),
-                         detector.levels_note(), detector.lags_note()) if n is not None]  # fmt: skip
+    said = (assumed_half_note(dx, assumed_until), dx.short_note(detector.reference_s),
+            dx.steady_note(detector.reference_s), detector.levels_note(), detector.lags_note())  # fmt: skip
+    notes = [n for n in said if n is not None]
     if notes:
         result["notes"] = notes
+    info["notes"] = [n for n in said if n is not None and n != said[2]]  # the banner says [2]
+    result["reference_alarms_s"] = inside_alarms(dx, assumed_until)
     from drafttwin.diagnosis.sliver_evidence import sliver_evidence
 
     sliver = sliver_evidence(data, train, series,
@@ -192,9 +197,9 @@ def diagnose(
     if as_json:
         typer.echo(dumps_strict(result))
         return
-    _print_diagnosis(result, report)
+    print_diagnosis(result, report)
     if sliver is not None:
-        _print_sliver(sliver[0])
+        print_sliver(sliver[0])
 
 
 @contextlib.contextmanager
@@ -213,54 +218,6 @@ def _named(path: str | None, option: str) -> Iterator[None]:
         if exc.where in ("data", "tuning", None):
             exc.where = option
         raise
-
-
-def _print_diagnosis(result: dict[str, Any], report: Path | None) -> None:
-    alarm = result["alarm"]
-    console.print(f"thresholds from {result['thresholds_from']}")
-    for note in result.get("notes", []):
-        console.print(f"[yellow]note:[/] {note}")
-    if alarm is None and not result.get("judged", True):
-        console.print("no alarm, and no verdict: nothing was judged")
-    elif alarm is None:
-        console.print("no alarm: the residuals stayed within the thresholds")
-    else:
-        console.print(f"[bold red]alarm[/] at {alarm['time_s']:.1f} s ({alarm['test']}), change "
-                      f"estimated at {alarm['onset_s']:.1f} s")  # fmt: skip
-        watched = result["watched_from_s"]
-        if watched is not None and alarm["onset_s"] <= watched + 1.0:
-            console.print(f"the record is watched from {result['watched_from_s']:.1f} s (before "
-                          "that it is its own baseline): the change may have begun earlier")  # fmt: skip
-        table = Table(title="ranked causes (p: relative among the candidates; fit: absolute)",
-                      box=box.SIMPLE_HEAD, pad_edge=False)  # fmt: skip
-        for col in ("#", "cause", "severity", "95 % interval", "p rel.", "fit chi2/dof (p)"):
-            # full cause names on one line; the rest wraps inside its cell, never cut
-            table.add_column(col, overflow="fold", no_wrap=col == "cause")
-        for i, c in enumerate(result["causes"]):
-            fit = ("rule" if c["fit_p"] is None else
-                   f"{c['chi2']:.3g}/{c['dof']} ({c['fit_p']:.2g})" + ("" if c["fits"] else " no fit"))  # fmt: skip
-            table.add_row(str(i + 1), f"{c['element']}:{c['kind']}", f"{c['severity']:.4g}",
-                          c["interval_text"], f"{c['probability']:.2f}", fit)  # fmt: skip
-        console.print(table)
-        for i, c in enumerate(result["causes"]):  # below the table: long lists wrap as text
-            if c["group"]:
-                console.print(f"{i + 1} {c['element']}:{c['kind']}: same signature as "
-                              f"{', '.join(_marked(c['group'], result['causes']))}")  # fmt: skip
-        for i, c in enumerate(result["causes"]):  # each cause's severity in its own unit
-            console.print(f"{i + 1} severity: {c['parameter']}")
-        if result.get("verdict"):
-            colour = "green" if result["explained"] else "bold red"
-            console.print(f"[{colour}]{result['verdict']}[/]")
-        for c in result["causes"]:
-            g = c.get("growth")
-            if g is not None and g["growing"]:
-                console.print(f"{c['element']}:{c['kind']} is still growing: "
-                              f"{g['rate_per_s']:.3g} per s [{g['rate_interval'][0]:.3g}, "
-                              f"{g['rate_interval'][1]:.3g}], {g['severity_at_end']:.4g} "
-                              f"[{g['interval_at_end'][0]:.4g}, {g['interval_at_end'][1]:.4g}] "
-                              f"at {g['at_time_s']:.1f} s")  # fmt: skip
-    if report is not None:
-        console.print(f"wrote {report}")
 
 
 QuickOpt = Annotated[bool, typer.Option("--quick", help="A small subset (6 kinds, moderate, abrupt).")]  # fmt: skip
@@ -494,31 +451,3 @@ def _sliver_variant(out: Path, quick: bool, seed: int, workers: int, as_json: bo
                   f"{scores['healthy_new_chimneys']}; the encoders' diagnosis leaves these kinds "
                   "not assessed (docs/faults.md)")  # fmt: skip
     console.print(f"wrote {out / 'faults_sliver.json'}")
-
-
-def _print_sliver(ev: dict[str, Any]) -> None:
-    """The sliver channel's evidence, a few lines."""
-    console.print(f"sliver ({ev['file']}): count {ev['count_ktex']:.4f} ktex, CV "
-                  f"{ev['cv_pct']:.3f} %")  # fmt: skip
-    for a in ev["alarms"]:
-        console.print(f"  sliver alarm at {a['time_s']:.1f} s ({a['delivered_m']:.0f} m): "
-                      f"chimney at {a['wavelength_m'] * 100:.2f} cm, {a['amplitude_pct']:.3f} % "
-                      f"(base {a['base_pct']:.3f} %): {a['element']}"
-                      + (f" (look-alikes {', '.join(a['lookalikes'])})" if a["lookalikes"] else ""))  # fmt: skip
-    for e in ev.get("count_excursions", []):
-        console.print(f"  at {e['time_s']:.1f} s: {e['text']}", highlight=False)
-    for c in ev["chimneys"]:
-        console.print(f"  whole record: {c['wavelength_m'] * 100:.2f} cm: {c['verdict']}")
-    for c in ev["known_lines"]:
-        console.print(f"  the machine's own line (in its healthy reference): "
-                      f"{c['wavelength_m'] * 100:.2f} cm, {c['amplitude_pct']:.3f} %")  # fmt: skip
-    if ev.get("count_limit") is None:
-        console.print("  the count's limit not watched: the record names no nominal count")
-    if not ev["chimneys"] and not ev["alarms"]:
-        console.print("  no significant chimney")
-
-
-def _marked(group: list[str], causes: list[dict[str, Any]]) -> list[str]:
-    """Group members, those that do not fit marked so (a look-alike told apart by its fit)."""
-    misfits = {f"{c['element']}:{c['kind']}" for c in causes if not c["fits"]}
-    return [f"{n} (no fit)" if n in misfits else n for n in group]

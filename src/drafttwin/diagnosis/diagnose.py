@@ -191,8 +191,10 @@ class Diagnoser:
         return DiagnosisStream(period_s, roller_ratio(self.train), detector=self.detector,
                                post_s=self.post_s, trace=trace, machine=machine)  # fmt: skip
 
-    def diagnose(self, series: MeasurementSeries) -> Diagnosis:
-        """Detect, locate and size (with spectral evidence) in one record."""
+    def diagnose(self, series: MeasurementSeries, first_after: float | None = None) -> Diagnosis:
+        """Detect, locate and size (with spectral evidence) in one record; ``first_after``:
+        rank the first alarm at or after this time (s) instead of the record's first (the
+        end of a part of the record that set the thresholds)."""
         t = np.asarray(series.time_s, dtype=np.float64)
         if len(t) < 2:
             raise DataError("the record has fewer than two samples", where="data",
@@ -206,7 +208,7 @@ class Diagnoser:
                             where="data", fix="give a longer record")  # fmt: skip
         f = BlockFeatures.from_rows(stream.rows, stream.blocks.block_s)
         assert stream.decisions is not None
-        dx = self._diagnosis(f, stream.decisions, step)
+        dx = self._diagnosis(f, stream.decisions, step, first_after)
         a = dx.alarm
         if a is not None:
             dx.lines = line_evidence(self.train, series, a.change_s, a.time_s)

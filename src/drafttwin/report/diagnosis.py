@@ -405,6 +405,7 @@ def render_diagnosis(dx: Diagnosis, train: DriveTrain, series: MeasurementSeries
     paused = bool(dx.not_steady_s())  # blocks not judged: named in the captions
     body = join([
         tag("h1", title), para(str(info.get("data", "")), cls="sub"), verdict,
+        join([para(f"Note: {n}.", cls="note") for n in info.get("notes") or []]),
         section("sliver", "What the sliver says", diagnosis_section(*sliver))
         if sliver is not None else "",
         section("ranked", "Ranked causes", causes, para(
