@@ -194,6 +194,39 @@ def _await_trial_started(journal: Path, trial_id: int, timeout_s: float = 60.0) 
     raise AssertionError(f"trial {trial_id} did not start within {timeout_s:g} s")
 
 
+def test_a_stop_while_a_trial_draws_leaves_it_whole(folder: Path, tmp_path: Path,
+                                                    monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """A SIGTERM between two of a trial's parameters left it in the journal with the first
+    few only: resumed, it ran with the rest at the profile's values (CI: batch_size,
+    schedule and structure missing, its score 1.05 against the uninterrupted 3.66)."""
+    import os
+
+    optuna = pytest.importorskip("optuna")
+    suggest = optuna.trial.Trial.suggest_categorical
+
+    def interrupted(self: Any, name: str, choices: Any) -> Any:
+        value = suggest(self, name, choices)
+        if self.number == 1 and name == "window":  # the first of trial 1's parameters
+            os.kill(os.getpid(), signal.SIGTERM)
+        return value
+
+    monkeypatch.setattr(optuna.trial.Trial, "suggest_categorical", interrupted)
+    journal = tmp_path / "search.jsonl"
+    result = runner.invoke(app, ["fit", "--model", "parallel", "--data", _small(folder), *DATA,
+                                 "--task", "simulation", "--init-samples", str(INIT),
+                                 "--mechanistic", str(folder / "sim_small.csv"), "--epochs", "1",
+                                 "--tune", "--tune-trials", "3", "--tune-storage", str(journal),
+                                 "--quiet", "--out", str(tmp_path / "m.dtm")])  # fmt: skip
+    assert result.exit_code == 128 + signal.SIGTERM, result.output
+    from optuna.storages.journal import JournalFileBackend
+
+    storage = optuna.storages.JournalStorage(JournalFileBackend(str(journal)))
+    (name,) = optuna.get_all_study_names(storage)
+    first, cut = optuna.load_study(study_name=name, storage=storage).trials
+    assert cut.state == optuna.trial.TrialState.RUNNING
+    assert set(cut.params) == set(first.params) and len(first.params) >= 5
+
+
 @pytest.mark.slow
 def test_a_search_stops_on_sigterm_and_resumes(folder: Path, tmp_path: Path) -> None:
     data = _small(folder)

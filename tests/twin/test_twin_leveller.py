@@ -462,11 +462,12 @@ def test_the_leveller_worker_does_not_hold_the_process_at_exit() -> None:
     code = ("import time\nfrom drafttwin.twin.sliverdesk import DaemonWorker\n"
             "w = DaemonWorker('leveller')\nf = w.submit(time.sleep, 30)\n"
             "g = w.submit(time.sleep, 30)\ntime.sleep(0.3)\nw.shutdown([g])\n"
-            "assert g.cancelled() and f.running()\n")  # fmt: skip
-    t0 = time.monotonic()
+            "assert g.cancelled() and f.running()\nprint(time.monotonic())\n")  # fmt: skip
     done = subprocess.run([sys.executable, "-c", code], timeout=60, capture_output=True, text=True)
     assert done.returncode == 0, done.stderr
-    assert time.monotonic() - t0 < 10
+    # from its last line to its exit (one clock for both processes): a held worker adds its
+    # 30-s sleep; the import before is not counted (on a loaded CI it took 11 s)
+    assert time.monotonic() - float(done.stdout.split()[-1]) < 10
 
 
 @pytest.mark.long  # a 40-s plant record with its sliver (171 m) and Chromium: about 60 s

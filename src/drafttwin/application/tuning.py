@@ -227,7 +227,11 @@ def tune(
         cut = study.get_trials(deepcopy=False, states=(optuna.trial.TrialState.RUNNING,))
         if cut:
             trial = optuna.trial.Trial(study, cut[0]._trial_id)  # no public way to reopen one
-            params, before = dict(cut[0].params), float(cut[0].user_attrs.get("cpu_s", 0.0))
+            # its parameters as stored (a journal of an older version may lack some: drawn)
+            study.sampler = _sampler(optuna, seed, cut[0].number)
+            with signals_deferred():
+                params = _suggest(trial, space)
+            before = float(cut[0].user_attrs.get("cpu_s", 0.0))
         else:
             used = spent()
             if _stop(study, used, budget_min, request.tune_trials):
@@ -236,8 +240,11 @@ def tune(
                 _enqueue_seeds(study, base_seed)
             # seeded per trial: a resumed search draws what an uninterrupted one would
             study.sampler = _sampler(optuna, seed, len(study.trials))
-            trial = study.ask()
-            params, before = _suggest(trial, space), 0.0
+            # a trial's parameters all in the journal or none: a stop between two had left a
+            # trial that ran again with the rest at the profile's values
+            with signals_deferred():
+                trial = study.ask()
+                params, before = _suggest(trial, space), 0.0
         net_seed = int(trial.user_attrs.get("seed", base_seed))
         trial.set_user_attr("seed", net_seed)
         start = cpu_seconds()
