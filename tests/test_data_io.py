@@ -442,3 +442,57 @@ def test_write_refuses_clashing_column_names(tmp_path: Path) -> None:
     with pytest.raises(DataError, match="two columns would be named 'Y'"):
         write_measurements(series, tmp_path / "m.csv")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_parquet_duration_time_column_is_read_in_seconds(tmp_path: Path) -> None:
+    """A timedelta64 column (pandas' durations) was read as nanoseconds taken for seconds:
+    '19990000000 s' and '1e-07 Hz', and a model fitted on it."""
+    frame = pd.DataFrame({"time": pd.to_timedelta(np.arange(6) * 0.01, unit="s"),
+                          "front": 1815.0, "second": 1500.0, "third": 450.0, "back": 355.0})  # fmt: skip
+    frame.to_parquet(tmp_path / "td.parquet")
+    series = read_measurements(tmp_path / "td.parquet")
+    np.testing.assert_allclose(series.time_s, np.arange(6) * 0.01)
+    assert series.sample_rate_hz == pytest.approx(100.0)
+
+
+def test_time_in_msec_by_header_suffix(tmp_path: Path) -> None:
+    rows = [f"{10 * i},1815,1500,450,355" for i in range(5)]
+    path = write_csv(tmp_path / "ms.csv", "time_msec,front,second,third,back", rows)
+    assert read_measurements(path, time_column="time_msec").sample_rate_hz == pytest.approx(100.0)
+
+
+@pytest.mark.parametrize("cell", ["4847", "1e300", "-50"])
+def test_a_supply_frequency_no_drive_gives_is_refused(tmp_path: Path, cell: str) -> None:
+    """One sample of 4847 Hz (a lost decimal point) moved a calibration without a word."""
+    rows = [f"{0.01 * i:.2f},1815,1500,450,355,{cell if i == 3 else '48.47'}" for i in range(6)]
+    path = write_csv(tmp_path / "s.csv", "time,front,second,third,back,supply_hz", rows)
+    with pytest.raises(DataError, match=r"row 4 \(line 5\), column 'supply_hz': supply "
+                                        r"frequency .* Hz is outside 0 to 1000 Hz"):  # fmt: skip
+        read_measurements(path)
+    ok = write_csv(tmp_path / "ok.csv", "time,front,second,third,back,supply_hz",
+                   [f"{0.01 * i:.2f},1815,1500,450,355,48.47" for i in range(6)])  # fmt: skip
+    assert read_measurements(ok).inputs["supply_hz"][0] == pytest.approx(48.47)
+
+
+@pytest.mark.parametrize("stamps", [False, True])
+def test_a_parquet_file_indexed_by_its_time_is_read(tmp_path: Path, stamps: bool) -> None:
+    """pandas' to_parquet of a frame indexed by its time: "no time column" (the index was
+    dropped), and neither --time-column nor --columns could name it."""
+    t = np.arange(6) * 0.01
+    index = pd.to_datetime("2024-05-01T08:00:00") + pd.to_timedelta(t, unit="s") if stamps else t
+    frame = pd.DataFrame({"front": 1815.0, "second": 1500.0, "third": 450.0, "back": 355.0},
+                         index=pd.Index(index, name="time"))  # fmt: skip
+    frame.to_parquet(tmp_path / "indexed.parquet")
+    series = read_measurements(tmp_path / "indexed.parquet")
+    np.testing.assert_allclose(series.time_s, t, atol=1e-9)
+
+
+def test_a_parquet_file_naming_a_column_twice_is_refused_so(tmp_path: Path) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.table([pa.array(np.arange(6) * 0.01), pa.array(np.full(6, 1815.0)),
+                      pa.array(np.full(6, 1816.0))], names=["time", "front", "front"])  # fmt: skip
+    pq.write_table(table, tmp_path / "twice.parquet")
+    with pytest.raises(DataError, match="the file names column 'front' twice"):
+        read_measurements(tmp_path / "twice.parquet")

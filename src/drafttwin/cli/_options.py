@@ -117,7 +117,7 @@ InputsOpt = Annotated[str | None, typer.Option("--inputs", help=(
     "Exogenous input channels NAME[,NAME...] of the data (set-points, a drive voltage): the "
     "networks see them; a model that takes none (the physics alone, persistence) reads them "
     "only. Set-point columns (supply_hz, setpoint_*) are always read for the physics."))]  # fmt: skip
-TimeColumnOpt = Annotated[str | None, typer.Option("--time-column", help="Name of the time column: seconds, or the unit its name gives (time_ms, 'time [ms]', t_min); the --mechanistic files may name theirs so too.")]  # fmt: skip
+TimeColumnOpt = Annotated[str | None, typer.Option("--time-column", help="Name of the time column: seconds, or the unit its name gives (time_ms, 'time \\[ms]', t_min); the --mechanistic files may name theirs so too.")]  # fmt: skip
 UnitsOpt = Annotated[str | None, typer.Option("--units", help="Units NAME=UNIT[,...] (e.g. "
                      "y=m,u=V). The rpm plausibility check runs only on channels in rpm (the "
                      "FA320A rollers by default).")]  # fmt: skip

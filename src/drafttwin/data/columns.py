@@ -173,7 +173,7 @@ def split_unit(name: str) -> tuple[str, str | None]:
     return low, None
 
 
-_TIME_SUFFIX_RE = re.compile(r"^(.+?)_(s|sec|ms|us|min)$")
+_TIME_SUFFIX_RE = re.compile(r"^(.+?)_(s|sec|ms|msec|us|usec|min)$")
 
 
 def time_header(name: str) -> tuple[str, str | None]:

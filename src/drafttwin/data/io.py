@@ -68,6 +68,10 @@ def parse_time(
     """
     if pd.api.types.is_datetime64_any_dtype(values.dtype):
         return _from_stamps(values, values, header, source, row_label)
+    if pd.api.types.is_timedelta64_dtype(values.dtype):  # a duration: its own unit, not ns
+        t = values.dt.total_seconds().to_numpy(dtype=np.float64, na_value=np.nan)
+        v.check_time_cells(~np.isfinite(t), values, header, source, row_label)
+        return TimeAxis(seconds=t, start=None, offset_s=float(t[0]))
     numbers = values
     if not pd.api.types.is_numeric_dtype(values.dtype) or pd.api.types.is_bool_dtype(values.dtype):
         head = values.dropna().iloc[:1000]  # decide on a sample: cheap for 1M timestamps
@@ -235,6 +239,8 @@ def _read_file(source: Path, spec: ChannelSpec, opts: _Options) -> MeasurementSe
     ignored = plan.ignored + v.refuse_unknown_text_columns(frame, plan.unknown, source)
     axis = parse_time(frame[plan.time], plan.time, plan.time_scale, source, row_label)
     data = {role: _channel(frame, col, source, row_label) for role, col in plan.roles().items()}
+    if "supply_hz" in data:
+        v.check_supply_hz(data["supply_hz"], plan.roles()["supply_hz"], source, row_label)
     if opts.check_units:
         rpm = [n for n in (*plan.outputs, *plan.inputs) if is_rpm(plan.units[n])]
         rpm += ["motor"] if plan.motor else []  # a motor column is in rpm (a sign, a unit)
@@ -377,6 +383,7 @@ def _check_duplicate_headers(header: str, sep: str, source: Path) -> None:
 
 def _read_parquet(source: Path) -> _Raw:
     try:
+        _refuse_repeated_names(pq.read_schema(source).names, source)
         table = pq.read_table(source)
     except (OSError, ValueError, pa.ArrowException) as exc:
         raise DataError(
@@ -390,9 +397,21 @@ def _read_parquet(source: Path) -> _Raw:
         meta["file_metadata"] = json.loads(stored)
     units = json.loads((table.schema.metadata or {}).get(_UNITS_KEY) or b"{}")
     frame = table.to_pandas()
-    frame = frame.reset_index(drop=True)
+    # a named index (pandas' to_parquet of a frame indexed by its time) is a column of the file
+    named = any(name is not None for name in frame.index.names)
+    frame = frame.reset_index(drop=not named)
     frame.columns = [str(c).strip() for c in frame.columns]
     return _Raw(frame=frame, row_label=v.default_row_label, metadata=meta, units=units)
+
+
+def _refuse_repeated_names(names: list[str], source: Path) -> None:
+    """A Parquet schema naming a column twice (Arrow's "Multiple matches for FieldRef")."""
+    seen: set[str] = set()
+    for name in names:
+        if name in seen:
+            raise DataError(f"the file names column '{name}' twice", source=source,
+                            fix="write the file with each column once")  # fmt: skip
+        seen.add(name)
 
 
 def _channel(frame: pd.DataFrame, header: str, source: Path, row_label: v.RowLabel) -> np.ndarray:

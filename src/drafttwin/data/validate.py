@@ -31,7 +31,8 @@ SUFFIXES: dict[str, str] = {".csv": "csv", ".parquet": "parquet", ".pq": "parque
 TIME_NAMES: tuple[str, ...] = ("time", "t", "time_s", "timestamp", "datetime")
 MOTOR_NAMES: tuple[str, ...] = ("motor", "motor_rpm")
 IGNORE = "ignore"
-TIME_UNITS: dict[str, float] = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0}
+TIME_UNITS: dict[str, float] = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "msec": 1e-3, "us": 1e-6,
+                               "usec": 1e-6, "min": 60.0}
 MAX_INSERTED_FACTOR = 10
 """Refuse a file whose dropped-row gaps would add more than this many times its row count."""
 
@@ -396,3 +397,25 @@ def _check_insertions(
             fix="this looks like several recordings joined together: split the file there, "
             "or number the recordings in an integer 'record' column",
         )
+
+
+SUPPLY_HZ_RANGE = (0.0, 1000.0)
+"""A motor supply frequency a drive can give (VFD outputs stop at a few hundred Hz): one
+sample of 4847 Hz (a lost decimal point) had moved a calibration's breakdown torque 2.80 ->
+4.15 without a word."""
+
+
+def check_supply_hz(values: np.ndarray, header: str, source: str | Path,
+                    row_label: RowLabel) -> None:  # fmt: skip
+    """Refuse a supply frequency outside :data:`SUPPLY_HZ_RANGE` (missing cells pass)."""
+    low, high = SUPPLY_HZ_RANGE
+    bad = np.isfinite(values) & ((values < low) | (values > high))
+    if not bad.any():
+        return
+    row = int(np.argmax(bad))
+    raise DataError(
+        f"supply frequency {values[row]:.6g} Hz is outside {low:g} to {high:g} Hz",
+        source=source,
+        where=f"{row_label(row)}, column '{header}'",
+        fix="correct the cell (a lost decimal point?); the column is the motor's supply in Hz",
+    )
