@@ -140,3 +140,26 @@ def test_evaluate_without_data_scores_the_data_the_model_was_fitted_on(folder):
         "\n", ""
     )
     assert json.loads(result.stdout)["channels"] == given["channels"]
+
+
+@pytest.mark.parametrize("model", ["mechanistic", "parallel"])
+def test_fit_refuses_roller_speeds_in_rad_per_s_as_evaluate_does(tmp_path: Path, model: str):
+    """fit wrote a model of rollers in rad/s (physics NRMSE 1.3e4, "corrected" on every
+    channel) that evaluate then refused as "a column in rad/s"."""
+    from drafttwin.cli._data import nominal_rpm
+    from drafttwin.mechanics import DriveTrain
+
+    rng = np.random.default_rng(0)
+    rated = nominal_rpm(DriveTrain.preset("fa320a"))
+    n = 500
+    frame = pd.DataFrame({"time": np.arange(n) * 0.01, "supply_hz": 50.0,
+                          "motor": rated["motor"] + rng.normal(0, 0.5, n)})  # fmt: skip
+    for roller in ("front", "second", "third", "back"):
+        frame[roller] = (rated[roller] + rng.normal(0, 0.5, n)) * 2 * np.pi / 60
+    frame.to_csv(tmp_path / "rads.csv", index=False)
+    out = tmp_path / "m.dtm"
+    result = CliRunner().invoke(app, ["fit", "--model", model, "--data", str(tmp_path / "rads.csv"),
+                                      "--epochs", "1", "--quiet", "--out", str(out)])  # fmt: skip
+    said = " ".join(result.output.split())
+    assert result.exit_code == 2 and "matches a column in rad/s" in said, said
+    assert "column 'front'" in said and not out.exists()

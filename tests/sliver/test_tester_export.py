@@ -192,3 +192,27 @@ def test_a_tester_export_that_is_not_read_as_numbers_says_why(tmp_path: Path) ->
         code, out = _invoke("sliver", "spectrogram", "--data", str(path))
         assert code == 2 and "Traceback" not in out, out
         assert words in " ".join(out.split()), out
+
+
+def test_a_density_is_read_in_the_unit_its_column_names(export, tmp_path: Path) -> None:
+    """A column in tex was read as ktex ("count 5019 ktex"); tex under a ktex name, or one
+    broken cell of 1e300 ("CV inf %"), passed without a word."""
+    path, rho = export
+    frame = pd.read_csv(path)
+    tex = tmp_path / "tex.csv"
+    frame.assign(linear_density_ktex=rho * 1000).rename(
+        columns={"linear_density_ktex": "linear_density_tex"}).to_csv(tex, index=False)  # fmt: skip
+    assert read_sliver(tex).count_ktex == pytest.approx(float(np.mean(rho)), rel=1e-9)
+    assert read_sliver(path).count_ktex == pytest.approx(float(np.mean(rho)), rel=1e-9)
+    wrong = tmp_path / "wrong.csv"
+    frame.assign(linear_density_ktex=rho * 1000).to_csv(wrong, index=False)
+    broken = tmp_path / "broken.csv"
+    cells = rho.copy()
+    cells[100] = 1e300
+    frame.assign(linear_density_ktex=cells).to_csv(broken, index=False)
+    for bad, words in ((wrong, "mean density 5"), (wrong, "(in tex, not ktex?)"),
+                       (broken, "row 101 (line 102): density 1e+300 is"),
+                       (broken, "a broken cell, not a thick place")):  # fmt: skip
+        code, out = _invoke("sliver", "spectrogram", "--data", str(bad))
+        assert code == 2 and "Traceback" not in out, out
+        assert words in " ".join(out.split()), out

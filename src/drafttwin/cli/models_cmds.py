@@ -31,6 +31,7 @@ from drafttwin.cli.typer_app import app, console, err_console, print_json
 from drafttwin.errors import ConfigError, DataError
 
 if TYPE_CHECKING:
+    from drafttwin.cli._data import Channels
     from drafttwin.data.series import MeasurementSeries
     from drafttwin.models import BaseModel, MechanisticModel
 
@@ -169,8 +170,11 @@ def fit(
         _, physics, _ = plan_physics(request, channels=parsed.outputs,
                                      time_column=parsed.time_column)  # fmt: skip
         needs = () if physics is None else physics.required_inputs()
+        parsed = _with_nominal(parsed, physics)  # rad/s refused as evaluate refuses it
         series = parsed.read(source.fit_data, needs)
         test = None if source.test_data is None else parsed.read(source.test_data, needs)
+        if physics is not None and parsed.check_units and parsed.nominal_rpm is None:
+            _check_level(physics, series, source.fit_data)  # simulator files: cheap to read
         with tune.progress(quiet or as_json) as told, tune.stoppable():
             result = run_fit(request.replace(data=series, test=test), progress=told)
     if not quiet:
@@ -252,6 +256,27 @@ def _check_trained(estimator: BaseModel, series: MeasurementSeries, spec: str) -
         names = [series.channels[j] for j in rpm]
         check_units(series.values[:, rpm], names, spec,
                     trained_rpm={n: trained[n] for n in names})  # fmt: skip
+
+
+def _with_nominal(parsed: Channels, physics: MechanisticModel | None) -> Channels:
+    """The channels read with the drive train's rated speeds as the level a column in rad/s
+    is told by (a fit on rad/s had written a model evaluate then refused); its kinematics
+    only, no simulation."""
+    from dataclasses import replace
+
+    from drafttwin.cli._data import nominal_rpm
+    from drafttwin.mechanics import DriveTrain
+
+    spec = {} if physics is None else physics.spec()
+    if not parsed.check_units or parsed.nominal_rpm is not None:
+        return parsed
+    if spec.get("kind") == "preset":
+        train = DriveTrain.preset(str(spec["name"]))
+    elif spec.get("kind") == "train":
+        train = DriveTrain.from_dict(dict(spec["spec"]), source="the physics")
+    else:
+        return parsed
+    return replace(parsed, nominal_rpm=nominal_rpm(train))
 
 
 def _check_level(physics: MechanisticModel, series: MeasurementSeries, spec: str) -> None:

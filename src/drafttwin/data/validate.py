@@ -31,8 +31,15 @@ SUFFIXES: dict[str, str] = {".csv": "csv", ".parquet": "parquet", ".pq": "parque
 TIME_NAMES: tuple[str, ...] = ("time", "t", "time_s", "timestamp", "datetime")
 MOTOR_NAMES: tuple[str, ...] = ("motor", "motor_rpm")
 IGNORE = "ignore"
-TIME_UNITS: dict[str, float] = {"s": 1.0, "sec": 1.0, "ms": 1e-3, "msec": 1e-3, "us": 1e-6,
-                               "usec": 1e-6, "min": 60.0}
+TIME_UNITS: dict[str, float] = {
+    "s": 1.0,
+    "sec": 1.0,
+    "ms": 1e-3,
+    "msec": 1e-3,
+    "us": 1e-6,
+    "usec": 1e-6,
+    "min": 60.0,
+}
 MAX_INSERTED_FACTOR = 10
 """Refuse a file whose dropped-row gaps would add more than this many times its row count."""
 

@@ -131,11 +131,12 @@ def read_sliver(path: str | Path, column: str | None = None, option: str = "--da
     if bad.size:
         row = int(bad[0])
         what, fix = _bad_value(frame[length_col].iloc[row], frame[rho_col].iloc[row], row)
-        raise DataError(f"row {row + 2}: {what}", source=path,
+        raise DataError(f"row {row + 1} (line {row + 2}): {what}", source=path,
                         where=f"{option}, column {rho_col}", fix=fix)  # fmt: skip
     if s.size < 100:
         raise DataError(f"{s.size} rows: too short for evenness", source=path, where=option,
                         fix="give at least 100 points")  # fmt: skip
+    rho = _in_ktex(rho, rho_col, path, option)
     step = np.diff(s)
     h = float(np.median(step))
     if not (h > 0 and np.all(np.abs(step - h) <= 0.01 * h)):
@@ -149,6 +150,45 @@ def read_sliver(path: str | Path, column: str | None = None, option: str = "--da
     return Sliver(rho, h, start_m=float(s[0] - h / 2), time_s=time, staple=staple,
                   info={"file": path.name, "column": rho_col,
                         "length_column": length_col})  # fmt: skip
+
+
+DENSITY_UNITS = {"ktex": 1.0, "dtex": 1e-4, "tex": 1e-3, "mg/m": 1e-3, "g/m": 1.0,
+                 "mg_per_m": 1e-3, "g_per_m": 1.0}  # fmt: skip
+"""Units a density column may carry in its name (``linear_density_tex``, ``mass [g/m]``), in
+ktex (g/m); longer names first where one ends another (``ktex``, ``dtex`` before ``tex``)."""
+COUNT_RANGE_KTEX = (0.001, 100.0)
+"""Linear densities a record of fibre strands can have (yarn of 1 tex to the thickest card
+sliver, 10 ktex, with room): a tex column read as ktex had given "count 5019 ktex"."""
+SPIKE_FACTOR = 50.0
+"""A cell this many times the record's median is a broken cell, not a thick place."""
+
+
+def _in_ktex(rho: np.ndarray, column: str, path: Path, option: str) -> np.ndarray:
+    """The density in ktex where its column's name gives a unit (checked for a count a
+    strand can have), refused where one cell is a broken one (one 1e300: "CV inf %")."""
+    median = float(np.median(rho))
+    spikes = np.flatnonzero(rho > SPIKE_FACTOR * median)
+    if spikes.size:
+        row = int(spikes[0])
+        raise DataError(f"row {row + 1} (line {row + 2}): density {rho[row]:.6g} is {rho[row] / median:.3g} times "
+                        f"the record's median ({median:.6g}): a broken cell, not a thick place",
+                        source=path, where=f"{option}, column {column}",
+                        fix="correct or cut that part of the record")  # fmt: skip
+    low = column.strip().lower()
+    unit = next((u for u in DENSITY_UNITS
+                 if any(low.endswith(f) for f in (f"_{u}", f"[{u}]", f"({u})", f" {u}"))), None)  # fmt: skip
+    if unit is None:  # any unit proportional to the mass per length: CV and spectra hold
+        return rho
+    ktex = rho * DENSITY_UNITS[unit]
+    count, (lo, hi) = float(np.mean(ktex)), COUNT_RANGE_KTEX
+    if not lo <= count <= hi:
+        hint = " (in tex, not ktex?)" if unit == "ktex" and count > hi else ""
+        raise DataError(f"mean density {count:.6g} ktex is no count a sliver, roving or yarn "
+                        f"has ({lo:g} to {hi:g} ktex){hint}", source=path,
+                        where=f"{option}, column {column}",
+                        fix="name the column by its unit (linear_density_tex, "
+                        "linear_density_ktex) or name another with --column")  # fmt: skip
+    return ktex
 
 
 def _unit_of(name: str) -> tuple[str, str] | None:
