@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -496,3 +497,35 @@ def test_a_parquet_file_naming_a_column_twice_is_refused_so(tmp_path: Path) -> N
     pq.write_table(table, tmp_path / "twice.parquet")
     with pytest.raises(DataError, match="the file names column 'front' twice"):
         read_measurements(tmp_path / "twice.parquet")
+
+
+@pytest.mark.parametrize(("first", "said"), [
+    ("sep=,", "the first line 'sep=,' is Excel's separator hint, not a header"),
+    ("# logger XYZ, machine FA320A", "the first line '# logger XYZ, machine FA320A' is a comment"),
+])  # fmt: skip
+def test_a_line_above_the_header_is_named_for_what_it_is(tmp_path: Path, first: str, said: str):
+    """Excel's separator hint and a logger's comment lines had read as "7 fields but the
+    header has 2" on the next line."""
+    path = write_csv(tmp_path / "pre.csv", f"{first}\ntime,front,second,third,back", speed_rows())
+    with pytest.raises(DataError, match=re.escape(said)):
+        read_measurements(path)
+
+
+def test_exports_of_other_habits_are_read(tmp_path: Path) -> None:
+    """Old-Mac CR line breaks ("the header names column '433.8' twice") and two trailing
+    separators ("the header names column '' twice") are read as their rows say."""
+    rows = speed_rows()
+    cr = tmp_path / "cr.csv"
+    cr.write_bytes(("\r".join(["time,front,second,third,back", *rows]) + "\r").encode())
+    trailing = write_csv(tmp_path / "tr.csv", "time,front,second,third,back,,",
+                         [f"{r},," for r in rows])  # fmt: skip
+    for path in (cr, trailing):
+        series = read_measurements(path)
+        assert len(series) == 6 and series.channels == tuple(ROLLERS)
+
+
+def test_a_units_row_below_the_header_is_named(tmp_path: Path) -> None:
+    path = write_csv(tmp_path / "u.csv", "time,front,second,third,back\ns,rpm,rpm,rpm,rpm",
+                     speed_rows())  # fmt: skip
+    with pytest.raises(DataError, match="a units row below the header"):
+        read_measurements(path)

@@ -322,7 +322,10 @@ def _read_csv(source: Path) -> _Raw:
             source=source,
             fix="export the measurements as CSV text, or give a Parquet file a .parquet suffix",
         )
+    if b"\n" not in raw and b"\r" in raw:  # old-Mac line breaks (CR only): one line each
+        raw = raw.replace(b"\r", b"\n")
     text_head = _decode(raw[:65536].split(b"\n", 1)[0], source)
+    _refuse_preamble(text_head, source)
     sep = v.sniff_separator(text_head)
     layout = v.check_field_counts(raw, sep, source)
     try:
@@ -365,10 +368,27 @@ def _first_line(exc: BaseException) -> str:
     return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
 
 
+def _refuse_preamble(first: str, source: Path) -> None:
+    """Refuse a first line that is no header, saying what it is (an Excel separator hint, a
+    logger's comment lines above the header): they had read as "7 fields but the header has
+    2" on the next line."""
+    line = first.strip().lstrip("\ufeff")
+    if line.lower().startswith("sep="):
+        raise DataError(f"the first line '{line}' is Excel's separator hint, not a header",
+                        source=source, where="line 1",
+                        fix="delete that line (the separator is recognised by itself)")  # fmt: skip
+    if line.startswith(("#", "//", ";")):
+        raise DataError(f"the first line '{line[:40]}' is a comment, not a header",
+                        source=source, where="line 1",
+                        fix="delete the lines above the header (the column names)")  # fmt: skip
+
+
 def _check_duplicate_headers(header: str, sep: str, source: Path) -> None:
     if '"' in header:
         return
     names = [h.strip() for h in header.strip().split(sep)]
+    while names and not names[-1]:  # trailing separators: empty columns, dropped on reading
+        names.pop()
     seen: set[str] = set()
     for name in names:
         if name in seen:

@@ -312,6 +312,10 @@ def check_time_cells(
     )
     if re.fullmatch(r"\s*-?\d+,\d+\s*", str(value)):  # the first column a European export shows
         fix = "the file uses a decimal comma; export with a decimal point ('.')"
+    unit = str(value).strip().strip("[]()").lower()
+    if i == 0 and (unit in TIME_UNITS or unit in ("h", "hh:mm:ss", "sec.", "seconds")):
+        what += ": a units row below the header?"
+        fix = "delete that row (give units in the header instead: 'time [ms]', 'front [rpm]')"
     raise DataError(what, source=source, where=f"{row_label(i)}, column '{header}'", fix=fix)
 
 
