@@ -608,3 +608,19 @@ def test_a_column_mapped_to_the_wrong_roller_is_refused_at_any_set_point():
         with pytest.raises(DataError, match="runs as 'second' would") as err:
             check_units(swapped, names, "r.csv", nominal_rpm=nominal)
         assert "--columns front=second,second=front" in str(err.value)
+
+
+def test_the_suggested_column_map_can_be_pasted_into_a_shell(tmp_path):
+    """Names with spaces were suggested unquoted: pasted, the shell split them."""
+    import shlex
+
+    path = tmp_path / "spaced.csv"
+    path.write_text("time,front roller [rpm],second roller [rpm],third roller [rpm],back roller [rpm]\n"
+                    + "".join(f"{0.01 * i:.2f},1815,1500,450,355\n" for i in range(6)))  # fmt: skip
+    with pytest.raises(DataError) as info:
+        read_measurements(path)
+    fix = info.value.message.split("map yours: ", 1)[1]
+    args = shlex.split(fix)
+    assert args[0] == "--columns" and len(args) == 2
+    mapping = dict(pair.split("=") for pair in args[1].split(","))
+    assert len(read_measurements(path, columns=mapping)) == 6

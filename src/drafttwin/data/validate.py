@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 import re
+import shlex
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -215,7 +216,7 @@ def check_channels_present(
         f"missing {kind} column{'s' if len(missing) > 1 else ''}: {', '.join(missing)}",
         source=source,
         where=f"columns: {', '.join(headers)}",
-        fix=f"name {what}, or map yours: --columns {example}",
+        fix=f"name {what}, or map yours: --columns {shlex.quote(example)}",  # pasteable
     )
 
 
