@@ -195,3 +195,17 @@ def test_a_simulator_file_in_milliseconds_is_read_in_seconds(folder: Path) -> No
     record = dt.read_measurements(folder / "train.csv", **read)
     got = dt.MechanisticModel([str(sim_ms)]).predict_values(record, ("y",))[:, 0]
     np.testing.assert_allclose(got, pd.read_csv(folder / "sim_train.csv")["y"].to_numpy())
+
+
+def test_a_simulator_file_in_milliseconds_under_time_is_named_so(folder: Path) -> None:
+    """ "covers 0 s to 7950 s ... the simulator output of another record" gave no hint that
+    the file counts milliseconds."""
+    frame = pd.read_csv(folder / "sim_train.csv")
+    frame["time"] = frame["time"] * 1000.0
+    frame.to_csv(folder / "sim_ms.csv", index=False)
+    read = {"outputs": ["y"], "inputs": ["u"], "time_column": "t", "units": {"y": "m", "u": "V"}}
+    record = dt.read_measurements(folder / "train.csv", **read)
+    physics = dt.MechanisticModel([str(folder / "sim_ms.csv")])
+    with pytest.raises(DataError, match=r"its time column is in ms \(its span is 1000 x the "
+                                        r"data's\): name it 'time \[ms\]'"):  # fmt: skip
+        physics.match_records(record)  # as fit, evaluate and predict check it

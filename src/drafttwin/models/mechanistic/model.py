@@ -35,7 +35,7 @@ import pandas as pd
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
-from drafttwin.models.mechanistic.simfiles import Table, interpolate, read_table, tables
+from drafttwin.models.mechanistic.simfiles import Table, interpolate, read_table, tables, unit_hint
 from drafttwin.models.mechanistic.source import parse_source
 from drafttwin.models.mechanistic.values import (
     RecordFunction,
@@ -270,7 +270,7 @@ class MechanisticModel:
                 f"{{mechanistic:name}} file {self._table_names[k]} covers {table_t[0]:g} s to "
                 f"{table_t[-1]:g} s ({len(table_t)} rows) but its record {names[k]} spans "
                 f"{time_s[0]:g} s to {time_s[-1]:g} s ({len(time_s)} rows): it is the "
-                "simulator output of another record",
+                f"simulator output of another record{unit_hint(table_t, time_s)}",
                 terms={"mechanistic": self.name},
                 param="mechanistic",
                 fix="give the simulator output of each record, simulated over that record's "

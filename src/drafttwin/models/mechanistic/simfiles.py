@@ -143,7 +143,7 @@ def interpolate(
     if time_s.min() < table_t[0] - tol or time_s.max() > table_t[-1] + tol:
         raise DataError(
             f"the simulator output covers {table_t[0]:g} s to {table_t[-1]:g} s but the data "
-            f"span {time_s.min():g} s to {time_s.max():g} s",
+            f"span {time_s.min():g} s to {time_s.max():g} s{unit_hint(table_t, time_s)}",
             source=where,
             fix="simulate over the whole measurement span, on the same time axis (seconds, as "
             "in the data file's time column)",
@@ -154,3 +154,16 @@ def interpolate(
         _refuse_non_finite(values, pd.Series(values), column, where)
         out.append(np.interp(time_s, table_t, values))
     return np.column_stack(out)
+
+
+def unit_hint(table_t: np.ndarray, time_s: np.ndarray) -> str:
+    """ ", or ..." where the table's time runs a unit factor of the data's (a simulator's
+    milliseconds in a column named ``time``), else ``""``."""
+    table_span, data_span = float(np.ptp(table_t)), float(np.ptp(time_s))
+    if not (table_span > 0 and data_span > 0):
+        return ""
+    ratio = table_span / data_span
+    unit = next((u for u, f in (("ms", 1000.0), ("us", 1e6), ("min", 1 / 60))
+                 if abs(ratio / f - 1) < 0.02), None)  # fmt: skip
+    return "" if unit is None else (f", or its time column is in {unit} (its span is {ratio:.4g} "
+                                    f"x the data's): name it 'time [{unit}]'")  # fmt: skip
