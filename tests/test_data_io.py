@@ -529,3 +529,17 @@ def test_a_units_row_below_the_header_is_named(tmp_path: Path) -> None:
                      speed_rows())  # fmt: skip
     with pytest.raises(DataError, match="a units row below the header"):
         read_measurements(path)
+
+
+@pytest.mark.parametrize("clock", ["08:00:00.010", "08:00:01"])
+def test_day_first_timestamps_of_a_european_logger_are_read(tmp_path: Path, clock: str) -> None:
+    """'01.05.2024 08:00:00.010' (1 May) was refused as no ISO 8601 timestamp."""
+    step = 0.01 if "." in clock else 1.0
+    stamps = pd.Timestamp("2024-05-01 " + clock) + pd.to_timedelta(np.arange(6) * step, unit="s")
+    milli = [f".{t.microsecond // 1000:03d}" if step < 1 else "" for t in stamps]
+    rows = [f"{t.strftime('%d.%m.%Y %H:%M:%S')}{m},1815,1500,450,355"
+            for t, m in zip(stamps, milli, strict=True)]  # fmt: skip
+    path = write_csv(tmp_path / "de.csv", "Datum Zeit,front,second,third,back", rows)
+    series = read_measurements(path, time_column="Datum Zeit")
+    np.testing.assert_allclose(series.time_s, np.arange(6) * step, atol=1e-6)
+    assert series.metadata["start_time"].startswith("2024-05-01T08:00")
