@@ -462,13 +462,13 @@ def test_time_in_msec_by_header_suffix(tmp_path: Path) -> None:
     assert read_measurements(path, time_column="time_msec").sample_rate_hz == pytest.approx(100.0)
 
 
-@pytest.mark.parametrize("cell", ["4847", "1e300", "-50"])
+@pytest.mark.parametrize("cell", ["4847", "1e300"])
 def test_a_supply_frequency_no_drive_gives_is_refused(tmp_path: Path, cell: str) -> None:
     """One sample of 4847 Hz (a lost decimal point) moved a calibration without a word."""
     rows = [f"{0.01 * i:.2f},1815,1500,450,355,{cell if i == 3 else '48.47'}" for i in range(6)]
     path = write_csv(tmp_path / "s.csv", "time,front,second,third,back,supply_hz", rows)
     with pytest.raises(DataError, match=r"row 4 \(line 5\), column 'supply_hz': supply "
-                                        r"frequency .* Hz is outside 0 to 1000 Hz"):  # fmt: skip
+                                        r"frequency .* Hz is above the 1000 Hz a drive gives"):  # fmt: skip
         read_measurements(path)
     ok = write_csv(tmp_path / "ok.csv", "time,front,second,third,back,supply_hz",
                    [f"{0.01 * i:.2f},1815,1500,450,355,48.47" for i in range(6)])  # fmt: skip
