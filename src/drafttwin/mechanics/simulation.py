@@ -303,7 +303,8 @@ class SimulationStream:
                 f"the simulation produced {values[row, col]} {when}: {what} of "
                 f"{'energy flow' if what == 'energy' else 'node'} '{names[col]}'",
                 source=f"drive train {self.train.spec.train.name}",
-                fix=f"a smaller step (--dt; now {self.dt_s:.3g} s) keeps RK4 inside the "
+                fix=f"a smaller step (the drive train's [solver] dt_s, which 'simulate --dt' "
+                f"sets; now {self.dt_s:.3g} s) keeps RK4 inside the "
                 "stability limit of the stiffest coupling; else check that component's "
                 "parameters",
             )
