@@ -97,6 +97,7 @@ def run_fit(
                               mechanistic=physics)  # fmt: skip
     notes += _stretched_notes(part.summary["preprocessing"]["train"], data)
     notes += _slow_clock_notes(data)
+    notes += _shifted_grid_notes(physics, data, request.test)
     if tuning is not None:
         notes += _few_folds_notes(tuning, model)
     if request.data_label is not None:
@@ -126,6 +127,25 @@ def _slow_clock_notes(data: MeasurementSeries) -> list[Note]:
         return []
     return [Note(f"the records step by {step:g} s ({data.sample_rate_hz:.3g} Hz): if the time "
                  "column counts milliseconds, name it 'time [ms]' (or divide it by 1000)")]  # fmt: skip
+
+
+def _shifted_grid_notes(physics: MechanisticModel | None, data: MeasurementSeries,
+                        test: MeasurementSeries | None) -> list[Note]:  # fmt: skip
+    """A note per simulator table one step off its record's grid (accepted: see
+    :meth:`~drafttwin.models.MechanisticModel.grid_shifts`)."""
+    if physics is None:
+        return []
+    pairs = [(physics, data)]
+    if test is not None:
+        first, second = physics.split_records(data.n_records, test.n_records)
+        pairs = [(first, data), (second, test)]
+    shifts = [s for source, series in pairs for s in source.grid_shifts(series)]
+    return [Note(f"{{mechanistic:name}} file {table} starts {abs(shift):g} s "
+                 f"{'after' if shift > 0 else 'before'} its record {record}, one step: its "
+                 "values are read at the record's times as stamped; if the simulator stamps "
+                 "each step at its other end, shift its time column by that step",
+                 {"mechanistic": physics.name})
+            for table, record, shift in shifts]  # fmt: skip
 
 
 def _free_run_starts(model: BaseModel, data: MeasurementSeries) -> None:
