@@ -624,3 +624,25 @@ def test_the_suggested_column_map_can_be_pasted_into_a_shell(tmp_path):
     assert args[0] == "--columns" and len(args) == 2
     mapping = dict(pair.split("=") for pair in args[1].split(","))
     assert len(read_measurements(path, columns=mapping)) == 6
+
+
+def test_inspect_says_what_fit_says_of_a_clock_that_steps_whole_seconds(tmp_path):
+    """A millisecond clock under a name without a unit read 0.1 Hz in inspect without a
+    word, while fit noted it."""
+    import json
+
+    from typer.testing import CliRunner
+
+    from drafttwin.cli import app
+
+    path = tmp_path / "slow.csv"
+    path.write_text("zeit,front,second,third,back\n"
+                    + "".join(f"{10 * i},1815,1500,450,355\n" for i in range(20)))  # fmt: skip
+    args = ["inspect", str(path), "--time-column", "zeit"]
+    said = " ".join(CliRunner().invoke(app, args).output.split())
+    assert (
+        "note: the records step by 10 s (0.1 Hz): if the time column counts milliseconds, "
+        "name it 'time [ms]'"
+    ) in said
+    out = json.loads(CliRunner().invoke(app, [*args, "--json"]).stdout)
+    assert out["notes"][0].startswith("the records step by 10 s")

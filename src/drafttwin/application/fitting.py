@@ -120,13 +120,11 @@ def _stretched_notes(report: dict[str, Any], data: MeasurementSeries) -> list[No
 
 
 def _slow_clock_notes(data: MeasurementSeries) -> list[Note]:
-    """A note when the records step by a whole number of seconds, 1 s or more: a time column
-    in milliseconds read as seconds looks so (20 ms read as 20 s), and nothing else tells."""
-    step = 1.0 / data.sample_rate_hz
-    if step < 1.0 or abs(step - round(step)) > 1e-9:
-        return []
-    return [Note(f"the records step by {step:g} s ({data.sample_rate_hz:.3g} Hz): if the time "
-                 "column counts milliseconds, name it 'time [ms]' (or divide it by 1000)")]  # fmt: skip
+    """A note when the records step by a whole number of seconds (a clock in ms read as s)."""
+    from drafttwin.data.validate import slow_clock_note
+
+    note = slow_clock_note(data.sample_rate_hz)
+    return [] if note is None else [Note(note)]
 
 
 def _shifted_grid_notes(physics: MechanisticModel | None, data: MeasurementSeries,

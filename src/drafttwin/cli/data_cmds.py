@@ -16,7 +16,7 @@ from drafttwin.cli._data import ChannelOptions, pairs
 from drafttwin.cli._groups import stops_cleanly, with_group
 from drafttwin.cli._options import JsonOpt, number
 from drafttwin.cli._oserrors import input_paths
-from drafttwin.cli.typer_app import app, console, print_json
+from drafttwin.cli.typer_app import app, console, err_console, print_json
 from drafttwin.data.extremes import describe
 from drafttwin.data.io import read_measurements
 from drafttwin.data.preprocessing import preprocess
@@ -188,7 +188,14 @@ def inspect_cmd(
         series = read_measurements([Path(p.strip()) for p in file.split(",") if p.strip()],
                                    expected_rate_hz=rate, **channels.reading())  # fmt: skip
     summary = summarize(series, outlier_threshold=threshold)
+    from drafttwin.data.validate import slow_clock_note
+
+    note = slow_clock_note(series.sample_rate_hz)  # as fit says it
+    if note is not None:
+        summary["notes"] = [note]
     if as_json:
         print_json(summary)
     else:
         _print_summary(summary)
+        if note is not None:
+            err_console.print(f"note: {escape(note)}", highlight=False, soft_wrap=True)

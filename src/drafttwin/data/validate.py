@@ -432,3 +432,16 @@ def check_supply_hz(values: np.ndarray, header: str, source: str | Path,
         where=f"{row_label(row)}, column '{header}'",
         fix="correct the cell (a lost decimal point?); the column is the motor's supply in Hz",
     )
+
+
+def slow_clock_note(sample_rate_hz: float) -> str | None:
+    """What to say of records that step by a whole number of seconds, 1 s or more: a time
+    column in milliseconds read as seconds looks so (20 ms read as 20 s), and nothing else
+    tells."""
+    step = 1.0 / sample_rate_hz
+    if step < 1.0 or abs(step - round(step)) > 1e-9:
+        return None
+    return (
+        f"the records step by {step:g} s ({sample_rate_hz:.3g} Hz): if the time column "
+        "counts milliseconds, name it 'time [ms]' (or divide it by 1000)"
+    )
