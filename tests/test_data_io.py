@@ -138,7 +138,9 @@ def test_time_unit_suffix_of_a_named_time_column(tmp_path: Path) -> None:
     assert series.time_column == "time"  # its values are seconds now, not the file's
 
 
-@pytest.mark.parametrize("name", ["time", "t", "time_s", "timestamp", "Time"])
+@pytest.mark.parametrize(
+    "name", ["time", "t", "time_s", "timestamp", "Time", "Date Time", "date_time"]
+)
 def test_common_time_column_names(tmp_path: Path, name: str) -> None:
     path = write_csv(tmp_path / "t.csv", f"{name},front,second,third,back", speed_rows())
     assert len(read_measurements(path)) == 6

@@ -29,7 +29,15 @@ RowLabel = Callable[[int], str]
 """Turns a 0-based data-row index into the place a user can find (``row 17 (line 18)``)."""
 
 SUFFIXES: dict[str, str] = {".csv": "csv", ".parquet": "parquet", ".pq": "parquet"}
-TIME_NAMES: tuple[str, ...] = ("time", "t", "time_s", "timestamp", "datetime")
+TIME_NAMES: tuple[str, ...] = (
+    "time",
+    "t",
+    "time_s",
+    "timestamp",
+    "datetime",
+    "date time",
+    "date_time",
+)
 MOTOR_NAMES: tuple[str, ...] = ("motor", "motor_rpm")
 IGNORE = "ignore"
 TIME_UNITS: dict[str, float] = {
