@@ -86,9 +86,12 @@ def print_sliver(ev: dict[str, Any]) -> None:
 
 
 def _marked(cause: dict[str, Any], causes: list[dict[str, Any]]) -> list[str]:
-    """A cause's group, where it fits those that do not marked so (told apart by the fit)."""
-    misfits = {f"{c['element']}:{c['kind']}" for c in causes if not c["fits"]}
-    return [f"{n} (no fit)" if cause["fits"] and n in misfits else n for n in cause["group"]]
+    """A cause's group, those its fit tells apart marked "(no fit)" (as the page says)."""
+    from drafttwin.diagnosis.locate import told_apart
+
+    apart = told_apart(cause["group"], cause["fits"],
+                       {f"{c['element']}:{c['kind']}": c["fits"] for c in causes})  # fmt: skip
+    return [f"{n} (no fit)" if n in apart else n for n in cause["group"]]
 
 
 def assumed_half_note(dx: Any, assumed_until: float | None) -> str | None:

@@ -174,12 +174,15 @@ def diagnose(
             "detector": detector.describe(), "creep_rel_sd": diagnoser.creep_rel_sd}  # fmt: skip
     result = {**info, **dx.to_dict()}
     result["judged"] = dx.judged(detector.reference_s)
-    said = (assumed_half_note(dx, assumed_until), dx.short_note(detector.reference_s),
-            dx.steady_note(detector.reference_s), detector.levels_note(), detector.lags_note())  # fmt: skip
-    notes = [n for n in said if n is not None]
+    said = {"assumed": assumed_half_note(dx, assumed_until),
+            "short": dx.short_note(detector.reference_s),
+            "steady": dx.steady_note(detector.reference_s),
+            "levels": detector.levels_note(), "lags": detector.lags_note()}  # fmt: skip
+    notes = [n for n in said.values() if n is not None]
     if notes:
         result["notes"] = notes
-    info["notes"] = [n for n in said if n is not None and n != said[2]]  # the banner says [2]
+    # the page's banner says the steady one itself
+    info["notes"] = [n for k, n in said.items() if n is not None and k != "steady"]
     result["reference_alarms_s"] = inside_alarms(dx, assumed_until)
     from drafttwin.diagnosis.sliver_evidence import sliver_evidence
 

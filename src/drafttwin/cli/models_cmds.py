@@ -265,16 +265,9 @@ def _with_nominal(parsed: Channels, physics: MechanisticModel | None) -> Channel
     from dataclasses import replace
 
     from drafttwin.cli._data import nominal_rpm
-    from drafttwin.mechanics import DriveTrain
 
-    spec = {} if physics is None else physics.spec()
-    if not parsed.check_units or parsed.nominal_rpm is not None:
-        return parsed
-    if spec.get("kind") == "preset":
-        train = DriveTrain.preset(str(spec["name"]))
-    elif spec.get("kind") == "train":
-        train = DriveTrain.from_dict(dict(spec["spec"]), source="the physics")
-    else:
+    train = None if physics is None else physics.train
+    if train is None or not parsed.check_units or parsed.nominal_rpm is not None:
         return parsed
     return replace(parsed, nominal_rpm=nominal_rpm(train))
 

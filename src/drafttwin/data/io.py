@@ -329,16 +329,14 @@ def _check_duplicate_headers(header: str, sep: str, source: Path) -> None:
     names = [h.strip() for h in header.strip().split(sep)]
     while names and not names[-1]:  # trailing separators: empty columns, dropped on reading
         names.pop()
-    seen: set[str] = set()
-    for name in names:
-        if name in seen:
-            raise DataError(
-                f"the header names column '{name}' twice",
-                source=source,
-                where="line 1 (header)",
-                fix="give every column its own name",
-            )
-        seen.add(name)
+    name = _named_twice(names)
+    if name is not None:
+        raise DataError(
+            f"the header names column '{name}' twice",
+            source=source,
+            where="line 1 (header)",
+            fix="give every column its own name",
+        )
 
 
 def _read_parquet(source: Path) -> _Raw:
@@ -366,12 +364,20 @@ def _read_parquet(source: Path) -> _Raw:
 
 def _refuse_repeated_names(names: list[str], source: Path) -> None:
     """A Parquet schema naming a column twice (Arrow's "Multiple matches for FieldRef")."""
+    name = _named_twice(names)
+    if name is not None:
+        raise DataError(f"the file names column '{name}' twice", source=source,
+                        fix="write the file with each column once")  # fmt: skip
+
+
+def _named_twice(names: list[str]) -> str | None:
+    """The first name that comes a second time, else ``None``."""
     seen: set[str] = set()
     for name in names:
         if name in seen:
-            raise DataError(f"the file names column '{name}' twice", source=source,
-                            fix="write the file with each column once")  # fmt: skip
+            return name
         seen.add(name)
+    return None
 
 
 def _channel(frame: pd.DataFrame, header: str, source: Path, row_label: v.RowLabel) -> np.ndarray:

@@ -66,10 +66,11 @@ ISO 8601 separates the date with hyphens."""
 
 
 def _parse_timestamps(values: pd.Series, header: str, source: str | Path) -> pd.Series:
-    first = values.dropna()
-    m = DAY_FIRST.fullmatch(str(first.iloc[0])) if first.shape[0] else None
+    at = values.first_valid_index()
+    first = "" if at is None else str(values.loc[at])
+    m = DAY_FIRST.fullmatch(first)
     if m is not None:
-        sep = "T" if "T" in str(first.iloc[0]) else " "
+        sep = "T" if "T" in first else " "
         clock = "%H:%M" + (":%S" if m.group(1) else "") + (".%f" if m.group(2) else "")
         return pd.to_datetime(values.astype(str).str.strip(), format=f"%d.%m.%Y{sep}{clock}",
                               errors="coerce")  # fmt: skip

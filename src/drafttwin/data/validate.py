@@ -419,17 +419,17 @@ def _check_insertions(
         )
 
 
-SUPPLY_HZ_RANGE = (0.0, 1000.0)
-"""A motor supply frequency a drive can give (VFD outputs stop at a few hundred Hz): one
+SUPPLY_HZ_MAX = 1000.0
+"""The highest motor supply frequency a drive gives (VFD outputs stop at a few hundred Hz): one
 sample of 4847 Hz (a lost decimal point) had moved a calibration's breakdown torque 2.80 ->
 4.15 without a word."""
 
 
 def check_supply_hz(values: np.ndarray, header: str, source: str | Path,
                     row_label: RowLabel) -> None:  # fmt: skip
-    """Refuse a supply frequency above :data:`SUPPLY_HZ_RANGE` (missing cells pass; a
+    """Refuse a supply frequency above :data:`SUPPLY_HZ_MAX` (missing cells pass; a
     negative one is refused where a drive train follows it, with what a VFD's set-point is)."""
-    high = SUPPLY_HZ_RANGE[1]
+    high = SUPPLY_HZ_MAX
     bad = np.isfinite(values) & (values > high)
     if not bad.any():
         return

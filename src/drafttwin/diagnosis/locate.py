@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import Any
@@ -422,6 +423,13 @@ def rank_causes(model: SignatureModel, shift: np.ndarray, cov: np.ndarray,
 def explained(causes: list[Cause]) -> bool:
     """Whether any ranked cause fits (the verdict: else no candidate explains the shift)."""
     return any(c.fits for c in causes)
+
+
+def told_apart(group: Sequence[str], fits: bool, fitting: Mapping[str, bool]) -> list[str]:
+    """The members of a fitting cause's look-alike group that its fit tells apart (their
+    signatures point the same way, but they do not fit: ``fitting``, by cause name); a
+    cause that does not fit itself tells none apart."""
+    return [n for n in group if fits and not fitting.get(n, True)]
 
 
 def _chol(cov: np.ndarray) -> np.ndarray:

@@ -24,7 +24,7 @@ from drafttwin.data.series import MeasurementSeries  # noqa: E402
 from drafttwin.diagnosis.cusum import STREAMS, Alarm, stream_matrix  # noqa: E402
 from drafttwin.diagnosis.detect import STILL_CHANNELS, STILL_FACTOR  # noqa: E402
 from drafttwin.diagnosis.diagnose import Diagnosis  # noqa: E402
-from drafttwin.diagnosis.locate import Cause  # noqa: E402
+from drafttwin.diagnosis.locate import Cause, told_apart  # noqa: E402
 from drafttwin.diagnosis.residuals import CHANNELS, runs_of  # noqa: E402
 from drafttwin.diagnosis.spectrum import kinematic_lines, residual_samples, spectrum  # noqa: E402
 from drafttwin.mechanics import DriveTrain  # noqa: E402
@@ -231,9 +231,9 @@ def look_alikes(c: Cause, causes: Sequence[Cause]) -> tuple[list[str], list[str]
     fits), and those its fit tells apart (same direction, but they do not fit here: a belt
     ramp's page had said "cannot be told apart from motor:gain" beside "motor:gain does not
     fit, p 2.3e-14")."""
-    fits = {x.name: getattr(x, "fits", True) for x in causes}
-    told_apart = [n for n in c.group if getattr(c, "fits", True) and not fits.get(n, True)]
-    return [n for n in c.group if n not in told_apart], told_apart
+    apart = told_apart(c.group, getattr(c, "fits", True),
+                       {x.name: getattr(x, "fits", True) for x in causes})  # fmt: skip
+    return [n for n in c.group if n not in apart], apart
 
 
 def _group_text(c: Cause, causes: Sequence[Cause]) -> str:

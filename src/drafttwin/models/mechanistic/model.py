@@ -81,6 +81,8 @@ class MechanisticModel:
         self._record_fn: RecordFunction | None = None
         self._series_fn: Callable[[MeasurementSeries], np.ndarray] | None = None
         self._inputs: tuple[str, ...] = ()
+        self.train: DriveTrain | None = None
+        """The drive train simulated (:meth:`from_train` and the sources built on it)."""
         self._spec: dict[str, Any]
         if isinstance(source, str | Path) or is_path_list(source):
             paths = [Path(p) for p in ([source] if isinstance(source, str | Path) else source)]
@@ -150,6 +152,7 @@ class MechanisticModel:
         label = name or f"drive train {train.spec.train.name}"
         model = cls._from_function(run, spec, label + _reduction_label(train))
         model._inputs = tuple(c.channel for c in train.spec.input)  # declared: required
+        model.train = train
         return model
 
     @classmethod
