@@ -210,8 +210,8 @@ def main() -> None:
         x_gru, y, args.epochs, args.reps,
     )  # fmt: skip
     rows += throughput(
-        "md-s-l net quick (SK24 + LSTM 2x48)",
-        lambda: ResidualNet(8, 4, sk_channels=24, hidden=48, layers=2, dropout=0.1),
+        "md-s-l net quick (SK24 + LSTM 1x48)",
+        lambda: ResidualNet(8, 4, sk_channels=24, hidden=48, layers=1, dropout=0.1),
         x_res, y, args.epochs, args.reps,
     )  # fmt: skip
     series = synthetic(400)

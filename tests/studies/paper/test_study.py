@@ -150,3 +150,19 @@ def test_calibration_stage_compares_nominal_and_calibrated_physics(study_run):
         assert calibrated["mechanistic"][r]["n_scored"] == nominal["mechanistic"][r]["n_scored"]
         assert calibrated["mechanistic"][r]["rmse"] != nominal["mechanistic"][r]["rmse"]
     assert 'id="calibration"' in files["report"].read_text()
+
+
+def test_the_quick_plan_keeps_the_residual_lstm_its_tables_were_made_with(tmp_path):
+    """The quick profile's residual LSTM has one layer (for fit's time); the paper study's
+    quick plan builds its hybrids with the two layers its tables in docs/study.md came from,
+    and its data-driven GRU is the profile's."""
+    from drafttwin.models import make_model
+
+    study = Study("quick", out_dir=tmp_path)
+    data_hyper, res_hyper = study._hyper({})
+    assert make_model("parallel", "quick").layers == 1
+    for name in ("parallel", "md-s-l", "md-l"):
+        assert make_model(name, "quick", **res_hyper).layers == 2
+    gru = make_model("md-s-l", "quick", **data_hyper).data_model
+    assert (gru.hidden, gru.layers) == (48, 2)
+    assert "layers" not in data_hyper

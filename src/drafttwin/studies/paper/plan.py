@@ -31,6 +31,9 @@ class StudyPlan:
         schedule: override the model profile's learning-rate schedule (``None`` = keep); the
             quick plan keeps the constant rate its tables were made with (6 epochs along a
             cosine gave the GRU a 5 % higher front-roller RMSE).
+        residual_layers: override the model profile's residual LSTM layers (``None`` = keep);
+            the quick plan keeps the two its tables were made with (the quick profile's one
+            since 2026-12-01 is chosen for ``fit``'s time, docs/models.md "Training").
         grid_epochs, grid_patience, grid_train_samples: budget of each grid-search fit
             (the last ``grid_train_samples`` of the training part; ``None`` = all).
         use_grid_best: fit the comparison with the grid winners (the paper's procedure);
@@ -52,6 +55,7 @@ class StudyPlan:
     ablation_tests: int = 10
     shared_data_model: bool = False
     schedule: str | None = None
+    residual_layers: int | None = None
     notes: tuple[str, ...] = field(default=())
 
     def to_dict(self) -> dict[str, Any]:
@@ -84,9 +88,10 @@ STUDY_PLANS: dict[str, StudyPlan] = {
         use_grid_best=False,
         shared_data_model=True,
         schedule="constant",
+        residual_layers=2,
         notes=(
             "quick profile: the first 90 s of the data set; networks of the quick model profile "
-            "(2 x 48) trained for at most 6 epochs at a constant rate with early stopping "
+            "(2 x 48: its residual LSTM kept at two layers) trained for at most 6 epochs at a constant rate with early stopping "
             "(patience 2)",
             "grid search at a reduced budget (1 epoch on the last 1500 training samples per "
             "configuration): its losses rank configurations only roughly, and the comparison "

@@ -111,7 +111,8 @@ class Study:
             if v is not None
         }
         if not self.plan.use_grid_best:
-            return dict(train), dict(train)
+            layers = self.plan.residual_layers
+            return dict(train), {**train, **({} if layers is None else {"layers": layers})}
         g, lstm = best["gru"], best["lstm"]
         data = {**train, "data_hidden": g["hidden"], "data_layers": g["layers"], "lr": g["lr"]}
         res = {**train, "hidden": lstm["hidden"], "layers": lstm["layers"], "lr": lstm["lr"]}
