@@ -429,13 +429,12 @@ def check_supply_hz(values: np.ndarray, header: str, source: str | Path,
                     row_label: RowLabel) -> None:  # fmt: skip
     """Refuse a supply frequency above :data:`SUPPLY_HZ_MAX` (missing cells pass; a
     negative one is refused where a drive train follows it, with what a VFD's set-point is)."""
-    high = SUPPLY_HZ_MAX
-    bad = np.isfinite(values) & (values > high)
+    bad = np.isfinite(values) & (values > SUPPLY_HZ_MAX)
     if not bad.any():
         return
     row = int(np.argmax(bad))
     raise DataError(
-        f"supply frequency {values[row]:.6g} Hz is above the {high:g} Hz a drive gives",
+        f"supply frequency {values[row]:.6g} Hz is above the {SUPPLY_HZ_MAX:g} Hz a drive gives",
         source=source,
         where=f"{row_label(row)}, column '{header}'",
         fix="correct the cell (a lost decimal point?); the column is the motor's supply in Hz",

@@ -13,9 +13,9 @@ writes benchmarks/results/limits.json.
 
 ``--models`` also fits persistence, the GRU, the parallel hybrid and MD-S-L on the first 70 % of
 all 300 s (quick network sizes with a residual LSTM of 2 x 48, 30 epochs at a constant rate,
-patience 5, seed 0; about 25 min on 2 shared cores) and scores them by the protocol: each model's one-step RMSE against its
-floor (none may be below it) and its RMSE against the true speed against the encoders' error;
-writes benchmarks/results/limits_models.json.
+patience 5, seed 0; about 25 min on 2 shared cores) and scores them by the protocol: each
+model's one-step RMSE against its floor (none may be below it) and its RMSE against the true
+speed against the encoders' error; writes benchmarks/results/limits_models.json.
 """
 
 from __future__ import annotations

@@ -91,8 +91,8 @@ STUDY_PLANS: dict[str, StudyPlan] = {
         residual_layers=2,
         notes=(
             "quick profile: the first 90 s of the data set; networks of the quick model profile "
-            "(2 x 48: its residual LSTM kept at two layers) trained for at most 6 epochs at a constant rate with early stopping "
-            "(patience 2)",
+            "(2 x 48: its residual LSTM kept at two layers) trained for at most 6 epochs at a "
+            "constant rate with early stopping (patience 2)",
             "grid search at a reduced budget (1 epoch on the last 1500 training samples per "
             "configuration): its losses rank configurations only roughly, and the comparison "
             "does not use its winners (standard and paper do)",
