@@ -7,9 +7,9 @@ from drafttwin.models.mechanistic.model import (
     MechanisticModel,
     as_mechanistic,
     describe_spec,
-    record_names,
     spec_cutoff_hz,
 )
+from drafttwin.models.mechanistic.simfiles import record_names
 from drafttwin.models.mechanistic.values import RecordFunction
 
 __all__ = [

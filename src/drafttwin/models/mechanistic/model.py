@@ -35,7 +35,15 @@ import pandas as pd
 
 from drafttwin.data.series import MeasurementSeries
 from drafttwin.errors import DataError
-from drafttwin.models.mechanistic.simfiles import Table, interpolate, read_table, tables, unit_hint
+from drafttwin.models.mechanistic.simfiles import (
+    Table,
+    interpolate,
+    read_table,
+    record_names,
+    record_start,
+    tables,
+    unit_hint,
+)
 from drafttwin.models.mechanistic.source import parse_source
 from drafttwin.models.mechanistic.values import (
     RecordFunction,
@@ -261,8 +269,8 @@ class MechanisticModel:
         if len(self._tables) != len(bounds):
             raise self._count_error(len(bounds), "the records", record_names(series))
         names = record_names(series)
-        for k, ((a, b), (table_t, _)) in enumerate(zip(bounds, self._tables, strict=True)):
-            time_s = series.time_s[a:b]
+        for k, (a, b) in enumerate(bounds):
+            table_t, time_s = self._aligned(series, k, names).time_s, series.time_s[a:b]
             if len(time_s) < 2:
                 continue
             step = max(float(np.median(np.diff(table_t))), float(np.median(np.diff(time_s))))
@@ -272,8 +280,9 @@ class MechanisticModel:
             raise DataError(
                 f"{{mechanistic:name}} file {self._table_names[k]} covers {table_t[0]:g} s to "
                 f"{table_t[-1]:g} s ({len(table_t)} rows) but its record {names[k]} spans "
-                f"{time_s[0]:g} s to {time_s[-1]:g} s ({len(time_s)} rows): it is the "
-                f"simulator output of another record{unit_hint(table_t, time_s)}",
+                f"{time_s[0]:g} s to {time_s[-1]:g} s ({len(time_s)} rows)"
+                f"{self._stamps_note(series, k)}: it is the simulator output of another "
+                f"record{unit_hint(table_t, time_s)}",
                 terms={"mechanistic": self.name},
                 param="mechanistic",
                 fix="give the simulator output of each record, simulated over that record's "
@@ -288,9 +297,8 @@ class MechanisticModel:
         if not self._tables or len(self._tables) != series.n_records:
             return []
         names, out = record_names(series), []
-        for k, ((a, b), (table_t, _)) in enumerate(zip(series.record_bounds(), self._tables,
-                                                       strict=True)):  # fmt: skip
-            time_s = series.time_s[a:b]
+        for k, (a, b) in enumerate(series.record_bounds()):
+            table_t, time_s = self._aligned(series, k, names).time_s, series.time_s[a:b]
             if len(time_s) < 2 or len(table_t) < 2:
                 continue
             step, own = float(np.median(np.diff(time_s))), float(np.median(np.diff(table_t)))
@@ -376,7 +384,8 @@ class MechanisticModel:
     ) -> np.ndarray:
         """Values of ``channels`` at arbitrary time stamps (s), for sources that can be
         evaluated one time stamp at a time: files, tables and ``f(time_s[, inputs])``
-        callables (a drive-train simulation needs the whole record)."""
+        callables (a drive-train simulation needs the whole record). A file stamped with
+        dates is read in seconds from its first stamp."""
         names, time_s = tuple(channels), np.asarray(time_s, dtype=np.float64)
         where = f"mechanistic source {self.name}"
         if self._tables:
@@ -398,7 +407,7 @@ class MechanisticModel:
             where += f" (record {k + 1})"
         time_s = series.time_s[a:b]
         if self._tables:
-            table = self._tables[k]
+            table = self._aligned(series, k, record_names(series))
             return interpolate(table, time_s, self._table_columns(names), names, where)
         if self._series_fn is not None:
             out = self._series_fn(series.slice(a, b))
@@ -408,6 +417,18 @@ class MechanisticModel:
             units = {c: series.unit(c) for c in names}
             out = self._record_fn(time_s, inputs, names, units)
         return check_values(out, b - a, names, self.channels, where)
+
+    def _aligned(self, series: MeasurementSeries, k: int, records: Sequence[str]) -> Table:
+        """Table ``k`` on the seconds of record ``k`` of ``series`` (a table stamped with
+        dates moved by its first stamp against the record's file's)."""
+        start = record_start(series, k)
+        return self._tables[k].in_frame_of(start, self._table_names[k], records[k])
+
+    def _stamps_note(self, series: MeasurementSeries, k: int) -> str:
+        """`` (stamped from ..., the record from ...)`` for a table stamped with dates."""
+        start = self._tables[k].start
+        return "" if start is None else (f" (stamped from {start}, the record from "
+                                         f"{record_start(series, k)})")  # fmt: skip
 
     def _table_columns(self, names: tuple[str, ...]) -> list[str]:
         return [self._columns.get(n, n).lower() for n in names]
@@ -425,22 +446,6 @@ class MechanisticModel:
 
     def __repr__(self) -> str:
         return f"MechanisticModel({self.name!r})"
-
-
-def record_names(series: MeasurementSeries) -> list[str]:
-    """Each record's file (``file (record k)`` for several records of one file) as the data
-    were read, for messages."""
-    metas = series.metadata.get("records")
-    n = series.n_records
-    if isinstance(metas, list) and len(metas) == n:
-        files = [str(m.get("source", "")) if isinstance(m, dict) else "" for m in metas]
-    else:
-        files = [str(series.metadata.get("source", ""))] * n
-    out = []
-    for k, f in enumerate(files):
-        label = f or "the data"
-        out.append(label if files.count(f) == 1 else f"{label} (record {k + 1})")
-    return out
 
 
 def as_mechanistic(source: object) -> MechanisticModel:

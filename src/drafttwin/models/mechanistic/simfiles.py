@@ -6,20 +6,58 @@ given files)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import pandas as pd
 
+from drafttwin.data.series import MeasurementSeries
+from drafttwin.data.timeaxis import parse_time
+from drafttwin.data.validate import TIME_NAMES
 from drafttwin.errors import DataError
 
-TIME_COLUMNS = ("time", "time_s", "t")
-"""Accepted names (case-insensitive) of the time column of a simulator output file, with a
-unit in brackets or as a suffix (``time [ms]``, ``time_ms``) or not (seconds); the record's
-own time column's name (``--time-column``) is accepted too."""
+TIME_COLUMNS = TIME_NAMES
+"""Accepted names (case-insensitive) of the time column of a simulator output file, as of a
+measurement file's: with a unit in brackets or as a suffix (``time [ms]``, ``time_ms``) or not
+(seconds), or holding date stamps (``timestamp``: ISO 8601, day-first, a Parquet timestamp);
+the record's own time column's name (``--time-column``) is accepted too."""
 
-Table = tuple[np.ndarray, dict[str, np.ndarray]]
-"""A simulator table: time (s) and columns by lower-cased name."""
+
+class Table(NamedTuple):
+    """A simulator table: time (s) and columns by lower-cased name. A table stamped with
+    dates (ISO 8601, a logger's day-first stamps, a Parquet timestamp) counts its seconds from
+    its first stamp, ``start``; :meth:`in_frame_of` puts it on a record's own seconds."""
+
+    time_s: np.ndarray
+    columns: dict[str, np.ndarray]
+    start: str | None = None
+
+    def in_frame_of(self, record_start: str | None, table: str, record: str) -> Table:
+        """The table on the time axis of a record whose seconds count from
+        ``record_start`` (its file's first stamp; ``None``: a record timed in seconds).
+        A table in seconds is taken as it is; a stamped one is moved by the stamps'
+        difference, and refused for a record without stamps (its seconds have no date)."""
+        if self.start is None:
+            return self
+        if record_start is None:
+            raise DataError(
+                f"{{mechanistic:name}} file {table} is stamped with dates (from {self.start}) "
+                f"but its record {record} is timed in seconds, without a date",
+                terms={"mechanistic": None}, param="mechanistic",
+                fix="write the simulator's time in seconds on the record's own axis, or give "
+                "the record with its date stamps",
+            )  # fmt: skip
+        try:
+            shift = (pd.Timestamp(self.start) - pd.Timestamp(record_start)).total_seconds()
+        except TypeError:  # one stamp has a time zone, the other none
+            raise DataError(
+                f"{{mechanistic:name}} file {table} is stamped from {self.start} but its "
+                f"record {record} from {record_start}: one has a time zone, the other not",
+                terms={"mechanistic": None}, param="mechanistic",
+                fix="write both stamps with a time zone (2024-05-01T08:00:00+02:00) or both "
+                "without",
+            ) from None  # fmt: skip
+        return Table(self.time_s + shift, self.columns)
 
 
 def read_table(path: Path) -> pd.DataFrame:
@@ -81,7 +119,9 @@ def _table(frame: pd.DataFrame, source: str, time_column: str | None = None) -> 
         raise DataError(f"{len(frame)} row(s); need at least 2", source=source)
     lower = {str(c).strip().lower(): c for c in frame.columns}
     time_col, seconds_per_unit = _time_column(frame, source, time_column)
-    time_s = _numeric(frame, time_col, source) * seconds_per_unit
+    axis = parse_time(frame[time_col], str(time_col), seconds_per_unit, source,
+                      lambda i: f"row {i + 1} (line {i + 2})")  # fmt: skip
+    time_s = axis.seconds
     steps = np.diff(time_s)
     if (steps <= 0).any():
         row = int(np.argmax(steps <= 0)) + 1
@@ -90,16 +130,9 @@ def _table(frame: pd.DataFrame, source: str, time_column: str | None = None) -> 
                         fix="sort the simulator output by time and drop duplicate times")  # fmt: skip
     # other columns are checked when a channel uses them (the rest may be text or empty)
     cols = {name: frame[col] for name, col in lower.items() if col != time_col}
-    return time_s, {
-        name: pd.to_numeric(col, errors="coerce").to_numpy(dtype=np.float64)
-        for name, col in cols.items()
-    }
-
-
-def _numeric(frame: pd.DataFrame, column: Any, source: str) -> np.ndarray:
-    values: np.ndarray = pd.to_numeric(frame[column], errors="coerce").to_numpy(dtype=np.float64)
-    _refuse_non_finite(values, frame[column], str(column), source)
-    return values
+    values = {name: pd.to_numeric(col, errors="coerce").to_numpy(dtype=np.float64)
+              for name, col in cols.items()}  # fmt: skip
+    return Table(time_s, values, axis.start)
 
 
 def _refuse_non_finite(values: np.ndarray, raw: pd.Series, column: str, source: str) -> None:
@@ -126,7 +159,7 @@ def interpolate(
     start or end up to one of its own steps inside the data's span: the edge value is held
     there. Anything further outside is refused.
     """
-    table_t, table_cols = table
+    table_t, table_cols = table.time_s, table.columns
     missing = [c for c in columns if c not in table_cols]
     if missing:
         raise DataError(
@@ -167,3 +200,29 @@ def unit_hint(table_t: np.ndarray, time_s: np.ndarray) -> str:
                  if abs(ratio / f - 1) < 0.02), None)  # fmt: skip
     return "" if unit is None else (f", or its time column is in {unit} (its span is {ratio:.4g} "
                                     f"x the data's): name it 'time [{unit}]'")  # fmt: skip
+
+
+def record_start(series: MeasurementSeries, k: int) -> str | None:
+    """The first date stamp of record ``k``'s file (its seconds count from it), or ``None``
+    for a record timed in seconds."""
+    start = series.metadata.get("start_time")
+    metas = series.metadata.get("records")
+    if isinstance(metas, list) and len(metas) == series.n_records and isinstance(metas[k], dict):
+        start = metas[k].get("start_time", start)
+    return None if start is None else str(start)
+
+
+def record_names(series: MeasurementSeries) -> list[str]:
+    """Each record's file (``file (record k)`` for several records of one file) as the data
+    were read, for messages."""
+    metas = series.metadata.get("records")
+    n = series.n_records
+    if isinstance(metas, list) and len(metas) == n:
+        files = [str(m.get("source", "")) if isinstance(m, dict) else "" for m in metas]
+    else:
+        files = [str(series.metadata.get("source", ""))] * n
+    out = []
+    for k, f in enumerate(files):
+        label = f or "the data"
+        out.append(label if files.count(f) == 1 else f"{label} (record {k + 1})")
+    return out
