@@ -40,24 +40,23 @@ class Table(NamedTuple):
         if self.start is None:
             return self
         if record_start is None:
-            raise DataError(
-                f"{{mechanistic:name}} file {table} is stamped with dates (from {self.start}) "
-                f"but its record {record} is timed in seconds, without a date",
-                terms={"mechanistic": None}, param="mechanistic",
-                fix="write the simulator's time in seconds on the record's own axis, or give "
-                "the record with its date stamps",
-            )  # fmt: skip
+            raise _stamp_error(f"{table} is stamped with dates (from {self.start}) but its "
+                               f"record {record} is timed in seconds, without a date",
+                               "write the simulator's time in seconds on the record's own "
+                               "axis, or give the record with its date stamps")  # fmt: skip
         try:
             shift = (pd.Timestamp(self.start) - pd.Timestamp(record_start)).total_seconds()
         except TypeError:  # one stamp has a time zone, the other none
-            raise DataError(
-                f"{{mechanistic:name}} file {table} is stamped from {self.start} but its "
-                f"record {record} from {record_start}: one has a time zone, the other not",
-                terms={"mechanistic": None}, param="mechanistic",
-                fix="write both stamps with a time zone (2024-05-01T08:00:00+02:00) or both "
-                "without",
-            ) from None  # fmt: skip
+            raise _stamp_error(f"{table} is stamped from {self.start} but its record {record} "
+                               f"from {record_start}: one has a time zone, the other not",
+                               "write both stamps with a time zone (2024-05-01T08:00:00+02:00) "
+                               "or both without") from None  # fmt: skip
         return Table(self.time_s + shift, self.columns)
+
+
+def _stamp_error(problem: str, fix: str) -> DataError:
+    return DataError(f"{{mechanistic:name}} file {problem}", terms={"mechanistic": None},
+                     param="mechanistic", fix=fix)  # fmt: skip
 
 
 def read_table(path: Path) -> pd.DataFrame:
