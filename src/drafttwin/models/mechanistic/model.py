@@ -270,7 +270,7 @@ class MechanisticModel:
             raise self._count_error(len(bounds), "the records", record_names(series))
         names = record_names(series)
         for k, (a, b) in enumerate(bounds):
-            table_t, time_s = self._aligned(series, k, names).time_s, series.time_s[a:b]
+            table_t, time_s = self._aligned(series, k).time_s, series.time_s[a:b]
             if len(time_s) < 2:
                 continue
             step = max(float(np.median(np.diff(table_t))), float(np.median(np.diff(time_s))))
@@ -298,7 +298,7 @@ class MechanisticModel:
             return []
         names, out = record_names(series), []
         for k, (a, b) in enumerate(series.record_bounds()):
-            table_t, time_s = self._aligned(series, k, names).time_s, series.time_s[a:b]
+            table_t, time_s = self._aligned(series, k).time_s, series.time_s[a:b]
             if len(time_s) < 2 or len(table_t) < 2:
                 continue
             step, own = float(np.median(np.diff(time_s))), float(np.median(np.diff(table_t)))
@@ -407,7 +407,7 @@ class MechanisticModel:
             where += f" (record {k + 1})"
         time_s = series.time_s[a:b]
         if self._tables:
-            table = self._aligned(series, k, record_names(series))
+            table = self._aligned(series, k)
             return interpolate(table, time_s, self._table_columns(names), names, where)
         if self._series_fn is not None:
             out = self._series_fn(series.slice(a, b))
@@ -418,11 +418,14 @@ class MechanisticModel:
             out = self._record_fn(time_s, inputs, names, units)
         return check_values(out, b - a, names, self.channels, where)
 
-    def _aligned(self, series: MeasurementSeries, k: int, records: Sequence[str]) -> Table:
+    def _aligned(self, series: MeasurementSeries, k: int) -> Table:
         """Table ``k`` on the seconds of record ``k`` of ``series`` (a table stamped with
         dates moved by its first stamp against the record's file's)."""
-        start = record_start(series, k)
-        return self._tables[k].in_frame_of(start, self._table_names[k], records[k])
+        table = self._tables[k]
+        if table.start is None:  # in seconds: as it is (no names needed)
+            return table
+        return table.in_frame_of(record_start(series, k), self._table_names[k],
+                                 record_names(series)[k])  # fmt: skip
 
     def _stamps_note(self, series: MeasurementSeries, k: int) -> str:
         """`` (stamped from ..., the record from ...)`` for a table stamped with dates."""
