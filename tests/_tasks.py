@@ -25,3 +25,10 @@ def slow_marked_task(config: dict) -> dict:
     marker.write_text("")
     time.sleep(config.get("sleep", 0.0))
     return {"k": config["k"], "square": config["k"] ** 2}
+
+
+def parallel_task_mark(config: dict) -> dict:
+    """Whether this process runs as a worker of a parallel run."""
+    from drafttwin.execution.executor import in_parallel_task
+
+    return {"k": config["k"], "parallel_task": in_parallel_task()}

@@ -44,6 +44,20 @@ ADDRESS_TIMEOUT_S = 3.0
 RAY_POLL_S = 0.5
 STOP_TIMEOUT_S = 5.0
 """How long stopped workers get to exit after SIGTERM before they are killed."""
+PARALLEL_TASK_ENV = "DRAFTTWIN_PARALLEL_TASK"
+"""Set to ``1`` in a process that runs tasks beside other worker processes: what it could run
+side by side inside itself would only compete with them for the CPUs."""
+
+
+def in_parallel_task() -> bool:
+    """Whether this process is a worker of a parallel run (local pool or Ray)."""
+    return os.environ.get(PARALLEL_TASK_ENV) == "1"
+
+
+def _as_parallel_task(fn: Task, config: dict[str, Any]) -> dict[str, Any]:
+    """``fn(config)`` in a worker process, marked as one (:func:`in_parallel_task`)."""
+    os.environ[PARALLEL_TASK_ENV] = "1"
+    return fn(config)
 
 
 def _default_workers() -> int:
@@ -151,7 +165,7 @@ def _run_local(fn: Task, todo: Pending, finish: Finish, workers: int, address: s
         # until every worker has its start-up data: raised between a worker's start and that
         # write, it left the worker to read an empty pipe (an EOFError traceback).
         with spawn_without_sigint(), signals_deferred():
-            futures = {pool.submit(fn, config): i for i, config in todo}
+            futures = {pool.submit(_as_parallel_task, fn, config): i for i, config in todo}
         for fut in cf.as_completed(futures):
             finish(futures[fut], fut.result())
     except BaseException:  # an error, Ctrl-C or SIGTERM: finished results are already stored
@@ -185,8 +199,8 @@ def stop_pool(pool: cf.ProcessPoolExecutor) -> None:
 
 def _run_ray(fn: Task, todo: Pending, finish: Finish, workers: int, address: str | None) -> None:
     with ray_session(workers, address) as ray:
-        remote = ray.remote(fn)
-        pending = {remote.remote(config): i for i, config in todo}
+        remote = ray.remote(_as_parallel_task)
+        pending = {remote.remote(fn, config): i for i, config in todo}
         try:
             while pending:
                 with signals_deferred():  # returns every RAY_POLL_S to let a signal through

@@ -36,9 +36,12 @@ scale, not its values)."""
 
 from __future__ import annotations
 
+import concurrent.futures as cf
+import copy
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Protocol
 
 import numpy as np
@@ -56,6 +59,7 @@ from drafttwin.models.training import (
     History,
     debias_head,
     predict_network,
+    train_ahead,
     train_network,
 )
 
@@ -218,6 +222,7 @@ def _wins_reliably(scores: np.ndarray, baseline: np.ndarray) -> bool:
 def judge(
     model: JudgedHybrid,
     fits: Mapping[bool, tuple[nn.Module, History, np.ndarray]],
+    judges: Mapping[tuple[int, bool], nn.Module],
     x: np.ndarray,
     extra: np.ndarray | None,
     scaled: dict[str, np.ndarray],
@@ -226,18 +231,16 @@ def judge(
     residual: np.ndarray,
     level: np.ndarray | float,
     starts: Sequence[int],
-    progress: FitProgress | None,
 ) -> FoldScores | None:
     """Fold scores of every candidate in ``fits`` (accumulate flag -> final net, its history,
-    its usable-window mask) and of no correction; ``None`` with fewer than two folds.
+    its usable-window mask) and of no correction, from ``judges`` ((fold, accumulate flag) ->
+    the judge :func:`train_judge` trained); ``None`` with fewer than two folds.
     ``em``: the residual as the net sees it (relative structure: over the physics' level);
     ``residual``: ``y - physics`` in the output's units; ``level``: what turns one into the
     other."""
     k_folds = int(getattr(model, "val_folds", DEFAULT_FOLDS))
     if k_folds < 2 or rows.size == 0:
         return None
-    simulation = model.task.simulation
-    lag = 0 if simulation else model.task.horizon
     blocks, by_record = _folds(rows, starts, k_folds)
     anchors = causal_ffill(em, starts)
     offered = offset_offered(model, by_record)
@@ -259,10 +262,9 @@ def judge(
             channel.setdefault(acc.CORRECTION_OFFSET, []).append(
                 acc.channel_nrmse(offset, measured, scale).tolist()
             )
-        for accumulate, (_, history, ok) in fits.items():
+        for accumulate in fits:
             name = _name(model, accumulate)
-            net = _train_judge(model, k, block, accumulate, history, x, extra, scaled, rows, ok,
-                               lag, progress)  # fmt: skip
+            net = judges[(k, accumulate)]
             ev = None if extra is None else extra[held]
             usable = np.isfinite(x[held]).reshape(int(held.sum()), -1).all(axis=1)
             pred = np.full(measured.shape, np.nan)
@@ -292,6 +294,16 @@ def offset_offered(model: JudgedHybrid, by_record: bool) -> bool:
     CORRECTION_OFFSET`) is judged: in a simulation on folds of whole records, unless the user
     kept the net's correction untested (``fallback=False``)."""
     return bool(model.task.simulation and by_record and getattr(model, "fallback", True))
+
+
+def fold_blocks(
+    model: JudgedHybrid, rows: np.ndarray, starts: Sequence[int]
+) -> list[tuple[int, int]] | None:
+    """The held-out blocks :func:`judge` scores on (``None``: it judges nothing)."""
+    k_folds = int(getattr(model, "val_folds", DEFAULT_FOLDS))
+    if k_folds < 2 or rows.size == 0:
+        return None
+    return _folds(rows, starts, k_folds)[0]
 
 
 def folds_are_records(model: JudgedHybrid, rows: np.ndarray, starts: Sequence[int]) -> bool | None:
@@ -324,31 +336,60 @@ def _name(model: JudgedHybrid, accumulate: bool) -> str:
     return "accumulate" if accumulate else "level"
 
 
-def _train_judge(
-    model: JudgedHybrid, k: int, block: tuple[int, int], accumulate: bool, history: History,
-    x: np.ndarray, extra: np.ndarray | None, scaled: dict[str, np.ndarray], rows: np.ndarray,
-    ok: np.ndarray, lag: int, progress: FitProgress | None,
-) -> nn.Module:  # fmt: skip
-    """A residual net trained on the windows outside ``block`` with the final net's
-    settings, for as many epochs as the final net needed (:func:`judge_epochs`: fewer over
-    all of them on a long record)."""
+def train_judge(
+    model: JudgedHybrid, net: nn.Module, k: int, block: tuple[int, int], accumulate: bool,
+    final: cf.Future[History], x: np.ndarray, extra: np.ndarray | None,
+    scaled: dict[str, np.ndarray], rows: np.ndarray, ok: np.ndarray, lag: int,
+    progress: FitProgress | None,
+) -> Callable[[], nn.Module]:  # fmt: skip
+    """Train ``net`` (built from the hybrid's seed) on the windows outside ``block`` with the
+    final net's settings, for as many epochs as the final net needed (:func:`judge_epochs`:
+    fewer over all of them on a long record). ``final``: that net's history once it has ended;
+    until then the judge trains ahead (``train_ahead``: to be cut back to its length, or on a
+    learning-rate schedule a bet on the whole budget, trained again from the same start if
+    lost). Returns the step that ends the judge once ``final`` is known (its length, an
+    accumulated-change head re-fitted) and gives the net."""
     keep = ok & footprint_outside(rows, model.window, lag, block)
     target = scaled["dem" if accumulate else "em"][rows]
     tr = model.training
     n = len(range(0, int(keep.sum()), tr.stride))  # the windows an epoch goes through
-    settings = tr.replace(epochs=judge_epochs(history.best_epoch + 1, n), patience=None,
-                          val_fraction=0.0)  # fmt: skip
-    net = model._build(target.shape[1])
+    settings = tr.replace(epochs=judge_epochs(tr.epochs, n), patience=None, val_fraction=0.0)
+    until: cf.Future[int] = cf.Future()
+    final.add_done_callback(partial(_judge_length, until, n))
     ek = None if extra is None else extra[keep]
     what = " (accumulated changes)" if accumulate else ""
-    train_network(net, x[keep], target[keep], settings, seed=model.seed + 101 + k, extra=ek,
-                  progress=progress,
-                  stage=f"{model.name} validation fold {k + 1}{what}")  # fmt: skip
-    if accumulate:
-        s = tr.stride
-        debias_head(net, x[keep][::s], target[keep][::s], None if ek is None else ek[::s],
-                    model._device())  # fmt: skip
-    return net
+    stage = f"{model.name} validation fold {k + 1}{what}"
+    seed = model.seed + 101 + k
+    if until.done():
+        train_network(net, x[keep], target[keep], settings, seed=seed, extra=ek,
+                      progress=progress, stage=stage, until=until)  # fmt: skip
+        ahead = init = None
+    else:
+        init = copy.deepcopy(net.state_dict())  # to train again if the bet on its length lost
+        ahead = train_ahead(net, x[keep], target[keep], settings, until=until, seed=seed,
+                            extra=ek, progress=progress, stage=stage)  # fmt: skip
+
+    def end() -> nn.Module:
+        if ahead is not None and init is not None and not ahead.cut(net, until.result()):
+            net.load_state_dict(init)
+            train_network(net, x[keep], target[keep], settings, seed=seed, extra=ek,
+                          progress=progress, stage=stage, until=until)  # fmt: skip
+        if accumulate:
+            s = tr.stride
+            debias_head(net, x[keep][::s], target[keep][::s], None if ek is None else ek[::s],
+                        model._device())  # fmt: skip
+        return net
+
+    return end
+
+
+def _judge_length(until: cf.Future[int], n_windows: int, final: cf.Future[History]) -> None:
+    """Tell a judge its epochs once its final net has ended (or that it failed)."""
+    error = final.exception()
+    if error is not None:
+        until.set_exception(error)
+        return
+    until.set_result(judge_epochs(final.result().best_epoch + 1, n_windows))
 
 
 def judge_epochs(final_epochs: int, n_windows: int) -> int:

@@ -43,10 +43,12 @@ initialisation rows, no network) is a candidate too, and corrects the channels w
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 import numpy as np
 import torch
+from torch import nn
 
 from drafttwin.data.scaling import MinMaxScaler
 from drafttwin.data.series import MeasurementSeries
@@ -62,6 +64,7 @@ from drafttwin.models.estimators.hybrid_state import (
     relative_state,
 )
 from drafttwin.models.estimators.networks import ResidualNet
+from drafttwin.models.estimators.schedule import Windows, train_residual_nets
 from drafttwin.models.estimators.task import check_windows, input_matrix
 from drafttwin.models.estimators.windows import (
     causal_ffill,
@@ -276,15 +279,12 @@ class _ResidualHybrid(_NeuralModel):
             candidates = [False]  # acc.ONE_RECORD: a fold is too short to judge accumulation
         else:
             candidates = [True, False]
-        fits = {}
-        for accumulate in candidates:
-            target = scaled["dem" if accumulate else "em"][rows]
-            ok = _finite(x, target, extra)
-            fits[accumulate] = (*self._train(x, target, extra, ok, progress, accumulate), ok)
+        fits, judges = train_residual_nets(self, Windows(x, extra, scaled, rows), starts,
+                                           candidates, partial(_finite, x, extra=extra), progress)  # fmt: skip
         val = self._validation(fits, x, extra, rows, groups["em"], starts)
         level = self._level(mech)
-        folds = judge(self, fits, x, extra, scaled, rows, groups["em"], y - mech, level, starts,
-                      progress)  # fmt: skip
+        folds = judge(self, fits, judges, x, extra, scaled, rows, groups["em"], y - mech, level,
+                      starts)  # fmt: skip
         kept = False
         if self.task.simulation:
             if self.accumulate is not None:
@@ -339,11 +339,11 @@ class _ResidualHybrid(_NeuralModel):
         self.correct_ = bool(self.corrected_.any())
         self.selection_["correction"] = choice.to_dict(channels)
 
-    def _train(
-        self, x: np.ndarray, target: np.ndarray, extra: np.ndarray | None, ok: np.ndarray,
-        progress: FitProgress, accumulate: bool,
-    ) -> tuple[ResidualNet, History]:  # fmt: skip
-        net = self._build(target.shape[1])
+    def _train_final(
+        self, net: nn.Module, x: np.ndarray, target: np.ndarray, extra: np.ndarray | None,
+        ok: np.ndarray, progress: FitProgress, accumulate: bool,
+    ) -> History:  # fmt: skip
+        """Train a candidate's final net (built by the caller) on its usable windows."""
         extra_ok = None if extra is None else extra[ok]
         tr = self.training
         validate = (acc.drift_validator(x[ok], target[ok], extra_ok, tr.val_fraction, tr.stride)
@@ -354,7 +354,7 @@ class _ResidualHybrid(_NeuralModel):
                                 validate=validate)  # fmt: skip
         if accumulate:
             debias_head(net, x[ok], target[ok], extra_ok, self._device())
-        return net, history
+        return history
 
     def _build(self, n_out: int) -> ResidualNet:
         with torch.random.fork_rng(devices=[]):
@@ -479,4 +479,5 @@ def _candidate(accumulate: bool) -> str:
 
 
 def _finite(x: np.ndarray, target: np.ndarray, extra: np.ndarray | None) -> np.ndarray:
+    """The windows whose inputs, target and extras are all finite."""
     return finite_rows(x, target) if extra is None else finite_rows(x, target, extra)

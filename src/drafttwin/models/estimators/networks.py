@@ -10,6 +10,8 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from drafttwin.models.training.rng import SeededDropout
+
 
 class SKConv1d(nn.Module):
     """Selective-kernel convolution over time (Li et al., CVPR 2019), adapted to 1-D.
@@ -123,7 +125,7 @@ class RecurrentRegressor(nn.Module):
     ) -> None:
         super().__init__()
         self.rnn = recurrent_stack(cell, n_features, hidden, layers, dropout)
-        self.drop = nn.Dropout(dropout)
+        self.drop = SeededDropout(dropout)
         self.head = nn.Linear(hidden, n_outputs)
         self.n_outputs = n_outputs
         self.skip = skip
@@ -169,7 +171,7 @@ class ResidualNet(nn.Module):
         width = sk_channels if use_sknet else n_channels
         self.lstm = recurrent_stack("lstm", width, hidden, layers, dropout) if use_lstm else None
         feat = hidden if use_lstm else 2 * width
-        self.drop = nn.Dropout(dropout)
+        self.drop = SeededDropout(dropout)
         self.head = nn.Linear(feat + n_extra, n_outputs)
         self.n_outputs = n_outputs
         self.n_extra = n_extra

@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import re
 import sys
+import threading
 from collections.abc import Iterator
 from typing import Any
 
@@ -97,28 +98,41 @@ def _set_deterministic(mode: bool, *, warn_only: bool) -> None:
     torch._C._set_deterministic_algorithms(mode, warn_only=warn_only)
 
 
+_context_lock = threading.Lock()
+_context_depth = 0
+_context_saved: tuple[bool, bool, bool] = (False, False, True)
+
+
 @contextlib.contextmanager
 def compute_context(device: torch.device) -> Iterator[None]:
     """Deterministic algorithms and a capped CPU thread count, restored afterwards.
 
     Used around training; toggling determinism costs about a millisecond, so inference (which
-    is deterministic on CPU anyway) uses :func:`cpu_threads` only.
+    is deterministic on CPU anyway) uses :func:`cpu_threads` only. Counted: nets training side
+    by side in threads enter it each, and the flags are restored when the last one leaves
+    (the first to leave would otherwise switch them off under the others).
     """
-    det, warn = (
-        torch.are_deterministic_algorithms_enabled(),
-        torch.is_deterministic_algorithms_warn_only_enabled(),
-    )
-    # torch sets this module attribute at import time; its stubs do not declare it
-    fill = torch.utils.deterministic.fill_uninitialized_memory  # type: ignore[attr-defined]
-    _set_deterministic(True, warn_only=device.type != "cpu")
-    # filling every new tensor with NaN only helps debugging and costs ~15 % on conv nets
-    torch.utils.deterministic.fill_uninitialized_memory = False  # type: ignore[attr-defined]
+    global _context_depth, _context_saved
+    with _context_lock:
+        if _context_depth == 0:
+            # torch sets this module attribute at import time; its stubs do not declare it
+            fill = torch.utils.deterministic.fill_uninitialized_memory  # type: ignore[attr-defined]
+            _context_saved = (torch.are_deterministic_algorithms_enabled(),
+                              torch.is_deterministic_algorithms_warn_only_enabled(), fill)  # fmt: skip
+            _set_deterministic(True, warn_only=device.type != "cpu")
+            # filling every new tensor with NaN only helps debugging and costs ~15 % on conv nets
+            torch.utils.deterministic.fill_uninitialized_memory = False  # type: ignore[attr-defined]
+        _context_depth += 1
     try:
         with cpu_threads(device):
             yield
     finally:
-        _set_deterministic(det, warn_only=warn)
-        torch.utils.deterministic.fill_uninitialized_memory = fill  # type: ignore[attr-defined]
+        with _context_lock:
+            _context_depth -= 1
+            if _context_depth == 0:
+                det, warn, fill = _context_saved
+                _set_deterministic(det, warn_only=warn)
+                torch.utils.deterministic.fill_uninitialized_memory = fill  # type: ignore[attr-defined]
 
 
 def place(net: nn.Module, device: torch.device) -> None:

@@ -9,9 +9,11 @@ per model fit (on stderr; silent with ``quiet``).
 
 from __future__ import annotations
 
+import concurrent.futures as cf
 import copy
 import dataclasses
 import math
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -20,7 +22,14 @@ from typing import Any, TypedDict
 import numpy as np
 import torch
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TaskID,
+    TextColumn,
+    TimeElapsedColumn,
+)
 from torch import nn
 
 from drafttwin.errors import ConfigError, DataError
@@ -32,6 +41,8 @@ from drafttwin.models.training.compute import (
     place,
     resolve_device,
 )
+from drafttwin.models.training.rng import own_generator
+from drafttwin.models.training.side_by_side import check_cancelled, wait_for
 
 SCHEDULES = ("constant", "cosine")
 """How the learning rate moves over the epochs: ``constant`` keeps ``lr``; ``cosine`` lowers it
@@ -171,7 +182,9 @@ class History:
 
 
 class FitProgress:
-    """One progress bar for one model fit; each training stage resets it (epochs as units)."""
+    """The progress bars of one model fit: each training stage resets a bar (epochs as units).
+    Stages that train side by side in threads (:mod:`.side_by_side`) get a bar each; a stage
+    that finishes hands its bar to the next."""
 
     def __init__(self, description: str, *, quiet: bool = False) -> None:
         self.description = description
@@ -185,7 +198,9 @@ class FitProgress:
             disable=quiet,
             transient=False,
         )
-        self._task = self._progress.add_task(description, total=1, loss="", start=False)
+        self._bars = [self._progress.add_task(description, total=1, loss="", start=False)]
+        self._held: dict[int, TaskID] = {}  # thread -> the bar its stage runs on
+        self._lock = threading.Lock()
 
     def __enter__(self) -> FitProgress:
         self._progress.start()
@@ -194,30 +209,50 @@ class FitProgress:
     def __exit__(self, *exc: object) -> None:
         self._progress.stop()
 
+    def _bar(self) -> TaskID:
+        """This thread's bar: the one its stage holds, else the first free one (or a new)."""
+        me = threading.get_ident()
+        with self._lock:
+            if me not in self._held:
+                taken = set(self._held.values())
+                free = [b for b in self._bars if b not in taken]
+                if not free:
+                    free = [self._progress.add_task(self.description, total=1, loss="",
+                                                    start=False)]  # fmt: skip
+                    self._bars.append(free[0])
+                self._held[me] = free[0]
+            return self._held[me]
+
     def stage(self, name: str, epochs: int) -> None:
-        """Start a stage of ``epochs`` epochs on the same bar."""
-        self._progress.reset(
-            self._task, total=epochs, description=f"{self.description}: {name}", loss=""
-        )
-        self._progress.start_task(self._task)
+        """Start a stage of ``epochs`` epochs on this thread's bar."""
+        bar = self._bar()
+        self._progress.reset(bar, total=epochs, description=f"{self.description}: {name}",
+                             loss="")  # fmt: skip
+        self._progress.start_task(bar)
 
     def epoch(self, train_loss: float, val_loss: float | None) -> None:
         text = f"loss {train_loss:.3g}" + ("" if val_loss is None else f" val {val_loss:.3g}")
-        self._progress.update(self._task, advance=1, loss=text)
+        self._progress.update(self._bar(), advance=1, loss=text)
 
     def finish(self, history: History | None = None) -> None:
         """End the stage: an early stop shows as such (the epochs run of the budget, and the
-        best epoch), not as a full bar."""
-        task = self._progress.tasks[0]
+        best epoch), not as a full bar; a run cut to the epochs it turned out to need (a judge
+        that trained ahead of its final net) shows those."""
+        bar = self._bar()
+        task = next(t for t in self._progress.tasks if t.id == bar)
+        run = len(history.train_loss) if history is not None else 0
         if history is not None and history.stopped_early:
-            run = len(history.train_loss)
             self._progress.update(
-                self._task, total=run, completed=run,
+                bar, total=run, completed=run,
                 description=f"{task.description} (stopped early at epoch {run} of "
                 f"{int(task.total or run)}: best {history.best_epoch + 1})",
             )  # fmt: skip
-            return
-        self._progress.update(self._task, completed=task.total)
+        elif history is not None and 0 < run < (task.total or 0):
+            self._progress.update(bar, total=run, completed=run)
+        else:
+            self._progress.update(bar, completed=task.total)
+        with self._lock:
+            self._held.pop(threading.get_ident(), None)
 
 
 def _as_tensor(x: np.ndarray | None, device: torch.device) -> torch.Tensor | None:
@@ -282,6 +317,7 @@ def train_network(
     progress: FitProgress | None = None,
     stage: str = "training",
     validate: Callable[[nn.Module], float] | None = None,
+    until: cf.Future[int] | None = None,
 ) -> History:
     """Train ``net`` in place on windows ``x`` (N, T, F), targets ``y`` (N, outputs) and
     optional per-sample ``extra`` (N, E), all in scaled units and chronological order.
@@ -293,8 +329,85 @@ def train_network(
     whose neighbouring windows are nearly identical). ``validate(net) -> loss``, if given,
     replaces the MSE on the validation part as the early-stopping criterion (e.g. a free-run
     error); it runs with gradients off and the net in eval mode, whenever there is a
-    validation part.
+    validation part. ``until``: the epochs to train, known later (a judge whose length its
+    final net sets), waited for first (:func:`train_ahead` trains meanwhile).
     """
+    if until is not None:
+        config = config.replace(epochs=wait_for(until))
+    history = _fit(net, x, y, config, seed, extra, progress, stage, validate)
+    return history
+
+
+@dataclass
+class Ahead:
+    """A run trained ahead of its length (:func:`train_ahead`): its history, the epochs it
+    was set up for and, where a shorter run is the start of a longer one, per epoch run the
+    best weights so far and their epoch (``states``; ``None``: the run is a guess at the
+    whole length, right or wrong as a whole)."""
+
+    history: History
+    planned: int
+    states: list[tuple[dict[str, torch.Tensor], int]] | None
+
+    def cut(self, net: nn.Module, epochs: int) -> bool:
+        """End ``net`` as a run of ``epochs`` epochs ends (its best weights among them, eval
+        mode; :attr:`history` then that run's). ``False``: it cannot (a guess at another
+        length, or one stopped once it was known wrong): train it again."""
+        if self.states is None:
+            return epochs == self.planned == len(self.history.train_loss)
+        if not 1 <= epochs <= len(self.states):
+            raise ValueError(f"{epochs} epochs asked of a run of {len(self.states)}")
+        state, self.history.best_epoch = self.states[epochs - 1]
+        net.load_state_dict(state)
+        net.eval()
+        del self.history.train_loss[epochs:]
+        return True
+
+
+def runs_ahead(config: Training) -> bool:
+    """Whether a run of fewer epochs under ``config`` is the start of a longer one (a
+    constant learning rate, no validation part, no patience)."""
+    return config.schedule == "constant" and config.val_fraction == 0 and config.patience is None
+
+
+def train_ahead(
+    net: nn.Module,
+    x: np.ndarray,
+    y: np.ndarray,
+    config: Training,
+    *,
+    until: cf.Future[int],
+    seed: int = 0,
+    extra: np.ndarray | None = None,
+    progress: FitProgress | None = None,
+    stage: str = "training",
+) -> Ahead:
+    """Train ``net`` as ``train_network(..., until=until)`` would, without waiting for
+    ``until`` (at most ``config.epochs``): where a shorter run is the start of a longer one
+    (:func:`runs_ahead`) it trains ahead and stops once ``until`` is known and reached;
+    otherwise (a learning-rate schedule over the epochs) it bets on ``config.epochs`` and
+    stops as soon as ``until`` says otherwise. :meth:`Ahead.cut` ends it bit for bit as the
+    run of ``until``'s epochs, or says it lost the bet."""
+    prefix = runs_ahead(config)
+    ahead = Ahead(History(), config.epochs, [] if prefix else None)
+
+    def stop(epoch: int) -> bool:
+        if not until.done():
+            return False
+        return epoch >= until.result() if prefix else until.result() != config.epochs
+
+    ahead.history = _fit(net, x, y, config, seed, extra, progress, stage, None, stop,
+                         ahead.states)  # fmt: skip
+    return ahead
+
+
+def _fit(
+    net: nn.Module, x: np.ndarray, y: np.ndarray, config: Training, seed: int,
+    extra: np.ndarray | None, progress: FitProgress | None, stage: str,
+    validate: Callable[[nn.Module], float] | None, stop: Callable[[int], bool] | None = None,
+    ahead: list[tuple[dict[str, torch.Tensor], int]] | None = None,
+) -> History:  # fmt: skip
+    """:func:`train_network`'s work (``stop`` and ``ahead``: :func:`train_ahead`'s)."""
     if config.stride > 1:
         x, y = x[:: config.stride], y[:: config.stride]
         extra = None if extra is None else extra[:: config.stride]
@@ -321,7 +434,8 @@ def train_network(
         opt = make_adam(net.parameters(), config.lr, device)  # torch's numbers, less overhead
         if progress is not None:
             progress.stage(stage, config.epochs)
-        _run_epochs(net, opt, parts, config, gen, history, progress, validate)
+        with own_generator(net, seed):
+            _run_epochs(net, opt, parts, config, gen, history, progress, validate, stop, ahead)
     history.seconds = time.perf_counter() - start
     net.eval()
     return history
@@ -353,11 +467,17 @@ def _run_epochs(
     history: History,
     progress: FitProgress | None,
     validate: Callable[[nn.Module], float] | None = None,
+    stop: Callable[[int], bool] | None = None,
+    ahead: list[tuple[dict[str, torch.Tensor], int]] | None = None,
 ) -> None:
+    """Train the epochs, ending before epoch ``e`` where ``stop(e)``; with ``ahead``, keep
+    each epoch's best-so-far weights and their epoch there."""
     best = math.inf
     best_state = copy.deepcopy(net.state_dict())
     stale = 0
     for epoch in range(config.epochs):
+        if stop is not None and stop(epoch):
+            break
         _set_lr(opt, epoch_lr(config, epoch))
         train_loss = _train_epoch(net, opt, parts, config, gen)
         history.train_loss.append(train_loss)
@@ -382,6 +502,8 @@ def _run_epochs(
             if config.patience is not None and stale >= config.patience:
                 history.stopped_early = True
                 break
+        if ahead is not None:
+            ahead.append((best_state, history.best_epoch))
     net.load_state_dict(best_state)
     if progress is not None:
         progress.finish(history)
@@ -414,6 +536,7 @@ def _train_epoch(
     perm = torch.randperm(parts.n_train, generator=gen).to(parts.x.device)
     total = torch.zeros((), device=parts.x.device)
     for i in range(0, parts.n_train, config.batch_size):
+        check_cancelled()
         bx, by, be = parts.train(perm[i : i + config.batch_size])
         opt.zero_grad(set_to_none=True)
         loss = nn.functional.mse_loss(_forward(net, bx, be), by)
