@@ -9,7 +9,8 @@ import torch
 from drafttwin.errors import ConfigError
 from drafttwin.models import MechanisticModel, Training, make_model, train_network
 from drafttwin.models.estimators.networks import RecurrentRegressor, ResidualNet
-from drafttwin.models.training.loop import FitProgress, _mean_loss, split_sizes
+from drafttwin.models.training import FitProgress
+from drafttwin.models.training.loop import _mean_loss, split_sizes
 
 from ._synthetic import hyper_for, make_series, mechanistic
 

@@ -278,3 +278,24 @@ def test_stages_side_by_side_get_a_bar_each_and_hand_them_on() -> None:
     progress.stage("c", 1)
     progress.finish()
     assert len(progress._progress.tasks) == 2  # a free bar is taken again
+
+
+def test_a_judge_too_big_to_keep_per_epoch_waits_for_its_length(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    from drafttwin.models.estimators import folds
+
+    data = _record(1, 0.2)
+    hyper = {**TINY, "epochs": 6, "patience": 2, "task": "prediction", "outputs": ("y",),
+             "inputs": ("u",), "seed": 3, "schedule": "constant", "dropout": 0.2}  # fmt: skip
+    monkeypatch.setenv(WORKERS_ENV, "1")
+    alone = make_model("parallel", **hyper).fit(data, _physics())
+    monkeypatch.setenv(WORKERS_ENV, "2")
+    monkeypatch.setattr(folds, "AHEAD_BYTES", 0)
+    ahead: list[str] = []
+    monkeypatch.setattr(folds, "train_ahead", lambda *a, **k: ahead.append("ran") or None)
+    waited = make_model("parallel", **hyper).fit(data, _physics())
+    assert ahead == []
+    assert alone.selection_ == waited.selection_
+    assert all(np.array_equal(p, q)
+               for p, q in zip(_weights(alone.net_), _weights(waited.net_), strict=True))  # fmt: skip

@@ -57,8 +57,10 @@ from drafttwin.models.estimators.windows import (
 from drafttwin.models.training import (
     FitProgress,
     History,
+    Training,
     debias_head,
     predict_network,
+    runs_ahead,
     train_ahead,
     train_network,
 )
@@ -98,6 +100,9 @@ threw away corrections that uncapped judges kept on every fold (MD-S-L one step 
 RMSE front 1.04 -> 0.54 rpm, the GRU's 0.58); 1200 still refused MD-S-L's, 2400 gives the
 uncapped judges' verdict on both hybrids (docs/models.md, "Validation on folds"). On the
 default data it costs about 4 s of a 20-s fit."""
+AHEAD_BYTES = 64 * 2**20
+"""A judge trains ahead of its length at a constant rate only where its weights, kept once per
+epoch to be cut back to, take at most this much memory (else it waits for its final net)."""
 MEASURE = (
     "NRMSE of the output on each held-out fold of the training rows: RMSE / standard "
     "deviation of the measured residual (y - physics) there"
@@ -360,7 +365,7 @@ def train_judge(
     what = " (accumulated changes)" if accumulate else ""
     stage = f"{model.name} validation fold {k + 1}{what}"
     seed = model.seed + 101 + k
-    if until.done():
+    if until.done() or _snapshot_bytes(net, settings) > AHEAD_BYTES:
         train_network(net, x[keep], target[keep], settings, seed=seed, extra=ek,
                       progress=progress, stage=stage, until=until)  # fmt: skip
         ahead = init = None
@@ -381,6 +386,14 @@ def train_judge(
         return net
 
     return end
+
+
+def _snapshot_bytes(net: nn.Module, settings: Training) -> int:
+    """What a judge trained ahead may keep: its weights once per epoch (at a constant rate)."""
+    if not runs_ahead(settings):
+        return 0
+    weights = sum(int(t.numel()) * int(t.element_size()) for t in net.state_dict().values())
+    return settings.epochs * weights
 
 
 def _judge_length(until: cf.Future[int], n_windows: int, final: cf.Future[History]) -> None:

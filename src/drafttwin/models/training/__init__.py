@@ -1,10 +1,11 @@
 """Training: the one loop every network trains through (:mod:`.loop`: Adam, batches,
-validation, early stopping, the progress bar), where and how it computes (:mod:`.compute`:
-device, threads, determinism) and Adam on the CPU (:mod:`.adam`)."""
+validation, early stopping, a run trained ahead of its length), its progress bars
+(:mod:`.progress`), where and how it computes (:mod:`.compute`: device, threads,
+determinism), its own random numbers (:mod:`.rng`), nets trained side by side in threads
+(:mod:`.side_by_side`) and Adam on the CPU (:mod:`.adam`)."""
 
 from drafttwin.models.training.loop import (
     Ahead,
-    FitProgress,
     History,
     HistoryDict,
     Training,
@@ -15,6 +16,7 @@ from drafttwin.models.training.loop import (
     train_ahead,
     train_network,
 )
+from drafttwin.models.training.progress import FitProgress
 
 __all__ = [
     "Ahead",
