@@ -4,7 +4,7 @@ stage, one per thread for stages that train side by side."""
 from __future__ import annotations
 
 import threading
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 from rich.console import Console
 from rich.progress import (
@@ -16,8 +16,13 @@ from rich.progress import (
     TimeElapsedColumn,
 )
 
-if TYPE_CHECKING:
-    from drafttwin.models.training.loop import History
+
+class Run(Protocol):
+    """What a bar shows of a finished stage (a training ``History``)."""
+
+    train_loss: list[float]
+    best_epoch: int
+    stopped_early: bool
 
 
 class FitProgress:
@@ -73,7 +78,7 @@ class FitProgress:
         text = f"loss {train_loss:.3g}" + ("" if val_loss is None else f" val {val_loss:.3g}")
         self._progress.update(self._bar(), advance=1, loss=text)
 
-    def finish(self, history: History | None = None) -> None:
+    def finish(self, history: Run | None = None) -> None:
         """End the stage: an early stop shows as such (the epochs run of the budget, and the
         best epoch), not as a full bar; a run cut to the epochs it turned out to need (a judge
         that trained ahead of its final net) shows those."""
