@@ -58,7 +58,11 @@ def training_workers() -> int:
         return int(text)
     if in_parallel_task() or training_threads() > 1:
         return 1
-    return max(1, min(DEFAULT_WORKERS, len(os.sched_getaffinity(0))))
+    try:
+        cpus = len(os.sched_getaffinity(0))  # the CPUs this process may run on (Linux)
+    except AttributeError:  # macOS, Windows
+        cpus = os.cpu_count() or 1
+    return max(1, min(DEFAULT_WORKERS, cpus))
 
 
 def check_cancelled() -> None:
