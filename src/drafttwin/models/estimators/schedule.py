@@ -4,8 +4,10 @@ can (:mod:`~drafttwin.models.training.side_by_side`).
 
 A judge trains for as many epochs as its candidate's final net needed
 (:func:`~drafttwin.models.estimators.folds.judge_epochs`), so it cannot know its length before
-that net ends; with a constant learning rate it trains ahead beside it and is cut back to that
-length once known (the same numbers: a shorter run is the start of a longer one). So the one
+that net ends; it trains ahead beside it: at a constant learning rate it is cut back to that
+length once known (the same numbers: a shorter run is the start of a longer one), on a
+schedule over the epochs it bets on the whole budget and trains again when the final net ended
+early enough to change its length (``train_ahead``). So the one
 candidate of a one-step prediction trains beside its judges, and a simulation's two candidates
 beside each other. Every net is built here, in the calling thread, from its seed; each
 trains with its own generators, so the numbers are those of the nets trained one after the
