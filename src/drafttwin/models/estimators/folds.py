@@ -368,15 +368,15 @@ def train_judge(
     if until.done() or _snapshot_bytes(net, settings) > AHEAD_BYTES:
         train_network(net, x[keep], target[keep], settings, seed=seed, extra=ek,
                       progress=progress, stage=stage, until=until)  # fmt: skip
-        ahead = init = None
+        ahead = None
     else:
-        init = copy.deepcopy(net.state_dict())  # to train again if the bet on its length lost
-        ahead = train_ahead(net, x[keep], target[keep], settings, until=until, seed=seed,
-                            extra=ek, progress=progress, stage=stage)  # fmt: skip
+        start = copy.deepcopy(net.state_dict())  # to train again if the bet on its length lost
+        ahead = (train_ahead(net, x[keep], target[keep], settings, until=until, seed=seed,
+                             extra=ek, progress=progress, stage=stage), start)  # fmt: skip
 
     def end() -> nn.Module:
-        if ahead is not None and init is not None and not ahead.cut(net, until.result()):
-            net.load_state_dict(init)
+        if ahead is not None and not ahead[0].cut(net, until.result()):
+            net.load_state_dict(ahead[1])
             train_network(net, x[keep], target[keep], settings, seed=seed, extra=ek,
                           progress=progress, stage=stage, until=until)  # fmt: skip
         if accumulate:

@@ -83,9 +83,10 @@ def train_residual_nets(
         jobs.append(partial(train_judge, model, nets[-1], k, blocks[k], accumulate,
                             ended[accumulate], windows.x, windows.extra, windows.scaled,
                             windows.rows, masks[accumulate], lag, progress))  # fmt: skip
-    cpu = resolve_device(model.training.device).type == "cpu"
-    workers = training_workers() if cpu and not any(map(draws_global_rng, nets)) else 1
-    with compute_context(resolve_device(model.training.device)), torch.random.fork_rng(devices=[]):
+    device = resolve_device(model.training.device)
+    alone = device.type != "cpu" or any(map(draws_global_rng, nets))
+    workers = 1 if alone else training_workers()
+    with compute_context(device), torch.random.fork_rng(devices=[]):
         results = side_by_side(jobs, workers)
         ends = side_by_side(results[len(candidates) :], workers)  # judges cut to their length
     finals = {a: (nets[i], results[i], masks[a]) for i, a in enumerate(candidates)}

@@ -251,8 +251,7 @@ def train_network(
     """
     if until is not None:
         config = config.replace(epochs=wait_for(until))
-    history = _fit(net, x, y, config, seed, extra, progress, stage, validate)
-    return history
+    return _fit(net, x, y, config, seed, extra, progress, stage, validate)
 
 
 @dataclass

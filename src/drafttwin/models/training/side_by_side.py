@@ -110,12 +110,10 @@ def side_by_side(jobs: Sequence[Callable[[], T]], workers: int) -> list[T]:
         cancel.set()
         pool.shutdown(wait=True, cancel_futures=True)
         raise
-    failed = [f for f in futures if f.done() and f.exception() is not None]
-    if failed:
+    if any(f.done() and f.exception() is not None for f in futures):
         cancel.set()
     pool.shutdown(wait=True, cancel_futures=True)
     errors = [e for f in futures if not f.cancelled() and (e := f.exception()) is not None]
-    real = [e for e in errors if not isinstance(e, Cancelled)]
-    if real or errors:
-        raise (real or errors)[0]
+    if errors:  # the jobs' own errors first, not the stops they caused in the others
+        raise next((e for e in errors if not isinstance(e, Cancelled)), errors[0])
     return [f.result() for f in futures]
