@@ -9,7 +9,7 @@ from typer.testing import CliRunner
 
 from drafttwin.cli import app
 from drafttwin.models import load_model
-from drafttwin.plant import Plant
+from drafttwin.plant import Plant, PlantConfig
 
 runner = CliRunner()
 
@@ -17,7 +17,10 @@ runner = CliRunner()
 @pytest.fixture(scope="module")
 def data_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("plant") / "plant.csv"
-    Plant().run(16.0, 100.0, seed=11).write(path)
+    # the record the figures below were measured on: the plant placed at its operating point
+    # (its start before 2026-12-01; run up, the back roller's encoder error has a lag-one
+    # autocorrelation of -0.38, outside the floor oracle's premise, and its floor is unknown)
+    Plant(config=PlantConfig(start="operating-point")).run(16.0, 100.0, seed=11).write(path)
     return path
 
 

@@ -27,6 +27,8 @@ from drafttwin.plant import Machine, Plant, PlantConfig
 from drafttwin.plant.config import Eccentricity
 from drafttwin.plant.sliver_channel import SliverSettings
 from drafttwin.sliver.spectra import spectrogram
+from drafttwin.sliver.transfer import fibre_length_gain, roller_gains, transit_lengths_m
+from tests.sliver.test_healthy_line import GAUGES, _line
 
 ALLOWABLE = PlantConfig(eccentricity=Eccentricity(gear_runout_law="allowable"))
 RAYLEIGH = PlantConfig(eccentricity=Eccentricity(gear_runout_law="rayleigh"))
@@ -67,24 +69,41 @@ def test_the_law_changes_the_run_outs_and_nothing_else_of_the_machine() -> None:
             assert g[f"{side}_eccentricity_um"] < 17.5
 
 
-def _front_order_channel(config: PlantConfig) -> tuple[float, float]:
-    """Amplitude and base (%) of the true sliver's channel at the front roller's 14.14 cm:
-    machine 4711, recording seed 32 (the issue's record), 30 s (128 m)."""
+def _front_order_line(config: PlantConfig) -> tuple[float, float]:
+    """The line (%) the rollers' surfaces leave in the sliver at the front roller's order
+    through the drafting transfer (the line a long record converges to: the surfaces' lines
+    are kinematic, the sliver's own random irregularity adds a random vector in a short one)
+    and the spectrogram's base (%) at 14.14 cm: machine 4711, recording seed 32 (the issue's
+    record), 30 s (128 m)."""
     plant = Plant(config=config)
     machine = Machine.draw(plant.train, config, 4711)
-    true = plant.run(30.0, 100.0, seed=32, machine=machine, sliver=SliverSettings()).sliver.true
+    rec = plant.run(30.0, 100.0, seed=32, machine=machine, sliver=SliverSettings())
+    s = rec.surface
+    v = np.diff(s.length_m, axis=0) / np.diff(s.time_s)[:, None]
+    t = 0.5 * (s.time_s[1:] + s.time_s[:-1])
+    f_front = v[:, 0].mean() / (2 * math.pi * rec.info["surface"]["radius_m"]["front"])
+    lines = np.array([_line(v[:, k] / v[:, k].mean() - 1, t, f_front) for k in range(4)])
+    wavelength = v[:, 0].mean() / f_front
+    gains = roller_gains(wavelength, transit_lengths_m(GAUGES, rec.sliver.summary["drafts"]))[0]
+    true = rec.sliver.true
+    line = abs(np.sum(gains * lines) * fibre_length_gain(true.staple, wavelength)[0])
     spec = spectrogram(true.linear_density_ktex, true.step_m, true.staple)
-    j = int(np.argmin(np.abs(spec.wavelength_m - 0.1414)))
-    return float(spec.amplitude_pct[j]), float(spec.base_pct[j])
+    base = float(spec.base_pct[int(np.argmin(np.abs(spec.wavelength_m - 0.1414)))])
+    return 100 * float(line), base
 
 
 @pytest.mark.slow
 def test_the_issues_healthy_machine_has_no_chimney_at_the_front_rollers_order() -> None:
-    amp, base = _front_order_channel(RAYLEIGH)
-    assert amp - base < base / 2  # below the B/2 rule
+    """The B/2 rule (a channel above 1.5 times its base) asks of a line in a channel of
+    random irregularity at the base's level ``sqrt(1.5**2 - 1) = 1.118`` times the base. A
+    128-m channel's own scatter moves this machine's channel across the rule from one
+    recording to the next (0.21-0.25 % on 0.15-0.17 %), not its line: the line is tested
+    (0.159 % against 0.173 %; the whole 513-m record's channel 0.219 % on 0.158 %)."""
+    line, base = _front_order_line(RAYLEIGH)
+    assert line < 1.118 * base
     # with every gear at its allowable run-out the same record shows it (the issue's chimney)
-    amp, base = _front_order_channel(ALLOWABLE)
-    assert amp - base > base / 2
+    line, base = _front_order_line(ALLOWABLE)
+    assert line > 1.3 * 1.118 * base  # 0.250 %
 
 
 def test_generate_takes_the_law_and_records_it(tmp_path: Path) -> None:

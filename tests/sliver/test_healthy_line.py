@@ -99,7 +99,13 @@ def test_the_healthy_line_is_the_front_shaft_gears_run_out(machine: Machine, as_
     predicted = abs(np.sum(gains * lines) * fibre_length_gain(true.staple, lam)[0])
     x = true.linear_density_ktex / true.linear_density_ktex.mean() - 1
     measured = abs(_line(x, true.time_s, f_front))
-    assert measured == pytest.approx(predicted, rel=0.05)
+    # the sliver's random irregularity adds a random vector to the line: its size measured
+    # beside it (5-40 resolution cells away, where no element runs)
+    cells = np.r_[-40:-4, 5:41] / (true.time_s[-1] - true.time_s[0])
+    noise = np.sqrt(np.mean([abs(2 * np.mean(x * np.exp(-2j * np.pi * (f_front + c) * true.time_s))) ** 2
+                             for c in cells]))  # fmt: skip
+    assert noise < 0.1 * predicted
+    assert abs(measured - predicted) < 3 * noise, (measured, predicted, noise)
     assert 100 * measured > 0.2
 
 

@@ -58,24 +58,39 @@ GearRunoutOpt = Annotated[str | None, typer.Option("--gear-runout", help=(
     "gives every gear the allowable value itself (the worst accepted gear everywhere; the "
     "embedded data set's plant; docs/plant.md). Machine parameters from --machine are kept "
     "as they are."), show_default=False)]  # fmt: skip
+StartOpt = Annotated[str | None, typer.Option("--start", help=(
+    "How the recorded machine reached its set-point: 'run-up' (the plant's default) from rest "
+    "along the VFD's 8-s ramp, as a real machine does; 'operating-point' placed at full speed "
+    "with every excitation switched on at once (the plant before 2026-12-01, the embedded data "
+    "set's; a lightly loaded backlash mesh can then land in a rattle state no run-up reaches; "
+    "docs/plant.md)."), show_default=False)]  # fmt: skip
 FibreScaleOpt = Annotated[float, number("--fibre-scale", "With --sliver: fibres lumped into one "
                           "(1: every fibre, about 1.3e8 per 100 m).")]  # fmt: skip
 
 
-def _plant_config(gear_runout: str | None) -> PlantConfig:
-    """The plant's settings with the gears' run-out law named by --gear-runout (none named:
-    the plant's default)."""
+def _plant_config(gear_runout: str | None, start: str | None = None) -> PlantConfig:
+    """The plant's settings with the gears' run-out law named by --gear-runout and the start
+    named by --start (none named: the plant's defaults)."""
     from drafttwin.plant import PlantConfig
-    from drafttwin.plant.config import Eccentricity, GearRunoutLaw
+    from drafttwin.plant.config import Eccentricity, GearRunoutLaw, PlantStart
 
-    if gear_runout is None:
-        return PlantConfig()
-    laws = get_args(GearRunoutLaw)
-    if gear_runout not in laws:
-        raise ConfigError(f"{gear_runout!r} is not a run-out law",
-                          where="--gear-runout", fix=f"give {' or '.join(sorted(laws))}")  # fmt: skip
-    law = cast(GearRunoutLaw, gear_runout)
-    return PlantConfig(eccentricity=Eccentricity(gear_runout_law=law))
+    config = PlantConfig()
+    if gear_runout is not None:
+        law = cast(GearRunoutLaw, _choice(gear_runout, GearRunoutLaw, "a run-out law",
+                                          "--gear-runout"))  # fmt: skip
+        config = config.model_copy(update={"eccentricity": Eccentricity(gear_runout_law=law)})
+    if start is not None:
+        config = config.model_copy(update={
+            "start": cast(PlantStart, _choice(start, PlantStart, "a start", "--start"))})
+    return config
+
+
+def _choice(value: str, kind: Any, what: str, option: str) -> str:
+    names = get_args(kind)
+    if value not in names:
+        raise ConfigError(f"{value!r} is not {what}", where=option,
+                          fix=f"give {' or '.join(sorted(names))}")  # fmt: skip
+    return value
 
 
 @app.command()
@@ -87,7 +102,7 @@ def generate(
     scenario: ScenarioOpt = "steady", fault: FaultOpt = None,
     sliver: SliverOpt = False, feed_fault: FeedFaultOpt = None, fibre_scale: FibreScaleOpt = 1.0,
     leveller: LevellerOpt = None, leveller_fault: LevellerFaultOpt = None,
-    gear_runout: GearRunoutOpt = None, quiet: QuietOpt = False,
+    gear_runout: GearRunoutOpt = None, start: StartOpt = None, quiet: QuietOpt = False,
 ) -> None:  # fmt: skip
     """Run the plant emulator: measured roller speeds with the machine's real imperfections.
 
@@ -111,7 +126,7 @@ def generate(
     if machine is not None and machine_seed is not None:
         raise ConfigError("--machine and --machine-seed both name the machine",
                           where="--machine", fix="give one of them")  # fmt: skip
-    plant = Plant(drive.load(), config=_plant_config(gear_runout))
+    plant = Plant(drive.load(), config=_plant_config(gear_runout, start))
     faults = check_faults([FaultSpec.parse(f) for f in fault or []], plant.train)
     _check_fault_times(faults, duration)
     settings = _sliver_settings(sliver, feed_fault, fibre_scale, out, leveller, leveller_fault)

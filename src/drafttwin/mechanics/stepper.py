@@ -43,10 +43,14 @@ class LiveStepper:
         t0_s: time of the first state, s (the train settles there first).
         settle_s: machine time simulated at the start set-point before ``t0_s``, s.
         dt_s: RK4 step, s (default: the train's, or the reduction's).
+        run_up_s: if positive, the train starts at rest and its supply ramps from 0 to
+            ``supply_hz`` over this time (s) before it settles, as a machine runs up; else it
+            starts at the operating point.
     """
 
     def __init__(self, train: DriveTrain, rate_hz: float, supply_hz: float, *, t0_s: float = 0.0,
-                 settle_s: float | None = None, dt_s: float | None = None) -> None:  # fmt: skip
+                 settle_s: float | None = None, dt_s: float | None = None,
+                 run_up_s: float = 0.0) -> None:  # fmt: skip
         if train.spec.motor is None:
             raise ConfigError("a live twin follows the motor's supply set-point; the train has "
                               "no motor", source=train.source, where="[motor]",
@@ -59,7 +63,8 @@ class LiveStepper:
         default_dt = train.spec.solver.dt_s if train.reduction is None else train.reduction.dt_s
         self.steps, self.dt_s = _grid(self.rate_hz, default_dt if dt_s is None else dt_s)
         settle = train.spec.solver.settle_s if settle_s is None else float(settle_s)
-        y_full = _start_state(self.train, t0_s - settle, from_rest=False)
+        run_up = max(0.0, float(run_up_s))
+        y_full = _start_state(self.train, t0_s - settle - run_up, from_rest=run_up > 0)
         # the kernel's bundle; its arrays are read on every call, so writing into them (the
         # supply below, a plant's fault tables) changes what the next step integrates
         self._integrate, self.y, self._args = _integrator(self.train, y_full)
@@ -70,8 +75,10 @@ class LiveStepper:
         k = self._motor_signal_index()
         self._start = int(self._sig_i[k, 0])
         self._k = k
-        self.t_s = t0_s - settle
+        self.t_s = t0_s - settle - run_up
         self.supply_hz = float(supply_hz)
+        if run_up > 0:
+            self._run(run_up, 0.0, supply_hz)
         if settle > 0:
             self._run(t0_s - self.t_s, supply_hz, supply_hz)
         self.t_s = float(t0_s)

@@ -5,7 +5,8 @@
 * :func:`ou_process`: a stationary Ornstein-Uhlenbeck process (exact discretisation), the
   building block of the colored disturbances.
 * :func:`disturbances`: drafting-force torques, roller load modulation (run-out), rotor
-  resistance drift (warming) and supply-frequency jitter as signals on uniform grids.
+  resistance drift (warming) and supply-frequency jitter as signals on uniform grids, after
+  the machine's run-up where one is asked for.
 
 Each random effect draws from its own stream, sequentially in time, so a shorter run with the
 same seed is an exact prefix of a longer one.
@@ -14,7 +15,8 @@ same seed is an exact prefix of a longer one.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -120,8 +122,17 @@ def disturbances(
     t_start_s: float,
     t_end_s: float,
     streams: dict[str, np.random.Generator],
+    *,
+    run_up_s: float = 0.0,
+    roller_angle_rad: Mapping[str, float] | None = None,
 ) -> Disturbances:
-    """Build every disturbance signal over ``[t_start_s, t_end_s]`` (s, recording time)."""
+    """Build every disturbance signal over ``[t_start_s, t_end_s]`` (s, recording time).
+
+    ``run_up_s`` (s) puts the machine's run-up before ``t_start_s``: from rest the supply
+    ramps linearly to its first value, the drafting forces act from 5 % of it on at their
+    first values, the thermal state holds, no run-out load yet; what follows ``t_start_s`` is
+    drawn as without it. ``roller_angle_rad`` (roller name -> rad) are the rollers' angles at
+    ``t_start_s``, where each run-out load starts, locked to its roller's angle there."""
     t_sup = _grid(t_start_s, t_end_s, SUPPLY_GRID_S)
     set_hz = setpoint.at(t_sup)
     jitter = ou_process(
@@ -139,11 +150,35 @@ def disturbances(
     t_f = _grid(t_start_s, t_end_s, FORCE_GRID_S)
     speed_scale = np.interp(t_f, t_sup, set_hz) / max(float(setpoint.values.max()), 1e-9)
     torques = _drafting_torques(train, cfg, t_f, speed_scale, streams["drafting"])
-    modulation, phases = _roller_load_modulation(train, cfg, t_f, speed_scale, streams["runout"])
+    drafting_at_start = {node: float(tq[0]) for node, tq in torques.items()}
+    modulation, phases = _roller_load_modulation(train, cfg, t_f, speed_scale, streams["runout"],
+                                                 roller_angle_rad or {})  # fmt: skip
     for node, tq in modulation.items():
         torques[node] = torques.get(node, 0.0) + tq
     signals = {node: Signal(t_start_s, FORCE_GRID_S, tq) for node, tq in torques.items()}
-    return Disturbances(supply, rotor, signals, phases)
+    dist = Disturbances(supply, rotor, signals, phases)
+    return _after_run_up(dist, run_up_s, drafting_at_start) if run_up_s > 0 else dist
+
+
+def _after_run_up(dist: Disturbances, run_up_s: float,
+                  drafting_at_start: dict[str, float]) -> Disturbances:  # fmt: skip
+    """``dist`` with the run-up's samples put before its signals (see :func:`disturbances`)."""
+
+    def lead(sig: Signal, value: Callable[[np.ndarray], np.ndarray]) -> Signal:
+        n = int(round(run_up_s / sig.dt_s))
+        frac = np.arange(n) / n  # of the set-point reached, 0 at rest
+        return Signal(sig.t0_s - n * sig.dt_s, sig.dt_s, np.concatenate([value(frac), sig.values]))
+
+    first_hz = float(dist.supply_hz.values[0])
+    supply = lead(dist.supply_hz, lambda f: f * first_hz)
+    rotor = lead(dist.rotor_resistance, lambda f: np.full(len(f), dist.rotor_resistance.values[0]))
+
+    def drafting(node: str) -> Callable[[np.ndarray], np.ndarray]:
+        # no sliver is drafted below 5 % of the set-point, as in _drafting_torques
+        return lambda f: drafting_at_start.get(node, 0.0) * (f > 0.05)
+
+    torques = {node: lead(sig, drafting(node)) for node, sig in dist.torques.items()}
+    return replace(dist, supply_hz=supply, rotor_resistance=rotor, torques=torques)
 
 
 def _drafting_torques(
@@ -183,11 +218,14 @@ def _roller_load_modulation(
     t: np.ndarray,
     speed_scale: np.ndarray,
     rng: np.random.Generator,
+    angle_at_start_rad: Mapping[str, float],
 ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """Once-per-revolution modulation of each roller's friction load (bottom-roller run-out),
     N m by node, and the random phase (rad) drawn for each roller (by roller name), one draw
     per roller in declaration order. The phase of the load is open loop (the operating
-    point's speed times the set-point's scale), not the simulated angle."""
+    point's speed times the set-point's scale) from the roller's angle at the start
+    (``angle_at_start_rad``, roller name -> rad; 0 where not given), not the simulated
+    angle."""
     op = operating_point(train)
     out: dict[str, np.ndarray] = {}
     phases: dict[str, float] = {}
@@ -196,7 +234,8 @@ def _roller_load_modulation(
         node = train.node_index(r.node)
         rev_hz = op.node_speed_rad_s[node] / (2 * math.pi) * speed_scale
         phases[str(r.name)] = float(rng.uniform(0, 2 * math.pi))
-        phase = 2 * math.pi * np.cumsum(rev_hz) * dt + phases[str(r.name)]
+        start = phases[str(r.name)] + angle_at_start_rad.get(str(r.name), 0.0)
+        phase = 2 * math.pi * np.cumsum(rev_hz) * dt + start
         load = r.friction_coefficient * 2 * r.top_load_per_side_n * r.diameter_mm * 5e-4
         out[r.node] = -load * cfg.eccentricity.roller_load_modulation * np.sin(phase)
     return out, phases

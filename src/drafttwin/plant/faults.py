@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Annotated, Any
 
 import numpy as np
@@ -276,11 +276,14 @@ def rotor_resistance_signal(rotor: Signal, faults: Sequence[FaultSpec], step_s: 
 
 
 def eccentricity_torques(train: DriveTrain, faults: Sequence[FaultSpec], setpoint: Signal,
-                         t0: float, t1: float, step_s: float,
-                         rng: np.random.Generator) -> tuple[dict[str, Signal], dict[str, float]]:  # fmt: skip
+                         t0: float, t1: float, step_s: float, rng: np.random.Generator,
+                         angle_at_start_rad: Mapping[str, float] | None = None,
+                         ) -> tuple[dict[str, Signal], dict[str, float]]:  # fmt: skip
     """Extra once-per-revolution load torque of each faulty roller, N m (node -> signal), and
     the random phase (rad) drawn for each fault (roller name -> phase; one draw per fault, in
-    order): the torque is ``-L severity profile(t) sin(2 pi cumsum(rev_hz) dt + phase)``."""
+    order): the torque is ``-L severity profile(t) sin(2 pi cumsum(rev_hz) dt + phase + a)``
+    with ``a`` the roller's angle at ``t0`` (``angle_at_start_rad``, 0 where not given)."""
+    angles = angle_at_start_rad or {}
     op = operating_point(train)
     t = t0 + step_s * np.arange(int(math.ceil((t1 - t0) / step_s)) + 2)
     set_hz = np.asarray(setpoint.at(t), dtype=np.float64)
@@ -292,7 +295,8 @@ def eccentricity_torques(train: DriveTrain, faults: Sequence[FaultSpec], setpoin
         r = rollers[f.element]
         rev_hz = op.node_speed_rad_s[train.node_index(r.node)] / (2 * math.pi) * speed_scale
         phases[f.element] = float(rng.uniform(0, 2 * math.pi))
-        phase = 2 * math.pi * np.cumsum(rev_hz) * step_s + phases[f.element]
+        start = phases[f.element] + angles.get(f.element, 0.0)
+        phase = 2 * math.pi * np.cumsum(rev_hz) * step_s + start
         load = r.friction_coefficient * 2 * r.top_load_per_side_n * r.diameter_mm * 5e-4
         tq = -load * f.severity * f.profile(t) * np.sin(phase)
         out[r.node] = Signal(t0, step_s, tq)
