@@ -80,8 +80,9 @@ def _plant_config(gear_runout: str | None, start: str | None = None) -> PlantCon
                                           "--gear-runout"))  # fmt: skip
         config = config.model_copy(update={"eccentricity": Eccentricity(gear_runout_law=law)})
     if start is not None:
-        config = config.model_copy(update={
-            "start": cast(PlantStart, _choice(start, PlantStart, "a start", "--start"))})
+        config = config.model_copy(
+            update={"start": cast(PlantStart, _choice(start, PlantStart, "a start", "--start"))}
+        )
     return config
 
 
