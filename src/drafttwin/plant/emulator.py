@@ -64,6 +64,8 @@ STREAMS = (
 """One random stream per effect, spawned from the seed in this order: a stream added at the
 end leaves the earlier ones (and so the files older versions wrote) unchanged."""
 SETTLE_S = 1.0
+RUN_UP_RATE_HZ = 100.0
+"""Output rate of the run-up simulated alone for the rollers' angles (Plant._angles_after_run_up)."""
 
 
 @dataclass(frozen=True)
@@ -239,11 +241,10 @@ class Plant:
         faults = check_faults(faults, plant_train)
         if self.reduced_hz is not None:
             _check_reducible(faults, surface_rate_hz)
-        sim_rate = rate_hz if surface_rate_hz is None else surface_rate_hz
         angles_at = None
         if run_up > 0:
             angles_at = self._angles_after_run_up(plant_train, setpoint, settle, duration_s,
-                                                  streams, run_up, sim_rate)  # fmt: skip
+                                                  streams, run_up)  # fmt: skip
         dist = disturbances(plant_train, self.config, setpoint, -settle, duration_s, streams,
                             run_up_s=run_up, roller_angle_rad=angles_at)  # fmt: skip
         driven, schedule, ecc_phase = _driven_train(plant_train, dist, faults, setpoint, -settle,
@@ -323,18 +324,20 @@ class Plant:
 
     def _angles_after_run_up(self, train: DriveTrain, setpoint: Signal, settle_s: float,
                              duration_s: float, streams: dict[str, np.random.Generator],
-                             run_up_s: float, rate_hz: float) -> dict[str, float]:  # fmt: skip
+                             run_up_s: float) -> dict[str, float]:  # fmt: skip
         """Each roller's angle (rad, by roller name) where its run-up ends and the record's
         settling run starts: the run-up alone, with the record's inputs (its draws copied, so
         the record's are left as they are), on the train reduced below 200 Hz (0.02 s instead
-        of 1 s; within 3.2 mrad of the full train's angles on machines 7, 4711 and 5). A
-        run-out load starts there in phase with its roller's radius (the load is open loop,
-        and the rollers lag the set-point's integral while they accelerate)."""
+        of 1 s; within 3.2 mrad of the full train's angles on machines 7, 4711 and 5), at
+        one output rate whatever the record's (the reduced step depends on it, and a record
+        with its surfaces must keep the numbers of one without). A run-out load starts there
+        in phase with its roller's radius (the load is open loop, and the rollers lag the
+        set-point's integral while they accelerate)."""
         probe = disturbances(train, self.config, setpoint, -settle_s, duration_s,
                              copy.deepcopy(streams), run_up_s=run_up_s)  # fmt: skip
         driven, _, _ = _driven_train(train, probe, (), setpoint, -settle_s, duration_s,
                                      streams["fault"])  # fmt: skip
-        res = simulate(reduce(driven), run_up_s, output_rate_hz=rate_hz, settle_s=0.0,
+        res = simulate(reduce(driven), run_up_s, output_rate_hz=RUN_UP_RATE_HZ, settle_s=0.0,
                        t_start_s=-(settle_s + run_up_s), from_rest=True, angles=True)  # fmt: skip
         assert res.angle_rad is not None
         return {str(r.name): float(res.angle_rad[-1, train.node_index(r.node)])
