@@ -60,7 +60,7 @@ GearRunoutOpt = Annotated[str | None, typer.Option("--gear-runout", help=(
     "as they are."), show_default=False)]  # fmt: skip
 StartOpt = Annotated[str | None, typer.Option("--start", help=(
     "How the recorded machine reached its set-point: 'run-up' (the plant's default) from rest "
-    "along the VFD's 8-s ramp, as a real machine does; 'operating-point' placed at full speed "
+    "along a 2-s ramp, as a real machine does; 'operating-point' placed at full speed "
     "with every excitation switched on at once (the plant before 2026-12-01, the embedded data "
     "set's; a lightly loaded backlash mesh can then land in a rattle state no run-up reaches; "
     "docs/plant.md)."), show_default=False)]  # fmt: skip

@@ -120,8 +120,8 @@ class PlantConfig(_Cfg):
     supply: Supply = Supply()
     sensors: Sensors = Sensors()
     start: PlantStart = "run-up"
-    # How a record's machine reached its set-point. "run-up": from rest along the VFD's ramp
-    # (scenarios.ACCEL_TIME_S), then SETTLE_S at the set-point, as every real machine does.
+    # How a record's machine reached its set-point. "run-up": from rest along a ramp
+    # (scenarios.RUN_UP_S), then SETTLE_S at the set-point, as every real machine does.
     # "operating-point": placed at full speed with the static deflections and every excitation
     # switched on at once (the plant until 2026-12-01, still the embedded data set's); a
     # lightly loaded backlash mesh can then land in a rattle state (period doubling) that no

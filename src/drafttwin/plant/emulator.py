@@ -39,7 +39,7 @@ from drafttwin.plant.faults import (
     rotor_resistance_signal,
 )
 from drafttwin.plant.machine import Machine
-from drafttwin.plant.scenarios import ACCEL_TIME_S, get_scenario
+from drafttwin.plant.scenarios import RUN_UP_S, get_scenario
 from drafttwin.plant.sensors import encoder_rpm, inject_defects, quantisation_step_rpm
 from drafttwin.plant.sliver_channel import (
     SURFACE_RATE_HZ,
@@ -237,7 +237,7 @@ class Plant:
         setpoint = scen.setpoint(duration_s, nominal_hz)
         settle = 0.0 if scen.from_rest else SETTLE_S
         # a machine recorded running got there by running up from rest (PlantConfig.start)
-        run_up = ACCEL_TIME_S if self.config.start == "run-up" and not scen.from_rest else 0.0
+        run_up = RUN_UP_S if self.config.start == "run-up" and not scen.from_rest else 0.0
         faults = check_faults(faults, plant_train)
         if self.reduced_hz is not None:
             _check_reducible(faults, surface_rate_hz)

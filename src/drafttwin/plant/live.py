@@ -53,7 +53,7 @@ from drafttwin.plant.faults import (
     check_faults,
 )
 from drafttwin.plant.machine import Machine
-from drafttwin.plant.scenarios import ACCEL_TIME_S
+from drafttwin.plant.scenarios import RUN_UP_S
 
 NOT_LIVE = ("rotor_resistance", "eccentricity")
 """Fault kinds the live plant cannot inject (time signals drawn for a whole record)."""
@@ -118,7 +118,7 @@ class LivePlant:
         self.ramp = float(ramp_hz_per_s)
         self.rate_hz = float(rate_hz)
         self.t0_s = float(t0_s)  # times are t0 + seq / rate: no round-off piling up
-        run_up = ACCEL_TIME_S if self.config.start == "run-up" else 0.0  # PlantConfig.start
+        run_up = RUN_UP_S if self.config.start == "run-up" else 0.0  # PlantConfig.start
         self.stepper = LiveStepper(truth, rate_hz, self.supply_hz, run_up_s=run_up)
         self._rollers = [int(truth.roller_nodes[r]) for r in ROLLERS]
         self._motor = self.stepper.motor_node
