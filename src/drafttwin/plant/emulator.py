@@ -243,8 +243,7 @@ class Plant:
             _check_reducible(faults, surface_rate_hz)
         angles_at = None
         if run_up > 0:
-            angles_at = self._angles_after_run_up(plant_train, setpoint, settle, duration_s,
-                                                  streams, run_up)  # fmt: skip
+            angles_at = self._angles_after_run_up(plant_train, setpoint, settle, streams, run_up)
         dist = disturbances(plant_train, self.config, setpoint, -settle, duration_s, streams,
                             run_up_s=run_up, roller_angle_rad=angles_at)  # fmt: skip
         driven, schedule, ecc_phase = _driven_train(plant_train, dist, faults, setpoint, -settle,
@@ -323,7 +322,7 @@ class Plant:
         )
 
     def _angles_after_run_up(self, train: DriveTrain, setpoint: Signal, settle_s: float,
-                             duration_s: float, streams: dict[str, np.random.Generator],
+                             streams: dict[str, np.random.Generator],
                              run_up_s: float) -> dict[str, float]:  # fmt: skip
         """Each roller's angle (rad, by roller name) where its run-up ends and the record's
         settling run starts: the run-up alone, with the record's inputs (its draws copied, so
@@ -333,9 +332,11 @@ class Plant:
         with its surfaces must keep the numbers of one without). A run-out load starts there
         in phase with its roller's radius (the load is open loop, and the rollers lag the
         set-point's integral while they accelerate)."""
-        probe = disturbances(train, self.config, setpoint, -settle_s, duration_s,
+        # only the run-up's inputs are needed, and they take the first values of the draws:
+        # a run of the disturbances to the run-up's end is a prefix of the record's
+        probe = disturbances(train, self.config, setpoint, -settle_s, -settle_s,
                              copy.deepcopy(streams), run_up_s=run_up_s)  # fmt: skip
-        driven, _, _ = _driven_train(train, probe, (), setpoint, -settle_s, duration_s,
+        driven, _, _ = _driven_train(train, probe, (), setpoint, -settle_s, -settle_s,
                                      streams["fault"])  # fmt: skip
         res = simulate(reduce(driven), run_up_s, output_rate_hz=RUN_UP_RATE_HZ, settle_s=0.0,
                        t_start_s=-(settle_s + run_up_s), from_rest=True, angles=True)  # fmt: skip
